@@ -1,0 +1,54 @@
+"""Registries that later issues extend: experiments, gradient checks and benchmarks.
+
+Everything is registered by *name and location*, not by import, so that
+`drlab --help` stays fast and a broken optional module cannot break the CLI.
+
+* EXPERIMENTS: name -> ExperimentSpec. Each is a standalone script
+  `experiments/<name>.py` accepting `--quick --device --out --seed`. The CLI
+  runs it in a fresh process (research never imports experiments/).
+* GRADCHECK_MODULES: modules whose import registers gradient checks with
+  `research.gradcheck.register_check`.
+* BENCH_MODULES: family -> module exposing `cases(device: str, quick: bool)`,
+  an iterator of JSON-ready dicts (see research/bench/__init__.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+EXPERIMENTS_DIR = REPO_ROOT / "experiments"
+RESULTS_DIR = REPO_ROOT / "results"
+
+
+@dataclass(frozen=True)
+class ExperimentSpec:
+    name: str
+    description: str
+    # Budget for --quick mode on 2 CPU cores, seconds (stated by the issue).
+    quick_budget_s: float
+
+    @property
+    def script(self) -> Path:
+        return EXPERIMENTS_DIR / f"{self.name}.py"
+
+
+EXPERIMENTS: dict[str, ExperimentSpec] = {}
+
+
+def register_experiment(name: str, description: str, quick_budget_s: float) -> None:
+    if name in EXPERIMENTS:
+        raise ValueError(f"experiment {name!r} registered twice")
+    EXPERIMENTS[name] = ExperimentSpec(name, description, quick_budget_s)
+
+
+# Modules that register gradient checks when imported.
+GRADCHECK_MODULES: list[str] = [
+    "research.checks.selftest",
+]
+
+# Benchmark families.
+BENCH_MODULES: dict[str, str] = {
+    "launch": "research.bench.launch",
+}

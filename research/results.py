@@ -1,0 +1,80 @@
+"""Writing an experiment's results directory: metrics.json, table.md and figures.
+
+Every file goes through research.atomic, so an interrupted experiment never
+leaves a results directory whose files look whole but are not.
+"""
+
+from __future__ import annotations
+
+import platform
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Sequence
+
+from research import atomic
+
+_PACKAGES = ("drlab", "warp-lang", "mitsuba", "drjit", "numpy", "scipy", "OpenImageIO")
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and of the packages whose behaviour the numbers depend on."""
+    out = {"python": sys.version.split()[0], "platform": platform.platform()}
+    for name in _PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def markdown_table(headers: Sequence[str], rows: Sequence[Sequence[Any]], floatfmt: str = ".4g") -> str:
+    """A GitHub-flavoured Markdown table. Floats use `floatfmt`; other values use str()."""
+
+    def cell(v: Any) -> str:
+        if isinstance(v, float):
+            return format(v, floatfmt)
+        return str(v)
+
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
+    for row in rows:
+        if len(row) != len(headers):
+            raise ValueError(f"row {row!r} has {len(row)} cells, expected {len(headers)}")
+        lines.append("| " + " | ".join(cell(v) for v in row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_results(
+    out_dir: str | Path,
+    *,
+    experiment: str,
+    config: dict[str, Any],
+    seed: int,
+    device: str,
+    wall_time_s: float,
+    metrics: dict[str, Any],
+    table_md: str,
+) -> Path:
+    """Write `metrics.json` and `table.md` into `out_dir` (atomically, file by file)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "experiment": experiment,
+        "config": config,
+        "seed": seed,
+        "device": device,
+        "wall_time_s": wall_time_s,
+        "versions": versions(),
+        "metrics": metrics,
+    }
+    atomic.write_json(out / "metrics.json", payload)
+    atomic.write_text(out / "table.md", table_md)
+    return out
+
+
+def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
+    """Save a matplotlib figure as PNG atomically."""
+    path = Path(path)
+    with atomic.atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
+    return path
