@@ -1,0 +1,14 @@
+"""Mitsuba ground-truth datasets: built-in scenes, the generator and the loader.
+
+    from research.datasets import DatasetConfig, generate, load
+    generate(DatasetConfig("objects", views=100, res=256, spp=64), "data/objects")
+    ds = load("data/objects"); train = ds.load_split("train")
+"""
+
+from research.datasets.generate import DatasetConfig, generate
+from research.datasets.loader import (Dataset, DatasetError, FlowSequence, StereoPair, load, load_flow,
+                                      load_stereo)
+from research.datasets.scenes import SCENES, SceneSpec, get_scene
+
+__all__ = ["DatasetConfig", "generate", "Dataset", "DatasetError", "FlowSequence", "StereoPair", "load",
+           "load_flow", "load_stereo", "SCENES", "SceneSpec", "get_scene"]

@@ -1,0 +1,335 @@
+"""Writing a ground-truth dataset directory from a built-in Mitsuba scene.
+
+Layout of `<out>/` (DESIGN.md, "Datasets on disk"):
+
+    {train,val,test}/r_NNN.png         sRGB 8-bit, straight alpha
+    {train,val,test}/r_NNN.exr         linear premultiplied RGBA, float32
+    {train,val,test}/r_NNN_depth.exr   z-depth, float32 (0 = no surface)
+    {train,val,test}/r_NNN_normal.exr  world shading normal, float32
+    {train,val,test}/r_NNN_mask.png    255 where the pixel-centre ray hits a surface
+    transforms_{train,val,test}.json   NeRF-synthetic (+ nerfstudio keys), OpenGL poses
+    cameras.json                       OpenCV K and camera-to-world for every view
+    stereo/ (with --stereo)            p_NNN_{left,right}.{png,exr}, p_NNN_left_depth.exr,
+                                       p_NNN_disp.pfm, p_NNN_noc.png, p_NNN_mask.png, stereo.json
+    flow/   (with --flow)              f_NNN.{png,exr}, f_NNN_depth.exr, f_NNN_mask.png,
+                                       f_NNN_flow.flo and f_NNN_valid.png (frame NNN -> NNN+1), flow.json
+    manifest.json                      config, Mitsuba variant, versions, seed, SHA-256 of every file
+
+Interruption safety: everything is written into `<out>.partial/`, each file
+atomically, and the directory is renamed to `<out>` only after manifest.json is
+written. A killed run therefore never leaves a directory that looks complete,
+and `resume=True` finishes a partial one (a view counts as done when all its
+files exist; its configuration must match the one recorded at the start).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import shutil
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from tqdm import tqdm
+
+from research import atomic, io
+from research.cameras import Camera, smooth_path
+from research.datasets.groundtruth import forward_flow, stereo_disparity, stereo_right_camera
+from research.datasets.render import SceneRenderer
+from research.datasets.scenes import SceneSpec, get_scene
+from research.results import versions
+
+SPLITS = ("train", "val", "test")
+_PARTIAL_CONFIG = ".drlab-partial.json"
+VIEW_SUFFIXES = (".png", ".exr", "_depth.exr", "_normal.exr", "_mask.png")
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    scene: str
+    views: int = 100
+    res: int = 256
+    spp: int = 64
+    seed: int = 0
+    val_fraction: float = 0.1
+    test_fraction: float = 0.1
+    stereo: bool = False
+    stereo_pairs: int = 10
+    baseline: float | None = None  # default: 8% of the scene's camera distance
+    flow: bool = False
+    flow_frames: int = 12
+    flow_step_deg: float = 1.5  # camera azimuth step between consecutive flow frames
+
+    def validate(self) -> None:
+        get_scene(self.scene)
+        for name in ("views", "res", "spp", "stereo_pairs", "flow_frames"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v <= 0:
+                raise ValueError(f"{name}: expected a positive integer, got {v!r}")
+        if self.views < 3:
+            raise ValueError(f"views: expected at least 3 (one per split), got {self.views}")
+        if self.flow and self.flow_frames < 2:
+            raise ValueError(f"flow_frames: expected at least 2, got {self.flow_frames}")
+        for name in ("val_fraction", "test_fraction"):
+            v = getattr(self, name)
+            if not 0.0 < v < 0.5:
+                raise ValueError(f"{name}: expected a value in (0, 0.5), got {v}")
+        if self.baseline is not None and not self.baseline > 0:
+            raise ValueError(f"baseline: expected a positive distance, got {self.baseline}")
+
+
+def split_assignment(n: int, val_fraction: float, test_fraction: float, seed: int) -> list[str]:
+    """A seeded random split of n views; val and test get at least one view each."""
+    n_val = max(1, round(n * val_fraction))
+    n_test = max(1, round(n * test_fraction))
+    labels = ["test"] * n_test + ["val"] * n_val + ["train"] * (n - n_val - n_test)
+    order = np.random.default_rng([seed, 1]).permutation(n)
+    out = [""] * n
+    for label, idx in zip(labels, order):
+        out[idx] = label
+    return out
+
+
+def _view_seed(seed: int, stream: int, index: int) -> int:
+    """Independent, reproducible render seeds for every image (fits in 31 bits)."""
+    return int(np.random.default_rng([seed, stream, index]).integers(0, 2**31 - 1))
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def content_hash(files: dict[str, str]) -> str:
+    """SHA-256 over the sorted (relative path, file hash) pairs."""
+    h = hashlib.sha256()
+    for rel in sorted(files):
+        h.update(f"{rel}\0{files[rel]}\n".encode())
+    return h.hexdigest()
+
+
+class _Writer:
+    def __init__(self, cfg: DatasetConfig, root: Path):
+        self.cfg = cfg
+        self.root = root
+        self.spec: SceneSpec = get_scene(cfg.scene)
+        self._renderer: SceneRenderer | None = None
+
+    @property
+    def renderer(self) -> SceneRenderer:
+        # Created lazily so a fully resumed run needs no Mitsuba at all.
+        if self._renderer is None:
+            self._renderer = SceneRenderer(self.spec, spp=self.cfg.spp)
+        return self._renderer
+
+    def camera(self, c2w: np.ndarray) -> Camera:
+        return Camera.from_fov(self.spec.fov_x_deg, self.cfg.res, self.cfg.res, c2w)
+
+    def exists(self, stem: str, suffixes: tuple[str, ...]) -> bool:
+        return all((self.root / f"{stem}{s}").exists() for s in suffixes)
+
+    def write_color(self, stem: str, rgba: np.ndarray) -> None:
+        io.write_exr(self.root / f"{stem}.exr", rgba)
+        io.write_png(self.root / f"{stem}.png", rgba)
+
+    def write_geometry(self, stem: str, depth: np.ndarray, mask: np.ndarray, normal: np.ndarray | None) -> None:
+        io.write_exr(self.root / f"{stem}_depth.exr", depth.astype(np.float32))
+        if normal is not None:
+            io.write_exr(self.root / f"{stem}_normal.exr", normal.astype(np.float32), ["X", "Y", "Z"])
+        io.write_png_u8(self.root / f"{stem}_mask.png", (mask * 255).astype(np.uint8))
+
+    # ---------------------------------------------------------------- multi-view
+    def multiview_plan(self) -> list[tuple[str, str, Camera, int]]:
+        cfg = self.cfg
+        poses = self.spec.view_poses(cfg.views, cfg.seed)
+        labels = split_assignment(cfg.views, cfg.val_fraction, cfg.test_fraction, cfg.seed)
+        counters = {s: 0 for s in SPLITS}
+        plan = []
+        for k, (pose, split) in enumerate(zip(poses, labels)):
+            stem = f"{split}/r_{counters[split]:03d}"
+            counters[split] += 1
+            plan.append((stem, split, self.camera(pose), _view_seed(cfg.seed, 0, k)))
+        return plan
+
+    def render_view(self, stem: str, cam: Camera, seed: int) -> None:
+        if self.exists(stem, VIEW_SUFFIXES):
+            return
+        rgba = self.renderer.render_rgba(cam, seed)
+        g = self.renderer.render_geometry(cam)
+        self.write_geometry(stem, g.depth, g.mask, g.normal)
+        self.write_color(stem, rgba)
+
+    def write_multiview_metadata(self, plan: list[tuple[str, str, Camera, int]]) -> None:
+        cam0 = plan[0][2]
+        for split in SPLITS:
+            frames = [{"file_path": f"{stem}.png", "depth_file_path": f"{stem}_depth.exr",
+                       "mask_path": f"{stem}_mask.png", "transform_matrix": cam.to_nerf().tolist()}
+                      for stem, s, cam, _ in plan if s == split]
+            atomic.write_json(self.root / f"transforms_{split}.json", {
+                "camera_angle_x": math.radians(cam0.fov_x_deg),
+                "fl_x": cam0.fx, "fl_y": cam0.fy, "cx": cam0.cx, "cy": cam0.cy,
+                "w": cam0.width, "h": cam0.height,
+                "camera_model": "OPENCV", "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
+                "frames": frames,
+            })
+        atomic.write_json(self.root / "cameras.json", {
+            "convention": "opencv: x right, y down, z forward; c2w is camera-to-world; pixel centres at +0.5",
+            "scene": self.scene_info(),
+            "views": [{"name": stem, "split": split, **cam.to_dict()} for stem, split, cam, _ in plan],
+        })
+
+    def scene_info(self) -> dict[str, Any]:
+        s = self.spec
+        return {"name": s.name, "bbox_min": list(s.bbox_min), "bbox_max": list(s.bbox_max), "up": list(s.up),
+                "near_clip": s.near_clip}
+
+    # ---------------------------------------------------------------- stereo
+    def baseline(self) -> float:
+        return self.cfg.baseline if self.cfg.baseline is not None else 0.08 * self.spec.radius
+
+    def stereo_plan(self) -> list[tuple[str, Camera, Camera, int]]:
+        b = self.baseline()
+        poses = self.spec.view_poses(self.cfg.stereo_pairs, self.cfg.seed + 7919)
+        plan = []
+        for k, pose in enumerate(poses):
+            left = self.camera(pose)
+            plan.append((f"stereo/p_{k:03d}", left, stereo_right_camera(left, b), k))
+        return plan
+
+    def render_stereo_pair(self, stem: str, left: Camera, right: Camera, k: int) -> None:
+        suffixes = ("_left.png", "_left.exr", "_right.png", "_right.exr", "_left_depth.exr", "_disp.pfm",
+                    "_noc.png", "_mask.png")
+        if self.exists(stem, suffixes):
+            return
+        gl = self.renderer.render_geometry(left)
+        gr = self.renderer.render_geometry(right)
+        disp, noc = stereo_disparity(left, self.baseline(), gl.depth, gl.mask, gr.depth, gr.mask)
+        self.write_color(f"{stem}_left", self.renderer.render_rgba(left, _view_seed(self.cfg.seed, 1, k)))
+        self.write_color(f"{stem}_right", self.renderer.render_rgba(right, _view_seed(self.cfg.seed, 2, k)))
+        io.write_exr(self.root / f"{stem}_left_depth.exr", gl.depth.astype(np.float32))
+        io.write_pfm(self.root / f"{stem}_disp.pfm", disp.astype(np.float32))
+        io.write_png_u8(self.root / f"{stem}_noc.png", (noc * 255).astype(np.uint8))
+        io.write_png_u8(self.root / f"{stem}_mask.png", (gl.mask * 255).astype(np.uint8))
+
+    def write_stereo_metadata(self, plan: list[tuple[str, Camera, Camera, int]]) -> None:
+        left0 = plan[0][1]
+        atomic.write_json(self.root / "stereo" / "stereo.json", {
+            "baseline": self.baseline(), "fx": left0.fx, "fy": left0.fy,
+            "convention": "rectified; right = left + baseline along OpenCV x; left (x, y) <-> right (x - d, y); "
+                          "d = fx * baseline / Z; noc = visible in both views (1% z-test); mask = surface hit",
+            "pairs": [{"name": Path(stem).name, "left": l.to_dict(), "right": r.to_dict()} for stem, l, r, _ in plan],
+        })
+
+    # ---------------------------------------------------------------- flow
+    def flow_cameras(self) -> list[Camera]:
+        s, cfg = self.spec, self.cfg
+        start = float(np.random.default_rng([cfg.seed, 3]).uniform(0.0, 360.0))
+        poses = smooth_path(cfg.flow_frames, s.radius, s.target, s.up, start_azimuth_deg=start,
+                            sweep_deg=cfg.flow_step_deg * (cfg.flow_frames - 1),
+                            elevation_deg=max(25.0, s.min_elevation_deg + 10.0) if s.hemisphere else 20.0)
+        return [self.camera(p) for p in poses]
+
+    def render_flow(self, cams: list[Camera], progress: Callable[[], None]) -> None:
+        geometry: dict[int, Any] = {}
+
+        def geom(k: int):
+            if k not in geometry:
+                geometry[k] = self.renderer.render_geometry(cams[k])
+            return geometry[k]
+
+        for k, cam in enumerate(cams):
+            stem = f"flow/f_{k:03d}"
+            last = k == len(cams) - 1
+            need = (".png", ".exr", "_depth.exr", "_mask.png") + (() if last else ("_flow.flo", "_valid.png"))
+            if not self.exists(stem, need):
+                g1 = geom(k)
+                if not last:
+                    g2 = geom(k + 1)
+                    flow, valid = forward_flow(cam, g1.depth, g1.mask, cams[k + 1], g2.depth, g2.mask)
+                    io.write_flo(self.root / f"{stem}_flow.flo", flow.astype(np.float32))
+                    io.write_png_u8(self.root / f"{stem}_valid.png", (valid * 255).astype(np.uint8))
+                self.write_geometry(stem, g1.depth, g1.mask, None)
+                self.write_color(stem, self.renderer.render_rgba(cam, _view_seed(self.cfg.seed, 3, k)))
+            geometry.pop(k - 1, None)
+            progress()
+        atomic.write_json(self.root / "flow" / "flow.json", {
+            "convention": "f_NNN_flow.flo maps frame NNN to NNN+1: (u, v) = (x right, y down) in pixels; "
+                          "valid = surface visible in both frames (1% z-test)",
+            "frames": [{"name": f"f_{k:03d}", **c.to_dict()} for k, c in enumerate(cams)],
+        })
+
+
+def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force: bool = False,
+             show_progress: bool = True) -> Path:
+    """Render the dataset described by `cfg` into `out` (see module docstring). Returns `out`."""
+    cfg.validate()
+    out = Path(out)
+    partial = out.with_name(out.name + ".partial")
+    if out.exists() and not force:
+        raise FileExistsError(f"out: {out} already exists; pass force=True (--force) to regenerate it")
+    cfg_dict = asdict(cfg)
+    if partial.exists():
+        if not resume:
+            raise FileExistsError(f"out: an interrupted run left {partial}; pass resume=True (--resume) "
+                                  "to finish it, or delete it")
+        recorded = json.loads((partial / _PARTIAL_CONFIG).read_text()) if (partial / _PARTIAL_CONFIG).exists() else None
+        if recorded != cfg_dict:
+            raise ValueError(f"resume: {partial} was started with a different configuration: {recorded}")
+    else:
+        partial.mkdir(parents=True)
+        atomic.write_json(partial / _PARTIAL_CONFIG, cfg_dict)
+
+    w = _Writer(cfg, partial)
+    plan = w.multiview_plan()
+    stereo_plan = w.stereo_plan() if cfg.stereo else []
+    flow_cams = w.flow_cameras() if cfg.flow else []
+    total = len(plan) + len(stereo_plan) + len(flow_cams)
+    with tqdm(total=total, desc=f"dataset {cfg.scene}", unit="view", disable=not show_progress) as bar:
+        for stem, _, cam, seed in plan:
+            w.render_view(stem, cam, seed)
+            bar.update()
+        w.write_multiview_metadata(plan)
+        for item in stereo_plan:
+            w.render_stereo_pair(*item)
+            bar.update()
+        if stereo_plan:
+            w.write_stereo_metadata(stereo_plan)
+        if flow_cams:
+            w.render_flow(flow_cams, bar.update)
+
+    (partial / _PARTIAL_CONFIG).unlink()
+    files = {p.relative_to(partial).as_posix(): file_sha256(p)
+             for p in sorted(partial.rglob("*")) if p.is_file() and p.name != "manifest.json"}
+    variant = w._renderer.variant if w._renderer is not None else _recorded_variant(partial)
+    atomic.write_json(partial / "manifest.json", {
+        "generator": "drlab dataset",
+        "config": cfg_dict,
+        "seed": cfg.seed,
+        "scene": w.scene_info(),
+        "mitsuba_variant": variant,
+        "versions": versions(),
+        "content_hash": content_hash(files),
+        "files": files,
+    })
+    if out.exists():  # force: swap the old directory out only once the new one is whole
+        trash = out.with_name(out.name + ".old")
+        shutil.rmtree(trash, ignore_errors=True)
+        out.rename(trash)
+        partial.rename(out)
+        shutil.rmtree(trash)
+    else:
+        partial.rename(out)
+    return out
+
+
+def _recorded_variant(root: Path) -> str:
+    """A resumed run that rendered nothing new: the variant is unknown to this process."""
+    from research.mitsuba_env import select_variant
+
+    return select_variant()

@@ -1,0 +1,240 @@
+"""Loading and validating a dataset directory written by research.datasets.generate.
+
+`load(path)` reads manifest.json and cameras.json, checks that every listed file
+exists, that the NeRF transforms agree with the OpenCV cameras, and that image
+headers match the camera sizes. Every error names the offending file.
+Pixels are read on demand (`Dataset.load_split`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import OpenImageIO as oiio
+
+from research import io
+from research.cameras import Camera
+
+SPLITS = ("train", "val", "test")
+
+
+class DatasetError(ValueError):
+    """A dataset on disk is missing files or holds inconsistent data."""
+
+
+@dataclass(frozen=True)
+class View:
+    name: str  # e.g. "train/r_004"
+    split: str
+    camera: Camera
+    root: Path
+
+    def path(self, suffix: str) -> Path:
+        return self.root / f"{self.name}{suffix}"
+
+
+@dataclass
+class Split:
+    cameras: list[Camera]
+    rgba: np.ndarray  # (N, H, W, 4) linear, premultiplied, float32
+    depth: np.ndarray  # (N, H, W) z-depth, 0 where no surface
+    mask: np.ndarray  # (N, H, W) bool
+    names: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Dataset:
+    root: Path
+    manifest: dict[str, Any]
+    views: list[View]
+    bbox: np.ndarray  # (2, 3) min and max corners
+    up: np.ndarray
+
+    def split_views(self, split: str) -> list[View]:
+        if split not in SPLITS:
+            raise ValueError(f"split: expected one of {SPLITS}, got {split!r}")
+        return [v for v in self.views if v.split == split]
+
+    def load_split(self, split: str, limit: int | None = None) -> Split:
+        views = self.split_views(split)[:limit]
+        rgba = np.stack([_checked(io.read_exr, v.path(".exr"), v.camera, 4) for v in views])
+        depth = np.stack([_checked(io.read_exr, v.path("_depth.exr"), v.camera, 1) for v in views])
+        mask = np.stack([_checked(io.read_png_u8, v.path("_mask.png"), v.camera, 1) for v in views]) > 127
+        return Split([v.camera for v in views], rgba, depth, mask, [v.name for v in views])
+
+
+def _checked(reader, path: Path, cam: Camera, channels: int) -> np.ndarray:
+    arr = reader(path)
+    if channels == 1 and arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    expected = (cam.height, cam.width) + (() if channels == 1 else (channels,))
+    if arr.shape != expected:
+        raise DatasetError(f"{path}: expected an image of shape {expected}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise DatasetError(f"{path}: contains non-finite values")
+    return arr
+
+
+def _read_json(path: Path) -> Any:
+    if not path.exists():
+        raise DatasetError(f"{path}: missing")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise DatasetError(f"{path}: not valid JSON ({e})") from None
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise DatasetError(f"{path}: cannot be read as an image ({oiio.geterror()})")
+    try:
+        spec = inp.spec()
+        return spec.width, spec.height
+    finally:
+        inp.close()
+
+
+def load(path: str | Path, *, verify_hashes: bool = False) -> Dataset:
+    """Open and validate a dataset directory (see module docstring)."""
+    root = Path(path)
+    if not root.is_dir():
+        partial = root.with_name(root.name + ".partial")
+        hint = f" (an interrupted run left {partial}; finish it with --resume)" if partial.exists() else ""
+        raise DatasetError(f"{root}: no such dataset directory{hint}")
+    manifest = _read_json(root / "manifest.json")
+    files: dict[str, str] = manifest.get("files", {})
+    for rel in files:
+        if not (root / rel).is_file():
+            raise DatasetError(f"{root / rel}: listed in manifest.json but missing")
+    if verify_hashes:
+        from research.datasets.generate import file_sha256
+
+        for rel, digest in files.items():
+            if file_sha256(root / rel) != digest:
+                raise DatasetError(f"{root / rel}: content does not match the hash in manifest.json")
+
+    cams_path = root / "cameras.json"
+    cams_doc = _read_json(cams_path)
+    views = []
+    for entry in cams_doc.get("views", []):
+        name = entry.get("name", "?")
+        try:
+            cam = Camera.from_dict(entry)
+        except ValueError as e:
+            raise DatasetError(f"{cams_path}: view {name}: {e}") from None
+        views.append(View(name, entry.get("split", ""), cam, root))
+    if not views:
+        raise DatasetError(f"{cams_path}: lists no views")
+
+    by_name = {v.name: v for v in views}
+    for split in SPLITS:
+        tpath = root / f"transforms_{split}.json"
+        doc = _read_json(tpath)
+        for frame in doc.get("frames", []):
+            stem = str(frame.get("file_path", "")).removesuffix(".png")
+            if stem not in by_name:
+                raise DatasetError(f"{tpath}: frame {stem!r} is not in cameras.json")
+            try:
+                cam = Camera.from_nerf(frame["transform_matrix"], doc["w"], doc["h"], fl_x=doc["fl_x"],
+                                       fl_y=doc["fl_y"], cx=doc["cx"], cy=doc["cy"])
+            except (KeyError, ValueError) as e:
+                raise DatasetError(f"{tpath}: frame {stem}: {e}") from None
+            ref = by_name[stem].camera
+            if not (np.allclose(cam.c2w, ref.c2w, atol=1e-9) and np.allclose(cam.K, ref.K, atol=1e-9)):
+                raise DatasetError(f"{tpath}: frame {stem} disagrees with cameras.json")
+
+    for v in views:
+        for suffix in (".png", ".exr", "_depth.exr", "_normal.exr", "_mask.png"):
+            p = v.path(suffix)
+            if not p.is_file():
+                raise DatasetError(f"{p}: missing")
+            size = _image_size(p)
+            if size != (v.camera.width, v.camera.height):
+                raise DatasetError(f"{p}: image is {size[0]}x{size[1]}, camera expects "
+                                   f"{v.camera.width}x{v.camera.height}")
+
+    scene = cams_doc.get("scene", {})
+    try:
+        bbox = np.array([scene["bbox_min"], scene["bbox_max"]], dtype=np.float64)
+        up = np.array(scene["up"], dtype=np.float64)
+    except (KeyError, TypeError, ValueError) as e:
+        raise DatasetError(f"{cams_path}: bad scene record ({e})") from None
+    if bbox.shape != (2, 3) or not np.all(np.isfinite(bbox)) or np.any(bbox[1] <= bbox[0]):
+        raise DatasetError(f"{cams_path}: scene bounding box must be finite with min < max, got {bbox.tolist()}")
+    return Dataset(root, manifest, views, bbox, up)
+
+
+@dataclass
+class StereoPair:
+    name: str
+    left_camera: Camera
+    right_camera: Camera
+    baseline: float
+    left: np.ndarray  # (H, W, 4) linear premultiplied RGBA
+    right: np.ndarray
+    disparity: np.ndarray  # (H, W) ground-truth left disparity, 0 where no surface
+    noc: np.ndarray  # (H, W) bool: surface visible in both views
+    mask: np.ndarray  # (H, W) bool: surface hit in the left view
+    depth: np.ndarray  # (H, W) left z-depth
+
+
+def load_stereo(path: str | Path) -> list[StereoPair]:
+    """Rectified pairs written with --stereo."""
+    root = Path(path) / "stereo"
+    doc = _read_json(root / "stereo.json")
+    out = []
+    for p in doc.get("pairs", []):
+        stem = root / p["name"]
+        try:
+            lc, rc = Camera.from_dict(p["left"]), Camera.from_dict(p["right"])
+        except (KeyError, ValueError) as e:
+            raise DatasetError(f"{root / 'stereo.json'}: pair {p.get('name')}: {e}") from None
+        out.append(StereoPair(
+            p["name"], lc, rc, float(doc["baseline"]),
+            _checked(io.read_exr, Path(f"{stem}_left.exr"), lc, 4),
+            _checked(io.read_exr, Path(f"{stem}_right.exr"), rc, 4),
+            _checked(io.read_pfm, Path(f"{stem}_disp.pfm"), lc, 1),
+            _checked(io.read_png_u8, Path(f"{stem}_noc.png"), lc, 1) > 127,
+            _checked(io.read_png_u8, Path(f"{stem}_mask.png"), lc, 1) > 127,
+            _checked(io.read_exr, Path(f"{stem}_left_depth.exr"), lc, 1),
+        ))
+    if not out:
+        raise DatasetError(f"{root / 'stereo.json'}: lists no pairs")
+    return out
+
+
+@dataclass
+class FlowSequence:
+    cameras: list[Camera]
+    frames: np.ndarray  # (N, H, W, 4) linear premultiplied RGBA
+    depth: np.ndarray  # (N, H, W)
+    flow: np.ndarray  # (N - 1, H, W, 2): frame k -> k + 1, (x right, y down) pixels
+    valid: np.ndarray  # (N - 1, H, W) bool
+
+
+def load_flow(path: str | Path) -> FlowSequence:
+    """The camera-path sequence written with --flow."""
+    root = Path(path) / "flow"
+    doc = _read_json(root / "flow.json")
+    frames = doc.get("frames", [])
+    if len(frames) < 2:
+        raise DatasetError(f"{root / 'flow.json'}: needs at least two frames")
+    cams, rgba, depth, flow, valid = [], [], [], [], []
+    for k, f in enumerate(frames):
+        stem = root / f["name"]
+        try:
+            cam = Camera.from_dict(f)
+        except ValueError as e:
+            raise DatasetError(f"{root / 'flow.json'}: frame {f.get('name')}: {e}") from None
+        cams.append(cam)
+        rgba.append(_checked(io.read_exr, Path(f"{stem}.exr"), cam, 4))
+        depth.append(_checked(io.read_exr, Path(f"{stem}_depth.exr"), cam, 1))
+        if k < len(frames) - 1:
+            flow.append(_checked(io.read_flo, Path(f"{stem}_flow.flo"), cam, 2))
+            valid.append(_checked(io.read_png_u8, Path(f"{stem}_valid.png"), cam, 1) > 127)
+    return FlowSequence(cams, np.stack(rgba), np.stack(depth), np.stack(flow), np.stack(valid))

@@ -1,0 +1,197 @@
+"""Built-in Mitsuba scenes for ground-truth datasets.
+
+Each scene is a `SceneSpec`: a builder returning a `mi.load_dict` dictionary
+(without sensor or integrator: those belong to the render passes), the scene's
+axis-aligned bounding box (for NeRF and splat initialisation), its world up
+vector, and how cameras are placed around it.
+
+* `spheres`: the textbook volume-rendering scene, three diffuse spheres seen from
+  the origin looking down +z (OpenCV world, so "up" is -y).
+* `objects`: a checker-textured sphere, a cube, a cylinder and a disk on a square
+  ground plane, lit by a procedural sky environment map and a directional sun; z up.
+* `cornell`: Mitsuba's Cornell box (`mi.cornell_box()`), y up, open towards +z;
+  cameras sit on a cap in front of the opening.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from research.cameras import look_at, orbit_poses
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    name: str
+    description: str
+    build: Callable[[], dict[str, Any]]
+    bbox_min: tuple[float, float, float]
+    bbox_max: tuple[float, float, float]
+    up: tuple[float, float, float]
+    # Where cameras look, and how far away they sit.
+    target: tuple[float, float, float]
+    radius: float
+    fov_x_deg: float
+    hemisphere: bool = True
+    min_elevation_deg: float = 10.0
+    # Cameras on a cap of this half-angle around `cap_axis` (used instead of an orbit when set).
+    cap_axis: tuple[float, float, float] | None = None
+    cap_half_angle_deg: float = 0.0
+    near_clip: float = 0.05
+    far_clip: float = 100.0
+    # Hide directly seen emitters so alpha = coverage. Only scenes without an environment may show them.
+    hide_emitters: bool = True
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def bbox(self) -> np.ndarray:
+        return np.array([self.bbox_min, self.bbox_max], dtype=np.float64)
+
+    def view_poses(self, n: int, seed: int) -> list[np.ndarray]:
+        """Camera-to-world (OpenCV) poses for `n` multi-view cameras."""
+        if self.cap_axis is None:
+            return orbit_poses(n, self.radius, self.target, self.up, self.hemisphere, self.min_elevation_deg, seed)
+        return _cap_poses(n, self.radius, np.array(self.target), np.array(self.cap_axis),
+                          np.array(self.up), self.cap_half_angle_deg, seed)
+
+
+def _cap_poses(n: int, radius: float, target: np.ndarray, axis: np.ndarray, up: np.ndarray,
+               half_angle_deg: float, seed: int) -> list[np.ndarray]:
+    """Cameras on a spherical cap (Fibonacci spiral, equal areas) around `axis`, looking at `target`."""
+    axis = axis / np.linalg.norm(axis)
+    a = np.cross(up, axis)
+    a /= np.linalg.norm(a)
+    b = np.cross(axis, a)
+    golden = math.pi * (3.0 - math.sqrt(5.0))
+    phase = float(np.random.default_rng(seed).uniform(0, 2 * math.pi))
+    cmin = math.cos(math.radians(half_angle_deg))
+    poses = []
+    for k in range(n):
+        c = 1.0 - (1.0 - cmin) * (k + 0.5) / n
+        s = math.sqrt(max(0.0, 1.0 - c * c))
+        phi = phase + golden * k
+        d = c * axis + s * (math.cos(phi) * a + math.sin(phi) * b)
+        poses.append(look_at(target + radius * d, target, up))
+    return poses
+
+
+def _T(matrix: np.ndarray):
+    import mitsuba as mi
+
+    return mi.ScalarTransform4f(np.asarray(matrix, dtype=np.float64).tolist())
+
+
+def _translate_scale(t, s) -> np.ndarray:
+    M = np.diag([*np.broadcast_to(np.asarray(s, float), (3,)), 1.0])
+    M[:3, 3] = t
+    return M
+
+
+def _diffuse(rgb) -> dict[str, Any]:
+    return {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(rgb)}}
+
+
+def _build_spheres() -> dict[str, Any]:
+    # World = the textbook camera's OpenCV frame: x right, y down, z forward.
+    spheres = {
+        "red": ((0.0, 0.0, 4.0), 0.8, (0.8, 0.1, 0.1)),
+        "green": ((1.5, 0.5, 5.0), 0.6, (0.1, 0.8, 0.1)),
+        "blue": ((-1.0, -0.5, 3.5), 0.5, (0.1, 0.1, 0.8)),
+    }
+    scene: dict[str, Any] = {"type": "scene", "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 0.6}},
+                             "key": {"type": "directional", "direction": [0.3, 0.8, 0.6],
+                                     "irradiance": {"type": "rgb", "value": 2.0}}}
+    for name, (c, r, rgb) in spheres.items():
+        scene[name] = {"type": "sphere", "center": list(c), "radius": r, "bsdf": _diffuse(rgb)}
+    return scene
+
+
+def _sky_bitmap(height: int = 64) -> np.ndarray:
+    """A latitude-longitude sky: bright blue-white zenith fading to a darker warm horizon and ground."""
+    width = 2 * height
+    theta = (np.arange(height) + 0.5) / height * math.pi  # 0 at the envmap's +y pole
+    elev = 0.5 * math.pi - theta
+    zen = np.clip(np.sin(elev), 0.0, 1.0)[:, None]
+    sky = (1 - zen) * np.array([0.9, 0.8, 0.7]) + zen * np.array([0.35, 0.55, 1.0])
+    ground = np.array([0.25, 0.22, 0.2])
+    img = np.where((elev > 0)[:, None], sky, ground)
+    # A gentle azimuthal variation makes the lighting non-symmetric.
+    az = (np.arange(width) + 0.5) / width * 2 * math.pi
+    img = img[:, None, :] * (0.85 + 0.15 * np.cos(az))[None, :, None]
+    return np.ascontiguousarray(img.astype(np.float32))
+
+
+def _build_objects() -> dict[str, Any]:
+    import mitsuba as mi
+
+    # Mitsuba's envmap has +y as its pole; rotate it so the pole is world +z.
+    env_to_world = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+    return {
+        "type": "scene",
+        "sky": {"type": "envmap", "bitmap": mi.Bitmap(_sky_bitmap()), "scale": 0.8, "to_world": _T(env_to_world)},
+        "sun": {"type": "directional", "direction": [-0.4, -0.3, -0.85],
+                "irradiance": {"type": "rgb", "value": [2.6, 2.4, 2.1]}},
+        "ground": {"type": "rectangle", "to_world": _T(_translate_scale([0, 0, 0], [2.0, 2.0, 1.0])),
+                   "bsdf": {"type": "diffuse", "reflectance": {
+                       "type": "checkerboard", "color0": {"type": "rgb", "value": [0.55, 0.55, 0.5]},
+                       "color1": {"type": "rgb", "value": [0.35, 0.35, 0.32]},
+                       "to_uv": _T(np.diag([6.0, 6.0, 1.0, 1.0]))}}},
+        "ball": {"type": "sphere", "center": [-0.6, -0.5, 0.5], "radius": 0.5,
+                 "bsdf": {"type": "diffuse", "reflectance": {
+                     "type": "checkerboard", "color0": {"type": "rgb", "value": [0.85, 0.15, 0.1]},
+                     "color1": {"type": "rgb", "value": [0.95, 0.85, 0.2]},
+                     "to_uv": _T(np.diag([8.0, 4.0, 1.0, 1.0]))}}},
+        "box": {"type": "cube", "to_world": _T(_rotz_translate_scale(25.0, [0.7, -0.3, 0.35], 0.35)),
+                "bsdf": _diffuse((0.15, 0.35, 0.8))},
+        "can": {"type": "cylinder", "p0": [0.2, 0.8, 0.0], "p1": [0.2, 0.8, 0.9], "radius": 0.28,
+                "bsdf": _diffuse((0.2, 0.7, 0.3))},
+        "can_lid": {"type": "disk", "to_world": _T(_translate_scale([0.2, 0.8, 0.9], 0.28)),
+                    "bsdf": _diffuse((0.9, 0.9, 0.85))},
+        "coaster": {"type": "disk", "to_world": _T(_translate_scale([-0.7, 0.7, 0.01], 0.4)),
+                    "bsdf": _diffuse((0.8, 0.5, 0.2))},
+    }
+
+
+def _rotz_translate_scale(deg: float, t, s: float) -> np.ndarray:
+    c, s_ = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    M = np.eye(4)
+    M[:3, :3] = np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]]) * s
+    M[:3, 3] = t
+    return M
+
+
+def _build_cornell() -> dict[str, Any]:
+    import mitsuba as mi
+
+    scene = dict(mi.cornell_box())
+    scene.pop("sensor", None)
+    scene.pop("integrator", None)
+    return scene
+
+
+SCENES: dict[str, SceneSpec] = {
+    "spheres": SceneSpec(
+        name="spheres", description="three diffuse spheres of the textbook volume-rendering task",
+        build=_build_spheres, bbox_min=(-1.5, -1.0, 3.0), bbox_max=(2.1, 1.1, 5.6), up=(0.0, -1.0, 0.0),
+        target=(0.25, 0.0, 4.3), radius=5.0, fov_x_deg=45.0, hemisphere=False, near_clip=0.05),
+    "objects": SceneSpec(
+        name="objects", description="textured sphere, cube, cylinder and disk on a ground plane; sky + sun",
+        build=_build_objects, bbox_min=(-2.0, -2.0, -0.01), bbox_max=(2.0, 2.0, 1.0), up=(0.0, 0.0, 1.0),
+        target=(0.0, 0.0, 0.3), radius=4.2, fov_x_deg=45.0, hemisphere=True, min_elevation_deg=15.0,
+        near_clip=0.05),
+    "cornell": SceneSpec(
+        name="cornell", description="Mitsuba's Cornell box (mi.cornell_box)",
+        build=_build_cornell, bbox_min=(-1.0, -1.0, -1.0), bbox_max=(1.0, 1.0, 1.0), up=(0.0, 1.0, 0.0),
+        target=(0.0, 0.0, 0.0), radius=3.9, fov_x_deg=39.3077, cap_axis=(0.0, 0.0, 1.0),
+        cap_half_angle_deg=12.0, near_clip=0.05, hide_emitters=False),
+}
+
+
+def get_scene(name: str) -> SceneSpec:
+    if name not in SCENES:
+        raise ValueError(f"scene: unknown scene {name!r}; expected one of {sorted(SCENES)}")
+    return SCENES[name]
