@@ -43,6 +43,12 @@ def register_experiment(name: str, description: str, quick_budget_s: float) -> N
     EXPERIMENTS[name] = ExperimentSpec(name, description, quick_budget_s)
 
 
+register_experiment(
+    "datasets",
+    "Mitsuba ground-truth datasets (multi-view, stereo, flow): render time and geometric consistency.",
+    quick_budget_s=300,
+)
+
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",

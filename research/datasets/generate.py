@@ -333,3 +333,24 @@ def _recorded_variant(root: Path) -> str:
     from research.mitsuba_env import select_variant
 
     return select_variant()
+
+
+def ensure(cfg: DatasetConfig, out: str | Path, show_progress: bool = True) -> Path:
+    """Return `out` if it holds a finished dataset with exactly this configuration, else (re)generate it.
+
+    An interrupted run of the same configuration is resumed.
+    """
+    out = Path(out)
+    manifest = out / "manifest.json"
+    if manifest.exists():
+        try:
+            if json.loads(manifest.read_text()).get("config") == asdict(cfg):
+                return out
+        except json.JSONDecodeError:
+            pass
+    partial = out.with_name(out.name + ".partial")
+    recorded = partial / _PARTIAL_CONFIG
+    resume = recorded.exists() and json.loads(recorded.read_text()) == asdict(cfg)
+    if partial.exists() and not resume:
+        shutil.rmtree(partial)
+    return generate(cfg, out, resume=resume, force=out.exists(), show_progress=show_progress)
