@@ -49,6 +49,17 @@ register_experiment(
     quick_budget_s=300,
 )
 
+register_experiment(
+    "kalman_tracking",
+    "Kalman filter and RTS smoother on the textbook's noisy circle: textbook Q vs likelihood-tuned Q.",
+    quick_budget_s=180,
+)
+register_experiment(
+    "mot_tracking",
+    "SORT vs ByteTrack vs ByteTrack+appearance on synthetic occlusion sequences (MOTA, IDF1, ID switches, FPS).",
+    quick_budget_s=180,
+)
+
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",
