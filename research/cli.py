@@ -113,6 +113,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 def _cmd_gradcheck(args: argparse.Namespace) -> int:
     from research.gradcheck import format_table, run_checks
 
+    _quiet_warp()
     results = run_checks(args.kernels or None)
     print(format_table(results))
     failed = [r for r in results if not r.passed]
@@ -120,8 +121,17 @@ def _cmd_gradcheck(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _quiet_warp() -> None:
+    """Keep Warp's start-up banner off stdout (it would break `--json` output)."""
+    import warp as wp
+
+    wp.config.quiet = True
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from research.bench import run_bench
+
+    _quiet_warp()
 
     unknown = [f for f in args.families if f not in BENCH_MODULES]
     if unknown:

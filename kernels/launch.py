@@ -1,0 +1,188 @@
+"""Race-free split launches of CPU kernels over several Python threads.
+
+Warp runs a CPU launch on one thread, but its binding releases the GIL during
+the launch (notes/warp.md). So a 1-D grid of `dim` threads can be cut into
+contiguous chunks [o_j, o_j + n_j), each launched from its own Python thread
+with `dim = n_j`; inside the kernel the global index is `wp.tid() + offset`.
+
+Convention: the kernel's LAST parameter is `offset: int`. `launch_split`
+appends it to `inputs`; a kernel written for it looks like
+
+    @wp.kernel
+    def scale(x: wp.array(dtype=typing.Any), y: wp.array(dtype=typing.Any), offset: int):
+        i = wp.tid() + offset
+        y[i] = x.dtype(2.0) * x[i]
+
+Which kernels may use it. The chunks run concurrently, so the result equals a
+single launch only if no two thread indices interfere:
+  * allowed: each thread index writes only its own output slots (disjoint
+    writes) and reads only what no thread writes;
+  * NOT allowed: ANY atomic (`wp.atomic_add`, `atomic_min/max/sub`, or `+=`
+    on an array element, which compiles to one) whose target two chunks can
+    hit, integer or float. Warp 1.19 compiles every CPU atomic to a plain
+    read-modify-write (native/builtin.h: `old = buf[0]; buf[0] += value`), so
+    concurrent CPU launches lose updates: measured here, two threads adding 1
+    into 64 int32 slots kept 7.47M-7.97M of 8M (floats lose the same way,
+    notes/warp.md). An atomic on a slot only index i touches is just a write
+    and is fine. Scatter-style (backward) kernels must run as one launch,
+    accumulate into a buffer per chunk and reduce afterwards, or be rewritten
+    as gathers;
+  * nothing that depends on the order of indices (reading a value another
+    index writes in the same launch).
+An active `wp.Tape` records each chunk as its own launch (each chunk is a
+self-contained launch, so replaying them is equivalent).
+
+On a CUDA device the grid is launched once with offset 0 (asynchronously, as
+`wp.launch` is; pass `synchronize=True` to wait for it). On the CPU every chunk
+has finished when `launch_split` returns, and an exception raised by any chunk
+(a failed argument check, a compile error) is re-raised in the caller after
+all chunks have stopped.
+
+Threads: `threads` if given, else the environment variable DRLAB_THREADS, else
+`os.cpu_count()`. The grid is cut into up to CHUNKS_PER_THREAD * threads
+near-equal chunks of at least `min_chunk` indices, which the threads (the
+caller plus pool workers) pull one at a time. A static split into `threads`
+equal parts waits for the slowest part; pulling smaller chunks balances
+indices of unequal cost (early ray termination, tiles holding different
+numbers of splats) and a core shared with another process. A grid too small
+for two chunks runs as one plain launch.
+"""
+
+from __future__ import annotations
+
+import operator
+import os
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any, Callable, Sequence
+
+import warp as wp
+
+# A launch costs tens of microseconds of Python; smaller chunks rarely repay the hand-off to a thread.
+DEFAULT_MIN_CHUNK = 1024
+# Chunks per thread: more chunks than threads balance unequal work and busy cores.
+CHUNKS_PER_THREAD = 4
+ENV_THREADS = "DRLAB_THREADS"
+
+_pool: ThreadPoolExecutor | None = None
+_pool_size = 0
+_pool_lock = threading.Lock()
+# (kernel, device, argument types) already launched here: their module is compiled and loaded.
+_loaded: set[tuple] = set()
+
+
+def default_threads() -> int:
+    """DRLAB_THREADS if set (a positive integer), else os.cpu_count()."""
+    env = os.environ.get(ENV_THREADS, "").strip()
+    if env:
+        try:
+            n = int(env)
+        except ValueError:
+            raise ValueError(f"{ENV_THREADS}={env!r} is not an integer") from None
+        if n < 1:
+            raise ValueError(f"{ENV_THREADS}={env!r} must be >= 1")
+        return n
+    return os.cpu_count() or 1
+
+
+def chunk_bounds(dim: int, n_chunks: int) -> list[tuple[int, int]]:
+    """(offset, size) of `n_chunks` contiguous chunks covering [0, dim), sizes differing by at most 1."""
+    base, extra = divmod(dim, n_chunks)
+    bounds, offset = [], 0
+    for j in range(n_chunks):
+        size = base + (1 if j < extra else 0)
+        bounds.append((offset, size))
+        offset += size
+    return bounds
+
+
+def _submit(fn: Callable[[], None], count: int) -> list[Future]:
+    """Run `fn` `count` times on a shared pool (reused, so a launch pays no thread start-up)."""
+    global _pool, _pool_size
+    with _pool_lock:  # submitting under the lock: another caller may replace the pool
+        if _pool is None or _pool_size < count:
+            if _pool is not None:
+                _pool.shutdown(wait=False)  # its submitted work still runs to completion
+            _pool, _pool_size = ThreadPoolExecutor(max_workers=count, thread_name_prefix="drlab-launch"), count
+        return [_pool.submit(fn) for _ in range(count)]
+
+
+def _overload_key(kernel: Any, device: Any, inputs: list[Any]) -> tuple:
+    types = tuple((type(a), getattr(a, "dtype", None), getattr(a, "ndim", None)) for a in inputs)
+    return (id(kernel), device.alias, types)
+
+
+def launch_split(
+    kernel: Any,
+    dim: int,
+    inputs: Sequence[Any],
+    *,
+    device: wp.Device | str,
+    threads: int | None = None,
+    min_chunk: int = DEFAULT_MIN_CHUNK,
+    synchronize: bool = False,
+) -> None:
+    """Launch `kernel` over indices [0, dim) as chunks on several CPU threads.
+
+    The kernel receives `[*inputs, offset]` and must handle index
+    `wp.tid() + offset`; see the module docstring for which kernels qualify.
+    """
+    try:
+        dim = operator.index(dim)
+    except TypeError:
+        raise ValueError(f"launch_split: dim must be a non-negative int, got {dim!r}") from None
+    if dim < 0:
+        raise ValueError(f"launch_split: dim must be a non-negative int, got {dim!r}")
+    args = getattr(getattr(kernel, "adj", None), "args", None)
+    if not args or args[-1].label != "offset":
+        raise ValueError("launch_split: the kernel's last parameter must be `offset: int`")
+    n_threads = default_threads() if threads is None else threads
+    if n_threads < 1:
+        raise ValueError(f"launch_split: threads must be >= 1, got {threads}")
+    if min_chunk < 1:
+        raise ValueError(f"launch_split: min_chunk must be >= 1, got {min_chunk}")
+    device = wp.get_device(device)
+    inputs = list(inputs)
+
+    n_chunks = min(n_threads * CHUNKS_PER_THREAD, dim // min_chunk)
+    if device.is_cuda or n_threads == 1 or n_chunks <= 1:
+        wp.launch(kernel, dim=dim, inputs=[*inputs, 0], device=device)
+        if synchronize:
+            wp.synchronize_device(device)
+        return
+
+    bounds = chunk_bounds(dim, n_chunks)
+    n_workers = min(n_threads, n_chunks)
+    next_chunk = iter(range(n_chunks))
+    take_lock = threading.Lock()
+    errors: list[BaseException] = []
+
+    def work() -> None:
+        # Each worker pulls chunks until none are left, so a faster core takes more of them.
+        while True:
+            with take_lock:
+                j = None if errors else next(next_chunk, None)
+            if j is None:
+                return
+            offset, size = bounds[j]
+            try:
+                wp.launch(kernel, dim=size, inputs=[*inputs, offset], device=device)
+            except BaseException as exc:
+                with take_lock:
+                    errors.append(exc)
+                return
+
+    key = _overload_key(kernel, device, inputs)
+    if key not in _loaded:
+        # First use: one chunk alone compiles and loads the module (or overload), so that
+        # the threads do not each compile it at once (correct, but n times the work).
+        offset, size = bounds[next(next_chunk)]
+        wp.launch(kernel, dim=size, inputs=[*inputs, offset], device=device)
+        _loaded.add(key)
+
+    futures = _submit(work, n_workers - 1)
+    work()  # the calling thread is one of the workers
+    for fut in futures:  # wait for every worker, even after a failure: they use the caller's arrays
+        fut.result()
+    if errors:
+        raise errors[0]

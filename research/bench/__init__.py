@@ -1,0 +1,84 @@
+"""Benchmark infrastructure: median timings and the benchmark-family registry.
+
+A family is a module named in research.registry.BENCH_MODULES exposing
+`cases(device: str, quick: bool)`, a generator of JSON-ready dicts, one per case:
+
+    {"bench": "<family>.<case>", "device": "cpu", "threads": 2,
+     <size keys>..., "<phase>_s": seconds, ...}
+
+Every seconds figure is `time_median`: the median of at least 3 timed runs
+after a warm-up, so compilation (first launch) is never timed.
+"""
+
+from __future__ import annotations
+
+import importlib
+import statistics
+import time
+from typing import Any, Callable
+
+
+def time_median(
+    fn: Callable[[], Any],
+    *,
+    repeats: int = 3,
+    warmup: int = 1,
+    sync: Callable[[], Any] | None = None,
+) -> float:
+    """Median wall time in seconds of `fn()` over `repeats` (>= 3) runs after `warmup` (>= 1) untimed runs.
+
+    `sync` is called after each run inside the timed region; on CUDA pass e.g.
+    `lambda: wp.synchronize_device(device)` so asynchronous launches are timed whole.
+    """
+    return time_medians({"fn": fn}, repeats=repeats, warmup=warmup, sync=sync)["fn"]
+
+
+def time_medians(
+    fns: dict[str, Callable[[], Any]],
+    *,
+    repeats: int = 3,
+    warmup: int = 1,
+    sync: Callable[[], Any] | None = None,
+) -> dict[str, float]:
+    """`time_median` of several functions, run interleaved (a, b, a, b, ...).
+
+    Interleaving exposes every function to the same drift in machine speed
+    (clock boost, neighbours on the host), so their ratio is steadier than
+    timing one after the other.
+    """
+    if repeats < 3:
+        raise ValueError(f"time_median: repeats must be >= 3, got {repeats}")
+    if warmup < 1:
+        raise ValueError(f"time_median: warmup must be >= 1 (compilation is never timed), got {warmup}")
+    for _ in range(warmup):
+        for fn in fns.values():
+            fn()
+            if sync is not None:
+                sync()
+    times: dict[str, list[float]] = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            if sync is not None:
+                sync()
+            times[name].append(time.perf_counter() - t0)
+    return {name: statistics.median(ts) for name, ts in times.items()}
+
+
+def run_bench(families: list[str] | None, device: str, quick: bool) -> list[dict]:
+    """Run the cases of the named families (all registered ones when None or empty)."""
+    from research.registry import BENCH_MODULES
+
+    names = list(families) if families else list(BENCH_MODULES)
+    unknown = [f for f in names if f not in BENCH_MODULES]
+    if unknown:
+        raise KeyError(f"unknown benchmark families {unknown}; known: {', '.join(BENCH_MODULES)}")
+    rows: list[dict] = []
+    for family in names:
+        module = importlib.import_module(BENCH_MODULES[family])
+        for row in module.cases(device=device, quick=quick):
+            if not str(row.get("bench", "")).startswith(family + ".") or "device" not in row:
+                raise ValueError(f"benchmark family {family!r} yielded a malformed row: {row!r}")
+            rows.append(row)
+    return rows
