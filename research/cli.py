@@ -125,7 +125,7 @@ def _quiet_warp() -> None:
     """Keep Warp's start-up banner off stdout (it would break `--json` output)."""
     import warp as wp
 
-    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
