@@ -3,7 +3,7 @@
 Two passes per view (notes/mitsuba.md):
 
 * RGB: integrator `path` with `hide_emitters` (except the Cornell box, whose only emitter
-  is its ceiling light), film `hdrfilm` RGBA. The result is
+  is its ceiling light), film `hdrfilm` RGBA with a box pixel filter. The result is
   linear, premultiplied RGB with alpha = antialiased coverage.
 * Geometry: integrator `aov` (`dd:depth, pp:position, nn:sh_normal`) with one
   non-jittered stratified sample per pixel and a box filter, i.e. exactly one ray
@@ -66,6 +66,10 @@ class SceneRenderer:
                 film["pixel_format"] = "rgb"  # ignored by the AOV integrator's own channels
                 sampler = {"type": "stratified", "sample_count": 1, "jitter": False}
             else:
+                # Box filter: each pixel is the average radiance over its own area, the quantity a
+                # NeRF or splat renderer that jitters rays inside the pixel estimates. It is also
+                # about 25% faster than the default Gaussian, which splats every sample to 16 pixels.
+                film["rfilter"] = {"type": "box"}
                 film["pixel_format"] = "rgba"
                 sampler = {"type": "independent", "sample_count": self.spp}
             sensor = mi.load_dict({
