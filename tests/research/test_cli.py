@@ -1,0 +1,96 @@
+"""The drlab command line: subcommands, exit statuses and output formats."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from research import cli
+from research.registry import EXPERIMENTS, REPO_ROOT
+
+
+def run_cli(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "research.cli", *args], cwd=REPO_ROOT, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def test_help_lists_every_subcommand():
+    out = run_cli("--help").stdout
+    for cmd in ("dataset", "run", "reproduce", "gradcheck", "bench", "list"):
+        assert cmd in out
+
+
+def test_every_registered_experiment_script_exists_and_documents_its_options():
+    assert EXPERIMENTS, "no experiment registered"
+    for spec in EXPERIMENTS.values():
+        assert spec.script.is_file(), spec.script
+        out = subprocess.run([sys.executable, str(spec.script), "--help"], capture_output=True, text=True,
+                             timeout=120)
+        assert out.returncode == 0, out.stderr
+        for opt in ("--quick", "--device", "--out", "--seed"):
+            assert opt in out.stdout, f"{spec.name}: --help does not document {opt}"
+
+
+def test_run_unknown_experiment_fails_clearly():
+    r = run_cli("run", "no_such_experiment")
+    assert r.returncode == 2 and "unknown experiment" in r.stderr
+
+
+def test_gradcheck_selftest_table_and_exit_status():
+    r = run_cli("gradcheck", "selftest")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "selftest.known_gradient" in r.stdout and "0 failed" in r.stdout
+
+
+def test_gradcheck_exit_status_is_1_on_failure(monkeypatch, capsys):
+    from research import gradcheck
+
+    bad = gradcheck.GradcheckResult(name="x", input="a", max_abs_err=1.0, max_rel_err=1.0, n_checks=1,
+                                    passed=False, eps=1e-6, rtol=1e-6, atol=0.0)
+    monkeypatch.setattr(gradcheck, "run_checks", lambda names=None: [bad])
+    assert cli.main(["gradcheck"]) == 1
+    assert "1 failed" in capsys.readouterr().out
+
+
+def test_bench_json_lines_are_clean_json():
+    r = run_cli("bench", "launch", "--json", "--quick")
+    assert r.returncode == 0, r.stderr
+    lines = [ln for ln in r.stdout.splitlines() if ln.strip()]
+    assert lines, "no output"
+    for ln in lines:
+        row = json.loads(ln)  # any banner on stdout would break this
+        assert row["bench"] == "launch.split" and row["device"] == "cpu"
+        assert row["threads"] >= 1 and row["speedup"] > 0
+
+
+def test_bench_unknown_family():
+    r = run_cli("bench", "nope")
+    assert r.returncode == 2 and "unknown" in r.stderr
+
+
+def test_dataset_command_writes_a_loadable_dataset(tmp_path):
+    out = tmp_path / "ds"
+    r = run_cli("dataset", "--scene", "spheres", "--views", "3", "--res", "16", "--spp", "2", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    from research.datasets import load
+
+    assert len(load(out).views) == 3
+    r = run_cli("dataset", "--scene", "spheres", "--views", "3", "--res", "16", "--spp", "2", "--out", str(out))
+    assert r.returncode != 0 and "--force" in r.stderr
+
+
+def test_results_index_gathers_tables(tmp_path, monkeypatch):
+    name = next(iter(EXPERIMENTS))
+    (tmp_path / name).mkdir()
+    (tmp_path / name / "table.md").write_text("| a |\n|---|\n| 1 |\n")
+    (tmp_path / name / "fig.png").write_bytes(b"png")
+    path = cli.write_results_index(tmp_path, [name], quick=False)
+    text = path.read_text()
+    assert f"## {name}" in text and "| 1 |" in text and f"({name}/fig.png)" in text
+
+
+@pytest.mark.parametrize("argv", [["dataset", "--scene", "objects"], ["run"]])
+def test_missing_required_arguments_exit_2(argv):
+    r = run_cli(*argv)
+    assert r.returncode == 2
