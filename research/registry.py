@@ -60,12 +60,25 @@ register_experiment(
     quick_budget_s=180,
 )
 
+register_experiment(
+    "lucas_kanade",
+    "The textbook's Lucas-Kanade task (square moved 5 px): its axis bug, single-scale and pyramidal LK.",
+    quick_budget_s=300,
+)
+register_experiment(
+    "raft_flow",
+    "Weight-free RAFT-style flow from correlation lookups on Mitsuba flow pairs: EPE/F1, levels x radius, baselines.",
+    quick_budget_s=300,
+)
+
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",
+    "research.checks.corr",
 ]
 
 # Benchmark families.
 BENCH_MODULES: dict[str, str] = {
     "launch": "research.bench.launch",
+    "corr": "research.bench.corr",
 }

@@ -1,0 +1,314 @@
+#!/usr/bin/env python3
+"""Weight-free RAFT-style optical flow from correlation lookups, on Mitsuba flow pairs.
+
+RAFT's correlation machinery (kernels.corr: all-pairs volume, 2x2-pooled
+pyramid, radius-r lookups) drives a fixed, weight-free update
+(research.opticalflow.CorrFlow): normalised multi-scale colour patches as
+features at stride 4, and 12 lookups, coarse to fine, each turned into a
+soft-argmax step around its window's peak. No learned weights exist here, so
+this measures what the correlation machinery alone delivers.
+
+Data: camera-path flow sequences rendered by Mitsuba (research.datasets, scenes
+objects, spheres and cornell at 256x256, camera azimuth step 4 degrees), frame
+k -> k+1, evaluated on non-occluded surface pixels (the datasets' `valid`).
+
+Reported:
+  * EPE (px) and F1-all (KITTI: % of pixels with EPE > 3 px and > 5% of |gt|)
+    for CorrFlow (levels 4, radius 4) against pyramidal Lucas-Kanade
+    (kernels.flow), OpenCV's Farneback and DIS (medium preset) and zero flow;
+  * the ablation levels {1,2,3,4} x radius {1,2,3,4}, as in RAFT's ablations;
+  * memory and time of the dense pyramid lookup against the on-the-fly one
+    (which never stores the volume), and the largest difference between the
+    flows they produce.
+
+Writes results/raft_flow/{table.md, metrics.json, flow_<scene>.png, ablation.png}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+import numpy as np  # noqa: E402
+
+from research.results import markdown_table, save_figure, write_results  # noqa: E402
+
+SCENES = ("objects", "spheres", "cornell")
+LEVELS = (1, 2, 3, 4)
+RADII = (1, 2, 3, 4)
+STRIDE = 4
+HEADLINE = (4, 4)  # levels, radius
+RES, SPP, STEP_DEG = 256, 32, 4.0
+
+
+def datasets(quick: bool, seed: int, data: Path) -> dict[str, Path]:
+    from research.datasets import DatasetConfig, ensure
+
+    scenes = SCENES[:1] if quick else SCENES
+    frames = 3 if quick else 4
+    out = {}
+    for scene in scenes:
+        cfg = DatasetConfig(scene, views=3, res=RES, spp=SPP, seed=seed, flow=True, flow_frames=frames,
+                            flow_step_deg=STEP_DEG)
+        out[scene] = ensure(cfg, data / f"raft_flow-{scene}{'-quick' if quick else ''}", show_progress=False)
+    return out
+
+
+def baselines(rgb1: np.ndarray, rgb2: np.ndarray, device: str) -> dict[str, tuple[np.ndarray, float]]:
+    """Flow (H, W, 2) and seconds of each baseline."""
+    import cv2
+
+    from kernels import flow as lk
+    from research.opticalflow import grey
+
+    g1, g2 = grey(rgb1), grey(rgb2)
+    u1, u2 = (np.clip(g * 255.0 + 0.5, 0, 255).astype(np.uint8) for g in (g1, g2))
+    out = {}
+    t0 = time.perf_counter()
+    fl, _, _ = lk.pyramidal_lucas_kanade(g1, g2, levels=4, half_window=4, iterations=5, device=device)
+    out["pyramidal LK (4 levels, 9x9)"] = (fl, time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    fb = cv2.calcOpticalFlowFarneback(u1, u2, None, 0.5, 5, 15, 3, 5, 1.2, 0)
+    out["OpenCV Farneback"] = (fb.astype(np.float64), time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(u1, u2, None)
+    out["OpenCV DIS (medium)"] = (dis.astype(np.float64), time.perf_counter() - t0)
+    out["zero flow"] = (np.zeros(rgb1.shape[:2] + (2,)), 0.0)
+    return out
+
+
+class Pooled:
+    """EPE and F1-all pooled over all evaluated pixels of several pairs."""
+
+    def __init__(self) -> None:
+        self.epe_sum = 0.0
+        self.outliers = 0.0
+        self.pixels = 0
+        self.seconds: list[float] = []
+
+    def add(self, metrics: dict, seconds: float) -> None:
+        self.epe_sum += metrics["epe"] * metrics["pixels"]
+        self.outliers += metrics["f1_all"] / 100.0 * metrics["pixels"]
+        self.pixels += metrics["pixels"]
+        self.seconds.append(seconds)
+
+    def summary(self) -> dict:
+        return {"epe": self.epe_sum / self.pixels, "f1_all": 100.0 * self.outliers / self.pixels,
+                "pixels": self.pixels, "seconds_per_pair": statistics.mean(self.seconds)}
+
+
+def memory_time(rgb1: np.ndarray, rgb2: np.ndarray, gt: np.ndarray, mask: np.ndarray, device: str) -> dict:
+    """Dense vs on-the-fly correlation for the headline configuration on one pair."""
+    from research.opticalflow import CorrFlow, CorrFlowConfig, flow_metrics
+
+    cfg = CorrFlowConfig(levels=HEADLINE[0], radius=HEADLINE[1])
+    rows = {}
+    flows = {}
+    for name, onthefly in (("dense pyramid", False), ("on the fly", True)):
+        t0 = time.perf_counter()
+        cf = CorrFlow(rgb1, rgb2, stride=STRIDE, max_levels=cfg.levels, onthefly=onthefly, device=device)
+        setup = time.perf_counter() - t0
+        coords = (np.stack(np.meshgrid(np.arange(cf.w) + 0.5, np.arange(cf.h) + 0.5))
+                  + np.random.default_rng(0).uniform(-3, 3, (2, cf.h, cf.w))).astype(np.float32)
+        cf.lookup(coords, cfg.levels, cfg.radius)  # warm-up
+        times = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            cf.lookup(coords, cfg.levels, cfg.radius)
+            times.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        flows[name] = cf.estimate(cfg)
+        total = time.perf_counter() - t0
+        rows[name] = {"features": list(cf.f1.shape), "setup_s": setup, "lookup_s": statistics.median(times),
+                      "estimate_s": total, "bytes": cf.memory_bytes(cfg.levels, cfg.radius),
+                      **flow_metrics(flows[name], gt, mask)}
+    rows["max_flow_diff_px"] = float(np.abs(flows["dense pyramid"] - flows["on the fly"]).max())
+    return rows
+
+
+def flow_figure(scene: str, rgb1: np.ndarray, gt: np.ndarray, mask: np.ndarray,
+                flows: dict[str, np.ndarray], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from research.opticalflow import flow_to_color
+
+    scale = float(np.linalg.norm(gt[mask], axis=-1).max())
+    cols = 2 + len(flows)
+    fig, axes = plt.subplots(2, cols, figsize=(2.6 * cols, 5.6))
+    axes[0, 0].imshow(rgb1)
+    axes[0, 0].set_title(f"{scene}: frame 1", fontsize=9)
+    axes[0, 1].imshow(flow_to_color(np.where(mask[..., None], gt, 0.0), scale))
+    axes[0, 1].set_title(f"ground truth (max {scale:.1f} px)", fontsize=9)
+    axes[1, 0].imshow(mask, cmap="gray")
+    axes[1, 0].set_title("evaluated (non-occluded)", fontsize=9)
+    axes[1, 1].axis("off")
+    for k, (name, fl) in enumerate(flows.items()):
+        err = np.linalg.norm(fl - gt, axis=-1)
+        axes[0, k + 2].imshow(flow_to_color(fl, scale))
+        axes[0, k + 2].set_title(name, fontsize=8)
+        im = axes[1, k + 2].imshow(np.where(mask, err, np.nan), cmap="magma", vmin=0, vmax=5)
+        axes[1, k + 2].set_title(f"EPE {err[mask].mean():.2f} px", fontsize=8)
+    fig.colorbar(im, ax=axes[1, :].tolist(), fraction=0.02, label="endpoint error (px, clipped at 5)")
+    for ax in axes.ravel():
+        ax.set_xticks([])
+        ax.set_yticks([])
+    save_figure(fig, path)
+    plt.close(fig)
+
+
+def ablation_figure(grid: np.ndarray, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(4.2, 3.6))
+    im = ax.imshow(grid, cmap="viridis_r")
+    for i in range(grid.shape[0]):
+        for j in range(grid.shape[1]):
+            ax.text(j, i, f"{grid[i, j]:.2f}", ha="center", va="center", color="w", fontsize=9)
+    ax.set_xticks(range(len(RADII)), [str(r) for r in RADII])
+    ax.set_yticks(range(len(LEVELS)), [str(lv) for lv in LEVELS])
+    ax.set_xlabel("radius r")
+    ax.set_ylabel("pyramid levels L")
+    ax.set_title("EPE (px), all pairs")
+    fig.colorbar(im, ax=ax)
+    save_figure(fig, path)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="scene `objects` only, 2 frame pairs")
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device for the kernels")
+    ap.add_argument("--out", type=Path, default=REPO / "results" / "raft_flow", help="results directory")
+    ap.add_argument("--data", type=Path, default=REPO / "data", help="where the flow datasets are rendered")
+    ap.add_argument("--seed", type=int, default=0, help="dataset seed")
+    args = ap.parse_args(argv)
+
+    from tqdm import tqdm
+
+    from research.datasets import load_flow
+    from research.opticalflow import CorrFlow, CorrFlowConfig, flow_metrics, srgb
+
+    t_start = time.perf_counter()
+    paths = datasets(args.quick, args.seed, args.data)
+    t_data = time.perf_counter() - t_start
+    pairs = [(scene, k) for scene, p in paths.items() for k in range(len(load_flow(p).flow))]
+    ours_name = f"CorrFlow (L={HEADLINE[0]}, r={HEADLINE[1]})"
+    per_scene: dict[str, dict[str, Pooled]] = {}
+    ablation = {(lv, r): Pooled() for lv in LEVELS for r in RADII}
+    per_pair = []
+    memtime = None
+    seqs = {scene: load_flow(p) for scene, p in paths.items()}
+    gt_mag = np.concatenate([np.linalg.norm(seqs[sc].flow[k], axis=-1)[seqs[sc].valid[k]] for sc, k in pairs])
+    motion = {"median_px": float(np.median(gt_mag)), "p90_px": float(np.percentile(gt_mag, 90)),
+              "max_px": float(gt_mag.max())}
+    bar = tqdm(total=len(pairs) * (len(LEVELS) * len(RADII) + 1), desc="raft_flow", unit="run")
+    for scene, k in pairs:
+        seq = seqs[scene]
+        rgb1, rgb2 = srgb(seq.frames[k]), srgb(seq.frames[k + 1])
+        gt, mask = seq.flow[k].astype(np.float64), seq.valid[k]
+        t0 = time.perf_counter()
+        cf = CorrFlow(rgb1, rgb2, stride=STRIDE, max_levels=max(LEVELS), device=args.device)
+        build_s = time.perf_counter() - t0
+        flows = {}
+        row = {"scene": scene, "pair": k, "build_s": build_s, "ablation": {}}
+        for lv in LEVELS:
+            for r in RADII:
+                t0 = time.perf_counter()
+                fl = cf.estimate(CorrFlowConfig(levels=lv, radius=r))
+                seconds = time.perf_counter() - t0 + build_s
+                m = flow_metrics(fl, gt, mask)
+                ablation[(lv, r)].add(m, seconds)
+                row["ablation"][f"L{lv}_r{r}"] = m
+                if (lv, r) == HEADLINE:
+                    flows[ours_name] = fl
+                    per_scene.setdefault(scene, {}).setdefault(ours_name, Pooled()).add(m, seconds)
+                bar.update()
+        for name, (fl, seconds) in baselines(rgb1, rgb2, args.device).items():
+            m = flow_metrics(fl, gt, mask)
+            per_scene[scene].setdefault(name, Pooled()).add(m, seconds)
+            row[name] = m
+            if name != "zero flow":
+                flows[name] = fl
+        bar.update()
+        per_pair.append(row)
+        if k == 0:
+            flow_figure(scene, rgb1, gt, mask, flows, args.out / f"flow_{scene}.png")
+        if memtime is None:
+            memtime = memory_time(rgb1, rgb2, gt, mask, args.device)
+    bar.close()
+
+    # ------------------------------------------------------------------ tables
+    methods = list(next(iter(per_scene.values())).keys())
+    main_rows = []
+    for name in methods:
+        cells = [name]
+        for scene in per_scene:
+            s = per_scene[scene][name].summary()
+            cells += [s["epe"], s["f1_all"]]
+        allp = Pooled()
+        for scene in per_scene:
+            for p in [per_scene[scene][name]]:
+                allp.epe_sum += p.epe_sum
+                allp.outliers += p.outliers
+                allp.pixels += p.pixels
+                allp.seconds += p.seconds
+        s = allp.summary()
+        main_rows.append(cells + [s["epe"], s["f1_all"], s["seconds_per_pair"]])
+    main_headers = ["method"] + [f"{sc} {m}" for sc in per_scene for m in ("EPE", "F1-all %")] + [
+        "all EPE", "all F1-all %", "s / pair"]
+    grid = np.array([[ablation[(lv, r)].summary()["epe"] for r in RADII] for lv in LEVELS])
+    f1_grid = np.array([[ablation[(lv, r)].summary()["f1_all"] for r in RADII] for lv in LEVELS])
+    abl_rows = [[f"L={lv}"] + [f"{grid[i, j]:.3f} ({f1_grid[i, j]:.1f}%)" for j in range(len(RADII))]
+                for i, lv in enumerate(LEVELS)]
+    mt_rows = [[name, "x".join(map(str, v["features"])), f"{v['bytes'] / 2**20:.1f}", f"{v['setup_s']:.3f}",
+                f"{v['lookup_s'] * 1e3:.1f}", f"{v['estimate_s']:.2f}", f"{v['epe']:.4f}"]
+               for name, v in memtime.items() if isinstance(v, dict)]
+    n_pairs = {scene: sum(1 for s, _ in pairs if s == scene) for scene in paths}
+    table = (
+        f"Mitsuba flow pairs at {RES}x{RES} ({SPP} spp, camera azimuth step {STEP_DEG} deg), frame k -> k+1; "
+        f"pairs per scene: {n_pairs}. Metrics over non-occluded surface pixels: EPE in px, F1-all = % of "
+        "pixels with EPE > 3 px and > 5% of |gt| (KITTI). CorrFlow: kernels.corr lookups driving a "
+        f"weight-free update (research/opticalflow.py), features at stride {STRIDE}, 12 lookups. "
+        "'s / pair' includes building the correlation pyramid (CorrFlow) and runs on a shared 2-core CPU.\n\n"
+        + markdown_table(main_headers, main_rows, floatfmt=".3f")
+        + "\nAblation (CorrFlow, all pairs pooled): EPE in px (F1-all %), pyramid levels L x lookup radius r. "
+        f"Ground-truth motion: median {motion['median_px']:.1f} px ({motion['median_px'] / STRIDE:.1f} feature "
+        f"px), 90th percentile {motion['p90_px']:.1f} px, max {motion['max_px']:.1f} px: the iterated level-0 "
+        "lookups reach most matches on their own, and with fixed (unlearned) features the pooled coarse levels add "
+        "matching noise rather than reach, unlike RAFT's learned features and update.\n\n"
+        + markdown_table(["levels \\ radius"] + [f"r={r}" for r in RADII], abl_rows)
+        + f"\nDense pyramid vs on-the-fly lookup (L={HEADLINE[0]}, r={HEADLINE[1]}, float32, first pair): "
+        "'setup' builds the volume and pyramid (dense) or pools f2 (on the fly); MiB is what each keeps "
+        "between lookups (the on-the-fly path holds f1, the pooled f2 pyramid and one patch buffer); "
+        f"largest difference between their flows: {memtime['max_flow_diff_px']:.2e} px.\n\n"
+        + markdown_table(["path", "features C x h x w", "MiB", "setup s", "lookup ms", "estimate s (12 lookups)",
+                          "EPE"], mt_rows))
+    ablation_figure(grid, args.out / "ablation.png")
+    metrics = {
+        "per_scene": {sc: {m: p.summary() for m, p in d.items()} for sc, d in per_scene.items()},
+        "ablation": {f"L{lv}_r{r}": ablation[(lv, r)].summary() for lv in LEVELS for r in RADII},
+        "memory_time": memtime, "per_pair": per_pair, "dataset_seconds": t_data, "gt_motion": motion,
+    }
+    config = {"quick": args.quick, "scenes": list(paths), "res": RES, "spp": SPP, "flow_step_deg": STEP_DEG,
+              "stride": STRIDE, "headline": HEADLINE, "corrflow": CorrFlowConfig().__dict__,
+              "levels": LEVELS, "radii": RADII}
+    write_results(args.out, experiment="raft_flow", config=config, seed=args.seed, device=args.device,
+                  wall_time_s=time.perf_counter() - t_start, metrics=metrics, table_md=table)
+    print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,189 @@
+"""Gradient checks of kernels.corr: volume, pyramid, dense lookup, feature pooling, on-the-fly lookup.
+
+Inputs are random and non-degenerate: standard-normal features and volumes, and
+lookup coordinates spread past every border (so zero-padded taps are exercised).
+Bilinear sampling is piecewise linear: its derivative jumps where a sample
+position crosses a tap, i.e. where x / 2^l - 1/2 is an integer for some level l.
+Over all levels those positions have x mod 1 in {0, 0.5}, so every coordinate
+here keeps its fractional part in [0.1, 0.4] or [0.6, 0.9], far from the kinks
+compared with the finite-difference step (1e-6).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kernels import corr
+from research.gradcheck import GradcheckResult, check_vjp, register_check
+
+SEEDS = (0, 1, 2)
+# (C, H, W), levels, radius of the checks: small, but with odd sizes (floors in the pooling) and 3 levels.
+SHAPE = (3, 8, 11)
+LEVELS = 3
+RADIUS = 2
+
+
+def smooth_coords(rng: np.random.Generator, height: int, width: int, margin: float = 3.0) -> np.ndarray:
+    """(2, H, W) positions in [-margin, W + margin] x [-margin, H + margin], fractional parts off the kinks."""
+    def axis(extent: int) -> np.ndarray:
+        whole = rng.integers(-int(margin), extent + int(margin), (height, width)).astype(np.float64)
+        frac = rng.uniform(0.1, 0.4, (height, width)) + 0.5 * rng.integers(0, 2, (height, width))
+        return whole + frac
+
+    return np.stack([axis(width), axis(height)])
+
+
+def check_volume(seed: int, shape: tuple[int, int, int] = SHAPE) -> list[GradcheckResult]:
+    """V = f1 . f2 / sqrt(C), against f1 and f2."""
+    rng = np.random.default_rng(seed)
+    inputs = {"f1": rng.standard_normal(shape), "f2": rng.standard_normal(shape)}
+
+    def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
+        g1, g2 = corr.correlation_volume_backward(x["f1"], x["f2"], cot)
+        return {"f1": g1, "f2": g2}
+
+    return check_vjp(corr.correlation_volume, vjp, inputs, seed=seed, name="corr.volume")
+
+
+def check_pyramid(seed: int, height: int = 9, width: int = 10, levels: int = LEVELS) -> list[GradcheckResult]:
+    """2x2 average pooling over frame 2's dimensions, every level's output against V^0."""
+    rng = np.random.default_rng(seed)
+    inputs = {"volume": rng.standard_normal((height, width, height, width))}
+
+    def f(volume: np.ndarray) -> tuple[np.ndarray, ...]:
+        return tuple(corr.correlation_pyramid(volume, levels))
+
+    def vjp(x: dict[str, np.ndarray], cot: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
+        return {"volume": corr.correlation_pyramid_backward(list(cot))}
+
+    return check_vjp(f, vjp, inputs, seed=seed, name="corr.pyramid")
+
+
+def check_lookup(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
+                 radius: int = RADIUS) -> list[GradcheckResult]:
+    """Dense lookup (4), against every pyramid level and the coordinates."""
+    rng = np.random.default_rng(seed)
+    _, height, width = shape
+    inputs = {f"level{lvl}": rng.standard_normal((height, width, hl, wl))
+              for lvl, (hl, wl) in enumerate(corr.level_shapes(height, width, levels))}
+    inputs["coords"] = smooth_coords(rng, height, width)
+    names = [f"level{lvl}" for lvl in range(levels)]
+
+    def f(coords: np.ndarray, **levels_in: np.ndarray) -> np.ndarray:
+        return corr.lookup([levels_in[n] for n in names], coords, radius)
+
+    def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
+        grads, grad_coords = corr.lookup_backward([x[n] for n in names], x["coords"], radius, cot)
+        return {**dict(zip(names, grads)), "coords": grad_coords}
+
+    return check_vjp(f, vjp, inputs, seed=seed, name="corr.lookup")
+
+
+def check_dense_chain(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
+                      radius: int = RADIUS) -> list[GradcheckResult]:
+    """lookup(pyramid(volume(f1, f2)), coords), the whole dense path, against f1, f2 and the coordinates."""
+    rng = np.random.default_rng(seed)
+    _, height, width = shape
+    inputs = {"f1": rng.standard_normal(shape), "f2": rng.standard_normal(shape),
+              "coords": smooth_coords(rng, height, width)}
+
+    def f(f1: np.ndarray, f2: np.ndarray, coords: np.ndarray) -> np.ndarray:
+        return corr.lookup(corr.correlation_pyramid(corr.correlation_volume(f1, f2), levels), coords, radius)
+
+    def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
+        pyramid = corr.correlation_pyramid(corr.correlation_volume(x["f1"], x["f2"]), levels)
+        grads, grad_coords = corr.lookup_backward(pyramid, x["coords"], radius, cot)
+        g1, g2 = corr.correlation_volume_backward(x["f1"], x["f2"], corr.correlation_pyramid_backward(grads))
+        return {"f1": g1, "f2": g2, "coords": grad_coords}
+
+    return check_vjp(f, vjp, inputs, seed=seed, name="corr.dense_chain")
+
+
+def check_pool_features(seed: int, shape: tuple[int, int, int] = (2, 9, 10),
+                        levels: int = LEVELS) -> list[GradcheckResult]:
+    """P^l(f2) for every level, against f2."""
+    rng = np.random.default_rng(seed)
+    inputs = {"f2": rng.standard_normal(shape)}
+
+    def f(f2: np.ndarray) -> tuple[np.ndarray, ...]:
+        return tuple(corr.pool_features(f2, levels))
+
+    def vjp(x: dict[str, np.ndarray], cot: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
+        return {"f2": corr.pool_features_backward(list(cot))}
+
+    return check_vjp(f, vjp, inputs, seed=seed, name="corr.pool_features")
+
+
+def check_lookup_onthefly(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
+                          radius: int = RADIUS) -> list[GradcheckResult]:
+    """On-the-fly lookup, against f1, every pooled f2 level and the coordinates."""
+    rng = np.random.default_rng(seed)
+    channels, height, width = shape
+    inputs = {"f1": rng.standard_normal(shape)}
+    for lvl, (hl, wl) in enumerate(corr.level_shapes(height, width, levels)):
+        inputs[f"f2_level{lvl}"] = rng.standard_normal((channels, hl, wl))
+    inputs["coords"] = smooth_coords(rng, height, width)
+    names = [f"f2_level{lvl}" for lvl in range(levels)]
+
+    def f(f1: np.ndarray, coords: np.ndarray, **f2_levels: np.ndarray) -> np.ndarray:
+        return corr.lookup_onthefly(f1, [f2_levels[n] for n in names], coords, radius)
+
+    def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
+        g1, g2, gc = corr.lookup_onthefly_backward(x["f1"], [x[n] for n in names], x["coords"], radius, cot)
+        return {"f1": g1, **dict(zip(names, g2)), "coords": gc}
+
+    return check_vjp(f, vjp, inputs, seed=seed, name="corr.lookup_onthefly")
+
+
+def check_onthefly_chain(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
+                         radius: int = RADIUS) -> list[GradcheckResult]:
+    """lookup_onthefly(f1, pool_features(f2), coords), against f1, f2 and the coordinates."""
+    rng = np.random.default_rng(seed)
+    _, height, width = shape
+    inputs = {"f1": rng.standard_normal(shape), "f2": rng.standard_normal(shape),
+              "coords": smooth_coords(rng, height, width)}
+
+    def f(f1: np.ndarray, f2: np.ndarray, coords: np.ndarray) -> np.ndarray:
+        return corr.lookup_onthefly(f1, corr.pool_features(f2, levels), coords, radius)
+
+    def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
+        g1, g2, gc = corr.lookup_onthefly_backward(x["f1"], corr.pool_features(x["f2"], levels), x["coords"],
+                                                   radius, cot)
+        return {"f1": g1, "f2": corr.pool_features_backward(g2), "coords": gc}
+
+    return check_vjp(f, vjp, inputs, seed=seed, name="corr.onthefly_chain")
+
+
+@register_check("corr.volume")
+def volume() -> list[GradcheckResult]:
+    return [r for seed in SEEDS for r in check_volume(seed)]
+
+
+@register_check("corr.pyramid")
+def pyramid() -> list[GradcheckResult]:
+    return [r for seed in SEEDS for r in check_pyramid(seed)]
+
+
+@register_check("corr.lookup")
+def lookup() -> list[GradcheckResult]:
+    return [r for seed in SEEDS for r in check_lookup(seed, radius=(1, 2, 3)[seed % 3])]
+
+
+@register_check("corr.dense_chain")
+def dense_chain() -> list[GradcheckResult]:
+    return [r for seed in SEEDS for r in check_dense_chain(seed)]
+
+
+@register_check("corr.pool_features")
+def pool_features() -> list[GradcheckResult]:
+    return [r for seed in SEEDS for r in check_pool_features(seed)]
+
+
+@register_check("corr.lookup_onthefly")
+def lookup_onthefly() -> list[GradcheckResult]:
+    return [r for seed in SEEDS for r in check_lookup_onthefly(seed, radius=(1, 2, 3)[seed % 3])]
+
+
+@register_check("corr.onthefly_chain")
+def onthefly_chain() -> list[GradcheckResult]:
+    return [r for seed in SEEDS for r in check_onthefly_chain(seed)]

@@ -1,0 +1,264 @@
+"""kernels.corr: RAFT's all-pairs volume, pyramid and lookups against plain NumPy, FD gradients, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from kernels import corr
+from research.checks import corr as checks
+from research.gradcheck import assert_gradcheck
+
+DTYPES = [np.float32, np.float64]
+# float32 results are compared with float64 references: sums of C products of O(1) numbers.
+TOL = {np.float32: dict(rtol=1e-5, atol=2e-5), np.float64: dict(rtol=1e-12, atol=1e-12)}
+
+
+# --------------------------------------------------------------------------- NumPy reference
+
+
+def ref_volume(f1: np.ndarray, f2: np.ndarray) -> np.ndarray:
+    c, h, w = f1.shape
+    out = np.zeros((h, w, h, w))
+    for y1 in range(h):
+        for x1 in range(w):
+            for y2 in range(h):
+                for x2 in range(w):
+                    out[y1, x1, y2, x2] = np.dot(f1[:, y1, x1], f2[:, y2, x2]) / np.sqrt(c)
+    return out
+
+
+def ref_pool(x: np.ndarray) -> np.ndarray:
+    """2x2 average over the last two axes, dropping an odd last row/column."""
+    h, w = x.shape[-2] // 2, x.shape[-1] // 2
+    out = np.zeros(x.shape[:-2] + (h, w))
+    for y in range(h):
+        for xx in range(w):
+            out[..., y, xx] = x[..., 2 * y:2 * y + 2, 2 * xx:2 * xx + 2].mean(axis=(-2, -1))
+    return out
+
+
+def ref_pyramid(volume: np.ndarray, levels: int) -> list[np.ndarray]:
+    out = [volume]
+    for _ in range(1, levels):
+        out.append(ref_pool(out[-1]))
+    return out
+
+
+def ref_bilinear(img: np.ndarray, x: float, y: float) -> float:
+    """Sample img (H, W) at continuous (x, y), pixel centres at +0.5, each tap 0 outside."""
+    h, w = img.shape
+    u, v = x - 0.5, y - 0.5
+    i, j = int(np.floor(u)), int(np.floor(v))
+    fx, fy = u - i, v - j
+
+    def tap(r: int, c: int) -> float:
+        return img[r, c] if 0 <= r < h and 0 <= c < w else 0.0
+
+    return ((1 - fx) * (1 - fy) * tap(j, i) + fx * (1 - fy) * tap(j, i + 1)
+            + (1 - fx) * fy * tap(j + 1, i) + fx * fy * tap(j + 1, i + 1))
+
+
+def ref_lookup(pyramid: list[np.ndarray], coords: np.ndarray, radius: int) -> np.ndarray:
+    """RAFT's CorrBlock.__call__: per level, delta = stack(meshgrid(dy, dx)) is ADDED to (x, y), so the
+    first (slow) window index moves x and the second moves y."""
+    side = 2 * radius + 1
+    h, w = coords.shape[1:]
+    out = np.zeros((len(pyramid) * side * side, h, w))
+    for lvl, level in enumerate(pyramid):
+        for y1 in range(h):
+            for x1 in range(w):
+                cx, cy = coords[0, y1, x1] / 2 ** lvl, coords[1, y1, x1] / 2 ** lvl
+                for a in range(side):
+                    for b in range(side):
+                        out[lvl * side * side + a * side + b, y1, x1] = ref_bilinear(
+                            level[y1, x1], cx + a - radius, cy + b - radius)
+    return out
+
+
+# --------------------------------------------------------------------------- forward
+
+
+def random_case(rng: np.random.Generator, dtype, shape=(5, 9, 11)):
+    c, h, w = shape
+    f1 = rng.standard_normal(shape).astype(dtype)
+    f2 = rng.standard_normal(shape).astype(dtype)
+    # Positions well past every border, so zero-padded taps and fully outside windows occur.
+    coords = np.stack([rng.uniform(-6, w + 6, (h, w)), rng.uniform(-6, h + 6, (h, w))]).astype(dtype)
+    return f1, f2, coords
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_volume_and_pyramid_match_reference(dtype):
+    f1, f2, _ = random_case(np.random.default_rng(1), dtype)
+    volume = corr.correlation_volume(f1, f2)
+    assert volume.dtype == dtype and volume.shape == (9, 11, 9, 11)
+    want = ref_volume(f1.astype(np.float64), f2.astype(np.float64))
+    np.testing.assert_allclose(volume, want, **TOL[dtype])
+    pyramid = corr.correlation_pyramid(volume, 4)
+    assert [p.shape for p in pyramid] == [(9, 11, 9, 11), (9, 11, 4, 5), (9, 11, 2, 2), (9, 11, 1, 1)]
+    for got, ref in zip(pyramid, ref_pyramid(want, 4)):
+        np.testing.assert_allclose(got, ref, **TOL[dtype])
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("radius", [0, 2])
+def test_lookup_matches_reference(dtype, radius):
+    f1, f2, coords = random_case(np.random.default_rng(2 + radius), dtype)
+    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 3)
+    out = corr.lookup(pyramid, coords, radius)
+    assert out.shape == (3 * (2 * radius + 1) ** 2, 9, 11) and out.dtype == dtype
+    want = ref_lookup([p.astype(np.float64) for p in pyramid], coords.astype(np.float64), radius)
+    np.testing.assert_allclose(out, want, **TOL[dtype])
+    assert np.count_nonzero(want == 0.0) > 0  # some windows lie wholly outside frame 2
+
+
+def test_lookup_channel_order_is_rafts():
+    """One bright cell at frame-2 offset (+1, -2) from a pixel: it appears in channel (r + 1)(2r + 1) + (r - 2)."""
+    h, w, radius = 6, 7, 2
+    side = 2 * radius + 1
+    volume = np.zeros((h, w, h, w))
+    y1, x1 = 3, 2
+    volume[y1, x1, y1 - 2, x1 + 1] = 1.0
+    coords = np.stack(np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5))  # pixel centres: zero flow
+    out = corr.lookup([volume], coords, radius)
+    hit = np.argwhere(out[:, y1, x1] == 1.0).ravel()
+    assert hit.tolist() == [(radius + 1) * side + (radius - 2)]
+    assert np.count_nonzero(out) == 1
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_onthefly_equals_dense_forward_and_backward(dtype):
+    rng = np.random.default_rng(5)
+    f1, f2, coords = random_case(rng, dtype, shape=(11, 10, 13))
+    levels, radius = 4, 3
+    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), levels)
+    f2_pyramid = corr.pool_features(f2, levels)
+    for got, ref in zip(f2_pyramid, ref_pyramid(f2.astype(np.float64), levels)):
+        np.testing.assert_allclose(got, ref, **TOL[dtype])
+    dense = corr.lookup(pyramid, coords, radius)
+    onthefly = corr.lookup_onthefly(f1, f2_pyramid, coords, radius)
+    np.testing.assert_allclose(onthefly, dense, **TOL[dtype])
+
+    grad_out = rng.standard_normal(dense.shape).astype(dtype)
+    grad_levels, grad_coords_dense = corr.lookup_backward(pyramid, coords, radius, grad_out)
+    g1_dense, g2_dense = corr.correlation_volume_backward(f1, f2, corr.correlation_pyramid_backward(grad_levels))
+    g1, g2_levels, grad_coords = corr.lookup_onthefly_backward(f1, f2_pyramid, coords, radius, grad_out)
+    g2 = corr.pool_features_backward(g2_levels)
+    tol = dict(rtol=1e-4, atol=1e-4) if dtype == np.float32 else TOL[dtype]  # sums of ~10^3 float32 terms
+    np.testing.assert_allclose(g1, g1_dense, **tol)
+    np.testing.assert_allclose(g2, g2_dense, **tol)
+    np.testing.assert_allclose(grad_coords, grad_coords_dense, **tol)
+
+
+def test_warp_arrays_in_warp_arrays_out():
+    f1, f2, coords = random_case(np.random.default_rng(7), np.float32, shape=(3, 8, 8))
+    wf1, wf2, wc = (wp.array(a, device="cpu") for a in (f1, f2, coords))
+    pyramid = corr.correlation_pyramid(corr.correlation_volume(wf1, wf2), 2)
+    assert all(isinstance(p, wp.array) for p in pyramid)
+    out = corr.lookup(pyramid, wc, 1)
+    assert isinstance(out, wp.array)
+    np.testing.assert_allclose(out.numpy(), corr.lookup(corr.correlation_pyramid(
+        corr.correlation_volume(f1, f2), 2), coords, 1), rtol=1e-6, atol=1e-6)
+    out2 = corr.lookup_onthefly(wf1, corr.pool_features(wf2, 2), wc, 1)
+    assert isinstance(out2, wp.array)
+
+
+def test_memory_accounting():
+    assert corr.dense_bytes(46, 62, 4) == 4 * 46 * 62 * (46 * 62 + 23 * 31 + 11 * 15 + 5 * 7)
+    assert corr.onthefly_bytes(46, 62, 256, 4, 4) < corr.dense_bytes(46, 62, 4) / 4
+
+
+# --------------------------------------------------------------------------- gradients (float64, FD)
+
+
+@pytest.mark.parametrize("seed", checks.SEEDS)
+def test_gradcheck_volume_pyramid_pool(seed):
+    assert_gradcheck(checks.check_volume(seed) + checks.check_pyramid(seed) + checks.check_pool_features(seed))
+
+
+@pytest.mark.parametrize("seed", checks.SEEDS)
+def test_gradcheck_lookup(seed):
+    assert_gradcheck(checks.check_lookup(seed, radius=(1, 2, 3)[seed]))
+
+
+@pytest.mark.parametrize("seed", checks.SEEDS)
+def test_gradcheck_lookup_onthefly(seed):
+    assert_gradcheck(checks.check_lookup_onthefly(seed, radius=(1, 2, 3)[seed]))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_gradcheck_whole_paths(seed):
+    assert_gradcheck(checks.check_dense_chain(seed) + checks.check_onthefly_chain(seed))
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def test_mismatched_feature_shapes():
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="f2: expected the shape of f1"):
+        corr.correlation_volume(rng.standard_normal((4, 8, 8)), rng.standard_normal((5, 8, 8)))
+    with pytest.raises(ValueError, match="f2: expected the shape of f1"):
+        corr.correlation_volume(rng.standard_normal((4, 8, 8)), rng.standard_normal((4, 8, 9)))
+    with pytest.raises(ValueError, match=r"f1: expected a \(C, H, W\)"):
+        corr.correlation_volume(rng.standard_normal((8, 8)), rng.standard_normal((8, 8)))
+    f1 = rng.standard_normal((4, 8, 8))
+    coords = checks.smooth_coords(rng, 8, 8)
+    with pytest.raises(ValueError, match=r"f2_pyramid\[1\]: expected shape \(4, 4, 4\)"):
+        corr.lookup_onthefly(f1, [rng.standard_normal((4, 8, 8)), rng.standard_normal((3, 4, 4))], coords, 1)
+
+
+def test_nan_coordinates():
+    rng = np.random.default_rng(0)
+    f1, f2 = rng.standard_normal((2, 3, 8, 8))
+    coords = checks.smooth_coords(rng, 8, 8)
+    coords[1, 2, 3] = np.nan
+    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 2)
+    with pytest.raises(ValueError, match="coords: expected finite coordinates, found 1 NaN"):
+        corr.lookup(pyramid, coords, 2)
+    with pytest.raises(ValueError, match="coords: expected finite"):
+        corr.lookup_onthefly(f1, corr.pool_features(f2, 2), coords, 2)
+    with pytest.raises(ValueError, match="coords: expected finite"):
+        corr.lookup_backward(pyramid, coords, 2, np.zeros((50, 8, 8)))
+
+
+def test_pyramid_too_deep():
+    rng = np.random.default_rng(0)
+    volume = corr.correlation_volume(*rng.standard_normal((2, 3, 8, 12)))
+    with pytest.raises(ValueError, match="levels: a pyramid of 5 levels needs frame 2 at least 16x16"):
+        corr.correlation_pyramid(volume, 5)
+    with pytest.raises(ValueError, match="levels: a pyramid of 5 levels"):
+        corr.pool_features(rng.standard_normal((3, 8, 12)), 5)
+    with pytest.raises(ValueError, match="levels: expected an integer >= 1"):
+        corr.correlation_pyramid(volume, 0)
+
+
+def test_other_bad_input():
+    rng = np.random.default_rng(0)
+    f1, f2 = rng.standard_normal((2, 3, 8, 8))
+    coords = checks.smooth_coords(rng, 8, 8)
+    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 2)
+    with pytest.raises(ValueError, match="f2: expected dtype float64 like f1"):
+        corr.correlation_volume(f1, f2.astype(np.float32))
+    with pytest.raises(ValueError, match="f1: expected dtype float32 or float64"):
+        corr.correlation_volume(f1.astype(np.int32), f2.astype(np.int32))
+    with pytest.raises(ValueError, match="f1: expected a numpy array or a wp.array"):
+        corr.correlation_volume(f1.tolist(), f2)
+    f1_nan = f1.copy()
+    f1_nan[0, 0, 0] = np.inf
+    with pytest.raises(ValueError, match="f1: expected finite values"):
+        corr.correlation_volume(f1_nan, f2)
+    with pytest.raises(ValueError, match=r"coords: expected shape \(2, 8, 8\)"):
+        corr.lookup(pyramid, coords[:, :4], 1)
+    with pytest.raises(ValueError, match="radius: expected an integer >= 0"):
+        corr.lookup(pyramid, coords, -1)
+    with pytest.raises(ValueError, match=r"pyramid\[1\]: expected shape \(8, 8, 4, 4\)"):
+        corr.lookup([pyramid[0], pyramid[1][:, :, :3]], coords, 1)
+    with pytest.raises(ValueError, match="pyramid: expected a non-empty list"):
+        corr.lookup([], coords, 1)
+    with pytest.raises(ValueError, match=r"grad_out: expected shape \(18, 8, 8\)"):
+        corr.lookup_backward(pyramid, coords, 1, np.zeros((9, 8, 8)))
+    with pytest.raises(ValueError, match="grad_volume: expected shape"):
+        corr.correlation_volume_backward(f1, f2, np.zeros((8, 8, 8)))
