@@ -70,15 +70,23 @@ register_experiment(
     "Weight-free RAFT-style flow from correlation lookups on Mitsuba flow pairs: EPE/F1, levels x radius, baselines.",
     quick_budget_s=300,
 )
+register_experiment(
+    "stereo_depth",
+    "Stereo matching on Mitsuba rectified pairs: SAD/ZNCC/census/correlation x WTA/SGM-4/SGM-8 vs OpenCV SGBM/BM.",
+    quick_budget_s=300,
+)
+
 
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",
     "research.checks.corr",
+    "research.checks.stereo",
 ]
 
 # Benchmark families.
 BENCH_MODULES: dict[str, str] = {
     "launch": "research.bench.launch",
     "corr": "research.bench.corr",
+    "stereo": "research.bench.stereo",
 }

@@ -1,0 +1,407 @@
+#!/usr/bin/env python3
+"""Depth from stereo on Mitsuba rectified pairs: drlab's cost volumes and SGM against OpenCV.
+
+For the scenes `objects` and `cornell` this renders rectified pairs with exact
+disparity (`drlab dataset --stereo`, into data/stereo_depth-<scene>), converts
+them to 8-bit grayscale as a camera would store them, and runs
+
+  * drlab: every cost (SAD, ZNCC, census, feature correlation on patch
+    features) x every aggregation (none = plain winner-take-all, SGM over 4
+    paths, SGM over 8 paths), each followed by WTA with the sub-pixel
+    parabola and the left-right check; plus soft-argmin in place of WTA on the
+    best SGM configuration;
+  * OpenCV StereoSGBM and StereoBM.
+
+Protocol. Pair p_000 of each scene is a tuning pair; the others are the
+evaluation pairs. Every method's free parameters (drlab: window, P1, P2, soft-
+argmin temperature; OpenCV: block size, mode, P2, uniqueness) are chosen from
+a small grid by mean D1 on the tuning pairs, and "the best drlab configuration"
+is chosen the same way, so nothing is selected on the pairs it is scored on.
+
+Scoring (research.stereo): invalid pixels are filled as KITTI's devkit does,
+then EPE, bad-1/2/3, D1 and depth abs-rel over the non-occluded ground truth
+(noc) and D1 over every pixel with ground truth (all); pooled over pairs
+(pixel-weighted). Time is wall time per pair on this machine: drlab with its
+CPU threads (kernels.launch), OpenCV with cv2.getNumThreads() threads.
+
+Writes results/stereo_depth/{table.md, metrics.json, disparity_maps.png, d1_by_method.png}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+import numpy as np  # noqa: E402
+
+from research.results import markdown_table, save_figure, write_results  # noqa: E402
+
+SCENES = ("objects", "cornell")
+METRIC_KEYS = ("epe", "bad1", "bad2", "bad3", "d1", "abs_rel", "density")
+
+
+@dataclass(frozen=True)
+class Setup:
+    res: int
+    spp: int
+    pairs: int
+    dmax: int  # disparities [0, dmax); a multiple of 16 for OpenCV
+
+
+def setup(quick: bool) -> Setup:
+    # Ground-truth disparities reach ~43 px at 256x256 (~22 px at 128x128) in both scenes.
+    return Setup(res=128, spp=16, pairs=3, dmax=32) if quick else Setup(res=256, spp=64, pairs=6, dmax=64)
+
+
+# --------------------------------------------------------------------------- data
+
+
+@dataclass
+class Pair:
+    scene: str
+    name: str
+    left: np.ndarray  # uint8 (H, W)
+    right: np.ndarray
+    gt: np.ndarray  # (H, W) disparity
+    masks: dict[str, np.ndarray]
+    depth: np.ndarray
+    focal: float
+    baseline: float
+    left_rgb: np.ndarray
+
+
+def load_pairs(args: argparse.Namespace, st: Setup) -> list[Pair]:
+    from research.datasets import DatasetConfig, ensure, load_stereo
+    from research.io import linear_to_srgb
+    from research.stereo import to_gray_u8
+
+    pairs = []
+    for scene in SCENES:
+        cfg = DatasetConfig(scene, views=3, res=st.res, spp=st.spp, seed=args.seed, stereo=True,
+                            stereo_pairs=st.pairs)
+        path = ensure(cfg, args.data / f"stereo_depth-{scene}{'-quick' if args.quick else ''}")
+        for p in load_stereo(path):
+            has_gt = p.disparity > 0
+            pairs.append(Pair(scene, p.name, to_gray_u8(p.left), to_gray_u8(p.right), p.disparity,
+                              {"noc": p.noc & has_gt, "all": p.mask & has_gt}, p.depth, p.left_camera.fx,
+                              p.baseline, np.clip(linear_to_srgb(p.left[..., :3]), 0, 1)))
+    return pairs
+
+
+# --------------------------------------------------------------------------- methods
+
+
+@dataclass
+class Method:
+    name: str
+    family: str  # "drlab" or "opencv"
+    params: dict[str, Any]
+    run: Callable[[Pair], tuple[np.ndarray, np.ndarray, float]]  # -> disparity, valid, seconds
+
+
+def drlab_grid(cost: str, aggregation: str) -> list[dict[str, Any]]:
+    """Candidate parameters of one drlab cost x aggregation (research.stereo.StereoConfig fields)."""
+    windows = {"sad": [{"radius": r} for r in (1, 2, 3, 4)],
+               "zncc": [{"radius": r, "zncc_eps": e} for r in (2, 3, 4, 5) for e in (1e-4, 1e-3)],
+               "census": [{"census_radii": rr} for rr in ((2, 3), (3, 4))],
+               "corr": [{"radius": r} for r in (2, 3)]}[cost]
+    if aggregation == "none":
+        return windows
+    p1_base = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "corr": 0.01}[cost]  # about one cost unit of each
+    return [{**w, "p1": p1_base * f, "p2": p1_base * f * ratio}
+            for w in windows for f in (0.5, 1.0, 2.0, 4.0) for ratio in (4.0, 8.0, 16.0)]
+
+
+def opencv_methods(dmax: int) -> list[Method]:
+    import cv2
+
+    def sgbm(block: int, mode: int, p2_mult: int, uniqueness: int) -> Callable:
+        matcher = cv2.StereoSGBM_create(minDisparity=0, numDisparities=dmax, blockSize=block, P1=8 * block * block,
+                                        P2=p2_mult * block * block, disp12MaxDiff=1, uniquenessRatio=uniqueness,
+                                        speckleWindowSize=100, speckleRange=2, mode=mode)
+        return lambda p: _run_cv(matcher, p)
+
+    def bm(block: int, uniqueness: int) -> Callable:
+        matcher = cv2.StereoBM_create(numDisparities=dmax, blockSize=block)
+        matcher.setUniquenessRatio(uniqueness)
+        matcher.setTextureThreshold(10)
+        matcher.setSpeckleWindowSize(100)
+        matcher.setSpeckleRange(32)
+        matcher.setDisp12MaxDiff(1)
+        return lambda p: _run_cv(matcher, p)
+
+    modes = {"SGBM": cv2.STEREO_SGBM_MODE_SGBM, "HH": cv2.STEREO_SGBM_MODE_HH, "3WAY": cv2.STEREO_SGBM_MODE_SGBM_3WAY}
+    out = [Method("OpenCV StereoSGBM", "opencv", {"blockSize": b, "mode": m, "P1": 8 * b * b, "P2": q * b * b,
+                                                  "uniquenessRatio": u}, sgbm(b, modes[m], q, u))
+           for b, m, q, u in itertools.product((3, 5, 7, 9), modes, (32, 96), (5, 10))]
+    out += [Method("OpenCV StereoBM", "opencv", {"blockSize": b, "uniquenessRatio": u}, bm(b, u))
+            for b, u in itertools.product((5, 9, 15, 21), (5, 15))]
+    return out
+
+
+def _run_cv(matcher: Any, p: Pair) -> tuple[np.ndarray, np.ndarray, float]:
+    t0 = time.perf_counter()
+    raw = matcher.compute(p.left, p.right)
+    seconds = time.perf_counter() - t0
+    disp = raw.astype(np.float32) / 16.0  # fixed point, 4 fractional bits; invalid = (minDisparity - 1) * 16
+    return disp, disp >= 0, seconds
+
+
+# --------------------------------------------------------------------------- scoring
+
+
+def score(disp: np.ndarray, valid: np.ndarray, p: Pair) -> dict[str, dict[str, float]]:
+    from research.stereo import evaluate
+
+    return evaluate(disp, valid, p.gt, p.masks, p.depth, p.focal, p.baseline)
+
+
+def pooled(rows: list[dict[str, dict[str, float]]]) -> dict[str, float]:
+    """Pixel-weighted means over pairs: noc metrics, plus d1_all."""
+    w = np.array([r["noc"]["pixels"] for r in rows], dtype=np.float64)
+    out = {k: float(np.sum(w * [r["noc"][k] for r in rows]) / w.sum()) for k in METRIC_KEYS if k != "abs_rel"}
+    wd = w * np.array([r["noc"]["depth_valid_fraction"] for r in rows])
+    out["abs_rel"] = float(np.sum(wd * [np.nan_to_num(r["noc"]["abs_rel"]) for r in rows]) / max(wd.sum(), 1.0))
+    wa = np.array([r["all"]["pixels"] for r in rows], dtype=np.float64)
+    out["d1_all"] = float(np.sum(wa * [r["all"]["d1"] for r in rows]) / wa.sum())
+    out["pixels"] = int(w.sum())
+    return out
+
+
+def tune(candidates: list[Method], tuning: list[Pair], desc: str) -> tuple[Method, list[dict]]:
+    """The candidate with the lowest mean D1 (noc) on the tuning pairs, and every candidate's score."""
+    from tqdm import tqdm
+
+    scores = []
+    for m in tqdm(candidates, desc=desc, leave=False):
+        d1 = float(np.mean([score(*m.run(p)[:2], p)["noc"]["d1"] for p in tuning]))
+        scores.append({"params": m.params, "tuning_d1": d1})
+    best = int(np.argmin([s["tuning_d1"] for s in scores]))
+    return candidates[best], scores
+
+
+def drlab_candidates(cost: str, aggregation: str, dmax: int, device: str, cache: dict) -> list[Method]:
+    """drlab methods for one cost x aggregation; the cost volume of each pair is computed once and shared."""
+    from research.stereo import StereoConfig, cost_volume, disparity_from_cost
+
+    out = []
+    for params in drlab_grid(cost, aggregation):
+        cfg = StereoConfig(cost=cost, aggregation=aggregation, **params)
+
+        def run_tuning(p: Pair, cfg: StereoConfig = cfg) -> tuple[np.ndarray, np.ndarray, float]:
+            key = (p.scene, p.name, cfg.cost, cfg.radius, cfg.census_radii, cfg.zncc_eps)
+            if key not in cache:
+                cache[key] = cost_volume(p.left / 255.0, p.right / 255.0, 0, dmax, cfg, device)
+            r = disparity_from_cost(cache[key], 0, cfg, device)
+            return r.disparity, r.valid, r.timings["total_s"]
+
+        out.append(Method(cfg.label, "drlab", cfg.to_dict(), run_tuning))
+    return out
+
+
+def drlab_method(cfg: Any, dmax: int, device: str) -> Method:
+    from research.stereo import match
+
+    def run(p: Pair) -> tuple[np.ndarray, np.ndarray, float]:
+        r = match(p.left / 255.0, p.right / 255.0, 0, dmax, cfg, device)
+        return r.disparity, r.valid, r.timings["total_s"]
+
+    return Method(cfg.label, "drlab", cfg.to_dict(), run)
+
+
+# --------------------------------------------------------------------------- figures
+
+
+def figures(best: dict[str, Method], pairs: list[Pair], results: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from research.stereo import fill_invalid
+
+    shown = [next(p for p in pairs if p.scene == s) for s in SCENES]
+    names = list(best)
+    cols = ["left image", "ground truth"] + [f"{n}" for n in names] + [f"|error| {n}" for n in names]
+    fig, axes = plt.subplots(len(shown), len(cols), figsize=(2.6 * len(cols), 2.7 * len(shown)), squeeze=False)
+    for row, p in enumerate(shown):
+        vmax = float(p.gt.max())
+        gt = np.ma.masked_where(~p.masks["all"], p.gt)
+        imgs: list[tuple[Any, dict]] = [(p.left_rgb, {}), (gt, {"vmin": 0, "vmax": vmax})]
+        errs = []
+        for n in names:
+            d, v, _ = best[n].run(p)
+            dense = fill_invalid(d, v)
+            imgs.append((dense, {"vmin": 0, "vmax": vmax}))
+            err = np.abs(dense - p.gt)
+            errs.append((np.ma.masked_where(~p.masks["all"], err), {"vmin": 0, "vmax": 5, "cmap": "inferno"}))
+        for col, (img, kw) in enumerate(imgs + errs):
+            ax = axes[row, col]
+            im = ax.imshow(img, **kw)
+            if col >= 1:
+                fig.colorbar(im, ax=ax, fraction=0.046)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if row == 0:
+                ax.set_title(cols[col], fontsize=8)
+        axes[row, 0].set_ylabel(f"{p.scene} {p.name}")
+    fig.suptitle("Disparity (px) after KITTI fill; error clipped at 5 px; masked: no ground truth", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, out / "disparity_maps.png")
+    plt.close(fig)
+
+    labels = list(results)
+    fig, ax = plt.subplots(figsize=(max(8, 0.55 * len(labels)), 4))
+    x = np.arange(len(labels))
+    for j, scene in enumerate(SCENES):
+        ax.bar(x + (j - 0.5) * 0.4, [results[m]["scenes"][scene]["d1"] for m in labels], 0.4, label=scene)
+    ax.set_xticks(x)
+    ax.set_xticklabels(labels, rotation=60, ha="right", fontsize=7)
+    ax.set_ylabel("D1 (noc), evaluation pairs")
+    ax.legend()
+    fig.tight_layout()
+    save_figure(fig, out / "d1_by_method.png")
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="128x128 pairs, 16 spp, 3 pairs per scene (a few minutes)")
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device for drlab's kernels")
+    ap.add_argument("--out", type=Path, default=REPO / "results" / "stereo_depth", help="results directory")
+    ap.add_argument("--data", type=Path, default=REPO / "data", help="where the datasets are rendered")
+    ap.add_argument("--seed", type=int, default=0, help="dataset seed (camera poses, render noise)")
+    args = ap.parse_args(argv)
+
+    import cv2
+    import warp as wp
+    from tqdm import tqdm
+
+    from kernels.launch import default_threads
+    from research.stereo import AGGREGATIONS, COSTS, StereoConfig
+
+    wp.config.quiet = True
+    t_start = time.perf_counter()
+    load_start = os.getloadavg()[0]
+    st = setup(args.quick)
+    pairs = load_pairs(args, st)
+    tuning = [p for p in pairs if p.name == "p_000"]
+    evaluation = [p for p in pairs if p.name != "p_000"]
+
+    # ---- tuning: one configuration per drlab cost x aggregation, one per OpenCV matcher
+    chosen: dict[str, Method] = {}
+    tuning_log: dict[str, Any] = {}
+    tuning_d1: dict[str, float] = {}
+
+    def keep(m: Method, log: list[dict]) -> None:
+        chosen[m.name] = m
+        tuning_log[m.name] = {"chosen": m.params, "candidates": log}
+        tuning_d1[m.name] = min(c["tuning_d1"] for c in log)
+
+    for cost in COSTS:
+        cache: dict = {}  # cost volumes of the tuning pairs, shared by this cost's candidates
+        for agg in AGGREGATIONS:
+            m, log = tune(drlab_candidates(cost, agg, st.dmax, args.device, cache), tuning, f"tune {cost}+{agg}")
+            keep(drlab_method(StereoConfig(**m.params), st.dmax, args.device), log)
+        del cache
+    best_sgm = min((k for k in chosen if "SGM" in k), key=lambda k: tuning_d1[k])
+    base = chosen[best_sgm].params
+    soft = [drlab_method(StereoConfig(**{**base, "disparity": "soft_argmin", "temperature": base["p1"] * f}),
+                         st.dmax, args.device) for f in (0.25, 1.0, 4.0)]
+    keep(*tune(soft, tuning, "tune soft-argmin"))
+    for name in ("OpenCV StereoSGBM", "OpenCV StereoBM"):
+        keep(*tune([c for c in opencv_methods(st.dmax) if c.name == name], tuning, f"tune {name}"))
+    best_drlab = min((k for k in chosen if chosen[k].family == "drlab"), key=lambda k: tuning_d1[k])
+
+    # ---- evaluation
+    results: dict[str, Any] = {}
+    for name, m in tqdm(chosen.items(), desc="evaluate"):
+        per_pair, seconds = [], []
+        for p in evaluation:
+            d, v, s = m.run(p)
+            per_pair.append(score(d, v, p))
+            seconds.append(s)
+        results[name] = {
+            "family": m.family, "params": m.params, "tuning_d1": tuning_d1[name],
+            "pooled": pooled(per_pair), "time_s_mean": float(np.mean(seconds)),
+            "scenes": {s: pooled([r for r, p in zip(per_pair, evaluation) if p.scene == s]) for s in SCENES},
+            "pairs": {f"{p.scene}/{p.name}": {**r, "seconds": t} for r, p, t in zip(per_pair, evaluation, seconds)},
+        }
+
+    sgbm = results["OpenCV StereoSGBM"]
+    best = results[best_drlab]
+    headers = ["method", "EPE px", "bad-1", "bad-2", "bad-3", "D1 noc", "D1 all", "depth abs-rel", "density",
+               "time ms"]
+
+    def row(name: str) -> list[Any]:
+        r = results[name]["pooled"]
+        return [name, f"{r['epe']:.3f}", f"{r['bad1']:.4f}", f"{r['bad2']:.4f}", f"{r['bad3']:.4f}",
+                f"{r['d1']:.4f}", f"{r['d1_all']:.4f}", f"{r['abs_rel']:.4f}", f"{r['density']:.3f}",
+                f"{1000 * results[name]['time_s_mean']:.1f}"]
+
+    verdict = "beats" if best["pooled"]["d1"] < sgbm["pooled"]["d1"] else "does NOT beat"
+    threads = default_threads()
+    load_end = os.getloadavg()[0]
+    gt_max = max(float(p.gt[p.masks["all"]].max()) for p in evaluation)
+    d1_note = (f" Ground-truth disparities reach at most {gt_max:.1f} px; below 60 px, 5 % of d_gt is under 3 px, "
+               "so D1 equals bad-3 here." if gt_max < 60.0 else "")
+    table = (
+        f"Scenes {', '.join(SCENES)} at {st.res}x{st.res}, {st.spp} spp, disparities [0, {st.dmax}); "
+        f"{len(evaluation)} evaluation pairs (p_000 of each scene tunes every method's parameters). "
+        f"Metrics over non-occluded ground truth (noc) after KITTI fill, pooled over pairs; D1 all counts "
+        f"occluded pixels too. Time: wall per pair on this machine, drlab with {threads} CPU threads "
+        f"(device {args.device}), OpenCV with {cv2.getNumThreads()} threads; the machine is shared, 1-minute "
+        f"load average {load_start:.1f} at the start and {load_end:.1f} at the end.{d1_note}\n\n"
+        f"**Goal**: the best drlab configuration chosen on the tuning pairs, **{best_drlab}**, has D1 noc "
+        f"{best['pooled']['d1']:.4f} against OpenCV SGBM's {sgbm['pooled']['d1']:.4f}: it {verdict} SGBM "
+        f"(D1 all {best['pooled']['d1_all']:.4f} vs {sgbm['pooled']['d1_all']:.4f}), at "
+        f"{1000 * best['time_s_mean']:.1f} ms per pair against SGBM's {1000 * sgbm['time_s_mean']:.1f} ms.\n\n"
+        + markdown_table(headers, [row(n) for n in results])
+        + "\nPer scene (evaluation pairs), D1 noc / EPE:\n\n"
+        + markdown_table(["method"] + list(SCENES),
+                         [[n] + [f"{results[n]['scenes'][s]['d1']:.4f} / {results[n]['scenes'][s]['epe']:.2f}"
+                                 for s in SCENES] for n in results])
+        + "\nChosen parameters (by D1 on the tuning pairs):\n\n"
+        + markdown_table(["method", "tuning D1", "parameters"],
+                         [[n, f"{tuning_d1[n]:.4f}", _short(results[n]["params"])] for n in results])
+    )
+    figures({best_drlab: chosen[best_drlab], "OpenCV StereoSGBM": chosen["OpenCV StereoSGBM"]}, evaluation, results,
+            args.out)
+    config = {"quick": args.quick, "scenes": list(SCENES), **asdict(st), "tuning_pairs": [f"{p.scene}/{p.name}"
+              for p in tuning], "evaluation_pairs": [f"{p.scene}/{p.name}" for p in evaluation],
+              "drlab_threads": threads, "opencv_threads": cv2.getNumThreads(), "opencv": cv2.__version__,
+              "load_average_1min": [load_start, load_end]}
+    write_results(args.out, experiment="stereo_depth", config=config, seed=args.seed, device=args.device,
+                  wall_time_s=time.perf_counter() - t_start,
+                  metrics={"best_drlab": best_drlab, "goal_met": bool(best["pooled"]["d1"] < sgbm["pooled"]["d1"]),
+                           "methods": results, "tuning": tuning_log}, table_md=table)
+    print(table)
+    return 0
+
+
+def _short(params: dict[str, Any]) -> str:
+    keep = {"radius", "census_radii", "zncc_eps", "p1", "p2", "temperature", "blockSize", "mode", "P1", "P2",
+            "uniquenessRatio"}
+    skip_radius = params.get("cost") == "census"
+    items = [(k, v) for k, v in params.items() if k in keep and not (k == "radius" and skip_radius)
+             and not (k == "census_radii" and params.get("cost") != "census")
+             and not (k == "zncc_eps" and params.get("cost") != "zncc")
+             and not (k in ("p1", "p2") and params.get("aggregation") == "none")
+             and not (k == "temperature" and params.get("disparity") != "soft_argmin")]
+    return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in items)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,216 @@
+"""Stereo matching pipelines on kernels.stereo, and the KITTI-style disparity metrics.
+
+Pipeline (`match`): cost volume -> aggregation -> winner-take-all with the
+sub-pixel parabola (or soft-argmin) -> optional left-right check, where the
+right view's disparity comes from the same volume (kernels.stereo.wta_right).
+Costs: "sad", "zncc", "census", and "corr", the feature correlation on
+hand-made features (below), whose similarity is negated into a cost.
+Aggregations: "none", "sgm4", "sgm8".
+
+Patch features (for "corr", standing in for learned ones): each pixel's
+(2r+1)^2 neighbourhood (replicated at the border), minus its mean, divided by
+its norm (+ a small floor), as C = (2r+1)^2 channels. Their correlation is
+then a scaled normalised cross-correlation.
+
+Metrics, over an evaluation mask M of pixels with ground truth (KITTI 2015,
+Menze & Geiger; Middlebury, Scharstein & Szeliski), with e = |d - d_gt|:
+  * EPE = mean_M e; bad-k = fraction of M with e > k px (k = 1, 2, 3);
+  * D1 = fraction of M with e > 3 px AND e > 5% of d_gt;
+  * depth abs-rel = mean |Z - Z_gt| / Z_gt over the pixels of M whose
+    estimate gives a valid depth (Z = f b / d, kernels.stereo.depth_from_disparity).
+Invalid estimates are first filled as KITTI's devkit does before evaluating
+(`fill_invalid`): along each row, a gap takes the smaller (background)
+disparity of its two valid ends, or the one valid end at a border. So every
+method is scored on every pixel of M; `density` reports the fraction it
+estimated itself.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from kernels import stereo
+from research.io import linear_to_srgb
+
+COSTS = ("sad", "zncc", "census", "corr")
+AGGREGATIONS = ("none", "sgm4", "sgm8")
+DISPARITY_METHODS = ("wta", "soft_argmin")
+BAD_THRESHOLDS = (1.0, 2.0, 3.0)
+
+
+def to_gray_u8(rgba: np.ndarray) -> np.ndarray:
+    """Linear premultiplied RGB(A) -> 8-bit sRGB-encoded luminance (Rec. 709 weights), as a camera stores it."""
+    rgb = np.asarray(rgba, dtype=np.float64)[..., :3]
+    lum = rgb @ np.array([0.2126, 0.7152, 0.0722])
+    return np.floor(np.clip(linear_to_srgb(lum), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def patch_features(img: np.ndarray, radius: int, floor: float = 1e-2) -> np.ndarray:
+    """Zero-mean, unit-norm (2r+1)^2 patches as features (C, H, W) (see the module docstring)."""
+    pad = np.pad(np.asarray(img, dtype=np.float32), radius, mode="edge")
+    win = sliding_window_view(pad, (2 * radius + 1, 2 * radius + 1))  # (H, W, k, k)
+    f = win.reshape(*img.shape, -1)
+    f = f - f.mean(axis=-1, keepdims=True)
+    f = f / (np.linalg.norm(f, axis=-1, keepdims=True) + floor)
+    return np.ascontiguousarray(np.moveaxis(f, -1, 0))
+
+
+@dataclass(frozen=True)
+class StereoConfig:
+    cost: str = "census"
+    aggregation: str = "sgm8"
+    p1: float = 8.0
+    p2: float = 64.0
+    radius: int = 2  # window radius of SAD / ZNCC / patch features
+    census_radii: tuple[int, int] = (3, 4)  # (ry, rx): a 7x9 window, 62 bits
+    zncc_eps: float = 1e-4
+    disparity: str = "wta"
+    temperature: float = 1.0  # soft-argmin only
+    uniqueness: float = 0.0
+    lr_check: bool = True
+    lr_max_diff: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name, value, allowed in (("cost", self.cost, COSTS), ("aggregation", self.aggregation, AGGREGATIONS),
+                                     ("disparity", self.disparity, DISPARITY_METHODS)):
+            if value not in allowed:
+                raise ValueError(f"{name}: expected one of {allowed}, got {value!r}")
+
+    @property
+    def label(self) -> str:
+        agg = {"none": "WTA", "sgm4": "SGM-4", "sgm8": "SGM-8"}[self.aggregation]
+        cost = {"sad": "SAD", "zncc": "ZNCC", "census": "census", "corr": "corr (patch feat.)"}[self.cost]
+        tail = " soft-argmin" if self.disparity == "soft_argmin" else ""
+        return f"{cost} + {agg}{tail}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class StereoResult:
+    disparity: np.ndarray  # (H, W) float32
+    valid: np.ndarray  # (H, W) bool
+    timings: dict[str, float]  # cost_s, aggregate_s, disparity_s, total_s
+
+
+def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: StereoConfig,
+                device: str = "cpu") -> Any:
+    """The matching cost (H, W, D) of `cfg.cost`, as a wp.array on `device` (lower is better)."""
+    import warp as wp
+
+    if cfg.cost == "corr":
+        fl, fr = (wp.array(patch_features(x, cfg.radius), device=device) for x in (left, right))
+        corr = stereo.feature_correlation(fl, fr, dmin, dmax, device=device)
+        return wp.array(-corr.numpy(), device=device)
+    l_img, r_img = (wp.array(np.ascontiguousarray(x, dtype=np.float32), device=device) for x in (left, right))
+    if cfg.cost == "sad":
+        return stereo.sad_cost(l_img, r_img, dmin, dmax, cfg.radius, device=device)
+    if cfg.cost == "zncc":
+        return stereo.zncc_cost(l_img, r_img, dmin, dmax, cfg.radius, eps=cfg.zncc_eps, device=device)
+    return stereo.census_cost(l_img, r_img, dmin, dmax, *cfg.census_radii, device=device)
+
+
+def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "cpu") -> StereoResult:
+    """Aggregate a cost volume (wp.array), then extract the disparity as `cfg` says; timed (no cost_s)."""
+    import warp as wp
+
+    t0 = time.perf_counter()
+    if cfg.aggregation != "none":
+        cost = stereo.sgm(cost, cfg.p1, cfg.p2, paths=int(cfg.aggregation[3:]), device=device)
+        wp.synchronize_device(device)
+    t1 = time.perf_counter()
+    if cfg.disparity == "soft_argmin":
+        disp = stereo.soft_argmin(cost, dmin, cfg.temperature, device=device)
+        valid = wp.ones(disp.shape, dtype=wp.uint8, device=device)
+    else:
+        disp, valid = stereo.wta(cost, dmin, uniqueness=cfg.uniqueness, device=device)
+    if cfg.lr_check:
+        disp_r, valid_r = stereo.wta_right(cost, dmin, device=device)
+        valid = stereo.left_right_check(disp, disp_r, cfg.lr_max_diff, valid_left=valid, valid_right=valid_r,
+                                        device=device)
+    disp_np, valid_np = disp.numpy().astype(np.float32), valid.numpy().astype(bool)
+    t2 = time.perf_counter()
+    return StereoResult(disp_np, valid_np, {"aggregate_s": t1 - t0, "disparity_s": t2 - t1, "total_s": t2 - t0})
+
+
+def match(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: StereoConfig,
+          device: str = "cpu") -> StereoResult:
+    """Run the pipeline of `cfg` on grayscale images (H, W) in [0, 1]; each phase is timed."""
+    import warp as wp
+
+    t0 = time.perf_counter()
+    cost = cost_volume(left, right, dmin, dmax, cfg, device)
+    wp.synchronize_device(device)
+    cost_s = time.perf_counter() - t0
+    out = disparity_from_cost(cost, dmin, cfg, device)
+    out.timings = {"cost_s": cost_s, **out.timings, "total_s": cost_s + out.timings["total_s"]}
+    return out
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def fill_invalid(disp: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """KITTI devkit's background interpolation along rows (module docstring); rows with no valid pixel get 0."""
+    disp = np.asarray(disp, dtype=np.float64)
+    valid = np.asarray(valid, dtype=bool)
+    if disp.shape != valid.shape or disp.ndim != 2:
+        raise ValueError(f"disp, valid: expected two (H, W) arrays of one shape, got {disp.shape} and {valid.shape}")
+    H, W = disp.shape
+    cols = np.broadcast_to(np.arange(W), (H, W))
+    # Index of the nearest valid pixel to the left / right (-1 / W where there is none).
+    left_idx = np.maximum.accumulate(np.where(valid, cols, -1), axis=1)
+    right_idx = np.minimum.accumulate(np.where(valid, cols, W)[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(H)[:, None]
+    left_val = np.where(left_idx >= 0, disp[rows, np.clip(left_idx, 0, W - 1)], np.inf)
+    right_val = np.where(right_idx < W, disp[rows, np.clip(right_idx, 0, W - 1)], np.inf)
+    filled = np.minimum(left_val, right_val)
+    filled = np.where(np.isfinite(filled), filled, 0.0)
+    return np.where(valid, disp, filled)
+
+
+def disparity_metrics(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+    """EPE, bad-1/2/3 and D1 over `mask` (module docstring); `pred` must already be dense."""
+    pred, gt, mask = np.asarray(pred, np.float64), np.asarray(gt, np.float64), np.asarray(mask, bool)
+    if not (pred.shape == gt.shape == mask.shape):
+        raise ValueError(f"pred, gt, mask: shapes differ ({pred.shape}, {gt.shape}, {mask.shape})")
+    if not mask.any():
+        raise ValueError("mask: selects no pixel")
+    if not (np.all(np.isfinite(pred[mask])) and np.all(np.isfinite(gt[mask]))):
+        raise ValueError("pred, gt: non-finite values inside the mask")
+    err = np.abs(pred[mask] - gt[mask])
+    out = {"epe": float(err.mean())}
+    for k in BAD_THRESHOLDS:
+        out[f"bad{k:g}"] = float(np.mean(err > k))
+    out["d1"] = float(np.mean((err > 3.0) & (err > 0.05 * gt[mask])))
+    out["pixels"] = int(mask.sum())
+    return out
+
+
+def depth_abs_rel(pred_disp: np.ndarray, gt_depth: np.ndarray, mask: np.ndarray, focal: float,
+                  baseline: float) -> dict[str, float]:
+    """Mean |Z - Z_gt| / Z_gt over mask pixels with a valid estimated depth, and their fraction of the mask."""
+    depth, ok = stereo.depth_from_disparity(np.asarray(pred_disp, np.float64), focal, baseline)
+    sel = np.asarray(mask, bool) & ok & (gt_depth > 0)
+    rel = np.abs(depth[sel] - gt_depth[sel]) / gt_depth[sel]
+    return {"abs_rel": float(rel.mean()) if sel.any() else float("nan"),
+            "depth_valid_fraction": float(sel.sum() / max(int(np.sum(mask)), 1))}
+
+
+def evaluate(disp: np.ndarray, valid: np.ndarray, gt: np.ndarray, masks: dict[str, np.ndarray],
+             gt_depth: np.ndarray, focal: float, baseline: float) -> dict[str, dict[str, float]]:
+    """Fill, then score over each named mask: {mask name: metrics + abs_rel + density}."""
+    dense = fill_invalid(disp, valid)
+    out = {}
+    for name, m in masks.items():
+        row = disparity_metrics(dense, gt, m)
+        row.update(depth_abs_rel(dense, gt_depth, m, focal, baseline))
+        row["density"] = float(np.mean(np.asarray(valid, bool)[m]))
+        out[name] = row
+    return out

@@ -1,0 +1,83 @@
+"""research.stereo (named apart from tests/kernels/test_stereo.py, which pytest would confuse with it): KITTI fill,
+disparity and depth metrics, patch features, and the pipeline end to end."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from research.stereo import (StereoConfig, depth_abs_rel, disparity_metrics, fill_invalid, match, patch_features,
+                             to_gray_u8)
+
+
+def test_fill_invalid_takes_the_background_end_of_each_gap():
+    disp = np.array([[9.0, 5.0, 7.0, 8.0, 3.0, 6.0],
+                     [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]])
+    valid = np.array([[False, True, False, False, True, False],
+                      [False, False, False, False, False, False]])
+    got = fill_invalid(disp, valid)
+    # Row 0: the left border copies 5; the gap between 5 and 3 takes min = 3; the right border copies 3.
+    np.testing.assert_array_equal(got[0], [5.0, 5.0, 3.0, 3.0, 3.0, 3.0])
+    np.testing.assert_array_equal(got[1], 0.0)  # no valid pixel in the row
+
+
+def test_disparity_metrics_by_hand():
+    gt = np.array([[10.0, 10.0, 80.0, 80.0]])
+    pred = np.array([[10.5, 12.5, 83.5, 85.0]])  # errors 0.5, 2.5, 3.5, 5.0
+    m = disparity_metrics(pred, gt, np.ones_like(gt, dtype=bool))
+    assert m["epe"] == pytest.approx((0.5 + 2.5 + 3.5 + 5.0) / 4)
+    assert (m["bad1"], m["bad2"], m["bad3"]) == (0.75, 0.75, 0.5)
+    # D1 needs > 3 px AND > 5 %: 3.5 px of 80 is 4.4 % (not an outlier), 5 px of 80 is 6.25 %.
+    assert m["d1"] == 0.25 and m["pixels"] == 4
+    with pytest.raises(ValueError, match="mask"):
+        disparity_metrics(pred, gt, np.zeros_like(gt, dtype=bool))
+
+
+def test_depth_abs_rel_skips_invalid_depth():
+    disp = np.array([[2.0, 4.0, 0.0]])
+    gt_depth = np.array([[10.0, 4.0, 7.0]])  # f b = 20: estimates 10 (exact) and 5 (25 % off); d = 0 is invalid
+    m = depth_abs_rel(disp, gt_depth, np.ones((1, 3), dtype=bool), focal=100.0, baseline=0.2)
+    assert m["abs_rel"] == pytest.approx(0.125) and m["depth_valid_fraction"] == pytest.approx(2 / 3)
+
+
+def test_patch_features_are_zero_mean_and_normalised():
+    img = np.random.default_rng(0).uniform(0.0, 1.0, (7, 9))
+    f = patch_features(img, 1, floor=0.0)
+    assert f.shape == (9, 7, 9)
+    np.testing.assert_allclose(f.mean(axis=0), 0.0, atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(f, axis=0), 1.0, rtol=1e-5)
+    np.testing.assert_allclose(f[:, 3, 4], (img[2:5, 3:6] - img[2:5, 3:6].mean()).ravel()
+                               / np.linalg.norm(img[2:5, 3:6] - img[2:5, 3:6].mean()), rtol=1e-5)
+
+
+def test_to_gray_u8():
+    rgba = np.zeros((1, 3, 4))
+    rgba[0, 1, :3] = 1.0
+    rgba[0, 2, 1] = 1.0  # pure green: luminance 0.7152 -> sRGB 0.8625 -> 219.9 -> 220
+    np.testing.assert_array_equal(to_gray_u8(rgba), [[0, 255, 220]])
+
+
+@pytest.mark.parametrize("cfg", [StereoConfig("sad", "sgm8", p1=0.02, p2=0.2, radius=2),
+                                 StereoConfig("census", "sgm4", p1=8.0, p2=64.0, census_radii=(2, 3)),
+                                 StereoConfig("zncc", "none", radius=2),
+                                 StereoConfig("corr", "sgm8", p1=0.01, p2=0.1, radius=2),
+                                 StereoConfig("sad", "sgm8", p1=0.02, p2=0.2, disparity="soft_argmin",
+                                              temperature=0.02)])
+def test_match_recovers_a_constant_disparity(cfg):
+    # A smooth random texture shifted by 4 px: away from the left border every pipeline finds 4.
+    rng = np.random.default_rng(1)
+    base = rng.uniform(0.0, 1.0, (24, 52))
+    base = (base + np.roll(base, 1, axis=1) + np.roll(base, 1, axis=0)) / 3.0
+    left, right = base[:, 0:44], base[:, 4:48]  # left (x) = right (x - 4)
+    r = match(left, right, 0, 12, cfg)
+    assert set(r.timings) == {"cost_s", "aggregate_s", "disparity_s", "total_s"}
+    inner = (slice(3, -3), slice(10, -3))
+    np.testing.assert_allclose(r.disparity[inner], 4.0, atol=0.5)  # the sub-pixel fit stays within half a pixel
+    assert r.valid[inner].mean() > 0.95
+
+
+def test_config_rejects_unknown_names():
+    with pytest.raises(ValueError, match="cost"):
+        StereoConfig(cost="ssd")
+    with pytest.raises(ValueError, match="aggregation"):
+        StereoConfig(aggregation="sgm16")
