@@ -76,12 +76,20 @@ register_experiment(
     quick_budget_s=300,
 )
 
+register_experiment(
+    "fit_splats",
+    "3D Gaussian splatting fitted on the CPU (Warp kernels, hand-written backward) to Mitsuba `objects`: "
+    "test PSNR/SSIM, splats, train time, render FPS, PLY size.",
+    quick_budget_s=600,
+)
 
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",
     "research.checks.corr",
     "research.checks.stereo",
+    "research.checks.splat",
+    "research.checks.ssim",
 ]
 
 # Benchmark families.
@@ -89,4 +97,5 @@ BENCH_MODULES: dict[str, str] = {
     "launch": "research.bench.launch",
     "corr": "research.bench.corr",
     "stereo": "research.bench.stereo",
+    "splat": "research.bench.splat",
 }

@@ -1,0 +1,323 @@
+"""Gradient checks of the Gaussian-splatting kernels (kernels/splat.py), float64.
+
+Each stage is checked on its own (projection, rasterisation) and the whole chain
+(project + bin + sort + rasterise) per parameter group. The test scenes are the
+hard case: a dozen splats that overlap on the same pixels and straddle tile
+borders, anisotropic (per-axis scales differ by up to 3x) and rotated (random
+quaternions, unnormalised), with SH degree 3, some at opacity high enough that
+the 0.99 clamp is active and stacks deep enough that the T < 1e-4 stop fires.
+
+Finite differences are only meaningful on a smooth piece of the forward, so
+every scene is screened (`discontinuity_margins`) and re-drawn from the next
+sub-seed until every discontinuity is far from the inputs compared with the
+FD step (1e-6):
+  * the 1/255 alpha skip, the 0.99 clamp and the T < 1e-4 stop: relative
+    distance of o G from 1/255 and 0.99, and of T (1 - alpha) from 1e-4, at every
+    (pixel, splat) pair the rasteriser visits, at least MARGIN;
+  * tile culling: every splat's binning box (kernels.splat.bin_tiles) at least
+    MARGIN_PX from a tile border, and 3 sqrt(lambda_max) at least MARGIN from an
+    integer (the ceil of the radius);
+  * depth order: depths pairwise at least MARGIN_DEPTH apart;
+  * the colour clamp at 0 and the Jacobian's frustum clamp: at least MARGIN away.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from kernels import splat as ks
+from research.gradcheck import GradcheckResult, check_vjp, register_check
+
+MARGIN = 1e-3
+MARGIN_PX = 1e-2
+MARGIN_DEPTH = 1e-3
+MAX_REDRAWS = 200
+
+PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh")
+
+
+@dataclass
+class Scene:
+    params: dict[str, np.ndarray]  # means, log_scales, quats, opacity_logits, sh
+    camera: ks.SplatCamera
+    background: np.ndarray
+
+
+def _rotation(rng: np.random.Generator, max_angle: float) -> np.ndarray:
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    a = rng.uniform(-max_angle, max_angle)
+    Kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(a) * Kx + (1 - math.cos(a)) * Kx @ Kx
+
+
+def random_scene(rng: np.random.Generator, n: int = 12, width: int = 40, height: int = 36, sh_k: int = 16,
+                 off_frustum: bool = False) -> Scene:
+    """Overlapping, anisotropic, rotated splats in front of a slightly rotated camera 4 units away.
+
+    With `off_frustum`, splat 0 sits right of the image beyond the Jacobian clamp (x/z = 0.75
+    against a limit of 0.64) and is large enough to reach into it.
+    """
+    R = _rotation(rng, 0.3)
+    view = np.eye(4)
+    view[:3, :3] = R
+    view[:3, 3] = [0.05, -0.03, 4.0]
+    K = np.array([[50.0, 0.0, width / 2 + 0.3], [0.0, 48.0, height / 2 - 0.4], [0.0, 0.0, 1.0]])
+    camera = ks.SplatCamera(view, K, width, height)
+    # Points in the camera frame, then to the world.
+    pc = np.column_stack([rng.uniform(-0.45, 0.45, n), rng.uniform(-0.4, 0.4, n), 4.0 + rng.uniform(-0.6, 0.6, n)])
+    log_scales = rng.uniform(-2.4, -1.3, (n, 3))
+    logits = rng.uniform(-1.0, 3.0, n)
+    # A stack of 4 near-opaque splats on nearly one line of sight: the first is blended at the
+    # 0.99 clamp and the stack drives T below 1e-4, so the stop fires at the pixels behind its core.
+    stack = slice(n - 4, n)
+    pc[stack, :2] = rng.uniform(-0.15, 0.15, 2) + rng.uniform(-0.02, 0.02, (4, 2))
+    pc[stack, 2] = 3.5 + 0.25 * np.arange(4) + rng.uniform(-0.05, 0.05, 4)
+    log_scales[stack] = np.log(0.3) + rng.uniform(-0.25, 0.25, (4, 3))
+    logits[stack] = [rng.uniform(7.0, 9.0), *rng.uniform(3.0, 4.0, 3)]
+    if off_frustum:
+        pc[0] = [0.75 * 4.2, 0.1, 4.2]
+        log_scales[0] = [math.log(0.9), math.log(0.5), math.log(0.7)]
+    means = (pc - view[:3, 3]) @ R
+    quats = rng.normal(size=(n, 4)) * rng.uniform(0.5, 2.0, (n, 1))
+    sh = rng.normal(0.0, 0.15, (n, sh_k, 3))
+    sh[:, 0, :] = (rng.uniform(0.3, 0.8, (n, 3)) - 0.5) / ks.SH_C0
+    background = rng.uniform(0.1, 0.9, 3)
+    params = {"means": means, "log_scales": log_scales, "quats": quats, "opacity_logits": logits, "sh": sh}
+    return Scene(params, camera, background)
+
+
+# ----------------------------------------------------------------------------- margins
+
+
+def _pixel_margins(m2: np.ndarray, conic: np.ndarray, opac: np.ndarray, order: list[int], px: float,
+                   py: float) -> tuple[float, int, bool]:
+    """Smallest relative distance to the skip / clamp / stop thresholds along one pixel's list,
+    the number of splats blended at the 0.99 clamp, and whether the T < 1e-4 stop fired."""
+    worst = math.inf
+    clamped = 0
+    T = 1.0
+    for g in order:
+        dx, dy = m2[g, 0] - px, m2[g, 1] - py
+        power = -0.5 * (conic[g, 0] * dx * dx + conic[g, 2] * dy * dy) - conic[g, 1] * dx * dy
+        raw = opac[g] * math.exp(power)
+        worst = min(worst, abs(raw - ks.ALPHA_MIN) / ks.ALPHA_MIN, abs(raw - ks.ALPHA_MAX) / ks.ALPHA_MAX)
+        alpha = min(ks.ALPHA_MAX, raw)
+        if power > 0 or alpha < ks.ALPHA_MIN:
+            continue
+        nxt = T * (1.0 - alpha)
+        worst = min(worst, abs(nxt - ks.T_MIN) / ks.T_MIN)
+        if nxt < ks.T_MIN:
+            return worst, clamped, True
+        clamped += raw > ks.ALPHA_MAX
+        T = nxt
+    return worst, clamped, False
+
+
+def discontinuity_margins(scene: Scene, sh_degree: int | None = None, antialiased: bool = False) -> dict[str, float]:
+    """Distances of `scene` from every discontinuity of the forward (module docstring)."""
+    g = ks.gaussian_inputs(*(scene.params[k] for k in PARAMS))
+    proj = ks.project(g, scene.camera, sh_degree=sh_degree, antialiased=antialiased)
+    m2, conic, depth = proj.means2d.numpy(), proj.conics.numpy(), proj.depths.numpy()
+    radii, opac = proj.radii.numpy(), proj.opacities.numpy()
+    cam = scene.camera
+    vis = np.flatnonzero(radii > 0)
+    out = {"visible": float(len(vis))}
+
+    # Tile borders (of the binning extents) and the ceil of the radius.
+    px_margin = math.inf
+    ceil_margin = math.inf
+    extents = {i: binning_extents(m2[i], conic[i], opac[i], radii[i]) for i in vis}
+    for i in vis:
+        ex, ey = extents[i]
+        for c in (m2[i, 0] - ex, m2[i, 0] + ex, m2[i, 1] - ey, m2[i, 1] + ey):
+            px_margin = min(px_margin, abs(c - ks.TILE * round(c / ks.TILE)))
+        a, b, c = _cov2d_from_conic(conic[i])
+        half_tr = 0.5 * (a + c)
+        det = a * c - b * b
+        r = 3.0 * math.sqrt(half_tr + math.sqrt(max(0.01, half_tr * half_tr - det)))
+        ceil_margin = min(ceil_margin, abs(r - round(r)))
+    out["tile_px"] = px_margin
+    out["radius_ceil"] = ceil_margin
+    d = np.sort(depth[vis])
+    out["depth_gap"] = float(np.min(np.diff(d))) if len(d) > 1 else math.inf
+
+    # Colour clamp at 0 (on the pre-clamp value) and the Jacobian clamp.
+    out["color"] = float(np.min(proj.colors.numpy()[vis])) if len(vis) else math.inf
+    p = scene.params["means"] @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
+    fx, fy, cx, cy = cam.params()[:4]
+    lims = [(cam.width - cx) / fx + 0.3 * cam.width / fx, -(cx / fx + 0.3 * cam.width / fx),
+            (cam.height - cy) / fy + 0.3 * cam.height / fy, -(cy / fy + 0.3 * cam.height / fy)]
+    jac = math.inf
+    for i in vis:
+        xr, yr = p[i, 0] / p[i, 2], p[i, 1] / p[i, 2]
+        jac = min(jac, abs(xr - lims[0]), abs(xr - lims[1]), abs(yr - lims[2]), abs(yr - lims[3]))
+    out["jacobian_clamp"] = jac
+
+    # Thresholds along every pixel's list (tile membership as the binning computes it).
+    worst = math.inf
+    n_clamped = n_stopped = 0
+    tiles_x, tiles_y = cam.tiles
+    for ty in range(tiles_y):
+        for tx in range(tiles_x):
+            members = []
+            for i in vis:
+                ex, ey = extents[i]
+                if ex <= 0:
+                    continue
+                x0 = min(max(math.floor((m2[i, 0] - ex) / ks.TILE), 0), tiles_x)
+                x1 = min(max(math.ceil((m2[i, 0] + ex) / ks.TILE), 0), tiles_x)
+                y0 = min(max(math.floor((m2[i, 1] - ey) / ks.TILE), 0), tiles_y)
+                y1 = min(max(math.ceil((m2[i, 1] + ey) / ks.TILE), 0), tiles_y)
+                if x0 <= tx < x1 and y0 <= ty < y1:
+                    members.append(i)
+            order = sorted(members, key=lambda i: (depth[i], i))
+            for py in range(ty * ks.TILE, min((ty + 1) * ks.TILE, cam.height)):
+                for px in range(tx * ks.TILE, min((tx + 1) * ks.TILE, cam.width)):
+                    w, c, stopped = _pixel_margins(m2, conic, opac, order, px + 0.5, py + 0.5)
+                    worst = min(worst, w)
+                    n_clamped += c
+                    n_stopped += stopped
+    out["alpha_thresholds"] = worst
+    out["clamped_pairs"] = float(n_clamped)
+    out["stopped_pixels"] = float(n_stopped)
+    return out
+
+
+def binning_extents(m2: np.ndarray, conic: np.ndarray, opacity: float, radius: int) -> tuple[float, float]:
+    """Half-sizes (x, y) of the box a splat is binned with: its square radius, cut to the
+    bounding box of the ellipse where its alpha reaches 1/255; (0, 0) if it never does."""
+    if radius <= 0 or 255.0 * opacity < 1.0:
+        return 0.0, 0.0
+    k2 = 2.0 * math.log(255.0 * opacity)
+    det = conic[0] * conic[2] - conic[1] ** 2
+    return min(radius, math.sqrt(k2 * conic[2] / det)), min(radius, math.sqrt(k2 * conic[0] / det))
+
+
+def _cov2d_from_conic(q: np.ndarray) -> tuple[float, float, float]:
+    inv = np.linalg.inv(np.array([[q[0], q[1]], [q[1], q[2]]]))
+    return inv[0, 0], inv[0, 1], inv[1, 1]
+
+
+def margins_ok(m: dict[str, float], require_events: bool = False) -> bool:
+    """Clear of every discontinuity; with `require_events`, the clamp and the stop also occur."""
+    if require_events and (m["clamped_pairs"] < 1 or m["stopped_pixels"] < 1):
+        return False
+    return (m["tile_px"] >= MARGIN_PX and m["radius_ceil"] >= MARGIN and m["depth_gap"] >= MARGIN_DEPTH
+            and m["color"] >= MARGIN and m["jacobian_clamp"] >= MARGIN and m["alpha_thresholds"] >= MARGIN)
+
+
+def smooth_scene(seed: int, *, antialiased: bool = False, sh_degree: int | None = None, require_events: bool = False,
+                 **kwargs) -> Scene:
+    """The first scene from `seed`'s stream that is at least the margins away from every discontinuity
+    (and, with `require_events`, blends a splat at the 0.99 clamp and stops some pixel at T < 1e-4)."""
+    rng = np.random.default_rng(seed)
+    for _ in range(MAX_REDRAWS):
+        scene = random_scene(rng, **kwargs)
+        if margins_ok(discontinuity_margins(scene, sh_degree, antialiased), require_events):
+            return scene
+    raise RuntimeError(f"no scene clear of the discontinuities in {MAX_REDRAWS} draws (seed {seed})")
+
+
+# ----------------------------------------------------------------------------- stage functions
+
+
+def project_fn(camera: ks.SplatCamera, sh_degree: int | None, antialiased: bool):
+    def f(means, log_scales, quats, opacity_logits, sh):
+        g = ks.gaussian_inputs(means, log_scales, quats, opacity_logits, sh)
+        p = ks.project(g, camera, sh_degree=sh_degree, antialiased=antialiased)
+        return {"means2d": p.means2d.numpy(), "conics": p.conics.numpy(), "depths": p.depths.numpy(),
+                "colors": p.colors.numpy(), "opacities": p.opacities.numpy()}
+
+    def vjp(inputs, cot):
+        g = ks.gaussian_inputs(*(inputs[k] for k in PARAMS))
+        p = ks.project(g, camera, sh_degree=sh_degree, antialiased=antialiased)
+        grads = ks.project_backward(g, camera, p.radii, cot["means2d"], cot["conics"], cot["depths"], cot["colors"],
+                                    cot["opacities"], sh_degree=sh_degree, antialiased=antialiased)
+        return {k: v.numpy() for k, v in grads.items()}
+
+    return f, vjp
+
+
+def rasterize_fn(radii: np.ndarray, width: int, height: int):
+    def f(means2d, conics, colors, opacities, depths, background):
+        s = ks.splats_2d(means2d, conics, colors, opacities, depths, radii)
+        r, _ = ks.rasterize(s, width, height, background)
+        return {"rgb": r.rgb.numpy(), "alpha": r.alpha.numpy(), "depth": r.depth.numpy()}
+
+    def vjp(inputs, cot):
+        s = ks.splats_2d(*(inputs[k] for k in ("means2d", "conics", "colors", "opacities", "depths")), radii)
+        r, tiles = ks.rasterize(s, width, height, inputs["background"])
+        grads = ks.rasterize_backward(s, width, height, inputs["background"], tiles, r, cot["rgb"], cot["alpha"],
+                                      cot["depth"])
+        return {k: v.numpy() for k, v in grads.items()}
+
+    return f, vjp
+
+
+def render_fn(camera: ks.SplatCamera, sh_degree: int | None, antialiased: bool):
+    def f(means, log_scales, quats, opacity_logits, sh, background):
+        g = ks.gaussian_inputs(means, log_scales, quats, opacity_logits, sh)
+        r = ks.render(g, camera, background, sh_degree=sh_degree, antialiased=antialiased)
+        return {"rgb": r.rgb.numpy(), "alpha": r.alpha.numpy(), "depth": r.depth.numpy()}
+
+    def vjp(inputs, cot):
+        g = ks.gaussian_inputs(*(inputs[k] for k in PARAMS))
+        r = ks.render(g, camera, inputs["background"], sh_degree=sh_degree, antialiased=antialiased)
+        grads = ks.render_backward(g, r, cot["rgb"], cot["alpha"], cot["depth"])
+        return {k: v.numpy() for k, v in grads.items() if k != "means2d"}
+
+    return f, vjp
+
+
+# ----------------------------------------------------------------------------- checks
+
+
+def check_project(seed: int, antialiased: bool, sh_degree: int | None = None,
+                  off_frustum: bool = False) -> list[GradcheckResult]:
+    scene = smooth_scene(seed, antialiased=antialiased, sh_degree=sh_degree, off_frustum=off_frustum)
+    f, vjp = project_fn(scene.camera, sh_degree, antialiased)
+    name = f"splat.project[{'aa' if antialiased else 'classic'},deg={sh_degree},seed={seed}]"
+    return check_vjp(f, vjp, scene.params, seed=seed, name=name)
+
+
+def check_rasterize(seed: int) -> list[GradcheckResult]:
+    scene = smooth_scene(seed, require_events=True)
+    g = ks.gaussian_inputs(*(scene.params[k] for k in PARAMS))
+    p = ks.project(g, scene.camera)
+    inputs = {"means2d": p.means2d.numpy(), "conics": p.conics.numpy(), "colors": p.colors.numpy(),
+              "opacities": p.opacities.numpy(), "depths": p.depths.numpy(), "background": scene.background}
+    f, vjp = rasterize_fn(p.radii.numpy(), scene.camera.width, scene.camera.height)
+    return check_vjp(f, vjp, inputs, seed=seed, name=f"splat.rasterize[seed={seed}]")
+
+
+def check_render(seed: int, antialiased: bool) -> list[GradcheckResult]:
+    scene = smooth_scene(seed, antialiased=antialiased, require_events=not antialiased)
+    f, vjp = render_fn(scene.camera, None, antialiased)
+    inputs = dict(scene.params, background=scene.background)
+    name = f"splat.render[{'aa' if antialiased else 'classic'},seed={seed}]"
+    return check_vjp(f, vjp, inputs, seed=seed, name=name)
+
+
+@register_check("splat.project")
+def project_checks() -> list[GradcheckResult]:
+    out = []
+    for seed in (0, 1):
+        out += check_project(seed, antialiased=False)
+        out += check_project(seed, antialiased=True)
+    out += check_project(2, antialiased=False, sh_degree=1)
+    out += check_project(3, antialiased=True, off_frustum=True)
+    return out
+
+
+@register_check("splat.rasterize")
+def rasterize_checks() -> list[GradcheckResult]:
+    return check_rasterize(0) + check_rasterize(1) + check_rasterize(2)
+
+
+@register_check("splat.render")
+def render_checks() -> list[GradcheckResult]:
+    return check_render(0, False) + check_render(1, True) + check_render(2, False)

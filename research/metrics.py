@@ -1,0 +1,95 @@
+"""Image-quality metrics: PSNR and SSIM (NumPy/SciPy).
+
+PSNR = 10 log10(L^2 / MSE) over every pixel and channel (or over a mask), L the data range.
+
+SSIM (Wang, Bovik, Sheikh & Simoncelli 2004, "Image quality assessment: from error visibility
+to structural similarity"), with the paper's constants: an 11x11 Gaussian window of standard
+deviation 1.5 (normalised to sum 1), K1 = 0.01, K2 = 0.03, C1 = (K1 L)^2, C2 = (K2 L)^2. For
+windowed means mu, variances s^2 and covariance s_xy (population, weighted by the window),
+
+    SSIM(x, y) = (2 mu_x mu_y + C1)(2 s_xy + C2) / ((mu_x^2 + mu_y^2 + C1)(s_x^2 + s_y^2 + C2)),
+
+averaged over every window position lying fully inside the image ("valid"), then over the
+channels. This matches skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5,
+use_sample_covariance=False, data_range=L) and the usual NeRF evaluation code.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import correlate1d
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+SSIM_K1 = 0.01
+SSIM_K2 = 0.03
+
+
+def _pair(pred: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a = np.asarray(pred, dtype=np.float64)
+    b = np.asarray(target, dtype=np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"pred, target: shapes differ ({a.shape} vs {b.shape})")
+    if a.ndim not in (2, 3):
+        raise ValueError(f"pred: expected an image (H, W) or (H, W, C), got shape {a.shape}")
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        raise ValueError("pred, target: contain NaN or infinite values")
+    return a, b
+
+
+def mse(pred: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> float:
+    a, b = _pair(pred, target)
+    err = (a - b) ** 2
+    if mask is None:
+        return float(err.mean())
+    m = np.asarray(mask, dtype=bool)
+    if m.shape != a.shape[:2]:
+        raise ValueError(f"mask: expected shape {a.shape[:2]}, got {m.shape}")
+    if not m.any():
+        raise ValueError("mask: selects no pixel")
+    return float(err[m].mean())
+
+
+def psnr(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0, mask: np.ndarray | None = None) -> float:
+    """10 log10(L^2 / MSE); +inf for identical images."""
+    if not data_range > 0:
+        raise ValueError(f"data_range: expected a positive value, got {data_range}")
+    e = mse(pred, target, mask)
+    return float("inf") if e == 0 else float(10.0 * np.log10(data_range**2 / e))
+
+
+def gaussian_window_1d(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.ndarray:
+    x = np.arange(size) - (size - 1) / 2.0
+    g = np.exp(-0.5 * (x / sigma) ** 2)
+    return g / g.sum()
+
+
+def _filter_valid(img: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """Separable windowed mean, keeping only fully-inside window positions."""
+    r = (len(g) - 1) // 2
+    out = correlate1d(correlate1d(img, g, axis=0, mode="constant"), g, axis=1, mode="constant")
+    return out[r:img.shape[0] - r, r:img.shape[1] - r]
+
+
+def ssim(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0) -> float:
+    """Mean SSIM (module docstring); images (H, W) or (H, W, C) with H, W >= 11."""
+    a, b = _pair(pred, target)
+    if not data_range > 0:
+        raise ValueError(f"data_range: expected a positive value, got {data_range}")
+    if min(a.shape[:2]) < SSIM_WINDOW:
+        raise ValueError(f"pred: SSIM needs images at least {SSIM_WINDOW}x{SSIM_WINDOW}, got {a.shape[:2]}")
+    if a.ndim == 2:
+        a, b = a[..., None], b[..., None]
+    g = gaussian_window_1d()
+    c1 = (SSIM_K1 * data_range) ** 2
+    c2 = (SSIM_K2 * data_range) ** 2
+    values = []
+    for c in range(a.shape[2]):
+        x, y = a[..., c], b[..., c]
+        mx, my = _filter_valid(x, g), _filter_valid(y, g)
+        sxx = _filter_valid(x * x, g) - mx * mx
+        syy = _filter_valid(y * y, g) - my * my
+        sxy = _filter_valid(x * y, g) - mx * my
+        s = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
+        values.append(s.mean())
+    return float(np.mean(values))

@@ -1,0 +1,153 @@
+"""The splat model: parameter arrays, initialisation from points, and rendering a Camera.
+
+Parameters follow the 3DGS code and its PLY layout: means (N, 3), log-scales (N, 3),
+quaternions (w, x, y, z) (N, 4, unnormalised), opacity logits (N,), and SH
+coefficients split into the DC term (N, 1, 3) and the rest (N, 15, 3) (degree 3),
+which have different learning rates. Arrays are float32 NumPy.
+
+Initialisation (3DGS): a point with colour c gets SH DC (c - 1/2) / C0, zero higher
+SH, opacity 0.1, identity rotation, and an isotropic scale equal to the RMS
+distance to its 3 nearest neighbours.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from kernels import splat as ks
+from research.cameras import Camera
+
+SH_COEFFS = 16
+
+
+@dataclass
+class GaussianModel:
+    means: np.ndarray
+    log_scales: np.ndarray
+    quats: np.ndarray
+    opacity_logits: np.ndarray
+    sh_dc: np.ndarray
+    sh_rest: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(np.asarray(self.means))
+        shapes = {"means": (n, 3), "log_scales": (n, 3), "quats": (n, 4), "opacity_logits": (n,),
+                  "sh_dc": (n, 1, 3), "sh_rest": (n, SH_COEFFS - 1, 3)}
+        for name, shape in shapes.items():
+            arr = np.ascontiguousarray(getattr(self, name), dtype=np.float32)
+            if arr.shape != shape:
+                raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"{name}: contains NaN or infinite values")
+            setattr(self, name, arr)
+
+    @staticmethod
+    def names() -> tuple[str, ...]:
+        return tuple(f.name for f in fields(GaussianModel))
+
+    @property
+    def n(self) -> int:
+        return len(self.means)
+
+    @property
+    def sh(self) -> np.ndarray:
+        return np.concatenate([self.sh_dc, self.sh_rest], axis=1)
+
+    @property
+    def opacities(self) -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-self.opacity_logits))
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {k: getattr(self, k) for k in self.names()}
+
+    def select(self, index: np.ndarray) -> "GaussianModel":
+        return GaussianModel(**{k: v[index] for k, v in self.arrays().items()})
+
+    def append(self, other: "GaussianModel") -> "GaussianModel":
+        return GaussianModel(**{k: np.concatenate([v, getattr(other, k)]) for k, v in self.arrays().items()})
+
+    def copy(self) -> "GaussianModel":
+        return GaussianModel(**{k: v.copy() for k, v in self.arrays().items()})
+
+    def inputs(self, device: str = "cpu") -> ks.GaussianInputs:
+        return ks.gaussian_inputs(self.means, self.log_scales, self.quats, self.opacity_logits, self.sh, device)
+
+
+def logit(p: float) -> float:
+    return float(np.log(p / (1.0 - p)))
+
+
+def from_points(points: np.ndarray, colors: np.ndarray, init_opacity: float = 0.1) -> GaussianModel:
+    """3DGS initialisation from a coloured point cloud (module docstring)."""
+    points = np.asarray(points, dtype=np.float64)
+    colors = np.asarray(colors, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) < 4:
+        raise ValueError(f"points: expected shape (N >= 4, 3), got {points.shape}")
+    if colors.shape != points.shape:
+        raise ValueError(f"colors: expected shape {points.shape}, got {colors.shape}")
+    if not (np.all(np.isfinite(points)) and np.all(np.isfinite(colors))):
+        raise ValueError("points, colors: contain NaN or infinite values")
+    dist, _ = cKDTree(points).query(points, k=4)
+    mean_sq = np.maximum((dist[:, 1:] ** 2).mean(axis=1), 1e-7)
+    n = len(points)
+    quats = np.zeros((n, 4))
+    quats[:, 0] = 1.0
+    return GaussianModel(
+        means=points,
+        log_scales=np.repeat(0.5 * np.log(mean_sq)[:, None], 3, axis=1),
+        quats=quats,
+        opacity_logits=np.full(n, logit(init_opacity)),
+        sh_dc=((colors - 0.5) / ks.SH_C0)[:, None, :],
+        sh_rest=np.zeros((n, SH_COEFFS - 1, 3)),
+    )
+
+
+def points_from_depth(cameras: list[Camera], rgba: np.ndarray, depth: np.ndarray, max_points: int,
+                      seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Back-project every surface pixel (depth > 0) of the views; a random subset of `max_points`.
+
+    Colours are the premultiplied linear RGB divided by alpha (the surface colour).
+    """
+    pts, cols = [], []
+    for cam, img, z in zip(cameras, rgba, depth):
+        valid = z > 0
+        world = cam.backproject(np.where(valid, z, 0.0))
+        alpha = np.maximum(img[..., 3:4], 1e-6)
+        pts.append(world[valid])
+        cols.append(np.clip(img[..., :3] / alpha, 0.0, 1.0)[valid])
+    points, colors = np.concatenate(pts), np.concatenate(cols)
+    if len(points) == 0:
+        raise ValueError("depth: no pixel with depth > 0 in any view")
+    if len(points) > max_points:
+        keep = np.random.default_rng(seed).choice(len(points), max_points, replace=False)
+        points, colors = points[keep], colors[keep]
+    return points, colors
+
+
+def random_points(bbox: np.ndarray, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """`n` points uniform in the box (2, 3) with uniform random colours (3DGS's synthetic-scene init)."""
+    bbox = np.asarray(bbox, dtype=np.float64)
+    if bbox.shape != (2, 3) or np.any(bbox[1] <= bbox[0]):
+        raise ValueError(f"bbox: expected [min, max] corners of shape (2, 3) with min < max, got {bbox.tolist()}")
+    rng = np.random.default_rng(seed)
+    return rng.uniform(bbox[0], bbox[1], (n, 3)), rng.uniform(0.0, 1.0, (n, 3))
+
+
+def splat_camera(camera: Camera, near: float = ks.DEFAULT_NEAR) -> ks.SplatCamera:
+    return ks.SplatCamera(camera.w2c, camera.K, camera.width, camera.height, near=near)
+
+
+def render(model: GaussianModel, camera: Camera, *, sh_degree: int = 3, background=(0.0, 0.0, 0.0),
+           antialiased: bool = False, device: str = "cpu") -> ks.Render:
+    """Render `model` from a research Camera (float32)."""
+    return ks.render(model.inputs(device), splat_camera(camera), np.asarray(background, dtype=np.float32),
+                     sh_degree=sh_degree, antialiased=antialiased)
+
+
+def scene_extent(cameras: list[Camera]) -> float:
+    """3DGS's spatial scale: 1.1 x the largest distance of a camera centre from their mean."""
+    centres = np.array([c.center for c in cameras])
+    return float(1.1 * np.linalg.norm(centres - centres.mean(axis=0), axis=1).max())

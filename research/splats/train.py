@@ -1,0 +1,165 @@
+"""Fitting splats to posed images, and evaluating them (3DGS's train.py, on the CPU kernels).
+
+Each iteration renders one training view (a fresh random permutation of the views
+per epoch, as 3DGS), takes the L1 + D-SSIM loss against the ground truth, runs
+the hand-written backward, steps Adam (per-parameter learning rates, position
+rate decaying log-linearly), then gathers densification statistics and densifies,
+prunes and resets opacities on the scaled 3DGS schedule (research.splats.densify).
+The active SH degree grows by one every `sh_interval` iterations up to 3.
+The only ordering difference from 3DGS: the Adam step comes before (not after)
+densification in an iteration, so new splats get their first step one iteration later.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm import tqdm
+
+from kernels import splat as ks
+from research import io, metrics
+from research.cameras import Camera
+from research.splats.densify import DensifyConfig, DensifyStats, Schedule, densify_and_prune, reset_opacity
+from research.splats.loss import LAMBDA_DSSIM, l1_dssim
+from research.splats.model import GaussianModel, render, splat_camera
+from research.splats.optim import Adam, LearningRates, expon_lr
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    iterations: int = 3000
+    max_sh_degree: int = 3
+    lambda_dssim: float = LAMBDA_DSSIM
+    lrs: LearningRates = field(default_factory=LearningRates)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    antialiased: bool = False
+    seed: int = 0
+    log_every: int = 50
+
+
+@dataclass
+class TrainResult:
+    model: GaussianModel
+    seconds: float
+    history: list[dict]
+    events: list[dict]
+    sh_degree: int
+
+
+def _check_views(cameras: list[Camera], images: np.ndarray) -> None:
+    if len(cameras) == 0 or images.ndim != 4 or images.shape[0] != len(cameras) or images.shape[3] != 3:
+        raise ValueError(f"images: expected (N={len(cameras)}, H, W, 3), got {images.shape}")
+    for cam in cameras:
+        if (cam.height, cam.width) != images.shape[1:3]:
+            raise ValueError(f"cameras: a camera is {cam.width}x{cam.height}, images are "
+                             f"{images.shape[2]}x{images.shape[1]}")
+
+
+def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, extent: float, cfg: TrainConfig,
+          *, progress: bool = True, device: str = "cpu") -> TrainResult:
+    """Fit a copy of `model` to `images` (N, H, W, 3) linear RGB seen by `cameras` (module docstring)."""
+    _check_views(cameras, images)
+    if not extent > 0:
+        raise ValueError(f"extent: expected a positive scene scale, got {extent}")
+    images = np.ascontiguousarray(images, dtype=np.float32)
+    model = model.copy()  # Adam updates in place; the caller's model stays as it was
+    rng = np.random.default_rng(cfg.seed)
+    sched = Schedule.scaled(cfg.iterations)
+    lr = cfg.lrs
+    adam = Adam(model, {"means": lr.means_init * extent, "log_scales": lr.log_scales, "quats": lr.quats,
+                        "opacity_logits": lr.opacity_logits, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest})
+    stats = DensifyStats(model.n)
+    background = np.asarray(cfg.background, dtype=np.float32)
+    splat_cams = [splat_camera(c) for c in cameras]
+    history, events, order = [], [], []
+    running = {"loss": 0.0, "l1": 0.0, "ssim": 0.0, "k": 0}
+    t0 = time.perf_counter()
+    bar = tqdm(range(1, cfg.iterations + 1), desc="fit splats", disable=not progress, mininterval=2.0)
+    degree = 0
+    for it in bar:
+        adam.lrs["means"] = expon_lr(it - 1, lr.means_init * extent, lr.means_final * extent, cfg.iterations)
+        degree = sched.sh_degree(it, cfg.max_sh_degree)
+        if not order:
+            order = list(rng.permutation(len(cameras)))
+        v = order.pop()
+        inputs = model.inputs(device)
+        result = ks.render(inputs, splat_cams[v], background, sh_degree=degree, antialiased=cfg.antialiased)
+        loss, grad_img, parts = l1_dssim(result.rgb.numpy(), images[v], cfg.lambda_dssim, device=device)
+        if not np.isfinite(loss):
+            raise RuntimeError(f"iteration {it}: the loss is {loss}")
+        g = ks.render_backward(inputs, result, grad_img)
+        sh_grad = g["sh"].numpy()
+        adam.step(model, {"means": g["means"].numpy(), "log_scales": g["log_scales"].numpy(),
+                          "quats": g["quats"].numpy(), "opacity_logits": g["opacity_logits"].numpy(),
+                          "sh_dc": sh_grad[:, :1], "sh_rest": sh_grad[:, 1:]})
+        if it < sched.densify_until:
+            cam = splat_cams[v]
+            stats.add(g["means2d"].numpy(), result.projection.radii.numpy(), cam.width, cam.height)
+            if sched.densify_now(it):
+                n_before = model.n
+                model, counts = densify_and_prune(model, adam, stats, extent, cfg.densify, rng,
+                                                  prune_screen=it > sched.reset_interval)
+                stats = DensifyStats(model.n)
+                events.append({"iteration": it, "before": n_before, "after": model.n, **counts})
+            if sched.reset_now(it):
+                reset_opacity(model, adam)
+                events.append({"iteration": it, "opacity_reset": True})
+        running["loss"] += loss
+        running["l1"] += parts["l1"]
+        running["ssim"] += parts["ssim"]
+        running["k"] += 1
+        if it % cfg.log_every == 0 or it == cfg.iterations:
+            k = running.pop("k")
+            history.append({"iteration": it, "gaussians": model.n, "sh_degree": degree,
+                            **{key: val / k for key, val in running.items()}})
+            running = {"loss": 0.0, "l1": 0.0, "ssim": 0.0, "k": 0}
+            bar.set_postfix(loss=f"{history[-1]['loss']:.4f}", n=model.n)
+    return TrainResult(model, time.perf_counter() - t0, history, events, degree)
+
+
+@dataclass
+class Evaluation:
+    psnr: float  # mean over views, sRGB-encoded, clipped to [0, 1]
+    ssim: float
+    psnr_linear: float  # mean over views, linear RGB clipped to [0, 1]
+    per_view: list[dict]
+    renders: np.ndarray  # (N, H, W, 3) linear
+
+
+def evaluate(model: GaussianModel, cameras: list[Camera], images: np.ndarray, sh_degree: int,
+             background=(0.0, 0.0, 0.0), antialiased: bool = False) -> Evaluation:
+    """PSNR and SSIM (research.metrics) of renders against `images` (linear RGB, premultiplied on black).
+
+    Both images are clipped to [0, 1] and sRGB-encoded, as the dataset's PNGs store them;
+    the linear-space PSNR is reported beside it.
+    """
+    _check_views(cameras, images)
+    renders, per_view = [], []
+    for cam, gt in zip(cameras, images):
+        img = render(model, cam, sh_degree=sh_degree, background=background, antialiased=antialiased).rgb.numpy()
+        a, b = np.clip(img, 0, 1), np.clip(gt, 0, 1)
+        per_view.append({"psnr": metrics.psnr(io.linear_to_srgb(a), io.linear_to_srgb(b)),
+                         "ssim": metrics.ssim(io.linear_to_srgb(a), io.linear_to_srgb(b)),
+                         "psnr_linear": metrics.psnr(a, b)})
+        renders.append(img)
+    mean = {k: float(np.mean([p[k] for p in per_view])) for k in per_view[0]}
+    return Evaluation(mean["psnr"], mean["ssim"], mean["psnr_linear"], per_view, np.stack(renders))
+
+
+def render_fps(model: GaussianModel, cameras: list[Camera], sh_degree: int, repeats: int = 3,
+               antialiased: bool = False) -> float:
+    """Frames per second of the forward render (projection, binning, sorting, rasterisation),
+    from the median time per view over `repeats` passes after a warm-up pass."""
+    from research.bench import time_median
+
+    inputs = model.inputs()
+    cams = [splat_camera(c) for c in cameras]
+
+    def one_pass() -> None:
+        for cam in cams:
+            ks.render(inputs, cam, sh_degree=sh_degree, antialiased=antialiased)
+
+    return len(cams) / time_median(one_pass, repeats=repeats)
