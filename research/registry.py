@@ -90,6 +90,7 @@ GRADCHECK_MODULES: list[str] = [
     "research.checks.stereo",
     "research.checks.splat",
     "research.checks.ssim",
+    "research.checks.volume",
 ]
 
 # Benchmark families.

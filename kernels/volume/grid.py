@@ -1,0 +1,360 @@
+"""Dense voxel-grid radiance field: trilinear density and colour (RGB or spherical harmonics).
+
+Follows Plenoxels (Fridovich-Keil et al. 2022) and DVGO (Sun et al. 2022). Values live on the
+nx * ny * nz vertices of a regular grid spanning the box [lo, hi] (vertex v = ix + nx (iy + ny iz),
+x fastest; NumPy shape (nz, ny, nx, ...)). A point p inside the box has grid coordinates
+u_a = (p_a - lo_a) / (hi_a - lo_a) * (n_a - 1), cell i_a = min(floor(u_a), n_a - 2), fraction
+f_a = u_a - i_a, and the trilinear weights of the cell's 8 corners (b in {0, 1}^3)
+
+    w_b = prod_a (b_a f_a + (1 - b_a)(1 - f_a)),     V(p) = sum_b w_b V[i + b].
+
+    sigma(p)  = density_scale * act(D(p) + density_bias)   act = softplus (DVGO) or exp (instant-ngp)
+    rgb_c(p)  = sigmoid( sum_j Y_j(d) K_{c,j}(p) ),   c = 0, 1, 2
+
+with K the colour coefficients: one per channel (sh_degree None: Y_0 = 1, plain RGB) or
+(deg+1)^2 per channel for real spherical harmonics of degree deg <= 2 in the view direction d
+(the basis and constants of Plenoxels/3DGS: C0 = 0.28209479, C1 = 0.48860251, C2 = ...).
+Points outside the box get sigma = 0 and rgb = 0, and no gradient.
+
+DVGO's choice is softplus with a large negative bias (the field starts transparent) and a scale of
+1 / voxel size (densities "per voxel").
+
+A total-variation regulariser (Plenoxels) sum_v sum_a (V[v + e_a] - V[v])^2 adds its gradient
+2 sum_a (2 V[v] - V[v + e_a] - V[v - e_a]) (terms present only inside the grid) by a gather kernel.
+
+Backward, for cotangents (g_s, g):  dL/dD[v] = sum_points w_b g_s scale act'(D + bias) and
+dL/dK_{c,j}[v] = sum_points w_b g_c s_c (1 - s_c) Y_j(d), s_c = rgb_c. Many points hit the same
+vertex, so the backward scatters with atomic adds in ONE launch (notes/warp.md); the forward
+runs one thread per point through launch_split.
+"""
+
+from __future__ import annotations
+
+import typing
+from typing import Any, Sequence
+
+import numpy as np
+import warp as wp
+
+from kernels.launch import launch_split
+from kernels.volume import _act
+from kernels.volume import _util as U
+from kernels.volume._act import density_act, density_act_grad, sigmoid
+from kernels.volume.field import Field, FieldOutput
+
+wp.set_module_options({"enable_backward": False})
+
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+
+
+def sh_basis_numpy(dirs: np.ndarray, degree: int | None) -> np.ndarray:
+    """Y_j(d) for unit directions (N, 3) -> (N, n_coef); degree None gives the constant 1."""
+    if degree is None:
+        return np.ones((dirs.shape[0], 1), dtype=dirs.dtype)
+    x, y, z = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    cols = [np.full_like(x, SH_C0)]
+    if degree >= 1:
+        cols += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
+    if degree >= 2:
+        cols += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * z * z - x * x - y * y), SH_C2[3] * x * z,
+                 SH_C2[4] * (x * x - y * y)]
+    return np.stack(cols, axis=1)
+
+
+@wp.func
+def sh_basis(j: int, x: typing.Any, y: typing.Any, z: typing.Any, mode: int):
+    """Y_j(x, y, z); mode -1 is plain RGB (Y_0 = 1)."""
+    if mode < 0:
+        return type(x)(1.0)
+    if j == 0:
+        return type(x)(0.28209479177387814)
+    if j == 1:
+        return type(x)(-0.4886025119029199) * y
+    if j == 2:
+        return type(x)(0.4886025119029199) * z
+    if j == 3:
+        return type(x)(-0.4886025119029199) * x
+    if j == 4:
+        return type(x)(1.0925484305920792) * x * y
+    if j == 5:
+        return type(x)(-1.0925484305920792) * y * z
+    if j == 6:
+        return type(x)(0.31539156525252005) * (type(x)(2.0) * z * z - x * x - y * y)
+    if j == 7:
+        return type(x)(-1.0925484305920792) * x * z
+    return type(x)(0.5462742152960396) * (x * x - y * y)
+
+
+@wp.func
+def grid_axis(p: typing.Any, lo: typing.Any, hi: typing.Any, n: int):
+    """(cell index, fraction, inside flag) of coordinate p on an axis with n vertices over [lo, hi]."""
+    u = (p - lo) / (hi - lo) * type(p)(n - 1)
+    inside = int(1)
+    if u < type(p)(0.0) or u > type(p)(n - 1):
+        inside = 0
+    i = wp.clamp(int(wp.floor(u)), 0, n - 2)
+    return i, u - type(p)(i), inside
+
+
+@wp.func
+def corner_weight(b: int, f: typing.Any):
+    if b == 1:
+        return f
+    return type(f)(1.0) - f
+
+
+@wp.kernel
+def _grid_forward_kernel(
+    points: wp.array2d(dtype=typing.Any),
+    dirs: wp.array2d(dtype=typing.Any),
+    bbox: wp.array2d(dtype=typing.Any),
+    res: wp.vec3i,
+    density: wp.array(dtype=typing.Any),
+    color: wp.array2d(dtype=typing.Any),
+    n_coef: int,
+    sh_mode: int,
+    density_bias: typing.Any,
+    density_scale: typing.Any,
+    act_kind: int,
+    out_sigma: wp.array(dtype=typing.Any),
+    out_rgb: wp.array2d(dtype=typing.Any),
+    offset: int,
+):
+    i = wp.tid() + offset
+    zero = points.dtype(0.0)
+    ix, fx, inx = grid_axis(points[i, 0], bbox[0, 0], bbox[1, 0], res[0])
+    iy, fy, iny = grid_axis(points[i, 1], bbox[0, 1], bbox[1, 1], res[1])
+    iz, fz, inz = grid_axis(points[i, 2], bbox[0, 2], bbox[1, 2], res[2])
+    if inx * iny * inz == 0:
+        out_sigma[i] = zero
+        out_rgb[i, 0] = zero
+        out_rgb[i, 1] = zero
+        out_rgb[i, 2] = zero
+        return
+    dx = zero
+    dy = zero
+    dz = zero
+    if sh_mode >= 0:
+        dx = dirs[i, 0]
+        dy = dirs[i, 1]
+        dz = dirs[i, 2]
+    raw_d = zero
+    r0 = zero
+    r1 = zero
+    r2 = zero
+    for c in range(8):
+        bx = c & 1
+        by = (c >> 1) & 1
+        bz = (c >> 2) & 1
+        w = corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
+        v = (ix + bx) + res[0] * ((iy + by) + res[1] * (iz + bz))
+        raw_d += w * density[v]
+        for j in range(n_coef):
+            wy = w * sh_basis(j, dx, dy, dz, sh_mode)
+            r0 += wy * color[v, j]
+            r1 += wy * color[v, n_coef + j]
+            r2 += wy * color[v, 2 * n_coef + j]
+    out_sigma[i] = density_scale * density_act(raw_d + density_bias, act_kind)
+    out_rgb[i, 0] = sigmoid(r0)
+    out_rgb[i, 1] = sigmoid(r1)
+    out_rgb[i, 2] = sigmoid(r2)
+
+
+@wp.kernel
+def _grid_backward_kernel(
+    points: wp.array2d(dtype=typing.Any),
+    dirs: wp.array2d(dtype=typing.Any),
+    bbox: wp.array2d(dtype=typing.Any),
+    res: wp.vec3i,
+    density: wp.array(dtype=typing.Any),
+    n_coef: int,
+    sh_mode: int,
+    density_bias: typing.Any,
+    density_scale: typing.Any,
+    act_kind: int,
+    rgb: wp.array2d(dtype=typing.Any),
+    grad_sigma: wp.array(dtype=typing.Any),
+    grad_rgb: wp.array2d(dtype=typing.Any),
+    grad_density: wp.array(dtype=typing.Any),
+    grad_color: wp.array2d(dtype=typing.Any),
+):
+    i = wp.tid()
+    zero = points.dtype(0.0)
+    one = points.dtype(1.0)
+    ix, fx, inx = grid_axis(points[i, 0], bbox[0, 0], bbox[1, 0], res[0])
+    iy, fy, iny = grid_axis(points[i, 1], bbox[0, 1], bbox[1, 1], res[1])
+    iz, fz, inz = grid_axis(points[i, 2], bbox[0, 2], bbox[1, 2], res[2])
+    if inx * iny * inz == 0:
+        return
+    dx = zero
+    dy = zero
+    dz = zero
+    if sh_mode >= 0:
+        dx = dirs[i, 0]
+        dy = dirs[i, 1]
+        dz = dirs[i, 2]
+    raw_d = zero
+    for c in range(8):
+        bx = c & 1
+        by = (c >> 1) & 1
+        bz = (c >> 2) & 1
+        w = corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
+        raw_d += w * density[(ix + bx) + res[0] * ((iy + by) + res[1] * (iz + bz))]
+    g_raw_d = grad_sigma[i] * density_scale * density_act_grad(raw_d + density_bias, act_kind)
+    g0 = grad_rgb[i, 0] * rgb[i, 0] * (one - rgb[i, 0])
+    g1 = grad_rgb[i, 1] * rgb[i, 1] * (one - rgb[i, 1])
+    g2 = grad_rgb[i, 2] * rgb[i, 2] * (one - rgb[i, 2])
+    for c in range(8):
+        bx = c & 1
+        by = (c >> 1) & 1
+        bz = (c >> 2) & 1
+        w = corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
+        v = (ix + bx) + res[0] * ((iy + by) + res[1] * (iz + bz))
+        wp.atomic_add(grad_density, v, w * g_raw_d)
+        for j in range(n_coef):
+            wy = w * sh_basis(j, dx, dy, dz, sh_mode)
+            wp.atomic_add(grad_color, v, j, wy * g0)
+            wp.atomic_add(grad_color, v, n_coef + j, wy * g1)
+            wp.atomic_add(grad_color, v, 2 * n_coef + j, wy * g2)
+
+
+@wp.kernel
+def _tv_grad_kernel(
+    values: wp.array2d(dtype=typing.Any),
+    res: wp.vec3i,
+    weight: typing.Any,
+    grad: wp.array2d(dtype=typing.Any),
+    offset: int,
+):
+    v = wp.tid() + offset
+    ix = v % res[0]
+    iy = (v / res[0]) % res[1]
+    iz = v / (res[0] * res[1])
+    ijk = wp.vec3i(ix, iy, iz)
+    stride = wp.vec3i(1, res[0], res[0] * res[1])
+    for c in range(values.shape[1]):
+        g = values.dtype(0.0)
+        x = values[v, c]
+        for a in range(3):
+            if ijk[a] + 1 < res[a]:
+                g += x - values[v + stride[a], c]
+            if ijk[a] > 0:
+                g += x - values[v - stride[a], c]
+        grad[v, c] = grad[v, c] + values.dtype(2.0) * weight * g
+
+
+def tv_loss(values: np.ndarray, resolution: Sequence[int]) -> float:
+    """sum over vertices, axes and channels of (x[v + e_a] - x[v])^2, for values (V,) or (V, C)."""
+    nx, ny, nz = resolution
+    x = np.asarray(values, dtype=np.float64).reshape(nz, ny, nx, -1)
+    return float(sum(np.sum(np.diff(x, axis=a) ** 2) for a in range(3)))
+
+
+def add_tv_grad(values: wp.array, resolution: Sequence[int], weight: float, grad: wp.array) -> None:
+    """grad += weight * d tv_loss(values) / d values (total variation of Plenoxels, squared differences).
+
+    A gather (each vertex reads its 6 neighbours and writes its own gradient): launch_split is safe.
+    """
+    nv = int(np.prod(resolution))
+    if values.shape[0] != nv or tuple(grad.shape) != tuple(values.shape):
+        raise ValueError(f"values, grad: expected ({nv}, ...) arrays of one shape, got {values.shape}, {grad.shape}")
+    v2 = values.reshape((nv, -1))
+    g2 = grad.reshape((nv, -1))
+    launch_split(_tv_grad_kernel, nv, [v2, wp.vec3i(*resolution), values.dtype(weight), g2], device=values.device)
+
+
+def n_sh_coefficients(sh_degree: int | None) -> int:
+    if sh_degree is None:
+        return 1
+    if sh_degree not in (0, 1, 2):
+        raise ValueError(f"sh_degree: expected None (plain RGB) or 0, 1, 2, got {sh_degree!r}")
+    return (sh_degree + 1) ** 2
+
+
+class GridField(Field):
+    """Dense voxel grid (module docstring). Parameters: density (V,) and color (V, 3 * n_coef)."""
+
+    name = "grid"
+
+    def __init__(
+        self,
+        bbox: Any,
+        resolution: Sequence[int],
+        sh_degree: int | None = None,
+        density_bias: float = 0.0,
+        density_scale: float = 1.0,
+        density_activation: str = "softplus",
+        init_density: float = 0.0,
+        init_color_std: float = 0.0,
+        seed: int = 0,
+        dtype: Any = wp.float32,
+        device: str | wp.Device | None = None,
+    ) -> None:
+        if dtype not in U.NP_TYPES:
+            raise ValueError(f"dtype: expected wp.float32 or wp.float64, got {dtype}")
+        self.bbox = U.check_bbox("bbox", bbox)
+        if len(resolution) != 3:
+            raise ValueError(f"resolution: expected three vertex counts (nx, ny, nz), got {resolution!r}")
+        self.resolution = tuple(U.check_positive_int("resolution", r) for r in resolution)
+        if min(self.resolution) < 2:
+            raise ValueError(f"resolution: expected at least 2 vertices per axis, got {self.resolution}")
+        self.sh_degree = sh_degree
+        self.n_coef = n_sh_coefficients(sh_degree)
+        if density_activation not in _act.DENSITY_ACTIVATIONS:
+            raise ValueError(f"density_activation: expected one of {sorted(_act.DENSITY_ACTIVATIONS)}, "
+                             f"got {density_activation!r}")
+        if not np.isfinite(density_bias):
+            raise ValueError(f"density_bias: expected a finite value, got {density_bias}")
+        self.density_activation = density_activation
+        self.density_bias = float(density_bias)
+        if not (np.isfinite(density_scale) and density_scale > 0):
+            raise ValueError(f"density_scale: expected a positive finite value, got {density_scale}")
+        self.density_scale = float(density_scale)
+        self.needs_dirs = sh_degree is not None
+        device = U.default_device(device)
+        nv = int(np.prod(self.resolution))
+        rng = np.random.default_rng(seed)
+        np_t = U.NP_TYPES[dtype]
+        params = {
+            "density": wp.array(np.full(nv, init_density, dtype=np_t), dtype=dtype, device=device),
+            "color": wp.array((rng.standard_normal((nv, 3 * self.n_coef)) * init_color_std).astype(np_t),
+                              dtype=dtype, device=device),
+        }
+        super().__init__(params, dtype, device)
+
+    def _static_args(self) -> list:
+        return [wp.array(self.bbox, dtype=self.dtype, device=self.device), wp.vec3i(*self.resolution),
+                self.params["density"]]
+
+    def _dirs_arg(self, d: wp.array | None) -> wp.array:
+        return d if d is not None else wp.zeros((1, 3), dtype=self.dtype, device=self.device)
+
+    def forward(self, points: U.ArrayLike, dirs: U.ArrayLike | None = None) -> FieldOutput:
+        p, d = self._points(points, dirs)
+        n = p.shape[0]
+        sigma = wp.empty(n, dtype=self.dtype, device=self.device)
+        rgb = wp.empty((n, 3), dtype=self.dtype, device=self.device)
+        sh_mode = -1 if self.sh_degree is None else self.sh_degree
+        if n:
+            launch_split(_grid_forward_kernel, n,
+                         [p, self._dirs_arg(d), *self._static_args(), self.params["color"], self.n_coef, sh_mode,
+                          self.dtype(self.density_bias), self.dtype(self.density_scale),
+                          _act.DENSITY_ACTIVATIONS[self.density_activation], sigma, rgb],
+                         device=self.device)
+        return FieldOutput(sigma, rgb)
+
+    def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
+                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None) -> dict[str, wp.array]:
+        p, d = self._points(points, dirs)
+        gs, gr = self._cotangents(p.shape[0], grad_sigma, grad_rgb)
+        grads = {k: wp.zeros(v.shape, dtype=self.dtype, device=self.device) for k, v in self.params.items()}
+        sh_mode = -1 if self.sh_degree is None else self.sh_degree
+        if p.shape[0]:
+            wp.launch(_grid_backward_kernel, dim=p.shape[0],
+                      inputs=[p, self._dirs_arg(d), *self._static_args(), self.n_coef, sh_mode, self.dtype(self.density_bias),
+                              self.dtype(self.density_scale),
+                              _act.DENSITY_ACTIVATIONS[self.density_activation], out.rgb, gs, gr,
+                              grads["density"], grads["color"]], device=self.device)
+        return grads

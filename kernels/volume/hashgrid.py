@@ -1,0 +1,191 @@
+"""Multiresolution hash encoding (instant-ngp, Mueller et al. 2022, section 3).
+
+A point p in the box [lo, hi] is normalised to x = clamp((p - lo) / (hi - lo), 0, 1). Level
+l = 0 .. L-1 has resolution N_l = floor(N_min b^l), b = exp((ln N_max - ln N_min) / (L - 1)),
+and its own table of T entries (T = 2^log2_table_size) of F features. On level l,
+
+    u = x N_l,  i = clamp(floor(u), 0, N_l - 1),  f = u - i,
+    enc_l(p) = sum_{b in {0,1}^3} w_b(f) table_l[ h_l(i + b) ]          (trilinear, as in grid.py)
+
+with the vertex index h_l(v) = v_x + (N_l+1)(v_y + (N_l+1) v_z) when the level's (N_l+1)^3
+vertices fit in T (dense level, no collisions), else the spatial hash of the paper,
+
+    h(v) = (v_x * 1  XOR  v_y * 2654435761  XOR  v_z * 805459861)  mod T   (uint32 arithmetic).
+
+The encoding is the concatenation enc(p) = [enc_0, ..., enc_{L-1}] (N, L F); tables are stored
+as one (L T, F) array, level l in rows l T .. l T + T - 1.
+
+Backward, for a cotangent G (N, L F): dL/dtable_l[h_l(i + b)] += w_b G[n, l F : l F + F] over all
+points -- a scatter, done with atomic adds in ONE launch (notes/warp.md). The forward runs one
+thread per (point, level) through launch_split. There is no gradient to the points.
+"""
+
+from __future__ import annotations
+
+import math
+import typing
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from kernels.launch import launch_split
+from kernels.volume import _util as U
+from kernels.volume.grid import corner_weight
+
+wp.set_module_options({"enable_backward": False})
+
+PRIME_Y = 2654435761
+PRIME_Z = 805459861
+_PRIME_Y = wp.constant(wp.uint32(PRIME_Y))
+_PRIME_Z = wp.constant(wp.uint32(PRIME_Z))
+
+
+@wp.func
+def hash_index(ix: int, iy: int, iz: int, res: int, dense: int, table_size: int) -> int:
+    if dense != 0:
+        return ix + (res + 1) * (iy + (res + 1) * iz)
+    h = wp.uint32(ix) ^ (wp.uint32(iy) * _PRIME_Y) ^ (wp.uint32(iz) * _PRIME_Z)
+    return int(h & wp.uint32(table_size - 1))
+
+
+@wp.func
+def level_cell(p: typing.Any, lo: typing.Any, hi: typing.Any, res: int):
+    x = wp.clamp((p - lo) / (hi - lo), type(p)(0.0), type(p)(1.0))
+    u = x * type(p)(res)
+    i = wp.clamp(int(wp.floor(u)), 0, res - 1)
+    return i, u - type(p)(i)
+
+
+@wp.kernel
+def _hash_forward_kernel(
+    points: wp.array2d(dtype=typing.Any),
+    bbox: wp.array2d(dtype=typing.Any),
+    resolutions: wp.array(dtype=wp.int32),
+    dense: wp.array(dtype=wp.int32),
+    table_size: int,
+    table: wp.array2d(dtype=typing.Any),
+    out: wp.array2d(dtype=typing.Any),
+    offset: int,
+):
+    t = wp.tid() + offset
+    n_levels = resolutions.shape[0]
+    n = t / n_levels
+    l = t - n * n_levels
+    res = resolutions[l]
+    F = table.shape[1]
+    ix, fx = level_cell(points[n, 0], bbox[0, 0], bbox[1, 0], res)
+    iy, fy = level_cell(points[n, 1], bbox[0, 1], bbox[1, 1], res)
+    iz, fz = level_cell(points[n, 2], bbox[0, 2], bbox[1, 2], res)
+    for f in range(F):
+        out[n, l * F + f] = points.dtype(0.0)
+    for c in range(8):
+        bx = c & 1
+        by = (c >> 1) & 1
+        bz = (c >> 2) & 1
+        w = corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
+        row = l * table_size + hash_index(ix + bx, iy + by, iz + bz, res, dense[l], table_size)
+        for f in range(F):
+            out[n, l * F + f] += w * table[row, f]
+
+
+@wp.kernel
+def _hash_backward_kernel(
+    points: wp.array2d(dtype=typing.Any),
+    bbox: wp.array2d(dtype=typing.Any),
+    resolutions: wp.array(dtype=wp.int32),
+    dense: wp.array(dtype=wp.int32),
+    table_size: int,
+    grad_out: wp.array2d(dtype=typing.Any),
+    grad_table: wp.array2d(dtype=typing.Any),
+):
+    t = wp.tid()
+    n_levels = resolutions.shape[0]
+    n = t / n_levels
+    l = t - n * n_levels
+    res = resolutions[l]
+    F = grad_table.shape[1]
+    ix, fx = level_cell(points[n, 0], bbox[0, 0], bbox[1, 0], res)
+    iy, fy = level_cell(points[n, 1], bbox[0, 1], bbox[1, 1], res)
+    iz, fz = level_cell(points[n, 2], bbox[0, 2], bbox[1, 2], res)
+    for c in range(8):
+        bx = c & 1
+        by = (c >> 1) & 1
+        bz = (c >> 2) & 1
+        w = corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
+        row = l * table_size + hash_index(ix + bx, iy + by, iz + bz, res, dense[l], table_size)
+        for f in range(F):
+            wp.atomic_add(grad_table, row, f, w * grad_out[n, l * F + f])
+
+
+def level_resolutions(n_levels: int, base_resolution: int, max_resolution: int) -> np.ndarray:
+    """N_l = floor(N_min b^l), b = exp((ln N_max - ln N_min) / (L - 1)) (paper, eq. 2-3)."""
+    if n_levels == 1:
+        return np.array([base_resolution], dtype=np.int32)
+    b = math.exp((math.log(max_resolution) - math.log(base_resolution)) / (n_levels - 1))
+    return np.array([math.floor(base_resolution * b**l + 1e-9) for l in range(n_levels)], dtype=np.int32)
+
+
+class HashEncoding:
+    """Configuration of a multiresolution hash encoding; the table itself is passed to the calls."""
+
+    def __init__(self, bbox: Any, n_levels: int = 16, n_features: int = 2, log2_table_size: int = 19,
+                 base_resolution: int = 16, max_resolution: int = 512) -> None:
+        self.bbox = U.check_bbox("bbox", bbox)
+        self.n_levels = U.check_positive_int("n_levels", n_levels)
+        self.n_features = U.check_positive_int("n_features", n_features)
+        log2_table_size = U.check_positive_int("log2_table_size", log2_table_size)
+        if log2_table_size > 30:
+            raise ValueError(f"log2_table_size: expected at most 30, got {log2_table_size}")
+        self.table_size = 1 << log2_table_size
+        base_resolution = U.check_positive_int("base_resolution", base_resolution)
+        max_resolution = U.check_positive_int("max_resolution", max_resolution)
+        if max_resolution < base_resolution:
+            raise ValueError(f"max_resolution: expected >= base_resolution ({base_resolution}), got {max_resolution}")
+        self.resolutions = level_resolutions(self.n_levels, base_resolution, max_resolution)
+        self.dense = ((self.resolutions.astype(np.int64) + 1) ** 3 <= self.table_size).astype(np.int32)
+
+    @property
+    def table_shape(self) -> tuple[int, int]:
+        return (self.n_levels * self.table_size, self.n_features)
+
+    @property
+    def n_outputs(self) -> int:
+        return self.n_levels * self.n_features
+
+    def init_table(self, seed: int, dtype: Any, device: wp.Device, scale: float = 1e-4) -> wp.array:
+        """U(-scale, scale) entries (the paper's initialisation), from `seed`."""
+        rng = np.random.default_rng(seed)
+        return wp.array(rng.uniform(-scale, scale, self.table_shape).astype(U.NP_TYPES[dtype]),
+                        dtype=dtype, device=device)
+
+    def _static(self, dtype: Any, device: wp.Device) -> list:
+        return [wp.array(self.bbox, dtype=dtype, device=device),
+                wp.array(self.resolutions, dtype=wp.int32, device=device),
+                wp.array(self.dense, dtype=wp.int32, device=device), self.table_size]
+
+    def _check_table(self, table: wp.array, points: wp.array) -> None:
+        U.check_shape("table", table, self.table_shape)
+        if table.dtype != points.dtype or table.device != points.device:
+            raise ValueError(f"table: expected {points.dtype} on {points.device} (the points')")
+
+    def encode(self, points: wp.array, table: wp.array) -> wp.array:
+        """enc (N, L F) for points (N, 3)."""
+        self._check_table(table, points)
+        n = points.shape[0]
+        out = wp.empty((n, self.n_outputs), dtype=points.dtype, device=points.device)
+        if n:
+            launch_split(_hash_forward_kernel, n * self.n_levels,
+                         [points, *self._static(points.dtype, points.device), table, out], device=points.device)
+        return out
+
+    def backward(self, points: wp.array, table: wp.array, grad_enc: wp.array) -> wp.array:
+        """dL/dtable (L T, F) for the cotangent grad_enc (N, L F)."""
+        self._check_table(table, points)
+        U.check_shape("grad_enc", grad_enc, (points.shape[0], self.n_outputs))
+        grad = wp.zeros(self.table_shape, dtype=points.dtype, device=points.device)
+        if points.shape[0]:
+            wp.launch(_hash_backward_kernel, dim=points.shape[0] * self.n_levels,
+                      inputs=[points, *self._static(points.dtype, points.device), grad_enc, grad],
+                      device=points.device)
+        return grad

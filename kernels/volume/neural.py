@@ -1,0 +1,203 @@
+"""Neural radiance fields: an encoding feeding the MLP of kernels.volume.mlp, and an output head.
+
+    HashGridField: enc = hash encoding (instant-ngp, kernels.volume.hashgrid), MLP [L F, 64, 64, 4]
+    PEMLPField:    enc = frequency encoding (NeRF, kernels.volume.encoding),  MLP [3 + 6K, 64, 64, 4]
+
+The MLP's 4 outputs y are mapped by the output head to
+
+    sigma = act(y_0 + density_bias)    (exp as in instant-ngp, or softplus)
+    rgb   = sigmoid(y_1 .. y_3)
+
+and a point outside the field's box gets sigma = 0, rgb = 0 and no gradient. The colour does not
+depend on the view direction (the scenes fitted here are diffuse; this keeps the CPU cost down).
+
+Backward: the head's adjoint dy_0 = g_sigma act'(y_0 + bias), dy_c = g_c s_c (1 - s_c) (a Warp
+kernel, one thread per point), then the MLP backward (kernels.volume.mlp), then -- for the hash
+grid -- the encoding's scatter into the table with dL/denc = dL/dx of the MLP.
+"""
+
+from __future__ import annotations
+
+import typing
+from typing import Any, Sequence
+
+import numpy as np
+import warp as wp
+
+from kernels.launch import launch_split
+from kernels.volume import _act
+from kernels.volume import _util as U
+from kernels.volume._act import density_act, density_act_grad, sigmoid
+from kernels.volume.encoding import PositionalEncoding
+from kernels.volume.field import Field, FieldOutput
+from kernels.volume.hashgrid import HashEncoding
+from kernels.volume.mlp import MLP, init_mlp_params
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def inside_box(points: wp.array2d(dtype=typing.Any), n: int, bbox: wp.array2d(dtype=typing.Any)) -> int:
+    inside = int(1)
+    for a in range(3):
+        if points[n, a] < bbox[0, a] or points[n, a] > bbox[1, a]:
+            inside = 0
+    return inside
+
+
+@wp.kernel
+def _head_forward_kernel(
+    raw: wp.array2d(dtype=typing.Any),
+    points: wp.array2d(dtype=typing.Any),
+    bbox: wp.array2d(dtype=typing.Any),
+    density_bias: typing.Any,
+    act_kind: int,
+    out_sigma: wp.array(dtype=typing.Any),
+    out_rgb: wp.array2d(dtype=typing.Any),
+    offset: int,
+):
+    n = wp.tid() + offset
+    zero = raw.dtype(0.0)
+    if inside_box(points, n, bbox) == 0:
+        out_sigma[n] = zero
+        for c in range(3):
+            out_rgb[n, c] = zero
+        return
+    out_sigma[n] = density_act(raw[n, 0] + density_bias, act_kind)
+    for c in range(3):
+        out_rgb[n, c] = sigmoid(raw[n, 1 + c])
+
+
+@wp.kernel
+def _head_backward_kernel(
+    raw: wp.array2d(dtype=typing.Any),
+    points: wp.array2d(dtype=typing.Any),
+    bbox: wp.array2d(dtype=typing.Any),
+    density_bias: typing.Any,
+    act_kind: int,
+    rgb: wp.array2d(dtype=typing.Any),
+    grad_sigma: wp.array(dtype=typing.Any),
+    grad_rgb: wp.array2d(dtype=typing.Any),
+    grad_raw: wp.array2d(dtype=typing.Any),
+    offset: int,
+):
+    n = wp.tid() + offset
+    zero = raw.dtype(0.0)
+    if inside_box(points, n, bbox) == 0:
+        for c in range(4):
+            grad_raw[n, c] = zero
+        return
+    grad_raw[n, 0] = grad_sigma[n] * density_act_grad(raw[n, 0] + density_bias, act_kind)
+    for c in range(3):
+        s = rgb[n, c]
+        grad_raw[n, 1 + c] = grad_rgb[n, c] * s * (raw.dtype(1.0) - s)
+
+
+class NeuralField(Field):
+    """Encoding -> MLP -> head (module docstring). Subclasses provide `_encode` and `_encode_backward`."""
+
+    def __init__(self, bbox: Any, enc_params: dict[str, wp.array], n_enc: int, hidden: Sequence[int],
+                 density_bias: float, density_activation: str, seed: int, dtype: Any, device: wp.Device,
+                 backend: str | None) -> None:
+        if dtype not in U.NP_TYPES:
+            raise ValueError(f"dtype: expected wp.float32 or wp.float64, got {dtype}")
+        if density_activation not in _act.DENSITY_ACTIVATIONS:
+            raise ValueError(f"density_activation: expected one of {sorted(_act.DENSITY_ACTIVATIONS)}, "
+                             f"got {density_activation!r}")
+        if not np.isfinite(density_bias):
+            raise ValueError(f"density_bias: expected a finite value, got {density_bias}")
+        self.bbox = U.check_bbox("bbox", bbox)
+        self.density_bias = float(density_bias)
+        self.density_activation = density_activation
+        self.sizes = [n_enc, *[U.check_positive_int("hidden", h) for h in hidden], 4]
+        params = dict(enc_params)
+        params.update(init_mlp_params(self.sizes, seed + 1, dtype, device))
+        super().__init__(params, dtype, device)
+        self.backend = MLP(self.sizes, self.params, backend).backend
+
+    def _mlp(self) -> MLP:
+        return MLP(self.sizes, self.params, self.backend)
+
+    def _encode(self, p: wp.array) -> wp.array:
+        raise NotImplementedError
+
+    def _encode_backward(self, p: wp.array, grad_enc: wp.array) -> dict[str, wp.array]:
+        raise NotImplementedError
+
+    def _head_static(self) -> list:
+        return [wp.array(self.bbox, dtype=self.dtype, device=self.device), self.dtype(self.density_bias),
+                _act.DENSITY_ACTIVATIONS[self.density_activation]]
+
+    def forward(self, points: U.ArrayLike, dirs: U.ArrayLike | None = None) -> FieldOutput:
+        p, _ = self._points(points, dirs)
+        n = p.shape[0]
+        raw, mlp_cache = self._mlp().forward(self._encode(p))
+        sigma = wp.empty(n, dtype=self.dtype, device=self.device)
+        rgb = wp.empty((n, 3), dtype=self.dtype, device=self.device)
+        if n:
+            launch_split(_head_forward_kernel, n, [raw, p, *self._head_static(), sigma, rgb], device=self.device)
+        return FieldOutput(sigma, rgb, {"raw": raw, "mlp": mlp_cache})
+
+    def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
+                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None) -> dict[str, wp.array]:
+        p, _ = self._points(points, dirs)
+        n = p.shape[0]
+        gs, gr = self._cotangents(n, grad_sigma, grad_rgb)
+        raw = out.cache["raw"]
+        grad_raw = wp.empty((n, 4), dtype=self.dtype, device=self.device)
+        if n:
+            launch_split(_head_backward_kernel, n, [raw, p, *self._head_static(), out.rgb, gs, gr, grad_raw],
+                         device=self.device)
+        needs_enc_grad = any(k not in self._mlp_names() for k in self.params)
+        grads, grad_enc = self._mlp().backward(out.cache["mlp"], grad_raw, need_input_grad=needs_enc_grad)
+        if needs_enc_grad:
+            grads.update(self._encode_backward(p, grad_enc))
+        return {k: grads[k] for k in self.params}
+
+    def _mlp_names(self) -> set[str]:
+        return {f"{w}{l}" for l in range(len(self.sizes) - 1) for w in ("W", "b")}
+
+
+class HashGridField(NeuralField):
+    """Hash encoding + MLP (instant-ngp). Parameters: table (L T, F), W0, b0, W1, b1, W2, b2."""
+
+    name = "hashgrid"
+
+    def __init__(self, bbox: Any, n_levels: int = 16, n_features: int = 2, log2_table_size: int = 19,
+                 base_resolution: int = 16, max_resolution: int = 512, hidden: Sequence[int] = (64, 64),
+                 density_bias: float = 0.0, density_activation: str = "exp", table_init_scale: float = 1e-4,
+                 seed: int = 0, dtype: Any = wp.float32, device: str | wp.Device | None = None,
+                 backend: str | None = None) -> None:
+        device = U.default_device(device)
+        self.encoding = HashEncoding(bbox, n_levels, n_features, log2_table_size, base_resolution, max_resolution)
+        if dtype not in U.NP_TYPES:
+            raise ValueError(f"dtype: expected wp.float32 or wp.float64, got {dtype}")
+        table = self.encoding.init_table(seed, dtype, device, table_init_scale)
+        super().__init__(bbox, {"table": table}, self.encoding.n_outputs, hidden, density_bias, density_activation,
+                         seed, dtype, device, backend)
+
+    def _encode(self, p: wp.array) -> wp.array:
+        return self.encoding.encode(p, self.params["table"])
+
+    def _encode_backward(self, p: wp.array, grad_enc: wp.array) -> dict[str, wp.array]:
+        return {"table": self.encoding.backward(p, self.params["table"], grad_enc)}
+
+
+class PEMLPField(NeuralField):
+    """Frequency encoding + MLP (NeRF). Parameters: W0, b0, W1, b1, W2, b2."""
+
+    name = "pe_mlp"
+
+    def __init__(self, bbox: Any, n_freqs: int = 8, hidden: Sequence[int] = (64, 64), density_bias: float = 0.0,
+                 density_activation: str = "exp", seed: int = 0, dtype: Any = wp.float32,
+                 device: str | wp.Device | None = None, backend: str | None = None) -> None:
+        device = U.default_device(device)
+        self.encoding = PositionalEncoding(bbox, n_freqs)
+        super().__init__(bbox, {}, self.encoding.n_outputs, hidden, density_bias, density_activation, seed, dtype,
+                         device, backend)
+
+    def _encode(self, p: wp.array) -> wp.array:
+        return self.encoding.encode(p)
+
+    def _encode_backward(self, p: wp.array, grad_enc: wp.array) -> dict[str, wp.array]:
+        return {}

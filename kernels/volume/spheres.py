@@ -1,0 +1,191 @@
+"""Analytic soft spheres: the textbook's volume-rendering scene, with gradients.
+
+Sphere k has centre c_k, radius r_k, colour col_k and sharpness s_k (the textbook's per-sphere
+"sigma"). At a point p, with m_k = max(0, |p - c_k| - r_k),
+
+    d_k(p)   = s_k exp(-s_k m_k)                    density of sphere k (s_k inside the sphere)
+    sigma(p) = sum_k d_k
+    rgb(p)   = sum_k d_k col_k / sigma   if sigma > 1e-6, else sum_k d_k col_k
+
+(the textbook's `jnp.where(density > 1e-6, colour / density, colour)`). Colour does not depend
+on the view direction. Backward, for cotangents (g_s, g):
+
+    dL/dd_k   = g_s + g . (col_k - rgb) / sigma      (g_s + g . col_k below the threshold)
+    dL/dcol_k = g d_k / sigma                         (g d_k below the threshold)
+    dL/ds_k   = dL/dd_k exp(-s_k m_k) (1 - s_k m_k)
+    dL/dr_k   = dL/dd_k s_k d_k,   dL/dc_k = dL/dd_k s_k d_k (p - c_k) / |p - c_k|   (outside, m_k > 0)
+
+The forward runs one thread per point (launch_split); the backward scatters every point's
+contribution into the (few) sphere parameters with atomic adds in ONE launch (float atomics
+race between concurrent CPU launches, notes/warp.md).
+"""
+
+from __future__ import annotations
+
+import typing
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from kernels.launch import launch_split
+from kernels.volume import _util as U
+from kernels.volume.field import Field, FieldOutput
+
+wp.set_module_options({"enable_backward": False})
+
+COLOR_NORMALIZE_EPS = 1e-6
+
+# The textbook scene: (centre, radius, colour, sharpness).
+TEXTBOOK_SPHERES = (
+    ((0.0, 0.0, 4.0), 0.8, (1.0, 0.2, 0.2), 5.0),
+    ((1.5, 0.5, 5.0), 0.6, (0.2, 1.0, 0.2), 5.0),
+    ((-1.0, -0.5, 3.5), 0.5, (0.2, 0.2, 1.0), 5.0),
+)
+
+
+@wp.kernel
+def _spheres_forward_kernel(
+    points: wp.array2d(dtype=typing.Any),
+    centers: wp.array2d(dtype=typing.Any),
+    radii: wp.array(dtype=typing.Any),
+    colors: wp.array2d(dtype=typing.Any),
+    sharpness: wp.array(dtype=typing.Any),
+    out_sigma: wp.array(dtype=typing.Any),
+    out_rgb: wp.array2d(dtype=typing.Any),
+    offset: int,
+):
+    i = wp.tid() + offset
+    zero = points.dtype(0.0)
+    sig = zero
+    nr = zero
+    ng = zero
+    nb = zero
+    for k in range(radii.shape[0]):
+        dx = points[i, 0] - centers[k, 0]
+        dy = points[i, 1] - centers[k, 1]
+        dz = points[i, 2] - centers[k, 2]
+        m = wp.max(zero, wp.sqrt(dx * dx + dy * dy + dz * dz) - radii[k])
+        d = sharpness[k] * wp.exp(-sharpness[k] * m)
+        sig += d
+        nr += d * colors[k, 0]
+        ng += d * colors[k, 1]
+        nb += d * colors[k, 2]
+    out_sigma[i] = sig
+    if sig > points.dtype(1e-6):
+        nr = nr / sig
+        ng = ng / sig
+        nb = nb / sig
+    out_rgb[i, 0] = nr
+    out_rgb[i, 1] = ng
+    out_rgb[i, 2] = nb
+
+
+@wp.kernel
+def _spheres_backward_kernel(
+    points: wp.array2d(dtype=typing.Any),
+    centers: wp.array2d(dtype=typing.Any),
+    radii: wp.array(dtype=typing.Any),
+    colors: wp.array2d(dtype=typing.Any),
+    sharpness: wp.array(dtype=typing.Any),
+    sigma: wp.array(dtype=typing.Any),
+    rgb: wp.array2d(dtype=typing.Any),
+    grad_sigma: wp.array(dtype=typing.Any),
+    grad_rgb: wp.array2d(dtype=typing.Any),
+    grad_centers: wp.array2d(dtype=typing.Any),
+    grad_radii: wp.array(dtype=typing.Any),
+    grad_colors: wp.array2d(dtype=typing.Any),
+    grad_sharpness: wp.array(dtype=typing.Any),
+):
+    i = wp.tid()
+    zero = points.dtype(0.0)
+    one = points.dtype(1.0)
+    sig = sigma[i]
+    normalized = sig > points.dtype(1e-6)
+    inv = one
+    if normalized:
+        inv = one / sig
+    gs = grad_sigma[i]
+    g0 = grad_rgb[i, 0]
+    g1 = grad_rgb[i, 1]
+    g2 = grad_rgb[i, 2]
+    for k in range(radii.shape[0]):
+        dx = points[i, 0] - centers[k, 0]
+        dy = points[i, 1] - centers[k, 1]
+        dz = points[i, 2] - centers[k, 2]
+        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        m = wp.max(zero, dist - radii[k])
+        s = sharpness[k]
+        e = wp.exp(-s * m)
+        d = s * e
+        if normalized:
+            gd = gs + (g0 * (colors[k, 0] - rgb[i, 0]) + g1 * (colors[k, 1] - rgb[i, 1])
+                       + g2 * (colors[k, 2] - rgb[i, 2])) * inv
+        else:
+            gd = gs + g0 * colors[k, 0] + g1 * colors[k, 1] + g2 * colors[k, 2]
+        wp.atomic_add(grad_colors, k, 0, g0 * d * inv)
+        wp.atomic_add(grad_colors, k, 1, g1 * d * inv)
+        wp.atomic_add(grad_colors, k, 2, g2 * d * inv)
+        wp.atomic_add(grad_sharpness, k, gd * e * (one - s * m))
+        if dist - radii[k] > zero:
+            gm = gd * s * d  # = -dL/dm
+            wp.atomic_add(grad_radii, k, gm)
+            wp.atomic_add(grad_centers, k, 0, gm * dx / dist)
+            wp.atomic_add(grad_centers, k, 1, gm * dy / dist)
+            wp.atomic_add(grad_centers, k, 2, gm * dz / dist)
+
+
+class SphereField(Field):
+    """Soft spheres (module docstring). Parameters: centers (K, 3), radii (K,), colors (K, 3), sharpness (K,)."""
+
+    name = "spheres"
+
+    def __init__(self, centers: Any, radii: Any, colors: Any, sharpness: Any,
+                 dtype: Any = wp.float32, device: str | wp.Device | None = None) -> None:
+        if dtype not in U.NP_TYPES:
+            raise ValueError(f"dtype: expected wp.float32 or wp.float64, got {dtype}")
+        device = U.default_device(device)
+        c = np.asarray(centers, dtype=np.float64)
+        if c.ndim != 2 or c.shape[1] != 3 or c.shape[0] < 1:
+            raise ValueError(f"centers: expected shape (K, 3) with K >= 1, got {c.shape}")
+        k = c.shape[0]
+        vals = {"centers": c, "radii": np.asarray(radii, dtype=np.float64),
+                "colors": np.asarray(colors, dtype=np.float64), "sharpness": np.asarray(sharpness, dtype=np.float64)}
+        for name, shape in (("radii", (k,)), ("colors", (k, 3)), ("sharpness", (k,))):
+            U.check_shape(name, vals[name], shape)
+        for name, v in vals.items():
+            U.check_finite(name, v)
+        U.check_nonnegative("radii", vals["radii"])
+        U.check_nonnegative("sharpness", vals["sharpness"])
+        np_t = U.NP_TYPES[dtype]
+        super().__init__({n: wp.array(v.astype(np_t), dtype=dtype, device=device) for n, v in vals.items()},
+                         dtype, device)
+
+    @classmethod
+    def textbook(cls, dtype: Any = wp.float32, device: str | wp.Device | None = None) -> "SphereField":
+        c, r, col, s = zip(*TEXTBOOK_SPHERES)
+        return cls(c, r, col, s, dtype=dtype, device=device)
+
+    def forward(self, points: U.ArrayLike, dirs: U.ArrayLike | None = None) -> FieldOutput:
+        p, _ = self._points(points, dirs)
+        n = p.shape[0]
+        sigma = wp.empty(n, dtype=self.dtype, device=self.device)
+        rgb = wp.empty((n, 3), dtype=self.dtype, device=self.device)
+        P = self.params
+        if n:
+            launch_split(_spheres_forward_kernel, n,
+                         [p, P["centers"], P["radii"], P["colors"], P["sharpness"], sigma, rgb], device=self.device)
+        return FieldOutput(sigma, rgb)
+
+    def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
+                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None) -> dict[str, wp.array]:
+        p, _ = self._points(points, dirs)
+        gs, gr = self._cotangents(p.shape[0], grad_sigma, grad_rgb)
+        grads = {k: wp.zeros(v.shape, dtype=self.dtype, device=self.device) for k, v in self.params.items()}
+        P = self.params
+        if p.shape[0]:
+            wp.launch(_spheres_backward_kernel, dim=p.shape[0],
+                      inputs=[p, P["centers"], P["radii"], P["colors"], P["sharpness"], out.sigma, out.rgb, gs, gr,
+                              grads["centers"], grads["radii"], grads["colors"], grads["sharpness"]],
+                      device=self.device)
+        return grads

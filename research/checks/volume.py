@@ -1,0 +1,311 @@
+"""Finite-difference checks (float64) of every hand-written backward pass in kernels.volume.
+
+Registered for `drlab gradcheck volume`; tests/kernels/test_volume_*.py run the same functions
+over more seeds. Inputs are random and kept away from the kinks of the functions checked:
+  * compositing: a ray that terminates early does so with T far below the threshold (one
+    very dense sample), so a step of 1e-6 cannot move the termination point;
+  * spheres: points at least 0.05 away from every sphere surface (the max(0, .) kink) and with a
+    total density far above the 1e-6 colour-normalisation switch;
+  * grids / hash grids: gradients with respect to the values, which enter linearly (the cell
+    boundaries are kinks only in the points, which are constants here);
+  * MLPs: every ReLU pre-activation at least RELU_MARGIN away from 0 (inputs are redrawn until so).
+Sample positions and view directions are constants (no gradient flows to them by design).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+import warp as wp
+
+from kernels.volume import (GridField, HashGridField, PEMLPField, SphereField, composite_backward, composite_forward,
+                            render_backward, render_rays)
+from kernels.volume.field import Field
+from research.gradcheck import GradcheckResult, check_vjp, register_check
+
+RELU_MARGIN = 1e-4
+BOX = np.array([[-1.0, -0.8, -0.6], [1.0, 0.9, 0.7]])
+
+
+# --------------------------------------------------------------------------- compositing
+
+def composite_inputs(seed: int) -> dict[str, Any]:
+    """Packed rays of 0..9 samples, per-ray backgrounds, one ray that terminates early."""
+    rng = np.random.default_rng(seed)
+    counts = np.array([5, 0, 9, 1, 7, 4, 8])
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+    n = int(offsets[-1])
+    sigma = rng.uniform(0.05, 3.0, n)
+    sigma[offsets[4] + 3] = 200.0  # T drops from O(0.1) to ~1e-50 << 1e-4: ray 4 stops after this sample
+    return {
+        "sigma": sigma,
+        "rgb": rng.uniform(0.0, 1.0, (n, 3)),
+        "delta": rng.uniform(0.05, 0.4, n),
+        "z": np.sort(rng.uniform(1.0, 5.0, n)),
+        "ray_offsets": offsets,
+        "background": rng.uniform(0.0, 1.0, (len(counts), 3)),
+    }
+
+
+def _composite_f(t_threshold: float) -> Callable:
+    def f(sigma, rgb, delta, z, ray_offsets, background):
+        r = composite_forward(sigma, rgb, delta, z, ray_offsets, background, t_threshold)
+        return {"rgb": r.rgb.numpy(), "depth": r.depth.numpy(), "opacity": r.opacity.numpy()}
+    return f
+
+
+def _composite_vjp(t_threshold: float) -> Callable:
+    def vjp(inp, cot):
+        args = (inp["sigma"], inp["rgb"], inp["delta"], inp["z"], inp["ray_offsets"])
+        r = composite_forward(*args, inp["background"], t_threshold)
+        gs, gr = composite_backward(*args, r, cot["rgb"], cot["depth"], cot["opacity"], inp["background"])
+        return {"sigma": gs.numpy(), "rgb": gr.numpy()}
+    return vjp
+
+
+def check_composite(seeds=(0, 1), t_threshold: float = 1e-4) -> list[GradcheckResult]:
+    results = []
+    for seed in seeds:
+        inputs = composite_inputs(seed)
+        results += check_vjp(_composite_f(t_threshold), _composite_vjp(t_threshold), inputs, wrt=["sigma", "rgb"],
+                             seed=seed, name="volume.composite")
+    return results
+
+
+# --------------------------------------------------------------------------- fields
+
+def _field_check(make: Callable[[dict[str, np.ndarray]], Field], params: dict[str, np.ndarray], points: np.ndarray,
+                 dirs: np.ndarray | None, name: str, seed: int) -> list[GradcheckResult]:
+    def f(**kw):
+        out = make(kw).forward(points, dirs)
+        return {"sigma": out.sigma.numpy(), "rgb": out.rgb.numpy()}
+
+    def vjp(inp, cot):
+        field = make(inp)
+        out = field.forward(points, dirs)
+        return {k: v.numpy() for k, v in field.backward(points, dirs, out, cot["sigma"], cot["rgb"]).items()}
+
+    return check_vjp(f, vjp, params, seed=seed, name=name)
+
+
+def sphere_points(rng: np.random.Generator, field: SphereField, n: int) -> np.ndarray:
+    """Points in front of the textbook spheres, >= 0.05 from every surface."""
+    P = field.params_numpy()
+    pts: list[np.ndarray] = []
+    while len(pts) < n:
+        p = rng.uniform([-1.8, -1.2, 2.8], [2.2, 1.2, 5.8])
+        dist = np.linalg.norm(p - P["centers"], axis=1)
+        if np.all(np.abs(dist - P["radii"]) > 0.05):
+            pts.append(p)
+    return np.array(pts)
+
+
+def check_spheres(seeds=(0, 1)) -> list[GradcheckResult]:
+    results = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        base = SphereField.textbook(wp.float64)
+        params = {k: v + rng.normal(0.0, 0.05, v.shape) for k, v in base.params_numpy().items()}
+        points = sphere_points(rng, base, 24)
+        make = lambda p: SphereField(p["centers"], p["radii"], p["colors"], p["sharpness"], dtype=wp.float64)  # noqa: E731
+        results += _field_check(make, params, points, None, "volume.field.spheres", seed)
+    return results
+
+
+def check_grid(seeds=(0, 1), sh_degree: int | None = None, activation: str = "softplus") -> list[GradcheckResult]:
+    results = []
+    name = f"volume.field.grid_{'rgb' if sh_degree is None else f'sh{sh_degree}'}_{activation}"
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        field = GridField(BOX, (3, 4, 5), sh_degree=sh_degree, density_bias=0.2, density_scale=1.7,
+                          density_activation=activation, dtype=wp.float64)
+        params = {"density": rng.normal(0.0, 1.0, field.params["density"].shape),
+                  "color": rng.normal(0.0, 1.0, field.params["color"].shape)}
+        points = rng.uniform(BOX[0], BOX[1], (24, 3))
+        dirs = None
+        if sh_degree is not None:
+            dirs = rng.normal(size=(24, 3))
+            dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+
+        def make(p, field=field):
+            field.set_params(p)
+            return field
+        results += _field_check(make, params, points, dirs, name, seed)
+    return results
+
+
+def relu_margin(field: Field, points: np.ndarray) -> float:
+    """min |z| over the hidden pre-activations of a neural field's MLP at `points`."""
+    out = field.forward(points)
+    pre = out.cache["mlp"].pre[:-1]
+    return float(min(np.abs(z.numpy()).min() for z in pre)) if pre else np.inf
+
+
+def neural_field(kind: str, seed: int, backend: str = "numpy") -> Field:
+    """A small float64 neural field with non-degenerate parameters (hash table entries O(1))."""
+    if kind == "hashgrid":
+        # Levels 2, 4, 8 with a 64-entry table: level 0 dense, levels 1-2 hashed (collisions included).
+        return HashGridField(BOX, n_levels=3, n_features=2, log2_table_size=6, base_resolution=2, max_resolution=8,
+                             hidden=(8, 8), density_bias=-0.5, table_init_scale=1.0, seed=seed, dtype=wp.float64,
+                             backend=backend)
+    if kind == "pe_mlp":
+        return PEMLPField(BOX, n_freqs=2, hidden=(8, 8), density_bias=-0.5, seed=seed, dtype=wp.float64,
+                          backend=backend)
+    raise ValueError(f"kind: unknown neural field {kind!r}")
+
+
+def _margin_points(field: Field, rng: np.random.Generator, n: int) -> np.ndarray:
+    for _ in range(50):
+        points = rng.uniform(BOX[0], BOX[1], (n, 3))
+        if relu_margin(field, points) > RELU_MARGIN:
+            return points
+    raise RuntimeError("could not draw points away from the ReLU kinks")
+
+
+def check_neural(kind: str, seeds=(0, 1), backend: str = "numpy") -> list[GradcheckResult]:
+    results = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        field = neural_field(kind, seed, backend)
+        params = field.params_numpy()
+        points = _margin_points(field, rng, 16)
+
+        def make(p, field=field):
+            field.set_params(p)
+            return field
+        results += _field_check(make, params, points, None, f"volume.field.{kind}", seed)
+    return results
+
+
+def check_tv(seeds=(0, 1)) -> list[GradcheckResult]:
+    """The grid's total-variation regulariser: add_tv_grad against FD of tv_loss."""
+    from kernels.volume.grid import add_tv_grad, tv_loss
+
+    results = []
+    res = (3, 4, 5)
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        inputs = {"density": rng.normal(size=60), "color": rng.normal(size=(60, 3))}
+
+        def f(density, color):
+            return np.array(0.7 * (tv_loss(density, res) + tv_loss(color, res)))
+
+        def vjp(inp, cot):
+            out = {}
+            for k in ("density", "color"):
+                g = wp.zeros(inp[k].shape, dtype=wp.float64)
+                add_tv_grad(wp.array(inp[k], dtype=wp.float64), res, 0.7 * float(cot), g)
+                out[k] = g.numpy()
+            return out
+
+        results += check_vjp(f, vjp, inputs, seed=seed, name="volume.grid_tv")
+    return results
+
+
+# --------------------------------------------------------------------------- end to end
+
+def render_setup(kind: str, seed: int) -> tuple[Field, np.ndarray, np.ndarray, np.ndarray]:
+    """A field and rays (origins, unit dirs, z_scale) crossing BOX from a camera-like fan."""
+    rng = np.random.default_rng(seed)
+    if kind == "grid":
+        field = GridField(BOX, (4, 4, 4), sh_degree=1, density_bias=0.0, dtype=wp.float64)
+        field.set_params({"density": rng.normal(0.5, 1.0, field.params["density"].shape),
+                          "color": rng.normal(0.0, 1.0, field.params["color"].shape)})
+    else:
+        field = neural_field(kind, seed)
+    n_rays = 6
+    origins = np.tile([0.1, -0.05, -3.0], (n_rays, 1)) + rng.normal(0.0, 0.05, (n_rays, 3))
+    targets = rng.uniform(BOX[0] * 0.8, BOX[1] * 0.8, (n_rays, 3))
+    dirs = targets - origins
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    return field, origins, dirs, dirs[:, 2].copy()
+
+
+def check_render(kind: str, seeds=(0, 1)) -> list[GradcheckResult]:
+    """Pixel colour, depth and opacity of a few rays with respect to every field parameter.
+
+    For neural fields a seed whose samples put a ReLU pre-activation within RELU_MARGIN of 0 is
+    replaced by seed + 100 (then + 200, ...), so that every requested seed yields a check.
+    """
+    results = []
+    for seed in seeds:
+        for attempt in range(10):
+            s = seed + 100 * attempt
+            field, origins, dirs, z_scale = render_setup(kind, s)
+            opts = dict(n_samples=12, z_scale=z_scale, jitter=True, seed=s, background=(0.3, 0.2, 0.1),
+                        t_threshold=0.0)
+            if kind == "grid":
+                break
+            pts = render_rays(field, origins, dirs, BOX, **opts).samples.points.numpy()
+            if relu_margin(field, pts) > RELU_MARGIN:
+                break
+        else:
+            raise RuntimeError(f"volume.render.{kind}: no seed away from the ReLU kinks")
+
+        def f(field=field, origins=origins, dirs=dirs, opts=opts, **kw):
+            field.set_params(kw)
+            r = render_rays(field, origins, dirs, BOX, **opts)
+            return {"rgb": r.rgb.numpy(), "depth": r.depth.numpy(), "opacity": r.opacity.numpy()}
+
+        def vjp(inp, cot, field=field, origins=origins, dirs=dirs, opts=opts):
+            field.set_params(inp)
+            r = render_rays(field, origins, dirs, BOX, **opts)
+            grads = render_backward(field, r, cot["rgb"], cot["depth"], cot["opacity"])
+            return {k: v.numpy() for k, v in grads.items()}
+
+        results += check_vjp(f, vjp, field.params_numpy(), seed=s, name=f"volume.render.{kind}")
+    return results
+
+
+# --------------------------------------------------------------------------- registry
+
+
+@register_check("volume.composite")
+def _composite() -> list[GradcheckResult]:
+    return check_composite()
+
+
+@register_check("volume.field.spheres")
+def _spheres() -> list[GradcheckResult]:
+    return check_spheres()
+
+
+@register_check("volume.field.grid_rgb")
+def _grid_rgb() -> list[GradcheckResult]:
+    return check_grid(sh_degree=None, activation="softplus")
+
+
+@register_check("volume.field.grid_sh2")
+def _grid_sh2() -> list[GradcheckResult]:
+    return check_grid(sh_degree=2, activation="exp")
+
+
+@register_check("volume.grid_tv")
+def _grid_tv() -> list[GradcheckResult]:
+    return check_tv()
+
+
+@register_check("volume.field.hashgrid")
+def _hashgrid() -> list[GradcheckResult]:
+    return check_neural("hashgrid")
+
+
+@register_check("volume.field.pe_mlp")
+def _pe_mlp() -> list[GradcheckResult]:
+    return check_neural("pe_mlp")
+
+
+@register_check("volume.render.grid")
+def _render_grid() -> list[GradcheckResult]:
+    return check_render("grid")
+
+
+@register_check("volume.render.hashgrid")
+def _render_hashgrid() -> list[GradcheckResult]:
+    return check_render("hashgrid")
+
+
+@register_check("volume.render.pe_mlp")
+def _render_pe_mlp() -> list[GradcheckResult]:
+    return check_render("pe_mlp")

@@ -1,0 +1,327 @@
+"""kernels.volume fields: soft spheres, voxel grid, hash encoding, positional encoding, MLP, neural fields.
+
+Forward passes against NumPy references written from the module docstrings (float32 and
+float64); backward passes through float64 finite differences (research.checks.volume).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from kernels.volume import GridField, HashEncoding, HashGridField, MLP, PEMLPField, PositionalEncoding, SphereField
+from kernels.volume.hashgrid import PRIME_Y, PRIME_Z
+from kernels.volume.mlp import init_mlp_params
+from research.checks.volume import BOX, check_grid, check_neural, check_spheres, neural_field
+from research.gradcheck import assert_gradcheck
+
+DTYPES = [(np.float32, wp.float32, 2e-5), (np.float64, wp.float64, 1e-12)]
+
+
+def softplus(x):
+    return np.logaddexp(0.0, x)
+
+
+def sigmoid(x):
+    return 1.0 / (1.0 + np.exp(-x))
+
+
+def unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+# --------------------------------------------------------------------------- soft spheres
+
+def spheres_reference(p, centers, radii, colors, sharpness):
+    sigma, rgb = np.zeros(len(p)), np.zeros((len(p), 3))
+    for i, x in enumerate(p):
+        num = np.zeros(3)
+        for c, r, col, s in zip(centers, radii, colors, sharpness):
+            d = s * np.exp(-s * max(0.0, np.linalg.norm(x - c) - r))
+            sigma[i] += d
+            num += d * col
+        rgb[i] = num / sigma[i] if sigma[i] > 1e-6 else num
+    return sigma, rgb
+
+
+@pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+def test_spheres_forward(np_t, wp_t, tol):
+    rng = np.random.default_rng(0)
+    field = SphereField.textbook(wp_t)
+    # Inside, near and far from the spheres (far points: density < 1e-6, unnormalised colour).
+    p = np.concatenate([rng.uniform([-2, -1.5, 2.5], [2.5, 1.5, 6.5], (50, 3)), [[9.0, 9.0, 9.0]]]).astype(np_t)
+    out = field.forward(p)
+    P = {k: v.astype(np.float64) for k, v in field.params_numpy().items()}
+    ref = spheres_reference(p.astype(np.float64), P["centers"], P["radii"], P["colors"], P["sharpness"])
+    assert ref[0][-1] < 1e-6
+    np.testing.assert_allclose(out.sigma.numpy(), ref[0], rtol=tol, atol=tol * 1e-3)
+    np.testing.assert_allclose(out.rgb.numpy(), ref[1], rtol=tol, atol=tol * 1e-3)
+
+
+def test_spheres_gradients():
+    assert_gradcheck(check_spheres(seeds=(0, 1, 2)))
+
+
+# --------------------------------------------------------------------------- voxel grid
+
+def sh_reference(d, degree):
+    if degree is None:
+        return np.ones((len(d), 1))
+    x, y, z = d.T
+    c0, c1 = 0.28209479177387814, 0.4886025119029199
+    c2 = [1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396]
+    cols = [np.full_like(x, c0)]
+    if degree >= 1:
+        cols += [-c1 * y, c1 * z, -c1 * x]
+    if degree >= 2:
+        cols += [c2[0] * x * y, c2[1] * y * z, c2[2] * (2 * z * z - x * x - y * y), c2[3] * x * z, c2[4] * (x * x - y * y)]
+    return np.stack(cols, axis=1)
+
+
+def trilinear_reference(values, res, box, p):
+    """values (nz, ny, nx, C); explicit 8-corner sum."""
+    u = (p - box[0]) / (box[1] - box[0]) * (np.array(res) - 1)
+    i = np.minimum(np.floor(u).astype(int), np.array(res) - 2)
+    f = u - i
+    out = np.zeros(values.shape[-1])
+    for bx in (0, 1):
+        for by in (0, 1):
+            for bz in (0, 1):
+                w = ((f[0] if bx else 1 - f[0]) * (f[1] if by else 1 - f[1]) * (f[2] if bz else 1 - f[2]))
+                out += w * values[i[2] + bz, i[1] + by, i[0] + bx]
+    return out
+
+
+def grid_reference(field, p, d):
+    nx, ny, nz = field.resolution
+    dens = field.params["density"].numpy().astype(np.float64).reshape(nz, ny, nx, 1)
+    col = field.params["color"].numpy().astype(np.float64).reshape(nz, ny, nx, 3, field.n_coef)
+    Y = sh_reference(d, field.sh_degree)
+    sigma, rgb = np.zeros(len(p)), np.zeros((len(p), 3))
+    act = softplus if field.density_activation == "softplus" else np.exp
+    for i, x in enumerate(p):
+        if np.any(x < field.bbox[0]) or np.any(x > field.bbox[1]):
+            continue
+        sigma[i] = field.density_scale * act(trilinear_reference(dens, field.resolution, field.bbox, x)[0]
+                                             + field.density_bias)
+        k = trilinear_reference(col.reshape(nz, ny, nx, -1), field.resolution, field.bbox, x).reshape(3, -1)
+        rgb[i] = sigmoid(k @ Y[i])
+    return sigma, rgb
+
+
+@pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+@pytest.mark.parametrize("sh_degree, activation", [(None, "softplus"), (1, "exp"), (2, "softplus")])
+def test_grid_forward(np_t, wp_t, tol, sh_degree, activation):
+    rng = np.random.default_rng(1)
+    field = GridField(BOX, (4, 3, 5), sh_degree=sh_degree, density_bias=0.3, density_scale=2.5,
+                      density_activation=activation, dtype=wp_t)
+    field.set_params({"density": rng.normal(size=field.params["density"].shape).astype(np_t),
+                      "color": rng.normal(size=field.params["color"].shape).astype(np_t)})
+    p = rng.uniform(BOX[0] - 0.2, BOX[1] + 0.2, (60, 3)).astype(np_t)  # some outside: sigma = rgb = 0
+    d = unit(rng.normal(size=(60, 3))).astype(np_t)
+    out = field.forward(p, d if sh_degree is not None else None)
+    ref = grid_reference(field, p.astype(np.float64), d.astype(np.float64))
+    outside = np.any((p < BOX[0]) | (p > BOX[1]), axis=1)
+    assert 0 < outside.sum() < len(p)
+    np.testing.assert_allclose(out.sigma.numpy(), ref[0], rtol=tol, atol=tol)
+    np.testing.assert_allclose(out.rgb.numpy(), ref[1], rtol=tol, atol=tol)
+
+
+@pytest.mark.parametrize("sh_degree, activation", [(None, "softplus"), (1, "exp"), (2, "softplus")])
+def test_grid_gradients(sh_degree, activation):
+    assert_gradcheck(check_grid(seeds=(0, 1, 2), sh_degree=sh_degree, activation=activation))
+
+
+def test_grid_total_variation():
+    from kernels.volume.grid import add_tv_grad, tv_loss
+    from research.checks.volume import check_tv
+
+    res = (3, 4, 2)
+    x = np.random.default_rng(0).normal(size=(24, 2))
+    ref = sum(np.sum(np.diff(x.reshape(2, 4, 3, 2), axis=a) ** 2) for a in range(3))
+    assert tv_loss(x, res) == pytest.approx(ref, rel=1e-12)
+    g = wp.zeros((24, 2), dtype=wp.float64)
+    add_tv_grad(wp.array(np.ones((24, 2)) * 3.0, dtype=wp.float64), res, 1.0, g)
+    assert np.all(g.numpy() == 0.0)  # a constant field has no variation
+    assert_gradcheck(check_tv(seeds=(0, 1, 2)))
+
+
+def test_grid_vertex_values_are_reproduced():
+    """At a vertex the trilinear value is that vertex's value exactly."""
+    field = GridField(BOX, (3, 3, 3), dtype=wp.float64)
+    rng = np.random.default_rng(0)
+    field.set_params({"density": rng.normal(size=27), "color": rng.normal(size=(27, 3))})
+    v = np.array([[1, 2, 0]])  # ix, iy, iz
+    p = BOX[0] + v * (BOX[1] - BOX[0]) / 2.0
+    out = field.forward(p)
+    idx = 1 + 3 * (2 + 3 * 0)
+    assert out.sigma.numpy()[0] == pytest.approx(softplus(field.params["density"].numpy()[idx]), rel=1e-12)
+
+
+# --------------------------------------------------------------------------- hash encoding
+
+def hash_reference(enc: HashEncoding, p, table):
+    T, F = enc.table_size, enc.n_features
+    x = np.clip((p - enc.bbox[0]) / (enc.bbox[1] - enc.bbox[0]), 0.0, 1.0)
+    out = np.zeros((len(p), enc.n_levels * F))
+    for l, res in enumerate(enc.resolutions):
+        res = int(res)
+        dense = (res + 1) ** 3 <= T
+        for n in range(len(p)):
+            u = x[n] * res
+            i = np.clip(np.floor(u).astype(int), 0, res - 1)
+            f = u - i
+            for b in np.ndindex(2, 2, 2):
+                v = i + np.array(b)
+                w = np.prod([f[a] if b[a] else 1 - f[a] for a in range(3)])
+                if dense:
+                    h = v[0] + (res + 1) * (v[1] + (res + 1) * v[2])
+                else:
+                    h = int((np.uint32(v[0]) ^ np.uint32((int(v[1]) * PRIME_Y) % 2**32)
+                             ^ np.uint32((int(v[2]) * PRIME_Z) % 2**32)) % np.uint32(T))
+                out[n, l * F:(l + 1) * F] += w * table[l * T + h]
+    return out
+
+
+@pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+def test_hash_encoding_forward(np_t, wp_t, tol):
+    enc = HashEncoding(BOX, n_levels=4, n_features=3, log2_table_size=7, base_resolution=2, max_resolution=20)
+    assert enc.dense.tolist()[0] == 1 and enc.dense.tolist()[-1] == 0  # both dense and hashed levels
+    rng = np.random.default_rng(2)
+    table = rng.normal(size=enc.table_shape).astype(np_t)
+    p = rng.uniform(BOX[0] - 0.1, BOX[1] + 0.1, (40, 3)).astype(np_t)
+    ref = hash_reference(enc, p.astype(np.float64), table.astype(np.float64))
+    got = enc.encode(wp.array(p, dtype=wp_t), wp.array(table, dtype=wp_t)).numpy()
+    np.testing.assert_allclose(got, ref, rtol=tol * 10, atol=tol * 10)
+
+
+def test_level_resolutions_follow_the_geometric_progression():
+    enc = HashEncoding(BOX, n_levels=16, base_resolution=16, max_resolution=2048)
+    b = np.exp((np.log(2048) - np.log(16)) / 15)
+    np.testing.assert_array_equal(enc.resolutions, np.floor(16 * b ** np.arange(16) + 1e-9).astype(int))
+    assert enc.resolutions[0] == 16 and enc.resolutions[-1] == 2048
+
+
+# --------------------------------------------------------------------------- positional encoding and MLP
+
+@pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+def test_positional_encoding(np_t, wp_t, tol):
+    pe = PositionalEncoding(BOX, n_freqs=4)
+    rng = np.random.default_rng(3)
+    p = rng.uniform(BOX[0], BOX[1], (30, 3)).astype(np_t)
+    got = pe.encode(wp.array(p, dtype=wp_t)).numpy()
+    x = 2 * (p.astype(np.float64) - BOX[0]) / (BOX[1] - BOX[0]) - 1
+    assert got.shape == (30, 27)
+    np.testing.assert_allclose(got[:, :3], x, atol=tol)
+    for k in range(4):
+        np.testing.assert_allclose(got[:, 3 + 6 * k:6 + 6 * k], np.sin(2**k * np.pi * x), atol=tol * 20)
+        np.testing.assert_allclose(got[:, 6 + 6 * k:9 + 6 * k], np.cos(2**k * np.pi * x), atol=tol * 20)
+
+
+def mlp_reference(params, x, n_layers):
+    a = x
+    for l in range(n_layers):
+        z = a @ params[f"W{l}"].T + params[f"b{l}"]
+        a = np.maximum(z, 0.0) if l < n_layers - 1 else z
+    return a
+
+
+@pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+@pytest.mark.parametrize("backend", ["numpy", "warp"])
+def test_mlp_forward(np_t, wp_t, tol, backend):
+    sizes = [5, 16, 16, 4]
+    params = init_mlp_params(sizes, 0, wp_t, wp.get_device("cpu"))
+    mlp = MLP(sizes, params, backend)
+    x = np.random.default_rng(4).normal(size=(33, 5)).astype(np_t)
+    y, _ = mlp.forward(wp.array(x, dtype=wp_t))
+    ref = mlp_reference({k: v.numpy().astype(np.float64) for k, v in params.items()}, x.astype(np.float64), 3)
+    np.testing.assert_allclose(y.numpy(), ref, rtol=tol * 10, atol=tol * 10)
+
+
+def test_mlp_backends_agree_on_the_backward():
+    sizes = [6, 12, 12, 4]
+    params = init_mlp_params(sizes, 1, wp.float64, wp.get_device("cpu"))
+    rng = np.random.default_rng(5)
+    x = wp.array(rng.normal(size=(50, 6)), dtype=wp.float64)
+    g = wp.array(rng.normal(size=(50, 4)), dtype=wp.float64)
+    out = {}
+    for backend in ("numpy", "warp"):
+        mlp = MLP(sizes, params, backend)
+        _, cache = mlp.forward(x)
+        grads, gx = mlp.backward(cache, g, need_input_grad=True)
+        out[backend] = {**{k: v.numpy() for k, v in grads.items()}, "x": gx.numpy()}
+    for k in out["numpy"]:
+        np.testing.assert_allclose(out["warp"][k], out["numpy"][k], rtol=1e-12, atol=1e-12)
+
+
+# --------------------------------------------------------------------------- neural fields
+
+@pytest.mark.parametrize("kind", ["hashgrid", "pe_mlp"])
+@pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+def test_neural_field_forward(kind, np_t, wp_t, tol):
+    f64 = neural_field(kind, 0)
+    kw = dict(hidden=(8, 8), density_bias=-0.5, seed=0, dtype=wp_t)
+    if kind == "hashgrid":
+        field = HashGridField(BOX, n_levels=3, n_features=2, log2_table_size=6, base_resolution=2, max_resolution=8,
+                              table_init_scale=1.0, **kw)
+    else:
+        field = PEMLPField(BOX, n_freqs=2, **kw)
+    field.set_params({k: v.astype(np_t) for k, v in f64.params_numpy().items()})
+    rng = np.random.default_rng(6)
+    p = rng.uniform(BOX[0] - 0.1, BOX[1] + 0.1, (40, 3)).astype(np_t)
+    out = field.forward(p)
+    P = f64.params_numpy()
+    p64 = p.astype(np.float64)
+    if kind == "hashgrid":
+        enc = hash_reference(field.encoding, p64, P["table"])
+    else:
+        x = 2 * (p64 - BOX[0]) / (BOX[1] - BOX[0]) - 1
+        enc = np.concatenate([x] + [f(2**k * np.pi * x) for k in range(2) for f in (np.sin, np.cos)], axis=1)
+    raw = mlp_reference(P, enc, 3)
+    inside = np.all((p64 >= BOX[0]) & (p64 <= BOX[1]), axis=1)
+    np.testing.assert_allclose(out.sigma.numpy(), np.exp(raw[:, 0] - 0.5) * inside, rtol=tol * 20, atol=tol * 20)
+    np.testing.assert_allclose(out.rgb.numpy(), sigmoid(raw[:, 1:]) * inside[:, None], rtol=tol * 20, atol=tol * 20)
+
+
+@pytest.mark.parametrize("kind, backend", [("hashgrid", "numpy"), ("hashgrid", "warp"), ("pe_mlp", "numpy")])
+def test_neural_field_gradients(kind, backend):
+    assert_gradcheck(check_neural(kind, seeds=(0, 1), backend=backend))
+
+
+# --------------------------------------------------------------------------- bad input
+
+def test_field_bad_input():
+    field = GridField(BOX, (3, 3, 3), sh_degree=1, dtype=wp.float64)
+    p = np.zeros((4, 3))
+    with pytest.raises(ValueError, match="dirs: the grid field is view-dependent"):
+        field.forward(p)
+    with pytest.raises(ValueError, match="points: expected shape"):
+        field.forward(np.zeros((4, 2)), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="points: expected dtype float64"):
+        field.forward(p.astype(np.float32), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="dirs: expected shape"):
+        field.forward(p, np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="points: contains NaN"):
+        field.forward(np.full((4, 3), np.nan), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="sh_degree"):
+        GridField(BOX, (3, 3, 3), sh_degree=3)
+    with pytest.raises(ValueError, match="resolution: expected at least 2"):
+        GridField(BOX, (1, 3, 3))
+    with pytest.raises(ValueError, match="density_activation"):
+        GridField(BOX, (3, 3, 3), density_activation="relu")
+    with pytest.raises(ValueError, match="params: unknown parameter"):
+        field.set_params({"sigma": np.zeros(27)})
+    with pytest.raises(ValueError, match="density: expected shape"):
+        field.set_params({"density": np.zeros(26)})
+    with pytest.raises(ValueError, match="radii: expected values >= 0"):
+        SphereField([[0, 0, 0]], [-1.0], [[1, 1, 1]], [5.0])
+    with pytest.raises(ValueError, match="colors: expected shape"):
+        SphereField([[0, 0, 0]], [1.0], [[1, 1]], [5.0])
+    with pytest.raises(ValueError, match="max_resolution"):
+        HashEncoding(BOX, base_resolution=32, max_resolution=16)
+    with pytest.raises(ValueError, match="grad_sigma: expected shape"):
+        out = field.forward(p, np.zeros((4, 3)))
+        field.backward(p, np.zeros((4, 3)), out, np.zeros(5), None)
+    with pytest.raises(ValueError, match="backend"):
+        HashGridField(BOX, backend="torch")
