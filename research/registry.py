@@ -83,6 +83,12 @@ register_experiment(
     quick_budget_s=600,
 )
 
+register_experiment(
+    "volume_render_spheres",
+    "The textbook's three soft spheres volume-rendered with the Warp kernels vs a NumPy port (agreement, timings).",
+    quick_budget_s=120,
+)
+
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",
