@@ -67,11 +67,14 @@ def check_finite(name: str, x: ArrayLike) -> np.ndarray:
 
 def check_nonnegative(name: str, x: ArrayLike) -> None:
     h = host_view(x)
-    if np.isnan(h).any():
+    if not h.size:
+        return
+    lo, hi = h.min(), h.max()  # a NaN anywhere makes both NaN
+    if np.isnan(lo):
         raise ValueError(f"{name}: contains NaN values")
-    if h.size and h.min() < 0:
-        raise ValueError(f"{name}: expected values >= 0, got a minimum of {h.min():.6g}")
-    if np.isinf(h).any():
+    if lo < 0:
+        raise ValueError(f"{name}: expected values >= 0, got a minimum of {lo:.6g}")
+    if np.isinf(hi):
         raise ValueError(f"{name}: contains infinite values")
 
 

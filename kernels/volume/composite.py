@@ -187,7 +187,7 @@ def _background(background: Any, n_rays: int, dtype: Any, device: wp.Device) -> 
     return U.to_warp("background", bg, dtype, device), per_ray
 
 
-def _validate(sigma, rgb, delta, z, ray_offsets, device) -> tuple[Any, int, int]:
+def _validate(sigma, rgb, delta, z, ray_offsets, device, values: bool = True) -> tuple[Any, int, int]:
     dtype = U.common_dtype([("sigma", sigma), ("rgb", rgb), ("delta", delta), ("z", z)])
     if len(sigma.shape) != 1:
         raise ValueError(f"sigma: expected shape (N,) (packed samples), got {tuple(sigma.shape)}")
@@ -196,10 +196,11 @@ def _validate(sigma, rgb, delta, z, ray_offsets, device) -> tuple[Any, int, int]
     U.check_shape("delta", delta, (n,))
     U.check_shape("z", z, (n,))
     offsets = U.check_ray_offsets("ray_offsets", ray_offsets, None, n)
-    U.check_nonnegative("sigma", sigma)
-    U.check_finite("rgb", rgb)
-    U.check_nonnegative("delta", delta)
-    U.check_finite("z", z)
+    if values:
+        U.check_nonnegative("sigma", sigma)
+        U.check_finite("rgb", rgb)
+        U.check_nonnegative("delta", delta)
+        U.check_finite("z", z)
     return dtype, n, offsets.size - 1
 
 
@@ -257,10 +258,11 @@ def composite_backward(
     """Gradients (d sigma (N,), d rgb (N, 3)) of <grad_rgb, C> + <grad_depth, D> + <grad_opacity, A>.
 
     `result` is what `composite_forward` returned for the same inputs and background; missing
-    cotangents count as zero.
+    cotangents count as zero. Shapes and dtypes are checked again, the sample values are not
+    (composite_forward checked them); the cotangents are.
     """
     device = U.default_device(device)
-    dtype, n, n_rays = _validate(sigma, rgb, delta, z, ray_offsets, device)
+    dtype, n, n_rays = _validate(sigma, rgb, delta, z, ray_offsets, device, values=False)
     if result.rgb.shape != (n_rays, 3) or result.rgb.dtype != dtype:
         raise ValueError(f"result: expected the CompositeResult of {n_rays} rays in {U.NP_TYPES[dtype].__name__}")
     bg, per_ray = _background(background, n_rays, dtype, device)

@@ -9,21 +9,36 @@ rule is
     dL/dtheta = sum_k [ dL/dsigma_k dsigma_k/dtheta + dL/dc_k . dc_k/dtheta ]
 
 with dL/dsigma_k, dL/dc_k from the compositing backward and the field's own backward
-(kernels.volume.field.Field.backward) for the rest.
+(kernels.volume.field.Field.backward) for the rest. An optional sparsity penalty
+lambda * sum_k sigma_k delta_k (the optical depth of every sample; an L1 prior on density in the
+spirit of Plenoxels' sparsity loss) adds lambda * delta_k to dL/dsigma_k.
 """
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass
 from typing import Any
 
 import warp as wp
+
+from kernels.launch import launch_split
 
 from kernels.volume import _util as U
 from kernels.volume.composite import DEFAULT_T_THRESHOLD, CompositeResult, composite_backward, composite_forward
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.occupancy import OccupancyGrid
 from kernels.volume.sampling import Samples, sample_rays
+
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def _add_scaled_kernel(g: wp.array(dtype=typing.Any), x: wp.array(dtype=typing.Any), scale: typing.Any,
+                       offset: int):
+    i = wp.tid() + offset
+    g[i] = g[i] + scale * x[i]
 
 
 @dataclass
@@ -73,11 +88,21 @@ def render_rays(
     return render_samples(field, samples, background, t_threshold)
 
 
+def optical_depth_sum(result: RenderResult) -> float:
+    """sum_k sigma_k delta_k over every sample of the render (the sparsity penalty's value at lambda 1)."""
+    return float((result.field_out.sigma.numpy().astype(float) * result.samples.delta.numpy()).sum())
+
+
 def render_backward(field: Field, result: RenderResult, grad_rgb: U.ArrayLike | None = None,
-                    grad_depth: U.ArrayLike | None = None, grad_opacity: U.ArrayLike | None = None
-                    ) -> dict[str, wp.array]:
-    """Gradient of <grad_rgb, C> + <grad_depth, D> + <grad_opacity, A> for every field parameter."""
+                    grad_depth: U.ArrayLike | None = None, grad_opacity: U.ArrayLike | None = None,
+                    sigma_l1: float = 0.0) -> dict[str, wp.array]:
+    """Gradient of <grad_rgb, C> + <grad_depth, D> + <grad_opacity, A> + sigma_l1 sum_k sigma_k delta_k
+    for every field parameter."""
+    if not (sigma_l1 == sigma_l1 and abs(sigma_l1) < float("inf")):
+        raise ValueError(f"sigma_l1: expected a finite weight, got {sigma_l1}")
     s, out = result.samples, result.field_out
     g_sigma, g_rgb = composite_backward(out.sigma, out.rgb, s.delta, s.z, s.ray_offsets, result.composite,
                                         grad_rgb, grad_depth, grad_opacity, result.background, field.device)
+    if sigma_l1 != 0.0 and s.n_samples:
+        launch_split(_add_scaled_kernel, s.n_samples, [g_sigma, s.delta, field.dtype(sigma_l1)], device=field.device)
     return field.backward(s.points, s.dirs if field.needs_dirs else None, out, g_sigma, g_rgb)

@@ -21,10 +21,12 @@ import warp as wp
 
 from kernels.volume import (GridField, HashGridField, PEMLPField, SphereField, composite_backward, composite_forward,
                             render_backward, render_rays)
+from kernels.volume.render import optical_depth_sum
 from kernels.volume.field import Field
 from research.gradcheck import GradcheckResult, check_vjp, register_check
 
 RELU_MARGIN = 1e-4
+SPARSITY_WEIGHT = 0.3
 BOX = np.array([[-1.0, -0.8, -0.6], [1.0, 0.9, 0.7]])
 
 
@@ -223,7 +225,8 @@ def render_setup(kind: str, seed: int) -> tuple[Field, np.ndarray, np.ndarray, n
 
 
 def check_render(kind: str, seeds=(0, 1)) -> list[GradcheckResult]:
-    """Pixel colour, depth and opacity of a few rays with respect to every field parameter.
+    """Pixel colour, depth and opacity of a few rays (and the sparsity penalty, weight SPARSITY_WEIGHT)
+    with respect to every field parameter.
 
     For neural fields a seed whose samples put a ReLU pre-activation within RELU_MARGIN of 0 is
     replaced by seed + 100 (then + 200, ...), so that every requested seed yields a check.
@@ -246,12 +249,14 @@ def check_render(kind: str, seeds=(0, 1)) -> list[GradcheckResult]:
         def f(field=field, origins=origins, dirs=dirs, opts=opts, **kw):
             field.set_params(kw)
             r = render_rays(field, origins, dirs, BOX, **opts)
-            return {"rgb": r.rgb.numpy(), "depth": r.depth.numpy(), "opacity": r.opacity.numpy()}
+            return {"rgb": r.rgb.numpy(), "depth": r.depth.numpy(), "opacity": r.opacity.numpy(),
+                    "sparsity": np.array(SPARSITY_WEIGHT * optical_depth_sum(r))}
 
         def vjp(inp, cot, field=field, origins=origins, dirs=dirs, opts=opts):
             field.set_params(inp)
             r = render_rays(field, origins, dirs, BOX, **opts)
-            grads = render_backward(field, r, cot["rgb"], cot["depth"], cot["opacity"])
+            grads = render_backward(field, r, cot["rgb"], cot["depth"], cot["opacity"],
+                                    sigma_l1=SPARSITY_WEIGHT * float(cot["sparsity"]))
             return {k: v.numpy() for k, v in grads.items()}
 
         results += check_vjp(f, vjp, field.params_numpy(), seed=s, name=f"volume.render.{kind}")

@@ -9,7 +9,8 @@ Per iteration (instant-ngp's recipe, Mueller et al. 2022, on the CPU):
      during a warm-up of `occupancy_start` iterations nothing is skipped and the step is coarser,
      so that surfaces form before cells can be declared empty (a cell declared empty gets no
      samples, hence no gradient, and would stay empty);
-  4. loss = mean((C - target)^2); dL/dC = 2 (C - target) / (3 B); backward through compositing and
+  4. loss = mean((C - target)^2) (+ an optional sparsity penalty `sigma_l1` * mean over rays of the
+     optical depth sum_k sigma_k delta_k, against floating fog); dL/dC = 2 (C - target) / (3 B); backward through compositing and
      the field (kernels.volume.render_backward); one Adam step (kernels.volume.Adam);
   5. every `occupancy_every` iterations, update the occupancy grid from the field's density
      (EMA-max, threshold; kernels.volume.OccupancyGrid).
@@ -55,6 +56,7 @@ class TrainConfig:
     lr_decay_to: float = 0.1  # ... linearly (in log space) down to this factor at the end
     random_background: bool = True
     tv_weight: dict[str, float] = dc_field(default_factory=dict)  # grid fields: weight of mean TV per parameter
+    sigma_l1: float = 0.0  # weight of the sparsity penalty mean_rays sum_k sigma_k delta_k
     seed: int = 0
 
     def to_dict(self) -> dict[str, Any]:
@@ -145,7 +147,8 @@ def train(field: Field, bank: RayBank, bbox: np.ndarray, cfg: TrainConfig, occup
                           background=bg.astype(np_t), t_threshold=cfg.t_threshold)
         diff = res.rgb.numpy().astype(np.float64) - target
         loss = float(np.mean(diff**2))
-        grads = render_backward(field, res, (2.0 * diff / diff.size).astype(np_t))
+        grads = render_backward(field, res, (2.0 * diff / diff.size).astype(np_t),
+                                sigma_l1=cfg.sigma_l1 / cfg.batch_rays)
         if isinstance(field, GridField):
             nv = field.params["density"].shape[0]
             for name, w in cfg.tv_weight.items():

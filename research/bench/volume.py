@@ -1,0 +1,99 @@
+"""Benchmark family "volume": compositing and radiance-field kernels (kernels.volume).
+
+Cases (sizes from the issue; `quick` divides them by 16):
+  * volume.composite      rays 65536 x samples 128 in float32 (dense packing), forward (`fwd_s`) and
+                          forward + backward (`fwd_bwd_s`), plus `samples_per_s` of forward + backward.
+                          Densities are drawn so that no ray terminates early: every sample is work.
+  * volume.field.<name>   points 1048576 in float32 for spheres (the textbook's 3), grid (128^3 RGB),
+                          grid_sh2 (128^3, SH degree 2), hashgrid (16 levels x 2^19 x 2, MLP 64-64)
+                          and pe_mlp (8 frequencies, MLP 64-64): forward, and forward + backward to every
+                          parameter with random cotangents.
+Each figure is the median of 3 runs after a warm-up (research.bench.time_median).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Iterator
+
+import numpy as np
+import warp as wp
+
+from research.bench import time_median
+
+COMPOSITE_RAYS, COMPOSITE_SAMPLES = 65536, 128
+FIELD_POINTS = 1 << 20
+BOX = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+
+
+def _fields(device: str) -> dict:
+    from kernels.volume import GridField, HashGridField, PEMLPField, SphereField
+
+    return {
+        "spheres": lambda: SphereField.textbook(wp.float32, device),
+        "grid": lambda: GridField(BOX, (128, 128, 128), density_bias=-2.0, init_color_std=0.1, device=device),
+        "grid_sh2": lambda: GridField(BOX, (128, 128, 128), sh_degree=2, density_bias=-2.0, init_color_std=0.1,
+                                      device=device),
+        "hashgrid": lambda: HashGridField(BOX, n_levels=16, n_features=2, log2_table_size=19, device=device),
+        "pe_mlp": lambda: PEMLPField(BOX, n_freqs=8, device=device),
+    }
+
+
+def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
+    from kernels.volume import composite_backward, composite_forward, dense_offsets
+
+    wp.init()
+    dev = wp.get_device(device)
+    threads = 1 if dev.is_cuda else int(os.environ.get("DRLAB_THREADS", os.cpu_count() or 1))
+    sync = lambda: wp.synchronize_device(dev)  # noqa: E731
+    scale = 16 if quick else 1
+    rng = np.random.default_rng(0)
+
+    rays, samples = COMPOSITE_RAYS // scale, COMPOSITE_SAMPLES
+    n = rays * samples
+    arr = lambda a, dt=wp.float32: wp.array(a, dtype=dt, device=dev)  # noqa: E731
+    sigma = arr(rng.uniform(0.0, 0.5, n).astype(np.float32))
+    rgb = arr(rng.uniform(0.0, 1.0, (n, 3)).astype(np.float32))
+    delta = arr(np.full(n, 0.01, np.float32))
+    z = arr(np.tile(np.linspace(1.0, 2.28, samples, dtype=np.float32), rays))
+    offsets = arr(dense_offsets(rays, samples), wp.int32)
+    g_rgb = arr(rng.normal(size=(rays, 3)).astype(np.float32))
+    g_d = arr(rng.normal(size=rays).astype(np.float32))
+
+    def fwd():
+        return composite_forward(sigma, rgb, delta, z, offsets, device=dev)
+
+    def fwd_bwd():
+        res = fwd()
+        composite_backward(sigma, rgb, delta, z, offsets, res, g_rgb, g_d, g_d, device=dev)
+
+    t_f = time_median(fwd, sync=sync)
+    t_fb = time_median(fwd_bwd, sync=sync)
+    yield {"bench": "volume.composite", "device": str(dev), "threads": threads, "rays": rays, "samples": samples,
+           "fwd_s": t_f, "fwd_bwd_s": t_fb, "samples_per_s": n / t_fb}
+
+    points_n = FIELD_POINTS // scale
+    pts = arr(rng.uniform(-1.0, 1.0, (points_n, 3)).astype(np.float32))
+    d = rng.normal(size=(points_n, 3))
+    dirs = arr((d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32))
+    gs = arr(rng.normal(size=points_n).astype(np.float32))
+    gr = arr(rng.normal(size=(points_n, 3)).astype(np.float32))
+    for name, make in _fields(device).items():
+        field = make()
+        dd = dirs if field.needs_dirs else None
+        if name == "spheres":  # the textbook spheres sit around z = 4
+            p = arr(rng.uniform([-2.0, -1.5, 2.5], [2.5, 1.5, 6.0], (points_n, 3)).astype(np.float32))
+        else:
+            p = pts
+
+        def f_fwd(field=field, p=p, dd=dd):
+            return field.forward(p, dd)
+
+        def f_fwd_bwd(field=field, p=p, dd=dd):
+            out = field.forward(p, dd)
+            field.backward(p, dd, out, gs, gr)
+
+        yield {"bench": f"volume.field.{name}", "device": str(dev), "threads": threads, "points": points_n,
+               "params": field.n_params(), "fwd_s": time_median(f_fwd, sync=sync),
+               "fwd_bwd_s": time_median(f_fwd_bwd, sync=sync)}
+        del field
