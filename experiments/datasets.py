@@ -89,6 +89,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, default=REPO / "data", help="where datasets are written")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
+    from research.warp_runtime import init_warp
+
+    init_warp()
 
     from research.datasets import consistency, generate, get_scene, load, load_flow, load_stereo
     from research.datasets.render import SceneRenderer

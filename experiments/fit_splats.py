@@ -129,7 +129,9 @@ def main(argv: list[str] | None = None) -> int:
 
     import warp as wp
 
-    wp.config.quiet = True
+    from research.warp_runtime import init_warp
+
+    init_warp()
     from research import datasets
     from research.splats import comparison, model as sm, ply, train as st
 

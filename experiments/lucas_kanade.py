@@ -130,6 +130,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=REPO / "results" / "lucas_kanade", help="results directory")
     ap.add_argument("--seed", type=int, default=0, help="unused: the task is deterministic (kept for the CLI)")
     args = ap.parse_args(argv)
+    from research.warp_runtime import init_warp
+
+    init_warp()
 
     from kernels import flow
 

@@ -194,6 +194,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, default=REPO / "data", help="where the flow datasets are rendered")
     ap.add_argument("--seed", type=int, default=0, help="dataset seed")
     args = ap.parse_args(argv)
+    from research.warp_runtime import init_warp
+
+    init_warp()
 
     from tqdm import tqdm
 

@@ -291,8 +291,9 @@ def main(argv: list[str] | None = None) -> int:
 
     from kernels.launch import default_threads
     from research.stereo import AGGREGATIONS, COSTS, StereoConfig
+    from research.warp_runtime import init_warp
 
-    wp.config.quiet = True
+    init_warp()
     t_start = time.perf_counter()
     load_start = os.getloadavg()[0]
     st = setup(args.quick)

@@ -47,7 +47,9 @@ def main(argv: list[str] | None = None) -> int:
 
     import warp as wp
 
-    wp.config.quiet = True
+    from research.warp_runtime import init_warp
+
+    init_warp()
     from kernels.volume import SphereField, render_samples
     from kernels.volume.sampling import dense_samples
     from research import io

@@ -123,9 +123,9 @@ def _cmd_gradcheck(args: argparse.Namespace) -> int:
 
 def _quiet_warp() -> None:
     """Keep Warp's start-up banner off stdout (it would break `--json` output)."""
-    import warp as wp
+    from research.warp_runtime import init_warp
 
-    wp.config.log_level = wp.LOG_WARNING
+    init_warp()
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:

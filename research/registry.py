@@ -88,6 +88,12 @@ register_experiment(
     "The textbook's three soft spheres (64x64, focal 60, 64 samples): Warp volume rendering vs a NumPy port.",
     quick_budget_s=120,
 )
+register_experiment(
+    "fit_nerf",
+    "Voxel grid, hash grid + MLP and PE-MLP radiance fields fitted to Mitsuba `objects`: test PSNR/SSIM, "
+    "depth MAE, train and render seconds.",
+    quick_budget_s=600,
+)
 
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
