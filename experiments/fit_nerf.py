@@ -99,12 +99,12 @@ def noise_floor(ds, split, gt_srgb: np.ndarray, n_views: int, seed: int) -> dict
     from research.datasets import get_scene
     from research.datasets.render import SceneRenderer
     from research.metrics import psnr
-    from research.nerf.train import srgb_premultiplied
+    from research.nerf.train import srgb_targets
 
     renderer = SceneRenderer(get_scene(ds.manifest["config"]["scene"]), spp=ds.manifest["config"]["spp"])
     values = []
     for i in range(min(n_views, len(split.cameras))):
-        other = srgb_premultiplied(renderer.render_rgba(split.cameras[i], seed=10_007 + seed + i)[None])[0]
+        other = srgb_targets(renderer.render_rgba(split.cameras[i], seed=10_007 + seed + i)[None])[0]
         values.append(psnr(other[..., :3], gt_srgb[i, ..., :3]))
     pair = float(np.mean(values))
     return {"views": len(values), "psnr_between_two_renders": pair, "psnr_ceiling": pair + 10 * np.log10(2.0)}
@@ -202,8 +202,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="40 views at 64x64 (32 spp) and short schedules: all three fields in a few minutes")
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device (fields and rendering)")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "fit_nerf", help="results directory")
-    ap.add_argument("--data", type=Path, default=None,
-                    help="dataset directory (default data/fit_nerf-objects-<res>; rendered if missing)")
+    ap.add_argument("--data", type=Path, default=REPO / "data",
+                    help="cache root: the dataset lives in <data>/<scene and config> (research.datasets.cache_dir), "
+                    "rendered if missing and shared with fit_splats")
     ap.add_argument("--fields", nargs="+", default=list(FIELDS), choices=FIELDS, help="fields to fit")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-progress", action="store_true", help="hide the tqdm bars")
@@ -211,19 +212,23 @@ def main(argv: list[str] | None = None) -> int:
     from research.warp_runtime import init_warp
 
     init_warp(args.device)
-    from research.datasets import ensure, load
-    from research.nerf.train import RayBank, srgb_premultiplied
+    import warp as wp
+
+    from research import comparison
+    from research.datasets import cache_dir, ensure, load
+    from research.metrics import EVAL_PROTOCOL
+    from research.nerf.train import RayBank, srgb_targets
 
     t_start = time.perf_counter()
     cfg = dataset_config(args.quick, 0)
-    data = args.data or REPO / "data" / f"fit_nerf-objects-{cfg.res}"
+    data = cache_dir(cfg, args.data)
     t0 = time.perf_counter()
     ds = load(ensure(cfg, data))
     dataset_s = time.perf_counter() - t0
     train_split, test_split = ds.load_split("train"), ds.load_split("test")
     bbox = ds.bbox.copy()
     bank = RayBank.from_views(train_split.cameras, train_split.rgba)
-    gt = srgb_premultiplied(test_split.rgba)
+    gt = srgb_targets(test_split.rgba)
     floor = noise_floor(ds, test_split, gt, 3, args.seed)
 
     results: dict[str, Any] = {}
@@ -234,6 +239,7 @@ def main(argv: list[str] | None = None) -> int:
         ev = evaluate(field, occupancy, bbox, all_plans[name]["config"]["step"], test_split, gt)
         results[name] = {"train": log, "eval": {k: v for k, v in ev.items() if k != "images"},
                          "images": ev["images"], "params": field.n_params(),
+                         "bytes_per_param": wp.types.type_size_in_bytes(field.dtype),
                          "occupied_fraction": occupancy.occupied_fraction()}
         m = ev["mean"]
         print(f"{name}: PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, depth MAE {m['depth_mae']:.3f}, "
@@ -257,11 +263,14 @@ def main(argv: list[str] | None = None) -> int:
              + f"\nGround-truth noise: two {cfg.spp}-spp Mitsuba renders of the same test views differ by "
              f"{floor['psnr_between_two_renders']:.2f} dB PSNR, so a noise-free prediction would score about "
              f"{floor['psnr_ceiling']:.2f} dB against this ground truth (mean of {floor['views']} views).\n")
-    metrics = {"dataset": {"path": str(data), "config": cfg.__dict__, "seconds_if_rendered": dataset_s,
+    metrics = {"eval_protocol": EVAL_PROTOCOL,
+               "dataset": {"path": str(data), "config": cfg.__dict__, "seconds_if_rendered": dataset_s,
+                           "content_hash": ds.manifest["content_hash"],
                            "bbox": bbox.tolist(), "train_views": len(train_split.cameras),
                            "test_views": len(test_split.cameras)},
                "noise_floor": floor,
-               "fields": {name: {"params": r["params"], "occupied_fraction": r["occupied_fraction"],
+               "fields": {name: {"params": r["params"], "bytes_per_param": r["bytes_per_param"],
+                                 "occupied_fraction": r["occupied_fraction"],
                                  "eval": r["eval"], "train_s": r["train"]["train_s"],
                                  "stages": r["train"]["stages"],
                                  "config": {k: v for k, v in r["train"]["config"].items()},
@@ -271,6 +280,8 @@ def main(argv: list[str] | None = None) -> int:
                   seed=args.seed, device=args.device, wall_time_s=time.perf_counter() - t_start, metrics=metrics,
                   table_md=table)
     print(table)
+    if not args.quick:
+        print(comparison.update_comparison(args.out.parent))
     return 0
 
 

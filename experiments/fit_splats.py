@@ -19,8 +19,8 @@ layout, written and read back; the reloaded model must render the same image).
 
 Writes results/fit_splats/{table.md, metrics.json, renders.png, training.png};
 the PLY goes to build/fit_splats/point_cloud.ply (not committed: ~7.5 MB at 30k splats).
-If results/fit_nerf/metrics.json exists, also writes results/comparison/table.md
-(3DGS Table 1 form: research.splats.comparison).
+Outside quick mode, when results/fit_nerf/metrics.json exists too, also writes
+results/comparison/table.md (3DGS Table 1 form: research.comparison).
 """
 
 from __future__ import annotations
@@ -38,7 +38,6 @@ import numpy as np  # noqa: E402
 
 from research.results import markdown_table, save_figure, write_results  # noqa: E402
 
-EVAL_PROTOCOL = "test split; sRGB of linear RGB premultiplied on black, clipped to [0,1]; research.metrics"
 
 
 @dataclass(frozen=True)
@@ -119,7 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device of the kernels")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "fit_splats", help="results directory")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--data", type=Path, default=REPO / "data", help="where the dataset is rendered")
+    ap.add_argument("--data", type=Path, default=REPO / "data", help="cache root: the dataset lives in <data>/<scene and config> (research.datasets.cache_dir), "
+                    "shared with other experiments that ask for the same configuration")
     ap.add_argument("--ply", type=Path, default=None,
                     help="where to write the PLY (default build/fit_splats[-quick]/point_cloud.ply)")
     ap.add_argument("--init", choices=["depth", "random"], default="depth",
@@ -133,7 +133,9 @@ def main(argv: list[str] | None = None) -> int:
 
     init_warp()
     from research import datasets
-    from research.splats import comparison, model as sm, ply, train as st
+    from research import comparison
+    from research.metrics import EVAL_PROTOCOL
+    from research.splats import model as sm, ply, train as st
 
     cfg = setup(args.quick)
     if args.iterations is not None:
@@ -141,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     t_start = time.perf_counter()
     suffix = "-quick" if args.quick else ""
     dcfg = datasets.DatasetConfig("objects", views=cfg.views, res=cfg.res, spp=cfg.spp, seed=args.seed)
-    path = datasets.ensure(dcfg, args.data / f"fit_splats-objects-{cfg.res}{suffix}")
+    path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, args.data))
     ds = datasets.load(path)
     train_split, test_split = ds.load_split("train"), ds.load_split("test")
 
@@ -205,9 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
 
     if not args.quick:
-        nerf = REPO / "results" / "fit_nerf" / "metrics.json"
-        written = comparison.write_comparison([args.out / "metrics.json", nerf], REPO / "results" / "comparison")
-        print(f"comparison: {written}" if written else f"comparison: skipped ({nerf} does not exist yet)")
+        print(comparison.update_comparison(args.out.parent))
     return 0
 
 

@@ -12,6 +12,10 @@ windowed means mu, variances s^2 and covariance s_xy (population, weighted by th
 averaged over every window position lying fully inside the image ("valid"), then over the
 channels. This matches skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5,
 use_sample_covariance=False, data_range=L) and the usual NeRF evaluation code.
+
+Novel-view evaluation (`EVAL_PROTOCOL`, shared by fit_nerf and fit_splats so that their rows in
+results/comparison are comparable): the linear image composited on black (premultiplied RGB),
+clipped to [0, 1], then sRGB-encoded (`srgb_on_black`) -- for prediction and ground truth alike.
 """
 
 from __future__ import annotations
@@ -23,6 +27,15 @@ SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_K1 = 0.01
 SSIM_K2 = 0.03
+EVAL_PROTOCOL = "test split; sRGB of linear RGB premultiplied on black, clipped to [0,1]; research.metrics"
+
+
+def srgb_on_black(rgb_linear_premultiplied: np.ndarray) -> np.ndarray:
+    """The sRGB encoding of a linear image composited on black (the last axis is RGB; any alpha is dropped)."""
+    from research.io import linear_to_srgb
+
+    rgb = np.asarray(rgb_linear_premultiplied)[..., :3]
+    return linear_to_srgb(np.clip(rgb, 0.0, 1.0))
 
 
 def _pair(pred: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

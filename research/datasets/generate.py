@@ -44,6 +44,10 @@ from research.results import versions
 
 SPLITS = ("train", "val", "test")
 _PARTIAL_CONFIG = ".drlab-partial.json"
+# Bump whenever the generator would write different files for the same DatasetConfig (a change of
+# pixel filter, integrator, scene or file layout). ensure() regenerates datasets of an older revision,
+# so experiments never silently train on data the current code would not produce.
+GENERATOR_REVISION = 2  # 2: box pixel filter for the RGB pass
 VIEW_SUFFIXES = (".png", ".exr", "_depth.exr", "_normal.exr", "_mask.png")
 
 
@@ -309,6 +313,7 @@ def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force
     variant = w._renderer.variant if w._renderer is not None else _recorded_variant(partial)
     atomic.write_json(partial / "manifest.json", {
         "generator": "drlab dataset",
+        "generator_revision": GENERATOR_REVISION,
         "config": cfg_dict,
         "seed": cfg.seed,
         "scene": w.scene_info(),
@@ -335,16 +340,30 @@ def _recorded_variant(root: Path) -> str:
     return select_variant()
 
 
+def cache_dir(cfg: DatasetConfig, root: str | Path) -> Path:
+    """A directory under `root` named by the configuration, so experiments that ask for the same data share it.
+
+    Only the fields that differ from DatasetConfig's defaults (besides the scene) appear in the name.
+    """
+    defaults = asdict(DatasetConfig(cfg.scene))
+    parts = [cfg.scene] + [f"{k}{'' if v is True else v}" for k, v in asdict(cfg).items()
+                           if k != "scene" and v != defaults[k] and v is not False]
+    return Path(root) / "-".join(parts)
+
+
 def ensure(cfg: DatasetConfig, out: str | Path, show_progress: bool = True) -> Path:
     """Return `out` if it holds a finished dataset with exactly this configuration, else (re)generate it.
 
-    An interrupted run of the same configuration is resumed.
+    A dataset written by an older generator revision is regenerated. An interrupted run of the same
+    configuration is resumed.
     """
     out = Path(out)
     manifest = out / "manifest.json"
     if manifest.exists():
         try:
-            if json.loads(manifest.read_text()).get("config") == asdict(cfg):
+            recorded = json.loads(manifest.read_text())
+            if (recorded.get("config") == asdict(cfg)
+                    and recorded.get("generator_revision") == GENERATOR_REVISION):
                 return out
         except json.JSONDecodeError:
             pass

@@ -33,7 +33,7 @@ from tqdm import tqdm
 from kernels.volume import Adam, Field, GridField, OccupancyGrid, render_backward, render_rays
 from kernels.volume.grid import add_tv_grad
 from research.cameras import Camera
-from research.io import linear_to_srgb
+from research.metrics import srgb_on_black
 from research.nerf.render import camera_rays
 
 
@@ -63,16 +63,19 @@ class TrainConfig:
         return asdict(self)
 
 
-def srgb_premultiplied(rgba_linear: np.ndarray) -> np.ndarray:
-    """Linear premultiplied RGBA (N, H, W, 4) -> sRGB premultiplied RGBA (what the dataset's PNGs hold)."""
-    rgb, a = rgba_linear[..., :3].astype(np.float64), rgba_linear[..., 3:].astype(np.float64)
-    straight = np.where(a > 0, rgb / np.where(a > 0, a, 1.0), 0.0)
-    return np.concatenate([linear_to_srgb(np.clip(straight, 0.0, 1.0)) * a, a], axis=-1).astype(np.float32)
+def srgb_targets(rgba_linear: np.ndarray) -> np.ndarray:
+    """Linear premultiplied RGBA (N, H, W, 4) -> (sRGB of the image on black, alpha), float32.
+
+    The RGB is exactly what research.metrics evaluates against (`srgb_on_black`), so a field trained
+    on a black background is fitted to its evaluation target, edge pixels included.
+    """
+    rgb = srgb_on_black(rgba_linear.astype(np.float64))
+    return np.concatenate([rgb, rgba_linear[..., 3:].astype(np.float64)], axis=-1).astype(np.float32)
 
 
 @dataclass
 class RayBank:
-    """Every training pixel as a ray: origins, unit dirs, z_scale, sRGB premultiplied RGBA target."""
+    """Every training pixel as a ray: origins, unit dirs, z_scale, and its `srgb_targets` RGBA."""
 
     origins: np.ndarray
     dirs: np.ndarray
@@ -82,7 +85,7 @@ class RayBank:
     @classmethod
     def from_views(cls, cameras: list[Camera], rgba_linear: np.ndarray, dtype: Any = np.float32) -> "RayBank":
         rays = [camera_rays(c, dtype) for c in cameras]
-        target = srgb_premultiplied(rgba_linear).reshape(-1, 4)
+        target = srgb_targets(rgba_linear).reshape(-1, 4)
         return cls(np.concatenate([r[0] for r in rays]), np.concatenate([r[1] for r in rays]),
                    np.concatenate([r[2] for r in rays]), target)
 
@@ -140,6 +143,8 @@ def train(field: Field, bank: RayBank, bbox: np.ndarray, cfg: TrainConfig, occup
             occupancy.update_from(field.density, seed=cfg.seed * 1_000_003 + it, dtype=field.dtype)
         idx = rng.integers(0, len(bank), cfg.batch_rays)
         bg = rng.uniform(0.0, 1.0, (cfg.batch_rays, 3)) if cfg.random_background else np.zeros((cfg.batch_rays, 3))
+        # Over a random background the target is blended in sRGB space: exact where alpha is 0 or 1,
+        # an approximation on the few partially covered edge pixels (the field renders in sRGB).
         target = bank.rgba[idx, :3] + (1.0 - bank.rgba[idx, 3:]) * bg
         res = render_rays(field, bank.origins[idx], bank.dirs[idx], bbox,
                           step=cfg.step * (cfg.warmup_step_factor if warm else 1.0), z_scale=bank.z_scale[idx],

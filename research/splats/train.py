@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from kernels import splat as ks
-from research import io, metrics
+from research import metrics
 from research.cameras import Camera
 from research.splats.densify import DensifyConfig, DensifyStats, Schedule, densify_and_prune, reset_opacity
 from research.splats.loss import LAMBDA_DSSIM, l1_dssim
@@ -133,17 +133,16 @@ def evaluate(model: GaussianModel, cameras: list[Camera], images: np.ndarray, sh
              background=(0.0, 0.0, 0.0), antialiased: bool = False) -> Evaluation:
     """PSNR and SSIM (research.metrics) of renders against `images` (linear RGB, premultiplied on black).
 
-    Both images are clipped to [0, 1] and sRGB-encoded, as the dataset's PNGs store them;
-    the linear-space PSNR is reported beside it.
+    Both images are compared as research.metrics.EVAL_PROTOCOL says (clipped to [0, 1], then
+    sRGB-encoded); the linear-space PSNR is reported beside it.
     """
     _check_views(cameras, images)
     renders, per_view = [], []
     for cam, gt in zip(cameras, images):
         img = render(model, cam, sh_degree=sh_degree, background=background, antialiased=antialiased).rgb.numpy()
-        a, b = np.clip(img, 0, 1), np.clip(gt, 0, 1)
-        per_view.append({"psnr": metrics.psnr(io.linear_to_srgb(a), io.linear_to_srgb(b)),
-                         "ssim": metrics.ssim(io.linear_to_srgb(a), io.linear_to_srgb(b)),
-                         "psnr_linear": metrics.psnr(a, b)})
+        a, b = metrics.srgb_on_black(img), metrics.srgb_on_black(gt)
+        per_view.append({"psnr": metrics.psnr(a, b), "ssim": metrics.ssim(a, b),
+                         "psnr_linear": metrics.psnr(np.clip(img, 0, 1), np.clip(gt, 0, 1))})
         renders.append(img)
     mean = {k: float(np.mean([p[k] for p in per_view])) for k in per_view[0]}
     return Evaluation(mean["psnr"], mean["ssim"], mean["psnr_linear"], per_view, np.stack(renders))

@@ -15,7 +15,9 @@ import pytest
 from research import io
 from research.cameras import Camera
 from research.datasets import consistency
-from research.datasets import DatasetConfig, DatasetError, generate, get_scene, load, load_flow, load_stereo
+from research.datasets import (DatasetConfig, DatasetError, cache_dir, ensure, generate, get_scene, load, load_flow,
+                               load_stereo)
+from research.datasets.generate import GENERATOR_REVISION
 from research.datasets.groundtruth import sample_depth
 from research.datasets.render import SceneRenderer
 
@@ -168,6 +170,27 @@ def test_same_seed_same_hash_and_resume_after_interruption(tmp_path, monkeypatch
     assert not (tmp_path / "d.partial").exists()
     with pytest.raises(FileExistsError, match="force"):
         generate(cfg, out, show_progress=False)
+
+
+def test_ensure_reuses_matching_data_and_regenerates_stale(tmp_path):
+    cfg = DatasetConfig("spheres", views=3, res=8, spp=1, seed=2)
+    out = cache_dir(cfg, tmp_path)
+    assert out == tmp_path / "spheres-views3-res8-spp1-seed2"
+    assert cache_dir(DatasetConfig("spheres", stereo=True), tmp_path).name == "spheres-stereo"
+    ensure(cfg, out, show_progress=False)
+    manifest = out / "manifest.json"
+    first = json.loads(manifest.read_text())
+    assert first["generator_revision"] == GENERATOR_REVISION
+    stamp = manifest.stat().st_mtime_ns
+    assert ensure(cfg, out, show_progress=False) == out and manifest.stat().st_mtime_ns == stamp  # reused
+
+    # A dataset from an older generator revision (here: no revision recorded) is rendered again.
+    del first["generator_revision"]
+    manifest.write_text(json.dumps(first))
+    ensure(cfg, out, show_progress=False)
+    again = json.loads(manifest.read_text())
+    assert again["generator_revision"] == GENERATOR_REVISION
+    assert again["content_hash"] == first["content_hash"]
 
 
 def test_loader_errors_name_the_file(objects_ds, tmp_path):

@@ -66,3 +66,18 @@ def test_bad_inputs():
         psnr(np.full((4, 4), np.nan), np.zeros((4, 4)))
     with pytest.raises(ValueError, match="mask"):
         psnr(x, x, mask=np.zeros((12, 12), bool))
+
+
+def test_evaluation_image_is_the_srgb_of_the_composite_on_black():
+    from research.metrics import srgb_on_black
+    from research.nerf.train import srgb_targets
+
+    # A half-covered pixel of linear colour 0.4 stores premultiplied 0.2: its evaluation value is
+    # sRGB(0.2) (the image on black), not 0.5 * sRGB(0.4) (straight colour encoded, then scaled).
+    rgba = np.array([[[[0.2, 0.0, 1.5, 0.5], [0.04, 0.3, 0.0031308, 1.0]]]])
+    expected = np.array([[[[0.48452920448170694, 0.0, 1.0], [0.22091636254849623, 0.5838314900602575, 0.0031308 * 12.92]]]])
+    np.testing.assert_allclose(srgb_on_black(rgba), expected, atol=1e-8)
+    targets = srgb_targets(rgba)
+    assert targets.dtype == np.float32 and targets.shape == (1, 1, 2, 4)
+    np.testing.assert_allclose(targets[..., :3], expected, atol=1e-6)
+    np.testing.assert_array_equal(targets[..., 3], rgba[..., 3].astype(np.float32))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import subprocess
 import sys
@@ -13,7 +12,7 @@ import pytest
 from kernels import splat as ks
 from research.cameras import Camera, look_at
 from research.gradcheck import assert_gradcheck, check_vjp
-from research.splats import comparison, densify, loss, model as sm, optim, ply, train as st
+from research.splats import densify, loss, model as sm, optim, ply, train as st
 
 
 def random_model(n: int, seed: int = 0) -> sm.GaussianModel:
@@ -280,25 +279,6 @@ def test_training_reduces_the_loss():
 
 
 # --------------------------------------------------------------------------- comparison and CLI
-
-
-def test_comparison_table(tmp_path):
-    (tmp_path / "a").mkdir()
-    (tmp_path / "b").mkdir()
-    (tmp_path / "a" / "metrics.json").write_text(json.dumps({
-        "experiment": "fit_splats", "device": "cpu", "metrics": {
-            "method": "3DGS", "test_psnr": 30.123, "test_ssim": 0.95, "train_seconds": 125.0, "render_fps": 12.5,
-            "ply_bytes": 2_500_000, "eval_protocol": "P", "scene": "objects"}}))
-    (tmp_path / "b" / "metrics.json").write_text(json.dumps({
-        "experiment": "fit_nerf", "device": "cpu", "metrics": {"test": {"psnr": 27.5, "ssim": 0.9},
-                                                               "train_s": 30.0, "eval_protocol": "P"}}))
-    out = comparison.write_comparison([tmp_path / "a" / "metrics.json", tmp_path / "b" / "metrics.json"],
-                                      tmp_path / "cmp")
-    text = out.read_text()
-    assert "| 3DGS | 0.950 | 30.12 | 2.1 min | 12.50 | 2.5 MB | P | objects |" in text
-    assert "| fit_nerf | 0.900 | 27.50 | 30 s | n/a | n/a | P | n/a |" in text
-    assert "not directly comparable" not in text
-    assert comparison.write_comparison([tmp_path / "a" / "metrics.json", tmp_path / "none.json"], tmp_path) is None
 
 
 def test_experiment_help():
