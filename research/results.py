@@ -7,6 +7,7 @@ leaves a results directory whose files look whole but are not.
 from __future__ import annotations
 
 import platform
+import subprocess
 import sys
 from importlib import metadata
 from pathlib import Path
@@ -26,6 +27,29 @@ def versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             out[name] = "not installed"
     return out
+
+
+def source_revision() -> dict[str, Any]:
+    """The git commit of the code that produced the numbers, and whether the tree had local changes.
+
+    Read from the repository this module lives in; {"commit": None} outside a git checkout.
+    """
+    repo = Path(__file__).resolve().parent.parent
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True, timeout=10)
+        except (OSError, subprocess.TimeoutExpired):
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    if commit is None:
+        return {"commit": None}
+    # Only tracked files outside results/ count: data/, build/ and the results being written do not
+    # change the code.
+    changes = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)results")
+    return {"commit": commit, "dirty": bool(changes)}
 
 
 def markdown_table(headers: Sequence[str], rows: Sequence[Sequence[Any]], floatfmt: str = ".4g") -> str:
@@ -65,6 +89,7 @@ def write_results(
         "device": device,
         "wall_time_s": wall_time_s,
         "versions": versions(),
+        "source": source_revision(),
         "metrics": metrics,
     }
     atomic.write_json(out / "metrics.json", payload)

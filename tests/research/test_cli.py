@@ -88,6 +88,19 @@ def test_results_index_gathers_tables(tmp_path, monkeypatch):
     path = cli.write_results_index(tmp_path, [name], quick=False)
     text = path.read_text()
     assert f"## {name}" in text and "| 1 |" in text and f"({name}/fig.png)" in text
+    assert "metrics.json missing" in text and "## comparison" not in text
+
+    from research.results import write_results
+
+    write_results(tmp_path / name, experiment=name, config={"quick": True}, seed=0, device="cpu", wall_time_s=90.0,
+                  metrics={}, table_md="| a |\n|---|\n| 2 |\n")
+    (tmp_path / "comparison").mkdir()
+    (tmp_path / "comparison" / "table.md").write_text("| method |\n|---|\n| 3DGS |\n")
+    text = cli.write_results_index(tmp_path, [name], quick=False).read_text()
+    commit = json.loads((tmp_path / name / "metrics.json").read_text())["source"]["commit"]
+    assert commit is None or f"at commit `{commit[:10]}`" in text
+    assert "Run --quick at" in text and "1.5 min" in text and "| 2 |" in text
+    assert "## comparison" in text and "| 3DGS |" in text
 
 
 @pytest.mark.parametrize("argv", [["dataset", "--scene", "objects"], ["run"]])
