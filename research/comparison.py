@@ -88,6 +88,10 @@ def _fmt_time(seconds: float) -> str:
     return f"{seconds / 60:.1f} min" if seconds >= 60 else f"{seconds:.0f} s"
 
 
+def _fmt_size(n_bytes: int) -> str:
+    return f"{n_bytes / 1e6:.1f} MB" if n_bytes >= 100_000 else f"{n_bytes / 1e3:.1f} kB"
+
+
 def comparison_table(rows: list[MethodRow]) -> str:
     """The markdown table; raises ValueError when the rows were not evaluated alike on the same data."""
     if not rows:
@@ -98,7 +102,7 @@ def comparison_table(rows: list[MethodRow]) -> str:
             detail = "; ".join(f"{r.method}: {getattr(r, attr)}" for r in rows)
             raise ValueError(f"rows: the {what} differ, so the rows are not comparable ({detail})")
     body = [[r.method, f"{r.ssim:.3f}", f"{r.psnr:.2f}", _fmt_time(r.train_s), f"{r.fps:.2f}",
-             f"{r.size_bytes / 1e6:.1f} MB ({r.size_note})", r.device] for r in rows]
+             f"{_fmt_size(r.size_bytes)} ({r.size_note})", r.device] for r in rows]
     return ("In the form of Table 1 of Kerbl et al. 2023 (3DGS), without LPIPS. Every row: the same dataset "
             f"(content hash `{rows[0].dataset_hash[:12]}`), evaluated as `{rows[0].eval_protocol}`. "
             "Train = wall time of the fit on a 2-core CPU; FPS = forward renders per second at the test "

@@ -22,7 +22,7 @@ def nerf_doc(content_hash=HASH):
              "eval": {"mean": {"psnr": 27.5, "ssim": 0.9, "seconds": 0.5}}}
     return {"experiment": "fit_nerf", "device": "cpu", "metrics": {
         "eval_protocol": EVAL_PROTOCOL, "dataset": {"content_hash": content_hash},
-        "fields": {"grid": field, "custom": dict(field, params=10)}}}
+        "fields": {"grid": field, "custom": dict(field, params=7748)}}}
 
 
 def write(tmp_path, name, doc):
@@ -39,7 +39,7 @@ def test_table_has_one_row_per_method(tmp_path):
     text = (tmp_path / "comparison" / "table.md").read_text()
     assert "| 3DGS | 0.950 | 30.12 | 2.1 min | 12.50 | 2.5 MB (PLY file) | cpu |" in text
     assert f"| {comparison.NERF_METHOD_NAMES['grid']} | 0.900 | 27.50 | 30 s | 2.00 | 4.0 MB (parameters) | cpu |" in text
-    assert "| custom | 0.900 | 27.50 | 30 s | 2.00 | 0.0 MB (parameters) | cpu |" in text
+    assert "| custom | 0.900 | 27.50 | 30 s | 2.00 | 31.0 kB (parameters) | cpu |" in text
     assert HASH[:12] in text
 
 
