@@ -46,9 +46,9 @@ def source_revision() -> dict[str, Any]:
     commit = git("rev-parse", "HEAD")
     if commit is None:
         return {"commit": None}
-    # Only tracked files outside results/ count: data/, build/ and the results being written do not
-    # change the code.
-    changes = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)results")
+    # Only tracked files outside results/ and other than Markdown count: data/, build/, the results
+    # being written and documentation do not change the numbers.
+    changes = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)results", ":(exclude)*.md")
     return {"commit": commit, "dirty": bool(changes)}
 
 
