@@ -76,6 +76,7 @@ def test_multiview_reprojection(objects_ds, renderer):
     r = consistency.multiview_reprojection(load(objects_ds), renderer)
     assert r["pairs"] >= 6 and r["points"] > 1000
     assert r["depth_rel_err_max"] < 1e-3
+    assert r["depth_rel_outliers"] == 0 and r["depth_rel_err_p999"] <= r["depth_rel_err_max"]
     assert r["pixel_err_max"] < 1e-3
 
 
