@@ -116,14 +116,15 @@ def main(argv: list[str] | None = None) -> int:
                               "rendered_images": n_images, "content_hash": ds.manifest["content_hash"],
                               "aov": aov, "multiview": mv, "stereo": st, "flow": fl}
         rows.append([cfg.scene, f"{cfg.views}+{cfg.stereo_pairs}x2+{cfg.flow_frames}", f"{cfg.res}x{cfg.res}",
-                     cfg.spp, f"{seconds:.1f}", f"{aov['pixel_err_max']:.1e}", f"{mv['depth_rel_err_p999']:.1e} ({mv['depth_rel_outliers']} of {mv['points']:,})",
+                     cfg.spp, f"{seconds:.1f}", f"{aov['pixel_err_max']:.1e}",
+                     f"{mv['depth_rel_err_p999']:.1e} ({mv['depth_rel_outliers']} of {mv['points']:,})",
                      f"{mv['pixel_err_max']:.1e}", f"{st['pixel_err_max']:.1e}", f"{fl['pixel_err_median']:.1e}",
                      f"{st['noc_fraction']:.3f}", f"{fl['valid_fraction']:.3f}"])
         paths[cfg.scene] = path
 
     headers = ["scene", "images (views+stereo+flow)", "res", "spp", "render s", "AOV->pixel max px",
-               "multi-view depth rel p99.9 (points > 1e-3)", "multi-view max px", "stereo max px", "flow median px",
-               "stereo noc frac", "flow valid frac"]
+               "multi-view depth rel p99.9 (points > 1e-3)", "multi-view max px", "stereo max px",
+               "flow median px", "stereo noc frac", "flow valid frac"]
     table = (f"Mitsuba variant `{variant}`, 2-core CPU. Errors compare the stored geometry with Mitsuba's own "
              "position AOV and exact ray casts (research/datasets/consistency.py). Multi-view depth: relative "
              "error of view A's depth reprojected into B against B's ray-cast surface, at the 99.9th percentile, "

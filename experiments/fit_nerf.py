@@ -31,6 +31,7 @@ sys.path.insert(0, str(REPO))
 
 import numpy as np  # noqa: E402
 
+from research.datasets import CACHE_ROOT_HELP  # noqa: E402
 from research.results import markdown_table, save_figure, write_results  # noqa: E402
 
 FIELDS = ("grid", "hashgrid", "pe_mlp")
@@ -202,9 +203,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="40 views at 64x64 (32 spp) and short schedules: all three fields in a few minutes")
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device (fields and rendering)")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "fit_nerf", help="results directory")
-    ap.add_argument("--data", type=Path, default=REPO / "data",
-                    help="cache root: the dataset lives in <data>/<scene and config> (research.datasets.cache_dir), "
-                    "rendered if missing and shared with fit_splats")
+    ap.add_argument("--data", type=Path, default=REPO / "data", help=CACHE_ROOT_HELP)
     ap.add_argument("--fields", nargs="+", default=list(FIELDS), choices=FIELDS, help="fields to fit")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-progress", action="store_true", help="hide the tqdm bars")

@@ -36,8 +36,8 @@ sys.path.insert(0, str(REPO))
 
 import numpy as np  # noqa: E402
 
+from research.datasets import CACHE_ROOT_HELP  # noqa: E402
 from research.results import markdown_table, save_figure, write_results  # noqa: E402
-
 
 
 @dataclass(frozen=True)
@@ -118,8 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device of the kernels")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "fit_splats", help="results directory")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--data", type=Path, default=REPO / "data", help="cache root: the dataset lives in <data>/<scene and config> (research.datasets.cache_dir), "
-                    "shared with other experiments that ask for the same configuration")
+    ap.add_argument("--data", type=Path, default=REPO / "data", help=CACHE_ROOT_HELP)
     ap.add_argument("--ply", type=Path, default=None,
                     help="where to write the PLY (default build/fit_splats[-quick]/point_cloud.ply)")
     ap.add_argument("--init", choices=["depth", "random"], default="depth",
@@ -132,8 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     from research.warp_runtime import init_warp
 
     init_warp()
-    from research import datasets
-    from research import comparison
+    from research import comparison, datasets
     from research.metrics import EVAL_PROTOCOL
     from research.splats import model as sm, ply, train as st
 

@@ -23,6 +23,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import correlate1d
 
+from research.io import linear_to_srgb
+
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_K1 = 0.01
@@ -32,8 +34,6 @@ EVAL_PROTOCOL = "test split; sRGB of linear RGB premultiplied on black, clipped 
 
 def srgb_on_black(rgb_linear_premultiplied: np.ndarray) -> np.ndarray:
     """The sRGB encoding of a linear image composited on black (the last axis is RGB; any alpha is dropped)."""
-    from research.io import linear_to_srgb
-
     rgb = np.asarray(rgb_linear_premultiplied)[..., :3]
     return linear_to_srgb(np.clip(rgb, 0.0, 1.0))
 

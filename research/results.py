@@ -52,6 +52,11 @@ def source_revision() -> dict[str, Any]:
     return {"commit": commit, "dirty": bool(changes)}
 
 
+# Taken when the experiment imports this module, i.e. for the code it loaded: a long run whose
+# checkout changes before it writes its results still reports the commit it started from.
+SOURCE_AT_IMPORT = source_revision()
+
+
 def markdown_table(headers: Sequence[str], rows: Sequence[Sequence[Any]], floatfmt: str = ".4g") -> str:
     """A GitHub-flavoured Markdown table. Floats use `floatfmt`; other values use str()."""
 
@@ -89,7 +94,7 @@ def write_results(
         "device": device,
         "wall_time_s": wall_time_s,
         "versions": versions(),
-        "source": source_revision(),
+        "source": SOURCE_AT_IMPORT,
         "metrics": metrics,
     }
     atomic.write_json(out / "metrics.json", payload)

@@ -16,6 +16,7 @@ spirit of Plenoxels' sparsity loss) adds lambda * delta_k to dL/dsigma_k.
 
 from __future__ import annotations
 
+import math
 import typing
 from dataclasses import dataclass
 from typing import Any
@@ -98,7 +99,7 @@ def render_backward(field: Field, result: RenderResult, grad_rgb: U.ArrayLike | 
                     sigma_l1: float = 0.0) -> dict[str, wp.array]:
     """Gradient of <grad_rgb, C> + <grad_depth, D> + <grad_opacity, A> + sigma_l1 sum_k sigma_k delta_k
     for every field parameter."""
-    if not (sigma_l1 == sigma_l1 and abs(sigma_l1) < float("inf")):
+    if not math.isfinite(sigma_l1):
         raise ValueError(f"sigma_l1: expected a finite weight, got {sigma_l1}")
     s, out = result.samples, result.field_out
     g_sigma, g_rgb = composite_backward(out.sigma, out.rgb, s.delta, s.z, s.ray_offsets, result.composite,

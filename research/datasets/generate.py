@@ -340,6 +340,10 @@ def _recorded_variant(root: Path) -> str:
     return select_variant()
 
 
+CACHE_ROOT_HELP = ("cache root: the dataset lives in <data>/<scene and config> (research.datasets.cache_dir), "
+                   "rendered if missing and shared with every experiment that asks for the same configuration")
+
+
 def cache_dir(cfg: DatasetConfig, root: str | Path) -> Path:
     """A directory under `root` named by the configuration, so experiments that ask for the same data share it.
 
