@@ -150,3 +150,7 @@ def test_render_bad_input():
         render_image("not a camera", field, BOX, n_samples=4)
     with pytest.raises(ValueError, match="grads: missing"):
         Adam(field.params).step({})
+    res = render_rays(field, o, d, BOX, n_samples=4)
+    for bad in (float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="sigma_l1: expected a finite weight"):
+            render_backward(field, res, np.ones((2, 3)), sigma_l1=bad)
