@@ -82,7 +82,9 @@ def _provenance(metrics_path: Path) -> str:
     else:
         commit = "commit not recorded (written before drlab recorded it)"
     quick = " --quick" if (doc.get("config") or {}).get("quick") else ""
-    return f"Run{quick} at {commit} on `{doc.get('device', '?')}`, {doc.get('wall_time_s', 0.0) / 60:.1f} min."
+    machine = doc.get("host") or {}
+    where = f"`{doc.get('device', '?')}`" + (f" ({machine['cpu']}, {machine['cpus']} CPUs)" if machine else "")
+    return f"Run{quick} at {commit} on {where}, {doc.get('wall_time_s', 0.0) / 60:.1f} min."
 
 
 def write_results_index(results_dir: Path, names: list[str], quick: bool) -> Path:

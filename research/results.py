@@ -6,6 +6,7 @@ leaves a results directory whose files look whole but are not.
 
 from __future__ import annotations
 
+import os
 import platform
 import subprocess
 import sys
@@ -16,6 +17,34 @@ from typing import Any, Sequence
 from research import atomic
 
 _PACKAGES = ("drlab", "warp-lang", "mitsuba", "drjit", "numpy", "scipy", "OpenImageIO")
+
+
+def host() -> dict[str, Any]:
+    """The machine the numbers were measured on: CPU model, logical CPU count and widest SIMD.
+
+    Timings depend on it. So, bit for bit, did Mitsuba's renders: with identical package versions,
+    the 256x256 `objects` dataset of seed 0 had content hash c1affd34... on one 2-core machine and
+    394a82c6... on an AVX-512 AMD EPYC (Dr.Jit compiles its LLVM kernels for the host CPU; the
+    vector width is the likely cause). A content hash is reproducible on one kind of machine.
+    """
+    model, flags, ids = "", set(), {}
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name" and not model:
+                    model = value.strip()
+                elif key.strip() in ("flags", "Features") and not flags:
+                    flags = set(value.split())
+                elif key.strip() in ("cpu family", "model") and key.strip() not in ids:
+                    ids[key.strip()] = value.strip()  # a virtual machine's model name may be just "AMD EPYC"
+    except OSError:  # not Linux
+        pass
+    model = model or platform.processor() or platform.machine()
+    if ids:
+        model += " (" + ", ".join(f"{k} {v}" for k, v in ids.items()) + ")"
+    simd = next((s for s in ("avx512f", "avx2", "avx", "sse4_2", "neon", "asimd") if s in flags), "unknown")
+    return {"cpu": model or "unknown", "cpus": os.cpu_count() or 1, "simd": simd}
 
 
 def versions() -> dict[str, str]:
@@ -94,6 +123,7 @@ def write_results(
         "device": device,
         "wall_time_s": wall_time_s,
         "versions": versions(),
+        "host": host(),
         "source": SOURCE_AT_IMPORT,
         "metrics": metrics,
     }

@@ -6,6 +6,9 @@ A family is a module named in research.registry.BENCH_MODULES exposing
     {"bench": "<family>.<case>", "device": "cpu", "threads": 2,
      <size keys>..., "<phase>_s": seconds, ...}
 
+`run_bench` adds "cpu", the host's CPU model (research.results.host): timings
+from different machines are not comparable.
+
 Every seconds figure is `time_median`: the median of at least 3 timed runs
 after a warm-up, so compilation (first launch) is never timed.
 """
@@ -16,6 +19,8 @@ import importlib
 import statistics
 import time
 from typing import Any, Callable
+
+from research.results import host
 
 
 def time_median(
@@ -75,10 +80,11 @@ def run_bench(families: list[str] | None, device: str, quick: bool) -> list[dict
     if unknown:
         raise KeyError(f"unknown benchmark families {unknown}; known: {', '.join(BENCH_MODULES)}")
     rows: list[dict] = []
+    cpu = host()["cpu"]  # every figure names the machine it was measured on
     for family in names:
         module = importlib.import_module(BENCH_MODULES[family])
         for row in module.cases(device=device, quick=quick):
             if not str(row.get("bench", "")).startswith(family + ".") or "device" not in row:
                 raise ValueError(f"benchmark family {family!r} yielded a malformed row: {row!r}")
-            rows.append(row)
+            rows.append({**row, "cpu": cpu})
     return rows

@@ -40,7 +40,7 @@ from research.cameras import Camera, smooth_path
 from research.datasets.groundtruth import forward_flow, stereo_disparity, stereo_right_camera
 from research.datasets.render import SceneRenderer
 from research.datasets.scenes import SceneSpec, get_scene
-from research.results import versions
+from research.results import host, versions
 
 SPLITS = ("train", "val", "test")
 _PARTIAL_CONFIG = ".drlab-partial.json"
@@ -319,6 +319,7 @@ def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force
         "scene": w.scene_info(),
         "mitsuba_variant": variant,
         "versions": versions(),
+        "host": host(),
         "content_hash": content_hash(files),
         "files": files,
     })

@@ -61,7 +61,7 @@ def test_bench_json_lines_are_clean_json():
     for ln in lines:
         row = json.loads(ln)  # any banner on stdout would break this
         assert row["bench"] == "launch.split" and row["device"] == "cpu"
-        assert row["threads"] >= 1 and row["speedup"] > 0
+        assert row["threads"] >= 1 and row["speedup"] > 0 and row["cpu"]
 
 
 def test_bench_unknown_family():
@@ -100,6 +100,8 @@ def test_results_index_gathers_tables(tmp_path, monkeypatch):
     commit = json.loads((tmp_path / name / "metrics.json").read_text())["source"]["commit"]
     assert commit is None or f"at commit `{commit[:10]}`" in text
     assert "Run --quick at" in text and "1.5 min" in text and "| 2 |" in text
+    cpu = json.loads((tmp_path / name / "metrics.json").read_text())["host"]["cpu"]
+    assert f"on `cpu` ({cpu}, " in text
     assert "## comparison" in text and "| 3DGS |" in text
 
 

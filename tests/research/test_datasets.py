@@ -45,6 +45,7 @@ def test_layout_and_manifest(objects_ds):
     assert m["seed"] == 3 and m["config"]["scene"] == "objects"
     assert m["mitsuba_variant"] in ("llvm_ad_rgb", "scalar_rgb")
     assert "mitsuba" in m["versions"] and len(m["content_hash"]) == 64
+    assert m["host"]["cpus"] >= 1 and m["host"]["cpu"]  # hashes are reproducible per kind of CPU
     assert "stereo/p_000_disp.pfm" in m["files"] and "flow/f_000_flow.flo" in m["files"]
     t = json.loads((objects_ds / "transforms_train.json").read_text())
     for key in ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h", "frames"):
