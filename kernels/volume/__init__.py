@@ -21,6 +21,7 @@ equations:
     neural     HashGridField (hash + MLP), PEMLPField (PE + MLP)      Field
     render     sampling -> field -> compositing, and the chain rule back to the parameters
     adam       Adam as a Warp kernel
+    workspace  reusable output buffers (fresh large arrays cost page faults on every call)
 
 Everything is generic over float32 and float64 and takes a `device`; the CPU is the tested path.
 Kernels whose writes are disjoint per thread run through kernels.launch.launch_split; scatters
@@ -43,8 +44,9 @@ from kernels.volume.occupancy import OccupancyGrid
 from kernels.volume.render import RenderResult, render_backward, render_rays, render_samples
 from kernels.volume.sampling import Samples, ray_aabb, sample_rays
 from kernels.volume.spheres import SphereField
+from kernels.volume.workspace import Workspace
 
 __all__ = ["Adam", "DEFAULT_T_THRESHOLD", "CompositeResult", "composite_backward", "composite_forward",
            "dense_offsets", "PositionalEncoding", "Field", "FieldOutput", "GridField", "HashEncoding", "MLP",
            "HashGridField", "PEMLPField", "OccupancyGrid", "RenderResult", "render_backward", "render_rays",
-           "render_samples", "Samples", "ray_aabb", "sample_rays", "SphereField"]
+           "render_samples", "Samples", "ray_aabb", "sample_rays", "SphereField", "Workspace"]

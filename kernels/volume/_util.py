@@ -58,9 +58,23 @@ def check_shape(name: str, x: ArrayLike, shape: tuple[int | None, ...]) -> None:
         raise ValueError(f"{name}: expected shape {want}, got {got}")
 
 
+def all_finite(h: np.ndarray) -> bool:
+    """Whether every element of the float array `h` is finite, in one pass without a temporary.
+
+    The dot product x . x is NaN or infinite if any element is; it can also overflow for huge
+    finite values, and only then is every element tested (half the time of np.isfinite(h).all()
+    on 25M float32, which the per-call validation of the compositing kernel pays).
+    """
+    flat = h.reshape(-1)
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow or NaN is the answer, not a problem
+        if flat.size and np.isfinite(np.dot(flat, flat)):
+            return True
+    return bool(np.isfinite(flat).all())
+
+
 def check_finite(name: str, x: ArrayLike) -> np.ndarray:
     h = host_view(x)
-    if not np.all(np.isfinite(h)):
+    if not all_finite(h):
         raise ValueError(f"{name}: contains NaN or infinite values")
     return h
 
@@ -69,12 +83,12 @@ def check_nonnegative(name: str, x: ArrayLike) -> None:
     h = host_view(x)
     if not h.size:
         return
-    lo, hi = h.min(), h.max()  # a NaN anywhere makes both NaN
+    lo = h.min()  # a NaN anywhere makes it NaN
     if np.isnan(lo):
         raise ValueError(f"{name}: contains NaN values")
     if lo < 0:
         raise ValueError(f"{name}: expected values >= 0, got a minimum of {lo:.6g}")
-    if np.isinf(hi):
+    if not all_finite(h):
         raise ValueError(f"{name}: contains infinite values")
 
 
@@ -93,6 +107,21 @@ def to_warp(name: str, x: ArrayLike, dtype: Any, device: wp.Device) -> wp.array:
         return x
     arr = np.ascontiguousarray(x, dtype=NP_TYPES.get(dtype, None) or np.asarray(x).dtype)
     return wp.array(arr, dtype=dtype, device=device)
+
+
+def check_out(name: str, x: Any, shape: tuple[int, ...], dtype: Any, device: wp.Device) -> wp.array:
+    """A caller-supplied output buffer: a contiguous wp.array of exactly `shape` and `dtype` on `device`."""
+    if not isinstance(x, wp.array):
+        raise ValueError(f"{name}: expected a wp.array output buffer, got {type(x).__name__}")
+    if tuple(x.shape) != tuple(shape) or x.dtype != dtype:
+        raise ValueError(f"{name}: expected an output buffer of shape {tuple(shape)} and dtype "
+                         f"{getattr(dtype, '__name__', dtype)}, got shape {tuple(x.shape)} and dtype "
+                         f"{getattr(x.dtype, '__name__', x.dtype)}")
+    if x.device != device:
+        raise ValueError(f"{name}: array is on {x.device}, expected {device}")
+    if not x.is_contiguous:
+        raise ValueError(f"{name}: expected a contiguous array")
+    return x
 
 
 def to_int32(name: str, x: ArrayLike, device: wp.Device) -> wp.array:

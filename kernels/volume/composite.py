@@ -26,7 +26,10 @@ L = g_C . C + g_D D + g_A A has
 -delta_k T_N.) The backward kernel is a second pass over each ray that starts from the
 forward's final values, as instant-ngp does: the total sum_j w_j f_j = g_C . (C - T_N b) + g_D D
 comes from the forward outputs, and S_k = total - sum_{j<=k} w_j f_j is obtained by
-subtracting the running prefix while T_k is recomputed front to back. Samples after the
+subtracting the running prefix while T_k is rebuilt front to back from the factors
+exp(-sigma_k delta_k) that the forward stored (``CompositeResult.factor``): the same products
+as the forward, so T_k and w_k agree bit for bit, and no exponential is evaluated twice (that
+was half the backward's time on the CPU). Samples after the
 termination point get zero gradient; a ray with no samples returns the background with
 zero gradient.
 
@@ -66,6 +69,7 @@ def _composite_forward_kernel(
     out_opacity: wp.array(dtype=typing.Any),
     out_transmittance: wp.array(dtype=typing.Any),
     out_n_used: wp.array(dtype=wp.int32),
+    out_factor: wp.array(dtype=typing.Any),
     offset: int,
 ):
     r = wp.tid() + offset
@@ -81,6 +85,7 @@ def _composite_forward_kernel(
         if T < thr:
             break
         e = wp.exp(-sigma[k] * delta[k])
+        out_factor[k] = e
         w = T * (one - e)
         cr += w * rgb[k, 0]
         cg += w * rgb[k, 1]
@@ -100,7 +105,7 @@ def _composite_forward_kernel(
 
 @wp.kernel
 def _composite_backward_kernel(
-    sigma: wp.array(dtype=typing.Any),
+    factor: wp.array(dtype=typing.Any),
     rgb: wp.array2d(dtype=typing.Any),
     delta: wp.array(dtype=typing.Any),
     z: wp.array(dtype=typing.Any),
@@ -119,8 +124,8 @@ def _composite_backward_kernel(
     offset: int,
 ):
     r = wp.tid() + offset
-    zero = sigma.dtype(0.0)
-    one = sigma.dtype(1.0)
+    zero = factor.dtype(0.0)
+    one = factor.dtype(1.0)
     b = r * background_per_ray
     gr = grad_rgb[r, 0]
     gg = grad_rgb[r, 1]
@@ -136,7 +141,7 @@ def _composite_backward_kernel(
     T = one
     prefix = zero
     for k in range(start, stop):
-        e = wp.exp(-sigma[k] * delta[k])
+        e = factor[k]  # exp(-sigma_k delta_k), stored by the forward: bit for bit its T_k and w_k
         w = T * (one - e)
         f = gr * rgb[k, 0] + gg * rgb[k, 1] + gb * rgb[k, 2] + gd * z[k]
         prefix += w * f
@@ -161,6 +166,9 @@ class CompositeResult:
     opacity: wp.array  # (R,) 1 - T_N
     transmittance: wp.array  # (R,) T_N, transmittance after the last processed sample
     n_used: wp.array  # (R,) int32, samples processed before early termination
+    # (N,) exp(-sigma_k delta_k) of every processed sample (entries past termination are not written).
+    # The backward reads it rather than recomputing the exponential, which was half its time.
+    factor: wp.array
 
 
 def dense_offsets(n_rays: int, n_samples: int) -> np.ndarray:
@@ -213,31 +221,44 @@ def composite_forward(
     background: Any = (0.0, 0.0, 0.0),
     t_threshold: float = DEFAULT_T_THRESHOLD,
     device: str | wp.Device | None = None,
+    out: CompositeResult | None = None,
 ) -> CompositeResult:
     """Composite packed samples front to back (module docstring); one thread per ray.
 
     sigma (N,), rgb (N, 3), delta (N,), z (N,) in float32 or float64 (one dtype), ray_offsets
     (R+1,) integer, background (3,) or (R, 3). NumPy inputs are copied to `device` (default
-    the CPU); wp.arrays must already be there.
+    the CPU); wp.arrays must already be there. `out`, if given, receives the outputs (and is
+    returned): reusing buffers saves the page faults of fresh ones (kernels.volume.workspace).
     """
     device = U.default_device(device)
-    dtype, _, n_rays = _validate(sigma, rgb, delta, z, ray_offsets, device)
+    dtype, n, n_rays = _validate(sigma, rgb, delta, z, ray_offsets, device)
     if not (np.isfinite(t_threshold) and 0.0 <= t_threshold < 1.0):
         raise ValueError(f"t_threshold: expected a value in [0, 1), got {t_threshold}")
     bg, per_ray = _background(background, n_rays, dtype, device)
     args = [U.to_warp("sigma", sigma, dtype, device), U.to_warp("rgb", rgb, dtype, device),
             U.to_warp("delta", delta, dtype, device), U.to_warp("z", z, dtype, device),
             U.to_int32("ray_offsets", ray_offsets, device), bg, per_ray, dtype(t_threshold)]
-    res = CompositeResult(
-        rgb=wp.empty((n_rays, 3), dtype=dtype, device=device),
-        depth=wp.empty(n_rays, dtype=dtype, device=device),
-        opacity=wp.empty(n_rays, dtype=dtype, device=device),
-        transmittance=wp.empty(n_rays, dtype=dtype, device=device),
-        n_used=wp.empty(n_rays, dtype=wp.int32, device=device),
-    )
+    if out is None:
+        res = CompositeResult(
+            rgb=wp.empty((n_rays, 3), dtype=dtype, device=device),
+            depth=wp.empty(n_rays, dtype=dtype, device=device),
+            opacity=wp.empty(n_rays, dtype=dtype, device=device),
+            transmittance=wp.empty(n_rays, dtype=dtype, device=device),
+            n_used=wp.empty(n_rays, dtype=wp.int32, device=device),
+            factor=wp.empty(n, dtype=dtype, device=device),
+        )
+    else:
+        res = CompositeResult(
+            rgb=U.check_out("out.rgb", out.rgb, (n_rays, 3), dtype, device),
+            depth=U.check_out("out.depth", out.depth, (n_rays,), dtype, device),
+            opacity=U.check_out("out.opacity", out.opacity, (n_rays,), dtype, device),
+            transmittance=U.check_out("out.transmittance", out.transmittance, (n_rays,), dtype, device),
+            n_used=U.check_out("out.n_used", out.n_used, (n_rays,), wp.int32, device),
+            factor=U.check_out("out.factor", out.factor, (n,), dtype, device),
+        )
     if n_rays:
         launch_split(_composite_forward_kernel, n_rays,
-                     args + [res.rgb, res.depth, res.opacity, res.transmittance, res.n_used],
+                     args + [res.rgb, res.depth, res.opacity, res.transmittance, res.n_used, res.factor],
                      device=device, min_chunk=256)
     return res
 
@@ -254,16 +275,19 @@ def composite_backward(
     grad_opacity: U.ArrayLike | None = None,
     background: Any = (0.0, 0.0, 0.0),
     device: str | wp.Device | None = None,
+    out: tuple[wp.array, wp.array] | None = None,
 ) -> tuple[wp.array, wp.array]:
     """Gradients (d sigma (N,), d rgb (N, 3)) of <grad_rgb, C> + <grad_depth, D> + <grad_opacity, A>.
 
     `result` is what `composite_forward` returned for the same inputs and background; missing
     cotangents count as zero. Shapes and dtypes are checked again, the sample values are not
-    (composite_forward checked them); the cotangents are.
+    (composite_forward checked them); the cotangents are. `out`, if given, is the pair of
+    buffers (N,) and (N, 3) to write the gradients into (and is returned); every entry is written.
     """
     device = U.default_device(device)
     dtype, n, n_rays = _validate(sigma, rgb, delta, z, ray_offsets, device, values=False)
-    if result.rgb.shape != (n_rays, 3) or result.rgb.dtype != dtype:
+    if result.rgb.shape != (n_rays, 3) or result.rgb.dtype != dtype or result.factor.shape != (n,) \
+            or result.factor.dtype != dtype:
         raise ValueError(f"result: expected the CompositeResult of {n_rays} rays in {U.NP_TYPES[dtype].__name__}")
     bg, per_ray = _background(background, n_rays, dtype, device)
     grads = []
@@ -277,11 +301,17 @@ def composite_backward(
             raise ValueError(f"{name}: expected dtype {U.NP_TYPES[dtype].__name__}")
         U.check_finite(name, g)
         grads.append(U.to_warp(name, g, dtype, device))
-    grad_sigma = wp.empty(n, dtype=dtype, device=device)
-    grad_sample_rgb = wp.empty((n, 3), dtype=dtype, device=device)
+    if out is None:
+        grad_sigma = wp.empty(n, dtype=dtype, device=device)
+        grad_sample_rgb = wp.empty((n, 3), dtype=dtype, device=device)
+    else:
+        if not isinstance(out, (tuple, list)) or len(out) != 2:
+            raise ValueError("out: expected a pair (grad_sigma (N,), grad_rgb (N, 3)) of wp.arrays")
+        grad_sigma = U.check_out("out[0]", out[0], (n,), dtype, device)
+        grad_sample_rgb = U.check_out("out[1]", out[1], (n, 3), dtype, device)
     if n_rays:
         launch_split(_composite_backward_kernel, n_rays,
-                     [U.to_warp("sigma", sigma, dtype, device), U.to_warp("rgb", rgb, dtype, device),
+                     [result.factor, U.to_warp("rgb", rgb, dtype, device),
                       U.to_warp("delta", delta, dtype, device), U.to_warp("z", z, dtype, device),
                       U.to_int32("ray_offsets", ray_offsets, device), bg, per_ray,
                       result.rgb, result.depth, result.transmittance, result.n_used,

@@ -30,6 +30,7 @@ from kernels.volume.composite import DEFAULT_T_THRESHOLD, CompositeResult, compo
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.occupancy import OccupancyGrid
 from kernels.volume.sampling import Samples, sample_rays
+from kernels.volume.workspace import Workspace
 
 
 wp.set_module_options({"enable_backward": False})
@@ -53,14 +54,36 @@ class RenderResult:
     background: Any
 
 
+def _composite_buffers(workspace: Workspace | None, samples: Samples, dtype: Any) -> CompositeResult | None:
+    if workspace is None:
+        return None
+    n_rays = samples.ray_offsets.shape[0] - 1
+    return CompositeResult(rgb=workspace.array("composite.rgb", (n_rays, 3), dtype),
+                           depth=workspace.array("composite.depth", (n_rays,), dtype),
+                           opacity=workspace.array("composite.opacity", (n_rays,), dtype),
+                           transmittance=workspace.array("composite.transmittance", (n_rays,), dtype),
+                           n_used=workspace.array("composite.n_used", (n_rays,), wp.int32),
+                           factor=workspace.array("composite.factor", (samples.n_samples,), dtype))
+
+
+def _check_workspace(workspace: Workspace | None, field: Field) -> None:
+    if workspace is not None and (not isinstance(workspace, Workspace) or workspace.device != field.device):
+        raise ValueError(f"workspace: expected a kernels.volume.Workspace on {field.device} (the field's)")
+
+
 def render_samples(field: Field, samples: Samples, background: Any = (0.0, 0.0, 0.0),
-                   t_threshold: float = DEFAULT_T_THRESHOLD) -> RenderResult:
-    """Evaluate `field` at the packed samples and composite them per ray."""
+                   t_threshold: float = DEFAULT_T_THRESHOLD, workspace: Workspace | None = None) -> RenderResult:
+    """Evaluate `field` at the packed samples and composite them per ray.
+
+    With a `workspace` the per-ray outputs are views into it, valid until its next use.
+    """
     if samples.points.dtype != field.dtype or samples.points.device != field.device:
         raise ValueError(f"samples: expected {field.dtype} on {field.device} (the field's)")
+    _check_workspace(workspace, field)
     out = field.forward(samples.points, samples.dirs if field.needs_dirs else None)
     comp = composite_forward(out.sigma, out.rgb, samples.delta, samples.z, samples.ray_offsets, background,
-                             t_threshold, field.device)
+                             t_threshold, field.device,
+                             out=_composite_buffers(workspace, samples, field.dtype))
     return RenderResult(comp.rgb, comp.depth, comp.opacity, samples, out, comp, background)
 
 
@@ -80,13 +103,18 @@ def render_rays(
     seed: int = 0,
     background: Any = (0.0, 0.0, 0.0),
     t_threshold: float = DEFAULT_T_THRESHOLD,
+    workspace: Workspace | None = None,
 ) -> RenderResult:
-    """Render rays (R, 3) through `field` inside `bbox` (see sample_rays for the sampling options)."""
+    """Render rays (R, 3) through `field` inside `bbox` (see sample_rays for the sampling options).
+
+    `workspace` (optional) holds the compositing outputs across calls, as in render_samples.
+    """
+    _check_workspace(workspace, field)
     if U.float_dtype("origins", origins) != field.dtype:
         raise ValueError(f"origins: expected dtype {U.NP_TYPES[field.dtype].__name__} (the field's)")
     samples = sample_rays(origins, dirs, bbox, near=near, far=far, n_samples=n_samples, step=step, z_scale=z_scale,
                           occupancy=occupancy, jitter=jitter, seed=seed, device=field.device)
-    return render_samples(field, samples, background, t_threshold)
+    return render_samples(field, samples, background, t_threshold, workspace)
 
 
 def optical_depth_sum(result: RenderResult) -> float:
@@ -96,14 +124,24 @@ def optical_depth_sum(result: RenderResult) -> float:
 
 def render_backward(field: Field, result: RenderResult, grad_rgb: U.ArrayLike | None = None,
                     grad_depth: U.ArrayLike | None = None, grad_opacity: U.ArrayLike | None = None,
-                    sigma_l1: float = 0.0) -> dict[str, wp.array]:
+                    sigma_l1: float = 0.0, workspace: Workspace | None = None) -> dict[str, wp.array]:
     """Gradient of <grad_rgb, C> + <grad_depth, D> + <grad_opacity, A> + sigma_l1 sum_k sigma_k delta_k
-    for every field parameter."""
+    for every field parameter.
+
+    `workspace` (optional) holds the per-sample gradients between the compositing and field
+    backward passes, so repeated calls reuse their memory.
+    """
     if not math.isfinite(sigma_l1):
         raise ValueError(f"sigma_l1: expected a finite weight, got {sigma_l1}")
+    _check_workspace(workspace, field)
     s, out = result.samples, result.field_out
+    buffers = None
+    if workspace is not None:
+        buffers = (workspace.array("grad_sigma", (s.n_samples,), field.dtype),
+                   workspace.array("grad_sample_rgb", (s.n_samples, 3), field.dtype))
     g_sigma, g_rgb = composite_backward(out.sigma, out.rgb, s.delta, s.z, s.ray_offsets, result.composite,
-                                        grad_rgb, grad_depth, grad_opacity, result.background, field.device)
+                                        grad_rgb, grad_depth, grad_opacity, result.background, field.device,
+                                        out=buffers)
     if sigma_l1 != 0.0 and s.n_samples:
         launch_split(_add_scaled_kernel, s.n_samples, [g_sigma, s.delta, field.dtype(sigma_l1)], device=field.device)
     return field.backward(s.points, s.dirs if field.needs_dirs else None, out, g_sigma, g_rgb)

@@ -4,11 +4,15 @@ Cases (sizes from the issue; `quick` divides them by 16):
   * volume.composite      rays 65536 x samples 128 in float32 (dense packing), forward (`fwd_s`) and
                           forward + backward (`fwd_bwd_s`), plus `samples_per_s` of forward + backward.
                           Densities are drawn so that no ray terminates early: every sample is work.
+                          Inputs are validated on every call, as any caller's are. Outputs go to buffers
+                          allocated once, as in training (kernels.volume.workspace);
+                          `fwd_bwd_fresh_buffers_s` is the same with new arrays on every call, whose
+                          first-touch page faults cost more than the backward kernel on the CPU.
   * volume.field.<name>   points 1048576 in float32 for spheres (the textbook's 3), grid (128^3 RGB),
                           grid_sh2 (128^3, SH degree 2), hashgrid (16 levels x 2^19 x 2, MLP 64-64)
                           and pe_mlp (8 frequencies, MLP 64-64): forward, and forward + backward to every
                           parameter with random cotangents.
-Each figure is the median of 3 runs after a warm-up (research.bench.time_median).
+Each figure is the median of 3 runs (5 for compositing) after a warm-up (research.bench.time_median).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from typing import Iterator
 import numpy as np
 import warp as wp
 
-from research.bench import time_median
+from research.bench import time_median, time_medians
 
 COMPOSITE_RAYS, COMPOSITE_SAMPLES = 65536, 128
 FIELD_POINTS = 1 << 20
@@ -40,7 +44,7 @@ def _fields(device: str) -> dict:
 
 
 def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
-    from kernels.volume import composite_backward, composite_forward, dense_offsets
+    from kernels.volume import CompositeResult, composite_backward, composite_forward, dense_offsets
 
     wp.init()
     dev = wp.get_device(device)
@@ -60,17 +64,27 @@ def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
     g_rgb = arr(rng.normal(size=(rays, 3)).astype(np.float32))
     g_d = arr(rng.normal(size=rays).astype(np.float32))
 
-    def fwd():
-        return composite_forward(sigma, rgb, delta, z, offsets, device=dev)
+    # Output buffers allocated once, as the training loop's Workspace does (kernels.volume.workspace).
+    res_buf = CompositeResult(arr(np.zeros((rays, 3), np.float32)), arr(np.zeros(rays, np.float32)),
+                              arr(np.zeros(rays, np.float32)), arr(np.zeros(rays, np.float32)),
+                              arr(np.zeros(rays, np.int32), wp.int32), arr(np.zeros(n, np.float32)))
+    grad_buf = (arr(np.zeros(n, np.float32)), arr(np.zeros((n, 3), np.float32)))
 
-    def fwd_bwd():
-        res = fwd()
-        composite_backward(sigma, rgb, delta, z, offsets, res, g_rgb, g_d, g_d, device=dev)
+    def fwd(out=res_buf):
+        return composite_forward(sigma, rgb, delta, z, offsets, device=dev, out=out)
 
-    t_f = time_median(fwd, sync=sync)
-    t_fb = time_median(fwd_bwd, sync=sync)
+    def fwd_bwd(reuse=True):
+        res = fwd(res_buf if reuse else None)
+        composite_backward(sigma, rgb, delta, z, offsets, res, g_rgb, g_d, g_d, device=dev,
+                           out=grad_buf if reuse else None)
+
+    # Interleaved (research.bench.time_medians): the three see the same drift in machine speed.
+    times = time_medians({"fwd": fwd, "fwd_bwd": fwd_bwd, "fresh": lambda: fwd_bwd(reuse=False)}, repeats=5,
+                         sync=sync)
+    t_f, t_fb, t_fb_alloc = times["fwd"], times["fwd_bwd"], times["fresh"]
     yield {"bench": "volume.composite", "device": str(dev), "threads": threads, "rays": rays, "samples": samples,
-           "fwd_s": t_f, "fwd_bwd_s": t_fb, "samples_per_s": n / t_fb}
+           "fwd_s": t_f, "fwd_bwd_s": t_fb, "samples_per_s": n / t_fb,
+           "fwd_bwd_fresh_buffers_s": t_fb_alloc}
 
     points_n = FIELD_POINTS // scale
     pts = arr(rng.uniform(-1.0, 1.0, (points_n, 3)).astype(np.float32))

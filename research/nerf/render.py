@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from kernels.volume import DEFAULT_T_THRESHOLD, Field, OccupancyGrid, render_rays
+from kernels.volume import DEFAULT_T_THRESHOLD, Field, OccupancyGrid, Workspace, render_rays
 from kernels.volume import _util as U
 from research.cameras import Camera
 
@@ -58,10 +58,12 @@ def render_image(
     rgb, depth, opacity = np.empty((n, 3)), np.empty(n), np.empty(n)
     n_samples_total = 0
     starts = range(0, n, chunk)
+    workspace = Workspace(field.device)  # every chunk's outputs are copied out before the next
     for s in tqdm(starts, desc="render", disable=not progress, leave=False):
         e = min(s + chunk, n)
         res = render_rays(field, o[s:e], d[s:e], bbox, near=near, far=far, n_samples=n_samples, step=step,
-                          z_scale=zs[s:e], occupancy=occupancy, background=background, t_threshold=t_threshold)
+                          z_scale=zs[s:e], occupancy=occupancy, background=background, t_threshold=t_threshold,
+                          workspace=workspace)
         rgb[s:e], depth[s:e], opacity[s:e] = res.rgb.numpy(), res.depth.numpy(), res.opacity.numpy()
         n_samples_total += res.samples.n_samples
     h, w = camera.height, camera.width

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from kernels.volume import Adam, Field, GridField, OccupancyGrid, render_backward, render_rays
+from kernels.volume import Adam, Field, GridField, OccupancyGrid, Workspace, render_backward, render_rays
 from kernels.volume.grid import add_tv_grad
 from research.cameras import Camera
 from research.metrics import srgb_on_black
@@ -136,6 +136,7 @@ def train(field: Field, bank: RayBank, bbox: np.ndarray, cfg: TrainConfig, occup
     base_lr = dict(opt.lr)
     losses, spr, occ = [], [], []
     t0 = time.perf_counter()
+    workspace = Workspace(field.device)  # compositing buffers, reused by every iteration
     bar = tqdm(range(cfg.iters), desc=desc, disable=not progress, mininterval=2.0)
     for it in bar:
         warm = it < cfg.occupancy_start
@@ -149,11 +150,11 @@ def train(field: Field, bank: RayBank, bbox: np.ndarray, cfg: TrainConfig, occup
         res = render_rays(field, bank.origins[idx], bank.dirs[idx], bbox,
                           step=cfg.step * (cfg.warmup_step_factor if warm else 1.0), z_scale=bank.z_scale[idx],
                           occupancy=None if warm else occupancy, jitter=True, seed=cfg.seed * 1_000_003 + it,
-                          background=bg.astype(np_t), t_threshold=cfg.t_threshold)
+                          background=bg.astype(np_t), t_threshold=cfg.t_threshold, workspace=workspace)
         diff = res.rgb.numpy().astype(np.float64) - target
         loss = float(np.mean(diff**2))
         grads = render_backward(field, res, (2.0 * diff / diff.size).astype(np_t),
-                                sigma_l1=cfg.sigma_l1 / cfg.batch_rays)
+                                sigma_l1=cfg.sigma_l1 / cfg.batch_rays, workspace=workspace)
         if isinstance(field, GridField):
             nv = field.params["density"].shape[0]
             for name, w in cfg.tv_weight.items():

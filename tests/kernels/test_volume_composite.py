@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from kernels.volume import composite_backward, composite_forward, dense_offsets
+from kernels.volume import CompositeResult, Workspace, composite_backward, composite_forward, dense_offsets
+from kernels.volume._util import all_finite
 from research.checks.volume import check_composite, composite_inputs
 from research.gradcheck import assert_gradcheck
 
@@ -218,3 +219,92 @@ def test_backward_bad_cotangent():
         composite_backward(**v, result=res, grad_rgb=np.zeros((3, 3)))
     with pytest.raises(ValueError, match="grad_depth: contains NaN"):
         composite_backward(**v, result=res, grad_depth=np.array([np.nan, 0.0]))
+
+
+# --------------------------------------------------------------------------- reused buffers
+
+def test_forward_stores_the_exponential_factors_it_used():
+    inp = composite_inputs(0)
+    args = [inp[k] for k in ("sigma", "rgb", "delta", "z")]
+    res = composite_forward(*args, inp["ray_offsets"], t_threshold=1e-4)
+    factor, n_used = res.factor.numpy(), res.n_used.numpy()
+    for r, (a, b) in enumerate(zip(inp["ray_offsets"][:-1], inp["ray_offsets"][1:])):
+        used = slice(a, a + n_used[r])  # entries past early termination are not written
+        # rtol of a few ulp, not equality: NumPy's vectorised exp need not round as the C library's does.
+        np.testing.assert_allclose(factor[used], np.exp(-inp["sigma"][used] * inp["delta"][used]), rtol=4e-16)
+        assert n_used[r] <= b - a
+    assert np.any(n_used < np.diff(inp["ray_offsets"])) and np.any(n_used > 0)
+
+
+def test_out_buffers_give_the_same_results_and_are_returned():
+    inp = composite_inputs(1)
+    args = [inp[k] for k in ("sigma", "rgb", "delta", "z")]
+    off, bg = inp["ray_offsets"], inp["background"]
+    rng = np.random.default_rng(5)
+    n_rays, n = len(off) - 1, len(inp["sigma"])
+    cot = (rng.normal(size=(n_rays, 3)), rng.normal(size=n_rays), rng.normal(size=n_rays))
+    fresh = composite_forward(*args, off, bg)
+    fresh_g = composite_backward(*args, off, fresh, *cot, bg)
+
+    ws = Workspace()
+    for _ in range(2):  # the second round reuses buffers holding the first round's values
+        buf = CompositeResult(ws.array("rgb", (n_rays, 3), wp.float64), ws.array("d", (n_rays,), wp.float64),
+                              ws.array("a", (n_rays,), wp.float64), ws.array("t", (n_rays,), wp.float64),
+                              ws.array("n", (n_rays,), wp.int32), ws.array("f", (n,), wp.float64))
+        res = composite_forward(*args, off, bg, out=buf)
+        assert res.rgb.ptr == buf.rgb.ptr and res.factor.ptr == buf.factor.ptr
+        out = (ws.array("gs", (n,), wp.float64), ws.array("gc", (n, 3), wp.float64))
+        out[0].fill_(np.nan)  # every entry must be written, terminated samples included
+        out[1].fill_(np.nan)
+        g = composite_backward(*args, off, res, *cot, bg, out=out)
+        assert g[0].ptr == out[0].ptr and g[1].ptr == out[1].ptr
+        for a, b in zip((res.rgb, res.depth, res.opacity, res.n_used), (fresh.rgb, fresh.depth, fresh.opacity,
+                                                                       fresh.n_used)):
+            np.testing.assert_array_equal(a.numpy(), b.numpy())
+        np.testing.assert_array_equal(g[0].numpy(), fresh_g[0].numpy())
+        np.testing.assert_array_equal(g[1].numpy(), fresh_g[1].numpy())
+
+
+def test_bad_out_buffers():
+    v = _valid()
+    res = composite_forward(**v)
+    bad = CompositeResult(res.rgb, res.depth, res.opacity, res.transmittance, res.n_used,
+                          wp.empty(5, dtype=wp.float64, device="cpu"))
+    with pytest.raises(ValueError, match=r"out.factor: expected an output buffer of shape \(6,\)"):
+        composite_forward(**v, out=bad)
+    with pytest.raises(ValueError, match="out: expected a pair"):
+        composite_backward(**v, result=res, out=wp.empty(6, dtype=wp.float64, device="cpu"))
+    with pytest.raises(ValueError, match="out\\[1\\]: expected an output buffer of shape \\(6, 3\\) and dtype float64"):
+        composite_backward(**v, result=res, out=(wp.empty(6, dtype=wp.float64, device="cpu"),
+                                                 wp.empty((6, 3), dtype=wp.float32, device="cpu")))
+    with pytest.raises(ValueError, match="out\\[0\\]: expected a wp.array"):
+        composite_backward(**v, result=res, out=(np.empty(6), wp.empty((6, 3), dtype=wp.float64, device="cpu")))
+
+
+def test_workspace_grows_and_hands_out_views():
+    ws = Workspace("cpu")
+    a = ws.array("x", (10, 3), wp.float32)
+    assert a.shape == (10, 3) and a.is_contiguous
+    b = ws.array("x", (4, 3), wp.float32)  # smaller: a view of the same memory
+    assert b.shape == (4, 3) and b.ptr == a.ptr
+    c = ws.array("x", (11, 3), wp.float32)  # larger: grown by half again, so 12 more rows fit without reallocating
+    assert c.shape == (11, 3) and ws.array("x", (15, 3), wp.float32).ptr == c.ptr
+    assert ws.nbytes() == 15 * 3 * 4
+    d = ws.array("x", (4,), wp.float64)  # another layout reallocates
+    assert d.shape == (4,) and d.dtype == wp.float64
+    assert ws.array("empty", (0, 3), wp.float32).shape == (0, 3)
+    with pytest.raises(ValueError, match="shape"):
+        ws.array("x", (-1,), wp.float32)
+
+
+def test_all_finite_covers_overflow_nan_and_inf():
+    big = np.full(1000, 1e30, np.float32)  # x . x overflows although every value is finite
+    assert all_finite(big)
+    for bad in (np.nan, np.inf, -np.inf):
+        x = big.copy()
+        x[517] = bad
+        assert not all_finite(x)
+        y = np.ones((50, 3))
+        y[7, 2] = bad
+        assert not all_finite(y)
+    assert all_finite(np.zeros((0, 3)))

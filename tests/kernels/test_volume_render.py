@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from kernels.volume import Adam, GridField, OccupancyGrid, SphereField, render_backward, render_rays
+from kernels.volume import Adam, GridField, OccupancyGrid, SphereField, Workspace, render_backward, render_rays
 from research.cameras import Camera
 from research.checks.volume import BOX, check_render
 from research.gradcheck import assert_gradcheck
@@ -154,3 +154,26 @@ def test_render_bad_input():
     for bad in (float("nan"), float("inf")):
         with pytest.raises(ValueError, match="sigma_l1: expected a finite weight"):
             render_backward(field, res, np.ones((2, 3)), sigma_l1=bad)
+
+
+def test_workspace_renders_and_gradients_match_fresh_buffers():
+    field = GridField(BOX, (4, 4, 4), dtype=wp.float64)
+    rng = np.random.default_rng(3)
+    field.set_params({"density": rng.normal(1.0, 1.0, 64), "color": rng.normal(size=(64, 3))})
+    ws = Workspace()
+    for n_rays in (20, 35, 12):  # the workspace grows, then hands out a shorter view
+        o = rng.uniform(-0.6, 0.6, (n_rays, 3)) + np.array([0.0, 0.0, -3.0])  # in front of BOX
+        d = rng.normal([0.0, 0.0, 1.0], 0.2, (n_rays, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        g = rng.normal(size=(n_rays, 3))
+        plain = render_rays(field, o, d, BOX, n_samples=16, background=(0.2, 0.3, 0.4))
+        reused = render_rays(field, o, d, BOX, n_samples=16, background=(0.2, 0.3, 0.4), workspace=ws)
+        assert reused.samples.n_samples > 4 * n_rays
+        np.testing.assert_array_equal(reused.rgb.numpy(), plain.rgb.numpy())
+        np.testing.assert_array_equal(reused.depth.numpy(), plain.depth.numpy())
+        g_plain = render_backward(field, plain, g, sigma_l1=0.1)
+        g_reused = render_backward(field, reused, g, sigma_l1=0.1, workspace=ws)
+        for name in g_plain:
+            np.testing.assert_array_equal(g_reused[name].numpy(), g_plain[name].numpy())
+    with pytest.raises(ValueError, match="workspace: expected a kernels.volume.Workspace"):
+        render_rays(field, o, d, BOX, n_samples=16, workspace=object())
