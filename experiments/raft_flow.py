@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from tqdm import tqdm
 
-    from research.datasets import load_flow
+    from research.datasets import load_flow, provenance
     from research.opticalflow import CorrFlow, CorrFlowConfig, flow_metrics, srgb
 
     t_start = time.perf_counter()
@@ -303,6 +303,7 @@ def main(argv: list[str] | None = None) -> int:
         "per_scene": {sc: {m: p.summary() for m, p in d.items()} for sc, d in per_scene.items()},
         "ablation": {f"L{lv}_r{r}": ablation[(lv, r)].summary() for lv in LEVELS for r in RADII},
         "memory_time": memtime, "per_pair": per_pair, "dataset_seconds": t_data, "gt_motion": motion,
+        "datasets": {scene: provenance(p) for scene, p in paths.items()},
     }
     config = {"quick": args.quick, "scenes": list(paths), "res": RES, "spp": SPP, "flow_step_deg": STEP_DEG,
               "stride": STRIDE, "headline": HEADLINE, "corrflow": CorrFlowConfig().__dict__,

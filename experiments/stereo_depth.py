@@ -79,8 +79,9 @@ class Pair:
     left_rgb: np.ndarray
 
 
-def load_pairs(args: argparse.Namespace, st: Setup) -> list[Pair]:
-    from research.datasets import DatasetConfig, ensure, load_stereo
+def load_pairs(args: argparse.Namespace, st: Setup, used: dict[str, Any]) -> list[Pair]:
+    """Every stereo pair of every scene; `used` receives each dataset's provenance."""
+    from research.datasets import DatasetConfig, ensure, load_stereo, provenance
     from research.io import linear_to_srgb
     from research.stereo import to_gray_u8
 
@@ -89,6 +90,7 @@ def load_pairs(args: argparse.Namespace, st: Setup) -> list[Pair]:
         cfg = DatasetConfig(scene, views=3, res=st.res, spp=st.spp, seed=args.seed, stereo=True,
                             stereo_pairs=st.pairs)
         path = ensure(cfg, args.data / f"stereo_depth-{scene}{'-quick' if args.quick else ''}")
+        used[scene] = provenance(path)
         for p in load_stereo(path):
             has_gt = p.disparity > 0
             pairs.append(Pair(scene, p.name, to_gray_u8(p.left), to_gray_u8(p.right), p.disparity,
@@ -297,7 +299,8 @@ def main(argv: list[str] | None = None) -> int:
     t_start = time.perf_counter()
     load_start = os.getloadavg()[0]
     st = setup(args.quick)
-    pairs = load_pairs(args, st)
+    datasets: dict[str, Any] = {}
+    pairs = load_pairs(args, st, datasets)
     tuning = [p for p in pairs if p.name == "p_000"]
     evaluation = [p for p in pairs if p.name != "p_000"]
 
@@ -387,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
     write_results(args.out, experiment="stereo_depth", config=config, seed=args.seed, device=args.device,
                   wall_time_s=time.perf_counter() - t_start,
                   metrics={"best_drlab": best_drlab, "goal_met": bool(best["pooled"]["d1"] < sgbm["pooled"]["d1"]),
-                           "methods": results, "tuning": tuning_log}, table_md=table)
+                           "methods": results, "tuning": tuning_log, "datasets": datasets}, table_md=table)
     print(table)
     return 0
 

@@ -5,10 +5,10 @@
     ds = load("data/objects"); train = ds.load_split("train")
 """
 
-from research.datasets.generate import CACHE_ROOT_HELP, DatasetConfig, cache_dir, ensure, generate
+from research.datasets.generate import CACHE_ROOT_HELP, DatasetConfig, cache_dir, ensure, generate, provenance
 from research.datasets.loader import (Dataset, DatasetError, FlowSequence, StereoPair, load, load_flow,
                                       load_stereo)
 from research.datasets.scenes import SCENES, SceneSpec, get_scene
 
-__all__ = ["CACHE_ROOT_HELP", "DatasetConfig", "cache_dir", "ensure", "generate", "Dataset", "DatasetError",
+__all__ = ["CACHE_ROOT_HELP", "DatasetConfig", "cache_dir", "ensure", "generate", "provenance", "Dataset", "DatasetError",
            "FlowSequence", "StereoPair", "load", "load_flow", "load_stereo", "SCENES", "SceneSpec", "get_scene"]

@@ -356,6 +356,18 @@ def cache_dir(cfg: DatasetConfig, root: str | Path) -> Path:
     return Path(root) / "-".join(parts)
 
 
+def provenance(path: str | Path) -> dict[str, Any]:
+    """What an experiment should record about a dataset it used: directory name, generator
+    revision, content hash and the host that rendered it (from its manifest).
+
+    The content hash identifies the pixels; the revision and host explain why two runs of the same
+    configuration can differ.
+    """
+    m = json.loads((Path(path) / "manifest.json").read_text())
+    return {"name": Path(path).name, "generator_revision": m.get("generator_revision"),
+            "content_hash": m["content_hash"], "host": m.get("host")}
+
+
 def ensure(cfg: DatasetConfig, out: str | Path, show_progress: bool = True) -> Path:
     """Return `out` if it holds a finished dataset with exactly this configuration, else (re)generate it.
 

@@ -16,7 +16,7 @@ from research import io
 from research.cameras import Camera
 from research.datasets import consistency
 from research.datasets import (DatasetConfig, DatasetError, cache_dir, ensure, generate, get_scene, load, load_flow,
-                               load_stereo)
+                               load_stereo, provenance)
 from research.datasets.generate import GENERATOR_REVISION
 from research.datasets.groundtruth import sample_depth
 from research.datasets.render import SceneRenderer
@@ -46,6 +46,8 @@ def test_layout_and_manifest(objects_ds):
     assert m["mitsuba_variant"] in ("llvm_ad_rgb", "scalar_rgb")
     assert "mitsuba" in m["versions"] and len(m["content_hash"]) == 64
     assert m["host"]["cpus"] >= 1 and m["host"]["cpu"]  # hashes are reproducible per kind of CPU
+    assert provenance(objects_ds) == {"name": objects_ds.name, "generator_revision": GENERATOR_REVISION,
+                                      "content_hash": m["content_hash"], "host": m["host"]}
     assert "stereo/p_000_disp.pfm" in m["files"] and "flow/f_000_flow.flo" in m["files"]
     t = json.loads((objects_ds / "transforms_train.json").read_text())
     for key in ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h", "frames"):
