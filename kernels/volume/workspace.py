@@ -2,10 +2,10 @@
 
 A fresh `wp.empty` of hundreds of megabytes is cheap to ask for and expensive to use: on the CPU
 every page faults on first touch. For `composite_backward` at 65536 rays x 128 samples (134 MB of
-gradients) that cost more than the kernel itself (92 ms per call against 36 ms with the same
-buffers reused; `drlab bench volume` reports both). A `Workspace` allocates each named buffer once,
-at the largest size asked for so far (grown by half again when it must grow), and hands out views
-of its leading rows.
+gradients) that costs more than the kernel itself: 66-88 ms per call against 19-23 ms with the
+same buffers reused, on 2 cores (`drlab bench volume` reports both ways for forward + backward).
+A `Workspace` allocates each named buffer once, at the largest size asked for so far (grown by
+half again when it must grow), and hands out views of its leading rows.
 
 A view is overwritten by the next request for the same name: results computed into a workspace
 live until the next call that uses it (in a training loop, until the next iteration).
