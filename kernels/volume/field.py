@@ -17,6 +17,7 @@ import numpy as np
 import warp as wp
 
 from kernels.volume import _util as U
+from kernels.volume.workspace import Workspace
 
 
 @dataclass
@@ -93,10 +94,29 @@ class Field(ABC):
     def forward(self, points: U.ArrayLike, dirs: U.ArrayLike | None = None) -> FieldOutput:
         """sigma (N,) and rgb (N, 3) at the points."""
 
+    def _zero_grads(self, workspace: Workspace | None) -> dict[str, wp.array]:
+        """Zeroed gradient arrays shaped like the parameters: new ones, or views into `workspace`
+        (a dense grid's gradients are tens of megabytes, whose fresh pages cost more than the
+        scatter that fills them)."""
+        if workspace is None:
+            return {k: wp.zeros(v.shape, dtype=self.dtype, device=self.device) for k, v in self.params.items()}
+        if not isinstance(workspace, Workspace) or workspace.device != self.device:
+            raise ValueError(f"workspace: expected a kernels.volume.Workspace on {self.device} (the field's)")
+        grads = {}
+        for k, v in self.params.items():
+            grads[k] = workspace.array(f"{self.name}.grad.{k}", tuple(v.shape), self.dtype)
+            grads[k].zero_()
+        return grads
+
     @abstractmethod
     def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
-                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None) -> dict[str, wp.array]:
-        """Gradient of <grad_sigma, sigma> + <grad_rgb, rgb> for every parameter (same shapes)."""
+                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None,
+                 workspace: Workspace | None = None) -> dict[str, wp.array]:
+        """Gradient of <grad_sigma, sigma> + <grad_rgb, rgb> for every parameter (same shapes).
+
+        With a `workspace`, fields whose gradients are large (grid, spheres) return views into it,
+        valid until its next use; the neural fields' gradients are small and always new arrays.
+        """
 
     def density(self, points: U.ArrayLike) -> wp.array:
         """sigma at the points (for occupancy-grid updates)."""

@@ -41,6 +41,7 @@ from kernels.volume import _act
 from kernels.volume import _util as U
 from kernels.volume._act import density_act, density_act_grad, sigmoid
 from kernels.volume.field import Field, FieldOutput
+from kernels.volume.workspace import Workspace
 
 wp.set_module_options({"enable_backward": False})
 
@@ -346,10 +347,11 @@ class GridField(Field):
         return FieldOutput(sigma, rgb)
 
     def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
-                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None) -> dict[str, wp.array]:
+                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None,
+                 workspace: Workspace | None = None) -> dict[str, wp.array]:
         p, d = self._points(points, dirs)
         gs, gr = self._cotangents(p.shape[0], grad_sigma, grad_rgb)
-        grads = {k: wp.zeros(v.shape, dtype=self.dtype, device=self.device) for k, v in self.params.items()}
+        grads = self._zero_grads(workspace)
         sh_mode = -1 if self.sh_degree is None else self.sh_degree
         if p.shape[0]:
             wp.launch(_grid_backward_kernel, dim=p.shape[0],

@@ -32,6 +32,7 @@ from kernels.volume.encoding import PositionalEncoding
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.hashgrid import HashEncoding
 from kernels.volume.mlp import MLP, init_mlp_params
+from kernels.volume.workspace import Workspace
 
 wp.set_module_options({"enable_backward": False})
 
@@ -139,7 +140,8 @@ class NeuralField(Field):
         return FieldOutput(sigma, rgb, {"raw": raw, "mlp": mlp_cache})
 
     def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
-                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None) -> dict[str, wp.array]:
+                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None,
+                 workspace: Workspace | None = None) -> dict[str, wp.array]:
         p, _ = self._points(points, dirs)
         n = p.shape[0]
         gs, gr = self._cotangents(n, grad_sigma, grad_rgb)

@@ -129,7 +129,8 @@ def render_backward(field: Field, result: RenderResult, grad_rgb: U.ArrayLike | 
     for every field parameter.
 
     `workspace` (optional) holds the per-sample gradients between the compositing and field
-    backward passes, so repeated calls reuse their memory.
+    backward passes, and the parameter gradients of fields that use it (Field.backward), so
+    repeated calls reuse their memory; the returned arrays are then valid until its next use.
     """
     if not math.isfinite(sigma_l1):
         raise ValueError(f"sigma_l1: expected a finite weight, got {sigma_l1}")
@@ -144,4 +145,4 @@ def render_backward(field: Field, result: RenderResult, grad_rgb: U.ArrayLike | 
                                         out=buffers)
     if sigma_l1 != 0.0 and s.n_samples:
         launch_split(_add_scaled_kernel, s.n_samples, [g_sigma, s.delta, field.dtype(sigma_l1)], device=field.device)
-    return field.backward(s.points, s.dirs if field.needs_dirs else None, out, g_sigma, g_rgb)
+    return field.backward(s.points, s.dirs if field.needs_dirs else None, out, g_sigma, g_rgb, workspace)

@@ -31,6 +31,7 @@ import warp as wp
 from kernels.launch import launch_split
 from kernels.volume import _util as U
 from kernels.volume.field import Field, FieldOutput
+from kernels.volume.workspace import Workspace
 
 wp.set_module_options({"enable_backward": False})
 
@@ -178,10 +179,11 @@ class SphereField(Field):
         return FieldOutput(sigma, rgb)
 
     def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
-                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None) -> dict[str, wp.array]:
+                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None,
+                 workspace: Workspace | None = None) -> dict[str, wp.array]:
         p, _ = self._points(points, dirs)
         gs, gr = self._cotangents(p.shape[0], grad_sigma, grad_rgb)
-        grads = {k: wp.zeros(v.shape, dtype=self.dtype, device=self.device) for k, v in self.params.items()}
+        grads = self._zero_grads(workspace)
         P = self.params
         if p.shape[0]:
             wp.launch(_spheres_backward_kernel, dim=p.shape[0],

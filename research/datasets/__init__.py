@@ -5,7 +5,8 @@
     ds = load("data/objects"); train = ds.load_split("train")
 """
 
-from research.datasets.generate import CACHE_ROOT_HELP, DatasetConfig, cache_dir, ensure, generate, provenance
+from research.datasets.generate import (CACHE_ROOT_HELP, DatasetConfig, cache_dir, ensure, generate,
+                                       provenance)
 from research.datasets.loader import (Dataset, DatasetError, FlowSequence, StereoPair, load, load_flow,
                                       load_stereo)
 from research.datasets.scenes import SCENES, SceneSpec, get_scene

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from kernels.volume import GridField, HashEncoding, HashGridField, MLP, PEMLPField, PositionalEncoding, SphereField
+from kernels.volume import (GridField, HashEncoding, HashGridField, MLP, PEMLPField, PositionalEncoding, SphereField,
+                            Workspace)
 from kernels.volume.hashgrid import PRIME_Y, PRIME_Z
 from kernels.volume.mlp import init_mlp_params
 from research.checks.volume import BOX, check_grid, check_neural, check_spheres, neural_field
@@ -325,3 +326,23 @@ def test_field_bad_input():
         field.backward(p, np.zeros((4, 3)), out, np.zeros(5), None)
     with pytest.raises(ValueError, match="backend"):
         HashGridField(BOX, backend="torch")
+
+
+@pytest.mark.parametrize("make", [lambda: GridField(BOX, (3, 4, 5), dtype=wp.float64),
+                                  lambda: SphereField.textbook(wp.float64)])
+def test_backward_into_a_workspace_matches_fresh_gradients(make):
+    field = make()
+    rng = np.random.default_rng(11)
+    lo, hi = (BOX[0], BOX[1]) if field.name == "grid" else ([-1, -1, 3], [1, 1, 5])  # the spheres sit near z = 4
+    pts = rng.uniform(lo, hi, (40, 3))
+    out = field.forward(pts)
+    ws = Workspace()
+    for seed in (1, 2):  # the second call reuses buffers that hold the first call's gradients
+        g = np.random.default_rng(seed)
+        gs, gr = g.normal(size=40), g.normal(size=(40, 3))
+        fresh = field.backward(pts, None, out, gs, gr)
+        reused = field.backward(pts, None, out, gs, gr, ws)
+        for name in fresh:
+            np.testing.assert_array_equal(reused[name].numpy(), fresh[name].numpy())
+    with pytest.raises(ValueError, match="workspace: expected a kernels.volume.Workspace"):
+        field.backward(pts, None, out, gs, gr, object())
