@@ -222,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = dataset_config(args.quick, 0)
     data = cache_dir(cfg, args.data)
     t0 = time.perf_counter()
-    ds = load(ensure(cfg, data))
+    ds = load(ensure(cfg, data, show_progress=not args.no_progress))
     dataset_s = time.perf_counter() - t0
     train_split, test_split = ds.load_split("train"), ds.load_split("test")
     bbox = ds.bbox.copy()

@@ -124,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--init", choices=["depth", "random"], default="depth",
                     help="initial points: ground-truth depth of the train views, or random in the scene box")
     ap.add_argument("--iterations", type=int, default=None, help="override the number of training iterations")
+    ap.add_argument("--no-progress", action="store_true", help="hide the progress bars")
     args = ap.parse_args(argv)
 
     import warp as wp
@@ -141,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     t_start = time.perf_counter()
     suffix = "-quick" if args.quick else ""
     dcfg = datasets.DatasetConfig("objects", views=cfg.views, res=cfg.res, spp=cfg.spp, seed=args.seed)
-    path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, args.data))
+    path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, args.data), show_progress=not args.no_progress)
     ds = datasets.load(path)
     train_split, test_split = ds.load_split("train"), ds.load_split("test")
 
@@ -154,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
     extent = sm.scene_extent(train_split.cameras)
     tcfg = st.TrainConfig(iterations=cfg.iterations, seed=args.seed,
                           densify=st.DensifyConfig(max_gaussians=cfg.max_gaussians))
-    result = st.train(model, train_split.cameras, train_split.rgba[..., :3], extent, tcfg, device=args.device)
+    result = st.train(model, train_split.cameras, train_split.rgba[..., :3], extent, tcfg, device=args.device,
+                      progress=not args.no_progress)
     model = result.model
 
     ev = st.evaluate(model, test_split.cameras, test_split.rgba[..., :3], result.sh_degree)
