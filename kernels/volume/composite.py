@@ -29,9 +29,9 @@ comes from the forward outputs, and S_k = total - sum_{j<=k} w_j f_j is obtained
 subtracting the running prefix while T_k is rebuilt front to back from the factors
 exp(-sigma_k delta_k) that the forward stored (``CompositeResult.factor``): the same products
 as the forward, so T_k and w_k agree bit for bit, and no exponential is evaluated twice (that
-was more than half the backward kernel's time on the CPU: 36 -> 16 ms at 65536 x 128 samples). Samples after the
-termination point get zero gradient; a ray with no samples returns the background with
-zero gradient.
+was more than half the backward kernel's time on the CPU: 36 -> 16 ms at 65536 x 128
+samples). Samples after the termination point get zero gradient; a ray with no samples returns
+the background with zero gradient.
 
 One thread per ray: every thread writes only its own ray's outputs and its own samples'
 gradients, so both kernels run through kernels.launch.launch_split on the CPU.
@@ -281,7 +281,8 @@ def composite_backward(
 
     `result` is what `composite_forward` returned for the same inputs and background; missing
     cotangents count as zero. Shapes and dtypes are checked again, the sample values are not
-    (composite_forward checked them); the cotangents are. `out`, if given, is the pair of
+    (composite_forward checked them, and stored in `result` what the backward needs of sigma);
+    the cotangents are. `out`, if given, is the pair of
     buffers (N,) and (N, 3) to write the gradients into (and is returned); every entry is written.
     """
     device = U.default_device(device)

@@ -11,5 +11,6 @@ from research.datasets.loader import (Dataset, DatasetError, FlowSequence, Stere
                                       load_stereo)
 from research.datasets.scenes import SCENES, SceneSpec, get_scene
 
-__all__ = ["CACHE_ROOT_HELP", "DatasetConfig", "cache_dir", "ensure", "generate", "provenance", "Dataset", "DatasetError",
-           "FlowSequence", "StereoPair", "load", "load_flow", "load_stereo", "SCENES", "SceneSpec", "get_scene"]
+__all__ = ["CACHE_ROOT_HELP", "DatasetConfig", "cache_dir", "ensure", "generate", "provenance", "Dataset",
+           "DatasetError", "FlowSequence", "StereoPair", "load", "load_flow", "load_stereo", "SCENES", "SceneSpec",
+           "get_scene"]
