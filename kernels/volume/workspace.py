@@ -8,7 +8,9 @@ A `Workspace` allocates each named buffer once, at the largest size asked for so
 half again when it must grow), and hands out views of its leading rows.
 
 A view is overwritten by the next request for the same name: results computed into a workspace
-live until the next call that uses it (in a training loop, until the next iteration).
+live until the next call that uses it (in a training loop, until the next iteration). Names are
+fixed by the callers ("composite.rgb", "grid.grad.density", ...), so give each pipeline (one field,
+one training loop) its own workspace.
 """
 
 from __future__ import annotations
