@@ -19,7 +19,7 @@ from research import atomic
 _PACKAGES = ("drlab", "warp-lang", "mitsuba", "drjit", "numpy", "scipy", "OpenImageIO")
 
 
-def host() -> dict[str, Any]:
+def host(cpuinfo: str | Path = "/proc/cpuinfo") -> dict[str, Any]:
     """The machine the numbers were measured on: CPU model, logical CPU count and widest SIMD.
 
     Timings depend on it. So, bit for bit, did Mitsuba's renders: with identical package versions,
@@ -29,7 +29,7 @@ def host() -> dict[str, Any]:
     """
     model, flags, ids = "", set(), {}
     try:
-        with open("/proc/cpuinfo") as f:
+        with open(cpuinfo) as f:
             for line in f:
                 key, _, value = line.partition(":")
                 if key.strip() == "model name" and not model:
