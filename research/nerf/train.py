@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass, field as dc_field
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from kernels.volume import Adam, Field, GridField, OccupancyGrid, Workspace, render_backward, render_rays
@@ -129,7 +130,20 @@ def upsample_grid(field: GridField, resolution: tuple[int, int, int]) -> GridFie
 
 def train(field: Field, bank: RayBank, bbox: np.ndarray, cfg: TrainConfig, occupancy: OccupancyGrid,
           progress: bool = True, desc: str = "train") -> TrainLog:
-    """Fit `field` to `bank` in place (module docstring); returns the loss curve and the time taken."""
+    """Fit `field` to `bank` in place (module docstring); returns the loss curve and the time taken.
+
+    NumPy's BLAS (the MLP fields' matrix products) runs on one thread while training. Its products
+    here are small (batch x 64 x 64), and OpenBLAS's threads wait for each other: beside two busy
+    processes, 150 hash-grid iterations took 311 s with its default 2 threads and 48 s with 1; on
+    an idle machine 34 s and 31 s, with the same losses. Rendering outside training keeps the
+    default, where 2 threads help the large forward products.
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _train(field, bank, bbox, cfg, occupancy, progress, desc)
+
+
+def _train(field: Field, bank: RayBank, bbox: np.ndarray, cfg: TrainConfig, occupancy: OccupancyGrid,
+           progress: bool, desc: str) -> TrainLog:
     rng = np.random.default_rng(cfg.seed)
     np_t = np.float32 if field.dtype.__name__ == "float32" else np.float64
     opt = Adam(field.params, cfg.lr, cfg.betas, cfg.adam_eps)
