@@ -48,6 +48,7 @@ import warp as wp
 
 from kernels.launch import launch_split
 from kernels.volume import _util as U
+from kernels.volume.workspace import Workspace
 
 wp.set_module_options({"enable_backward": False})
 
@@ -171,6 +172,24 @@ class CompositeResult:
     factor: wp.array
 
 
+def _result_layout(n_rays: int, n_samples: int, dtype: Any) -> dict[str, tuple[tuple[int, ...], Any]]:
+    """Shape and dtype of every CompositeResult field."""
+    return {"rgb": ((n_rays, 3), dtype), "depth": ((n_rays,), dtype), "opacity": ((n_rays,), dtype),
+            "transmittance": ((n_rays,), dtype), "n_used": ((n_rays,), wp.int32), "factor": ((n_samples,), dtype)}
+
+
+def composite_buffers(workspace: Workspace, n_rays: int, n_samples: int, dtype: Any) -> CompositeResult:
+    """`out` buffers for composite_forward: views into `workspace` (names "composite.<field>")."""
+    return CompositeResult(**{k: workspace.array(f"composite.{k}", shape, t)
+                              for k, (shape, t) in _result_layout(n_rays, n_samples, dtype).items()})
+
+
+def composite_grad_buffers(workspace: Workspace, n_samples: int, dtype: Any) -> tuple[wp.array, wp.array]:
+    """`out` buffers for composite_backward: (grad_sigma (N,), grad_rgb (N, 3)) views into `workspace`."""
+    return (workspace.array("composite.grad_sigma", (n_samples,), dtype),
+            workspace.array("composite.grad_rgb", (n_samples, 3), dtype))
+
+
 def dense_offsets(n_rays: int, n_samples: int) -> np.ndarray:
     """ray_offsets for R rays with S samples each: [0, S, 2S, ..., RS] (int32)."""
     U.check_positive_int("n_rays", n_rays)
@@ -238,24 +257,12 @@ def composite_forward(
     args = [U.to_warp("sigma", sigma, dtype, device), U.to_warp("rgb", rgb, dtype, device),
             U.to_warp("delta", delta, dtype, device), U.to_warp("z", z, dtype, device),
             U.to_int32("ray_offsets", ray_offsets, device), bg, per_ray, dtype(t_threshold)]
+    layout = _result_layout(n_rays, n, dtype)
     if out is None:
-        res = CompositeResult(
-            rgb=wp.empty((n_rays, 3), dtype=dtype, device=device),
-            depth=wp.empty(n_rays, dtype=dtype, device=device),
-            opacity=wp.empty(n_rays, dtype=dtype, device=device),
-            transmittance=wp.empty(n_rays, dtype=dtype, device=device),
-            n_used=wp.empty(n_rays, dtype=wp.int32, device=device),
-            factor=wp.empty(n, dtype=dtype, device=device),
-        )
+        res = CompositeResult(**{k: wp.empty(shape, dtype=t, device=device) for k, (shape, t) in layout.items()})
     else:
-        res = CompositeResult(
-            rgb=U.check_out("out.rgb", out.rgb, (n_rays, 3), dtype, device),
-            depth=U.check_out("out.depth", out.depth, (n_rays,), dtype, device),
-            opacity=U.check_out("out.opacity", out.opacity, (n_rays,), dtype, device),
-            transmittance=U.check_out("out.transmittance", out.transmittance, (n_rays,), dtype, device),
-            n_used=U.check_out("out.n_used", out.n_used, (n_rays,), wp.int32, device),
-            factor=U.check_out("out.factor", out.factor, (n,), dtype, device),
-        )
+        res = CompositeResult(**{k: U.check_out(f"out.{k}", getattr(out, k), shape, t, device)
+                                 for k, (shape, t) in layout.items()})
     if n_rays:
         launch_split(_composite_forward_kernel, n_rays,
                      args + [res.rgb, res.depth, res.opacity, res.transmittance, res.n_used, res.factor],
@@ -282,8 +289,8 @@ def composite_backward(
     `result` is what `composite_forward` returned for the same inputs and background; missing
     cotangents count as zero. Shapes and dtypes are checked again, the sample values are not
     (composite_forward checked them, and stored in `result` what the backward needs of sigma);
-    the cotangents are. `out`, if given, is the pair of
-    buffers (N,) and (N, 3) to write the gradients into (and is returned); every entry is written.
+    the cotangents are. `out`, if given, is the pair of buffers (N,) and (N, 3) to write the
+    gradients into (and is returned); every entry is written.
     """
     device = U.default_device(device)
     dtype, n, n_rays = _validate(sigma, rgb, delta, z, ray_offsets, device, values=False)

@@ -17,7 +17,7 @@ import numpy as np
 import warp as wp
 
 from kernels.volume import _util as U
-from kernels.volume.workspace import Workspace
+from kernels.volume.workspace import Workspace, check_workspace
 
 
 @dataclass
@@ -100,8 +100,7 @@ class Field(ABC):
         scatter that fills them)."""
         if workspace is None:
             return {k: wp.zeros(v.shape, dtype=self.dtype, device=self.device) for k, v in self.params.items()}
-        if not isinstance(workspace, Workspace) or workspace.device != self.device:
-            raise ValueError(f"workspace: expected a kernels.volume.Workspace on {self.device} (the field's)")
+        check_workspace(workspace, self.device)
         grads = {}
         for k, v in self.params.items():
             grads[k] = workspace.array(f"{self.name}.grad.{k}", tuple(v.shape), self.dtype)

@@ -26,11 +26,12 @@ import warp as wp
 from kernels.launch import launch_split
 
 from kernels.volume import _util as U
-from kernels.volume.composite import DEFAULT_T_THRESHOLD, CompositeResult, composite_backward, composite_forward
+from kernels.volume.composite import (DEFAULT_T_THRESHOLD, CompositeResult, composite_backward, composite_buffers,
+                                      composite_forward, composite_grad_buffers)
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.occupancy import OccupancyGrid
 from kernels.volume.sampling import Samples, sample_rays
-from kernels.volume.workspace import Workspace
+from kernels.volume.workspace import Workspace, check_workspace
 
 
 wp.set_module_options({"enable_backward": False})
@@ -54,23 +55,6 @@ class RenderResult:
     background: Any
 
 
-def _composite_buffers(workspace: Workspace | None, samples: Samples, dtype: Any) -> CompositeResult | None:
-    if workspace is None:
-        return None
-    n_rays = samples.ray_offsets.shape[0] - 1
-    return CompositeResult(rgb=workspace.array("composite.rgb", (n_rays, 3), dtype),
-                           depth=workspace.array("composite.depth", (n_rays,), dtype),
-                           opacity=workspace.array("composite.opacity", (n_rays,), dtype),
-                           transmittance=workspace.array("composite.transmittance", (n_rays,), dtype),
-                           n_used=workspace.array("composite.n_used", (n_rays,), wp.int32),
-                           factor=workspace.array("composite.factor", (samples.n_samples,), dtype))
-
-
-def _check_workspace(workspace: Workspace | None, field: Field) -> None:
-    if workspace is not None and (not isinstance(workspace, Workspace) or workspace.device != field.device):
-        raise ValueError(f"workspace: expected a kernels.volume.Workspace on {field.device} (the field's)")
-
-
 def render_samples(field: Field, samples: Samples, background: Any = (0.0, 0.0, 0.0),
                    t_threshold: float = DEFAULT_T_THRESHOLD, workspace: Workspace | None = None) -> RenderResult:
     """Evaluate `field` at the packed samples and composite them per ray.
@@ -79,11 +63,12 @@ def render_samples(field: Field, samples: Samples, background: Any = (0.0, 0.0, 
     """
     if samples.points.dtype != field.dtype or samples.points.device != field.device:
         raise ValueError(f"samples: expected {field.dtype} on {field.device} (the field's)")
-    _check_workspace(workspace, field)
+    check_workspace(workspace, field.device)
     out = field.forward(samples.points, samples.dirs if field.needs_dirs else None)
+    buffers = None if workspace is None else composite_buffers(workspace, samples.ray_offsets.shape[0] - 1,
+                                                                samples.n_samples, field.dtype)
     comp = composite_forward(out.sigma, out.rgb, samples.delta, samples.z, samples.ray_offsets, background,
-                             t_threshold, field.device,
-                             out=_composite_buffers(workspace, samples, field.dtype))
+                             t_threshold, field.device, out=buffers)
     return RenderResult(comp.rgb, comp.depth, comp.opacity, samples, out, comp, background)
 
 
@@ -109,7 +94,7 @@ def render_rays(
 
     `workspace` (optional) holds the compositing outputs across calls, as in render_samples.
     """
-    _check_workspace(workspace, field)
+    check_workspace(workspace, field.device)
     if U.float_dtype("origins", origins) != field.dtype:
         raise ValueError(f"origins: expected dtype {U.NP_TYPES[field.dtype].__name__} (the field's)")
     samples = sample_rays(origins, dirs, bbox, near=near, far=far, n_samples=n_samples, step=step, z_scale=z_scale,
@@ -134,12 +119,9 @@ def render_backward(field: Field, result: RenderResult, grad_rgb: U.ArrayLike | 
     """
     if not math.isfinite(sigma_l1):
         raise ValueError(f"sigma_l1: expected a finite weight, got {sigma_l1}")
-    _check_workspace(workspace, field)
+    check_workspace(workspace, field.device)
     s, out = result.samples, result.field_out
-    buffers = None
-    if workspace is not None:
-        buffers = (workspace.array("grad_sigma", (s.n_samples,), field.dtype),
-                   workspace.array("grad_sample_rgb", (s.n_samples, 3), field.dtype))
+    buffers = None if workspace is None else composite_grad_buffers(workspace, s.n_samples, field.dtype)
     g_sigma, g_rgb = composite_backward(out.sigma, out.rgb, s.delta, s.z, s.ray_offsets, result.composite,
                                         grad_rgb, grad_depth, grad_opacity, result.background, field.device,
                                         out=buffers)

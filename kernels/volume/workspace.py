@@ -42,9 +42,9 @@ class Workspace:
         if not shape or any(s < 0 for s in shape):
             raise ValueError(f"shape: expected a non-empty tuple of sizes >= 0, got {shape}")
         buf = self._buffers.get(name)
-        if buf is None or buf.dtype != dtype or tuple(buf.shape[1:]) != shape[1:] or buf.shape[0] < shape[0]:
-            rows = shape[0] if buf is None or buf.dtype != dtype or tuple(buf.shape[1:]) != shape[1:] \
-                else max(shape[0], int(np.ceil(buf.shape[0] * GROWTH)))
+        same_layout = buf is not None and buf.dtype == dtype and tuple(buf.shape[1:]) == shape[1:]
+        if not same_layout or buf.shape[0] < shape[0]:
+            rows = max(shape[0], int(np.ceil(buf.shape[0] * GROWTH))) if same_layout else shape[0]
             buf = wp.empty((max(rows, 1),) + shape[1:], dtype=dtype, device=self.device)
             self._buffers[name] = buf
         return buf[: shape[0]]
@@ -52,3 +52,9 @@ class Workspace:
     def nbytes(self) -> int:
         """Bytes held by every buffer."""
         return sum(b.capacity for b in self._buffers.values())
+
+
+def check_workspace(workspace: Any, device: wp.Device) -> None:
+    """None, or a Workspace on `device`; ValueError otherwise (before any launch)."""
+    if workspace is not None and (not isinstance(workspace, Workspace) or workspace.device != device):
+        raise ValueError(f"workspace: expected a kernels.volume.Workspace on {device}")

@@ -44,7 +44,8 @@ def _fields(device: str) -> dict:
 
 
 def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
-    from kernels.volume import CompositeResult, composite_backward, composite_forward, dense_offsets
+    from kernels.volume import Workspace, composite_backward, composite_forward, dense_offsets
+    from kernels.volume.composite import composite_buffers, composite_grad_buffers
 
     wp.init()
     dev = wp.get_device(device)
@@ -64,11 +65,10 @@ def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
     g_rgb = arr(rng.normal(size=(rays, 3)).astype(np.float32))
     g_d = arr(rng.normal(size=rays).astype(np.float32))
 
-    # Output buffers allocated once, as the training loop's Workspace does (kernels.volume.workspace).
-    res_buf = CompositeResult(arr(np.zeros((rays, 3), np.float32)), arr(np.zeros(rays, np.float32)),
-                              arr(np.zeros(rays, np.float32)), arr(np.zeros(rays, np.float32)),
-                              arr(np.zeros(rays, np.int32), wp.int32), arr(np.zeros(n, np.float32)))
-    grad_buf = (arr(np.zeros(n, np.float32)), arr(np.zeros((n, 3), np.float32)))
+    # Output buffers allocated once, as in training (kernels.volume.workspace).
+    ws = Workspace(dev)
+    res_buf = composite_buffers(ws, rays, n, wp.float32)
+    grad_buf = composite_grad_buffers(ws, n, wp.float32)
 
     def fwd(out=res_buf):
         return composite_forward(sigma, rgb, delta, z, offsets, device=dev, out=out)
