@@ -1,0 +1,400 @@
+"""The array contract every kernel family's entry points follow (host code only, no math).
+
+An entry point takes NumPy arrays or `wp.array`s and hands back the same kind. This module is
+the one place that converts, checks and sets up dtypes, so every family behaves the same way:
+
+* **Kinds and devices.** An entry point opens an `Inputs` with its `device` argument and its
+  array arguments. The device is the `device` argument when given, else the device of the first
+  `wp.array` among the arguments, else the CPU. A `wp.array` on another device is an error (no
+  silent transfers); a NumPy array is copied to the device. Outputs are NumPy arrays when the
+  first array argument (the *primary* input) is a NumPy array, else `wp.array`s on the device.
+* **Dtypes.** Float inputs are float32 or float64, all in one dtype: the first float argument
+  sets it (`Inputs.scalar`, a Warp type; `Inputs.np_dtype`, its NumPy dtype). A generic kernel
+  (arrays typed `dtype=typing.Any`) gets both overloads declared up front with
+  `declare_float_overloads`, so its module compiles once.
+* **Errors.** Every check raises `ValueError` whose message starts with the argument's name and
+  says what was expected, before any kernel is launched.
+* **Value checks** (NaN, inf, sign, ranges) read the data where it lives: on the CPU through a
+  zero-copy NumPy view, on CUDA with a reduction kernel that returns one integer (no copy of the
+  array to the host). `value_checks(False)` turns them off for a hot loop whose inputs are known
+  good (training), while shape, dtype and device checks stay on. It is a context manager and
+  applies to the calling thread (a `contextvars.ContextVar`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import math
+import typing
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+import warp as wp
+
+from kernels.launch import launch_split
+
+ArrayLike = Any  # np.ndarray | wp.array
+FLOATS = (wp.float32, wp.float64)
+WP_OF_NP = {np.dtype(np.float32): wp.float32, np.dtype(np.float64): wp.float64}
+NP_OF_WP = {wp.float32: np.dtype(np.float32), wp.float64: np.dtype(np.float64)}
+
+_VALUE_CHECKS: contextvars.ContextVar[bool] = contextvars.ContextVar("drlab_value_checks", default=True)
+
+
+# =========================================================================== the value-check switch
+
+
+@contextlib.contextmanager
+def value_checks(enabled: bool) -> Iterator[None]:
+    """Turn value checks (finiteness, signs, ranges) on or off inside a `with` block.
+
+    Shape, dtype and device checks are never turned off. Use `value_checks(False)` only around
+    loops whose inputs were checked once before (a training loop feeding its own outputs back).
+    """
+    token = _VALUE_CHECKS.set(bool(enabled))
+    try:
+        yield
+    finally:
+        _VALUE_CHECKS.reset(token)
+
+
+def values_checked() -> bool:
+    """Whether value checks are on in this context."""
+    return _VALUE_CHECKS.get()
+
+
+# =========================================================================== devices, dtypes, kernels
+
+
+def get_device(device: Any) -> wp.Device:
+    """`device` as a wp.Device (None means the CPU); ValueError naming `device` otherwise."""
+    if isinstance(device, wp.Device):
+        return device
+    try:
+        return wp.get_device("cpu" if device is None else device)
+    except (RuntimeError, ValueError, TypeError) as exc:
+        raise ValueError(f"device: cannot use {device!r} ({exc})") from None
+
+
+def is_array(x: Any) -> bool:
+    return isinstance(x, (np.ndarray, wp.array))
+
+
+def float_dtype(name: str, x: ArrayLike) -> Any:
+    """The Warp float type (float32 or float64) of the array `x`; ValueError for anything else."""
+    if isinstance(x, wp.array):
+        if x.dtype in FLOATS:
+            return x.dtype
+        raise ValueError(f"{name}: expected dtype float32 or float64, got {wp.types.type_repr(x.dtype)}")
+    dt = np.asarray(x).dtype
+    if dt in WP_OF_NP:
+        return WP_OF_NP[dt]
+    raise ValueError(f"{name}: expected dtype float32 or float64, got {dt}")
+
+
+def type_name(dtype: Any) -> str:
+    """A readable name of a Warp or NumPy dtype, for messages."""
+    if dtype in NP_OF_WP:
+        return NP_OF_WP[dtype].name
+    try:
+        return np.dtype(dtype).name
+    except TypeError:
+        return wp.types.type_repr(dtype)
+
+
+def declare_float_overloads(kernel: Any, vector_types: dict[Any, Any] | None = None,
+                            vector_suffix: str = "_v") -> None:
+    """Declare a generic kernel's float32 and float64 overloads up front.
+
+    Every `typing.Any` array argument becomes an array of the scalar type and every `typing.Any`
+    scalar argument the scalar type. With `vector_types` ({scalar: vector type}), array arguments
+    whose name ends in `vector_suffix` hold that vector type instead. Warp rebuilds a module each
+    time a launch meets a new overload, so declaring both here makes the module compile once.
+    """
+    for scalar in FLOATS:
+        types: dict[str, Any] = {}
+        for arg in kernel.adj.args:
+            if wp.types.is_array(arg.type) and arg.type.dtype is typing.Any:
+                dtype = scalar
+                if vector_types is not None and arg.label.endswith(vector_suffix):
+                    dtype = vector_types[scalar]
+                types[arg.label] = wp.array(dtype=dtype, ndim=arg.type.ndim)
+            elif arg.type is typing.Any:
+                types[arg.label] = scalar
+        wp.overload(kernel, types)
+
+
+# =========================================================================== value checks on the device
+
+
+@wp.kernel(enable_backward=False)
+def _count_nonfinite(x: wp.array(dtype=typing.Any), count: wp.array(dtype=wp.int32)):
+    # One launch on a CUDA device, where atomics are atomic (never split across CPU threads).
+    if not wp.isfinite(x[wp.tid()]):
+        wp.atomic_add(count, 0, 1)
+
+
+@wp.kernel(enable_backward=False)
+def _count_below(x: wp.array(dtype=typing.Any), bound: float, count: wp.array(dtype=wp.int32)):
+    v = x[wp.tid()]
+    if not (v >= x.dtype(bound)):  # NaN counts too
+        wp.atomic_add(count, 0, 1)
+
+
+declare_float_overloads(_count_nonfinite)
+declare_float_overloads(_count_below)
+
+
+def _host_view(x: ArrayLike) -> np.ndarray | None:
+    """A zero-copy NumPy view of a host array, or None for an array on a CUDA device."""
+    if isinstance(x, wp.array):
+        return x.numpy() if x.device.is_cpu else None
+    return np.asarray(x)
+
+
+def _device_count(kernel: Any, x: wp.array, *extra: Any) -> int:
+    count = wp.zeros(1, dtype=wp.int32, device=x.device)
+    flat = x.flatten() if x.is_contiguous else wp.clone(x).flatten()
+    wp.launch(kernel, dim=flat.size, inputs=[flat, *extra, count], device=x.device)
+    return int(count.numpy()[0])
+
+
+def all_finite(x: ArrayLike) -> bool:
+    """Whether every element of the float array `x` is finite, computed where `x` lives.
+
+    On the host the dot product x . x is NaN or infinite if any element is; it can also overflow
+    for huge finite values, and only then is every element tested (one pass, no temporary: half
+    the time of np.isfinite(x).all() on large arrays).
+    """
+    h = _host_view(x)
+    if h is None:
+        return x.size == 0 or _device_count(_count_nonfinite, x) == 0
+    flat = h.reshape(-1)
+    if flat.dtype.kind != "f":
+        return True
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow or NaN is the answer, not a problem
+        if flat.size == 0 or np.isfinite(np.dot(flat, flat)):
+            return True
+    return bool(np.isfinite(flat).all())
+
+
+def check_finite(name: str, x: ArrayLike) -> None:
+    """ValueError naming `name` if `x` holds NaN or inf (skipped while value checks are off)."""
+    if values_checked() and not all_finite(x):
+        raise ValueError(f"{name}: expected finite values, found NaN or infinite entries")
+
+
+def check_at_least(name: str, x: ArrayLike, bound: float = 0.0) -> None:
+    """ValueError naming `name` unless every value is finite and >= `bound` (skipped while off)."""
+    if not values_checked() or x.size == 0:
+        return
+    h = _host_view(x)
+    if h is None:
+        if _device_count(_count_below, x, float(bound)) or not all_finite(x):
+            raise ValueError(f"{name}: expected finite values >= {bound:g}")
+        return
+    lo = h.min()  # NaN anywhere makes the minimum NaN
+    if np.isnan(lo):
+        raise ValueError(f"{name}: expected finite values >= {bound:g}, found NaN")
+    if lo < bound:
+        raise ValueError(f"{name}: expected values >= {bound:g}, got a minimum of {lo:.6g}")
+    if not all_finite(h):
+        raise ValueError(f"{name}: expected finite values >= {bound:g}, found inf")
+
+
+# =========================================================================== shapes and scalars
+
+
+def shape_text(shape: Sequence[Any]) -> str:
+    """(N, 3) for (None, 3): None (or a string) stands for a size the caller does not fix."""
+    parts = ["N" if s is None else str(s) for s in shape]
+    return "(" + ", ".join(parts) + ("," if len(parts) == 1 else "") + ")"
+
+
+def check_shape(name: str, x: ArrayLike, shape: Sequence[Any]) -> tuple[int, ...]:
+    """ValueError naming `name` unless x.shape matches `shape` (None entries match any size)."""
+    got = tuple(int(s) for s in x.shape)
+    if len(got) != len(shape) or any(s is not None and s != g for s, g in zip(shape, got)):
+        raise ValueError(f"{name}: expected shape {shape_text(shape)}, got {got}")
+    return got
+
+
+def check_int(name: str, v: Any, minimum: int | None = None, maximum: int | None = None) -> int:
+    """An integer (not a bool) within [minimum, maximum]; ValueError naming `name` otherwise."""
+    ok = not isinstance(v, bool) and isinstance(v, (int, np.integer))
+    if ok and minimum is not None and v < minimum:
+        ok = False
+    if ok and maximum is not None and v > maximum:
+        ok = False
+    if not ok:
+        if minimum is not None and maximum is not None:
+            want = f"an integer in [{minimum}, {maximum}]"
+        elif minimum is not None:
+            want = f"an integer >= {minimum}"
+        elif maximum is not None:
+            want = f"an integer <= {maximum}"
+        else:
+            want = "an integer"
+        raise ValueError(f"{name}: expected {want}, got {v!r}")
+    return int(v)
+
+
+def check_float(name: str, v: Any, *, positive: bool = False, nonnegative: bool = False) -> float:
+    """A finite real number (positive or non-negative when asked); ValueError naming `name`."""
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number, got {v!r}") from None
+    if isinstance(v, bool) or not math.isfinite(f) or (positive and not f > 0) or (nonnegative and not f >= 0):
+        need = "a positive finite" if positive else ("a finite non-negative" if nonnegative else "a finite")
+        raise ValueError(f"{name}: expected {need} number, got {v!r}")
+    return f
+
+
+def check_out(name: str, x: Any, shape: Sequence[int], dtype: Any, device: wp.Device) -> wp.array:
+    """A caller-supplied output buffer: a contiguous wp.array of exactly `shape` and `dtype` on `device`."""
+    if not isinstance(x, wp.array):
+        raise ValueError(f"{name}: expected a wp.array output buffer, got {type(x).__name__}")
+    if tuple(x.shape) != tuple(shape) or x.dtype != dtype:
+        raise ValueError(f"{name}: expected an output buffer of shape {tuple(shape)} and dtype "
+                         f"{type_name(dtype)}, got shape {tuple(x.shape)} and dtype {type_name(x.dtype)}")
+    if x.device != device:
+        raise ValueError(f"{name}: expected an array on device {device}, got one on {x.device}")
+    if not x.is_contiguous:
+        raise ValueError(f"{name}: expected a contiguous array")
+    return x
+
+
+# =========================================================================== one entry point's inputs
+
+
+class Inputs:
+    """The inputs of one entry-point call: their device, float dtype and array kind.
+
+    `Inputs(device, *arrays)` resolves the device (the `device` argument, else the first
+    wp.array's, else the CPU) and the output kind (that of the first array); then `floats`,
+    `ints` and `mask` check and convert each argument, and `out` hands results back.
+    """
+
+    def __init__(self, device: Any = None, *arrays: Any):
+        candidates = [a for a in arrays if is_array(a)]
+        if device is None:
+            on_device = [a for a in candidates if isinstance(a, wp.array)]
+            self.device = on_device[0].device if on_device else wp.get_device("cpu")
+        else:
+            self.device = get_device(device)
+        self.as_numpy = not candidates or isinstance(candidates[0], np.ndarray)
+        self.scalar: Any = None  # set by the first float argument
+
+    # ------------------------------------------------------------------- properties
+
+    @property
+    def np_dtype(self) -> np.dtype:
+        return NP_OF_WP[self.scalar]
+
+    def s(self, value: float) -> Any:
+        """`value` as the scalar type (a Python float passed to a kernel would be float32)."""
+        return self.scalar(value)
+
+    # ------------------------------------------------------------------- arguments
+
+    def _array(self, name: str, x: Any) -> None:
+        if not is_array(x):
+            raise ValueError(f"{name}: expected a NumPy array or a wp.array, got {type(x).__name__}")
+        if isinstance(x, wp.array):
+            if x.device != self.device:
+                raise ValueError(f"{name}: expected an array on device {self.device}, got one on {x.device}")
+            if not x.is_contiguous:
+                raise ValueError(f"{name}: expected a contiguous wp.array")
+
+    def floats(self, name: str, x: Any, shape: Sequence[Any] | None = None, *, ndim: int | None = None,
+               finite: bool = True, nonempty: bool = False) -> wp.array:
+        """A float argument as a wp.array of the call's scalar type on the call's device.
+
+        The first float argument sets the scalar type; later ones must match it. `shape` entries
+        of None match any size; `ndim` checks only the number of dimensions. `finite` checks for
+        NaN and inf (while value checks are on); `nonempty` rejects a zero-sized array.
+        """
+        self._array(name, x)
+        dtype = float_dtype(name, x)
+        if self.scalar is None:
+            self.scalar = dtype
+        elif dtype != self.scalar:
+            raise ValueError(f"{name}: expected dtype {type_name(self.scalar)} like the other inputs, "
+                             f"got {type_name(dtype)}")
+        if shape is not None:
+            check_shape(name, x, shape)
+        if ndim is not None and len(x.shape) != ndim:
+            raise ValueError(f"{name}: expected {ndim} dimensions, got shape {tuple(x.shape)}")
+        if nonempty and (len(x.shape) == 0 or min(x.shape) == 0):
+            raise ValueError(f"{name}: expected a non-empty array, got shape {tuple(x.shape)}")
+        if finite:
+            check_finite(name, x)
+        if isinstance(x, wp.array):
+            return x
+        return wp.array(np.ascontiguousarray(x), dtype=dtype, device=self.device)
+
+    def ints(self, name: str, x: Any, shape: Sequence[Any] | None = None, *, minimum: int | None = None) -> wp.array:
+        """An integer argument as an int32 wp.array (NumPy integers must fit in int32)."""
+        self._array(name, x)
+        if isinstance(x, wp.array):
+            if x.dtype != wp.int32:
+                raise ValueError(f"{name}: expected dtype int32, got {type_name(x.dtype)}")
+            arr = x
+        else:
+            h = np.asarray(x)
+            if not np.issubdtype(h.dtype, np.integer):
+                raise ValueError(f"{name}: expected an integer array, got dtype {h.dtype}")
+            if h.size and (h.min() < np.iinfo(np.int32).min or h.max() > np.iinfo(np.int32).max):
+                raise ValueError(f"{name}: expected values that fit in int32")
+            arr = None
+        if shape is not None:
+            check_shape(name, x, shape)
+        if minimum is not None and values_checked() and x.size:
+            h = _host_view(x)
+            low = int(h.min()) if h is not None else int(np.min(x.numpy()))
+            if low < minimum:
+                raise ValueError(f"{name}: expected values >= {minimum}, got a minimum of {low}")
+        if arr is None:
+            arr = wp.array(np.ascontiguousarray(x, dtype=np.int32), dtype=wp.int32, device=self.device)
+        return arr
+
+    def mask(self, name: str, m: Any, shape: Sequence[Any]) -> wp.array:
+        """A validity mask (bool or uint8 NumPy, uint8 wp.array) of `shape`, as a uint8 wp.array."""
+        self._array(name, m)
+        check_shape(name, m, shape)
+        if isinstance(m, wp.array):
+            if m.dtype != wp.uint8:
+                raise ValueError(f"{name}: expected dtype uint8, got {type_name(m.dtype)}")
+            return m
+        if m.dtype not in (np.bool_, np.uint8):
+            raise ValueError(f"{name}: expected dtype bool or uint8, got {m.dtype}")
+        return wp.array(np.ascontiguousarray(m, dtype=np.uint8), dtype=wp.uint8, device=self.device)
+
+    # ------------------------------------------------------------------- allocation and results
+
+    def zeros(self, shape: Any, dtype: Any = None) -> wp.array:
+        return wp.zeros(shape, dtype=dtype or self.scalar, device=self.device)
+
+    def empty(self, shape: Any, dtype: Any = None) -> wp.array:
+        """An array the caller overwrites entirely."""
+        return wp.empty(shape, dtype=dtype or self.scalar, device=self.device)
+
+    def out(self, x: wp.array) -> ArrayLike:
+        """A result in the primary input's kind: NumPy (a host copy) or the wp.array itself."""
+        return x.numpy() if self.as_numpy else x
+
+    def out_mask(self, m: wp.array) -> ArrayLike:
+        """A uint8 mask result: bool NumPy, or the uint8 wp.array itself."""
+        return m.numpy().astype(bool) if self.as_numpy else m
+
+    def launch(self, kernel: Any, dim: int, inputs: list[Any], min_chunk: int | None = None,
+               threads: int | None = None) -> None:
+        """Launch a split-launch kernel (last parameter `offset`) over `dim` threads; no-op when dim = 0."""
+        if dim <= 0:
+            return
+        kwargs: dict[str, Any] = {"device": self.device, "threads": threads}
+        if min_chunk is not None:
+            kwargs["min_chunk"] = min_chunk
+        launch_split(kernel, dim, inputs, **kwargs)
