@@ -1,0 +1,65 @@
+"""kernels.optim.Adam against a plain NumPy Adam (PyTorch's update), and its bad-input errors."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from kernels.optim import Adam
+
+
+def numpy_adam(p, grads, lr, b1=0.9, b2=0.999, eps=1e-8):
+    m = np.zeros_like(p)
+    v = np.zeros_like(p)
+    for t, g in enumerate(grads, start=1):
+        m = b1 * m + (1 - b1) * g
+        v = b2 * v + (1 - b2) * g * g
+        p = p - lr * (m / (1 - b1**t)) / (np.sqrt(v / (1 - b2**t)) + eps)
+    return p
+
+
+# The float32 tolerance covers float32 rounding of five steps (the reference runs in float32 too).
+@pytest.mark.parametrize("dtype, rtol, atol", [(np.float64, 1e-12, 1e-14), (np.float32, 1e-5, 1e-6)])
+@pytest.mark.parametrize("kind", ["numpy", "warp"])
+def test_adam_matches_numpy(dtype, rtol, atol, kind):
+    rng = np.random.default_rng(0)
+    p0 = rng.normal(size=(300, 3)).astype(dtype)
+    grads = [rng.normal(size=p0.shape).astype(dtype) for _ in range(5)]
+    p = p0.copy() if kind == "numpy" else wp.array(p0, device="cpu")
+    opt = Adam({"x": p}, lr=0.01)
+    for g in grads:
+        opt.step({"x": g if kind == "numpy" else wp.array(g, device="cpu")})
+    got = p if kind == "numpy" else p.numpy()
+    np.testing.assert_allclose(got, numpy_adam(p0, grads, 0.01), rtol=rtol, atol=atol)
+    assert opt.t == {"x": 5}
+
+
+def test_select_append_reset_and_per_group_steps():
+    rng = np.random.default_rng(1)
+    params = {"a": rng.normal(size=(4, 2)), "b": rng.normal(size=4)}
+    opt = Adam(params, lr={"a": 0.1, "b": 0.2})
+    opt.step({"a": np.ones((4, 2)), "b": np.ones(4)})
+    keep = np.array([True, False, True, True])
+    opt.select(keep)
+    opt.append(2)
+    assert opt.m["a"].shape == (5, 2) and np.all(opt.m["a"][3:] == 0) and np.all(opt.m["a"][:3] != 0)
+    new = {"a": np.zeros((5, 2)), "b": np.zeros(5)}
+    opt.step({"a": np.ones((5, 2)), "b": np.ones(5)}, params=new)
+    assert opt.params["a"] is new["a"] and opt.t == {"a": 2, "b": 2}
+    opt.reset("b")
+    assert not opt.v["b"].any()
+
+
+def test_bad_inputs_name_the_argument():
+    p = np.zeros(3)
+    with pytest.raises(ValueError, match="lr\\['x'\\]: expected a finite non-negative number"):
+        Adam({"x": p}, lr=-1.0)
+    with pytest.raises(ValueError, match="betas"):
+        Adam({"x": p}, betas=(1.0, 0.9))
+    opt = Adam({"x": p})
+    with pytest.raises(ValueError, match="grads: missing gradients for \\['x'\\]"):
+        opt.step({})
+    with pytest.raises(ValueError, match="grads\\['x'\\]: expected shape \\(3,\\)"):
+        opt.step({"x": np.zeros(4)})
+    with pytest.raises(ValueError, match="grads\\['x'\\]: expected dtype float64"):
+        opt.step({"x": np.zeros(3, np.float32)})
+    assert opt.t == {"x": 0} and not p.any()  # nothing was updated
