@@ -1,6 +1,49 @@
-"""Stereo matching on rectified pairs (the whole family in kernels/stereo/costs.py until it is split by stage)."""
+"""Stereo matching on rectified pairs: cost volumes, semi-global aggregation, disparity and depth.
 
-from kernels.stereo.costs import (CENSUS_MAX_BITS, SGM_AXES, SGM_DIRECTIONS, SGM_LANES, census_cost,
-                                  census_transform, depth_from_disparity, feature_correlation,
-                                  feature_correlation_backward, left_right_check, sad_cost, sgm, soft_argmin,
-                                  soft_argmin_backward, wta, wta_right, zncc_cost)
+Conventions
+-----------
+Images are single-channel (H, W) float32 or float64 arrays (convert colour first); row 0 is the
+top. The pair is rectified: the left pixel (x, y) with disparity d matches the right pixel
+(x - d, y). A disparity range [dmin, dmax) gives D = dmax - dmin hypotheses d_k = dmin + k, and
+every cost volume is (H, W, D) with the hypotheses contiguous:
+
+    C(x, y, k) = cost of matching I_L(x, y) with I_R(x - d_k, y),   lower = better,
+
+except for the feature correlation (a similarity). A cell is *in range* when its right pixel
+exists, 0 <= x - d_k < W; out-of-range cells hold a fixed cost no real match can beat.
+
+Stages, one module each
+-----------------------
+* `costs`: SAD and ZNCC over a window (O(1) per cell from running sums), census + Hamming
+  distance, and the feature correlation <F_L(x, y), F_R(x - d_k, y)> / sqrt(C) with its backward.
+* `sgm`: semi-global matching (Hirschmueller, PAMI 2008), S(p, k) = sum_r L_r(p, k) over 4 or 8
+  path directions r, L_r penalising disparity steps by P1 (one step) and P2 (more).
+* `disparity`: winner-take-all with a sub-pixel parabola and a uniqueness test, the right view's
+  winner from the same volume, soft-argmin d = sum_k d_k softmax_k(-C / T) with its backward, the
+  left-right consistency check, and depth Z = f b / d.
+
+Every module opens with the math it implements.
+
+Arrays
+------
+Entry points follow the array contract of kernels._arrays: NumPy arrays or wp.arrays in (they may
+be mixed; NumPy ones are copied to the device), results in the kind of the first array argument
+(masks as bool NumPy, or uint8 wp.arrays), on the `device` argument, else the first wp.array's
+device, else the CPU. Every bad argument (mismatched shapes, mixed float dtypes, a disparity
+range that is empty or wider than the image, non-finite pixels or costs, a wrong device) raises a
+ValueError naming it before any kernel runs. The backward entry points return a dict from the
+forward's argument name to its gradient.
+"""
+
+from kernels.stereo.costs import (CENSUS_MAX_BITS, census_cost, census_transform, feature_correlation,
+                                  feature_correlation_backward, sad_cost, zncc_cost)
+from kernels.stereo.disparity import (depth_from_disparity, left_right_check, soft_argmin, soft_argmin_backward,
+                                      wta, wta_right)
+from kernels.stereo.sgm import SGM_AXES, SGM_DIRECTIONS, SGM_LANES, sgm
+
+__all__ = [
+    "CENSUS_MAX_BITS", "SGM_AXES", "SGM_DIRECTIONS", "SGM_LANES",
+    "sad_cost", "zncc_cost", "census_transform", "census_cost", "feature_correlation", "feature_correlation_backward",
+    "sgm",
+    "wta", "wta_right", "soft_argmin", "soft_argmin_backward", "left_right_check", "depth_from_disparity",
+]

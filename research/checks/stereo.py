@@ -27,8 +27,7 @@ def check_feature_correlation(seed: int, shape: tuple[int, int, int] = (4, 3, 7)
         return stereo.feature_correlation(feat_left, feat_right, dmin, dmax)
 
     def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
-        dfl, dfr = stereo.feature_correlation_backward(x["feat_left"], x["feat_right"], cot, dmin)
-        return {"feat_left": dfl, "feat_right": dfr}
+        return stereo.feature_correlation_backward(x["feat_left"], x["feat_right"], cot, dmin)
 
     return check_vjp(f, vjp, inputs, seed=seed, name="stereo.feature_correlation")
 
@@ -43,7 +42,7 @@ def check_soft_argmin(seed: int, shape: tuple[int, int, int] = (3, 6, 5), dmin: 
         return stereo.soft_argmin(cost, dmin, temperature)
 
     def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
-        return {"cost": stereo.soft_argmin_backward(x["cost"], dmin, cot, temperature)}
+        return stereo.soft_argmin_backward(x["cost"], dmin, cot, temperature)
 
     return check_vjp(f, vjp, inputs, seed=seed, name="stereo.soft_argmin")
 

@@ -1,7 +1,7 @@
-"""kernels.stereo against plain NumPy references, finite-difference checks, and bad input.
+"""kernels.stereo against the NumPy references of kernels.reference.stereo, finite-difference checks, and bad input.
 
-The references below loop pixel by pixel and window cell by window cell, written
-for clarity rather than speed, so the sizes are small.
+The references loop pixel by pixel and window cell by window cell, written for clarity rather
+than speed, so the sizes are small.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ import pytest
 import warp as wp
 
 from kernels import stereo
+from kernels.reference import stereo as ref
 from research.checks.stereo import check_feature_correlation, check_soft_argmin
 from research.gradcheck import assert_gradcheck
 
@@ -28,163 +29,6 @@ def _images(seed: int, shape=(9, 13), dtype=np.float64):
     return left.astype(dtype), right.astype(dtype)
 
 
-# =========================================================================== NumPy references
-
-
-def _window_cells(H, W, x, y, d, r):
-    """Left cells (u, v) of the window around (x, y), cut to the image and to columns whose match exists."""
-    return [(u, v) for v in range(max(0, y - r), min(H - 1, y + r) + 1)
-            for u in range(max(0, x - r), min(W - 1, x + r) + 1) if 0 <= u - d < W]
-
-
-def ref_sad(L, R, dmin, dmax, r):
-    H, W = L.shape
-    invalid = max(L.max(), R.max()) - min(L.min(), R.min())
-    out = np.full((H, W, dmax - dmin), invalid, dtype=np.float64)
-    for y in range(H):
-        for x in range(W):
-            for k, d in enumerate(range(dmin, dmax)):
-                if 0 <= x - d < W:
-                    cells = _window_cells(H, W, x, y, d, r)
-                    out[y, x, k] = np.mean([abs(float(L[v, u]) - float(R[v, u - d])) for u, v in cells])
-    return out
-
-
-def ref_zncc(L, R, dmin, dmax, r, eps):
-    H, W = L.shape
-    out = np.full((H, W, dmax - dmin), 2.0)
-    for y in range(H):
-        for x in range(W):
-            for k, d in enumerate(range(dmin, dmax)):
-                if 0 <= x - d < W:
-                    cells = _window_cells(H, W, x, y, d, r)
-                    lv = np.array([L[v, u] for u, v in cells], dtype=np.float64)
-                    rv = np.array([R[v, u - d] for u, v in cells], dtype=np.float64)
-                    cov = np.mean((lv - lv.mean()) * (rv - rv.mean()))
-                    out[y, x, k] = 1.0 - cov / np.sqrt((lv.var() + eps) * (rv.var() + eps))
-    return out
-
-
-def ref_census(img, ry, rx):
-    H, W = img.shape
-    out = np.zeros((H, W), dtype=np.uint64)
-    for y in range(H):
-        for x in range(W):
-            bits = 0
-            for dy in range(-ry, ry + 1):
-                for dx in range(-rx, rx + 1):
-                    if dy or dx:
-                        q = img[min(max(y + dy, 0), H - 1), min(max(x + dx, 0), W - 1)]
-                        bits = (bits << 1) | int(q < img[y, x])
-            out[y, x] = bits
-    return out
-
-
-def ref_census_cost(L, R, dmin, dmax, ry, rx):
-    cl, cr = ref_census(L, ry, rx), ref_census(R, ry, rx)
-    H, W = L.shape
-    nbits = (2 * ry + 1) * (2 * rx + 1) - 1
-    out = np.full((H, W, dmax - dmin), float(nbits))
-    for y in range(H):
-        for x in range(W):
-            for k, d in enumerate(range(dmin, dmax)):
-                if 0 <= x - d < W:
-                    out[y, x, k] = bin(int(cl[y, x]) ^ int(cr[y, x - d])).count("1")
-    return out
-
-
-def ref_correlation(FL, FR, dmin, dmax):
-    C, H, W = FL.shape
-    out = np.zeros((H, W, dmax - dmin))
-    for y in range(H):
-        for x in range(W):
-            for k, d in enumerate(range(dmin, dmax)):
-                if 0 <= x - d < W:
-                    out[y, x, k] = np.dot(FL[:, y, x].astype(np.float64), FR[:, y, x - d]) / np.sqrt(C)
-    return out
-
-
-def ref_sgm(C, p1, p2, paths):
-    C = C.astype(np.float64)
-    H, W, D = C.shape
-    S = np.zeros_like(C)
-    for dy, dx in stereo.SGM_DIRECTIONS[:paths]:
-        Lr = np.zeros_like(C)
-        # Visit pixels so that the predecessor p - r is always done first.
-        for y in (range(H) if dy >= 0 else range(H - 1, -1, -1)):
-            for x in (range(W) if dx >= 0 else range(W - 1, -1, -1)):
-                py, px = y - dy, x - dx
-                if not (0 <= py < H and 0 <= px < W):
-                    Lr[y, x] = C[y, x]
-                    continue
-                prev = Lr[py, px]
-                m = prev.min()
-                candidates = np.stack([prev,
-                                       np.concatenate([[np.inf], prev[:-1]]) + p1,
-                                       np.concatenate([prev[1:], [np.inf]]) + p1,
-                                       np.full(D, m + p2)])
-                Lr[y, x] = C[y, x] + candidates.min(axis=0) - m
-        S += Lr
-    return S
-
-
-def ref_parabola(cm, c0, cp):
-    denom = cm - 2 * c0 + cp
-    return (cm - cp) / (2 * denom) if denom > 0 else 0.0
-
-
-def ref_wta(C, dmin, uniqueness=0.0, subpixel=True):
-    H, W, D = C.shape
-    disp = np.zeros((H, W))
-    valid = np.zeros((H, W), dtype=bool)
-    for y in range(H):
-        for x in range(W):
-            c = C[y, x].astype(np.float64)
-            k = int(np.argmin(c))  # the first minimum
-            ok = 0 <= x - (dmin + k) < W
-            if uniqueness > 0:
-                others = [j for j in range(D) if abs(j - k) > 1]
-                ok = ok and not any(c[j] * (1 - uniqueness) < c[k] for j in others)
-            disp[y, x] = dmin + k + (ref_parabola(c[k - 1], c[k], c[k + 1]) if subpixel and 0 < k < D - 1 else 0.0)
-            valid[y, x] = ok
-    return disp, valid
-
-
-def ref_wta_right(C, dmin):
-    H, W, D = C.shape
-    disp = np.zeros((H, W))
-    valid = np.zeros((H, W), dtype=bool)
-    for y in range(H):
-        for xr in range(W):
-            costs = {k: float(C[y, xr + dmin + k, k]) for k in range(D) if 0 <= xr + dmin + k < W}
-            if not costs:
-                continue
-            k = min(costs, key=lambda j: (costs[j], j))
-            d = dmin + k
-            if 0 < k < D - 1 and (k - 1) in costs and (k + 1) in costs:
-                d += ref_parabola(costs[k - 1], costs[k], costs[k + 1])
-            disp[y, xr], valid[y, xr] = d, True
-    return disp, valid
-
-
-def ref_soft_argmin(C, dmin, T):
-    C = C.astype(np.float64)
-    e = np.exp(-(C - C.min(axis=2, keepdims=True)) / T)
-    p = e / e.sum(axis=2, keepdims=True)
-    return (p * (dmin + np.arange(C.shape[2]))).sum(axis=2)
-
-
-def ref_lr_check(dl, dr, max_diff, vl, vr):
-    H, W = dl.shape
-    out = np.zeros((H, W), dtype=bool)
-    for y in range(H):
-        for x in range(W):
-            xr = int(np.floor(x - float(dl[y, x]) + 0.5))
-            out[y, x] = bool(vl[y, x] and 0 <= xr < W and vr[y, xr]
-                             and abs(float(dl[y, x]) - float(dr[y, xr])) <= max_diff)
-    return out
-
-
 # =========================================================================== forward checks
 
 
@@ -194,7 +38,7 @@ def test_sad_matches_reference(dtype, seed, drange, radius):
     L, R = _images(seed, dtype=dtype)
     got = stereo.sad_cost(L, R, *drange, radius)
     assert got.dtype == dtype and got.shape == (9, 13, drange[1] - drange[0])
-    np.testing.assert_allclose(got, ref_sad(L, R, *drange, radius), rtol=RTOL[dtype], atol=1e-12)
+    np.testing.assert_allclose(got, ref.sad_cost(L, R, *drange, radius), rtol=RTOL[dtype], atol=1e-12)
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -203,7 +47,7 @@ def test_zncc_matches_reference(dtype, seed, drange, radius):
     L, R = _images(seed, dtype=dtype)
     got = stereo.zncc_cost(L, R, *drange, radius, eps=1e-4)
     # ZNCC divides small differences of window sums: float32 inputs rounded once keep ~1e-5 relative.
-    np.testing.assert_allclose(got, ref_zncc(L, R, *drange, radius, 1e-4), rtol=RTOL[dtype], atol=1e-6)
+    np.testing.assert_allclose(got, ref.zncc_cost(L, R, *drange, radius, 1e-4), rtol=RTOL[dtype], atol=1e-6)
 
 
 @pytest.mark.parametrize("cost", ["sad", "zncc", "census"])
@@ -230,10 +74,10 @@ def test_zncc_flat_window_is_finite():
 @pytest.mark.parametrize("seed,drange,radii", [(0, (0, 5), (1, 2)), (1, (-2, 6), (3, 4))])
 def test_census_matches_reference(dtype, seed, drange, radii):
     L, R = _images(seed, dtype=dtype)
-    np.testing.assert_array_equal(stereo.census_transform(L, *radii), ref_census(L, *radii))
+    np.testing.assert_array_equal(stereo.census_transform(L, *radii), ref.census_transform(L, *radii))
     got = stereo.census_cost(L, R, *drange, *radii)
     assert got.dtype == dtype
-    np.testing.assert_array_equal(got, ref_census_cost(L, R, *drange, *radii))
+    np.testing.assert_array_equal(got, ref.census_cost(L, R, *drange, *radii))
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -242,7 +86,7 @@ def test_correlation_matches_reference(dtype, seed, drange):
     rng = np.random.default_rng(seed)
     FL, FR = (rng.standard_normal((6, 4, 10)).astype(dtype) for _ in range(2))
     got = stereo.feature_correlation(FL, FR, *drange)
-    np.testing.assert_allclose(got, ref_correlation(FL, FR, *drange), rtol=RTOL[dtype], atol=1e-6)
+    np.testing.assert_allclose(got, ref.feature_correlation(FL, FR, *drange), rtol=RTOL[dtype], atol=1e-6)
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -252,7 +96,7 @@ def test_sgm_matches_reference(dtype, paths, seed):
     rng = np.random.default_rng(seed)
     C = rng.uniform(0.0, 4.0, (6, 8, 5)).astype(dtype)
     got = stereo.sgm(C, 0.5, 2.0, paths)
-    np.testing.assert_allclose(got, ref_sgm(C, 0.5, 2.0, paths), rtol=SGM_RTOL[dtype])
+    np.testing.assert_allclose(got, ref.sgm(C, 0.5, 2.0, paths), rtol=SGM_RTOL[dtype])
 
 
 def test_sgm_single_path_edge_cases():
@@ -262,7 +106,7 @@ def test_sgm_single_path_edge_cases():
     # One row, one column and a single hypothesis all work.
     for shape in [(1, 6, 2), (6, 1, 1), (1, 1, 1)]:
         C = np.random.default_rng(4).uniform(0.0, 1.0, shape)
-        np.testing.assert_allclose(stereo.sgm(C, 0.2, 0.9, 8), ref_sgm(C, 0.2, 0.9, 8), rtol=1e-12)
+        np.testing.assert_allclose(stereo.sgm(C, 0.2, 0.9, 8), ref.sgm(C, 0.2, 0.9, 8), rtol=1e-12)
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -270,7 +114,7 @@ def test_sgm_single_path_edge_cases():
 def test_wta_matches_reference(dtype, dmin, uniqueness):
     C = np.random.default_rng(5).uniform(0.0, 3.0, (5, 9, 6)).astype(dtype)
     disp, valid = stereo.wta(C, dmin, uniqueness=uniqueness)
-    rdisp, rvalid = ref_wta(C, dmin, uniqueness)
+    rdisp, rvalid = ref.wta(C, dmin, uniqueness)
     np.testing.assert_allclose(disp, rdisp, rtol=RTOL[dtype], atol=1e-6)
     np.testing.assert_array_equal(valid, rvalid)
     assert valid.dtype == bool and not valid.all()
@@ -290,7 +134,7 @@ def test_wta_subpixel_recovers_parabola_vertex():
 def test_wta_right_matches_reference(dtype, dmin):
     C = np.random.default_rng(6).uniform(0.0, 3.0, (4, 9, 5)).astype(dtype)
     disp, valid = stereo.wta_right(C, dmin)
-    rdisp, rvalid = ref_wta_right(C, dmin)
+    rdisp, rvalid = ref.wta_right(C, dmin)
     np.testing.assert_array_equal(valid, rvalid)
     np.testing.assert_allclose(disp[valid], rdisp[rvalid], rtol=RTOL[dtype], atol=1e-6)
 
@@ -312,7 +156,7 @@ def test_wta_left_and_right_agree_on_a_shifted_pair():
 def test_soft_argmin_matches_reference(dtype, temperature):
     C = np.random.default_rng(8).uniform(0.0, 5.0, (4, 7, 6)).astype(dtype)
     got = stereo.soft_argmin(C, -1, temperature)
-    np.testing.assert_allclose(got, ref_soft_argmin(C, -1, temperature), rtol=RTOL[dtype], atol=1e-6)
+    np.testing.assert_allclose(got, ref.soft_argmin(C, -1, temperature), rtol=RTOL[dtype], atol=1e-6)
 
 
 def test_soft_argmin_is_stable_for_large_costs():
@@ -329,7 +173,7 @@ def test_left_right_check_matches_reference(dtype):
     dr = (dl + rng.choice([0.0, 0.3, 2.0], dl.shape)).astype(dtype)
     vl, vr = rng.random(dl.shape) > 0.2, rng.random(dl.shape) > 0.2
     got = stereo.left_right_check(dl, dr, 0.5, valid_left=vl, valid_right=vr)
-    expected = ref_lr_check(dl, dr, 0.5, vl, vr)
+    expected = ref.left_right_check(dl, dr, 0.5, vl, vr)
     np.testing.assert_array_equal(got, expected)
     assert 0 < expected.sum() < expected.size
 
@@ -344,9 +188,13 @@ def test_depth_from_disparity(dtype):
     np.testing.assert_array_equal(ok, expected_ok)
     assert np.all(np.isfinite(depth)) and np.all(depth[~ok] == 0)
     np.testing.assert_allclose(depth[ok], 20.0 / d[ok].astype(np.float64), rtol=RTOL[dtype])
+    rdepth, rok = ref.depth_from_disparity(d, 100.0, 0.2, valid)
+    np.testing.assert_array_equal(ok, rok)
+    np.testing.assert_allclose(depth, rdepth, rtol=RTOL[dtype])
     tiny = np.array([[1e-45]], dtype=np.float32)  # 20 / 1.4e-45 overflows float32: invalid, not inf
     depth, ok = stereo.depth_from_disparity(tiny, 100.0, 0.2)
     assert not ok.any() and depth[0, 0] == 0.0
+    assert not ref.depth_from_disparity(tiny, 100.0, 0.2)[1].any()
 
 
 def test_wp_arrays_in_give_wp_arrays_out():
@@ -359,6 +207,30 @@ def test_wp_arrays_in_give_wp_arrays_out():
     ref_disp, ref_valid = stereo.wta(stereo.sgm(C.numpy(), 1.0, 4.0, 4), 0)
     np.testing.assert_array_equal(disp.numpy(), ref_disp)
     np.testing.assert_array_equal(valid.numpy().astype(bool), ref_valid)
+
+
+def test_outputs_follow_the_first_array_argument():
+    # NumPy and wp.arrays may be mixed (NumPy ones are copied to the device); the first array sets the kind.
+    L, R = _images(11)
+    expected = stereo.sad_cost(L, R, 0, 4)
+    on_device = stereo.sad_cost(wp.array(L, dtype=wp.float64), R, 0, 4)
+    assert isinstance(on_device, wp.array)
+    np.testing.assert_array_equal(on_device.numpy(), expected)
+    on_host = stereo.sad_cost(L, wp.array(R, dtype=wp.float64), 0, 4)
+    assert isinstance(on_host, np.ndarray)
+    np.testing.assert_array_equal(on_host, expected)
+    dl, vl = stereo.wta(expected, 0)
+    ok = stereo.left_right_check(dl, wp.array(dl), valid_left=wp.array(vl.astype(np.uint8)))
+    assert isinstance(ok, np.ndarray) and ok.dtype == bool
+
+
+def test_backward_returns_gradients_by_argument_name():
+    rng = np.random.default_rng(13)
+    FL, FR = rng.standard_normal((3, 4, 6)), rng.standard_normal((3, 4, 6))
+    g = stereo.feature_correlation_backward(FL, FR, rng.standard_normal((4, 6, 3)), -1)
+    assert set(g) == {"feat_left", "feat_right"} and g["feat_left"].shape == FL.shape
+    wg = stereo.soft_argmin_backward(wp.array(rng.uniform(0.0, 1.0, (4, 6, 3))), 0, rng.standard_normal((4, 6)))
+    assert set(wg) == {"cost"} and isinstance(wg["cost"], wp.array) and wg["cost"].shape == (4, 6, 3)
 
 
 # =========================================================================== gradients
@@ -386,11 +258,11 @@ def test_gradchecks_are_registered():
 
 def test_mismatched_shapes():
     L, R = _images(0)
-    with pytest.raises(ValueError, match="right: shape"):
+    with pytest.raises(ValueError, match="right: expected shape"):
         stereo.sad_cost(L, R[:, :-1], 0, 4)
-    with pytest.raises(ValueError, match="feat_right: shape"):
+    with pytest.raises(ValueError, match="feat_right: expected shape"):
         stereo.feature_correlation(np.zeros((2, 3, 5)), np.zeros((3, 3, 5)), 0, 2)
-    with pytest.raises(ValueError, match="disp_right: shape"):
+    with pytest.raises(ValueError, match="disp_right: expected shape"):
         stereo.left_right_check(np.zeros((3, 5)), np.zeros((3, 4)))
 
 
@@ -410,24 +282,26 @@ def test_non_finite_pixels(bad):
     L, R = _images(0)
     L[3, 4] = bad
     for fn in (stereo.sad_cost, stereo.zncc_cost, stereo.census_cost):
-        with pytest.raises(ValueError, match="left: holds non-finite"):
+        with pytest.raises(ValueError, match="left: expected finite values"):
             fn(L, R, 0, 4)
-        with pytest.raises(ValueError, match="right: holds non-finite"):
+        with pytest.raises(ValueError, match="right: expected finite values"):
             fn(R, L, 0, 4)
-    with pytest.raises(ValueError, match="cost: holds non-finite"):
+    with pytest.raises(ValueError, match="cost: expected finite values"):
         stereo.sgm(np.full((2, 3, 2), bad), 1.0, 2.0)
 
 
 def test_bad_dtypes_devices_and_parameters():
     L, R = _images(0)
-    with pytest.raises(ValueError, match="left: dtype uint8"):
+    with pytest.raises(ValueError, match="left: expected dtype float32 or float64, got uint8"):
         stereo.census_cost((L * 255).astype(np.uint8), R, 0, 4)
-    with pytest.raises(ValueError, match="right: dtype float32"):
+    with pytest.raises(ValueError, match="right: expected dtype float64 like the other inputs, got float32"):
         stereo.sad_cost(L, R.astype(np.float32), 0, 4)
     with pytest.raises(ValueError, match="left: expected 2 dimensions"):
         stereo.sad_cost(L[..., None], R[..., None], 0, 4)
-    with pytest.raises(ValueError, match="mixes NumPy"):
-        stereo.sad_cost(wp.array(L, dtype=wp.float64), R, 0, 4)
+    with pytest.raises(ValueError, match="right: expected dtype float64 like the other inputs, got float32"):
+        stereo.sad_cost(wp.array(L, dtype=wp.float64), R.astype(np.float32), 0, 4)  # mixed kinds, mixed dtypes
+    with pytest.raises(ValueError, match="grad_corr: expected shape"):
+        stereo.feature_correlation_backward(np.zeros((2, 3, 5)), np.zeros((2, 3, 5)), np.zeros((3, 4, 2)), 0)
     with pytest.raises(ValueError, match="device"):
         stereo.sad_cost(L, R, 0, 4, device="tpu")
     with pytest.raises(ValueError, match="p2"):
@@ -444,7 +318,7 @@ def test_bad_dtypes_devices_and_parameters():
         stereo.wta(np.zeros((2, 3, 2)), 0, uniqueness=1.0)
     with pytest.raises(ValueError, match="baseline"):
         stereo.depth_from_disparity(np.ones((2, 2)), 100.0, -0.1)
-    with pytest.raises(ValueError, match="grad_disp: shape"):
+    with pytest.raises(ValueError, match="grad_disp: expected shape"):
         stereo.soft_argmin_backward(np.zeros((2, 3, 2)), 0, np.zeros((3, 2)))
-    with pytest.raises(ValueError, match="valid_left: dtype"):
+    with pytest.raises(ValueError, match="valid_left: expected dtype bool or uint8"):
         stereo.left_right_check(np.zeros((2, 3)), np.zeros((2, 3)), valid_left=np.zeros((2, 3), dtype=np.int64))

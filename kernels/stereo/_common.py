@@ -1,0 +1,49 @@
+"""What every stage of kernels.stereo shares: the pixel of a flat thread index, and disparity ranges.
+
+A launch over an image of width W runs one thread per pixel, thread i = y W + x. A disparity
+range [dmin, dmax) over an image W pixels wide holds D = dmax - dmin hypotheses d_k = dmin + k;
+it is usable when it is non-empty, holds at most W hypotheses, and lies within (-W, W], so that
+some pixel (x, y) has its match (x - d_k, y) inside the image.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import warp as wp
+
+from kernels._arrays import Inputs, check_int
+
+
+@wp.func
+def pixel(i: int, width: int):
+    """(y, x) of the flat pixel index i = y * width + x."""
+    y = i / width
+    return y, i - y * width
+
+
+def check_range(dmin: Any, dmax: Any, width: int) -> tuple[int, int]:
+    """Validate the disparity range [dmin, dmax) against an image `width` pixels wide: (dmin, D)."""
+    dmin = check_int("dmin", dmin)
+    dmax = check_int("dmax", dmax)
+    if dmax <= dmin:
+        raise ValueError(f"dmax: the disparity range [dmin, dmax) = [{dmin}, {dmax}) is empty")
+    if dmax - dmin > width:
+        raise ValueError(f"dmax: the disparity range [{dmin}, {dmax}) holds {dmax - dmin} hypotheses, "
+                         f"more than the image width {width}")
+    if dmin <= -width or dmax > width:
+        raise ValueError(f"dmin, dmax: the range [{dmin}, {dmax}) must lie within (-{width}, {width}] "
+                         "so that some pixel has a match")
+    return dmin, dmax - dmin
+
+
+def check_dmin(dmin: Any, hypotheses: int, width: int) -> int:
+    """Validate dmin for a volume of `hypotheses` hypotheses over an image `width` pixels wide; returns it."""
+    return check_range(dmin, check_int("dmin", dmin) + hypotheses, width)[0]
+
+
+def image_pair(a: Inputs, left: Any, right: Any, ndim: int = 2, names: tuple[str, str] = ("left", "right")
+               ) -> tuple[wp.array, wp.array]:
+    """Two non-empty, finite float arrays of one shape (`ndim` dimensions) and dtype, as wp.arrays."""
+    first = a.floats(names[0], left, ndim=ndim, nonempty=True)
+    return first, a.floats(names[1], right, first.shape)

@@ -1,0 +1,308 @@
+"""From a cost volume (H, W, D) to disparity, its validity and depth.
+
+* Winner-take-all: k* = argmin_k C(p, k) (the first minimum), refined by the parabola through
+  (k* - 1, k*, k* + 1) when both neighbours exist:
+  d = d_{k*} + (c_- - c_+) / (2 (c_- - 2 c_0 + c_+)) (no refinement when the curvature is not
+  positive). The pixel is invalid when its winner is out of range, or, with a uniqueness ratio
+  u > 0, when some k with |k - k*| > 1 has C(p, k) (1 - u) < C(p, k*) (as OpenCV's
+  uniquenessRatio). The right view's disparity comes from the same volume (Hirschmueller, PAMI
+  2008, sec. 3.4): d_R(x_r) = argmin_k C(x_r + d_k, y, k), with the same refinement.
+* Soft-argmin (Kendall et al., GC-Net, ICCV 2017) with temperature T:
+
+      sigma_k = softmax_k(-C(p, k) / T),   d = sum_k d_k sigma_k,
+      dd/dC(p, k) = sigma_k (d - d_k) / T.
+
+  It runs over all D cells, in range or not (pass a volume whose out-of-range cells are costly,
+  as the costs of kernels.stereo.costs are). The exponentials are taken relative to the smallest
+  cost, exp((min_i C(p, i) - C(p, k)) / T) <= 1, so large costs cannot overflow.
+* Left-right consistency: the left pixel is valid when its own estimate is, the right pixel
+  x_r = round(x - d_L) exists and is valid, and |d_L - d_R(x_r)| <= max_diff.
+* Depth: Z = f b / d (f the focal length in pixels, b the baseline). A pixel with d <= 0, a
+  non-finite d, an invalid input flag, or a non-finite quotient is invalid and gets Z = 0; the
+  output never holds inf or NaN.
+"""
+
+from __future__ import annotations
+
+import typing
+from typing import Any
+
+import warp as wp
+
+from kernels._arrays import Inputs, check_float, declare_float_overloads
+from kernels.stereo._common import check_dmin, pixel
+
+wp.set_module_options({"enable_backward": False})
+
+
+# =========================================================================== kernels
+
+
+@wp.func
+def _parabola(cm: typing.Any, c0: typing.Any, cp: typing.Any):
+    denom = cm - c0 - c0 + cp
+    off = c0 - c0
+    if denom > off:
+        off = (cm - cp) / (denom + denom)
+    return off
+
+
+@wp.kernel
+def _wta(
+    cost: wp.array3d(dtype=typing.Any),
+    disp: wp.array2d(dtype=typing.Any),
+    valid: wp.array2d(dtype=wp.uint8),
+    dmin: int,
+    subpixel: int,
+    uniqueness: wp.float64,
+    offset: int,
+):
+    W = cost.shape[1]
+    D = cost.shape[2]
+    y, x = pixel(wp.tid() + offset, W)
+    best = int(0)
+    cbest = cost[y, x, 0]
+    for k in range(1, D):
+        c = cost[y, x, k]
+        if c < cbest:
+            cbest = c
+            best = k
+    ok = int(1)
+    d = dmin + best
+    if x - d < 0 or x - d >= W:
+        ok = 0
+    if uniqueness > wp.float64(0.0):
+        keep = cost.dtype(wp.float64(1.0) - uniqueness)
+        for k in range(D):
+            if (k < best - 1 or k > best + 1) and cost[y, x, k] * keep < cbest:
+                ok = 0
+    out = disp.dtype(d)
+    if subpixel != 0 and best > 0 and best + 1 < D:
+        out = out + disp.dtype(_parabola(cost[y, x, best - 1], cbest, cost[y, x, best + 1]))
+    disp[y, x] = out
+    valid[y, x] = wp.uint8(ok)
+
+
+@wp.kernel
+def _wta_right(
+    cost: wp.array3d(dtype=typing.Any),
+    disp: wp.array2d(dtype=typing.Any),
+    valid: wp.array2d(dtype=wp.uint8),
+    dmin: int,
+    subpixel: int,
+    offset: int,
+):
+    # Right pixel xr: hypothesis k lives in the left volume at x = xr + d_k.
+    W = cost.shape[1]
+    D = cost.shape[2]
+    y, xr = pixel(wp.tid() + offset, W)
+    best = int(-1)
+    cbest = cost.dtype(0.0)
+    for k in range(D):
+        x = xr + dmin + k
+        if x >= 0 and x < W:
+            c = cost[y, x, k]
+            if best < 0 or c < cbest:
+                cbest = c
+                best = k
+    out = disp.dtype(0.0)
+    ok = int(0)
+    if best >= 0:
+        ok = 1
+        out = disp.dtype(dmin + best)
+        xm = xr + dmin + best - 1
+        xp = xr + dmin + best + 1
+        if subpixel != 0 and best > 0 and best + 1 < D and xm >= 0 and xp < W:
+            out = out + disp.dtype(_parabola(cost[y, xm, best - 1], cbest, cost[y, xp, best + 1]))
+    disp[y, xr] = out
+    valid[y, xr] = wp.uint8(ok)
+
+
+@wp.func
+def _softmax_sums(cost: wp.array3d(dtype=typing.Any), y: int, x: int, dmin: int, inv_t: typing.Any):
+    """(c_min, z, num) at pixel (x, y): z = sum_k e_k, num = sum_k d_k e_k, e_k = exp((c_min - C_k) / T)."""
+    cmin = cost[y, x, 0]
+    for k in range(1, cost.shape[2]):
+        cmin = wp.min(cmin, cost[y, x, k])
+    z = cost.dtype(0.0)
+    num = cost.dtype(0.0)
+    for k in range(cost.shape[2]):
+        e = wp.exp((cmin - cost[y, x, k]) * inv_t)
+        z += e
+        num += e * cost.dtype(dmin + k)
+    return cmin, z, num
+
+
+@wp.kernel
+def _soft_argmin_forward(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing.Any), dmin: int,
+                         temperature: wp.float64, offset: int):
+    y, x = pixel(wp.tid() + offset, cost.shape[1])
+    _cmin, z, num = _softmax_sums(cost, y, x, dmin, cost.dtype(wp.float64(1.0) / temperature))
+    disp[y, x] = num / z
+
+
+@wp.kernel
+def _soft_argmin_backward(
+    cost: wp.array3d(dtype=typing.Any),
+    grad_disp: wp.array2d(dtype=typing.Any),
+    grad_cost: wp.array3d(dtype=typing.Any),
+    dmin: int,
+    temperature: wp.float64,
+    offset: int,
+):
+    # dd/dC_k = sigma_k (d - d_k) / T, with sigma and d recomputed from the cost as the forward does.
+    y, x = pixel(wp.tid() + offset, cost.shape[1])
+    inv_t = cost.dtype(wp.float64(1.0) / temperature)
+    cmin, z, num = _softmax_sums(cost, y, x, dmin, inv_t)
+    g = grad_disp[y, x] * inv_t / z
+    d = num / z
+    for k in range(cost.shape[2]):
+        e = wp.exp((cmin - cost[y, x, k]) * inv_t)
+        grad_cost[y, x, k] = g * e * (d - cost.dtype(dmin + k))
+
+
+@wp.kernel
+def _left_right_check(
+    disp_l: wp.array2d(dtype=typing.Any),
+    valid_l: wp.array2d(dtype=wp.uint8),
+    disp_r: wp.array2d(dtype=typing.Any),
+    valid_r: wp.array2d(dtype=wp.uint8),
+    out: wp.array2d(dtype=wp.uint8),
+    max_diff: wp.float64,
+    offset: int,
+):
+    W = disp_l.shape[1]
+    y, x = pixel(wp.tid() + offset, W)
+    dl = disp_l[y, x]
+    ok = int(0)
+    if valid_l[y, x] != wp.uint8(0):
+        xr = int(wp.floor(wp.float64(x) - wp.float64(dl) + wp.float64(0.5)))
+        if xr >= 0 and xr < W:
+            if valid_r[y, xr] != wp.uint8(0):
+                if wp.abs(wp.float64(dl) - wp.float64(disp_r[y, xr])) <= max_diff:
+                    ok = 1
+    out[y, x] = wp.uint8(ok)
+
+
+@wp.kernel
+def _depth(
+    disp: wp.array2d(dtype=typing.Any),
+    valid: wp.array2d(dtype=wp.uint8),
+    depth: wp.array2d(dtype=typing.Any),
+    valid_out: wp.array2d(dtype=wp.uint8),
+    fb: wp.float64,
+    offset: int,
+):
+    y, x = pixel(wp.tid() + offset, disp.shape[1])
+    d = disp[y, x]
+    z = depth.dtype(0.0)
+    ok = int(0)
+    if valid[y, x] != wp.uint8(0) and wp.isfinite(d) and d > disp.dtype(0.0):
+        q = depth.dtype(fb) / d
+        if wp.isfinite(q):
+            z = q
+            ok = 1
+    depth[y, x] = z
+    valid_out[y, x] = wp.uint8(ok)
+
+
+for _kernel in (_wta, _wta_right, _soft_argmin_forward, _soft_argmin_backward, _left_right_check, _depth):
+    declare_float_overloads(_kernel)
+
+
+# =========================================================================== entry points
+
+
+def _volume(a: Inputs, cost: Any, dmin: Any) -> tuple[wp.array, int]:
+    """The cost volume (H, W, D) and dmin, checked against each other."""
+    c = a.floats("cost", cost, ndim=3, nonempty=True)
+    return c, check_dmin(dmin, c.shape[2], c.shape[1])
+
+
+def _mask_or_ones(a: Inputs, name: str, m: Any, shape: tuple[int, ...]) -> wp.array:
+    """A validity mask argument as uint8, all valid when None."""
+    return wp.ones(shape, dtype=wp.uint8, device=a.device) if m is None else a.mask(name, m, shape)
+
+
+def wta(cost: Any, dmin: int, *, subpixel: bool = True, uniqueness: float = 0.0,
+        device: Any = None) -> tuple[Any, Any]:
+    """Winner-take-all left disparity (H, W) and its validity mask (see the module docstring)."""
+    a = Inputs(device, cost)
+    c, dmin = _volume(a, cost, dmin)
+    u = check_float("uniqueness", uniqueness, nonnegative=True)
+    if u >= 1.0:
+        raise ValueError(f"uniqueness: expected a ratio in [0, 1), got {uniqueness!r}")
+    H, W, _ = c.shape
+    disp = a.empty((H, W))
+    valid = a.empty((H, W), wp.uint8)
+    a.launch(_wta, H * W, [c, disp, valid, dmin, int(bool(subpixel)), wp.float64(u)], min_chunk=256)
+    return a.out(disp), a.out_mask(valid)
+
+
+def wta_right(cost: Any, dmin: int, *, subpixel: bool = True, device: Any = None) -> tuple[Any, Any]:
+    """The right view's winner-take-all disparity (H, W) from the left volume, and its validity mask."""
+    a = Inputs(device, cost)
+    c, dmin = _volume(a, cost, dmin)
+    H, W, _ = c.shape
+    disp = a.empty((H, W))
+    valid = a.empty((H, W), wp.uint8)
+    a.launch(_wta_right, H * W, [c, disp, valid, dmin, int(bool(subpixel))], min_chunk=256)
+    return a.out(disp), a.out_mask(valid)
+
+
+def soft_argmin(cost: Any, dmin: int, temperature: float = 1.0, *, device: Any = None) -> Any:
+    """sum_k d_k softmax_k(-cost / temperature): disparity (H, W)."""
+    a = Inputs(device, cost)
+    c, dmin = _volume(a, cost, dmin)
+    t = check_float("temperature", temperature, positive=True)
+    H, W, _ = c.shape
+    disp = a.empty((H, W))
+    a.launch(_soft_argmin_forward, H * W, [c, disp, dmin, wp.float64(t)], min_chunk=256)
+    return a.out(disp)
+
+
+def soft_argmin_backward(cost: Any, dmin: int, grad_disp: Any, temperature: float = 1.0, *,
+                         device: Any = None) -> dict[str, Any]:
+    """The gradient of a loss given grad_disp = dLoss/ddisp (H, W).
+
+    Returns a dict {"cost": dLoss/dcost} (H, W, D) in the kind of `cost` (a NumPy array, or a
+    wp.array on the device).
+    """
+    a = Inputs(device, cost, grad_disp)
+    c, dmin = _volume(a, cost, dmin)
+    t = check_float("temperature", temperature, positive=True)
+    H, W, _ = c.shape
+    g = a.floats("grad_disp", grad_disp, (H, W))
+    grad = a.empty(c.shape)
+    a.launch(_soft_argmin_backward, H * W, [c, g, grad, dmin, wp.float64(t)], min_chunk=256)
+    return {"cost": a.out(grad)}
+
+
+def left_right_check(disp_left: Any, disp_right: Any, max_diff: float = 1.0, *, valid_left: Any = None,
+                     valid_right: Any = None, device: Any = None) -> Any:
+    """Validity mask (H, W) of the left disparity after the left-right consistency check."""
+    a = Inputs(device, disp_left, disp_right, valid_left, valid_right)
+    dl = a.floats("disp_left", disp_left, ndim=2, nonempty=True)
+    dr = a.floats("disp_right", disp_right, dl.shape)
+    tol = check_float("max_diff", max_diff, nonnegative=True)
+    shape = tuple(dl.shape)
+    vl = _mask_or_ones(a, "valid_left", valid_left, shape)
+    vr = _mask_or_ones(a, "valid_right", valid_right, shape)
+    out = a.empty(shape, wp.uint8)
+    a.launch(_left_right_check, dl.size, [dl, vl, dr, vr, out, wp.float64(tol)])
+    return a.out_mask(out)
+
+
+def depth_from_disparity(disp: Any, focal: float, baseline: float, *, valid: Any = None,
+                         device: Any = None) -> tuple[Any, Any]:
+    """Z = focal * baseline / d: depth (H, W) with 0 where invalid, and the validity mask."""
+    a = Inputs(device, disp, valid)
+    d = a.floats("disp", disp, ndim=2, nonempty=True, finite=False)  # non-finite disparities are marked invalid
+    f = check_float("focal", focal, positive=True)
+    b = check_float("baseline", baseline, positive=True)
+    shape = tuple(d.shape)
+    v = _mask_or_ones(a, "valid", valid, shape)
+    depth = a.empty(shape)
+    valid_out = a.empty(shape, wp.uint8)
+    a.launch(_depth, d.size, [d, v, depth, valid_out, wp.float64(f * b)])
+    return a.out(depth), a.out_mask(valid_out)

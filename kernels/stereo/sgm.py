@@ -1,0 +1,198 @@
+"""Semi-global matching (Hirschmueller, PAMI 2008): aggregate a cost volume (H, W, D) along paths.
+
+Along each path direction r (4 paths: left, right, up, down; 8 paths add the diagonals), starting
+with L_r(p_0, k) = C(p_0, k) where the path enters the image,
+
+    L_r(p, k) = C(p, k) + min( L_r(p - r, k),
+                                L_r(p - r, k - 1) + P1,  L_r(p - r, k + 1) + P1,
+                                min_i L_r(p - r, i) + P2 )  -  min_i L_r(p - r, i),
+
+and S(p, k) = sum_r L_r(p, k). P1 penalises a one-step disparity change, P2 >= P1 any larger one.
+
+The recurrence is sequential along a scanline but scanlines are independent. Each axis (rows,
+columns, and for 8 paths the two diagonals) is one launch with one thread per scanline, which
+runs the path r and then -r back over the same pixels while they are still in cache. Each pixel
+lies on exactly one scanline of an axis, so the writes of S are disjoint and the launch splits
+across CPU threads (kernels.launch); axes run one after another.
+
+The hypotheses are processed as 8-wide vectors (SIMD on the CPU): the k - 1 and k + 1 candidates
+are the previous L_r shifted by one lane. D is padded to a multiple of 8 with hypotheses costing
+max C + 2 P2 + |max C| + 1, which no L_r(p, k) <= C(p, k) + P2 of a real hypothesis can reach, so
+the padding changes neither the real L_r nor their minimum.
+"""
+
+from __future__ import annotations
+
+import typing
+from typing import Any
+
+import warp as wp
+
+from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
+from kernels.stereo._common import pixel
+
+wp.set_module_options({"enable_backward": False})
+
+# (dy, dx) of the path directions; the first four are the 4-path set. Each axis below runs a
+# direction and its opposite in one launch.
+SGM_DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
+SGM_AXES = ((0, 1), (1, 0), (1, 1), (1, -1))
+
+# 8-wide vectors of hypotheses (the CPU compiler turns them into SIMD); D is padded to a multiple.
+SGM_LANES = 8
+SGM_VEC = {wp.float32: wp.types.vector(length=SGM_LANES, dtype=wp.float32),
+           wp.float64: wp.types.vector(length=SGM_LANES, dtype=wp.float64)}
+
+
+@wp.func
+def _sgm_walk(
+    cost_v: wp.array(dtype=typing.Any),
+    agg_v: wp.array(dtype=typing.Any),
+    buf_v: wp.array(dtype=typing.Any),
+    nb: int,
+    bb: int,
+    base: int,
+    step: int,
+    n: int,
+    p1: typing.Any,
+    p2: typing.Any,
+    write: int,
+):
+    """L_r along one scanline of n + 1 pixels starting at flat vector index `base`, moving by `step`.
+
+    Each pixel holds nb vectors; buf_v[bb:bb + nb] carries L_r(p - r) and is updated in place.
+    agg_v receives L_r (assigned when `write`, else added).
+    """
+    p1_v = cost_v.dtype(p1)
+    p2_v = cost_v.dtype(p2)
+    lanes_min = cost_v[base]
+    for j in range(nb):
+        c = cost_v[base + j]
+        buf_v[bb + j] = c
+        lanes_min = wp.min(lanes_min, c)
+        if write != 0:
+            agg_v[base + j] = c
+        else:
+            agg_v[base + j] = agg_v[base + j] + c
+    prev_min = wp.min(lanes_min)
+    for _s in range(n):
+        base += step
+        jump = prev_min + p2
+        jump_v = cost_v.dtype(jump)
+        prev_v = cost_v.dtype(prev_min)
+        # L_r(p - r, k - 1) and (k + 1) are the previous vector shifted by one lane; past either end
+        # of the range the candidate is `jump`, which never undercuts the P2 candidate.
+        below = jump
+        cur = buf_v[bb]
+        lanes_min = jump_v + p2_v
+        for j in range(nb):
+            nxt = cur
+            above = jump
+            if j + 1 < nb:
+                nxt = buf_v[bb + j + 1]
+                above = nxt[0]
+            down = cost_v.dtype(below, cur[0], cur[1], cur[2], cur[3], cur[4], cur[5], cur[6])
+            up = cost_v.dtype(cur[1], cur[2], cur[3], cur[4], cur[5], cur[6], cur[7], above)
+            best = wp.min(wp.min(cur, jump_v), wp.min(down, up) + p1_v)
+            lr = cost_v[base + j] + best - prev_v
+            buf_v[bb + j] = lr
+            lanes_min = wp.min(lanes_min, lr)
+            if write != 0:
+                agg_v[base + j] = lr
+            else:
+                agg_v[base + j] = agg_v[base + j] + lr
+            below = cur[7]
+            cur = nxt
+        prev_min = wp.min(lanes_min)
+    return 0
+
+
+@wp.kernel
+def _sgm_axis(
+    cost_v: wp.array(dtype=typing.Any),
+    agg_v: wp.array(dtype=typing.Any),
+    buf_v: wp.array(dtype=typing.Any),
+    H: int,
+    W: int,
+    dy: int,
+    dx: int,
+    p1: typing.Any,
+    p2: typing.Any,
+    first: int,
+    offset: int,
+):
+    # One thread per scanline along axis (dy, dx), dy >= 0: it runs the path r = (dy, dx), then the
+    # opposite path -r back along the same pixels, which are still in cache. Volumes are flat arrays
+    # of 8-wide vectors, nb per pixel.
+    i = wp.tid() + offset
+    nb = buf_v.shape[0] / (W + H - 1)
+    y = int(0)
+    x = int(0)
+    if dy == 0:
+        y = i
+    elif dx == 0:
+        x = i
+    elif i < W:
+        x = i
+    else:
+        x = wp.where(dx > 0, 0, W - 1)
+        y = i - W + 1
+    # Steps until the line leaves the image.
+    big = H + W
+    n = wp.min(wp.where(dy > 0, H - 1 - y, big), wp.where(dx > 0, W - 1 - x, wp.where(dx < 0, x, big)))
+    step = (dy * W + dx) * nb
+    base = (y * W + x) * nb
+    _sgm_walk(cost_v, agg_v, buf_v, nb, i * nb, base, step, n, p1, p2, first)
+    _sgm_walk(cost_v, agg_v, buf_v, nb, i * nb, base + n * step, -step, n, p1, p2, 0)
+
+
+@wp.kernel
+def _copy_hypotheses(src: wp.array3d(dtype=typing.Any), dst: wp.array3d(dtype=typing.Any), fill: wp.float64,
+                     offset: int):
+    # dst[y, x, k] = src[y, x, k] for the hypotheses both hold; dst's extra ones (padding) get `fill`.
+    y, x = pixel(wp.tid() + offset, src.shape[1])
+    for k in range(dst.shape[2]):
+        if k < src.shape[2]:
+            dst[y, x, k] = src[y, x, k]
+        else:
+            dst[y, x, k] = dst.dtype(fill)
+
+
+declare_float_overloads(_sgm_axis, vector_types=SGM_VEC)
+declare_float_overloads(_copy_hypotheses)
+
+
+def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) -> Any:
+    """Semi-global matching: S = sum over `paths` (4 or 8) directions of L_r; volume like `cost`."""
+    a = Inputs(device, cost)
+    c = a.floats("cost", cost, ndim=3, nonempty=True)
+    if check_int("paths", paths) not in (4, 8):
+        raise ValueError(f"paths: expected 4 or 8, got {paths!r}")
+    p1 = check_float("p1", p1, nonnegative=True)
+    p2 = check_float("p2", p2, nonnegative=True)
+    if p2 < p1:
+        raise ValueError(f"p2: expected p2 >= p1 = {p1}, got {p2}")
+    H, W, D = c.shape
+    nb = -(-D // SGM_LANES)
+    padded = c
+    if nb * SGM_LANES != D:
+        # Padding hypotheses cost more than any real L_r can reach (every L_r(p, k) <= C(p, k) + P2), so
+        # with cost >= max C + 2 P2 they never undercut a real candidate, nor the running minimum.
+        c_max = float(c.numpy().max())
+        fill = c_max + 2.0 * p2 + abs(c_max) + 1.0
+        padded = a.empty((H, W, nb * SGM_LANES))
+        a.launch(_copy_hypotheses, H * W, [c, padded, wp.float64(fill)])
+    vec = SGM_VEC[a.scalar]
+    cost_v = wp.array(ptr=padded.ptr, dtype=vec, shape=(H * W * nb,), device=a.device)
+    agg = a.empty((H, W, nb * SGM_LANES))
+    agg_v = wp.array(ptr=agg.ptr, dtype=vec, shape=(H * W * nb,), device=a.device)
+    buf_v = a.empty(((W + H - 1) * nb,), vec)
+    for j, (dy, dx) in enumerate(SGM_AXES[: paths // 2]):
+        lines = H if dy == 0 else (W if dx == 0 else W + H - 1)
+        a.launch(_sgm_axis, lines, [cost_v, agg_v, buf_v, H, W, dy, dx, a.s(p1), a.s(p2), int(j == 0)],
+                 min_chunk=8)
+    if nb * SGM_LANES != D:
+        out = a.empty((H, W, D))
+        a.launch(_copy_hypotheses, H * W, [agg, out, wp.float64(0.0)])
+        agg = out
+    return a.out(agg)
