@@ -1,7 +1,8 @@
 """Benchmark family "stereo": the semi-global matching pipeline of kernels.stereo.
 
 Case `stereo.sgm`, at (height, width, disparities) = (256, 256, 64) and
-(375, 1242, 128) (KITTI's size; quick mode runs the first only). A random
+(375, 1242, 128) (KITTI's size; quick mode runs the first only; tiny mode runs
+(64, 128, 32), well under a second with every phase, for the test suite). A random
 texture and its copy shifted by 5 pixels plus noise (timings do not depend on
 the content), float32:
 
@@ -26,6 +27,7 @@ from kernels.launch import default_threads
 from research.bench import time_medians
 
 SIZES = ((256, 256, 64), (375, 1242, 128))
+TINY_SIZES = ((64, 128, 32),)
 CENSUS_RADII = (3, 4)
 P1, P2 = 8.0, 64.0
 PATHS = 8
@@ -39,10 +41,10 @@ def _pair(height: int, width: int, device: str) -> tuple[wp.array, wp.array]:
     return wp.array(left, device=device), wp.array(right, device=device)
 
 
-def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
+def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Iterator[dict]:
     dev = wp.get_device(device)
     threads = 1 if dev.is_cuda else default_threads()
-    for height, width, disparities in SIZES[:1] if quick else SIZES:
+    for height, width, disparities in TINY_SIZES if tiny else (SIZES[:1] if quick else SIZES):
         left, right = _pair(height, width, device)
 
         def cost():
