@@ -32,8 +32,9 @@ cells out of range hold a fixed cost no real match can beat (each cost below nam
 
       corr(x, y, k) = <F_L(x, y), F_R(x - d_k, y)> / sqrt(C),    0 out of range.
 
-  Backward, for an upstream gradient G = dLoss/dcorr, both as gathers (each thread writes only
-  its own pixel, so no atomics, which are not atomic between concurrent CPU launches: docs/warp.md):
+  Backward, for an upstream gradient G = dLoss/dcorr, both as gathers: each thread writes only its
+  own pixel, so no atomics are needed (Warp's are not atomic between concurrent CPU launches,
+  docs/warp.md):
 
       dF_L(x, y) = sum_k G(x, y, k) F_R(x - d_k, y) / sqrt(C)
       dF_R(x', y) = sum_k G(x' + d_k, y, k) F_L(x' + d_k, y) / sqrt(C).
@@ -57,6 +58,7 @@ wp.set_module_options({"enable_backward": False})
 CENSUS_MAX_BITS = 64
 COST_SAD = 0
 COST_ZNCC = 1
+
 
 # =========================================================================== helpers (device)
 

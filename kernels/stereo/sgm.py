@@ -13,7 +13,8 @@ The recurrence is sequential along a scanline but scanlines are independent. Eac
 columns, and for 8 paths the two diagonals) is one launch with one thread per scanline, which
 runs the path r and then -r back over the same pixels while they are still in cache. Each pixel
 lies on exactly one scanline of an axis, so the writes of S are disjoint and the launch splits
-across CPU threads (kernels.launch); axes run one after another.
+across CPU threads (kernels.launch: a CPU launch runs on one thread and releases the GIL,
+docs/warp.md); axes run one after another.
 
 The hypotheses are processed as 8-wide vectors (SIMD on the CPU): the k - 1 and k + 1 candidates
 are the previous L_r shifted by one lane. D is padded to a multiple of 8 with hypotheses costing

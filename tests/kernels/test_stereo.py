@@ -290,6 +290,18 @@ def test_non_finite_pixels(bad):
         stereo.sgm(np.full((2, 3, 2), bad), 1.0, 2.0)
 
 
+def test_value_checks_off_skips_the_finiteness_check_only():
+    from kernels._arrays import value_checks
+
+    L, R = _images(0)
+    L[3, 4] = np.nan
+    with value_checks(False):
+        bits = stereo.census_transform(L, 1, 1)  # NaN compares false: the pixel's own bits are all 0
+        assert bits[3, 4] == 0
+        with pytest.raises(ValueError, match="right: expected shape"):
+            stereo.census_cost(L, R[:, :-1], 0, 4)
+
+
 def test_bad_dtypes_devices_and_parameters():
     L, R = _images(0)
     with pytest.raises(ValueError, match="left: expected dtype float32 or float64, got uint8"):
