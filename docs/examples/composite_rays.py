@@ -28,15 +28,6 @@ def to_numpy(x):
     return np.asarray(x.numpy() if hasattr(x, "numpy") else x)
 
 
-def sample_gradients(grads):
-    """(d sigma, d rgb) from composite_backward: a pair, or a mapping / object keyed by input name."""
-    if isinstance(grads, (tuple, list)):
-        return grads
-    if isinstance(grads, dict):
-        return grads["sigma"], grads["rgb"]
-    return grads.sigma, grads.rgb
-
-
 def rays():
     """Packed samples of 4 rays through a Gaussian ball of density centred at depth 2."""
     z = np.tile(np.linspace(0.5, 3.5, N_SAMPLES), N_RAYS)  # sample depths along each ray
@@ -79,8 +70,9 @@ def main() -> None:
     # Gradient of the summed red channel (g_C = (1, 0, 0) on every ray) with respect to sigma.
     grad_colour = np.zeros((N_RAYS, 3))
     grad_colour[:, 0] = 1.0
-    d_sigma, d_rgb = (to_numpy(g) for g in sample_gradients(
-        composite_backward(sigma, rgb, delta, z, offsets, res, grad_rgb=grad_colour, background=background)))
+    # composite_backward returns the pair (d sigma (N,), d rgb (N, 3)).
+    grads = composite_backward(sigma, rgb, delta, z, offsets, res, grad_rgb=grad_colour, background=background)
+    d_sigma, d_rgb = (to_numpy(g) for g in grads)
     k = int(np.argmax(np.abs(d_sigma)))
     eps = 1e-6
     red = []

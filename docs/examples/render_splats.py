@@ -45,7 +45,8 @@ def main() -> None:
     result = render(gaussian_inputs(*params), camera)
     rgb, alpha, depth = to_numpy(result.rgb), to_numpy(result.alpha), to_numpy(result.depth)
     print(f"rendered {width}x{height}: rgb {rgb.shape}, {int((alpha > 0.5).sum())} pixels more than half covered")
-    print(f"mean colour {np.round(rgb.reshape(-1, 3).mean(axis=0), 4)}, alpha in [{alpha.min():.3f}, {alpha.max():.3f}]")
+    print(f"mean colour {np.round(rgb.reshape(-1, 3).mean(axis=0), 4)}, "
+          f"alpha in [{alpha.min():.3f}, {alpha.max():.3f}]")
     centre = (height // 2, width // 2)
     # `depth` is the alpha-weighted sum of z-depths; dividing by alpha gives the expected z-depth.
     print(f"expected z-depth at the centre pixel: {depth[centre] / alpha[centre]:.4f}")
