@@ -1,6 +1,12 @@
 """drlab compute kernels (NVIDIA Warp): pure compute, no file I/O.
 
-Each family is one module (volume, splat, stereo, corr, flow) opening with the
-math it implements. `kernels.launch` holds the race-free split launcher for
-CPU kernels. This package never imports `research`.
+One layout per kernel family. A family that outgrows one module (about 600 lines) is a package
+split by stage: `volume`, `splat`, `stereo`, `corr`; the others are single modules:
+`lucas_kanade`, `ssim`, `sh` (the real spherical-harmonics basis shared by splats and voxel
+grids) and `optim` (the Adam optimiser every fit uses). Each kernel module opens with the math it
+implements. `kernels._arrays` is the array contract every entry point follows (NumPy or wp.array
+in, the same kind out, checked arguments), `kernels.launch` the race-free split launcher for CPU
+kernels, and `kernels.reference` holds a plain NumPy forward of each family for the tests.
+docs/kernels.md is the guide to using them and to adding a family. This package never imports
+`research`.
 """

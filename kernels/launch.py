@@ -1,7 +1,7 @@
 """Race-free split launches of CPU kernels over several Python threads.
 
 Warp runs a CPU launch on one thread, but its binding releases the GIL during
-the launch (notes/warp.md). So a 1-D grid of `dim` threads can be cut into
+the launch (docs/warp.md). So a 1-D grid of `dim` threads can be cut into
 contiguous chunks [o_j, o_j + n_j), each launched from its own Python thread
 with `dim = n_j`; inside the kernel the global index is `wp.tid() + offset`.
 
@@ -23,7 +23,7 @@ single launch only if no two thread indices interfere:
     read-modify-write (native/builtin.h: `old = buf[0]; buf[0] += value`), so
     concurrent CPU launches lose updates: measured here, two threads adding 1
     into 64 int32 slots kept 7.47M-7.97M of 8M (floats lose the same way,
-    notes/warp.md). An atomic on a slot only index i touches is just a write
+    docs/warp.md). An atomic on a slot only index i touches is just a write
     and is fine. Scatter-style (backward) kernels must run as one launch,
     accumulate into a buffer per chunk and reduce afterwards, or be rewritten
     as gathers;

@@ -1,6 +1,6 @@
 """Pinhole cameras in the OpenCV convention, and conversions to Mitsuba and NeRF.
 
-Conventions (DESIGN.md, notes/mitsuba.md):
+Conventions (the Mitsuba facts behind them are in docs/mitsuba.md):
 
 * Camera frame (OpenCV): +x right, +y down, +z forward. A camera is its
   intrinsics K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]], its camera-to-world

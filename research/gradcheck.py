@@ -43,7 +43,7 @@ which values count as zero.
 ``eps``, ``rtol`` and ``atol`` accept a dict input-name -> value to set them
 per input (missing names take ``DEFAULT_EPS`` etc.). Any loosening of rtol
 beyond 1e-6 is the caller's responsibility and needs a written reason beside
-the call (DESIGN.md, "Gradient checks").
+the call.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Choosing Mitsuba's variant: `llvm_ad_rgb` when Dr.Jit's LLVM backend works, else `scalar_rgb`.
 
-Dr.Jit's LLVM backend needs a shared libLLVM 17 or newer (notes/mitsuba.md):
+Dr.Jit's LLVM backend needs a shared libLLVM 17 or newer (docs/mitsuba.md):
 with 14 it refuses to start, and with 15 or 16 the *process aborts* on the first
 kernel that uses `fminimum`. So the backend is probed in a child process, which
 may die without taking the caller with it.

@@ -1,6 +1,6 @@
 """Writing a ground-truth dataset directory from a built-in Mitsuba scene.
 
-Layout of `<out>/` (DESIGN.md, "Datasets on disk"):
+Layout of `<out>/`:
 
     {train,val,test}/r_NNN.png         sRGB 8-bit, straight alpha
     {train,val,test}/r_NNN.exr         linear premultiplied RGBA, float32

@@ -1,6 +1,6 @@
 """Mitsuba render passes for one camera: colour, and exact per-pixel geometry.
 
-Two passes per view (notes/mitsuba.md):
+Two passes per view (docs/mitsuba.md):
 
 * RGB: integrator `path` with `hide_emitters` (except the Cornell box, whose only emitter
   is its ceiling light), film `hdrfilm` RGBA with a box pixel filter. The result is

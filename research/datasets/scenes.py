@@ -5,8 +5,8 @@ Each scene is a `SceneSpec`: a builder returning a `mi.load_dict` dictionary
 axis-aligned bounding box (for NeRF and splat initialisation), its world up
 vector, and how cameras are placed around it.
 
-* `spheres`: the textbook volume-rendering scene, three diffuse spheres seen from
-  the origin looking down +z (OpenCV world, so "up" is -y).
+* `spheres`: the volume-rendering scene of the Video and 3D Vision textbook chapter,
+  three diffuse spheres seen from the origin looking down +z (OpenCV world, so "up" is -y).
 * `objects`: a checker-textured sphere, a cube, a cylinder and a disk on a square
   ground plane, lit by a procedural sky environment map and a directional sun; z up.
 * `cornell`: Mitsuba's Cornell box (`mi.cornell_box()`), y up, open towards +z;

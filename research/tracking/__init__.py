@@ -1,4 +1,4 @@
-"""Tracking: Kalman filtering, RTS smoothing, SORT, ByteTrack and MOT metrics (issue 7).
+"""Tracking: Kalman filtering, RTS smoothing, SORT, ByteTrack and MOT metrics.
 
 Modules (pure NumPy/SciPy; no Warp kernels needed):
     kalman      linear Kalman filter (Joseph form), RTS smoother, CV/CA models

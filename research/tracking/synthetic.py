@@ -1,6 +1,7 @@
 """Synthetic tracking data with ground truth.
 
-1. `circular_trajectory`: the textbook's Kalman task, a point on a circle.
+1. `circular_trajectory`: the Kalman task of the Video and 3D Vision textbook chapter,
+   a point on a circle.
 
 2. `make_sequence`: a multi-object video. Rectangular "people" (two-tone:
    a top and a bottom colour) move in a W x H frame with varied dynamics
@@ -50,7 +51,7 @@ def circular_trajectory(
     phase: float = 0.0,
     direction: float = 1.0,
 ) -> np.ndarray:
-    """The textbook's trajectory: n_steps points of one turn, angles linspace(0, 2 pi)."""
+    """The chapter's trajectory: n_steps points of one turn, angles linspace(0, 2 pi)."""
     t = np.linspace(0.0, 2.0 * np.pi, n_steps)
     a = phase + direction * t
     return np.stack([radius * np.cos(a) + centre[0], radius * np.sin(a) + centre[1]], axis=1)
