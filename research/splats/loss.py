@@ -25,6 +25,6 @@ def l1_dssim(pred: np.ndarray, target: np.ndarray, lambda_dssim: float = LAMBDA_
     diff = pred - target
     l1 = float(np.abs(diff).mean(dtype=np.float64))
     ssim_value, dssim_dpred = kssim.ssim(pred, target, device=device)
-    grad = (1.0 - lambda_dssim) * np.sign(diff) / diff.size - lambda_dssim * dssim_dpred.numpy()
+    grad = (1.0 - lambda_dssim) * np.sign(diff) / diff.size - lambda_dssim * dssim_dpred
     loss = (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - ssim_value)
     return loss, grad.astype(pred.dtype), {"l1": l1, "ssim": ssim_value}
