@@ -33,6 +33,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.sh import sh_basis, sh_basis_dx, sh_basis_dy, sh_basis_dz
+from kernels.splat._inputs import inputs_like
 from kernels.splat.camera import SplatCamera
 from kernels.splat.ewa import (DILATION, aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp,
                                persp_proj, persp_proj_vjp, quat_scale_to_covar, quat_scale_to_covar_vjp, sigmoid,
@@ -306,14 +307,6 @@ class GaussianInputs:
     def inputs(self) -> A.Inputs:
         """An `Inputs` for a call on these parameters: their device, dtype and output kind."""
         return inputs_like(self.device, self.scalar, self.as_numpy)
-
-
-def inputs_like(device: wp.Device, scalar: Any, as_numpy: bool) -> A.Inputs:
-    """An `Inputs` whose device, scalar type and output kind are already known (later stages of a chain)."""
-    a = A.Inputs(device)
-    a.scalar = scalar
-    a.as_numpy = as_numpy
-    return a
 
 
 def sh_degree_of(sh_shape: tuple, sh_degree: int | None) -> int:

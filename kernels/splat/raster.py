@@ -31,7 +31,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
@@ -272,7 +271,8 @@ def background_array(a: A.Inputs, background: Any) -> wp.array:
     return a.floats("background", background, (3,))
 
 
-def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array, tiles: Tiles | None = None) -> tuple[Raster, Tiles]:
+def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
+                 tiles: Tiles | None = None) -> tuple[Raster, Tiles]:
     """`rasterize` with wp.array results (the render chain's last stage); `bg` a wp.array."""
     a = s.inputs()
     if tiles is None:

@@ -21,6 +21,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
+from kernels.splat._inputs import inputs_like
 
 wp.set_module_options({"enable_backward": False})
 
@@ -175,10 +176,8 @@ class Splats2D:
         return self.means2d.shape[0]
 
     def inputs(self) -> A.Inputs:
-        a = A.Inputs(self.device)
-        a.scalar = self.scalar
-        a.as_numpy = self.as_numpy
-        return a
+        """An `Inputs` for a call on these splats: their device, dtype and output kind."""
+        return inputs_like(self.device, self.scalar, self.as_numpy)
 
 
 @wp.kernel

@@ -7,6 +7,8 @@ with respect to the rendered image is returned with the value.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from kernels import ssim as kssim
@@ -15,8 +17,8 @@ LAMBDA_DSSIM = 0.2
 
 
 def l1_dssim(pred: np.ndarray, target: np.ndarray, lambda_dssim: float = LAMBDA_DSSIM,
-             device: str = "cpu") -> tuple[float, np.ndarray, dict[str, float]]:
-    """(loss, dloss/dpred, {"l1", "ssim"}) for images (H, W, C) of one float dtype."""
+             device: Any = None) -> tuple[float, np.ndarray, dict[str, float]]:
+    """(loss, dloss/dpred, {"l1", "ssim"}) for NumPy images (H, W, C) of one float dtype; SSIM runs on `device`."""
     if pred.shape != target.shape or pred.dtype != target.dtype:
         raise ValueError(f"pred, target: expected equal shapes and dtypes, got {pred.shape} {pred.dtype} "
                          f"and {target.shape} {target.dtype}")
