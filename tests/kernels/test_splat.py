@@ -265,3 +265,29 @@ def test_bad_splats_2d():
             ks.splats_2d(**dict(args, **{key: value}))
     with pytest.raises(ValueError, match="height"):
         ks.rasterize(ks.splats_2d(**args), 16, 0)
+
+
+def test_value_checks_switch_and_device_counting_kernels():
+    """The value checks are skipped under value_checks(False); the counting kernels that run them
+    on a CUDA device count the same bad entries (launched here on the CPU)."""
+    from kernels._arrays import value_checks
+    from kernels.splat import projection, tiles
+
+    bad = _bad(quats=np.zeros((4, 4)), log_scales=np.full((4, 3), 200.0))
+    with value_checks(False):
+        ks.gaussian_inputs(*(bad[k] for k in PARAMS))  # shapes and dtypes only
+    with pytest.raises(ValueError, match="quats"):
+        ks.gaussian_inputs(*(bad[k] for k in PARAMS))
+    quats = np.array([[1.0, 0, 0, 0], [0, 0, 0, 0], [0, 1e-13, 0, 0], [0, 0, 3.0, 0]])
+    log_scales = np.array([[0.0, 0, 0], [81.0, 0, 0], [0, -90.0, 85.0], [-80.0, 80.0, 0]])
+    count = wp.zeros(2, dtype=wp.int32)
+    wp.launch(projection._count_bad_kernel, dim=4, inputs=[wp.array(quats), wp.array(log_scales),
+                                                           projection.LOG_SCALE_BOUND, count], device="cpu")
+    assert list(count.numpy()) == [2, 3]
+    conics = np.array([[1.0, 0, 1], [1.0, 2.0, 1], [-1.0, 0, 1], [1.0, 2.0, 1]])
+    opacities = np.array([0.5, 1.5, 0.5, -0.1])
+    radii = np.array([3, 3, 2, 0], dtype=np.int32)
+    count = wp.zeros(2, dtype=wp.int32)
+    wp.launch(tiles._count_invalid_kernel, dim=4, inputs=[wp.array(conics), wp.array(opacities),
+                                                          wp.array(radii, dtype=wp.int32), count], device="cpu")
+    assert list(count.numpy()) == [2, 2]  # splat 3's conic is not checked: radius 0
