@@ -22,6 +22,10 @@ camera-space mean p = (x, y, z), intrinsics fx, fy, cx, cy and image size W_img 
     dL/dJ = 2 G2 J Sigma_c, then through J and mean2d to p; where the clamp is active, x' does
     not move with x (the gradient of the clamped piece).
 
+Dilation (`dilate_cov2d`): (a1, b, c1) = (a + 0.3, b, c + 0.3) and det0 = a c - b^2 for
+Sigma2d = [[a, b], [b, c]]; VJP dL/da = dL/da1 + dL/ddet0 c, dL/dc = dL/dc1 + dL/ddet0 a,
+dL/db = dL/db' - 2 b dL/ddet0, split half and half over Sigma2d's two off-diagonal entries.
+
 Conic (`conic_inverse`): the dilated covariance (a1, b, c1) = Sigma2d + 0.3 I has
     det = a1 c1 - b^2,  Q = (c1, -b, a1) / det,
     VJP for dL/dQ = (gA, gB, gC) and an extra dL/ddet from other users of det:
@@ -197,6 +201,28 @@ def persp_proj_vjp(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width
     g_ty += gv * fy / tz
     g_tz += -gu * fx * tx / tz2 - gv * fy * ty / tz2 + g_depth
     return wp.vector(g_tx, g_ty, g_tz, length=3, dtype=type(tz)), g_cov_c
+
+
+@wp.func
+def dilate_cov2d(cov2d: Any):
+    """(a, b, c, det0, a1, c1): Sigma2d = [[a, b], [b, c]], its determinant det0 = a c - b^2, and the
+    diagonal a1 = a + 0.3, c1 = c + 0.3 of the dilated Sigma2d + 0.3 I."""
+    a = cov2d[0, 0]
+    b = cov2d[0, 1]
+    c = cov2d[1, 1]
+    det0 = a * c - b * b
+    return a, b, c, det0, a + type(a)(DILATION), c + type(a)(DILATION)
+
+
+@wp.func
+def dilate_cov2d_vjp(a: Any, b: Any, c: Any, g_a1: Any, g_b: Any, g_c1: Any, g_det0: Any):
+    """dL/dSigma2d (symmetric, b in both off-diagonal entries) from the cotangents of a1, b, c1 and det0."""
+    two = type(a)(2.0)
+    half = type(a)(0.5)
+    ga = g_a1 + g_det0 * c
+    gc = g_c1 + g_det0 * a
+    gb = g_b - two * b * g_det0
+    return wp.matrix(ga, half * gb, half * gb, gc, shape=(2, 2), dtype=type(a))
 
 
 @wp.func

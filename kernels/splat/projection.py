@@ -35,9 +35,10 @@ from kernels import _arrays as A
 from kernels.sh import sh_basis, sh_basis_dx, sh_basis_dy, sh_basis_dz
 from kernels.splat._inputs import inputs_like
 from kernels.splat.camera import SplatCamera
-from kernels.splat.ewa import (DILATION, aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp,
-                               persp_proj, persp_proj_vjp, quat_scale_to_covar, quat_scale_to_covar_vjp, sigmoid,
-                               transform_cov, transform_cov_vjp, view_direction, view_direction_vjp)
+from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
+                               dilate_cov2d_vjp, persp_proj, persp_proj_vjp, quat_scale_to_covar,
+                               quat_scale_to_covar_vjp, sigmoid, transform_cov, transform_cov_vjp, view_direction,
+                               view_direction_vjp)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -61,6 +62,15 @@ def _load_splat(means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any),
     q = wp.vector(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3], length=4, dtype=means.dtype)
     l = wp.vector(log_scales[i, 0], log_scales[i, 1], log_scales[i, 2], length=3, dtype=means.dtype)
     return mu, q, l
+
+
+@wp.func
+def sh_color(sh: wp.array3d(dtype=Any), i: int, ch: int, basis: Any, n_coeffs: int):
+    """sum_k f_k Y_k(d) + 1/2 for channel ch of splat i, before the clamp at 0."""
+    acc = sh.dtype(0.5)
+    for k in range(n_coeffs):
+        acc += basis[k] * sh[i, k, ch]
+    return acc
 
 
 @wp.kernel
@@ -106,12 +116,7 @@ def _project_kernel(
         return
     cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
     u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
-    a = cov2d[0, 0]
-    b = cov2d[0, 1]
-    c = cov2d[1, 1]
-    det0 = a * c - b * b
-    a1 = a + means.dtype(DILATION)
-    c1 = c + means.dtype(DILATION)
+    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
     det, qa, qb, qc = conic_inverse(a1, b, c1)
     if det <= zero:
         return
@@ -134,9 +139,7 @@ def _project_kernel(
     basis = sh_basis(d[0], d[1], d[2])
     n_coeffs = (sh_degree + 1) * (sh_degree + 1)
     for ch in range(3):
-        acc = means.dtype(0.5)
-        for k in range(n_coeffs):
-            acc += basis[k] * sh[i, k, ch]
+        acc = sh_color(sh, i, ch, basis, n_coeffs)
         colors[i, ch] = wp.max(acc, zero)
 
     o = sigmoid(opacity_logits[i])
@@ -174,8 +177,6 @@ def _project_backward_kernel(
     i = wp.tid() + offset
     zero = means.dtype(0.0)
     one = means.dtype(1.0)
-    two = means.dtype(2.0)
-    half = means.dtype(0.5)
     for k in range(sh.shape[1]):
         for ch in range(3):
             d_sh[i, k, ch] = zero
@@ -194,12 +195,8 @@ def _project_backward_kernel(
     p = Wr * mu + tv
     cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
     u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
-    a = cov2d[0, 0]
-    b = cov2d[0, 1]
-    c = cov2d[1, 1]
-    det0 = a * c - b * b
-    a1 = a + means.dtype(DILATION)
-    c1 = c + means.dtype(DILATION)
+    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
+    det, qa, qb, qc = conic_inverse(a1, b, c1)
     sig = sigmoid(opacity_logits[i])
 
     # Opacity o = sigmoid(a) comp.
@@ -208,16 +205,13 @@ def _project_backward_kernel(
     g_det = zero
     comp = one
     if antialiased != 0:
-        comp = aa_compensation(det0, a1 * c1 - b * b)
-        g_det0, g_det = aa_compensation_vjp(det0, a1 * c1 - b * b, g_o * sig)
+        comp = aa_compensation(det0, det)
+        g_det0, g_det = aa_compensation_vjp(det0, det, g_o * sig)
     d_opacity_logits[i] = g_o * comp * sig * (one - sig)
 
-    # Conic and dilation; det0 = a c - b^2 adds its share. b is both off-diagonal entries of Sigma2d.
+    # Conic and dilation (det0 = a c - b^2 adds its share).
     g_a1, g_b1, g_c1 = conic_inverse_vjp(a1, b, c1, g_conics[i, 0], g_conics[i, 1], g_conics[i, 2], g_det)
-    g_a = g_a1 + g_det0 * c
-    g_c = g_c1 + g_det0 * a
-    g_b = g_b1 - two * b * g_det0
-    g_cov2d = wp.matrix(g_a, half * g_b, half * g_b, g_c, shape=(2, 2), dtype=means.dtype)
+    g_cov2d = dilate_cov2d_vjp(a, b, c, g_a1, g_b1, g_c1, g_det0)
 
     # EWA projection, then the world-to-camera transforms of the mean and the covariance.
     g_p, g_cov_c = persp_proj_vjp(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height, g_cov2d,
@@ -238,9 +232,7 @@ def _project_backward_kernel(
     n_coeffs = (sh_degree + 1) * (sh_degree + 1)
     g_d = wp.vector(zero, zero, zero, length=3, dtype=means.dtype)
     for ch in range(3):
-        acc = means.dtype(0.5)
-        for k in range(n_coeffs):
-            acc += basis[k] * sh[i, k, ch]
+        acc = sh_color(sh, i, ch, basis, n_coeffs)
         if acc > zero:
             gcol = g_colors[i, ch]
             for k in range(n_coeffs):
