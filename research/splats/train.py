@@ -1,4 +1,4 @@
-"""Fitting splats to posed images, and evaluating them (3DGS's train.py, on the CPU kernels).
+"""Fitting splats to posed images, and evaluating them (3DGS's train.py, on the Warp kernels).
 
 Each iteration renders one training view (a fresh random permutation of the views
 per epoch, as 3DGS), takes the L1 + D-SSIM loss against the ground truth, runs
