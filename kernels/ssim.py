@@ -24,19 +24,18 @@ G_m = g * (c dS/dm) for a cotangent map c,
     dL/dx = G_mu_x + 2 x G_e_xx + y G_e_xy,    dL/dy = G_mu_y + 2 y G_e_yy + x G_e_xy.
 The filter is separable and runs as a horizontal then a vertical pass. Every
 kernel writes only its own pixel, so all of them run split over CPU threads
-(kernels.launch.launch_split). Generic over float32 and float64.
+(kernels.launch.launch_split, through kernels/_arrays.py). Generic over float32 and float64.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import warp as wp
 
-from kernels.launch import launch_split
+from kernels import _arrays as A
 
 wp.set_module_options({"enable_backward": False})
 
@@ -160,116 +159,89 @@ def _ssim_input_grads_kernel(x: wp.array3d(dtype=Any), y: wp.array3d(dtype=Any),
     dy[row, col, ch] = gm[1, row, col, ch] + two * b * gm[3, row, col, ch] + a * gm[4, row, col, ch]
 
 
-def _declare_float_overloads(kernel: Any) -> None:
-    for dt in (wp.float32, wp.float64):
-        types = {}
-        for arg in kernel.adj.args:
-            if wp.types.is_array(arg.type) and arg.type.dtype is Any:
-                types[arg.label] = wp.array(dtype=dt, ndim=arg.type.ndim)
-            elif arg.type is Any:
-                types[arg.label] = dt
-        wp.overload(kernel, types)
-
-
 for _k in (_moments_kernel, _blur_kernel, _ssim_map_kernel, _ssim_partials_kernel, _ssim_input_grads_kernel):
-    _declare_float_overloads(_k)
+    A.declare_float_overloads(_k)
 
 
 # ============================================================================ entry points
 
 
-def _as_image(name: str, img: Any, device: wp.Device, like: wp.array | None = None) -> wp.array:
-    if isinstance(img, wp.array):
-        if img.device != device:
-            raise ValueError(f"{name}: expected an array on device {device}, got {img.device}")
-        arr = img.numpy()
-    else:
-        arr = np.asarray(img)
-    if arr.ndim != 3 or arr.shape[2] < 1:
-        raise ValueError(f"{name}: expected an image of shape (H, W, C), got {arr.shape}")
-    if arr.dtype not in (np.float32, np.float64):
-        raise ValueError(f"{name}: expected float32 or float64, got {arr.dtype}")
-    if like is not None:
-        want = np.dtype(wp.dtype_to_numpy(like.dtype))
-        if tuple(arr.shape) != tuple(like.shape):
-            raise ValueError(f"{name}: expected shape {tuple(like.shape)}, got {arr.shape}")
-        if arr.dtype != want:
-            raise ValueError(f"{name}: expected dtype {want}, got {arr.dtype}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: contains NaN or infinite values")
-    return img if isinstance(img, wp.array) else wp.array(np.ascontiguousarray(arr), device=device)
-
-
-def _launch(kernel, dim: int, inputs: list, device: wp.Device) -> None:
-    if dim > 0:
-        launch_split(kernel, dim, inputs, device=device)
-
-
-def _blur(maps: wp.array, taps: wp.array, device: wp.Device) -> wp.array:
-    tmp = wp.empty_like(maps)
-    out = wp.empty_like(maps)
+def _blur(a: A.Inputs, maps: wp.array, taps: wp.array) -> wp.array:
+    tmp = a.empty(maps.shape)
+    out = a.empty(maps.shape)
     per_map = maps.size // maps.shape[0]
-    _launch(_blur_kernel, per_map, [maps, taps, 2, tmp], device)
-    _launch(_blur_kernel, per_map, [tmp, taps, 1, out], device)
+    a.launch(_blur_kernel, per_map, [maps, taps, 2, tmp])
+    a.launch(_blur_kernel, per_map, [tmp, taps, 1, out])
     return out
 
 
 @dataclass
 class SSIMState:
+    """What `ssim_map` computed: `map` in the kind of x; x, y and the moments are wp.arrays (state)."""
+
     x: wp.array
     y: wp.array
     moments: wp.array  # (5, H, W, C) filtered mu_x, mu_y, e_xx, e_yy, e_xy
-    map: wp.array  # (H, W, C)
+    map: Any  # (H, W, C)
     data_range: float
+    as_numpy: bool
 
     def mean(self) -> float:
-        return float(self.map.numpy().mean(dtype=np.float64))
+        m = self.map if isinstance(self.map, np.ndarray) else self.map.numpy()
+        return float(m.mean(dtype=np.float64))
+
+    def inputs(self) -> A.Inputs:
+        a = A.Inputs(self.x.device)
+        a.scalar = self.x.dtype
+        a.as_numpy = self.as_numpy
+        return a
 
 
-def _constants(data_range: float, dt: Any) -> tuple[Any, Any]:
-    if not (isinstance(data_range, (int, float)) and math.isfinite(data_range) and data_range > 0):
-        raise ValueError(f"data_range: expected a positive finite number, got {data_range!r}")
-    return dt((K1 * data_range) ** 2), dt((K2 * data_range) ** 2)
+def _constants(a: A.Inputs, data_range: float) -> tuple[Any, Any]:
+    data_range = A.check_float("data_range", data_range, positive=True)
+    return a.s((K1 * data_range) ** 2), a.s((K2 * data_range) ** 2)
 
 
-def ssim_map(x: Any, y: Any, *, data_range: float = 1.0, device: str | wp.Device = "cpu") -> SSIMState:
-    """Per-pixel SSIM of images x and y (H, W, C), same dtype; see the module docstring."""
-    device = wp.get_device(device)
-    xa = _as_image("x", x, device)
-    ya = _as_image("y", y, device, like=xa)
-    c1, c2 = _constants(data_range, xa.dtype)
+def ssim_map(x: Any, y: Any, *, data_range: float = 1.0, device: Any = None) -> SSIMState:
+    """Per-pixel SSIM of images x and y (H, W, C), one float dtype; see the module docstring.
+
+    NumPy or wp.array inputs (kernels/_arrays.py); the map comes back in the kind of x.
+    """
+    a = A.Inputs(device, x, y)
+    xa = a.floats("x", x, ndim=3, nonempty=True)
+    ya = a.floats("y", y, tuple(xa.shape))
+    c1, c2 = _constants(a, data_range)
     h, w, c = xa.shape
-    if min(h, w) < 1:
-        raise ValueError(f"x: expected a non-empty image, got shape {xa.shape}")
-    taps = wp.array(gaussian_window(), dtype=xa.dtype, device=device)
-    mom = wp.empty((_MOMENTS, h, w, c), dtype=xa.dtype, device=device)
-    _launch(_moments_kernel, h * w * c, [xa, ya, mom], device)
-    mom = _blur(mom, taps, device)
-    out = wp.empty((h, w, c), dtype=xa.dtype, device=device)
-    _launch(_ssim_map_kernel, h * w * c, [mom, c1, c2, out], device)
-    return SSIMState(xa, ya, mom, out, float(data_range))
+    taps = wp.array(gaussian_window(), dtype=a.scalar, device=a.device)
+    mom = a.empty((_MOMENTS, h, w, c))
+    a.launch(_moments_kernel, h * w * c, [xa, ya, mom])
+    mom = _blur(a, mom, taps)
+    out = a.empty((h, w, c))
+    a.launch(_ssim_map_kernel, h * w * c, [mom, c1, c2, out])
+    return SSIMState(xa, ya, mom, a.out(out), float(data_range), a.as_numpy)
 
 
-def ssim_map_backward(state: SSIMState, grad_map: Any) -> tuple[wp.array, wp.array]:
-    """VJP of `ssim_map`: (dL/dx, dL/dy) for dL/dmap = grad_map."""
-    device = state.x.device
-    g = _as_image("grad_map", grad_map, device, like=state.map)
-    c1, c2 = _constants(state.data_range, state.x.dtype)
+def ssim_map_backward(state: SSIMState, grad_map: Any) -> tuple[Any, Any]:
+    """VJP of `ssim_map`: the tuple (dL/dx, dL/dy) for dL/dmap = grad_map, in the kind of x."""
+    a = state.inputs()
+    g = a.floats("grad_map", grad_map, tuple(state.x.shape))
+    c1, c2 = _constants(a, state.data_range)
     h, w, c = state.x.shape
-    taps = wp.array(gaussian_window(), dtype=state.x.dtype, device=device)
-    partials = wp.empty_like(state.moments)
-    _launch(_ssim_partials_kernel, h * w * c, [state.moments, g, c1, c2, partials], device)
-    partials = _blur(partials, taps, device)
-    dx = wp.empty_like(state.x)
-    dy = wp.empty_like(state.x)
-    _launch(_ssim_input_grads_kernel, h * w * c, [state.x, state.y, partials, dx, dy], device)
-    return dx, dy
+    taps = wp.array(gaussian_window(), dtype=a.scalar, device=a.device)
+    partials = a.empty(state.moments.shape)
+    a.launch(_ssim_partials_kernel, h * w * c, [state.moments, g, c1, c2, partials])
+    partials = _blur(a, partials, taps)
+    dx = a.empty(state.x.shape)
+    dy = a.empty(state.x.shape)
+    a.launch(_ssim_input_grads_kernel, h * w * c, [state.x, state.y, partials, dx, dy])
+    return a.out(dx), a.out(dy)
 
 
-def ssim(x: Any, y: Any, *, data_range: float = 1.0, device: str | wp.Device = "cpu") -> tuple[float, wp.array]:
-    """Mean SSIM of x against y, and its gradient with respect to x."""
+def ssim(x: Any, y: Any, *, data_range: float = 1.0, device: Any = None) -> tuple[float, Any]:
+    """Mean SSIM of x against y, and its gradient with respect to x (in the kind of x)."""
     state = ssim_map(x, y, data_range=data_range, device=device)
-    n = state.map.size
-    grad = np.full(state.map.shape, 1.0 / n, dtype=wp.dtype_to_numpy(state.map.dtype))
+    n = int(np.prod(state.x.shape))
+    grad = state.inputs().zeros(state.x.shape)
+    grad.fill_(state.x.dtype(1.0 / n))
     dx, _ = ssim_map_backward(state, grad)
     return state.mean(), dx

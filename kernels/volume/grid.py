@@ -13,7 +13,7 @@ f_a = u_a - i_a, and the trilinear weights of the cell's 8 corners (b in {0, 1}^
 
 with K the colour coefficients: one per channel (sh_degree None: Y_0 = 1, plain RGB) or
 (deg+1)^2 per channel for real spherical harmonics of degree deg <= 2 in the view direction d
-(the basis and constants of Plenoxels/3DGS: C0 = 0.28209479, C1 = 0.48860251, C2 = ...).
+(the basis and constants of Plenoxels/3DGS, kernels/sh.py).
 Points outside the box get sigma = 0 and rgb = 0, and no gradient.
 
 DVGO's choice is softplus with a large negative bias (the field starts transparent) and a scale of
@@ -37,6 +37,7 @@ import numpy as np
 import warp as wp
 
 from kernels.launch import launch_split
+from kernels.sh import sh_component
 from kernels.volume import _act
 from kernels.volume import _util as U
 from kernels.volume._act import density_act, density_act_grad, sigmoid
@@ -45,47 +46,12 @@ from kernels.volume.workspace import Workspace
 
 wp.set_module_options({"enable_backward": False})
 
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-
-
-def sh_basis_numpy(dirs: np.ndarray, degree: int | None) -> np.ndarray:
-    """Y_j(d) for unit directions (N, 3) -> (N, n_coef); degree None gives the constant 1."""
-    if degree is None:
-        return np.ones((dirs.shape[0], 1), dtype=dirs.dtype)
-    x, y, z = dirs[:, 0], dirs[:, 1], dirs[:, 2]
-    cols = [np.full_like(x, SH_C0)]
-    if degree >= 1:
-        cols += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
-    if degree >= 2:
-        cols += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * z * z - x * x - y * y), SH_C2[3] * x * z,
-                 SH_C2[4] * (x * x - y * y)]
-    return np.stack(cols, axis=1)
-
-
 @wp.func
 def sh_basis(j: int, x: typing.Any, y: typing.Any, z: typing.Any, mode: int):
-    """Y_j(x, y, z); mode -1 is plain RGB (Y_0 = 1)."""
+    """Y_j(x, y, z) of kernels/sh.py; mode -1 is plain RGB (Y_0 = 1)."""
     if mode < 0:
         return type(x)(1.0)
-    if j == 0:
-        return type(x)(0.28209479177387814)
-    if j == 1:
-        return type(x)(-0.4886025119029199) * y
-    if j == 2:
-        return type(x)(0.4886025119029199) * z
-    if j == 3:
-        return type(x)(-0.4886025119029199) * x
-    if j == 4:
-        return type(x)(1.0925484305920792) * x * y
-    if j == 5:
-        return type(x)(-1.0925484305920792) * y * z
-    if j == 6:
-        return type(x)(0.31539156525252005) * (type(x)(2.0) * z * z - x * x - y * y)
-    if j == 7:
-        return type(x)(-1.0925484305920792) * x * z
-    return type(x)(0.5462742152960396) * (x * x - y * y)
+    return sh_component(j, x, y, z)
 
 
 @wp.func

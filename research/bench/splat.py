@@ -1,7 +1,8 @@
 """Benchmark family "splat": Gaussian-splatting render, forward and forward + backward.
 
 Case `splat.render` at (gaussians, height, width) = (2000, 128, 128) and
-(100000, 512, 512), float32, on the named device (CPU: kernels.launch threads).
+(100000, 512, 512), float32, on the named device (CPU: kernels.launch threads);
+`tiny` runs (200, 32, 32) only, about a second in all (for `make test`).
 
 The scene (`bench_scene`): means uniform in a ball of radius 1 seen from 3.5 units
 with a 50 degree field of view; per-axis scales log-uniform within a factor e of
@@ -12,7 +13,8 @@ semi-transparent cloud (mean alpha ~0.35, few pixels saturate), so most pixels
 walk their tile's whole list: harder than a converged scene of opaque surfaces,
 where the T < 1e-4 stop ends most pixels early.
 
-Phases (medians of REPEATS runs after a warm-up, kernels.splat):
+Phases (medians of REPEATS runs after a warm-up, kernels.splat; the parameters are
+wp.arrays on the device, so every result stays there):
   fwd_s      render(): projection, tile binning, both radix sorts, rasterisation;
   fwd_bwd_s  render() then render_backward() for a random image cotangent.
 Extra keys: visible splats, (tile, splat) entries, mean alpha.
@@ -32,10 +34,11 @@ from research.bench import time_medians
 
 CASES = ((2000, 128, 128), (100_000, 512, 512))
 QUICK_CASES = ((2000, 128, 128),)
+TINY_CASES = ((200, 32, 32),)
 REPEATS = 3
 
 
-def bench_scene(n: int, height: int, width: int, seed: int = 0, dtype=np.float32):
+def bench_scene(n: int, height: int, width: int, seed: int = 0, dtype=np.float32, device=None):
     rng = np.random.default_rng(seed)
     d = rng.normal(size=(n, 3))
     means = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(0, 1, (n, 1)) ** (1 / 3)
@@ -48,17 +51,17 @@ def bench_scene(n: int, height: int, width: int, seed: int = 0, dtype=np.float32
     view = np.eye(4)
     view[2, 3] = 3.5
     camera = ks.SplatCamera(view, np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]]), width, height)
-    g = ks.gaussian_inputs(*(params[k].astype(dtype) for k in ("means", "log_scales", "quats", "opacity_logits", "sh")))
+    dev = wp.get_device(device)
+    g = ks.gaussian_inputs(*(wp.array(params[k].astype(dtype), device=dev)
+                             for k in ("means", "log_scales", "quats", "opacity_logits", "sh")), device=dev)
     return g, camera
 
 
-def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
+def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Iterator[dict]:
     dev = wp.get_device(device)
     threads = 1 if dev.is_cuda else default_threads()
-    for n, h, w in QUICK_CASES if quick else CASES:
-        g, camera = bench_scene(n, h, w)
-        g = ks.gaussian_inputs(*(wp.array(getattr(g, k).numpy(), device=dev) for k in
-                                 ("means", "log_scales", "quats", "opacity_logits", "sh")), device=dev)
+    for n, h, w in TINY_CASES if tiny else QUICK_CASES if quick else CASES:
+        g, camera = bench_scene(n, h, w, device=dev)
         cot = wp.array(np.random.default_rng(1).normal(size=(h, w, 3)).astype(np.float32), device=dev)
         sync = lambda: wp.synchronize_device(dev)  # noqa: E731
 

@@ -1,4 +1,4 @@
-"""Gradient checks of the Gaussian-splatting kernels (kernels/splat.py), float64.
+"""Gradient checks of the Gaussian-splatting kernels (kernels/splat), float64.
 
 Each stage is checked on its own (projection, rasterisation) and the whole chain
 (project + bin + sort + rasterise) per parameter group. The test scenes are the
@@ -121,8 +121,8 @@ def discontinuity_margins(scene: Scene, sh_degree: int | None = None, antialiase
     """Distances of `scene` from every discontinuity of the forward (module docstring)."""
     g = ks.gaussian_inputs(*(scene.params[k] for k in PARAMS))
     proj = ks.project(g, scene.camera, sh_degree=sh_degree, antialiased=antialiased)
-    m2, conic, depth = proj.means2d.numpy(), proj.conics.numpy(), proj.depths.numpy()
-    radii, opac = proj.radii.numpy(), proj.opacities.numpy()
+    m2, conic, depth = proj.means2d, proj.conics, proj.depths
+    radii, opac = proj.radii, proj.opacities
     cam = scene.camera
     vis = np.flatnonzero(radii > 0)
     out = {"visible": float(len(vis))}
@@ -146,7 +146,7 @@ def discontinuity_margins(scene: Scene, sh_degree: int | None = None, antialiase
     out["depth_gap"] = float(np.min(np.diff(d))) if len(d) > 1 else math.inf
 
     # Colour clamp at 0 (on the pre-clamp value) and the Jacobian clamp.
-    out["color"] = float(np.min(proj.colors.numpy()[vis])) if len(vis) else math.inf
+    out["color"] = float(np.min(proj.colors[vis])) if len(vis) else math.inf
     p = scene.params["means"] @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
     fx, fy, cx, cy = cam.params()[:4]
     lims = [(cam.width - cx) / fx + 0.3 * cam.width / fx, -(cx / fx + 0.3 * cam.width / fx),
@@ -229,15 +229,15 @@ def project_fn(camera: ks.SplatCamera, sh_degree: int | None, antialiased: bool)
     def f(means, log_scales, quats, opacity_logits, sh):
         g = ks.gaussian_inputs(means, log_scales, quats, opacity_logits, sh)
         p = ks.project(g, camera, sh_degree=sh_degree, antialiased=antialiased)
-        return {"means2d": p.means2d.numpy(), "conics": p.conics.numpy(), "depths": p.depths.numpy(),
-                "colors": p.colors.numpy(), "opacities": p.opacities.numpy()}
+        return {"means2d": p.means2d, "conics": p.conics, "depths": p.depths, "colors": p.colors,
+                "opacities": p.opacities}
 
     def vjp(inputs, cot):
         g = ks.gaussian_inputs(*(inputs[k] for k in PARAMS))
         p = ks.project(g, camera, sh_degree=sh_degree, antialiased=antialiased)
         grads = ks.project_backward(g, camera, p.radii, cot["means2d"], cot["conics"], cot["depths"], cot["colors"],
                                     cot["opacities"], sh_degree=sh_degree, antialiased=antialiased)
-        return {k: v.numpy() for k, v in grads.items()}
+        return grads
 
     return f, vjp
 
@@ -246,14 +246,14 @@ def rasterize_fn(radii: np.ndarray, width: int, height: int):
     def f(means2d, conics, colors, opacities, depths, background):
         s = ks.splats_2d(means2d, conics, colors, opacities, depths, radii)
         r, _ = ks.rasterize(s, width, height, background)
-        return {"rgb": r.rgb.numpy(), "alpha": r.alpha.numpy(), "depth": r.depth.numpy()}
+        return {"rgb": r.rgb, "alpha": r.alpha, "depth": r.depth}
 
     def vjp(inputs, cot):
         s = ks.splats_2d(*(inputs[k] for k in ("means2d", "conics", "colors", "opacities", "depths")), radii)
         r, tiles = ks.rasterize(s, width, height, inputs["background"])
         grads = ks.rasterize_backward(s, width, height, inputs["background"], tiles, r, cot["rgb"], cot["alpha"],
                                       cot["depth"])
-        return {k: v.numpy() for k, v in grads.items()}
+        return grads
 
     return f, vjp
 
@@ -262,13 +262,13 @@ def render_fn(camera: ks.SplatCamera, sh_degree: int | None, antialiased: bool):
     def f(means, log_scales, quats, opacity_logits, sh, background):
         g = ks.gaussian_inputs(means, log_scales, quats, opacity_logits, sh)
         r = ks.render(g, camera, background, sh_degree=sh_degree, antialiased=antialiased)
-        return {"rgb": r.rgb.numpy(), "alpha": r.alpha.numpy(), "depth": r.depth.numpy()}
+        return {"rgb": r.rgb, "alpha": r.alpha, "depth": r.depth}
 
     def vjp(inputs, cot):
         g = ks.gaussian_inputs(*(inputs[k] for k in PARAMS))
         r = ks.render(g, camera, inputs["background"], sh_degree=sh_degree, antialiased=antialiased)
         grads = ks.render_backward(g, r, cot["rgb"], cot["alpha"], cot["depth"])
-        return {k: v.numpy() for k, v in grads.items() if k != "means2d"}
+        return {k: v for k, v in grads.items() if k != "means2d"}
 
     return f, vjp
 
@@ -288,9 +288,9 @@ def check_rasterize(seed: int) -> list[GradcheckResult]:
     scene = smooth_scene(seed, require_events=True)
     g = ks.gaussian_inputs(*(scene.params[k] for k in PARAMS))
     p = ks.project(g, scene.camera)
-    inputs = {"means2d": p.means2d.numpy(), "conics": p.conics.numpy(), "colors": p.colors.numpy(),
-              "opacities": p.opacities.numpy(), "depths": p.depths.numpy(), "background": scene.background}
-    f, vjp = rasterize_fn(p.radii.numpy(), scene.camera.width, scene.camera.height)
+    inputs = {"means2d": p.means2d, "conics": p.conics, "colors": p.colors, "opacities": p.opacities,
+              "depths": p.depths, "background": scene.background}
+    f, vjp = rasterize_fn(p.radii, scene.camera.width, scene.camera.height)
     return check_vjp(f, vjp, inputs, seed=seed, name=f"splat.rasterize[seed={seed}]")
 
 

@@ -1,2 +1,2 @@
-"""3D Gaussian splatting on top of kernels/splat.py: the model, its PLY files, Adam,
+"""3D Gaussian splatting on top of kernels/splat: the model, its PLY files, Adam,
 the L1 + D-SSIM loss, densification and the training loop (Kerbl et al. 2023)."""

@@ -30,8 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kernels.optim import Adam
 from research.splats.model import GaussianModel, logit
-from research.splats.optim import Adam
 
 REFERENCE_ITERATIONS = 30_000
 # Floors for short runs: statistics over at least this many views, and time for new

@@ -7,6 +7,8 @@ with respect to the rendered image is returned with the value.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from kernels import ssim as kssim
@@ -15,8 +17,8 @@ LAMBDA_DSSIM = 0.2
 
 
 def l1_dssim(pred: np.ndarray, target: np.ndarray, lambda_dssim: float = LAMBDA_DSSIM,
-             device: str = "cpu") -> tuple[float, np.ndarray, dict[str, float]]:
-    """(loss, dloss/dpred, {"l1", "ssim"}) for images (H, W, C) of one float dtype."""
+             device: Any = None) -> tuple[float, np.ndarray, dict[str, float]]:
+    """(loss, dloss/dpred, {"l1", "ssim"}) for NumPy images (H, W, C) of one float dtype; SSIM runs on `device`."""
     if pred.shape != target.shape or pred.dtype != target.dtype:
         raise ValueError(f"pred, target: expected equal shapes and dtypes, got {pred.shape} {pred.dtype} "
                          f"and {target.shape} {target.dtype}")
@@ -25,6 +27,6 @@ def l1_dssim(pred: np.ndarray, target: np.ndarray, lambda_dssim: float = LAMBDA_
     diff = pred - target
     l1 = float(np.abs(diff).mean(dtype=np.float64))
     ssim_value, dssim_dpred = kssim.ssim(pred, target, device=device)
-    grad = (1.0 - lambda_dssim) * np.sign(diff) / diff.size - lambda_dssim * dssim_dpred.numpy()
+    grad = (1.0 - lambda_dssim) * np.sign(diff) / diff.size - lambda_dssim * dssim_dpred
     loss = (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - ssim_value)
     return loss, grad.astype(pred.dtype), {"l1": l1, "ssim": ssim_value}

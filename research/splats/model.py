@@ -3,7 +3,8 @@
 Parameters follow the 3DGS code and its PLY layout: means (N, 3), log-scales (N, 3),
 quaternions (w, x, y, z) (N, 4, unnormalised), opacity logits (N,), and SH
 coefficients split into the DC term (N, 1, 3) and the rest (N, 15, 3) (degree 3),
-which have different learning rates. Arrays are float32 NumPy.
+which have different learning rates. Arrays are float32 NumPy; `inputs(device)` hands them to the
+kernels as wp.arrays on the device, so renders and gradients come back as wp.arrays there.
 
 Initialisation (3DGS): a point with colour c gets SH DC (c - 1/2) / C0, zero higher
 SH, opacity 0.1, identity rotation, and an isotropic scale equal to the RMS
@@ -13,11 +14,15 @@ distance to its 3 nearest neighbours.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
+import warp as wp
 from scipy.spatial import cKDTree
 
+from kernels import _arrays as A
 from kernels import splat as ks
+from kernels.sh import SH_C0
 from research.cameras import Camera
 
 SH_COEFFS = 16
@@ -72,8 +77,12 @@ class GaussianModel:
     def copy(self) -> "GaussianModel":
         return GaussianModel(**{k: v.copy() for k, v in self.arrays().items()})
 
-    def inputs(self, device: str = "cpu") -> ks.GaussianInputs:
-        return ks.gaussian_inputs(self.means, self.log_scales, self.quats, self.opacity_logits, self.sh, device)
+    def inputs(self, device: Any = None) -> ks.GaussianInputs:
+        """The parameters, checked, as wp.arrays on `device` (None: the CPU)."""
+        dev = A.get_device(device)
+        arrays = [wp.array(x, dtype=wp.float32, device=dev)
+                  for x in (self.means, self.log_scales, self.quats, self.opacity_logits, self.sh)]
+        return ks.gaussian_inputs(*arrays, device=dev)
 
 
 def logit(p: float) -> float:
@@ -100,7 +109,7 @@ def from_points(points: np.ndarray, colors: np.ndarray, init_opacity: float = 0.
         log_scales=np.repeat(0.5 * np.log(mean_sq)[:, None], 3, axis=1),
         quats=quats,
         opacity_logits=np.full(n, logit(init_opacity)),
-        sh_dc=((colors - 0.5) / ks.SH_C0)[:, None, :],
+        sh_dc=((colors - 0.5) / SH_C0)[:, None, :],
         sh_rest=np.zeros((n, SH_COEFFS - 1, 3)),
     )
 
@@ -141,8 +150,8 @@ def splat_camera(camera: Camera, near: float = ks.DEFAULT_NEAR) -> ks.SplatCamer
 
 
 def render(model: GaussianModel, camera: Camera, *, sh_degree: int = 3, background=(0.0, 0.0, 0.0),
-           antialiased: bool = False, device: str = "cpu") -> ks.Render:
-    """Render `model` from a research Camera (float32)."""
+           antialiased: bool = False, device: Any = None) -> ks.Render:
+    """Render `model` from a research Camera (float32) on `device` (None: the CPU); wp.array results."""
     return ks.render(model.inputs(device), splat_camera(camera), np.asarray(background, dtype=np.float32),
                      sh_degree=sh_degree, antialiased=antialiased)
 

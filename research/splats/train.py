@@ -1,4 +1,4 @@
-"""Fitting splats to posed images, and evaluating them (3DGS's train.py, on the CPU kernels).
+"""Fitting splats to posed images, and evaluating them (3DGS's train.py, on the Warp kernels).
 
 Each iteration renders one training view (a fresh random permutation of the views
 per epoch, as 3DGS), takes the L1 + D-SSIM loss against the ground truth, runs
@@ -8,6 +8,11 @@ prunes and resets opacities on the scaled 3DGS schedule (research.splats.densify
 The active SH degree grows by one every `sh_interval` iterations up to 3.
 The only ordering difference from 3DGS: the Adam step comes before (not after)
 densification in an iteration, so new splats get their first step one iteration later.
+
+Every stage runs on one device: `train`, `evaluate`, `render_fps` and `ply_round_trip_identical`
+take the Warp device (TrainResult.device is the one training used). The initial model is checked
+once; the loop feeds the kernels its own outputs and runs with value checks off
+(kernels._arrays.value_checks), the loss still checked finite every iteration.
 """
 
 from __future__ import annotations
@@ -15,16 +20,22 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+from pathlib import Path
+from typing import Any
+
 import numpy as np
+import warp as wp
 from tqdm import tqdm
 
+from kernels import _arrays as A
 from kernels import splat as ks
 from research import metrics
 from research.cameras import Camera
+from research.splats import ply
 from research.splats.densify import DensifyConfig, DensifyStats, Schedule, densify_and_prune, reset_opacity
 from research.splats.loss import LAMBDA_DSSIM, l1_dssim
 from research.splats.model import GaussianModel, render, splat_camera
-from research.splats.optim import Adam, LearningRates, expon_lr
+from research.splats.optim import LearningRates, expon_lr, make_adam
 
 
 @dataclass(frozen=True)
@@ -47,6 +58,7 @@ class TrainResult:
     history: list[dict]
     events: list[dict]
     sh_degree: int
+    device: wp.Device  # the device training ran on: pass it to evaluate, render_fps, ...
 
 
 def _check_views(cameras: list[Camera], images: np.ndarray) -> None:
@@ -59,18 +71,21 @@ def _check_views(cameras: list[Camera], images: np.ndarray) -> None:
 
 
 def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, extent: float, cfg: TrainConfig,
-          *, progress: bool = True, device: str = "cpu") -> TrainResult:
-    """Fit a copy of `model` to `images` (N, H, W, 3) linear RGB seen by `cameras` (module docstring)."""
+          *, progress: bool = True, device: Any = None) -> TrainResult:
+    """Fit a copy of `model` to `images` (N, H, W, 3) linear RGB seen by `cameras` (module docstring),
+    rendering on the Warp `device` (None: the CPU)."""
     _check_views(cameras, images)
     if not extent > 0:
         raise ValueError(f"extent: expected a positive scene scale, got {extent}")
+    device = A.get_device(device)
     images = np.ascontiguousarray(images, dtype=np.float32)
     model = model.copy()  # Adam updates in place; the caller's model stays as it was
+    model.inputs(device)  # checks the initial model once (values included) before the unchecked loop
     rng = np.random.default_rng(cfg.seed)
     sched = Schedule.scaled(cfg.iterations)
     lr = cfg.lrs
-    adam = Adam(model, {"means": lr.means_init * extent, "log_scales": lr.log_scales, "quats": lr.quats,
-                        "opacity_logits": lr.opacity_logits, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest})
+    adam = make_adam(model, {"means": lr.means_init * extent, "log_scales": lr.log_scales, "quats": lr.quats,
+                             "opacity_logits": lr.opacity_logits, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest})
     stats = DensifyStats(model.n)
     background = np.asarray(cfg.background, dtype=np.float32)
     splat_cams = [splat_camera(c) for c in cameras]
@@ -79,45 +94,45 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
     t0 = time.perf_counter()
     bar = tqdm(range(1, cfg.iterations + 1), desc="fit splats", disable=not progress, mininterval=2.0)
     degree = 0
-    for it in bar:
-        adam.lrs["means"] = expon_lr(it - 1, lr.means_init * extent, lr.means_final * extent, cfg.iterations)
-        degree = sched.sh_degree(it, cfg.max_sh_degree)
-        if not order:
-            order = list(rng.permutation(len(cameras)))
-        v = order.pop()
-        inputs = model.inputs(device)
-        result = ks.render(inputs, splat_cams[v], background, sh_degree=degree, antialiased=cfg.antialiased)
-        loss, grad_img, parts = l1_dssim(result.rgb.numpy(), images[v], cfg.lambda_dssim, device=device)
-        if not np.isfinite(loss):
-            raise RuntimeError(f"iteration {it}: the loss is {loss}")
-        g = ks.render_backward(inputs, result, grad_img)
-        sh_grad = g["sh"].numpy()
-        adam.step(model, {"means": g["means"].numpy(), "log_scales": g["log_scales"].numpy(),
-                          "quats": g["quats"].numpy(), "opacity_logits": g["opacity_logits"].numpy(),
-                          "sh_dc": sh_grad[:, :1], "sh_rest": sh_grad[:, 1:]})
-        if it < sched.densify_until:
-            cam = splat_cams[v]
-            stats.add(g["means2d"].numpy(), result.projection.radii.numpy(), cam.width, cam.height)
-            if sched.densify_now(it):
-                n_before = model.n
-                model, counts = densify_and_prune(model, adam, stats, extent, cfg.densify, rng,
-                                                  prune_screen=it > sched.reset_interval)
-                stats = DensifyStats(model.n)
-                events.append({"iteration": it, "before": n_before, "after": model.n, **counts})
-            if sched.reset_now(it):
-                reset_opacity(model, adam)
-                events.append({"iteration": it, "opacity_reset": True})
-        running["loss"] += loss
-        running["l1"] += parts["l1"]
-        running["ssim"] += parts["ssim"]
-        running["k"] += 1
-        if it % cfg.log_every == 0 or it == cfg.iterations:
-            k = running.pop("k")
-            history.append({"iteration": it, "gaussians": model.n, "sh_degree": degree,
-                            **{key: val / k for key, val in running.items()}})
-            running = {"loss": 0.0, "l1": 0.0, "ssim": 0.0, "k": 0}
-            bar.set_postfix(loss=f"{history[-1]['loss']:.4f}", n=model.n)
-    return TrainResult(model, time.perf_counter() - t0, history, events, degree)
+    with A.value_checks(False):
+        for it in bar:
+            adam.lr["means"] = expon_lr(it - 1, lr.means_init * extent, lr.means_final * extent, cfg.iterations)
+            degree = sched.sh_degree(it, cfg.max_sh_degree)
+            if not order:
+                order = list(rng.permutation(len(cameras)))
+            v = order.pop()
+            inputs = model.inputs(device)
+            result = ks.render(inputs, splat_cams[v], background, sh_degree=degree, antialiased=cfg.antialiased)
+            loss, grad_img, parts = l1_dssim(result.rgb.numpy(), images[v], cfg.lambda_dssim, device=device)
+            if not np.isfinite(loss):
+                raise RuntimeError(f"iteration {it}: the loss is {loss}")
+            g = {k: x.numpy() for k, x in ks.render_backward(inputs, result, grad_img).items()}
+            adam.step({"means": g["means"], "log_scales": g["log_scales"], "quats": g["quats"],
+                       "opacity_logits": g["opacity_logits"], "sh_dc": np.ascontiguousarray(g["sh"][:, :1]),
+                       "sh_rest": np.ascontiguousarray(g["sh"][:, 1:])}, params=model.arrays())
+            if it < sched.densify_until:
+                cam = splat_cams[v]
+                stats.add(g["means2d"], result.projection.radii.numpy(), cam.width, cam.height)
+                if sched.densify_now(it):
+                    n_before = model.n
+                    model, counts = densify_and_prune(model, adam, stats, extent, cfg.densify, rng,
+                                                      prune_screen=it > sched.reset_interval)
+                    stats = DensifyStats(model.n)
+                    events.append({"iteration": it, "before": n_before, "after": model.n, **counts})
+                if sched.reset_now(it):
+                    reset_opacity(model, adam)
+                    events.append({"iteration": it, "opacity_reset": True})
+            running["loss"] += loss
+            running["l1"] += parts["l1"]
+            running["ssim"] += parts["ssim"]
+            running["k"] += 1
+            if it % cfg.log_every == 0 or it == cfg.iterations:
+                k = running.pop("k")
+                history.append({"iteration": it, "gaussians": model.n, "sh_degree": degree,
+                                **{key: val / k for key, val in running.items()}})
+                running = {"loss": 0.0, "l1": 0.0, "ssim": 0.0, "k": 0}
+                bar.set_postfix(loss=f"{history[-1]['loss']:.4f}", n=model.n)
+    return TrainResult(model, time.perf_counter() - t0, history, events, degree, device)
 
 
 @dataclass
@@ -130,16 +145,17 @@ class Evaluation:
 
 
 def evaluate(model: GaussianModel, cameras: list[Camera], images: np.ndarray, sh_degree: int,
-             background=(0.0, 0.0, 0.0), antialiased: bool = False) -> Evaluation:
+             background=(0.0, 0.0, 0.0), antialiased: bool = False, device: Any = None) -> Evaluation:
     """PSNR and SSIM (research.metrics) of renders against `images` (linear RGB, premultiplied on black).
 
     Both images are compared as research.metrics.EVAL_PROTOCOL says (clipped to [0, 1], then
-    sRGB-encoded); the linear-space PSNR is reported beside it.
+    sRGB-encoded); the linear-space PSNR is reported beside it. Renders run on `device`.
     """
     _check_views(cameras, images)
     renders, per_view = [], []
     for cam, gt in zip(cameras, images):
-        img = render(model, cam, sh_degree=sh_degree, background=background, antialiased=antialiased).rgb.numpy()
+        img = render(model, cam, sh_degree=sh_degree, background=background, antialiased=antialiased,
+                     device=device).rgb.numpy()
         a, b = metrics.srgb_on_black(img), metrics.srgb_on_black(gt)
         per_view.append({"psnr": metrics.psnr(a, b), "ssim": metrics.ssim(a, b),
                          "psnr_linear": metrics.psnr(np.clip(img, 0, 1), np.clip(gt, 0, 1))})
@@ -149,16 +165,27 @@ def evaluate(model: GaussianModel, cameras: list[Camera], images: np.ndarray, sh
 
 
 def render_fps(model: GaussianModel, cameras: list[Camera], sh_degree: int, repeats: int = 3,
-               antialiased: bool = False) -> float:
-    """Frames per second of the forward render (projection, binning, sorting, rasterisation),
-    from the median time per view over `repeats` passes after a warm-up pass."""
+               antialiased: bool = False, device: Any = None) -> float:
+    """Frames per second of the forward render (projection, binning, sorting, rasterisation) on
+    `device`, from the median time per view over `repeats` passes after a warm-up pass."""
     from research.bench import time_median
 
-    inputs = model.inputs()
+    device = A.get_device(device)
+    inputs = model.inputs(device)
     cams = [splat_camera(c) for c in cameras]
 
     def one_pass() -> None:
         for cam in cams:
             ks.render(inputs, cam, sh_degree=sh_degree, antialiased=antialiased)
 
-    return len(cams) / time_median(one_pass, repeats=repeats)
+    return len(cams) / time_median(one_pass, repeats=repeats, sync=lambda: wp.synchronize_device(device))
+
+
+def ply_round_trip_identical(path: Path, model: GaussianModel, camera: Camera, sh_degree: int,
+                             device: Any = None) -> bool:
+    """Save `model` as a PLY at `path`, load it back, and whether the reloaded model renders `camera`
+    bit-identically to `model`, both on `device`."""
+    ply.save_ply(path, model)
+    reloaded = ply.load_ply(path)
+    before = render(model, camera, sh_degree=sh_degree, device=device).rgb.numpy()
+    return bool(np.array_equal(render(reloaded, camera, sh_degree=sh_degree, device=device).rgb.numpy(), before))

@@ -1,0 +1,142 @@
+"""NumPy reference of kernels/splat: projection, SH colour, tile lists and rasterisation.
+
+Float64 loops written from the module docstrings of kernels/splat (the 3DGS forward of Kerbl et
+al. 2023, with EWA splatting and the optional Mip-Splatting compensation). `rasterize` blends the
+splats of 3DGS's square tile sets; the kernels bin by a smaller box that only leaves out pixels
+with alpha < 1/255, so both give the same image. `render` is the whole chain.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from kernels.reference.sh import sh_basis
+
+
+def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the quaternion q / |q|, q = (w, x, y, z)."""
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def project(params: dict, cam, sh_degree: int | None = None, antialiased: bool = False) -> dict:
+    """Per-splat projection (kernels/splat/projection.py) of float64 parameters; radius 0 = culled."""
+    means, log_scales, quats = params["means"], params["log_scales"], params["quats"]
+    logits, sh = params["opacity_logits"], params["sh"]
+    n = len(means)
+    deg = int(round(math.sqrt(sh.shape[1]))) - 1 if sh_degree is None else sh_degree
+    fx, fy, cx, cy, near, far = cam.params()
+    Rw, tw = cam.viewmat[:3, :3], cam.viewmat[:3, 3]
+    centre = -Rw.T @ tw
+    out = {"means2d": np.zeros((n, 2)), "conics": np.zeros((n, 3)), "depths": np.zeros(n),
+           "radii": np.zeros(n, dtype=np.int64), "colors": np.zeros((n, 3)), "opacities": np.zeros(n)}
+    for i in range(n):
+        x, y, z = Rw @ means[i] + tw
+        if z < near or z > far:
+            continue
+        R = quat_to_rotmat(quats[i])
+        S = np.diag(np.exp(log_scales[i]))
+        sigma_cam = Rw @ (R @ S @ S.T @ R.T) @ Rw.T
+        lim_x = (cx / fx + 0.3 * cam.width / fx, (cam.width - cx) / fx + 0.3 * cam.width / fx)
+        lim_y = (cy / fy + 0.3 * cam.height / fy, (cam.height - cy) / fy + 0.3 * cam.height / fy)
+        xc = z * np.clip(x / z, -lim_x[0], lim_x[1])
+        yc = z * np.clip(y / z, -lim_y[0], lim_y[1])
+        J = np.array([[fx / z, 0.0, -fx * xc / z**2], [0.0, fy / z, -fy * yc / z**2]])
+        cov = J @ sigma_cam @ J.T
+        cov_dilated = cov + 0.3 * np.eye(2)
+        det = np.linalg.det(cov_dilated)
+        if det <= 0:
+            continue
+        half_trace = 0.5 * np.trace(cov_dilated)
+        lam_max = half_trace + math.sqrt(max(0.01, half_trace**2 - det))
+        radius = math.ceil(3.0 * math.sqrt(lam_max))
+        u, v = fx * x / z + cx, fy * y / z + cy
+        if u + radius <= 0 or u - radius >= cam.width or v + radius <= 0 or v - radius >= cam.height:
+            continue
+        conic = np.linalg.inv(cov_dilated)
+        direction = (means[i] - centre) / np.linalg.norm(means[i] - centre)
+        basis = sh_basis(direction, deg)
+        opacity = 1.0 / (1.0 + math.exp(-logits[i]))
+        if antialiased:
+            opacity *= math.sqrt(max(0.0, np.linalg.det(cov) / det))
+        out["means2d"][i] = u, v
+        out["conics"][i] = conic[0, 0], conic[0, 1], conic[1, 1]
+        out["depths"][i] = z
+        out["radii"][i] = radius
+        out["colors"][i] = np.maximum(basis @ sh[i, : len(basis)] + 0.5, 0.0)
+        out["opacities"][i] = opacity
+    return out
+
+
+def binned_tiles(m2, conic, opacity, radius, tiles_x, tiles_y, square: bool = False) -> list[int]:
+    """Tiles met by the square mean2d +- radius and (unless `square`) by the bounding box of
+    the ellipse d^T Q d <= 2 ln(255 o), outside which alpha < 1/255."""
+    if radius <= 0:
+        return []
+    ex = ey = radius
+    if not square:
+        if 255 * opacity < 1:
+            return []
+        cov = np.linalg.inv([[conic[0], conic[1]], [conic[1], conic[2]]])
+        k2 = 2 * math.log(255 * opacity)
+        ex, ey = min(radius, math.sqrt(k2 * cov[0, 0])), min(radius, math.sqrt(k2 * cov[1, 1]))
+    x0 = min(max(math.floor((m2[0] - ex) / 16), 0), tiles_x)
+    x1 = min(max(math.ceil((m2[0] + ex) / 16), 0), tiles_x)
+    y0 = min(max(math.floor((m2[1] - ey) / 16), 0), tiles_y)
+    y1 = min(max(math.ceil((m2[1] + ey) / 16), 0), tiles_y)
+    return [ty * tiles_x + tx for ty in range(y0, y1) for tx in range(x0, x1)]
+
+
+def tile_lists(m2, conics, opacities, radii, depths, width, height, square=False) -> dict[int, list[int]]:
+    """Splats of every tile, front to back (stable in the splat index)."""
+    tiles_x, tiles_y = (width + 15) // 16, (height + 15) // 16
+    lists: dict[int, list[int]] = {t: [] for t in range(tiles_x * tiles_y)}
+    for i in np.argsort(depths, kind="stable"):
+        for t in binned_tiles(m2[i], conics[i], opacities[i], radii[i], tiles_x, tiles_y, square):
+            lists[t].append(int(i))
+    return lists
+
+
+def rasterize(m2, conics, colors, opacities, depths, radii, width, height, background):
+    """3DGS's rasteriser: each pixel blends the splats whose square mean2d +- radius meets its tile.
+
+    (The kernel bins by a smaller box that only leaves out pixels with alpha < 1/255,
+    so it must give the same image.)"""
+    lists = tile_lists(m2, conics, opacities, radii, depths, width, height, square=True)
+    tiles_x = (width + 15) // 16
+    rgb, alpha, depth = np.zeros((height, width, 3)), np.zeros((height, width)), np.zeros((height, width))
+    for py in range(height):
+        for px in range(width):
+            T, C, D = 1.0, np.zeros(3), 0.0
+            for i in lists[(py // 16) * tiles_x + px // 16]:
+                d = m2[i] - (px + 0.5, py + 0.5)
+                Q = np.array([[conics[i, 0], conics[i, 1]], [conics[i, 1], conics[i, 2]]])
+                power = -0.5 * d @ Q @ d
+                if power > 0:
+                    continue
+                a = min(0.99, opacities[i] * math.exp(power))
+                if a < 1.0 / 255.0:
+                    continue
+                if T * (1 - a) < 1e-4:
+                    break
+                C += colors[i] * a * T
+                D += depths[i] * a * T
+                T *= 1 - a
+            rgb[py, px] = C + T * background
+            alpha[py, px] = 1 - T
+            depth[py, px] = D
+    return rgb, alpha, depth
+
+
+def render(params: dict, cam, background: np.ndarray, sh_degree: int | None = None,
+           antialiased: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rgb, alpha, depth) of the whole chain for float64 parameters and a SplatCamera."""
+    p = project(params, cam, sh_degree, antialiased)
+    return rasterize(p["means2d"], p["conics"], p["colors"], p["opacities"], p["depths"], p["radii"], cam.width,
+                     cam.height, background)

@@ -1,0 +1,49 @@
+"""3D Gaussian splatting: projection, tile binning, rasterisation and their adjoints.
+
+Follows Kerbl et al., "3D Gaussian Splatting for Real-Time Radiance Field Rendering" (SIGGRAPH
+2023), with the EWA splatting of Zwicker et al. (2002) and, optionally, the antialiasing
+compensation of Yu et al., "Mip-Splatting" (CVPR 2024) as gsplat's rasterize_mode="antialiased"
+has it.
+
+Parameters of Gaussian i: mean mu (3), log-scales l (3), quaternion q = (w, x, y, z)
+(normalised here), opacity logit a, SH coefficients f (K = (L+1)^2, 3), L <= 3. Camera:
+world-to-camera [W | t] (OpenCV axes), intrinsics fx, fy, cx, cy, image W_img x H_img.
+
+The chain, one module per stage:
+
+    projection.py  Sigma = R S S^T R^T, p = W mu + t, EWA: mean2d, Sigma2d = J W Sigma W^T J^T
+                   + 0.3 I, conic Q = Sigma2d^-1, radius, colour = max(0, sum_k f_k Y_k(d) + 1/2),
+                   opacity sigmoid(a) (times Mip-Splatting's compensation); the per-splat math and
+                   its VJPs live in ewa.py, the SH basis in kernels/sh.py
+    tiles.py       16 x 16 pixel tiles: each splat listed in the tiles its alpha >= 1/255 region
+                   meets, sorted by tile then depth (two radix sorts)
+    raster.py      per pixel, front to back: alpha_i = min(0.99, o_i G_i), T_{i+1} = T_i (1 - alpha_i),
+                   rgb = sum_i c_i alpha_i T_i + T_final background, stopping at T < 1e-4
+    render.py      the whole chain for one camera and its VJP
+
+Every backward is written by hand; each module's docstring gives its math. Non-smooth points,
+where gradients are one-sided: the 1/255 skip, the 0.99 clamp, the T < 1e-4 stop, the colour
+clamp at 0, the Jacobian's frustum clamp, the ceil of the radius and a change of tile set or depth
+order. The gradient here is the one of the smooth piece the inputs lie on.
+
+Arrays follow kernels/_arrays.py: entry points take NumPy arrays or wp.arrays (float32 or
+float64, all one dtype), run on the device of the wp.arrays (or the `device` argument, else the
+CPU), and return results of the kind of the first array argument. `gaussian_inputs` and
+`splats_2d` check the inputs once and remember that kind; bad input raises ValueError naming the
+argument before any launch. All kernels are generic over float32 and float64.
+"""
+
+from kernels.sh import SH_C0
+from kernels.splat.camera import DEFAULT_FAR, DEFAULT_NEAR, SplatCamera
+from kernels.splat.ewa import DILATION
+from kernels.splat.projection import GaussianInputs, Projection, gaussian_inputs, project, project_backward
+from kernels.splat.raster import ALPHA_MAX, ALPHA_MIN, T_MIN, Raster, rasterize, rasterize_backward
+from kernels.splat.render import Render, render, render_backward
+from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles, splats_2d
+
+__all__ = [
+    "ALPHA_MAX", "ALPHA_MIN", "DEFAULT_FAR", "DEFAULT_NEAR", "DILATION", "SH_C0", "TILE", "TILE_PIXELS", "T_MIN",
+    "GaussianInputs", "Projection", "Raster", "Render", "SplatCamera", "Splats2D", "Tiles",
+    "bin_tiles", "gaussian_inputs", "project", "project_backward", "rasterize", "rasterize_backward", "render",
+    "render_backward", "splats_2d",
+]

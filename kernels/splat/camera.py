@@ -1,0 +1,65 @@
+"""The pinhole camera of the splatting kernels (OpenCV axes: x right, y down, z forward).
+
+A world point X maps to p = W X + t in the camera frame (viewmat = [[W, t], [0, 0, 0, 1]], W a
+rotation), and to the pixel (fx p_x / p_z + cx, fy p_y / p_z + cy); pixel (i, j) has its centre
+at (i + 0.5, j + 0.5). Splats with z-depth outside [near, far] are culled. Host code only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from kernels import _arrays as A
+from kernels.splat.tiles import TILE
+
+DEFAULT_NEAR = 0.01
+DEFAULT_FAR = 1e10
+
+
+@dataclass(frozen=True)
+class SplatCamera:
+    """A pinhole camera for the splatting kernels (module docstring).
+
+    viewmat: 4x4 world-to-camera; K: 3x3 intrinsics [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]
+    (no skew); splats with z-depth outside [near, far] are culled.
+    """
+
+    viewmat: np.ndarray
+    K: np.ndarray
+    width: int
+    height: int
+    near: float = DEFAULT_NEAR
+    far: float = DEFAULT_FAR
+
+    def __post_init__(self) -> None:
+        view = np.asarray(self.viewmat, dtype=np.float64)
+        K = np.asarray(self.K, dtype=np.float64)
+        if view.shape != (4, 4) or not np.all(np.isfinite(view)):
+            raise ValueError(f"viewmat: expected a finite 4x4 matrix, got shape {view.shape}")
+        R = view[:3, :3]
+        if not np.allclose(view[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) \
+                or np.linalg.det(R) <= 0:
+            raise ValueError("viewmat: expected a rigid world-to-camera transform [[R, t], [0, 0, 0, 1]]")
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+            raise ValueError(f"K: expected a finite 3x3 matrix, got shape {K.shape}")
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or K[0, 1] != 0 or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+            raise ValueError("K: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 and no skew")
+        width = A.check_int("width", self.width, minimum=1)
+        height = A.check_int("height", self.height, minimum=1)
+        if not (0 < self.near < self.far):
+            raise ValueError(f"near, far: expected 0 < near < far, got {self.near}, {self.far}")
+        object.__setattr__(self, "viewmat", view)
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "width", width)
+        object.__setattr__(self, "height", height)
+
+    def params(self) -> np.ndarray:
+        """(fx, fy, cx, cy, near, far)."""
+        K = self.K
+        return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], self.near, self.far])
+
+    @property
+    def tiles(self) -> tuple[int, int]:
+        return (self.width + TILE - 1) // TILE, (self.height + TILE - 1) // TILE

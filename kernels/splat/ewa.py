@@ -1,0 +1,273 @@
+"""Per-splat projection math, forward and vector-Jacobian product side by side (Warp functions).
+
+The projection kernels (kernels/splat/projection.py) call these: the forward kernel the forward
+functions, the backward kernel the same forward functions where it needs intermediate values and
+then the VJPs, so the forward is written once (as gsplat's `quat_scale_to_covar_vjp` and
+`persp_proj_vjp` serve both directions). With q = (w, x, y, z) and log-scales l:
+
+Covariance (`quat_scale_to_covar`)
+    R = R(q / |q|),  S = diag(exp l),  M = R S,  Sigma = M M^T
+    VJP for G = dL/dSigma (symmetric):  dL/dM = 2 G M,  dL/dl_j = (R^T dL/dM)_jj s_j,
+    dL/dR = dL/dM S, chained through the entries of R(q) and the normalisation
+    dL/dq = (g_u - u (u . g_u)) / |q| for the unit quaternion u = q / |q|.
+
+World to camera (`transform_cov`):  Sigma_c = W Sigma W^T;  VJP dL/dSigma = W^T G W.
+
+Perspective EWA projection of Zwicker et al., "EWA Splatting" (2002) (`persp_proj`), for the
+camera-space mean p = (x, y, z), intrinsics fx, fy, cx, cy and image size W_img x H_img:
+    mean2d = (fx x/z + cx, fy y/z + cy),  depth = z,  Sigma2d = J Sigma_c J^T,
+    J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]],  x' = z clamp(x/z, -lx-, lx+),
+    lx- = cx/fx + 0.3 W_img/fx,  lx+ = (W_img - cx)/fx + 0.3 W_img/fx  (y' likewise),
+    the frustum clamp of the 3DGS/gsplat code. VJP for G2 = dL/dSigma2d: dL/dSigma_c = J^T G2 J,
+    dL/dJ = 2 G2 J Sigma_c, then through J and mean2d to p; where the clamp is active, x' does
+    not move with x (the gradient of the clamped piece).
+
+Dilation (`dilate_cov2d`): (a1, b, c1) = (a + 0.3, b, c + 0.3) and det0 = a c - b^2 for
+Sigma2d = [[a, b], [b, c]]; VJP dL/da = dL/da1 + dL/ddet0 c, dL/dc = dL/dc1 + dL/ddet0 a,
+dL/db = dL/db' - 2 b dL/ddet0, split half and half over Sigma2d's two off-diagonal entries.
+
+Conic (`conic_inverse`): the dilated covariance (a1, b, c1) = Sigma2d + 0.3 I has
+    det = a1 c1 - b^2,  Q = (c1, -b, a1) / det,
+    VJP for dL/dQ = (gA, gB, gC) and an extra dL/ddet from other users of det:
+    g_det' = g_det - (gA c1 - gB b + gC a1) / det^2,
+    dL/da1 = gC / det + g_det' c1,  dL/dc1 = gA / det + g_det' a1,  dL/db = -gB / det - 2 b g_det'.
+
+Antialiasing compensation of Yu et al., "Mip-Splatting" (2024) (`aa_compensation`):
+    c = sqrt(max(0, det0 / det)) with det0 = a c - b^2 undilated;
+    VJP dL/ddet0 = dL/dc c / (2 det0), dL/ddet = -dL/dc c / (2 det) (zero where det0 / det <= 0).
+
+View direction (`view_direction`): d = v / |v|, v = mu - camera centre; VJP (g - d (d . g)) / |v|.
+
+All functions are generic over float32 and float64 (the type of their scalar arguments).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import warp as wp
+
+DILATION = 0.3
+
+
+@wp.func
+def sigmoid(a: Any):
+    one = type(a)(1.0)
+    return one / (one + wp.exp(-a))
+
+
+@wp.func
+def clamp_ratio(r: Any, lo: Any, hi: Any):
+    return wp.min(wp.max(r, lo), hi)
+
+
+@wp.func
+def quat_to_rotation(w: Any, x: Any, y: Any, z: Any):
+    """Rotation matrix of a UNIT quaternion (w, x, y, z)."""
+    one = type(w)(1.0)
+    two = type(w)(2.0)
+    return wp.matrix(
+        one - two * (y * y + z * z), two * (x * y - w * z), two * (x * z + w * y),
+        two * (x * y + w * z), one - two * (x * x + z * z), two * (y * z - w * x),
+        two * (x * z - w * y), two * (y * z + w * x), one - two * (x * x + y * y),
+        shape=(3, 3), dtype=type(w))
+
+
+@wp.func
+def rotation_scale(q: Any, log_scale: Any):
+    """(|q|, R(q / |q|), s = exp(log_scale), M = R diag(s)) of one splat."""
+    qn = wp.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    R = quat_to_rotation(q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn)
+    s = wp.vector(wp.exp(log_scale[0]), wp.exp(log_scale[1]), wp.exp(log_scale[2]), length=3, dtype=type(qn))
+    M = wp.matrix(R[0, 0] * s[0], R[0, 1] * s[1], R[0, 2] * s[2],
+                  R[1, 0] * s[0], R[1, 1] * s[1], R[1, 2] * s[2],
+                  R[2, 0] * s[0], R[2, 1] * s[1], R[2, 2] * s[2], shape=(3, 3), dtype=type(qn))
+    return qn, R, s, M
+
+
+@wp.func
+def quat_scale_to_covar(q: Any, log_scale: Any):
+    """Sigma = M M^T, M = R(q / |q|) diag(exp log_scale)."""
+    qn, R, s, M = rotation_scale(q, log_scale)
+    return M * wp.transpose(M)
+
+
+@wp.func
+def quat_scale_to_covar_vjp(q: Any, log_scale: Any, g_sigma: Any):
+    """(dL/dq, dL/dlog_scale) for dL/dSigma = g_sigma (module docstring)."""
+    qn, R, s, M = rotation_scale(q, log_scale)
+    two = type(qn)(2.0)
+    w = q[0] / qn
+    x = q[1] / qn
+    y = q[2] / qn
+    z = q[3] / qn
+    g_M = two * g_sigma * M
+    g_l = wp.vector(length=3, dtype=type(qn))
+    for j in range(3):
+        gs = g_M[0, j] * R[0, j] + g_M[1, j] * R[1, j] + g_M[2, j] * R[2, j]
+        g_l[j] = gs * s[j]
+    g00 = g_M[0, 0] * s[0]
+    g01 = g_M[0, 1] * s[1]
+    g02 = g_M[0, 2] * s[2]
+    g10 = g_M[1, 0] * s[0]
+    g11 = g_M[1, 1] * s[1]
+    g12 = g_M[1, 2] * s[2]
+    g20 = g_M[2, 0] * s[0]
+    g21 = g_M[2, 1] * s[1]
+    g22 = g_M[2, 2] * s[2]
+    gw = two * (-z * g01 + y * g02 + z * g10 - x * g12 - y * g20 + x * g21)
+    gx = two * (y * g01 + z * g02 + y * g10 - two * x * g11 - w * g12 + z * g20 + w * g21 - two * x * g22)
+    gy = two * (-two * y * g00 + x * g01 + w * g02 + x * g10 + z * g12 - w * g20 + z * g21 - two * y * g22)
+    gz = two * (-two * z * g00 - w * g01 + x * g02 + w * g10 - two * z * g11 + y * g12 + x * g20 + y * g21)
+    dot = w * gw + x * gx + y * gy + z * gz
+    g_q = wp.vector((gw - w * dot) / qn, (gx - x * dot) / qn, (gy - y * dot) / qn, (gz - z * dot) / qn,
+                    length=4, dtype=type(qn))
+    return g_q, g_l
+
+
+@wp.func
+def transform_cov(Wr: Any, sigma: Any):
+    """W Sigma W^T."""
+    return Wr * sigma * wp.transpose(Wr)
+
+
+@wp.func
+def transform_cov_vjp(Wr: Any, g_cov: Any):
+    """dL/dSigma = W^T G W for G = dL/d(W Sigma W^T)."""
+    return wp.transpose(Wr) * g_cov * Wr
+
+
+@wp.func
+def frustum_ratio(r: Any, focal: Any, centre: Any, size: int):
+    """(clamp(r, -lim-, lim+), r) for the ratio r = x/z along one image axis of `size` pixels."""
+    s = type(r)(float(size))
+    lim_pos = (s - centre) / focal + type(r)(DILATION) * s / focal
+    lim_neg = centre / focal + type(r)(DILATION) * s / focal
+    return clamp_ratio(r, -lim_neg, lim_pos)
+
+
+@wp.func
+def persp_jacobian(p: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int):
+    """The EWA Jacobian J at the camera-space mean p, with the frustum clamp."""
+    tz = p[2]
+    zero = type(tz)(0.0)
+    xr = frustum_ratio(p[0] / tz, fx, cx, width)
+    yr = frustum_ratio(p[1] / tz, fy, cy, height)
+    return wp.matrix(fx / tz, zero, -fx * xr / tz, zero, fy / tz, -fy * yr / tz, shape=(2, 3), dtype=type(tz))
+
+
+@wp.func
+def persp_proj(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int):
+    """(u, v, Sigma2d): the pixel position of the camera-space mean p and its 2D covariance J Sigma_c J^T."""
+    tz = p[2]
+    J = persp_jacobian(p, fx, fy, cx, cy, width, height)
+    cov2d = J * cov_c * wp.transpose(J)
+    u = fx * p[0] / tz + cx
+    v = fy * p[1] / tz + cy
+    return u, v, cov2d
+
+
+@wp.func
+def persp_proj_vjp(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int,
+                   g_cov2d: Any, gu: Any, gv: Any, g_depth: Any):
+    """(dL/dp, dL/dSigma_c) for the cotangents of (Sigma2d, u, v) and of the depth z (module docstring)."""
+    tx = p[0]
+    ty = p[1]
+    tz = p[2]
+    zero = type(tz)(0.0)
+    two = type(tz)(2.0)
+    xr_raw = tx / tz
+    yr_raw = ty / tz
+    xr = frustum_ratio(xr_raw, fx, cx, width)
+    yr = frustum_ratio(yr_raw, fy, cy, height)
+    J = persp_jacobian(p, fx, fy, cx, cy, width, height)
+    g_cov_c = wp.transpose(J) * g_cov2d * J
+    g_J = two * g_cov2d * J * cov_c
+    tz2 = tz * tz
+    g_tx = zero
+    g_ty = zero
+    g_tz = -fx / tz2 * g_J[0, 0] - fy / tz2 * g_J[1, 1]
+    if xr_raw == xr:
+        g_tx += -fx / tz2 * g_J[0, 2]
+        g_tz += two * fx * tx / (tz2 * tz) * g_J[0, 2]
+    else:
+        g_tz += fx * xr / tz2 * g_J[0, 2]
+    if yr_raw == yr:
+        g_ty += -fy / tz2 * g_J[1, 2]
+        g_tz += two * fy * ty / (tz2 * tz) * g_J[1, 2]
+    else:
+        g_tz += fy * yr / tz2 * g_J[1, 2]
+    g_tx += gu * fx / tz
+    g_ty += gv * fy / tz
+    g_tz += -gu * fx * tx / tz2 - gv * fy * ty / tz2 + g_depth
+    return wp.vector(g_tx, g_ty, g_tz, length=3, dtype=type(tz)), g_cov_c
+
+
+@wp.func
+def dilate_cov2d(cov2d: Any):
+    """(a, b, c, det0, a1, c1): Sigma2d = [[a, b], [b, c]], its determinant det0 = a c - b^2, and the
+    diagonal a1 = a + 0.3, c1 = c + 0.3 of the dilated Sigma2d + 0.3 I."""
+    a = cov2d[0, 0]
+    b = cov2d[0, 1]
+    c = cov2d[1, 1]
+    det0 = a * c - b * b
+    return a, b, c, det0, a + type(a)(DILATION), c + type(a)(DILATION)
+
+
+@wp.func
+def dilate_cov2d_vjp(a: Any, b: Any, c: Any, g_a1: Any, g_b: Any, g_c1: Any, g_det0: Any):
+    """dL/dSigma2d (symmetric, b in both off-diagonal entries) from the cotangents of a1, b, c1 and det0."""
+    two = type(a)(2.0)
+    half = type(a)(0.5)
+    ga = g_a1 + g_det0 * c
+    gc = g_c1 + g_det0 * a
+    gb = g_b - two * b * g_det0
+    return wp.matrix(ga, half * gb, half * gb, gc, shape=(2, 2), dtype=type(a))
+
+
+@wp.func
+def conic_inverse(a1: Any, b: Any, c1: Any):
+    """(det, Q00, Q01, Q11) of the dilated 2D covariance [[a1, b], [b, c1]]."""
+    det = a1 * c1 - b * b
+    return det, c1 / det, -b / det, a1 / det
+
+
+@wp.func
+def conic_inverse_vjp(a1: Any, b: Any, c1: Any, gA: Any, gB: Any, gC: Any, g_det: Any):
+    """(dL/da1, dL/db, dL/dc1) for dL/dQ = (gA, gB, gC) and an extra dL/ddet = g_det."""
+    two = type(a1)(2.0)
+    det = a1 * c1 - b * b
+    g_det = g_det - (gA * c1 - gB * b + gC * a1) / (det * det)
+    return gC / det + g_det * c1, -gB / det - two * b * g_det, gA / det + g_det * a1
+
+
+@wp.func
+def aa_compensation(det0: Any, det: Any):
+    """Mip-Splatting's opacity factor sqrt(max(0, det0 / det))."""
+    return wp.sqrt(wp.max(type(det)(0.0), det0 / det))
+
+
+@wp.func
+def aa_compensation_vjp(det0: Any, det: Any, g_comp: Any):
+    """(dL/ddet0, dL/ddet) for dL/dc = g_comp; zero where det0 / det <= 0 (c = 0 there)."""
+    zero = type(det)(0.0)
+    two = type(det)(2.0)
+    ratio = det0 / det
+    if ratio > zero:
+        comp = wp.sqrt(ratio)
+        return g_comp * comp / (two * det0), -g_comp * comp / (two * det)
+    return zero, zero
+
+
+@wp.func
+def view_direction(mu: Any, Wr: Any, t: Any):
+    """(d, |v|): the unit direction d = v / |v| from the camera centre -W^T t to the mean mu."""
+    v = mu + wp.transpose(Wr) * t
+    n = wp.length(v)
+    return v / n, n
+
+
+@wp.func
+def view_direction_vjp(d: Any, n: Any, g_d: Any):
+    """dL/dmu = (g - d (d . g)) / |v| for dL/dd = g."""
+    return (g_d - d * wp.dot(d, g_d)) / n

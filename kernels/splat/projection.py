@@ -1,0 +1,424 @@
+"""Projection of 3D Gaussians into a camera, and its hand-written backward.
+
+Per splat i with mean mu, log-scales l, quaternion q (normalised here), opacity logit a and SH
+coefficients f (K = (L+1)^2, 3), for the world-to-camera [W | t] and intrinsics fx, fy, cx, cy:
+
+    Sigma = R(q/|q|) S S^T R^T,  S = diag(exp l)                      (ewa.quat_scale_to_covar)
+    p = W mu + t = (x, y, z);  culled if z < near or z > far
+    mean2d, Sigma2d = EWA projection of (p, W Sigma W^T)               (ewa.persp_proj)
+    (a1, b, c1) = Sigma2d + 0.3 I  (a 0.3 px^2 low-pass dilation); culled if det <= 0
+    conic Q = (a1, b, c1)^-1 stored as (Q00, Q01, Q11)                 (ewa.conic_inverse)
+    radius = ceil(3 sqrt(lambda_max)),  lambda_max = h + sqrt(max(0.01, h^2 - det)), h = (a1 + c1)/2;
+        culled if the square mean2d +- radius misses the image (radius 0 marks a culled splat,
+        whose other outputs are 0)
+    colour = max(0, sum_k f_k Y_k(d) + 1/2),  d = (mu - camera centre) / |mu - camera centre|
+        (the real SH basis Y_k of kernels/sh.py)
+    opacity = sigmoid(a) c, with c = 1 (classic) or, antialiased, Mip-Splatting's
+        c = sqrt(max(0, det(Sigma2d) / det(Sigma2d + 0.3 I)))            (ewa.aa_compensation)
+
+The backward kernel recomputes the forward through the same functions of kernels/splat/ewa.py and
+chains their VJPs in reverse: colour and SH (sh.sh_basis_dx/dy/dz, view_direction_vjp), opacity
+and compensation, conic inverse and dilation, EWA projection, covariance. One thread per splat
+writes only that splat's gradients, so both kernels run split over CPU threads.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from kernels import _arrays as A
+from kernels.sh import sh_basis, sh_basis_dx, sh_basis_dy, sh_basis_dz
+from kernels.splat._inputs import inputs_like
+from kernels.splat.camera import SplatCamera
+from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
+                               dilate_cov2d_vjp, persp_proj, persp_proj_vjp, quat_scale_to_covar,
+                               quat_scale_to_covar_vjp, sigmoid, transform_cov, transform_cov_vjp, view_direction,
+                               view_direction_vjp)
+
+wp.set_module_options({"enable_backward": False})
+
+MIN_CHUNK = 1024
+
+
+@wp.func
+def _load_view(view: wp.array2d(dtype=Any)):
+    """(W, t) of a 4x4 world-to-camera matrix."""
+    Wr = wp.matrix(view[0, 0], view[0, 1], view[0, 2], view[1, 0], view[1, 1], view[1, 2],
+                   view[2, 0], view[2, 1], view[2, 2], shape=(3, 3), dtype=view.dtype)
+    t = wp.vector(view[0, 3], view[1, 3], view[2, 3], length=3, dtype=view.dtype)
+    return Wr, t
+
+
+@wp.func
+def _load_splat(means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
+                i: int):
+    """(mu, q, l) of splat i."""
+    mu = wp.vector(means[i, 0], means[i, 1], means[i, 2], length=3, dtype=means.dtype)
+    q = wp.vector(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3], length=4, dtype=means.dtype)
+    l = wp.vector(log_scales[i, 0], log_scales[i, 1], log_scales[i, 2], length=3, dtype=means.dtype)
+    return mu, q, l
+
+
+@wp.func
+def sh_color(sh: wp.array3d(dtype=Any), i: int, ch: int, basis: Any, n_coeffs: int):
+    """sum_k f_k Y_k(d) + 1/2 for channel ch of splat i, before the clamp at 0."""
+    acc = sh.dtype(0.5)
+    for k in range(n_coeffs):
+        acc += basis[k] * sh[i, k, ch]
+    return acc
+
+
+@wp.kernel
+def _project_kernel(
+    means: wp.array2d(dtype=Any),
+    log_scales: wp.array2d(dtype=Any),
+    quats: wp.array2d(dtype=Any),
+    opacity_logits: wp.array(dtype=Any),
+    sh: wp.array3d(dtype=Any),
+    view: wp.array2d(dtype=Any),
+    cam: wp.array(dtype=Any),
+    width: int,
+    height: int,
+    sh_degree: int,
+    antialiased: int,
+    means2d: wp.array2d(dtype=Any),
+    conics: wp.array2d(dtype=Any),
+    depths: wp.array(dtype=Any),
+    radii: wp.array(dtype=wp.int32),
+    colors: wp.array2d(dtype=Any),
+    opacities: wp.array(dtype=Any),
+    offset: int,
+):
+    i = wp.tid() + offset
+    zero = means.dtype(0.0)
+    radii[i] = 0
+    means2d[i, 0] = zero
+    means2d[i, 1] = zero
+    conics[i, 0] = zero
+    conics[i, 1] = zero
+    conics[i, 2] = zero
+    depths[i] = zero
+    colors[i, 0] = zero
+    colors[i, 1] = zero
+    colors[i, 2] = zero
+    opacities[i] = zero
+
+    Wr, tv = _load_view(view)
+    mu, q, l = _load_splat(means, log_scales, quats, i)
+    p = Wr * mu + tv
+    tz = p[2]
+    if tz < cam[4] or tz > cam[5]:
+        return
+    cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
+    u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
+    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
+    det, qa, qb, qc = conic_inverse(a1, b, c1)
+    if det <= zero:
+        return
+    half = means.dtype(0.5)
+    bb = half * (a1 + c1)
+    lam = bb + wp.sqrt(wp.max(means.dtype(0.01), bb * bb - det))
+    r = wp.ceil(means.dtype(3.0) * wp.sqrt(lam))
+    if u + r <= zero or u - r >= means.dtype(float(width)) or v + r <= zero or v - r >= means.dtype(float(height)):
+        return
+
+    radii[i] = int(r)
+    means2d[i, 0] = u
+    means2d[i, 1] = v
+    conics[i, 0] = qa
+    conics[i, 1] = qb
+    conics[i, 2] = qc
+    depths[i] = tz
+
+    d, dn = view_direction(mu, Wr, tv)
+    basis = sh_basis(d[0], d[1], d[2])
+    n_coeffs = (sh_degree + 1) * (sh_degree + 1)
+    for ch in range(3):
+        acc = sh_color(sh, i, ch, basis, n_coeffs)
+        colors[i, ch] = wp.max(acc, zero)
+
+    o = sigmoid(opacity_logits[i])
+    if antialiased != 0:
+        o = o * aa_compensation(det0, det)
+    opacities[i] = o
+
+
+@wp.kernel
+def _project_backward_kernel(
+    means: wp.array2d(dtype=Any),
+    log_scales: wp.array2d(dtype=Any),
+    quats: wp.array2d(dtype=Any),
+    opacity_logits: wp.array(dtype=Any),
+    sh: wp.array3d(dtype=Any),
+    view: wp.array2d(dtype=Any),
+    cam: wp.array(dtype=Any),
+    width: int,
+    height: int,
+    sh_degree: int,
+    antialiased: int,
+    radii: wp.array(dtype=wp.int32),
+    g_means2d: wp.array2d(dtype=Any),
+    g_conics: wp.array2d(dtype=Any),
+    g_depths: wp.array(dtype=Any),
+    g_colors: wp.array2d(dtype=Any),
+    g_opacities: wp.array(dtype=Any),
+    d_means: wp.array2d(dtype=Any),
+    d_log_scales: wp.array2d(dtype=Any),
+    d_quats: wp.array2d(dtype=Any),
+    d_opacity_logits: wp.array(dtype=Any),
+    d_sh: wp.array3d(dtype=Any),
+    offset: int,
+):
+    i = wp.tid() + offset
+    zero = means.dtype(0.0)
+    one = means.dtype(1.0)
+    for k in range(sh.shape[1]):
+        for ch in range(3):
+            d_sh[i, k, ch] = zero
+    for j in range(3):
+        d_means[i, j] = zero
+        d_log_scales[i, j] = zero
+    for j in range(4):
+        d_quats[i, j] = zero
+    d_opacity_logits[i] = zero
+    if radii[i] == 0:
+        return
+
+    # Forward values this backward needs, from the forward's own functions.
+    Wr, tv = _load_view(view)
+    mu, q, l = _load_splat(means, log_scales, quats, i)
+    p = Wr * mu + tv
+    cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
+    u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
+    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
+    det, qa, qb, qc = conic_inverse(a1, b, c1)
+    sig = sigmoid(opacity_logits[i])
+
+    # Opacity o = sigmoid(a) comp.
+    g_o = g_opacities[i]
+    g_det0 = zero
+    g_det = zero
+    comp = one
+    if antialiased != 0:
+        comp = aa_compensation(det0, det)
+        g_det0, g_det = aa_compensation_vjp(det0, det, g_o * sig)
+    d_opacity_logits[i] = g_o * comp * sig * (one - sig)
+
+    # Conic and dilation (det0 = a c - b^2 adds its share).
+    g_a1, g_b1, g_c1 = conic_inverse_vjp(a1, b, c1, g_conics[i, 0], g_conics[i, 1], g_conics[i, 2], g_det)
+    g_cov2d = dilate_cov2d_vjp(a, b, c, g_a1, g_b1, g_c1, g_det0)
+
+    # EWA projection, then the world-to-camera transforms of the mean and the covariance.
+    g_p, g_cov_c = persp_proj_vjp(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height, g_cov2d,
+                                  g_means2d[i, 0], g_means2d[i, 1], g_depths[i])
+    g_mu = wp.transpose(Wr) * g_p
+    g_q, g_l = quat_scale_to_covar_vjp(q, l, transform_cov_vjp(Wr, g_cov_c))
+    for j in range(3):
+        d_log_scales[i, j] = g_l[j]
+    for j in range(4):
+        d_quats[i, j] = g_q[j]
+
+    # Colour = max(0, sum_k f_k Y_k(d) + 1/2).
+    d, dn = view_direction(mu, Wr, tv)
+    basis = sh_basis(d[0], d[1], d[2])
+    bdx = sh_basis_dx(d[0], d[1], d[2])
+    bdy = sh_basis_dy(d[0], d[1], d[2])
+    bdz = sh_basis_dz(d[0], d[1], d[2])
+    n_coeffs = (sh_degree + 1) * (sh_degree + 1)
+    g_d = wp.vector(zero, zero, zero, length=3, dtype=means.dtype)
+    for ch in range(3):
+        acc = sh_color(sh, i, ch, basis, n_coeffs)
+        if acc > zero:
+            gcol = g_colors[i, ch]
+            for k in range(n_coeffs):
+                d_sh[i, k, ch] = basis[k] * gcol
+                f = sh[i, k, ch] * gcol
+                g_d = g_d + wp.vector(bdx[k] * f, bdy[k] * f, bdz[k] * f, length=3, dtype=means.dtype)
+    g_mu = g_mu + view_direction_vjp(d, dn, g_d)
+
+    d_means[i, 0] = g_mu[0]
+    d_means[i, 1] = g_mu[1]
+    d_means[i, 2] = g_mu[2]
+
+
+@wp.kernel
+def _count_bad_kernel(quats: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), bound: float,
+                      count: wp.array(dtype=wp.int32)):
+    # Value checks on a CUDA device (one launch; the CPU reads a zero-copy view instead).
+    i = wp.tid()
+    qn = wp.float64(0.0)
+    for j in range(4):
+        qn += wp.float64(quats[i, j]) * wp.float64(quats[i, j])
+    if wp.sqrt(qn) < wp.float64(1e-12):
+        wp.atomic_add(count, 0, 1)
+    for j in range(3):
+        if wp.abs(wp.float64(log_scales[i, j])) > wp.float64(bound):
+            wp.atomic_add(count, 1, 1)
+
+
+for _k in (_project_kernel, _project_backward_kernel, _count_bad_kernel):
+    A.declare_float_overloads(_k)
+
+LOG_SCALE_BOUND = 80.0
+
+
+# ============================================================================ entry points
+
+
+@dataclass
+class GaussianInputs:
+    """Validated splat parameters: wp.arrays on one device, in one float dtype.
+
+    `as_numpy` is the kind of the arrays the caller passed: every result computed from these
+    inputs (projections, renders, gradients) comes back as NumPy arrays when it is True, and as
+    wp.arrays on `device` otherwise.
+    """
+
+    means: wp.array
+    log_scales: wp.array
+    quats: wp.array
+    opacity_logits: wp.array
+    sh: wp.array
+    scalar: Any  # wp.float32 or wp.float64
+    device: wp.Device
+    as_numpy: bool
+
+    @property
+    def n(self) -> int:
+        return self.means.shape[0]
+
+    @property
+    def dtype(self) -> np.dtype:
+        return A.NP_OF_WP[self.scalar]
+
+    def inputs(self) -> A.Inputs:
+        """An `Inputs` for a call on these parameters: their device, dtype and output kind."""
+        return inputs_like(self.device, self.scalar, self.as_numpy)
+
+
+def sh_degree_of(sh_shape: tuple, sh_degree: int | None) -> int:
+    """The SH degree to evaluate: `sh_degree`, or the full degree of the (N, K, 3) coefficients."""
+    k = sh_shape[1]
+    full = int(round(math.sqrt(k))) - 1
+    if (full + 1) ** 2 != k or not 0 <= full <= 3:
+        raise ValueError(f"sh: expected (N, K, 3) with K in (1, 4, 9, 16), got {tuple(sh_shape)}")
+    if sh_degree is None:
+        return full
+    return A.check_int("sh_degree", sh_degree, 0, full)
+
+
+def _check_values(quats: wp.array, log_scales: wp.array) -> None:
+    if not A.values_checked() or quats.shape[0] == 0:
+        return
+    if quats.device.is_cpu:
+        qn = np.linalg.norm(quats.numpy().astype(np.float64), axis=1)
+        if np.any(qn < 1e-12):
+            raise ValueError(f"quats: quaternion {int(np.argmin(qn))} has zero norm; expected non-zero quaternions")
+        big = np.abs(log_scales.numpy()).max()
+        if big > LOG_SCALE_BOUND:
+            raise ValueError(f"log_scales: |log-scale| up to {big:.3g}; expected values in [-80, 80] "
+                             "(scales are exp(log_scales), and must stay finite and non-zero)")
+        return
+    count = wp.zeros(2, dtype=wp.int32, device=quats.device)
+    wp.launch(_count_bad_kernel, dim=quats.shape[0], inputs=[quats, log_scales, LOG_SCALE_BOUND, count],
+              device=quats.device)
+    bad_q, bad_l = (int(x) for x in count.numpy())
+    if bad_q:
+        raise ValueError(f"quats: {bad_q} quaternions have zero norm; expected non-zero quaternions")
+    if bad_l:
+        raise ValueError("log_scales: expected values in [-80, 80] (scales are exp(log_scales), and must stay "
+                         "finite and non-zero)")
+
+
+def gaussian_inputs(means: Any, log_scales: Any, quats: Any, opacity_logits: Any, sh: Any,
+                    device: Any = None) -> GaussianInputs:
+    """Check the parameter arrays (shapes, one float dtype, device, finite, non-zero quaternions,
+    |log_scales| <= 80) and hold them as wp.arrays; NumPy or wp.array inputs (kernels/_arrays.py)."""
+    a = A.Inputs(device, means, log_scales, quats, opacity_logits, sh)
+    m = a.floats("means", means, (None, 3))
+    n = m.shape[0]
+    ls = a.floats("log_scales", log_scales, (n, 3))
+    q = a.floats("quats", quats, (n, 4))
+    o = a.floats("opacity_logits", opacity_logits, (n,))
+    s = a.floats("sh", sh, (n, None, 3))
+    sh_degree_of(tuple(s.shape), None)
+    _check_values(q, ls)
+    return GaussianInputs(m, ls, q, o, s, a.scalar, a.device, a.as_numpy)
+
+
+@dataclass
+class Projection:
+    """Per-splat screen-space quantities (radius 0 = culled; its other outputs are 0)."""
+
+    means2d: Any  # (N, 2) pixels
+    conics: Any  # (N, 3) (Q00, Q01, Q11)
+    depths: Any  # (N,)
+    radii: Any  # (N,) int32
+    colors: Any  # (N, 3)
+    opacities: Any  # (N,)
+
+    def out(self, a: A.Inputs) -> "Projection":
+        """This projection in the output kind of `a`."""
+        return Projection(a.out(self.means2d), a.out(self.conics), a.out(self.depths), a.out(self.radii),
+                          a.out(self.colors), a.out(self.opacities))
+
+
+def _camera_arrays(a: A.Inputs, camera: SplatCamera) -> tuple[wp.array, wp.array]:
+    if not isinstance(camera, SplatCamera):
+        raise ValueError(f"camera: expected a SplatCamera, got {type(camera).__name__}")
+    view = wp.array(camera.viewmat.astype(a.np_dtype), dtype=a.scalar, device=a.device)
+    cam = wp.array(camera.params().astype(a.np_dtype), dtype=a.scalar, device=a.device)
+    return view, cam
+
+
+def project_wp(g: GaussianInputs, camera: SplatCamera, sh_degree: int, antialiased: bool) -> Projection:
+    """`project` with wp.array results on g's device (the render chain's first stage)."""
+    a = g.inputs()
+    view, cam = _camera_arrays(a, camera)
+    n = g.n
+    out = Projection(a.zeros((n, 2)), a.zeros((n, 3)), a.zeros(n), a.zeros(n, wp.int32), a.zeros((n, 3)),
+                     a.zeros(n))
+    a.launch(_project_kernel, n,
+             [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, camera.width, camera.height,
+              sh_degree, int(bool(antialiased)), out.means2d, out.conics, out.depths, out.radii, out.colors,
+              out.opacities], min_chunk=MIN_CHUNK)
+    return out
+
+
+def project(g: GaussianInputs, camera: SplatCamera, *, sh_degree: int | None = None,
+            antialiased: bool = False) -> Projection:
+    """Project every splat into `camera` (module docstring); arrays in the kind of g's inputs."""
+    deg = sh_degree_of(tuple(g.sh.shape), sh_degree)
+    return project_wp(g, camera, deg, antialiased).out(g.inputs())
+
+
+def project_backward(g: GaussianInputs, camera: SplatCamera, radii: Any, grad_means2d: Any, grad_conics: Any,
+                     grad_depths: Any, grad_colors: Any, grad_opacities: Any, *, sh_degree: int | None = None,
+                     antialiased: bool = False) -> dict[str, Any]:
+    """Vector-Jacobian product of `project`.
+
+    Returns a dict with the gradients of "means", "log_scales", "quats", "opacity_logits" and
+    "sh", each shaped like the parameter, in the kind of g's inputs (NumPy or wp.array).
+    """
+    deg = sh_degree_of(tuple(g.sh.shape), sh_degree)
+    n = g.n
+    a = g.inputs()
+    r = a.ints("radii", radii, (n,), minimum=0)
+    gm = a.floats("grad_means2d", grad_means2d, (n, 2))
+    gc = a.floats("grad_conics", grad_conics, (n, 3))
+    gd = a.floats("grad_depths", grad_depths, (n,))
+    gcol = a.floats("grad_colors", grad_colors, (n, 3))
+    go = a.floats("grad_opacities", grad_opacities, (n,))
+    view, cam = _camera_arrays(a, camera)
+    out = {"means": a.zeros((n, 3)), "log_scales": a.zeros((n, 3)), "quats": a.zeros((n, 4)),
+           "opacity_logits": a.zeros(n), "sh": a.zeros(tuple(g.sh.shape))}
+    a.launch(_project_backward_kernel, n,
+             [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, camera.width, camera.height, deg,
+              int(bool(antialiased)), r, gm, gc, gd, gcol, go, out["means"], out["log_scales"], out["quats"],
+              out["opacity_logits"], out["sh"]], min_chunk=MIN_CHUNK)
+    return {k: a.out(v) for k, v in out.items()}

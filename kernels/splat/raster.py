@@ -1,0 +1,339 @@
+"""Rasterisation of depth-sorted splats, and its hand-written backward.
+
+Per pixel p (centre (i + 0.5, j + 0.5)), front to back over its tile's list (kernels/splat/tiles.py):
+
+    G_i = exp(-1/2 d^T Q_i d),  d = mean2d_i - p
+    alpha_i = min(0.99, o_i G_i); a splat with alpha_i < 1/255 is skipped;
+    T_1 = 1,  T_{i+1} = T_i (1 - alpha_i); the loop stops before the splat that
+        would bring T below 1e-4 (that splat is not blended)
+    rgb = sum_i colour_i alpha_i T_i + T_final * background
+    alpha = 1 - T_final
+    depth = sum_i z_i alpha_i T_i   (background depth 0: the expected z-depth is depth / alpha)
+
+Backward, written by hand (Warp's tape is wrong through loops with carried state, docs/warp.md).
+Per pixel, back to front, T_i is recovered as T_{i+1} / (1 - alpha_i) from the stored T_final,
+and with S_i the colour composited behind splat i (S <- alpha_j c_j + (1 - alpha_j) S over j > i),
+
+    drgb/dalpha_i = T_i (c_i - S_i) - T_final background / (1 - alpha_i),
+    dalpha_out/dalpha_i = T_final / (1 - alpha_i),
+
+depth like a colour channel with background 0. Through alpha = o G (zero where the 0.99 clamp is
+active) the gradients reach o, Q and mean2d:
+    dalpha/do = G,  dalpha/dQ = -alpha/2 (dx^2, 2 dx dy, dy^2),  dalpha/dmean2d = -alpha Q d.
+Every tile's backward runs on one thread and writes one gradient row per (tile, splat) pair,
+which a second kernel sums per splat: no Warp atomic is atomic between concurrent CPU launches
+(docs/warp.md), so with no shared accumulator the tiles run in parallel through
+kernels.launch.launch_split, and the result does not depend on the thread count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import warp as wp
+
+from kernels import _arrays as A
+from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles
+
+wp.set_module_options({"enable_backward": False})
+
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.99
+T_MIN = 1e-4
+MIN_CHUNK = 1024
+# Columns of the per-(tile, splat) gradient rows: mean2d (2), conic (3), opacity, colour (3), depth.
+_GRAD_COLS = 10
+
+
+@wp.kernel
+def _raster_forward_kernel(
+    packed: wp.array2d(dtype=Any),
+    colors: wp.array2d(dtype=Any),
+    background: wp.array(dtype=Any),
+    sorted_gid: wp.array(dtype=wp.int32),
+    ranges: wp.array2d(dtype=wp.int32),
+    width: int,
+    height: int,
+    tiles_x: int,
+    out_rgb: wp.array3d(dtype=Any),
+    out_alpha: wp.array2d(dtype=Any),
+    out_depth: wp.array2d(dtype=Any),
+    final_T: wp.array2d(dtype=Any),
+    n_contrib: wp.array2d(dtype=wp.int32),
+    offset: int,
+):
+    t = wp.tid() + offset
+    tile = t / TILE_PIXELS
+    local = t - tile * TILE_PIXELS
+    tile_y = tile / tiles_x
+    px = (tile - tile_y * tiles_x) * TILE + local % TILE
+    py = tile_y * TILE + local / TILE
+    if px >= width or py >= height:
+        return
+    zero = packed.dtype(0.0)
+    one = packed.dtype(1.0)
+    half = packed.dtype(0.5)
+    pxf = packed.dtype(float(px)) + half
+    pyf = packed.dtype(float(py)) + half
+    start = ranges[tile, 0]
+    end = ranges[tile, 1]
+    tr = one
+    cr = zero
+    cg = zero
+    cb = zero
+    cd = zero
+    last = start
+    for s in range(start, end):
+        g = sorted_gid[s]
+        dx = packed[g, 0] - pxf
+        dy = packed[g, 1] - pyf
+        power = -half * (packed[g, 2] * dx * dx + packed[g, 4] * dy * dy) - packed[g, 3] * dx * dy
+        # packed[g, 6] = -ln(255 o): below it alpha < 1/255, so exp() is skipped.
+        if power > zero or power < packed[g, 6]:
+            continue
+        alpha = wp.min(packed.dtype(ALPHA_MAX), packed[g, 5] * wp.exp(power))
+        if alpha < packed.dtype(ALPHA_MIN):
+            continue
+        next_t = tr * (one - alpha)
+        if next_t < packed.dtype(T_MIN):
+            break
+        wgt = alpha * tr
+        cr += wgt * colors[g, 0]
+        cg += wgt * colors[g, 1]
+        cb += wgt * colors[g, 2]
+        cd += wgt * packed[g, 7]
+        tr = next_t
+        last = s + 1
+    out_rgb[py, px, 0] = cr + tr * background[0]
+    out_rgb[py, px, 1] = cg + tr * background[1]
+    out_rgb[py, px, 2] = cb + tr * background[2]
+    out_alpha[py, px] = one - tr
+    out_depth[py, px] = cd
+    final_T[py, px] = tr
+    n_contrib[py, px] = last
+
+
+@wp.kernel
+def _raster_backward_tile_kernel(
+    packed: wp.array2d(dtype=Any),
+    colors: wp.array2d(dtype=Any),
+    background: wp.array(dtype=Any),
+    sorted_gid: wp.array(dtype=wp.int32),
+    sorted_entry: wp.array(dtype=wp.int32),
+    ranges: wp.array2d(dtype=wp.int32),
+    width: int,
+    height: int,
+    tiles_x: int,
+    final_T: wp.array2d(dtype=Any),
+    n_contrib: wp.array2d(dtype=wp.int32),
+    g_rgb: wp.array3d(dtype=Any),
+    g_alpha: wp.array2d(dtype=Any),
+    g_depth: wp.array2d(dtype=Any),
+    entry_grads: wp.array2d(dtype=Any),
+    tile_bg_grads: wp.array2d(dtype=Any),
+    offset: int,
+):
+    # One thread per tile: it alone writes the rows of its (tile, splat) entries and its background row.
+    tile = wp.tid() + offset
+    zero = packed.dtype(0.0)
+    one = packed.dtype(1.0)
+    half = packed.dtype(0.5)
+    start = ranges[tile, 0]
+    tile_y = tile / tiles_x
+    tile_x = tile - tile_y * tiles_x
+    bg0 = background[0]
+    bg1 = background[1]
+    bg2 = background[2]
+    gbg0 = zero
+    gbg1 = zero
+    gbg2 = zero
+    for local in range(TILE_PIXELS):
+        px = tile_x * TILE + local % TILE
+        py = tile_y * TILE + local / TILE
+        if px >= width or py >= height:
+            continue
+        pxf = packed.dtype(float(px)) + half
+        pyf = packed.dtype(float(py)) + half
+        tf = final_T[py, px]
+        gr = g_rgb[py, px, 0]
+        gg = g_rgb[py, px, 1]
+        gb = g_rgb[py, px, 2]
+        ga = g_alpha[py, px]
+        gd = g_depth[py, px]
+        gbg0 += tf * gr
+        gbg1 += tf * gg
+        gbg2 += tf * gb
+        bg_dot = bg0 * gr + bg1 * gg + bg2 * gb
+        tr = tf
+        sr = zero
+        sg = zero
+        sb = zero
+        sd = zero
+        s = n_contrib[py, px] - 1
+        while s >= start:
+            g = sorted_gid[s]
+            dx = packed[g, 0] - pxf
+            dy = packed[g, 1] - pyf
+            qa = packed[g, 2]
+            qb = packed[g, 3]
+            qc = packed[g, 4]
+            power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
+            if power <= zero and power >= packed[g, 6]:
+                gauss = wp.exp(power)
+                raw = packed[g, 5] * gauss
+                alpha = wp.min(packed.dtype(ALPHA_MAX), raw)
+                if alpha >= packed.dtype(ALPHA_MIN):
+                    tr = tr / (one - alpha)
+                    wgt = alpha * tr
+                    c0 = colors[g, 0]
+                    c1 = colors[g, 1]
+                    c2 = colors[g, 2]
+                    z = packed[g, 7]
+                    row = sorted_entry[s]
+                    entry_grads[row, 6] += wgt * gr
+                    entry_grads[row, 7] += wgt * gg
+                    entry_grads[row, 8] += wgt * gb
+                    entry_grads[row, 9] += wgt * gd
+                    g_a = tr * ((c0 - sr) * gr + (c1 - sg) * gg + (c2 - sb) * gb + (z - sd) * gd)
+                    g_a += (ga - bg_dot) * tf / (one - alpha)
+                    sr = alpha * c0 + (one - alpha) * sr
+                    sg = alpha * c1 + (one - alpha) * sg
+                    sb = alpha * c2 + (one - alpha) * sb
+                    sd = alpha * z + (one - alpha) * sd
+                    if raw <= packed.dtype(ALPHA_MAX):
+                        entry_grads[row, 5] += gauss * g_a
+                        g_p = alpha * g_a
+                        entry_grads[row, 0] += -(qa * dx + qb * dy) * g_p
+                        entry_grads[row, 1] += -(qb * dx + qc * dy) * g_p
+                        entry_grads[row, 2] += -half * dx * dx * g_p
+                        entry_grads[row, 3] += -dx * dy * g_p
+                        entry_grads[row, 4] += -half * dy * dy * g_p
+            s -= 1
+    tile_bg_grads[tile, 0] = gbg0
+    tile_bg_grads[tile, 1] = gbg1
+    tile_bg_grads[tile, 2] = gbg2
+
+
+@wp.kernel
+def _gather_entry_grads_kernel(
+    starts: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32),
+    entry_grads: wp.array2d(dtype=Any),
+    g_means2d: wp.array2d(dtype=Any),
+    g_conics: wp.array2d(dtype=Any),
+    g_opacities: wp.array(dtype=Any),
+    g_colors: wp.array2d(dtype=Any),
+    g_depths: wp.array(dtype=Any),
+    offset: int,
+):
+    i = wp.tid() + offset
+    acc = wp.vector(length=10, dtype=entry_grads.dtype)
+    e0 = starts[i]
+    for e in range(e0, e0 + counts[i]):
+        for j in range(_GRAD_COLS):
+            acc[j] += entry_grads[e, j]
+    g_means2d[i, 0] = acc[0]
+    g_means2d[i, 1] = acc[1]
+    g_conics[i, 0] = acc[2]
+    g_conics[i, 1] = acc[3]
+    g_conics[i, 2] = acc[4]
+    g_opacities[i] = acc[5]
+    g_colors[i, 0] = acc[6]
+    g_colors[i, 1] = acc[7]
+    g_colors[i, 2] = acc[8]
+    g_depths[i] = acc[9]
+
+
+for _k in (_raster_forward_kernel, _raster_backward_tile_kernel, _gather_entry_grads_kernel):
+    A.declare_float_overloads(_k)
+
+
+# ============================================================================ entry points
+
+
+@dataclass
+class Raster:
+    """One rasterised image: rgb, alpha, depth, and the per-pixel state the backward reads."""
+
+    rgb: wp.array  # (H, W, 3)
+    alpha: wp.array  # (H, W)
+    depth: wp.array  # (H, W) sum of alpha-weighted z-depths
+    final_T: wp.array  # (H, W)
+    n_contrib: wp.array  # (H, W) int32: sorted entries up to and including the last one blended
+
+
+
+def background_array(a: A.Inputs, background: Any) -> wp.array:
+    """The (3,) background as a wp.array (None: black)."""
+    if background is None:
+        return a.zeros(3)
+    return a.floats("background", background, (3,))
+
+
+def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
+                 tiles: Tiles | None = None) -> tuple[Raster, Tiles]:
+    """`rasterize` with wp.array results (the render chain's last stage); `bg` a wp.array."""
+    a = s.inputs()
+    if tiles is None:
+        tiles = bin_tiles(s, width, height)
+    out = Raster(a.zeros((height, width, 3)), a.zeros((height, width)), a.zeros((height, width)),
+                 a.zeros((height, width)), a.zeros((height, width), wp.int32))
+    n_tiles = tiles.tiles_x * tiles.tiles_y
+    a.launch(_raster_forward_kernel, n_tiles * TILE_PIXELS,
+             [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x, out.rgb,
+              out.alpha, out.depth, out.final_T, out.n_contrib], min_chunk=TILE_PIXELS)
+    return out, tiles
+
+
+def rasterize(s: Splats2D, width: int, height: int, background: Any = None,
+              tiles: Tiles | None = None) -> tuple[Raster, Tiles]:
+    """Bin (unless `tiles` is given) and alpha-composite the splats front to back (module docstring).
+
+    The Raster's arrays are in the kind of the splats' inputs; the Tiles stay wp.arrays (state).
+    """
+    width = A.check_int("width", width, minimum=1)
+    height = A.check_int("height", height, minimum=1)
+    a = s.inputs()
+    raster, tiles = rasterize_wp(s, width, height, background_array(a, background), tiles)
+    return Raster(*(a.out(x) for x in (raster.rgb, raster.alpha, raster.depth, raster.final_T,
+                                        raster.n_contrib))), tiles
+
+
+def rasterize_backward(s: Splats2D, width: int, height: int, background: Any, tiles: Tiles, raster: Raster,
+                       grad_rgb: Any, grad_alpha: Any = None, grad_depth: Any = None) -> dict[str, Any]:
+    """VJP of `rasterize`.
+
+    Returns a dict with the gradients of "means2d", "conics", "colors", "opacities", "depths"
+    (shaped like the splats' arrays) and "background" (3,), in the kind of the splats' inputs.
+    """
+    width = A.check_int("width", width, minimum=1)
+    height = A.check_int("height", height, minimum=1)
+    a = s.inputs()
+    return {k: a.out(v) for k, v in rasterize_backward_wp(
+        a, s, width, height, background_array(a, background), tiles, raster, grad_rgb, grad_alpha,
+        grad_depth).items()}
+
+
+def rasterize_backward_wp(a: A.Inputs, s: Splats2D, width: int, height: int, bg: wp.array, tiles: Tiles,
+                          raster: Raster, grad_rgb: Any, grad_alpha: Any, grad_depth: Any) -> dict[str, wp.array]:
+    """`rasterize_backward` with wp.array results."""
+    n = s.n
+    final_t = a.floats("raster.final_T", raster.final_T, (height, width))
+    n_contrib = a.ints("raster.n_contrib", raster.n_contrib, (height, width))
+    g_rgb = a.floats("grad_rgb", grad_rgb, (height, width, 3))
+    g_a = a.zeros((height, width)) if grad_alpha is None else a.floats("grad_alpha", grad_alpha, (height, width))
+    g_d = a.zeros((height, width)) if grad_depth is None else a.floats("grad_depth", grad_depth, (height, width))
+    n_tiles = tiles.tiles_x * tiles.tiles_y
+    entry_grads = a.zeros((max(tiles.n_entries, 1), _GRAD_COLS))
+    tile_bg = a.zeros((n_tiles, 3))
+    a.launch(_raster_backward_tile_kernel, n_tiles,
+             [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.sorted_entry, tiles.ranges, width, height,
+              tiles.tiles_x, final_t, n_contrib, g_rgb, g_a, g_d, entry_grads, tile_bg], min_chunk=1)
+    out = {"means2d": a.zeros((n, 2)), "conics": a.zeros((n, 3)), "opacities": a.zeros(n), "colors": a.zeros((n, 3)),
+           "depths": a.zeros(n)}
+    a.launch(_gather_entry_grads_kernel, n,
+             [tiles.starts, tiles.counts, entry_grads, out["means2d"], out["conics"], out["opacities"],
+              out["colors"], out["depths"]], min_chunk=MIN_CHUNK)
+    out["background"] = wp.array(tile_bg.numpy().sum(axis=0), dtype=a.scalar, device=a.device)
+    return out
