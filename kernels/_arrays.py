@@ -287,6 +287,18 @@ class Inputs:
         self.as_numpy = not candidates or isinstance(candidates[0], np.ndarray)
         self.scalar: Any = None  # set by the first float argument
 
+    @classmethod
+    def like(cls, device: wp.Device, scalar: Any, as_numpy: bool) -> "Inputs":
+        """An `Inputs` whose device, scalar type and output kind are already known.
+
+        For the later stages of a chain whose first stage resolved them (a checked parameter set
+        handed to project, bin, rasterise and their backwards).
+        """
+        a = cls(device)
+        a.scalar = scalar
+        a.as_numpy = bool(as_numpy)
+        return a
+
     # ------------------------------------------------------------------- properties
 
     @property

@@ -191,10 +191,7 @@ class SSIMState:
         return float(m.mean(dtype=np.float64))
 
     def inputs(self) -> A.Inputs:
-        a = A.Inputs(self.x.device)
-        a.scalar = self.x.dtype
-        a.as_numpy = self.as_numpy
-        return a
+        return A.Inputs.like(self.x.device, self.x.dtype, self.as_numpy)
 
 
 def _constants(a: A.Inputs, data_range: float) -> tuple[Any, Any]:

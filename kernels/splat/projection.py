@@ -33,7 +33,6 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.sh import sh_basis, sh_basis_dx, sh_basis_dy, sh_basis_dz
-from kernels.splat._inputs import inputs_like
 from kernels.splat.camera import SplatCamera
 from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
                                dilate_cov2d_vjp, persp_proj, persp_proj_vjp, quat_scale_to_covar,
@@ -298,7 +297,7 @@ class GaussianInputs:
 
     def inputs(self) -> A.Inputs:
         """An `Inputs` for a call on these parameters: their device, dtype and output kind."""
-        return inputs_like(self.device, self.scalar, self.as_numpy)
+        return A.Inputs.like(self.device, self.scalar, self.as_numpy)
 
 
 def sh_degree_of(sh_shape: tuple, sh_degree: int | None) -> int:

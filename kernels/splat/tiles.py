@@ -21,7 +21,6 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.splat._inputs import inputs_like
 
 wp.set_module_options({"enable_backward": False})
 
@@ -177,7 +176,7 @@ class Splats2D:
 
     def inputs(self) -> A.Inputs:
         """An `Inputs` for a call on these splats: their device, dtype and output kind."""
-        return inputs_like(self.device, self.scalar, self.as_numpy)
+        return A.Inputs.like(self.device, self.scalar, self.as_numpy)
 
 
 @wp.kernel

@@ -158,3 +158,10 @@ def test_launch_and_overloads():
 def _double(x: wp.array(dtype=wp.float32), y: wp.array(dtype=wp.float32), offset: int):
     i = wp.tid() + offset
     y[i] = x[i] * wp.float32(2.0)
+
+
+def test_like_carries_device_scalar_and_kind():
+    a = A.Inputs.like(wp.get_device("cpu"), wp.float64, False)
+    assert a.scalar == wp.float64 and not a.as_numpy and a.device == wp.get_device("cpu")
+    with pytest.raises(ValueError, match="y: expected dtype float64 like the other inputs"):
+        a.floats("y", np.zeros(2, np.float32))
