@@ -142,6 +142,12 @@ def _count_below(x: wp.array(dtype=typing.Any), bound: float, count: wp.array(dt
         wp.atomic_add(count, 0, 1)
 
 
+@wp.kernel(enable_backward=False)
+def _count_below_int(x: wp.array(dtype=wp.int32), bound: int, count: wp.array(dtype=wp.int32)):
+    if x[wp.tid()] < bound:
+        wp.atomic_add(count, 0, 1)
+
+
 declare_float_overloads(_count_nonfinite)
 declare_float_overloads(_count_below)
 
@@ -365,9 +371,11 @@ class Inputs:
             check_shape(name, x, shape)
         if minimum is not None and values_checked() and x.size:
             h = _host_view(x)
-            low = int(h.min()) if h is not None else int(np.min(x.numpy()))
-            if low < minimum:
-                raise ValueError(f"{name}: expected values >= {minimum}, got a minimum of {low}")
+            if h is None:  # an int32 wp.array on a CUDA device: count on the device
+                if _device_count(_count_below_int, x, int(minimum)):
+                    raise ValueError(f"{name}: expected values >= {minimum}")
+            elif int(h.min()) < minimum:
+                raise ValueError(f"{name}: expected values >= {minimum}, got a minimum of {int(h.min())}")
         if arr is None:
             arr = wp.array(np.ascontiguousarray(x, dtype=np.int32), dtype=wp.int32, device=self.device)
         return arr

@@ -96,6 +96,10 @@ def test_device_reductions_match_host(monkeypatch):
         A.check_at_least("g", good, 0.0)
         with pytest.raises(ValueError, match="b: expected finite values >= 0"):
             A.check_at_least("b", bad, 0.0)
+    ints = wp.array(np.array([3, -1, 2], np.int32), device="cpu")
+    A.Inputs(None).ints("i", ints, minimum=-1)
+    with pytest.raises(ValueError, match="i: expected values >= 0"):
+        A.Inputs(None).ints("i", ints, minimum=0)
 
 
 def test_check_at_least_host():
