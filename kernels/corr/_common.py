@@ -1,4 +1,20 @@
-"""What every stage of kernels.corr shares: 2x2 pooling (2) and its adjoint, the lookup window, checks.
+"""What the stages of kernels.corr share: the windowed sampling (3)-(4) and its adjoint, pooling (2), checks.
+
+Lookup window. For a pixel p = (h, w) of frame 1 at level l with radius r, the
+(2r + 1)^2 samples of (4) share one fraction: with u0 = x_p / 2^l - 1/2 - r,
+the window's taps start at column i0 = floor(u0) with fraction fx = u0 - i0
+(and j0, fy from y_p the same way) (`pixel_window`). A map S = s[p] is sampled
+by (3) one window column a at a time (`sample_column`: sample b's lower taps are
+sample b + 1's upper taps), taps outside s[p] reading 0. The dense lookup samples
+V^l[p] from (j0, i0); the on-the-fly lookup samples its tap patch from (0, 0).
+
+Adjoint of a window (`window_adjoint`), with g = d loss / d out:
+  * d S[tap] += (weight of tap in (3)) g, into s[p] only, so per-pixel threads
+    never collide;
+  * d x_p += 2^-l sum_{a,b} g dS/du and d y_p += 2^-l sum_{a,b} g dS/dv, with
+    dS/du = (1-fy)(S[j,i+1] - S[j,i]) + fy (S[j+1,i+1] - S[j+1,i]) and dS/dv the
+    same with the roles of x and y swapped (`bilinear_slopes`). (3) is piecewise
+    bilinear: its derivative jumps where u or v crosses an integer.
 
 Pooling (2) over the last two axes of an (N, H, W) array, odd trailing rows and
 columns dropped (avg_pool2d with kernel 2, stride 2):
@@ -10,14 +26,12 @@ has a coarse pixel. Given a gradient for every level of a pyramid, the total
 gradient of level 0 runs that adjoint from the coarsest level down: level l's
 total is its own gradient plus the adjoint applied to level l + 1's total.
 
-Lookup window. For a pixel p = (h, w) of frame 1 at level l with radius r, the
-(2r + 1)^2 samples of (4) share one fraction: with u0 = x_p / 2^l - 1/2 - r,
-the window's taps start at column i0 = floor(u0) with fraction fx = u0 - i0
-(and j0, fy from y_p the same way).
+Vectors. `pack_rows` packs a (K, M) array into 8-wide vectors along its rows
+(zero-padded), for the blocked product and the channels-last features.
 
-The family's argument checks live here too: the pyramid depth `levels` (frame 2
-must hold the coarsest level's pixel), the window `radius`, the coordinates
-(2, H, W), and lists of pyramid levels whose shapes follow `level_shapes`.
+Checks: the pyramid depth `levels` (frame 2 must keep a pixel at the coarsest
+level), the window `radius`, the coordinates (2, H, W), and lists of pyramid
+levels whose shapes follow `level_shapes`.
 """
 
 from __future__ import annotations
@@ -69,11 +83,95 @@ def bilinear_slopes(s00: typing.Any, s01: typing.Any, s10: typing.Any, s11: typi
 
 
 @wp.func
+def tap(s: wp.array3d(dtype=typing.Any), p: int, row: int, col: int):
+    """S[p, row, col], or 0 outside the level's image."""
+    if row < 0 or col < 0 or row >= s.shape[1] or col >= s.shape[2]:
+        return s.dtype(0.0)
+    return s[p, row, col]
+
+
+@wp.func
+def scatter_tap(g: wp.array3d(dtype=typing.Any), p: int, row: int, col: int, value: typing.Any):
+    """g[p, row, col] += value where that tap exists."""
+    if row >= 0 and col >= 0 and row < g.shape[1] and col < g.shape[2]:
+        g[p, row, col] = g[p, row, col] + value
+
+
+@wp.func
+def sample_column(s: wp.array3d(dtype=typing.Any), p: int, row0: int, col: int, fx: typing.Any, fy: typing.Any,
+                  out: wp.array3d(dtype=typing.Any), channel0: int, a: int, side: int, h: int, w: int):
+    """Column a of a window (4): out[channel0 + a side + b, h, w] for b < side, sampling S = s[p] by (3)
+    at taps (row0 + b, col); sample b's lower taps are sample b + 1's upper taps, so each is read once."""
+    one = s.dtype(1.0)
+    top = (one - fx) * tap(s, p, row0, col) + fx * tap(s, p, row0, col + 1)
+    for b in range(side):
+        row = row0 + b + 1
+        bottom = (one - fx) * tap(s, p, row, col) + fx * tap(s, p, row, col + 1)
+        out[channel0 + a * side + b, h, w] = (one - fy) * top + fy * bottom
+        top = bottom
+
+
+@wp.func
+def window_adjoint(s: wp.array3d(dtype=typing.Any), grad_s: wp.array3d(dtype=typing.Any), p: int, row0: int,
+                   col0: int, fx: typing.Any, fy: typing.Any, grad_out: wp.array3d(dtype=typing.Any), channel0: int,
+                   side: int, h: int, w: int):
+    """Adjoint of a whole window (4) sampled from S = s[p] at taps from (row0, col0): adds each tap's
+    weight in (3) times g into grad_s[p] and returns sum g dS/du, sum g dS/dv (level pixels)."""
+    one = s.dtype(1.0)
+    gx = s.dtype(0.0)
+    gy = s.dtype(0.0)
+    for a in range(side):
+        col = col0 + a
+        for b in range(side):
+            row = row0 + b
+            g = grad_out[channel0 + a * side + b, h, w]
+            dx, dy = bilinear_slopes(tap(s, p, row, col), tap(s, p, row, col + 1), tap(s, p, row + 1, col),
+                                     tap(s, p, row + 1, col + 1), fx, fy, one)
+            gx += g * dx
+            gy += g * dy
+            scatter_tap(grad_s, p, row, col, (one - fx) * (one - fy) * g)
+            scatter_tap(grad_s, p, row, col + 1, fx * (one - fy) * g)
+            scatter_tap(grad_s, p, row + 1, col, (one - fx) * fy * g)
+            scatter_tap(grad_s, p, row + 1, col + 1, fx * fy * g)
+    return gx, gy
+
+
+@wp.func
 def add_coords_grad(grad_coords: wp.array3d(dtype=typing.Any), h: int, w: int, gx: typing.Any, gy: typing.Any,
                     scale: typing.Any):
     """grad_coords[:, h, w] += (gx, gy) * scale: the level's samples moved by coords / 2^l."""
     grad_coords[0, h, w] = grad_coords[0, h, w] + gx * scale
     grad_coords[1, h, w] = grad_coords[1, h, w] + gy * scale
+
+
+# --------------------------------------------------------------------------- 8-wide vectors
+
+
+@wp.kernel
+def _pack_rows_v(x: wp.array2d(dtype=typing.Any), out_v: wp.array2d(dtype=typing.Any), offset: int):
+    """out_v[k, j] = x[k, 8j : 8j + 8] as one vector, zero past x's last column."""
+    t = wp.tid() + offset
+    k = t // out_v.shape[1]
+    j = t % out_v.shape[1]
+    v = out_v.dtype()
+    for t in range(VEC):
+        col = j * VEC + t
+        if col < x.shape[1]:
+            v[t] = x[k, col]
+    out_v[k, j] = v
+
+
+declare_float_overloads(_pack_rows_v, vector_types=VEC_OF)
+
+
+def pack_rows(x: wp.array, n_vec: int, a: Inputs) -> wp.array:
+    """x (K, M) as (K, n_vec) 8-wide vectors, row by row, zero past x's last column (n_vec >= M / 8).
+
+    x may be a strided view: the on-the-fly lookup packs f (C, N) channels-last as pack_rows(f^T).
+    """
+    out = a.empty((x.shape[0], n_vec), VEC_OF[a.scalar])
+    a.launch(_pack_rows_v, out.size, [x, out])
+    return out
 
 
 # --------------------------------------------------------------------------- 2x2 average pooling
@@ -158,9 +256,14 @@ def check_list(name: str, levels: Any, shape: str) -> None:
         raise ValueError(f"{name}: expected a non-empty list of levels, each {shape}")
 
 
-def volume_in(a: Inputs, name: str, x: Array) -> wp.array:
-    """An all-pairs volume (H, W, H, W) (or its gradient) as a wp.array."""
-    v = a.floats(name, x, ndim=4, nonempty=True)
+def volume_in(a: Inputs, name: str, x: Array, finite: bool = True) -> wp.array:
+    """An all-pairs volume (H, W, H, W) (or its gradient) as a wp.array; `finite`: check for NaN and inf.
+
+    Volumes and pyramids come from `correlation_volume`, finite when its features are, and a value
+    check reads all H W sum_l H_l W_l of their values, as much as the lookup itself: the forward
+    entry points taking them check shapes only (`finite=False`); gradients are checked.
+    """
+    v = a.floats(name, x, ndim=4, nonempty=True, finite=finite)
     if tuple(v.shape[:2]) != tuple(v.shape[2:]):
         raise ValueError(f"{name}: expected shape (H, W, H, W), got {tuple(v.shape)}")
     return v
@@ -172,16 +275,17 @@ def features_in(a: Inputs, name: str, x: Array) -> wp.array:
 
 
 def levels_in(a: Inputs, name: str, arrays: Sequence[Array], first: wp.array, lead: tuple[int, ...],
-              height: int, width: int) -> list[wp.array]:
+              height: int, width: int, finite: bool = True) -> list[wp.array]:
     """Every level of a pyramid list: `first` (level 0, already checked), then level l of shape
-    (*lead, H_l, W_l), as wp.arrays of shape (prod(lead), H_l, W_l)."""
+    (*lead, H_l, W_l), as wp.arrays of shape (prod(lead), H_l, W_l); `finite` as in `volume_in`."""
     rows = 1
     for s in lead:
         rows *= s
     out = [first.reshape((rows, height, width))]
     for lvl, (hl, wl) in enumerate(level_shapes(height, width, len(arrays))):
         if lvl:
-            out.append(a.floats(f"{name}[{lvl}]", arrays[lvl], (*lead, hl, wl)).reshape((rows, hl, wl)))
+            level = a.floats(f"{name}[{lvl}]", arrays[lvl], (*lead, hl, wl), finite=finite)
+            out.append(level.reshape((rows, hl, wl)))
     return out
 
 

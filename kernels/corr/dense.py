@@ -6,16 +6,12 @@ For each pixel p of frame 1, level l and window offsets a, b in {0, ..., 2r},
 
 with V^l[p] the level's (H_l, W_l) slice for p sampled by (3), taps outside the
 slice counting as 0. All samples of a level share the fractions (fx, fy), so
-they read the (2r + 2) x (2r + 2) tap patch from (i0, j0) (`pixel_window`); one
-thread computes one column a of the window, and sample b's lower taps are
-sample b + 1's upper taps.
-
-Adjoint, with g = d loss / d out, one thread per pixel:
-  * to the pyramid: d V^l[p, tap] += (weight of tap in (3)) g, scattered into row
-    p only, so threads never collide;
-  * to the coordinates: d x_p += 2^-l sum_{a,b} g dS/du, d y_p += 2^-l sum_{a,b} g dS/dv,
-    with the slopes of (3) (`bilinear_slopes`); (3) is piecewise bilinear, so its
-    derivative jumps where u or v crosses an integer.
+they read the (2r + 2) x (2r + 2) tap patch of V^l[p] from (j0, i0). The forward
+runs one thread per pixel and window column a; the adjoint one thread per pixel,
+adding into row p of the level's gradient and pixel p of the coordinates' only.
+The sampling and its adjoint are `_common.sample_column` and
+`_common.window_adjoint` (shared with the on-the-fly lookup), where the adjoint's
+formulas are written out.
 """
 
 from __future__ import annotations
@@ -26,27 +22,13 @@ from typing import Sequence
 import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
-from kernels.corr._common import (Array, add_coords_grad, bilinear_slopes, check_levels, check_list,
-                                  check_radius, coords_in, levels_in, pixel_window, volume_in)
+from kernels.corr._common import (Array, add_coords_grad, check_levels, check_list, check_radius, coords_in,
+                                  levels_in, pixel_window, sample_column, volume_in, window_adjoint)
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 
 # --------------------------------------------------------------------------- kernels
-
-
-@wp.func
-def _tap(s: wp.array3d(dtype=typing.Any), p: int, row: int, col: int):
-    """S[p, row, col], or 0 outside the level's image."""
-    if row < 0 or col < 0 or row >= s.shape[1] or col >= s.shape[2]:
-        return s.dtype(0.0)
-    return s[p, row, col]
-
-
-@wp.func
-def _scatter_tap(g: wp.array3d(dtype=typing.Any), p: int, row: int, col: int, value: typing.Any):
-    if row >= 0 and col >= 0 and row < g.shape[1] and col < g.shape[2]:
-        g[p, row, col] = g[p, row, col] + value
 
 
 @wp.kernel
@@ -65,15 +47,7 @@ def _lookup_level(
     p = t // side
     a = t % side
     h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-    one = coords.dtype(1.0)
-    col = i0 + a
-    # Sample b's lower taps are sample b + 1's upper taps: each row of taps is read once.
-    top = (one - fx) * _tap(vol, p, j0, col) + fx * _tap(vol, p, j0, col + 1)
-    for b in range(side):
-        row = j0 + b + 1
-        bottom = (one - fx) * _tap(vol, p, row, col) + fx * _tap(vol, p, row, col + 1)
-        out[channel0 + a * side + b, h, w] = (one - fy) * top + fy * bottom
-        top = bottom
+    sample_column(vol, p, j0, i0 + a, fx, fy, out, channel0, a, side, h, w)
 
 
 @wp.kernel
@@ -90,24 +64,8 @@ def _lookup_level_adjoint(
 ):
     """Adjoint of (4) for one level; thread = pixel. Writes row p of grad_vol and pixel p of grad_coords only."""
     p = wp.tid() + offset
-    side = 2 * radius + 1
     h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-    one = coords.dtype(1.0)
-    gx = coords.dtype(0.0)
-    gy = coords.dtype(0.0)
-    for a in range(side):
-        col = i0 + a
-        for b in range(side):
-            row = j0 + b
-            g = grad_out[channel0 + a * side + b, h, w]
-            dx, dy = bilinear_slopes(_tap(vol, p, row, col), _tap(vol, p, row, col + 1), _tap(vol, p, row + 1, col),
-                                     _tap(vol, p, row + 1, col + 1), fx, fy, one)
-            gx += g * dx
-            gy += g * dy
-            _scatter_tap(grad_vol, p, row, col, (one - fx) * (one - fy) * g)
-            _scatter_tap(grad_vol, p, row, col + 1, fx * (one - fy) * g)
-            _scatter_tap(grad_vol, p, row + 1, col, (one - fx) * fy * g)
-            _scatter_tap(grad_vol, p, row + 1, col + 1, fx * fy * g)
+    gx, gy = window_adjoint(vol, grad_vol, p, j0, i0, fx, fy, grad_out, channel0, 2 * radius + 1, h, w)
     add_coords_grad(grad_coords, h, w, gx, gy, scale)
 
 
@@ -120,10 +78,10 @@ for _k in (_lookup_level, _lookup_level_adjoint):
 
 def _volume_pyramid(a: Inputs, pyramid: Sequence[Array]) -> tuple[list[wp.array], int, int]:
     """The pyramid's levels as (H W, H_l, W_l) wp.arrays, and (H, W)."""
-    v0 = volume_in(a, "pyramid[0]", pyramid[0])
+    v0 = volume_in(a, "pyramid[0]", pyramid[0], finite=False)  # see volume_in
     height, width = v0.shape[:2]
     check_levels(len(pyramid), height, width)
-    return levels_in(a, "pyramid", pyramid, v0, (height, width), height, width), height, width
+    return levels_in(a, "pyramid", pyramid, v0, (height, width), height, width, finite=False), height, width
 
 
 def lookup(pyramid: Sequence[Array], coords: Array, radius: int, *, device: str | None = None) -> Array:

@@ -6,7 +6,8 @@ pixel p and level l the (2r + 2)^2 tap patch of its window
 
     T[p, ty, tx] = f1[:, p] . P^l(f2)[:, (j0 + ty, i0 + tx)] / sqrt(C)   (0 outside frame 2)
 
-is computed, then sampled by (3) exactly as the dense lookup samples V^l. Memory
+is computed, then sampled by (3) exactly as the dense lookup samples V^l (the
+same `sample_column` and `window_adjoint`, on the patch). Memory
 is one patch buffer of H W (2r + 2)^2 values instead of the whole pyramid's
 H W sum_l H_l W_l.
 
@@ -35,9 +36,9 @@ from typing import Any, Sequence
 import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
-from kernels.corr._common import (VEC, VEC_OF, Array, add_coords_grad, bilinear_slopes, check_levels, check_list,
-                                  check_radius, coords_in, features_in, level_shapes, levels_in, pixel_window,
-                                  pool_levels, pool_levels_adjoint)
+from kernels.corr._common import (VEC, VEC_OF, Array, add_coords_grad, check_levels, check_list, check_radius,
+                                  coords_in, features_in, level_shapes, levels_in, pixel_window, pool_levels,
+                                  pack_rows, pool_levels_adjoint, sample_column, window_adjoint)
 from kernels.launch import chunk_bounds, default_threads
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -47,22 +48,8 @@ wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 
 @wp.kernel
-def _pack_channels_last_v(x: wp.array2d(dtype=typing.Any), out_v: wp.array2d(dtype=typing.Any), offset: int):
-    """out_v[n, j] = x[8j : 8j + 8, n] as one vector (x is (C, N)); channels past C are 0."""
-    t = wp.tid() + offset
-    n = t // out_v.shape[1]
-    j = t % out_v.shape[1]
-    v = out_v.dtype()
-    for k in range(VEC):
-        c = j * VEC + k
-        if c < x.shape[0]:
-            v[k] = x[c, n]
-    out_v[n, j] = v
-
-
-@wp.kernel
 def _unpack_channels_last_v(x_v: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), offset: int):
-    """Inverse of _pack_channels_last_v: out (C, N)."""
+    """Inverse of the channels-last packing: out (C, N) from x_v (N, ceil(C / 8))."""
     t = wp.tid() + offset
     c = t // out.shape[1]
     n = t % out.shape[1]
@@ -124,12 +111,7 @@ def _sample_patch(
     p = t // side
     a = t % side
     h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-    one = coords.dtype(1.0)
-    top = (one - fx) * patch[p, 0, a] + fx * patch[p, 0, a + 1]
-    for b in range(side):
-        bottom = (one - fx) * patch[p, b + 1, a] + fx * patch[p, b + 1, a + 1]
-        out[channel0 + a * side + b, h, w] = (one - fy) * top + fy * bottom
-        top = bottom
+    sample_column(patch, p, 0, a, fx, fy, out, channel0, a, side, h, w)
 
 
 @wp.kernel
@@ -148,24 +130,11 @@ def _sample_patch_adjoint(
     p = wp.tid() + offset
     side = 2 * radius + 1
     h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-    one = coords.dtype(1.0)
     zero = coords.dtype(0.0)
     for ty in range(side + 1):
         for tx in range(side + 1):
             grad_patch[p, ty, tx] = zero
-    gx = zero
-    gy = zero
-    for a in range(side):
-        for b in range(side):
-            g = grad_out[channel0 + a * side + b, h, w]
-            dx, dy = bilinear_slopes(patch[p, b, a], patch[p, b, a + 1], patch[p, b + 1, a], patch[p, b + 1, a + 1],
-                                     fx, fy, one)
-            gx += g * dx
-            gy += g * dy
-            grad_patch[p, b, a] = grad_patch[p, b, a] + (one - fx) * (one - fy) * g
-            grad_patch[p, b, a + 1] = grad_patch[p, b, a + 1] + fx * (one - fy) * g
-            grad_patch[p, b + 1, a] = grad_patch[p, b + 1, a] + (one - fx) * fy * g
-            grad_patch[p, b + 1, a + 1] = grad_patch[p, b + 1, a + 1] + fx * fy * g
+    gx, gy = window_adjoint(patch, grad_patch, p, 0, 0, fx, fy, grad_out, channel0, side, h, w)
     add_coords_grad(grad_coords, h, w, gx, gy, scale)
 
 
@@ -246,7 +215,7 @@ def _sum_slots(slots_v: wp.array3d(dtype=typing.Any), out_v: wp.array2d(dtype=ty
 
 
 
-for _k in (_pack_channels_last_v, _unpack_channels_last_v, _patch_level, _sample_patch, _sample_patch_adjoint,
+for _k in (_unpack_channels_last_v, _patch_level, _sample_patch, _sample_patch_adjoint,
            _patch_adjoint_f1, _patch_adjoint_f2, _sum_slots):
     declare_float_overloads(_k, vector_types=VEC_OF)
 
@@ -256,10 +225,7 @@ for _k in (_pack_channels_last_v, _unpack_channels_last_v, _patch_level, _sample
 
 def _channels_last_v(x: wp.array, a: Inputs) -> wp.array:
     """(C, N) scalars -> (N, ceil(C / 8)) vectors."""
-    channels, n = x.shape
-    out = a.zeros((n, -(-channels // VEC)), VEC_OF[a.scalar])
-    a.launch(_pack_channels_last_v, out.size, [x, out])
-    return out
+    return pack_rows(x.transpose(), -(-x.shape[0] // VEC), a)
 
 
 def _channels_first(x_v: wp.array, channels: int, a: Inputs) -> wp.array:

@@ -28,7 +28,7 @@ import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, features_in, level_shapes,
-                                  levels_in, pool_levels, pool_levels_adjoint, volume_in)
+                                  levels_in, pack_rows, pool_levels, pool_levels_adjoint, volume_in)
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -38,20 +38,6 @@ GEMM_ROWS = 4
 
 
 # --------------------------------------------------------------------------- kernels
-
-
-@wp.kernel
-def _pack_rows_v(x: wp.array2d(dtype=typing.Any), out_v: wp.array2d(dtype=typing.Any), offset: int):
-    """out_v[k, j] = x[k, 8j : 8j + 8] as one vector, zero past x's last column."""
-    t = wp.tid() + offset
-    k = t // out_v.shape[1]
-    j = t % out_v.shape[1]
-    v = out_v.dtype()
-    for t in range(VEC):
-        col = j * VEC + t
-        if col < x.shape[1]:
-            v[t] = x[k, col]
-    out_v[k, j] = v
 
 
 @wp.func
@@ -142,7 +128,7 @@ def _transpose(x: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any
     out[i, j] = x[j, i]
 
 
-for _k in (_pack_rows_v, _gemm_tn, _copy_cols, _transpose):
+for _k in (_gemm_tn, _copy_cols, _transpose):
     declare_float_overloads(_k, vector_types=VEC_OF)
 
 
@@ -158,8 +144,7 @@ def _gemm_tn_wp(x: wp.array, y: wp.array, scale: float, a: Inputs) -> wp.array:
         a.launch(_copy_cols, k * m, [x, x_pad])
         x = x_pad
     n_col_blocks = -(-n // GEMM_COLS)
-    y_v = a.empty((k, n_col_blocks * 2), VEC_OF[a.scalar])
-    a.launch(_pack_rows_v, y_v.size, [y, y_v])
+    y_v = pack_rows(y, n_col_blocks * 2, a)
     out = a.empty((m, n))
     n_blocks = -(-m // GEMM_ROWS) * n_col_blocks
     a.launch(_gemm_tn, n_blocks, [x, y_v, out, a.s(scale), n_col_blocks])
@@ -212,7 +197,7 @@ def correlation_pyramid(volume: Array, levels: int, *, device: str | None = None
     """Levels V^0..V^{L-1} of (2), each (H, W, H_l, W_l), pooling frame 2's dimensions."""
     levels = check_levels(levels)
     a = Inputs(device, volume)
-    vol = volume_in(a, "volume", volume)
+    vol = volume_in(a, "volume", volume, finite=False)  # see volume_in
     height, width = vol.shape[:2]
     check_levels(levels, height, width)
     out = pool_levels(vol.reshape((height * width, height, width)), levels, a)

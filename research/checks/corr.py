@@ -46,18 +46,23 @@ def check_volume(seed: int, shape: tuple[int, int, int] = SHAPE) -> list[Gradche
     return check_vjp(corr.correlation_volume, vjp, inputs, seed=seed, name="corr.volume")
 
 
+def _check_pooling(seed: int, name: str, arg: str, x: np.ndarray, forward: Callable[..., list],
+                   backward: Callable[[list], dict]) -> list[GradcheckResult]:
+    """Every level of a pooled pyramid `forward(x)` against x, whose gradient is backward(cotangents)[arg]."""
+    def f(**x_in: np.ndarray) -> tuple[np.ndarray, ...]:
+        return tuple(forward(x_in[arg]))
+
+    def vjp(x_in: dict[str, np.ndarray], cot: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
+        return backward(list(cot))
+
+    return check_vjp(f, vjp, {arg: x}, seed=seed, name=name)
+
+
 def check_pyramid(seed: int, height: int = 9, width: int = 10, levels: int = LEVELS) -> list[GradcheckResult]:
     """2x2 average pooling over frame 2's dimensions, every level's output against V^0."""
-    rng = np.random.default_rng(seed)
-    inputs = {"volume": rng.standard_normal((height, width, height, width))}
-
-    def f(volume: np.ndarray) -> tuple[np.ndarray, ...]:
-        return tuple(corr.correlation_pyramid(volume, levels))
-
-    def vjp(x: dict[str, np.ndarray], cot: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
-        return corr.correlation_pyramid_backward(list(cot))
-
-    return check_vjp(f, vjp, inputs, seed=seed, name="corr.pyramid")
+    volume = np.random.default_rng(seed).standard_normal((height, width, height, width))
+    return _check_pooling(seed, "corr.pyramid", "volume", volume, lambda v: corr.correlation_pyramid(v, levels),
+                          corr.correlation_pyramid_backward)
 
 
 def check_lookup(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
@@ -103,16 +108,9 @@ def check_dense_chain(seed: int, shape: tuple[int, int, int] = SHAPE, levels: in
 def check_pool_features(seed: int, shape: tuple[int, int, int] = (2, 9, 10),
                         levels: int = LEVELS) -> list[GradcheckResult]:
     """P^l(f2) for every level, against f2."""
-    rng = np.random.default_rng(seed)
-    inputs = {"f2": rng.standard_normal(shape)}
-
-    def f(f2: np.ndarray) -> tuple[np.ndarray, ...]:
-        return tuple(corr.pool_features(f2, levels))
-
-    def vjp(x: dict[str, np.ndarray], cot: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
-        return corr.pool_features_backward(list(cot))
-
-    return check_vjp(f, vjp, inputs, seed=seed, name="corr.pool_features")
+    f2 = np.random.default_rng(seed).standard_normal(shape)
+    return _check_pooling(seed, "corr.pool_features", "f2", f2, lambda v: corr.pool_features(v, levels),
+                          corr.pool_features_backward)
 
 
 def check_lookup_onthefly(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
