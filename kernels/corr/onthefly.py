@@ -139,39 +139,12 @@ def _sample_patch_adjoint(
 
 
 @wp.kernel
-def _patch_adjoint_f1(
+def _patch_adjoint_features(
     grad_patch: wp.array3d(dtype=typing.Any),
+    f1_v: wp.array2d(dtype=typing.Any),
     f2l_v: wp.array2d(dtype=typing.Any),
     coords: wp.array3d(dtype=typing.Any),
     grad_f1_v: wp.array2d(dtype=typing.Any),
-    height_l: int,
-    width_l: int,
-    scale: typing.Any,
-    radius: int,
-    inv_sqrt_c: typing.Any,
-    offset: int,
-):
-    """grad_f1[:, p] += sum_tap dT[p, tap] P^l(f2)[:, tap] / sqrt(C); thread = pixel (writes its own row)."""
-    p = wp.tid() + offset
-    side = 2 * radius + 2
-    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-    for ty in range(side):
-        row = j0 + ty
-        if row >= 0 and row < height_l:
-            for tx in range(side):
-                col = i0 + tx
-                if col >= 0 and col < width_l:
-                    g = grad_patch[p, ty, tx] * inv_sqrt_c
-                    q = row * width_l + col
-                    for k in range(grad_f1_v.shape[1]):
-                        grad_f1_v[p, k] = grad_f1_v[p, k] + f2l_v[q, k] * g
-
-
-@wp.kernel
-def _patch_adjoint_f2(
-    grad_patch: wp.array3d(dtype=typing.Any),
-    f1_v: wp.array2d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
     grad_f2l_v: wp.array3d(dtype=typing.Any),
     height_l: int,
     width_l: int,
@@ -182,8 +155,10 @@ def _patch_adjoint_f2(
     slot: int,
     offset: int,
 ):
-    """grad_f2l[slot, tap] += dT[p, tap] f1[:, p] / sqrt(C); thread = pixel. This scatters across pixels:
-    on the CPU each concurrent launch owns its slot (plain adds); on CUDA (`atomic` = 1) adds are atomic."""
+    """For every tap of pixel p's patch inside frame 2, with g = dT[p, tap] / sqrt(C):
+    grad_f1[:, p] += g P^l(f2)[:, tap] (a gather: thread p writes its own row) and
+    grad_f2l[slot, tap] += g f1[:, p] (a scatter across pixels: on the CPU each concurrent launch
+    owns its slot and adds plainly; on CUDA, `atomic` = 1, one launch adds atomically). Thread = pixel."""
     p = wp.tid() + offset
     side = 2 * radius + 2
     h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
@@ -195,6 +170,8 @@ def _patch_adjoint_f2(
                 if col >= 0 and col < width_l:
                     g = grad_patch[p, ty, tx] * inv_sqrt_c
                     q = row * width_l + col
+                    for k in range(f1_v.shape[1]):
+                        grad_f1_v[p, k] = grad_f1_v[p, k] + f2l_v[q, k] * g
                     if atomic != 0:
                         for k in range(f1_v.shape[1]):
                             wp.atomic_add(grad_f2l_v, slot, q, k, f1_v[p, k] * g)
@@ -216,7 +193,7 @@ def _sum_slots(slots_v: wp.array3d(dtype=typing.Any), out_v: wp.array2d(dtype=ty
 
 
 for _k in (_unpack_channels_last_v, _patch_level, _sample_patch, _sample_patch_adjoint,
-           _patch_adjoint_f1, _patch_adjoint_f2, _sum_slots):
+           _patch_adjoint_features, _sum_slots):
     declare_float_overloads(_k, vector_types=VEC_OF)
 
 
@@ -341,10 +318,9 @@ def lookup_onthefly_backward(f1: Array, f2_pyramid: Sequence[Array], coords: Arr
         scale = a.s(0.5 ** lvl)
         a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
         a.launch(_sample_patch_adjoint, n, [patch, xy, g, grad_patch, grad_coords, scale, radius, lvl * side * side])
-        a.launch(_patch_adjoint_f1, n, [grad_patch, f2l_v, xy, grad_f1_v, hl, wl, scale, radius, inv])
         slots = a.zeros((n_slots, hl * wl, n_vec), vec)
-        _launch_slots(_patch_adjoint_f2, n, [grad_patch, f1_v, xy, slots, hl, wl, scale, radius, inv,
-                                             int(a.device.is_cuda)], n_slots, a.device)
+        _launch_slots(_patch_adjoint_features, n, [grad_patch, f1_v, f2l_v, xy, grad_f1_v, slots, hl, wl, scale,
+                                                   radius, inv, int(a.device.is_cuda)], n_slots, a.device)
         grad_f2l_v = a.zeros((hl * wl, n_vec), vec)
         a.launch(_sum_slots, grad_f2l_v.size, [slots, grad_f2l_v])
         grads_f2.append(a.out(_channels_first(grad_f2l_v, channels, a).reshape((channels, hl, wl))))
