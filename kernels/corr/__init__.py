@@ -47,12 +47,16 @@ Stages, one module each (each opens with its own math, adjoints and layout):
   * `dense`: the lookup (4) in a stored pyramid, with its adjoint;
   * `onthefly`: the same lookup from f1 and the pooled features P^l(f2) without
     storing V, with its adjoint;
-  * `_common`: the pooling kernels, the lookup window and the argument checks.
+  * `_common`: what they share: the window sampling (3)-(4) and its adjoint, the
+    pooling (2) and its adjoint, vector packing and the argument checks.
 
 Entry points take NumPy arrays or wp.arrays (float32 or float64, one dtype for
 all inputs) and return the same kind as their first array argument, on its
 device (kernels._arrays). Every argument is checked before any launch; bad
-input raises ValueError naming the argument. Every backward entry point returns
+input raises ValueError naming the argument. Volumes and pyramids given to the
+forward entry points are checked for shape, not for NaN or inf (that would read
+as much as the lookup itself; they come from `correlation_volume`, whose
+features are checked). Every backward entry point returns
 a dict from the name of each differentiated input to its gradient (a list of
 arrays for a list input). Warp's own autodiff is off for these modules: every
 backward here is written by hand.

@@ -212,7 +212,11 @@ def _channels_first(x_v: wp.array, channels: int, a: Inputs) -> wp.array:
 
 
 def _launch_slots(kernel: Any, dim: int, inputs: list[Any], n_slots: int, device: wp.Device) -> None:
-    """Chunk s of [0, dim) launched on its own thread with `slot = s` (kernel params end `slot, offset`)."""
+    """Chunk s of [0, dim) launched on its own thread with `slot = s` (kernel params end `slot, offset`).
+
+    A CPU launch runs on one thread and releases the GIL (docs/warp.md), so the chunks run in parallel,
+    each adding into its own slot; on CUDA one launch covers all of [0, dim) in slot 0.
+    """
     if device.is_cuda or n_slots == 1:
         wp.launch(kernel, dim=dim, inputs=[*inputs, 0, 0], device=device)
         return
