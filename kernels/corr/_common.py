@@ -4,16 +4,16 @@ Lookup window. For a pixel p = (h, w) of frame 1 at level l with radius r, the
 (2r + 1)^2 samples of (4) share one fraction: with u0 = x_p / 2^l - 1/2 - r,
 the window's taps start at column i0 = floor(u0) with fraction fx = u0 - i0
 (and j0, fy from y_p the same way) (`pixel_window`). A map S = s[p] is sampled
-by (3) one window column a at a time (`sample_column`: sample b's lower taps are
+by (3) one window column a at a time (`sample_windows`: sample b's lower taps are
 sample b + 1's upper taps), taps outside s[p] reading 0. The dense lookup samples
 V^l[p] from (j0, i0); the on-the-fly lookup samples its tap patch from (0, 0).
 
-Adjoint of a window (`window_adjoint`), with g = d loss / d out:
+Adjoint of a window (`sample_windows_adjoint`), with g = d loss / d out:
   * d S[tap] += (weight of tap in (3)) g, into s[p] only, so per-pixel threads
     never collide;
   * d x_p += 2^-l sum_{a,b} g dS/du and d y_p += 2^-l sum_{a,b} g dS/dv, with
     dS/du = (1-fy)(S[j,i+1] - S[j,i]) + fy (S[j+1,i+1] - S[j+1,i]) and dS/dv the
-    same with the roles of x and y swapped (`bilinear_slopes`). (3) is piecewise
+    same with the roles of x and y swapped. (3) is piecewise
     bilinear: its derivative jumps where u or v crosses an integer.
 
 Pooling (2) over the last two axes of an (N, H, W) array, odd trailing rows and
@@ -76,14 +76,7 @@ def pixel_window(coords: wp.array3d(dtype=typing.Any), p: int, scale: typing.Any
 
 
 @wp.func
-def bilinear_slopes(s00: typing.Any, s01: typing.Any, s10: typing.Any, s11: typing.Any, fx: typing.Any,
-                    fy: typing.Any, one: typing.Any):
-    """d S / d u and d S / d v of the bilinear sample (3) from its four taps, in level pixels."""
-    return (one - fy) * (s01 - s00) + fy * (s11 - s10), (one - fx) * (s10 - s00) + fx * (s11 - s01)
-
-
-@wp.func
-def tap(s: wp.array3d(dtype=typing.Any), p: int, row: int, col: int):
+def _tap(s: wp.array3d(dtype=typing.Any), p: int, row: int, col: int):
     """S[p, row, col], or 0 outside the level's image."""
     if row < 0 or col < 0 or row >= s.shape[1] or col >= s.shape[2]:
         return s.dtype(0.0)
@@ -91,32 +84,77 @@ def tap(s: wp.array3d(dtype=typing.Any), p: int, row: int, col: int):
 
 
 @wp.func
-def scatter_tap(g: wp.array3d(dtype=typing.Any), p: int, row: int, col: int, value: typing.Any):
+def _scatter_tap(g: wp.array3d(dtype=typing.Any), p: int, row: int, col: int, value: typing.Any):
     """g[p, row, col] += value where that tap exists."""
     if row >= 0 and col >= 0 and row < g.shape[1] and col < g.shape[2]:
         g[p, row, col] = g[p, row, col] + value
 
 
-@wp.func
-def sample_column(s: wp.array3d(dtype=typing.Any), p: int, row0: int, col: int, fx: typing.Any, fy: typing.Any,
-                  out: wp.array3d(dtype=typing.Any), channel0: int, a: int, side: int, h: int, w: int):
-    """Column a of a window (4): out[channel0 + a side + b, h, w] for b < side, sampling S = s[p] by (3)
-    at taps (row0 + b, col); sample b's lower taps are sample b + 1's upper taps, so each is read once."""
+# --------------------------------------------------------------------------- window sampling (4) and its adjoint
+
+
+@wp.kernel
+def sample_windows(
+    s: wp.array3d(dtype=typing.Any),
+    coords: wp.array3d(dtype=typing.Any),
+    out: wp.array3d(dtype=typing.Any),
+    scale: typing.Any,
+    radius: int,
+    channel0: int,
+    from_patch: int,
+    offset: int,
+):
+    """Equation (4) for one level and one window column a, sampling S = s[p] by (3); thread = pixel * (2r+1) + a.
+
+    Dense: s is V^l (H W, H_l, W_l), read from the window's origin (j0, i0). On the fly
+    (`from_patch` = 1): s is the tap patch (H W, 2r+2, 2r+2), read from (0, 0).
+    """
+    t = wp.tid() + offset
+    side = 2 * radius + 1
+    p = t // side
+    a = t % side
+    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+    row0 = j0
+    col = i0 + a
+    if from_patch != 0:
+        row0 = 0
+        col = a
     one = s.dtype(1.0)
-    top = (one - fx) * tap(s, p, row0, col) + fx * tap(s, p, row0, col + 1)
+    # Sample b's lower taps are sample b + 1's upper taps: each row of taps is read once.
+    top = (one - fx) * _tap(s, p, row0, col) + fx * _tap(s, p, row0, col + 1)
     for b in range(side):
         row = row0 + b + 1
-        bottom = (one - fx) * tap(s, p, row, col) + fx * tap(s, p, row, col + 1)
+        bottom = (one - fx) * _tap(s, p, row, col) + fx * _tap(s, p, row, col + 1)
         out[channel0 + a * side + b, h, w] = (one - fy) * top + fy * bottom
         top = bottom
 
 
-@wp.func
-def window_adjoint(s: wp.array3d(dtype=typing.Any), grad_s: wp.array3d(dtype=typing.Any), p: int, row0: int,
-                   col0: int, fx: typing.Any, fy: typing.Any, grad_out: wp.array3d(dtype=typing.Any), channel0: int,
-                   side: int, h: int, w: int):
-    """Adjoint of a whole window (4) sampled from S = s[p] at taps from (row0, col0): adds each tap's
-    weight in (3) times g into grad_s[p] and returns sum g dS/du, sum g dS/dv (level pixels)."""
+@wp.kernel
+def sample_windows_adjoint(
+    s: wp.array3d(dtype=typing.Any),
+    coords: wp.array3d(dtype=typing.Any),
+    grad_out: wp.array3d(dtype=typing.Any),
+    grad_s: wp.array3d(dtype=typing.Any),
+    grad_coords: wp.array3d(dtype=typing.Any),
+    scale: typing.Any,
+    radius: int,
+    channel0: int,
+    from_patch: int,
+    offset: int,
+):
+    """Adjoint of `sample_windows`; thread = pixel. Adds into row p of grad_s (which it first zeroes
+    when `from_patch`: the patch's gradient buffer serves every level) and pixel p of grad_coords only."""
+    p = wp.tid() + offset
+    side = 2 * radius + 1
+    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+    row0 = j0
+    col0 = i0
+    if from_patch != 0:
+        row0 = 0
+        col0 = 0
+        for ty in range(grad_s.shape[1]):
+            for tx in range(grad_s.shape[2]):
+                grad_s[p, ty, tx] = s.dtype(0.0)
     one = s.dtype(1.0)
     gx = s.dtype(0.0)
     gy = s.dtype(0.0)
@@ -125,23 +163,22 @@ def window_adjoint(s: wp.array3d(dtype=typing.Any), grad_s: wp.array3d(dtype=typ
         for b in range(side):
             row = row0 + b
             g = grad_out[channel0 + a * side + b, h, w]
-            dx, dy = bilinear_slopes(tap(s, p, row, col), tap(s, p, row, col + 1), tap(s, p, row + 1, col),
-                                     tap(s, p, row + 1, col + 1), fx, fy, one)
-            gx += g * dx
-            gy += g * dy
-            scatter_tap(grad_s, p, row, col, (one - fx) * (one - fy) * g)
-            scatter_tap(grad_s, p, row, col + 1, fx * (one - fy) * g)
-            scatter_tap(grad_s, p, row + 1, col, (one - fx) * fy * g)
-            scatter_tap(grad_s, p, row + 1, col + 1, fx * fy * g)
-    return gx, gy
-
-
-@wp.func
-def add_coords_grad(grad_coords: wp.array3d(dtype=typing.Any), h: int, w: int, gx: typing.Any, gy: typing.Any,
-                    scale: typing.Any):
-    """grad_coords[:, h, w] += (gx, gy) * scale: the level's samples moved by coords / 2^l."""
+            s00 = _tap(s, p, row, col)
+            s01 = _tap(s, p, row, col + 1)
+            s10 = _tap(s, p, row + 1, col)
+            s11 = _tap(s, p, row + 1, col + 1)
+            gx += g * ((one - fy) * (s01 - s00) + fy * (s11 - s10))
+            gy += g * ((one - fx) * (s10 - s00) + fx * (s11 - s01))
+            _scatter_tap(grad_s, p, row, col, (one - fx) * (one - fy) * g)
+            _scatter_tap(grad_s, p, row, col + 1, fx * (one - fy) * g)
+            _scatter_tap(grad_s, p, row + 1, col, (one - fx) * fy * g)
+            _scatter_tap(grad_s, p, row + 1, col + 1, fx * fy * g)
     grad_coords[0, h, w] = grad_coords[0, h, w] + gx * scale
     grad_coords[1, h, w] = grad_coords[1, h, w] + gy * scale
+
+
+for _k in (sample_windows, sample_windows_adjoint):
+    declare_float_overloads(_k)
 
 
 # --------------------------------------------------------------------------- 8-wide vectors

@@ -9,68 +9,19 @@ slice counting as 0. All samples of a level share the fractions (fx, fy), so
 they read the (2r + 2) x (2r + 2) tap patch of V^l[p] from (j0, i0). The forward
 runs one thread per pixel and window column a; the adjoint one thread per pixel,
 adding into row p of the level's gradient and pixel p of the coordinates' only.
-The sampling and its adjoint are `_common.sample_column` and
-`_common.window_adjoint` (shared with the on-the-fly lookup), where the adjoint's
-formulas are written out.
+The kernels are `_common.sample_windows` and `_common.sample_windows_adjoint`
+(shared with the on-the-fly lookup), where the adjoint's formulas are written out.
 """
 
 from __future__ import annotations
 
-import typing
 from typing import Sequence
 
 import warp as wp
 
-from kernels._arrays import Inputs, declare_float_overloads
-from kernels.corr._common import (Array, add_coords_grad, check_levels, check_list, check_radius, coords_in,
-                                  levels_in, pixel_window, sample_column, volume_in, window_adjoint)
-
-wp.set_module_options({"enable_backward": False, "optimization_level": 3})
-
-
-# --------------------------------------------------------------------------- kernels
-
-
-@wp.kernel
-def _lookup_level(
-    vol: wp.array3d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
-    out: wp.array3d(dtype=typing.Any),
-    scale: typing.Any,
-    radius: int,
-    channel0: int,
-    offset: int,
-):
-    """Equation (4) for one level and one x offset a; thread = pixel * (2r+1) + a."""
-    t = wp.tid() + offset
-    side = 2 * radius + 1
-    p = t // side
-    a = t % side
-    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-    sample_column(vol, p, j0, i0 + a, fx, fy, out, channel0, a, side, h, w)
-
-
-@wp.kernel
-def _lookup_level_adjoint(
-    vol: wp.array3d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
-    grad_out: wp.array3d(dtype=typing.Any),
-    grad_vol: wp.array3d(dtype=typing.Any),
-    grad_coords: wp.array3d(dtype=typing.Any),
-    scale: typing.Any,
-    radius: int,
-    channel0: int,
-    offset: int,
-):
-    """Adjoint of (4) for one level; thread = pixel. Writes row p of grad_vol and pixel p of grad_coords only."""
-    p = wp.tid() + offset
-    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-    gx, gy = window_adjoint(vol, grad_vol, p, j0, i0, fx, fy, grad_out, channel0, 2 * radius + 1, h, w)
-    add_coords_grad(grad_coords, h, w, gx, gy, scale)
-
-
-for _k in (_lookup_level, _lookup_level_adjoint):
-    declare_float_overloads(_k)
+from kernels._arrays import Inputs
+from kernels.corr._common import (Array, check_levels, check_list, check_radius, coords_in, levels_in,
+                                  sample_windows, sample_windows_adjoint, volume_in)
 
 
 # --------------------------------------------------------------------------- entry points
@@ -95,7 +46,7 @@ def lookup(pyramid: Sequence[Array], coords: Array, radius: int, *, device: str 
     n = height * width
     out = a.zeros((len(levels) * side * side, height, width))
     for lvl, v in enumerate(levels):
-        a.launch(_lookup_level, n * side, [v, xy, out, a.s(0.5 ** lvl), radius, lvl * side * side])
+        a.launch(sample_windows, n * side, [v, xy, out, a.s(0.5 ** lvl), radius, lvl * side * side, 0])
     return a.out(out)
 
 
@@ -115,6 +66,6 @@ def lookup_backward(pyramid: Sequence[Array], coords: Array, radius: int, grad_o
     grads = []
     for lvl, v in enumerate(levels):
         gv = a.zeros(v.shape)
-        a.launch(_lookup_level_adjoint, n, [v, xy, g, gv, grad_coords, a.s(0.5 ** lvl), radius, lvl * side * side])
+        a.launch(sample_windows_adjoint, n, [v, xy, g, gv, grad_coords, a.s(0.5 ** lvl), radius, lvl * side * side, 0])
         grads.append(a.out(gv.reshape((height, width, v.shape[1], v.shape[2]))))
     return {"pyramid": grads, "coords": a.out(grad_coords)}

@@ -7,7 +7,7 @@ pixel p and level l the (2r + 2)^2 tap patch of its window
     T[p, ty, tx] = f1[:, p] . P^l(f2)[:, (j0 + ty, i0 + tx)] / sqrt(C)   (0 outside frame 2)
 
 is computed, then sampled by (3) exactly as the dense lookup samples V^l (the
-same `sample_column` and `window_adjoint`, on the patch). Memory
+same kernels `sample_windows` and `sample_windows_adjoint`, on the patch). Memory
 is one patch buffer of H W (2r + 2)^2 values instead of the whole pyramid's
 H W sum_l H_l W_l.
 
@@ -36,9 +36,9 @@ from typing import Any, Sequence
 import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
-from kernels.corr._common import (VEC, VEC_OF, Array, add_coords_grad, check_levels, check_list, check_radius,
-                                  coords_in, features_in, level_shapes, levels_in, pixel_window, pool_levels,
-                                  pack_rows, pool_levels_adjoint, sample_column, window_adjoint)
+from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
+                                  features_in, level_shapes, levels_in, pack_rows, pixel_window, pool_levels,
+                                  pool_levels_adjoint, sample_windows, sample_windows_adjoint)
 from kernels.launch import chunk_bounds, default_threads
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -96,49 +96,6 @@ def _patch_level(
 
 
 @wp.kernel
-def _sample_patch(
-    patch: wp.array3d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
-    out: wp.array3d(dtype=typing.Any),
-    scale: typing.Any,
-    radius: int,
-    channel0: int,
-    offset: int,
-):
-    """Equation (4) from the tap patch; thread = pixel * (2r+1) + a."""
-    t = wp.tid() + offset
-    side = 2 * radius + 1
-    p = t // side
-    a = t % side
-    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-    sample_column(patch, p, 0, a, fx, fy, out, channel0, a, side, h, w)
-
-
-@wp.kernel
-def _sample_patch_adjoint(
-    patch: wp.array3d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
-    grad_out: wp.array3d(dtype=typing.Any),
-    grad_patch: wp.array3d(dtype=typing.Any),
-    grad_coords: wp.array3d(dtype=typing.Any),
-    scale: typing.Any,
-    radius: int,
-    channel0: int,
-    offset: int,
-):
-    """Adjoint of _sample_patch; thread = pixel. Overwrites row p of grad_patch, adds into pixel p of grad_coords."""
-    p = wp.tid() + offset
-    side = 2 * radius + 1
-    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-    zero = coords.dtype(0.0)
-    for ty in range(side + 1):
-        for tx in range(side + 1):
-            grad_patch[p, ty, tx] = zero
-    gx, gy = window_adjoint(patch, grad_patch, p, 0, 0, fx, fy, grad_out, channel0, side, h, w)
-    add_coords_grad(grad_coords, h, w, gx, gy, scale)
-
-
-@wp.kernel
 def _patch_adjoint_features(
     grad_patch: wp.array3d(dtype=typing.Any),
     f1_v: wp.array2d(dtype=typing.Any),
@@ -192,8 +149,7 @@ def _sum_slots(slots_v: wp.array3d(dtype=typing.Any), out_v: wp.array2d(dtype=ty
 
 
 
-for _k in (_unpack_channels_last_v, _patch_level, _sample_patch, _sample_patch_adjoint,
-           _patch_adjoint_features, _sum_slots):
+for _k in (_unpack_channels_last_v, _patch_level, _patch_adjoint_features, _sum_slots):
     declare_float_overloads(_k, vector_types=VEC_OF)
 
 
@@ -291,7 +247,7 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
         f2l_v = _channels_last_v(levels[lvl], a)
         scale = a.s(0.5 ** lvl)
         a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
-        a.launch(_sample_patch, n * side, [patch, xy, out, scale, radius, lvl * side * side])
+        a.launch(sample_windows, n * side, [patch, xy, out, scale, radius, lvl * side * side, 1])
     return a.out(out)
 
 
@@ -321,7 +277,8 @@ def lookup_onthefly_backward(f1: Array, f2_pyramid: Sequence[Array], coords: Arr
         f2l_v = _channels_last_v(levels[lvl], a)
         scale = a.s(0.5 ** lvl)
         a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
-        a.launch(_sample_patch_adjoint, n, [patch, xy, g, grad_patch, grad_coords, scale, radius, lvl * side * side])
+        a.launch(sample_windows_adjoint, n, [patch, xy, g, grad_patch, grad_coords, scale, radius, lvl * side * side,
+                                             1])
         slots = a.zeros((n_slots, hl * wl, n_vec), vec)
         _launch_slots(_patch_adjoint_features, n, [grad_patch, f1_v, f2l_v, xy, grad_f1_v, slots, hl, wl, scale,
                                                    radius, inv, int(a.device.is_cuda)], n_slots, a.device)
