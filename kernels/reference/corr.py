@@ -1,4 +1,5 @@
-"""Plain NumPy reference of kernels.corr's forward pass (RAFT's correlation volume, pyramid, lookup).
+"""Plain NumPy reference of kernels.corr's forward pass: the correlation volume, pyramid and lookup of
+RAFT (Teed and Deng, "RAFT: Recurrent All-Pairs Field Transforms for Optical Flow", ECCV 2020).
 
 Loops over pixels in float64, written from the definitions in kernels.corr:
 the volume (1), 2x2 pooling (2), bilinear sampling with zeros outside (3) and

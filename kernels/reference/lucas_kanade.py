@@ -1,4 +1,5 @@
-"""Plain NumPy reference of kernels.lucas_kanade's forward pass (dense, pyramidal Lucas-Kanade).
+"""Plain NumPy reference of kernels.lucas_kanade's forward pass: dense Lucas-Kanade (Lucas and Kanade,
+IJCAI 1981) with Shi and Tomasi's validity test (CVPR 1994), pyramidal as in Bouguet (Intel, 2000).
 
 Loops over pixels in float64, written from the definitions in
 kernels.lucas_kanade: central-difference gradients (1), one LK step (2) with the
