@@ -7,6 +7,7 @@ import pytest
 import warp as wp
 
 from kernels import corr
+from kernels._arrays import value_checks
 from kernels.reference import corr as ref
 from research.checks import corr as checks
 from research.gradcheck import assert_gradcheck
@@ -169,6 +170,22 @@ def test_nan_coordinates():
         corr.lookup_onthefly(f1, corr.pool_features(f2, 2), coords, 2)
     with pytest.raises(ValueError, match="coords: expected finite values"):
         corr.lookup_backward(pyramid, coords, 2, np.zeros((50, 8, 8)))
+
+
+def test_value_checks_switch():
+    """value_checks(False) skips the NaN checks (for training loops); shape checks stay on."""
+    rng = np.random.default_rng(0)
+    f1, f2 = rng.standard_normal((2, 3, 8, 8))
+    coords = checks.smooth_coords(rng, 8, 8)
+    coords[0, 1, 1] = np.nan
+    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 2)
+    with value_checks(False):
+        out = corr.lookup(pyramid, coords, 1)
+        with pytest.raises(ValueError, match=r"coords: expected shape \(2, 8, 8\)"):
+            corr.lookup(pyramid, coords[:, :4], 1)
+    assert np.isnan(out[:, 1, 1]).all() and np.isfinite(np.delete(out.reshape(18, -1), 9, axis=1)).all()
+    with pytest.raises(ValueError, match="coords: expected finite values"):
+        corr.lookup(pyramid, coords, 1)
 
 
 def test_pyramid_too_deep():
