@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
 
     init_warp()
 
-    from kernels import flow
+    from kernels import lucas_kanade as flow
 
     t_start = time.perf_counter()
     f1, f2 = frames()

@@ -64,7 +64,7 @@ def baselines(rgb1: np.ndarray, rgb2: np.ndarray, device: str) -> dict[str, tupl
     """Flow (H, W, 2) and seconds of each baseline."""
     import cv2
 
-    from kernels import flow as lk
+    from kernels import lucas_kanade as lk
     from research.opticalflow import grey
 
     g1, g2 = grey(rgb1), grey(rgb2)

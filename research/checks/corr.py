@@ -11,6 +11,8 @@ compared with the finite-difference step (1e-6).
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from kernels import corr
@@ -39,24 +41,28 @@ def check_volume(seed: int, shape: tuple[int, int, int] = SHAPE) -> list[Gradche
     inputs = {"f1": rng.standard_normal(shape), "f2": rng.standard_normal(shape)}
 
     def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
-        g1, g2 = corr.correlation_volume_backward(x["f1"], x["f2"], cot)
-        return {"f1": g1, "f2": g2}
+        return corr.correlation_volume_backward(x["f1"], x["f2"], cot)
 
     return check_vjp(corr.correlation_volume, vjp, inputs, seed=seed, name="corr.volume")
 
 
+def _check_pooling(seed: int, name: str, arg: str, x: np.ndarray, forward: Callable[..., list],
+                   backward: Callable[[list], dict]) -> list[GradcheckResult]:
+    """Every level of a pooled pyramid `forward(x)` against x, whose gradient is backward(cotangents)[arg]."""
+    def f(**x_in: np.ndarray) -> tuple[np.ndarray, ...]:
+        return tuple(forward(x_in[arg]))
+
+    def vjp(x_in: dict[str, np.ndarray], cot: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
+        return backward(list(cot))
+
+    return check_vjp(f, vjp, {arg: x}, seed=seed, name=name)
+
+
 def check_pyramid(seed: int, height: int = 9, width: int = 10, levels: int = LEVELS) -> list[GradcheckResult]:
     """2x2 average pooling over frame 2's dimensions, every level's output against V^0."""
-    rng = np.random.default_rng(seed)
-    inputs = {"volume": rng.standard_normal((height, width, height, width))}
-
-    def f(volume: np.ndarray) -> tuple[np.ndarray, ...]:
-        return tuple(corr.correlation_pyramid(volume, levels))
-
-    def vjp(x: dict[str, np.ndarray], cot: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
-        return {"volume": corr.correlation_pyramid_backward(list(cot))}
-
-    return check_vjp(f, vjp, inputs, seed=seed, name="corr.pyramid")
+    volume = np.random.default_rng(seed).standard_normal((height, width, height, width))
+    return _check_pooling(seed, "corr.pyramid", "volume", volume, lambda v: corr.correlation_pyramid(v, levels),
+                          corr.correlation_pyramid_backward)
 
 
 def check_lookup(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
@@ -73,8 +79,8 @@ def check_lookup(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = L
         return corr.lookup([levels_in[n] for n in names], coords, radius)
 
     def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
-        grads, grad_coords = corr.lookup_backward([x[n] for n in names], x["coords"], radius, cot)
-        return {**dict(zip(names, grads)), "coords": grad_coords}
+        grads = corr.lookup_backward([x[n] for n in names], x["coords"], radius, cot)
+        return {**dict(zip(names, grads["pyramid"])), "coords": grads["coords"]}
 
     return check_vjp(f, vjp, inputs, seed=seed, name="corr.lookup")
 
@@ -92,9 +98,9 @@ def check_dense_chain(seed: int, shape: tuple[int, int, int] = SHAPE, levels: in
 
     def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
         pyramid = corr.correlation_pyramid(corr.correlation_volume(x["f1"], x["f2"]), levels)
-        grads, grad_coords = corr.lookup_backward(pyramid, x["coords"], radius, cot)
-        g1, g2 = corr.correlation_volume_backward(x["f1"], x["f2"], corr.correlation_pyramid_backward(grads))
-        return {"f1": g1, "f2": g2, "coords": grad_coords}
+        grads = corr.lookup_backward(pyramid, x["coords"], radius, cot)
+        grad_volume = corr.correlation_pyramid_backward(grads["pyramid"])["volume"]
+        return {**corr.correlation_volume_backward(x["f1"], x["f2"], grad_volume), "coords": grads["coords"]}
 
     return check_vjp(f, vjp, inputs, seed=seed, name="corr.dense_chain")
 
@@ -102,16 +108,9 @@ def check_dense_chain(seed: int, shape: tuple[int, int, int] = SHAPE, levels: in
 def check_pool_features(seed: int, shape: tuple[int, int, int] = (2, 9, 10),
                         levels: int = LEVELS) -> list[GradcheckResult]:
     """P^l(f2) for every level, against f2."""
-    rng = np.random.default_rng(seed)
-    inputs = {"f2": rng.standard_normal(shape)}
-
-    def f(f2: np.ndarray) -> tuple[np.ndarray, ...]:
-        return tuple(corr.pool_features(f2, levels))
-
-    def vjp(x: dict[str, np.ndarray], cot: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
-        return {"f2": corr.pool_features_backward(list(cot))}
-
-    return check_vjp(f, vjp, inputs, seed=seed, name="corr.pool_features")
+    f2 = np.random.default_rng(seed).standard_normal(shape)
+    return _check_pooling(seed, "corr.pool_features", "f2", f2, lambda v: corr.pool_features(v, levels),
+                          corr.pool_features_backward)
 
 
 def check_lookup_onthefly(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
@@ -129,8 +128,8 @@ def check_lookup_onthefly(seed: int, shape: tuple[int, int, int] = SHAPE, levels
         return corr.lookup_onthefly(f1, [f2_levels[n] for n in names], coords, radius)
 
     def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
-        g1, g2, gc = corr.lookup_onthefly_backward(x["f1"], [x[n] for n in names], x["coords"], radius, cot)
-        return {"f1": g1, **dict(zip(names, g2)), "coords": gc}
+        grads = corr.lookup_onthefly_backward(x["f1"], [x[n] for n in names], x["coords"], radius, cot)
+        return {"f1": grads["f1"], **dict(zip(names, grads["f2_pyramid"])), "coords": grads["coords"]}
 
     return check_vjp(f, vjp, inputs, seed=seed, name="corr.lookup_onthefly")
 
@@ -147,43 +146,30 @@ def check_onthefly_chain(seed: int, shape: tuple[int, int, int] = SHAPE, levels:
         return corr.lookup_onthefly(f1, corr.pool_features(f2, levels), coords, radius)
 
     def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
-        g1, g2, gc = corr.lookup_onthefly_backward(x["f1"], corr.pool_features(x["f2"], levels), x["coords"],
-                                                   radius, cot)
-        return {"f1": g1, "f2": corr.pool_features_backward(g2), "coords": gc}
+        grads = corr.lookup_onthefly_backward(x["f1"], corr.pool_features(x["f2"], levels), x["coords"],
+                                              radius, cot)
+        return {"f1": grads["f1"], **corr.pool_features_backward(grads["f2_pyramid"]), "coords": grads["coords"]}
 
     return check_vjp(f, vjp, inputs, seed=seed, name="corr.onthefly_chain")
 
 
-@register_check("corr.volume")
-def volume() -> list[GradcheckResult]:
-    return [r for seed in SEEDS for r in check_volume(seed)]
+def radius_of(seed: int) -> int:
+    """The lookup radius the checks use with `seed`: 1, 2, 3 in turn."""
+    return (1, 2, 3)[seed % 3]
 
 
-@register_check("corr.pyramid")
-def pyramid() -> list[GradcheckResult]:
-    return [r for seed in SEEDS for r in check_pyramid(seed)]
+def _over_seeds(check: Callable[..., list[GradcheckResult]], vary_radius: bool) -> Callable[[], list[GradcheckResult]]:
+    """`check` run for every seed in SEEDS (with the seed's radius when `vary_radius`)."""
+    def run() -> list[GradcheckResult]:
+        return [r for seed in SEEDS
+                for r in (check(seed, radius=radius_of(seed)) if vary_radius else check(seed))]
+
+    return run
 
 
-@register_check("corr.lookup")
-def lookup() -> list[GradcheckResult]:
-    return [r for seed in SEEDS for r in check_lookup(seed, radius=(1, 2, 3)[seed % 3])]
-
-
-@register_check("corr.dense_chain")
-def dense_chain() -> list[GradcheckResult]:
-    return [r for seed in SEEDS for r in check_dense_chain(seed)]
-
-
-@register_check("corr.pool_features")
-def pool_features() -> list[GradcheckResult]:
-    return [r for seed in SEEDS for r in check_pool_features(seed)]
-
-
-@register_check("corr.lookup_onthefly")
-def lookup_onthefly() -> list[GradcheckResult]:
-    return [r for seed in SEEDS for r in check_lookup_onthefly(seed, radius=(1, 2, 3)[seed % 3])]
-
-
-@register_check("corr.onthefly_chain")
-def onthefly_chain() -> list[GradcheckResult]:
-    return [r for seed in SEEDS for r in check_onthefly_chain(seed)]
+for _name, _check, _vary in [("corr.volume", check_volume, False), ("corr.pyramid", check_pyramid, False),
+                             ("corr.lookup", check_lookup, True), ("corr.dense_chain", check_dense_chain, False),
+                             ("corr.pool_features", check_pool_features, False),
+                             ("corr.lookup_onthefly", check_lookup_onthefly, True),
+                             ("corr.onthefly_chain", check_onthefly_chain, False)]:
+    register_check(_name)(_over_seeds(_check, _vary))

@@ -1,4 +1,4 @@
-"""kernels.corr: RAFT's all-pairs volume, pyramid and lookups against plain NumPy, FD gradients, bad input."""
+"""kernels.corr: RAFT's all-pairs volume, pyramid and lookups against kernels.reference.corr, FD gradients, bad input."""
 
 from __future__ import annotations
 
@@ -7,74 +7,14 @@ import pytest
 import warp as wp
 
 from kernels import corr
+from kernels._arrays import value_checks
+from kernels.reference import corr as ref
 from research.checks import corr as checks
 from research.gradcheck import assert_gradcheck
 
 DTYPES = [np.float32, np.float64]
 # float32 results are compared with float64 references: sums of C products of O(1) numbers.
 TOL = {np.float32: dict(rtol=1e-5, atol=2e-5), np.float64: dict(rtol=1e-12, atol=1e-12)}
-
-
-# --------------------------------------------------------------------------- NumPy reference
-
-
-def ref_volume(f1: np.ndarray, f2: np.ndarray) -> np.ndarray:
-    c, h, w = f1.shape
-    out = np.zeros((h, w, h, w))
-    for y1 in range(h):
-        for x1 in range(w):
-            for y2 in range(h):
-                for x2 in range(w):
-                    out[y1, x1, y2, x2] = np.dot(f1[:, y1, x1], f2[:, y2, x2]) / np.sqrt(c)
-    return out
-
-
-def ref_pool(x: np.ndarray) -> np.ndarray:
-    """2x2 average over the last two axes, dropping an odd last row/column."""
-    h, w = x.shape[-2] // 2, x.shape[-1] // 2
-    out = np.zeros(x.shape[:-2] + (h, w))
-    for y in range(h):
-        for xx in range(w):
-            out[..., y, xx] = x[..., 2 * y:2 * y + 2, 2 * xx:2 * xx + 2].mean(axis=(-2, -1))
-    return out
-
-
-def ref_pyramid(volume: np.ndarray, levels: int) -> list[np.ndarray]:
-    out = [volume]
-    for _ in range(1, levels):
-        out.append(ref_pool(out[-1]))
-    return out
-
-
-def ref_bilinear(img: np.ndarray, x: float, y: float) -> float:
-    """Sample img (H, W) at continuous (x, y), pixel centres at +0.5, each tap 0 outside."""
-    h, w = img.shape
-    u, v = x - 0.5, y - 0.5
-    i, j = int(np.floor(u)), int(np.floor(v))
-    fx, fy = u - i, v - j
-
-    def tap(r: int, c: int) -> float:
-        return img[r, c] if 0 <= r < h and 0 <= c < w else 0.0
-
-    return ((1 - fx) * (1 - fy) * tap(j, i) + fx * (1 - fy) * tap(j, i + 1)
-            + (1 - fx) * fy * tap(j + 1, i) + fx * fy * tap(j + 1, i + 1))
-
-
-def ref_lookup(pyramid: list[np.ndarray], coords: np.ndarray, radius: int) -> np.ndarray:
-    """RAFT's CorrBlock.__call__: per level, delta = stack(meshgrid(dy, dx)) is ADDED to (x, y), so the
-    first (slow) window index moves x and the second moves y."""
-    side = 2 * radius + 1
-    h, w = coords.shape[1:]
-    out = np.zeros((len(pyramid) * side * side, h, w))
-    for lvl, level in enumerate(pyramid):
-        for y1 in range(h):
-            for x1 in range(w):
-                cx, cy = coords[0, y1, x1] / 2 ** lvl, coords[1, y1, x1] / 2 ** lvl
-                for a in range(side):
-                    for b in range(side):
-                        out[lvl * side * side + a * side + b, y1, x1] = ref_bilinear(
-                            level[y1, x1], cx + a - radius, cy + b - radius)
-    return out
 
 
 # --------------------------------------------------------------------------- forward
@@ -94,12 +34,12 @@ def test_volume_and_pyramid_match_reference(dtype):
     f1, f2, _ = random_case(np.random.default_rng(1), dtype)
     volume = corr.correlation_volume(f1, f2)
     assert volume.dtype == dtype and volume.shape == (9, 11, 9, 11)
-    want = ref_volume(f1.astype(np.float64), f2.astype(np.float64))
+    want = ref.volume(f1.astype(np.float64), f2.astype(np.float64))
     np.testing.assert_allclose(volume, want, **TOL[dtype])
     pyramid = corr.correlation_pyramid(volume, 4)
     assert [p.shape for p in pyramid] == [(9, 11, 9, 11), (9, 11, 4, 5), (9, 11, 2, 2), (9, 11, 1, 1)]
-    for got, ref in zip(pyramid, ref_pyramid(want, 4)):
-        np.testing.assert_allclose(got, ref, **TOL[dtype])
+    for got, expected in zip(pyramid, ref.pyramid(want, 4)):
+        np.testing.assert_allclose(got, expected, **TOL[dtype])
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -109,7 +49,7 @@ def test_lookup_matches_reference(dtype, radius):
     pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 3)
     out = corr.lookup(pyramid, coords, radius)
     assert out.shape == (3 * (2 * radius + 1) ** 2, 9, 11) and out.dtype == dtype
-    want = ref_lookup([p.astype(np.float64) for p in pyramid], coords.astype(np.float64), radius)
+    want = ref.lookup([p.astype(np.float64) for p in pyramid], coords.astype(np.float64), radius)
     np.testing.assert_allclose(out, want, **TOL[dtype])
     assert np.count_nonzero(want == 0.0) > 0  # some windows lie wholly outside frame 2
 
@@ -135,21 +75,24 @@ def test_onthefly_equals_dense_forward_and_backward(dtype):
     levels, radius = 4, 3
     pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), levels)
     f2_pyramid = corr.pool_features(f2, levels)
-    for got, ref in zip(f2_pyramid, ref_pyramid(f2.astype(np.float64), levels)):
-        np.testing.assert_allclose(got, ref, **TOL[dtype])
+    for got, expected in zip(f2_pyramid, ref.pyramid(f2.astype(np.float64), levels)):
+        np.testing.assert_allclose(got, expected, **TOL[dtype])
     dense = corr.lookup(pyramid, coords, radius)
     onthefly = corr.lookup_onthefly(f1, f2_pyramid, coords, radius)
     np.testing.assert_allclose(onthefly, dense, **TOL[dtype])
 
     grad_out = rng.standard_normal(dense.shape).astype(dtype)
-    grad_levels, grad_coords_dense = corr.lookup_backward(pyramid, coords, radius, grad_out)
-    g1_dense, g2_dense = corr.correlation_volume_backward(f1, f2, corr.correlation_pyramid_backward(grad_levels))
-    g1, g2_levels, grad_coords = corr.lookup_onthefly_backward(f1, f2_pyramid, coords, radius, grad_out)
-    g2 = corr.pool_features_backward(g2_levels)
+    dense_grads = corr.lookup_backward(pyramid, coords, radius, grad_out)
+    assert sorted(dense_grads) == ["coords", "pyramid"]
+    grad_volume = corr.correlation_pyramid_backward(dense_grads["pyramid"])["volume"]
+    grads_dense = corr.correlation_volume_backward(f1, f2, grad_volume)
+    grads = corr.lookup_onthefly_backward(f1, f2_pyramid, coords, radius, grad_out)
+    assert sorted(grads) == ["coords", "f1", "f2_pyramid"] and len(grads["f2_pyramid"]) == levels
+    g2 = corr.pool_features_backward(grads["f2_pyramid"])["f2"]
     tol = dict(rtol=1e-4, atol=1e-4) if dtype == np.float32 else TOL[dtype]  # sums of ~10^3 float32 terms
-    np.testing.assert_allclose(g1, g1_dense, **tol)
-    np.testing.assert_allclose(g2, g2_dense, **tol)
-    np.testing.assert_allclose(grad_coords, grad_coords_dense, **tol)
+    np.testing.assert_allclose(grads["f1"], grads_dense["f1"], **tol)
+    np.testing.assert_allclose(g2, grads_dense["f2"], **tol)
+    np.testing.assert_allclose(grads["coords"], dense_grads["coords"], **tol)
 
 
 def test_warp_arrays_in_warp_arrays_out():
@@ -163,6 +106,11 @@ def test_warp_arrays_in_warp_arrays_out():
         corr.correlation_volume(f1, f2), 2), coords, 1), rtol=1e-6, atol=1e-6)
     out2 = corr.lookup_onthefly(wf1, corr.pool_features(wf2, 2), wc, 1)
     assert isinstance(out2, wp.array)
+    grads = corr.lookup_backward(pyramid, wc, 1, out)
+    assert all(isinstance(g, wp.array) for g in [*grads["pyramid"], grads["coords"]])
+    grads = corr.lookup_onthefly_backward(wf1, corr.pool_features(wf2, 2), wc, 1, out2)
+    assert all(isinstance(g, wp.array) for g in [grads["f1"], *grads["f2_pyramid"], grads["coords"]])
+    assert isinstance(corr.correlation_volume_backward(wf1, wf2, corr.correlation_volume(wf1, wf2))["f1"], wp.array)
 
 
 def test_memory_accounting():
@@ -180,12 +128,12 @@ def test_gradcheck_volume_pyramid_pool(seed):
 
 @pytest.mark.parametrize("seed", checks.SEEDS)
 def test_gradcheck_lookup(seed):
-    assert_gradcheck(checks.check_lookup(seed, radius=(1, 2, 3)[seed]))
+    assert_gradcheck(checks.check_lookup(seed, radius=checks.radius_of(seed)))
 
 
 @pytest.mark.parametrize("seed", checks.SEEDS)
 def test_gradcheck_lookup_onthefly(seed):
-    assert_gradcheck(checks.check_lookup_onthefly(seed, radius=(1, 2, 3)[seed]))
+    assert_gradcheck(checks.check_lookup_onthefly(seed, radius=checks.radius_of(seed)))
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -198,11 +146,11 @@ def test_gradcheck_whole_paths(seed):
 
 def test_mismatched_feature_shapes():
     rng = np.random.default_rng(0)
-    with pytest.raises(ValueError, match="f2: expected the shape of f1"):
+    with pytest.raises(ValueError, match=r"f2: expected shape \(4, 8, 8\), got \(5, 8, 8\)"):
         corr.correlation_volume(rng.standard_normal((4, 8, 8)), rng.standard_normal((5, 8, 8)))
-    with pytest.raises(ValueError, match="f2: expected the shape of f1"):
+    with pytest.raises(ValueError, match=r"f2: expected shape \(4, 8, 8\), got \(4, 8, 9\)"):
         corr.correlation_volume(rng.standard_normal((4, 8, 8)), rng.standard_normal((4, 8, 9)))
-    with pytest.raises(ValueError, match=r"f1: expected a \(C, H, W\)"):
+    with pytest.raises(ValueError, match="f1: expected 3 dimensions"):
         corr.correlation_volume(rng.standard_normal((8, 8)), rng.standard_normal((8, 8)))
     f1 = rng.standard_normal((4, 8, 8))
     coords = checks.smooth_coords(rng, 8, 8)
@@ -216,12 +164,28 @@ def test_nan_coordinates():
     coords = checks.smooth_coords(rng, 8, 8)
     coords[1, 2, 3] = np.nan
     pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 2)
-    with pytest.raises(ValueError, match="coords: expected finite coordinates, found 1 NaN"):
+    with pytest.raises(ValueError, match="coords: expected finite values, found NaN"):
         corr.lookup(pyramid, coords, 2)
-    with pytest.raises(ValueError, match="coords: expected finite"):
+    with pytest.raises(ValueError, match="coords: expected finite values"):
         corr.lookup_onthefly(f1, corr.pool_features(f2, 2), coords, 2)
-    with pytest.raises(ValueError, match="coords: expected finite"):
+    with pytest.raises(ValueError, match="coords: expected finite values"):
         corr.lookup_backward(pyramid, coords, 2, np.zeros((50, 8, 8)))
+
+
+def test_value_checks_switch():
+    """value_checks(False) skips the NaN checks (for training loops); shape checks stay on."""
+    rng = np.random.default_rng(0)
+    f1, f2 = rng.standard_normal((2, 3, 8, 8))
+    coords = checks.smooth_coords(rng, 8, 8)
+    coords[0, 1, 1] = np.nan
+    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 2)
+    with value_checks(False):
+        out = corr.lookup(pyramid, coords, 1)
+        with pytest.raises(ValueError, match=r"coords: expected shape \(2, 8, 8\)"):
+            corr.lookup(pyramid, coords[:, :4], 1)
+    assert np.isnan(out[:, 1, 1]).all() and np.isfinite(np.delete(out.reshape(18, -1), 9, axis=1)).all()
+    with pytest.raises(ValueError, match="coords: expected finite values"):
+        corr.lookup(pyramid, coords, 1)
 
 
 def test_pyramid_too_deep():
@@ -240,11 +204,11 @@ def test_other_bad_input():
     f1, f2 = rng.standard_normal((2, 3, 8, 8))
     coords = checks.smooth_coords(rng, 8, 8)
     pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 2)
-    with pytest.raises(ValueError, match="f2: expected dtype float64 like f1"):
+    with pytest.raises(ValueError, match="f2: expected dtype float64 like the other inputs, got float32"):
         corr.correlation_volume(f1, f2.astype(np.float32))
     with pytest.raises(ValueError, match="f1: expected dtype float32 or float64"):
         corr.correlation_volume(f1.astype(np.int32), f2.astype(np.int32))
-    with pytest.raises(ValueError, match="f1: expected a numpy array or a wp.array"):
+    with pytest.raises(ValueError, match="f1: expected a NumPy array or a wp.array, got list"):
         corr.correlation_volume(f1.tolist(), f2)
     f1_nan = f1.copy()
     f1_nan[0, 0, 0] = np.inf
@@ -262,3 +226,16 @@ def test_other_bad_input():
         corr.lookup_backward(pyramid, coords, 1, np.zeros((9, 8, 8)))
     with pytest.raises(ValueError, match="grad_volume: expected shape"):
         corr.correlation_volume_backward(f1, f2, np.zeros((8, 8, 8)))
+    with pytest.raises(ValueError, match=r"volume: expected shape \(H, W, H, W\), got \(8, 8, 4, 4\)"):
+        corr.correlation_pyramid(np.zeros((8, 8, 4, 4)), 2)
+    with pytest.raises(ValueError, match="grad_pyramid: expected a non-empty list"):
+        corr.correlation_pyramid_backward([])
+    with pytest.raises(ValueError, match=r"grad_pyramid\[1\]: expected shape \(8, 8, 4, 4\)"):
+        corr.correlation_pyramid_backward([np.zeros((8, 8, 8, 8)), np.zeros((8, 8, 4, 3))])
+    with pytest.raises(ValueError, match=r"grad_pyramid\[1\]: expected shape \(3, 4, 4\)"):
+        corr.pool_features_backward([np.zeros((3, 8, 8)), np.zeros((2, 4, 4))])
+    f2_pyramid = corr.pool_features(f2, 2)
+    with pytest.raises(ValueError, match=r"grad_out: expected shape \(18, 8, 8\)"):
+        corr.lookup_onthefly_backward(f1, f2_pyramid, coords, 1, np.zeros((9, 8, 8)))
+    with pytest.raises(ValueError, match=r"f2_pyramid\[0\]: expected dtype float64 like the other inputs"):
+        corr.lookup_onthefly(f1, [f.astype(np.float32) for f in f2_pyramid], coords, 1)

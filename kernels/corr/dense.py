@@ -1,0 +1,71 @@
+"""Dense lookups: the windowed bilinear lookup (4) in a stored volume pyramid, and its adjoint.
+
+For each pixel p of frame 1, level l and window offsets a, b in {0, ..., 2r},
+
+    out[l (2r+1)^2 + a (2r+1) + b, p] = V^l[p](x_p / 2^l + a - r, y_p / 2^l + b - r),   (4)
+
+with V^l[p] the level's (H_l, W_l) slice for p sampled by (3), taps outside the
+slice counting as 0. All samples of a level share the fractions (fx, fy), so
+they read the (2r + 2) x (2r + 2) tap patch of V^l[p] from (j0, i0). The forward
+runs one thread per pixel and window column a; the adjoint one thread per pixel,
+adding into row p of the level's gradient and pixel p of the coordinates' only.
+The kernels are `_common.sample_windows` and `_common.sample_windows_adjoint`
+(shared with the on-the-fly lookup), where the adjoint's formulas are written out.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import warp as wp
+
+from kernels._arrays import Inputs
+from kernels.corr._common import (Array, check_levels, check_list, check_radius, coords_in, levels_in,
+                                  sample_windows, sample_windows_adjoint, volume_in)
+
+
+# --------------------------------------------------------------------------- entry points
+
+
+def _volume_pyramid(a: Inputs, pyramid: Sequence[Array]) -> tuple[list[wp.array], int, int]:
+    """The pyramid's levels as (H W, H_l, W_l) wp.arrays, and (H, W)."""
+    v0 = volume_in(a, "pyramid[0]", pyramid[0], finite=False)  # see volume_in
+    height, width = v0.shape[:2]
+    check_levels(len(pyramid), height, width)
+    return levels_in(a, "pyramid", pyramid, v0, (height, width), height, width, finite=False), height, width
+
+
+def lookup(pyramid: Sequence[Array], coords: Array, radius: int, *, device: str | None = None) -> Array:
+    """Windowed lookup (4) in a volume pyramid: (L (2r+1)^2, H, W) in RAFT's channel order."""
+    radius = check_radius(radius)
+    check_list("pyramid", pyramid, "(H, W, H_l, W_l)")
+    a = Inputs(device, *pyramid, coords)
+    levels, height, width = _volume_pyramid(a, pyramid)
+    xy = coords_in(a, coords, height, width)
+    side = 2 * radius + 1
+    n = height * width
+    out = a.zeros((len(levels) * side * side, height, width))
+    for lvl, v in enumerate(levels):
+        a.launch(sample_windows, n * side, [v, xy, out, a.s(0.5 ** lvl), radius, lvl * side * side, 0])
+    return a.out(out)
+
+
+def lookup_backward(pyramid: Sequence[Array], coords: Array, radius: int, grad_out: Array, *,
+                    device: str | None = None) -> dict[str, Array | list[Array]]:
+    """Adjoint of (4). Returns a dict {"pyramid": [gradient (H, W, H_l, W_l) of every level],
+    "coords": gradient (2, H, W)}, in pyramid[0]'s kind."""
+    radius = check_radius(radius)
+    check_list("pyramid", pyramid, "(H, W, H_l, W_l)")
+    a = Inputs(device, *pyramid, coords, grad_out)
+    levels, height, width = _volume_pyramid(a, pyramid)
+    xy = coords_in(a, coords, height, width)
+    side = 2 * radius + 1
+    n = height * width
+    g = a.floats("grad_out", grad_out, (len(levels) * side * side, height, width))
+    grad_coords = a.zeros((2, height, width))
+    grads = []
+    for lvl, v in enumerate(levels):
+        gv = a.zeros(v.shape)
+        a.launch(sample_windows_adjoint, n, [v, xy, g, gv, grad_coords, a.s(0.5 ** lvl), radius, lvl * side * side, 0])
+        grads.append(a.out(gv.reshape((height, width, v.shape[1], v.shape[2]))))
+    return {"pyramid": grads, "coords": a.out(grad_coords)}

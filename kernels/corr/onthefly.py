@@ -1,0 +1,289 @@
+"""On-the-fly ("alternate") lookups: the output of (4) from f1 and pooled f2, without the volume.
+
+Pooling is linear in f2, so V^l equals (1) computed with f2 pooled l times,
+P^l(f2) (`pool_features`, the 2x2 pooling (2) applied to the features). For each
+pixel p and level l the (2r + 2)^2 tap patch of its window
+
+    T[p, ty, tx] = f1[:, p] . P^l(f2)[:, (j0 + ty, i0 + tx)] / sqrt(C)   (0 outside frame 2)
+
+is computed, then sampled by (3) exactly as the dense lookup samples V^l (the
+same kernels `sample_windows` and `sample_windows_adjoint`, on the patch). Memory
+is one patch buffer of H W (2r + 2)^2 values instead of the whole pyramid's
+H W sum_l H_l W_l.
+
+Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
+and (3) (and d coords as in the dense lookup); then
+
+    d f1[:, p] = sum_tap dT[p, tap] P^l(f2)[:, tap] / sqrt(C)     (a gather per pixel),
+    d P^l(f2)[:, tap] = sum_p dT[p, tap] f1[:, p] / sqrt(C)        (a scatter across pixels).
+
+On the CPU each concurrent launch accumulates the scatter into its own buffer
+and the buffers are summed afterwards: no Warp atomic is atomic between
+concurrent CPU launches (docs/warp.md). On CUDA one launch adds atomically.
+d f2 then follows by the adjoint of the pooling, `pool_features_backward`.
+
+Layout: features are kept channels-last in 8-wide vectors (channels zero-padded
+to a multiple of 8), so a tap's dot product is a few vector multiply-adds.
+"""
+
+from __future__ import annotations
+
+import math
+import typing
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Sequence
+
+import warp as wp
+
+from kernels._arrays import Inputs, declare_float_overloads
+from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
+                                  features_in, level_shapes, levels_in, pack_rows, pixel_window, pool_levels,
+                                  pool_levels_adjoint, sample_windows, sample_windows_adjoint)
+from kernels.launch import chunk_bounds, default_threads
+
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
+
+# --------------------------------------------------------------------------- kernels
+
+
+@wp.kernel
+def _unpack_channels_last_v(x_v: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), offset: int):
+    """Inverse of the channels-last packing: out (C, N) from x_v (N, ceil(C / 8))."""
+    t = wp.tid() + offset
+    c = t // out.shape[1]
+    n = t % out.shape[1]
+    out[c, n] = x_v[n, c // VEC][c % VEC]
+
+
+@wp.func
+def _dot_v(a_v: wp.array2d(dtype=typing.Any), i: int, b_v: wp.array2d(dtype=typing.Any), j: int):
+    acc = wp.cw_mul(a_v[i, 0], b_v[j, 0])
+    for k in range(1, a_v.shape[1]):
+        acc += wp.cw_mul(a_v[i, k], b_v[j, k])
+    s = acc[0]
+    for q in range(1, VEC):
+        s += acc[q]
+    return s
+
+
+@wp.kernel
+def _patch_level(
+    f1_v: wp.array2d(dtype=typing.Any),
+    f2l_v: wp.array2d(dtype=typing.Any),
+    coords: wp.array3d(dtype=typing.Any),
+    patch: wp.array3d(dtype=typing.Any),
+    height_l: int,
+    width_l: int,
+    scale: typing.Any,
+    radius: int,
+    inv_sqrt_c: typing.Any,
+    offset: int,
+):
+    """patch[p, ty, tx] = f1[:, p] . P^l(f2)[:, tap] / sqrt(C), 0 outside; thread = pixel * (2r+2) + ty."""
+    t = wp.tid() + offset
+    side = 2 * radius + 2
+    p = t // side
+    ty = t % side
+    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+    row = j0 + ty
+    for tx in range(side):
+        col = i0 + tx
+        v = coords.dtype(0.0)
+        if row >= 0 and col >= 0 and row < height_l and col < width_l:
+            v = _dot_v(f1_v, p, f2l_v, row * width_l + col) * inv_sqrt_c
+        patch[p, ty, tx] = v
+
+
+@wp.kernel
+def _patch_adjoint_features(
+    grad_patch: wp.array3d(dtype=typing.Any),
+    f1_v: wp.array2d(dtype=typing.Any),
+    f2l_v: wp.array2d(dtype=typing.Any),
+    coords: wp.array3d(dtype=typing.Any),
+    grad_f1_v: wp.array2d(dtype=typing.Any),
+    grad_f2l_v: wp.array3d(dtype=typing.Any),
+    height_l: int,
+    width_l: int,
+    scale: typing.Any,
+    radius: int,
+    inv_sqrt_c: typing.Any,
+    atomic: int,
+    slot: int,
+    offset: int,
+):
+    """For every tap of pixel p's patch inside frame 2, with g = dT[p, tap] / sqrt(C):
+    grad_f1[:, p] += g P^l(f2)[:, tap] (a gather: thread p writes its own row) and
+    grad_f2l[slot, tap] += g f1[:, p] (a scatter across pixels: on the CPU each concurrent launch
+    owns its slot and adds plainly; on CUDA, `atomic` = 1, one launch adds atomically). Thread = pixel."""
+    p = wp.tid() + offset
+    side = 2 * radius + 2
+    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+    for ty in range(side):
+        row = j0 + ty
+        if row >= 0 and row < height_l:
+            for tx in range(side):
+                col = i0 + tx
+                if col >= 0 and col < width_l:
+                    g = grad_patch[p, ty, tx] * inv_sqrt_c
+                    q = row * width_l + col
+                    for k in range(f1_v.shape[1]):
+                        grad_f1_v[p, k] = grad_f1_v[p, k] + f2l_v[q, k] * g
+                    if atomic != 0:
+                        for k in range(f1_v.shape[1]):
+                            wp.atomic_add(grad_f2l_v, slot, q, k, f1_v[p, k] * g)
+                    else:
+                        for k in range(f1_v.shape[1]):
+                            grad_f2l_v[slot, q, k] = grad_f2l_v[slot, q, k] + f1_v[p, k] * g
+
+
+@wp.kernel
+def _sum_slots(slots_v: wp.array3d(dtype=typing.Any), out_v: wp.array2d(dtype=typing.Any), offset: int):
+    t = wp.tid() + offset
+    n = t // out_v.shape[1]
+    k = t % out_v.shape[1]
+    acc = slots_v[0, n, k]
+    for s in range(1, slots_v.shape[0]):
+        acc += slots_v[s, n, k]
+    out_v[n, k] = acc
+
+
+
+for _k in (_unpack_channels_last_v, _patch_level, _patch_adjoint_features, _sum_slots):
+    declare_float_overloads(_k, vector_types=VEC_OF)
+
+
+# --------------------------------------------------------------------------- host helpers
+
+
+def _channels_last_v(x: wp.array, a: Inputs) -> wp.array:
+    """(C, N) scalars -> (N, ceil(C / 8)) vectors."""
+    return pack_rows(x.transpose(), -(-x.shape[0] // VEC), a)
+
+
+def _channels_first(x_v: wp.array, channels: int, a: Inputs) -> wp.array:
+    out = a.zeros((channels, x_v.shape[0]))
+    a.launch(_unpack_channels_last_v, out.size, [x_v, out])
+    return out
+
+
+def _launch_slots(kernel: Any, dim: int, inputs: list[Any], n_slots: int, device: wp.Device) -> None:
+    """Chunk s of [0, dim) launched on its own thread with `slot = s` (kernel params end `slot, offset`).
+
+    A CPU launch runs on one thread and releases the GIL (docs/warp.md), so the chunks run in parallel,
+    each adding into its own slot; on CUDA one launch covers all of [0, dim) in slot 0.
+    """
+    if device.is_cuda or n_slots == 1:
+        wp.launch(kernel, dim=dim, inputs=[*inputs, 0, 0], device=device)
+        return
+    bounds = chunk_bounds(dim, n_slots)
+    with ThreadPoolExecutor(max_workers=n_slots - 1) as pool:
+        futures = [pool.submit(wp.launch, kernel, dim=size, inputs=[*inputs, s, off], device=device)
+                   for s, (off, size) in enumerate(bounds[1:], start=1)]
+        off, size = bounds[0]
+        wp.launch(kernel, dim=size, inputs=[*inputs, 0, off], device=device)
+        for fut in futures:
+            fut.result()
+
+
+def _feature_pyramid(a: Inputs, f1: Array, f2_pyramid: Sequence[Array],
+                     coords: Array) -> tuple[wp.array, list[wp.array], wp.array]:
+    """f1 as (C, H W), the pooled f2 levels as (C, H_l W_l) and coords (2, H, W), as wp.arrays."""
+    x1 = features_in(a, "f1", f1)
+    channels, height, width = x1.shape
+    check_levels(len(f2_pyramid), height, width)
+    x2 = a.floats("f2_pyramid[0]", f2_pyramid[0], (channels, height, width))
+    levels = levels_in(a, "f2_pyramid", f2_pyramid, x2, (channels,), height, width)
+    xy = coords_in(a, coords, height, width)
+    return x1.reshape((channels, height * width)), [x.reshape((channels, x.shape[1] * x.shape[2])) for x in levels], xy
+
+
+# --------------------------------------------------------------------------- entry points
+
+
+def pool_features(f2: Array, levels: int, *, device: str | None = None) -> list[Array]:
+    """P^0(f2) = f2, ..., P^{L-1}(f2): (C, H_l, W_l) by repeated 2x2 average pooling."""
+    levels = check_levels(levels)
+    a = Inputs(device, f2)
+    x = features_in(a, "f2", f2)
+    check_levels(levels, x.shape[1], x.shape[2])
+    return [a.out(v) for v in pool_levels(x, levels, a)]
+
+
+def pool_features_backward(grad_pyramid: Sequence[Array], *, device: str | None = None) -> dict[str, Array]:
+    """Adjoint of `pool_features` given a gradient (C, H_l, W_l) for every level. Returns a dict
+    {"f2": the gradient (C, H, W) of f2}, in grad_pyramid[0]'s kind."""
+    check_list("grad_pyramid", grad_pyramid, "(C, H_l, W_l)")
+    a = Inputs(device, *grad_pyramid)
+    g0 = features_in(a, "grad_pyramid[0]", grad_pyramid[0])
+    channels, height, width = g0.shape
+    check_levels(len(grad_pyramid), height, width)
+    grads = levels_in(a, "grad_pyramid", grad_pyramid, g0, (channels,), height, width)
+    return {"f2": a.out(pool_levels_adjoint(grads, a))}
+
+
+def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: int, itemsize: int = 4) -> int:
+    """Bytes the on-the-fly forward holds: f1 and the pooled f2 pyramid channels-last (padded to 8) + one patch."""
+    c_pad = -(-channels // VEC) * VEC
+    pixels = height * width + sum(hl * wl for hl, wl in level_shapes(height, width, levels))
+    return itemsize * (c_pad * pixels + height * width * (2 * radius + 2) ** 2)
+
+
+def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radius: int, *,
+                    device: str | None = None) -> Array:
+    """Equation (4) computed from f1 and pooled f2 (`pool_features`) without the volume."""
+    radius = check_radius(radius)
+    check_list("f2_pyramid", f2_pyramid, "(C, H_l, W_l)")
+    a = Inputs(device, f1, *f2_pyramid, coords)
+    x1, levels, xy = _feature_pyramid(a, f1, f2_pyramid, coords)
+    channels, n = x1.shape
+    _, height, width = xy.shape
+    side = 2 * radius + 1
+    f1_v = _channels_last_v(x1, a)
+    inv = a.s(1.0 / math.sqrt(channels))
+    patch = a.zeros((n, side + 1, side + 1))
+    out = a.zeros((len(levels) * side * side, height, width))
+    for lvl, (hl, wl) in enumerate(level_shapes(height, width, len(levels))):
+        f2l_v = _channels_last_v(levels[lvl], a)
+        scale = a.s(0.5 ** lvl)
+        a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
+        a.launch(sample_windows, n * side, [patch, xy, out, scale, radius, lvl * side * side, 1])
+    return a.out(out)
+
+
+def lookup_onthefly_backward(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radius: int, grad_out: Array,
+                             *, device: str | None = None) -> dict[str, Array | list[Array]]:
+    """Adjoint of `lookup_onthefly`. Returns a dict {"f1": d f1 (C, H, W), "f2_pyramid": [d P^l(f2)
+    (C, H_l, W_l) for every level], "coords": d coords (2, H, W)}, in f1's kind."""
+    radius = check_radius(radius)
+    check_list("f2_pyramid", f2_pyramid, "(C, H_l, W_l)")
+    a = Inputs(device, f1, *f2_pyramid, coords, grad_out)
+    x1, levels, xy = _feature_pyramid(a, f1, f2_pyramid, coords)
+    channels, n = x1.shape
+    _, height, width = xy.shape
+    side = 2 * radius + 1
+    g = a.floats("grad_out", grad_out, (len(levels) * side * side, height, width))
+    f1_v = _channels_last_v(x1, a)
+    n_vec = f1_v.shape[1]
+    vec = VEC_OF[a.scalar]
+    inv = a.s(1.0 / math.sqrt(channels))
+    patch = a.zeros((n, side + 1, side + 1))
+    grad_patch = a.zeros((n, side + 1, side + 1))
+    grad_f1_v = a.zeros((n, n_vec), vec)
+    grad_coords = a.zeros((2, height, width))
+    n_slots = 1 if a.device.is_cuda else max(1, min(default_threads(), n))
+    grads_f2 = []
+    for lvl, (hl, wl) in enumerate(level_shapes(height, width, len(levels))):
+        f2l_v = _channels_last_v(levels[lvl], a)
+        scale = a.s(0.5 ** lvl)
+        a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
+        a.launch(sample_windows_adjoint, n, [patch, xy, g, grad_patch, grad_coords, scale, radius, lvl * side * side,
+                                             1])
+        slots = a.zeros((n_slots, hl * wl, n_vec), vec)
+        _launch_slots(_patch_adjoint_features, n, [grad_patch, f1_v, f2l_v, xy, grad_f1_v, slots, hl, wl, scale,
+                                                   radius, inv, int(a.device.is_cuda)], n_slots, a.device)
+        grad_f2l_v = a.zeros((hl * wl, n_vec), vec)
+        a.launch(_sum_slots, grad_f2l_v.size, [slots, grad_f2l_v])
+        grads_f2.append(a.out(_channels_first(grad_f2l_v, channels, a).reshape((channels, hl, wl))))
+    grad_f1 = _channels_first(grad_f1_v, channels, a).reshape((channels, height, width))
+    return {"f1": a.out(grad_f1), "f2_pyramid": grads_f2, "coords": a.out(grad_coords)}
