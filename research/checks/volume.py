@@ -53,7 +53,7 @@ def composite_inputs(seed: int) -> dict[str, Any]:
 def _composite_f(t_threshold: float) -> Callable:
     def f(sigma, rgb, delta, z, ray_offsets, background):
         r = composite_forward(sigma, rgb, delta, z, ray_offsets, background, t_threshold)
-        return {"rgb": r.rgb.numpy(), "depth": r.depth.numpy(), "opacity": r.opacity.numpy()}
+        return {"rgb": r.rgb, "depth": r.depth, "opacity": r.opacity}  # NumPy in, NumPy out
     return f
 
 
@@ -62,7 +62,7 @@ def _composite_vjp(t_threshold: float) -> Callable:
         args = (inp["sigma"], inp["rgb"], inp["delta"], inp["z"], inp["ray_offsets"])
         r = composite_forward(*args, inp["background"], t_threshold)
         gs, gr = composite_backward(*args, r, cot["rgb"], cot["depth"], cot["opacity"], inp["background"])
-        return {"sigma": gs.numpy(), "rgb": gr.numpy()}
+        return {"sigma": gs, "rgb": gr}
     return vjp
 
 
@@ -81,7 +81,7 @@ def _field_check(make: Callable[[dict[str, np.ndarray]], Field], params: dict[st
                  dirs: np.ndarray | None, name: str, seed: int) -> list[GradcheckResult]:
     def f(**kw):
         out = make(kw).forward(points, dirs)
-        return {"sigma": out.sigma.numpy(), "rgb": out.rgb.numpy()}
+        return {"sigma": out.sigma, "rgb": out.rgb}  # NumPy points, NumPy outputs
 
     def vjp(inp, cot):
         field = make(inp)
@@ -249,7 +249,7 @@ def check_render(kind: str, seeds=(0, 1)) -> list[GradcheckResult]:
         def f(field=field, origins=origins, dirs=dirs, opts=opts, **kw):
             field.set_params(kw)
             r = render_rays(field, origins, dirs, BOX, **opts)
-            return {"rgb": r.rgb.numpy(), "depth": r.depth.numpy(), "opacity": r.opacity.numpy(),
+            return {"rgb": r.rgb, "depth": r.depth, "opacity": r.opacity,
                     "sparsity": np.array(SPARSITY_WEIGHT * optical_depth_sum(r))}
 
         def vjp(inp, cot, field=field, origins=origins, dirs=dirs, opts=opts):
