@@ -1,6 +1,8 @@
 """Benchmark family "volume": compositing and radiance-field kernels (kernels.volume).
 
-Cases (sizes from the issue; `quick` divides them by 16):
+Cases (sizes from the issue; `quick` divides them by 16; `tiny` runs every case at sizes that take
+about a second in all -- 512 rays x 32 samples, 4096 points, 16^3 grids, a 2^12-entry hash table --
+with the same keys, for the test suite):
   * volume.composite      rays 65536 x samples 128 in float32 (dense packing), forward (`fwd_s`) and
                           forward + backward (`fwd_bwd_s`), plus `samples_per_s` of forward + backward.
                           Densities are drawn so that no ray terminates early: every sample is work.
@@ -27,23 +29,25 @@ from research.bench import time_median, time_medians
 
 COMPOSITE_RAYS, COMPOSITE_SAMPLES = 65536, 128
 FIELD_POINTS = 1 << 20
+TINY_RAYS, TINY_SAMPLES, TINY_POINTS, TINY_GRID, TINY_LOG2_TABLE = 512, 32, 4096, 16, 12
 BOX = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
 
-def _fields(device: str) -> dict:
+def _fields(device: str, tiny: bool = False) -> dict:
     from kernels.volume import GridField, HashGridField, PEMLPField, SphereField
 
+    res = (TINY_GRID,) * 3 if tiny else (128, 128, 128)
+    log2_table = TINY_LOG2_TABLE if tiny else 19
     return {
         "spheres": lambda: SphereField.textbook(wp.float32, device),
-        "grid": lambda: GridField(BOX, (128, 128, 128), density_bias=-2.0, init_color_std=0.1, device=device),
-        "grid_sh2": lambda: GridField(BOX, (128, 128, 128), sh_degree=2, density_bias=-2.0, init_color_std=0.1,
-                                      device=device),
-        "hashgrid": lambda: HashGridField(BOX, n_levels=16, n_features=2, log2_table_size=19, device=device),
+        "grid": lambda: GridField(BOX, res, density_bias=-2.0, init_color_std=0.1, device=device),
+        "grid_sh2": lambda: GridField(BOX, res, sh_degree=2, density_bias=-2.0, init_color_std=0.1, device=device),
+        "hashgrid": lambda: HashGridField(BOX, n_levels=16, n_features=2, log2_table_size=log2_table, device=device),
         "pe_mlp": lambda: PEMLPField(BOX, n_freqs=8, device=device),
     }
 
 
-def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
+def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Iterator[dict]:
     from kernels.volume import Workspace, composite_backward, composite_forward, dense_offsets
     from kernels.volume.composite import composite_buffers, composite_grad_buffers
 
@@ -54,7 +58,7 @@ def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
     scale = 16 if quick else 1
     rng = np.random.default_rng(0)
 
-    rays, samples = COMPOSITE_RAYS // scale, COMPOSITE_SAMPLES
+    rays, samples = (TINY_RAYS, TINY_SAMPLES) if tiny else (COMPOSITE_RAYS // scale, COMPOSITE_SAMPLES)
     n = rays * samples
     arr = lambda a, dt=wp.float32: wp.array(a, dtype=dt, device=dev)  # noqa: E731
     sigma = arr(rng.uniform(0.0, 0.5, n).astype(np.float32))
@@ -87,13 +91,13 @@ def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
            "fwd_s": t_f, "fwd_bwd_s": t_fb, "samples_per_s": n / t_fb,
            "fwd_bwd_fresh_buffers_s": t_fb_alloc}
 
-    points_n = FIELD_POINTS // scale
+    points_n = TINY_POINTS if tiny else FIELD_POINTS // scale
     pts = arr(rng.uniform(-1.0, 1.0, (points_n, 3)).astype(np.float32))
     d = rng.normal(size=(points_n, 3))
     dirs = arr((d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32))
     gs = arr(rng.normal(size=points_n).astype(np.float32))
     gr = arr(rng.normal(size=(points_n, 3)).astype(np.float32))
-    for name, make in _fields(device).items():
+    for name, make in _fields(device, tiny).items():
         field = make()
         dd = dirs if field.needs_dirs else None
         if name == "spheres":  # the textbook spheres sit around z = 4
