@@ -21,7 +21,7 @@ the optical axis for z-depth with unit directions).
 Empty-space skipping (instant-ngp; nerfacc, Li et al. 2023): with an occupancy grid, a stratum
 whose midpoint lies in an unoccupied cell gets no sample. Samples are packed: ray r owns
 samples ray_offsets[r] .. ray_offsets[r+1]-1, found by a counting pass, a prefix sum and a
-filling pass (one thread per ray in both; disjoint writes, so launch_split is safe).
+filling pass of one kernel (one thread per ray in both; disjoint writes, so launch_split is safe).
 
 Inputs follow the array contract (kernels._arrays): `ray_aabb` and `sample_rays` return NumPy
 arrays for NumPy rays and wp.arrays on the device for wp.array rays.
@@ -105,35 +105,7 @@ def _stratum(origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typin
 
 
 @wp.kernel
-def _count_kernel(
-    origins: wp.array2d(dtype=typing.Any),
-    dirs: wp.array2d(dtype=typing.Any),
-    t_enter: wp.array(dtype=typing.Any),
-    t_exit: wp.array(dtype=typing.Any),
-    hit: wp.array(dtype=wp.int32),
-    step: typing.Any,
-    n_fixed: int,
-    occ: wp.array(dtype=wp.int32),
-    occ_bbox: wp.array2d(dtype=typing.Any),
-    occ_res: wp.vec3i,
-    counts: wp.array(dtype=wp.int32),
-    offset: int,
-):
-    r = wp.tid() + offset
-    count = int(0)
-    if hit[r] != 0:
-        t0 = t_enter[r]
-        t1 = t_exit[r]
-        n, h = _strata(t0, t1, step, n_fixed)
-        for k in range(n):
-            a, b, occupied = _stratum(origins, dirs, r, k, t0, t1, h, occ, occ_bbox, occ_res)
-            if occupied != 0:
-                count += 1
-    counts[r] = count
-
-
-@wp.kernel
-def _fill_kernel(
+def _march_kernel(
     origins: wp.array2d(dtype=typing.Any),
     dirs: wp.array2d(dtype=typing.Any),
     z_scale: wp.array(dtype=typing.Any),
@@ -147,6 +119,8 @@ def _fill_kernel(
     occ_res: wp.vec3i,
     jitter: int,
     seed: int,
+    fill: int,
+    counts: wp.array(dtype=wp.int32),
     ray_offsets: wp.array(dtype=wp.int32),
     out_points: wp.array2d(dtype=typing.Any),
     out_dirs: wp.array2d(dtype=typing.Any),
@@ -156,28 +130,35 @@ def _fill_kernel(
     out_ray: wp.array(dtype=wp.int32),
     offset: int,
 ):
+    # Both passes over ray r's strata: fill = 0 counts the occupied ones into counts[r]; fill = 1
+    # writes their samples from ray_offsets[r] on (the outputs are placeholders in the counting pass).
     r = wp.tid() + offset
+    j = int(0)
+    if fill != 0:
+        j = ray_offsets[r]
     if hit[r] != 0:
         state = wp.rand_init(seed, r)
         t0 = t_enter[r]
         t1 = t_exit[r]
         n, h = _strata(t0, t1, step, n_fixed)
-        j = ray_offsets[r]
         for k in range(n):
             a, b, occupied = _stratum(origins, dirs, r, k, t0, t1, h, occ, occ_bbox, occ_res)
             if occupied != 0:
-                u = origins.dtype(0.5)
-                if jitter != 0:
-                    u = origins.dtype(wp.randf(state))
-                t = a + u * (b - a)
-                for c in range(3):
-                    out_points[j, c] = origins[r, c] + t * dirs[r, c]
-                    out_dirs[j, c] = dirs[r, c]
-                out_t[j] = t
-                out_delta[j] = b - a
-                out_z[j] = t * z_scale[r]
-                out_ray[j] = r
+                if fill != 0:
+                    u = origins.dtype(0.5)
+                    if jitter != 0:
+                        u = origins.dtype(wp.randf(state))
+                    t = a + u * (b - a)
+                    for c in range(3):
+                        out_points[j, c] = origins[r, c] + t * dirs[r, c]
+                        out_dirs[j, c] = dirs[r, c]
+                    out_t[j] = t
+                    out_delta[j] = b - a
+                    out_z[j] = t * z_scale[r]
+                    out_ray[j] = r
                 j += 1
+    if fill == 0:
+        counts[r] = j
 
 
 @dataclass
@@ -297,10 +278,11 @@ def pack_samples(a: A.Inputs, origins: A.ArrayLike, dirs: A.ArrayLike, bbox: Any
     occ_box = wp.array(occ_box, dtype=a.scalar, device=a.device)
 
     t0, t1, hit = _ray_aabb(a, o, d, box, near, far)
-    step_f = a.s(0.0 if step is None else step)
+    march = [o, d, zs, t0, t1, hit, a.s(0.0 if step is None else step), n_fixed, occ, occ_box, occ_res, int(jitter),
+             int(seed)]
     counts = a.empty(n_rays, wp.int32)
-    a.launch(_count_kernel, n_rays, [o, d, t0, t1, hit, step_f, n_fixed, occ, occ_box, occ_res, counts],
-             min_chunk=256)
+    placeholders = [a.empty((0, 3)), a.empty((0, 3)), a.empty(0), a.empty(0), a.empty(0), a.empty(0, wp.int32)]
+    a.launch(_march_kernel, n_rays, march + [0, counts, counts, *placeholders], min_chunk=256)
     offsets_np = np.zeros(n_rays + 1, dtype=np.int64)
     np.cumsum(counts.numpy(), out=offsets_np[1:])
     if offsets_np[-1] > np.iinfo(np.int32).max:
@@ -311,11 +293,9 @@ def pack_samples(a: A.Inputs, origins: A.ArrayLike, dirs: A.ArrayLike, bbox: Any
     s = Samples(points=a.empty((n, 3)), dirs=a.empty((n, 3)), t=a.empty(n), delta=a.empty(n), z=a.empty(n),
                 ray_index=a.empty(n, wp.int32), ray_offsets=offsets)
     if n:
-        a.launch(_fill_kernel, n_rays,
-                 [o, d, zs, t0, t1, hit, step_f, n_fixed, occ, occ_box, occ_res, int(jitter), int(seed), offsets,
-                  s.points, s.dirs, s.t, s.delta, s.z, s.ray_index], min_chunk=256)
+        a.launch(_march_kernel, n_rays, march + [1, counts, offsets, s.points, s.dirs, s.t, s.delta, s.z,
+                                                 s.ray_index], min_chunk=256)
     return s
-
 
 def dense_samples(
     origins: np.ndarray,
@@ -362,5 +342,4 @@ def dense_samples(
 
 
 A.declare_float_overloads(_ray_aabb_kernel)
-A.declare_float_overloads(_count_kernel)
-A.declare_float_overloads(_fill_kernel)
+A.declare_float_overloads(_march_kernel)
