@@ -15,7 +15,6 @@ from __future__ import annotations
 import typing
 from typing import Any
 
-import numpy as np
 import warp as wp
 
 from kernels import _arrays as A

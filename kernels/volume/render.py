@@ -33,7 +33,6 @@ from kernels.launch import launch_split
 from kernels.volume.composite import (DEFAULT_T_THRESHOLD, CompositeResult, composite_backward, composite_buffers,
                                       composite_forward, composite_grad_buffers)
 from kernels.volume.field import Field, FieldOutput
-from kernels.volume.occupancy import OccupancyGrid
 from kernels.volume.sampling import Samples, pack_samples
 from kernels.volume.workspace import Workspace, check_workspace
 

@@ -29,7 +29,6 @@ arrays for NumPy rays and wp.arrays on the device for wp.array rays.
 
 from __future__ import annotations
 
-import math
 import typing
 from dataclasses import dataclass
 from typing import Any
@@ -307,7 +306,7 @@ def dense_samples(
 ) -> Samples:
     """Packed Samples from explicit per-ray sample positions t (R, S) and lengths delta (R, S).
 
-    For sample layouts other than sample_rays' strata (e.g. the textbook's linspace with a final
+    For sample layouts other than sample_rays' strata (e.g. the Video and 3D Vision chapter's linspace with a final
     delta of 1e-3). Points are o + t d; z = t * z_scale (default 1). The inputs are NumPy arrays;
     the Samples are packed as wp.arrays on `device` (default the CPU), ready for
     kernels.volume.render_samples.

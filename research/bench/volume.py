@@ -10,10 +10,10 @@ with the same keys, for the test suite):
                           allocated once, as in training (kernels.volume.workspace);
                           `fwd_bwd_fresh_buffers_s` is the same with new arrays on every call, whose
                           first-touch page faults cost more than the backward kernel on the CPU.
-  * volume.field.<name>   points 1048576 in float32 for spheres (the textbook's 3), grid (128^3 RGB),
-                          grid_sh2 (128^3, SH degree 2), hashgrid (16 levels x 2^19 x 2, MLP 64-64)
-                          and pe_mlp (8 frequencies, MLP 64-64): forward, and forward + backward to every
-                          parameter with random cotangents.
+  * volume.field.<name>   points 1048576 in float32 for spheres (the 3 of the Video and 3D Vision
+                          textbook chapter), grid (128^3 RGB), grid_sh2 (128^3, SH degree 2), hashgrid
+                          (16 levels x 2^19 x 2, MLP 64-64) and pe_mlp (8 frequencies, MLP 64-64):
+                          forward, and forward + backward to every parameter with random cotangents.
 Each figure is the median of 3 runs (5 for compositing) after a warm-up (research.bench.time_median).
 """
 
@@ -100,7 +100,7 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Itera
     for name, make in _fields(device, tiny).items():
         field = make()
         dd = dirs if field.needs_dirs else None
-        if name == "spheres":  # the textbook spheres sit around z = 4
+        if name == "spheres":  # the chapter's spheres sit around z = 4
             p = arr(rng.uniform([-2.0, -1.5, 2.5], [2.5, 1.5, 6.0], (points_n, 3)).astype(np.float32))
         else:
             p = pts

@@ -92,7 +92,8 @@ def _field_check(make: Callable[[dict[str, np.ndarray]], Field], params: dict[st
 
 
 def sphere_points(rng: np.random.Generator, field: SphereField, n: int) -> np.ndarray:
-    """Points in front of the textbook spheres, >= 0.05 from every surface."""
+    """Points in front of the Video and 3D Vision chapter's spheres (SphereField.textbook), >= 0.05 from
+    every surface."""
     P = field.params_numpy()
     pts: list[np.ndarray] = []
     while len(pts) < n:

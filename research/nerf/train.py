@@ -10,8 +10,9 @@ Per iteration (instant-ngp's recipe, Mueller et al. 2022, on the CPU):
      so that surfaces form before cells can be declared empty (a cell declared empty gets no
      samples, hence no gradient, and would stay empty);
   4. loss = mean((C - target)^2) (+ an optional sparsity penalty `sigma_l1` * mean over rays of the
-     optical depth sum_k sigma_k delta_k, against floating fog); dL/dC = 2 (C - target) / (3 B); backward through compositing and
-     the field (kernels.volume.render_backward); one Adam step (kernels.optim.Adam);
+     optical depth sum_k sigma_k delta_k, against floating fog); dL/dC = 2 (C - target) / (3 B);
+     backward through compositing and the field (kernels.volume.render_backward); one Adam step
+     (kernels.optim.Adam);
   5. every `occupancy_every` iterations, update the occupancy grid from the field's density
      (EMA-max, threshold; kernels.volume.OccupancyGrid).
 Voxel grids also take a total-variation penalty (Plenoxels) with weights `tv_weight` on the mean
