@@ -80,16 +80,19 @@ class Field(ABC):
             return a, p, None
         return a, p, a.floats("dirs", dirs, (p.shape[0], 3))
 
-    def _cotangents(self, a: A.Inputs, n: int, grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None
-                    ) -> tuple[wp.array, wp.array]:
-        """The cotangents (N,) and (N, 3) as wp.arrays (zeros for None)."""
-        return tuple(a.zeros(shape) if g is None else a.floats(name, g, shape)
-                     for name, g, shape in (("grad_sigma", grad_sigma, (n,)), ("grad_rgb", grad_rgb, (n, 3))))
-
-    def _output(self, a: A.Inputs, out: FieldOutput, n: int, names: tuple[str, ...] = ("rgb",)) -> list[wp.array]:
-        """The forward outputs `names` the backward reads, as wp.arrays (they may be NumPy)."""
-        shapes = {"sigma": (n,), "rgb": (n, 3)}
-        return [a.floats(f"out.{k}", getattr(out, k), shapes[k], finite=False) for k in names]
+    def _backward_inputs(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
+                         grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None) -> tuple:
+        """(Inputs, points, dirs or None, out.sigma, out.rgb, grad_sigma, grad_rgb) of a backward call,
+        as wp.arrays on the field's device; a missing cotangent is zeros."""
+        a, p, d = self._inputs(points, dirs)
+        n = p.shape[0]
+        if not isinstance(out, FieldOutput):
+            raise ValueError(f"out: expected the FieldOutput of forward, got {type(out).__name__}")
+        sigma = a.floats("out.sigma", out.sigma, (n,), finite=False)
+        rgb = a.floats("out.rgb", out.rgb, (n, 3), finite=False)
+        gs, gr = (a.zeros(shape) if g is None else a.floats(name, g, shape)
+                  for name, g, shape in (("grad_sigma", grad_sigma, (n,)), ("grad_rgb", grad_rgb, (n, 3))))
+        return a, p, d, sigma, rgb, gs, gr
 
     def _result(self, a: A.Inputs, sigma: wp.array, rgb: wp.array, cache: dict[str, Any] | None = None
                 ) -> FieldOutput:

@@ -352,10 +352,8 @@ class GridField(Field):
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
                  grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
-        a, p, d = self._inputs(points, dirs)
+        a, p, d, _, rgb, gs, gr = self._backward_inputs(points, dirs, out, grad_sigma, grad_rgb)
         n = p.shape[0]
-        gs, gr = self._cotangents(a, n, grad_sigma, grad_rgb)
-        (rgb,) = self._output(a, out, n)
         grads = self._zero_grads(workspace)
         before, after = self._grid_args(a, d)
         if n:  # a scatter: one launch (module docstring)

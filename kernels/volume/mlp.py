@@ -185,7 +185,7 @@ class MLP:
         if not isinstance(x, wp.array):
             raise ValueError(f"x: expected a wp.array, got {type(x).__name__}")
         A.check_shape("x", x, (None, self.sizes[0]))
-        if not isinstance(x, wp.array) or x.dtype != self.dtype or x.device != self.device:
+        if x.dtype != self.dtype or x.device != self.device:
             raise ValueError(f"x: expected a wp.array of {self.dtype} on {self.device}")
         n = x.shape[0]
         cache = MLPCache([], [])

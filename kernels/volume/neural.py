@@ -133,10 +133,8 @@ class NeuralField(Field):
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
                  grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
-        a, p, _ = self._inputs(points, dirs)
+        a, p, _, _, rgb, gs, gr = self._backward_inputs(points, dirs, out, grad_sigma, grad_rgb)
         n = p.shape[0]
-        gs, gr = self._cotangents(a, n, grad_sigma, grad_rgb)
-        (rgb,) = self._output(a, out, n)
         raw = out.cache["raw"]
         grad_raw = a.empty((n, 4))
         a.launch(_head_backward_kernel, n, [raw, p, *self._head_static(a), rgb, gs, gr, grad_raw])

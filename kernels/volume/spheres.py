@@ -181,10 +181,8 @@ class SphereField(Field):
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
                  grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
-        a, p, _ = self._inputs(points, dirs)
+        a, p, _, sigma, rgb, gs, gr = self._backward_inputs(points, dirs, out, grad_sigma, grad_rgb)
         n = p.shape[0]
-        gs, gr = self._cotangents(a, n, grad_sigma, grad_rgb)
-        sigma, rgb = self._output(a, out, n, ("sigma", "rgb"))
         grads = self._zero_grads(workspace)
         if n:  # a scatter: one launch (module docstring)
             wp.launch(_spheres_backward_kernel, dim=n,
