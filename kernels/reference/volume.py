@@ -9,6 +9,7 @@ one ray or one point at a time where that reads more clearly; no Warp.
     occupied           occupancy-grid lookup (kernels.volume.occupancy)
     spheres            soft spheres (kernels.volume.spheres)
     grid               trilinear voxel grid, RGB or spherical harmonics (kernels.volume.grid)
+    total_variation    the grid's regulariser (kernels.volume.grid.add_tv_grad is its gradient)
     hash_encoding      multiresolution hash encoding (kernels.volume.hashgrid)
     positional_encoding  frequency encoding (kernels.volume.encoding)
     mlp                ReLU MLP (kernels.volume.mlp)
@@ -158,6 +159,13 @@ def grid(density, color, resolution, bbox, sh_degree, density_bias, density_scal
         k = trilinear(col, resolution, bbox, x).reshape(3, -1)
         rgb[i] = sigmoid(k @ Y[i])
     return sigma, rgb
+
+
+def total_variation(values, resolution) -> float:
+    """sum over vertices, axes and channels of (x[v + e_a] - x[v])^2, for values (V,) or (V, C)."""
+    nx, ny, nz = resolution
+    x = np.asarray(values, dtype=np.float64).reshape(nz, ny, nx, -1)
+    return float(sum(np.sum(np.diff(x, axis=a) ** 2) for a in range(3)))
 
 
 def hash_encoding(bbox, resolutions, table_size, n_features, p, table):

@@ -260,15 +260,11 @@ def _tv_grad_kernel(
         grad[v, c] = grad[v, c] + values.dtype(2.0) * weight * g
 
 
-def tv_loss(values: np.ndarray, resolution: Sequence[int]) -> float:
-    """sum over vertices, axes and channels of (x[v + e_a] - x[v])^2, for values (V,) or (V, C)."""
-    nx, ny, nz = resolution
-    x = np.asarray(values, dtype=np.float64).reshape(nz, ny, nx, -1)
-    return float(sum(np.sum(np.diff(x, axis=a) ** 2) for a in range(3)))
-
-
 def add_tv_grad(values: wp.array, resolution: Sequence[int], weight: float, grad: wp.array) -> None:
-    """grad += weight * d tv_loss(values) / d values (total variation of Plenoxels, squared differences).
+    """grad += weight * d TV(values) / d values for values (V,) or (V, C) wp.arrays on the grid's vertices.
+
+    TV is the total variation of Plenoxels with squared differences (module docstring;
+    kernels.reference.volume.total_variation computes it).
 
     A gather (each vertex reads its 6 neighbours and writes its own gradient): launch_split is safe.
     """
