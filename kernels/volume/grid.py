@@ -38,7 +38,6 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.launch import launch_split
 from kernels.volume import _act
 from kernels.volume._act import density_act, density_act_grad, sigmoid
 from kernels.volume._checks import check_bbox, check_dtype
@@ -268,12 +267,17 @@ def add_tv_grad(values: wp.array, resolution: Sequence[int], weight: float, grad
 
     A gather (each vertex reads its 6 neighbours and writes its own gradient): launch_split is safe.
     """
-    nv = int(np.prod(resolution))
-    if values.shape[0] != nv or tuple(grad.shape) != tuple(values.shape):
-        raise ValueError(f"values, grad: expected ({nv}, ...) arrays of one shape, got {values.shape}, {grad.shape}")
-    v2 = values.reshape((nv, -1))
-    g2 = grad.reshape((nv, -1))
-    launch_split(_tv_grad_kernel, nv, [v2, wp.vec3i(*resolution), values.dtype(weight), g2], device=values.device)
+    if len(resolution) != 3:
+        raise ValueError(f"resolution: expected three vertex counts (nx, ny, nz), got {resolution!r}")
+    nv = int(np.prod([A.check_int("resolution", r, minimum=1) for r in resolution]))
+    if not isinstance(values, wp.array) or values.ndim not in (1, 2) or values.shape[0] != nv:
+        raise ValueError(f"values: expected a wp.array of shape ({nv},) or ({nv}, C)")
+    a = A.Inputs(values.device, values)
+    a.floats("values", values, finite=False)
+    A.check_out("grad", grad, values.shape, values.dtype, values.device)
+    weight = A.check_float("weight", weight)
+    a.launch(_tv_grad_kernel, nv, [values.reshape((nv, -1)), wp.vec3i(*resolution), a.s(weight),
+                                   grad.reshape((nv, -1))])
 
 
 def n_sh_coefficients(sh_degree: int | None) -> int:

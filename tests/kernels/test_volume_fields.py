@@ -95,6 +95,10 @@ def test_grid_total_variation():
     g = wp.zeros((24, 2), dtype=wp.float64)
     add_tv_grad(wp.array(np.ones((24, 2)) * 3.0, dtype=wp.float64), res, 1.0, g)
     assert np.all(g.numpy() == 0.0)  # a constant field has no variation
+    with pytest.raises(ValueError, match=r"grad: expected an output buffer of shape \(24, 2\)"):
+        add_tv_grad(wp.zeros((24, 2), dtype=wp.float64), res, 1.0, wp.zeros(24, dtype=wp.float64))
+    with pytest.raises(ValueError, match=r"values: expected a wp.array of shape \(24,\) or \(24, C\)"):
+        add_tv_grad(np.zeros((24, 2)), res, 1.0, g)
     assert_gradcheck(check_tv(seeds=(0, 1, 2)))
 
 
