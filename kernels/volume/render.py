@@ -22,6 +22,7 @@ The samples, field outputs and compositing state kept in a RenderResult are wp.a
 
 from __future__ import annotations
 
+import inspect
 import typing
 from dataclasses import dataclass
 from typing import Any
@@ -33,7 +34,7 @@ from kernels.launch import launch_split
 from kernels.volume.composite import (DEFAULT_T_THRESHOLD, CompositeResult, composite_backward, composite_buffers,
                                       composite_forward, composite_grad_buffers)
 from kernels.volume.field import Field, FieldOutput
-from kernels.volume.sampling import Samples, pack_samples
+from kernels.volume.sampling import Samples, pack_samples, sample_rays
 from kernels.volume.workspace import Workspace, check_workspace
 
 
@@ -96,9 +97,9 @@ def render_samples(field: Field, samples: Samples, background: Any = (0.0, 0.0, 
     return _render(a, field, samples, background, t_threshold, workspace)
 
 
-# The options of kernels.volume.sample_rays and their defaults.
-_SAMPLING_DEFAULTS = dict(near=0.0, far=1e10, n_samples=None, step=None, z_scale=None, occupancy=None, jitter=False,
-                          seed=0)
+# The keyword options of kernels.volume.sample_rays and their defaults, read from its signature.
+_SAMPLING_DEFAULTS = {k: p.default for k, p in inspect.signature(sample_rays).parameters.items()
+                      if p.kind is p.KEYWORD_ONLY and k != "device"}
 
 
 def render_rays(
