@@ -15,8 +15,8 @@ Early ray termination (instant-ngp, Mueller et al. 2022): the loop stops before 
 soon as T_k < t_threshold; the samples processed are counted (``n_used``) and T_N is the
 transmittance after the last one. ``t_threshold = 0`` disables termination.
 
-Backward (hand-written; Warp's tape is wrong through a loop with carried state, docs/warp.md). For output
-cotangents (g_C, g_D, g_A) and f_k = g_C . c_k + g_D z_k, the scalar
+Backward (hand-written; Warp's tape is wrong through a loop with carried state, docs/warp.md).
+For output cotangents (g_C, g_D, g_A) and f_k = g_C . c_k + g_D z_k, the scalar
 L = g_C . C + g_D D + g_A A has
 
     dL/dc_k     = g_C w_k
