@@ -189,3 +189,20 @@ def test_ray_bad_input():
         OccupancyGrid(BOX, (4, 4, 4), decay=1.0)
     with pytest.raises(ValueError, match="sigma: expected values >= 0"):
         OccupancyGrid(BOX, (2, 2, 2)).update(-np.ones(8))
+
+
+def test_device_value_checks_count_like_the_host_checks():
+    """The counting kernels that check offsets and directions on CUDA, run here as one CPU launch."""
+    from kernels.volume import _checks
+
+    def count(kernel, x, *extra):
+        return _checks._device_count(kernel, x.shape[0], [x, *extra], x.device)
+
+    offsets = lambda *v: wp.array(np.array(v, np.int32))  # noqa: E731
+    assert count(_checks._count_bad_offsets, offsets(0, 2, 2, 6), 6) == 0
+    assert count(_checks._count_bad_offsets, offsets(0, 4, 2, 6), 6) == 1  # decreasing
+    assert count(_checks._count_bad_offsets, offsets(1, 2, 2, 6), 6) == 1  # does not start at 0
+    assert count(_checks._count_bad_offsets, offsets(0, 2, 2, 6), 7) == 1  # does not end at N
+    for dtype in (wp.float32, wp.float64):
+        dirs = wp.array(np.array([[0, 0, 1.0], [0, 0, 0], [1e-30, 0, 0], [0, 0, 0]]), dtype=dtype)
+        assert count(_checks._count_zero_rows, dirs) == 2
