@@ -13,14 +13,17 @@ equations:
     sampling   ray-AABB slab test, stratified samples, occupancy skipping, packed layout
     composite  the quadrature above, forward and hand-written reverse pass (one thread per ray)
     occupancy  occupancy grid with EMA-max updates and a threshold
-    spheres    analytic soft spheres (the Video and 3D Vision textbook chapter's scene)  Field
-    grid       dense voxel grid, trilinear density + RGB or SH <= 2   Field
+    spheres    analytic soft spheres (the Video and 3D Vision textbook chapter's scene)   Field
+    grid       dense voxel grid, trilinear density + RGB or SH <= 2                       Field
     hashgrid   multiresolution hash encoding
     encoding   frequency positional encoding
     mlp        ReLU MLP, forward and backward (Warp kernels; BLAS products on the CPU)
-    neural     HashGridField (hash + MLP), PEMLPField (PE + MLP)      Field
+    neural     HashGridField (hash + MLP), PEMLPField (PE + MLP)                          Field
     render     sampling -> field -> compositing, and the chain rule back to the parameters
     workspace  reusable output buffers (fresh large arrays cost page faults on every call)
+    _act, _checks  activations shared by the fields; the family's own argument checks
+
+The plain NumPy forward passes the tests compare against are in kernels/reference/volume.py.
 
 Everything is generic over float32 and float64 and takes a `device`; the CPU is the tested path.
 Inputs and outputs follow the array contract of kernels._arrays (NumPy in, NumPy out; wp.arrays
