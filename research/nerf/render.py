@@ -2,8 +2,8 @@
 
 Rays go through every pixel centre (research.cameras, OpenCV convention) with unit directions;
 z_scale = cos(theta) to the optical axis turns the ray parameter t into z-depth, so `depth` is the
-expected z-depth sum_k w_k t_k cos(theta) (depth means z-depth throughout the project). Rays are rendered in
-chunks by kernels.volume.render_rays.
+expected z-depth sum_k w_k t_k cos(theta) (depth means z-depth throughout the project). Rays are
+rendered in chunks by kernels.volume.render_rays.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from kernels.volume import DEFAULT_T_THRESHOLD, Field, OccupancyGrid, Workspace, render_rays
 from kernels import _arrays as A
+from kernels.volume import DEFAULT_T_THRESHOLD, Field, OccupancyGrid, Workspace, render_rays
 from research.cameras import Camera
 
 
@@ -64,7 +64,7 @@ def render_image(
         res = render_rays(field, o[s:e], d[s:e], bbox, near=near, far=far, n_samples=n_samples, step=step,
                           z_scale=zs[s:e], occupancy=occupancy, background=background, t_threshold=t_threshold,
                           workspace=workspace)
-        rgb[s:e], depth[s:e], opacity[s:e] = res.rgb.numpy(), res.depth.numpy(), res.opacity.numpy()  # views
+        rgb[s:e], depth[s:e], opacity[s:e] = res.rgb.numpy(), res.depth.numpy(), res.opacity.numpy()  # workspace views
         n_samples_total += res.samples.n_samples
     h, w = camera.height, camera.width
     return Image(rgb.reshape(h, w, 3), depth.reshape(h, w), opacity.reshape(h, w), n_samples_total)
