@@ -10,6 +10,8 @@ with the same keys, for the test suite):
                           allocated once, as in training (kernels.volume.workspace);
                           `fwd_bwd_fresh_buffers_s` is the same with new arrays on every call, whose
                           first-touch page faults cost more than the backward kernel on the CPU.
+                          `fwd_no_value_checks_s` is the forward inside value_checks(False), as a
+                          training loop calls it (shape and dtype checks only).
   * volume.field.<name>   points 1048576 in float32 for spheres (the 3 of the Video and 3D Vision
                           textbook chapter), grid (128^3 RGB), grid_sh2 (128^3, SH degree 2), hashgrid
                           (16 levels x 2^19 x 2, MLP 64-64) and pe_mlp (8 frequencies, MLP 64-64):
@@ -48,6 +50,7 @@ def _fields(device: str, tiny: bool = False) -> dict:
 
 
 def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Iterator[dict]:
+    from kernels._arrays import value_checks
     from kernels.volume import Workspace, composite_backward, composite_forward, dense_offsets
     from kernels.volume.composite import composite_buffers, composite_grad_buffers
 
@@ -82,14 +85,18 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Itera
         composite_backward(sigma, rgb, delta, z, offsets, res, g_rgb, g_d, g_d, device=dev,
                            out=grad_buf if reuse else None)
 
-    # Interleaved (research.bench.time_medians), so both see the same drift in machine speed. The
+    def fwd_unchecked():
+        with value_checks(False):
+            return fwd()
+
+    # Interleaved (research.bench.time_medians), so all see the same drift in machine speed. The
     # fresh-buffer variant runs on its own: the memory it releases slows whatever runs next.
-    times = time_medians({"fwd": fwd, "fwd_bwd": fwd_bwd}, repeats=5, sync=sync)
+    times = time_medians({"fwd": fwd, "fwd_unchecked": fwd_unchecked, "fwd_bwd": fwd_bwd}, repeats=5, sync=sync)
     t_f, t_fb = times["fwd"], times["fwd_bwd"]
     t_fb_alloc = time_median(lambda: fwd_bwd(reuse=False), repeats=5, sync=sync)
     yield {"bench": "volume.composite", "device": str(dev), "threads": threads, "rays": rays, "samples": samples,
            "fwd_s": t_f, "fwd_bwd_s": t_fb, "samples_per_s": n / t_fb,
-           "fwd_bwd_fresh_buffers_s": t_fb_alloc}
+           "fwd_bwd_fresh_buffers_s": t_fb_alloc, "fwd_no_value_checks_s": times["fwd_unchecked"]}
 
     points_n = TINY_POINTS if tiny else FIELD_POINTS // scale
     pts = arr(rng.uniform(-1.0, 1.0, (points_n, 3)).astype(np.float32))
