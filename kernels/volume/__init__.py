@@ -13,25 +13,29 @@ equations:
     sampling   ray-AABB slab test, stratified samples, occupancy skipping, packed layout
     composite  the quadrature above, forward and hand-written reverse pass (one thread per ray)
     occupancy  occupancy grid with EMA-max updates and a threshold
-    spheres    analytic soft spheres (the textbook's scene)           Field
-    grid       dense voxel grid, trilinear density + RGB or SH <= 2   Field
+    spheres    analytic soft spheres (the Video and 3D Vision textbook chapter's scene)   Field
+    grid       dense voxel grid, trilinear density + RGB or SH <= 2                       Field
     hashgrid   multiresolution hash encoding
     encoding   frequency positional encoding
     mlp        ReLU MLP, forward and backward (Warp kernels; BLAS products on the CPU)
-    neural     HashGridField (hash + MLP), PEMLPField (PE + MLP)      Field
+    neural     HashGridField (hash + MLP), PEMLPField (PE + MLP)                          Field
     render     sampling -> field -> compositing, and the chain rule back to the parameters
-    adam       Adam as a Warp kernel
     workspace  reusable output buffers (fresh large arrays cost page faults on every call)
+    _act, _checks  activations shared by the fields; the family's own argument checks
+
+The plain NumPy forward passes the tests compare against are in kernels/reference/volume.py.
 
 Everything is generic over float32 and float64 and takes a `device`; the CPU is the tested path.
+Inputs and outputs follow the array contract of kernels._arrays (NumPy in, NumPy out; wp.arrays
+in, wp.arrays out on their device; value checks off inside `value_checks(False)`); gradients of a
+field's parameters are wp.arrays like the parameters. Fitting uses kernels.optim.Adam.
 Kernels whose writes are disjoint per thread run through kernels.launch.launch_split; scatters
 of gradients into shared parameters (grid vertices, hash entries, sphere parameters) use atomic
-adds inside a single launch, because float atomics race between concurrent CPU launches
-(notes/warp.md). Warp's tape is not used: every adjoint is written by hand and checked against
+adds inside a single launch, because no Warp atomic is atomic between concurrent CPU launches
+(docs/warp.md). Warp's tape is not used: every adjoint is written by hand and checked against
 finite differences (research/checks/volume.py).
 """
 
-from kernels.volume.adam import Adam
 from kernels.volume.composite import (DEFAULT_T_THRESHOLD, CompositeResult, composite_backward, composite_forward,
                                       dense_offsets)
 from kernels.volume.encoding import PositionalEncoding
@@ -46,7 +50,7 @@ from kernels.volume.sampling import Samples, ray_aabb, sample_rays
 from kernels.volume.spheres import SphereField
 from kernels.volume.workspace import Workspace
 
-__all__ = ["Adam", "DEFAULT_T_THRESHOLD", "CompositeResult", "composite_backward", "composite_forward",
+__all__ = ["DEFAULT_T_THRESHOLD", "CompositeResult", "composite_backward", "composite_forward",
            "dense_offsets", "PositionalEncoding", "Field", "FieldOutput", "GridField", "HashEncoding", "MLP",
            "HashGridField", "PEMLPField", "OccupancyGrid", "RenderResult", "render_backward", "render_rays",
            "render_samples", "Samples", "ray_aabb", "sample_rays", "SphereField", "Workspace"]

@@ -50,3 +50,10 @@ def density_act_grad(x: typing.Any, kind: int):
             return type(x)(0.0)
         return wp.exp(x)
     return sigmoid(x)
+
+
+def density_code(name: str, activation: str) -> int:
+    """The kernel code of a density activation name ("softplus" or "exp"); ValueError naming `name`."""
+    if activation not in DENSITY_ACTIVATIONS:
+        raise ValueError(f"{name}: expected one of {sorted(DENSITY_ACTIVATIONS)}, got {activation!r}")
+    return DENSITY_ACTIVATIONS[activation]

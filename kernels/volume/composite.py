@@ -15,8 +15,8 @@ Early ray termination (instant-ngp, Mueller et al. 2022): the loop stops before 
 soon as T_k < t_threshold; the samples processed are counted (``n_used``) and T_N is the
 transmittance after the last one. ``t_threshold = 0`` disables termination.
 
-Backward (hand-written; Warp's tape is wrong through this loop, notes/warp.md). For output
-cotangents (g_C, g_D, g_A) and f_k = g_C . c_k + g_D z_k, the scalar
+Backward (hand-written; Warp's tape is wrong through a loop with carried state, docs/warp.md).
+For output cotangents (g_C, g_D, g_A) and f_k = g_C . c_k + g_D z_k, the scalar
 L = g_C . C + g_D D + g_A A has
 
     dL/dc_k     = g_C w_k
@@ -35,6 +35,9 @@ the background with zero gradient.
 
 One thread per ray: every thread writes only its own ray's outputs and its own samples'
 gradients, so both kernels run through kernels.launch.launch_split on the CPU.
+
+Inputs follow the array contract (kernels._arrays): NumPy in gives NumPy out, wp.arrays in give
+wp.arrays on their device; inside `value_checks(False)` only shapes and dtypes are checked.
 """
 
 from __future__ import annotations
@@ -46,8 +49,8 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from kernels.launch import launch_split
-from kernels.volume import _util as U
+from kernels import _arrays as A
+from kernels.volume._checks import check_ray_offsets
 from kernels.volume.workspace import Workspace
 
 wp.set_module_options({"enable_backward": False})
@@ -160,16 +163,16 @@ def _composite_backward_kernel(
 
 @dataclass
 class CompositeResult:
-    """Per-ray outputs of `composite_forward` (all wp.arrays on the input's device)."""
+    """Per-ray outputs of `composite_forward`, in the kind of its inputs (NumPy or wp.arrays)."""
 
-    rgb: wp.array  # (R, 3) colour over the background
-    depth: wp.array  # (R,) expected depth sum_k w_k z_k
-    opacity: wp.array  # (R,) 1 - T_N
-    transmittance: wp.array  # (R,) T_N, transmittance after the last processed sample
-    n_used: wp.array  # (R,) int32, samples processed before early termination
+    rgb: A.ArrayLike  # (R, 3) colour over the background
+    depth: A.ArrayLike  # (R,) expected depth sum_k w_k z_k
+    opacity: A.ArrayLike  # (R,) 1 - T_N
+    transmittance: A.ArrayLike  # (R,) T_N, transmittance after the last processed sample
+    n_used: A.ArrayLike  # (R,) int32, samples processed before early termination
     # (N,) exp(-sigma_k delta_k) of every processed sample (entries past termination are not written).
     # The backward reads it rather than recomputing the exponential.
-    factor: wp.array
+    factor: A.ArrayLike
 
 
 def _result_layout(n_rays: int, n_samples: int, dtype: Any) -> dict[str, tuple[tuple[int, ...], Any]]:
@@ -192,51 +195,48 @@ def composite_grad_buffers(workspace: Workspace, n_samples: int, dtype: Any) -> 
 
 def dense_offsets(n_rays: int, n_samples: int) -> np.ndarray:
     """ray_offsets for R rays with S samples each: [0, S, 2S, ..., RS] (int32)."""
-    U.check_positive_int("n_rays", n_rays)
-    U.check_positive_int("n_samples", n_samples)
+    A.check_int("n_rays", n_rays, minimum=1)
+    A.check_int("n_samples", n_samples, minimum=1)
     return (np.arange(n_rays + 1, dtype=np.int64) * n_samples).astype(np.int32)
 
 
-def _background(background: Any, n_rays: int, dtype: Any, device: wp.Device) -> tuple[wp.array, int]:
-    if isinstance(background, wp.array):
-        bg = background
-    else:
-        bg = np.asarray(background, dtype=U.NP_TYPES[dtype])
-        if bg.shape == (3,):
-            bg = bg[None, :]
-    if tuple(bg.shape) == (1, 3):
-        per_ray = 0
-    elif tuple(bg.shape) == (n_rays, 3):
-        per_ray = 1
-    else:
+def _background(a: A.Inputs, background: Any, n_rays: int) -> tuple[wp.array, int]:
+    """The background as a (1, 3) or (R, 3) array of the call's dtype, and whether it is per ray.
+
+    A wp.array must have the call's dtype; anything else (a tuple, a NumPy array) is converted.
+    """
+    bg = background if isinstance(background, wp.array) else np.asarray(background, dtype=a.np_dtype)
+    if tuple(bg.shape) == (3,):
+        bg = bg.reshape((1, 3))
+    if tuple(bg.shape) not in ((1, 3), (n_rays, 3)):
         raise ValueError(f"background: expected shape (3,) or (R, 3) = ({n_rays}, 3), got {tuple(bg.shape)}")
-    U.check_finite("background", bg)
-    return U.to_warp("background", bg, dtype, device), per_ray
+    return a.floats("background", bg), int(bg.shape[0] != 1)
 
 
-def _validate(sigma, rgb, delta, z, ray_offsets, device, values: bool = True) -> tuple[Any, int, int]:
-    dtype = U.common_dtype([("sigma", sigma), ("rgb", rgb), ("delta", delta), ("z", z)])
-    if len(sigma.shape) != 1:
-        raise ValueError(f"sigma: expected shape (N,) (packed samples), got {tuple(sigma.shape)}")
-    n = sigma.shape[0]
-    U.check_shape("rgb", rgb, (n, 3))
-    U.check_shape("delta", delta, (n,))
-    U.check_shape("z", z, (n,))
-    offsets = U.check_ray_offsets("ray_offsets", ray_offsets, None, n)
+def _samples(a: A.Inputs, sigma: Any, rgb: Any, delta: Any, z: Any, ray_offsets: Any, values: bool
+             ) -> tuple[list[wp.array], int, int]:
+    """[sigma, rgb, delta, z, ray_offsets] as wp.arrays, the sample count N and the ray count R.
+
+    `values` False skips the value checks of the samples (the backward's: the forward checked them).
+    """
+    s = a.floats("sigma", sigma, (None,), finite=False)
+    n = s.shape[0]
+    c = a.floats("rgb", rgb, (n, 3), finite=values)
+    d = a.floats("delta", delta, (n,), finite=False)
+    zz = a.floats("z", z, (n,), finite=values)
     if values:
-        U.check_nonnegative("sigma", sigma)
-        U.check_finite("rgb", rgb)
-        U.check_nonnegative("delta", delta)
-        U.check_finite("z", z)
-    return dtype, n, offsets.size - 1
+        A.check_at_least("sigma", s, 0.0)
+        A.check_at_least("delta", d, 0.0)
+    offsets = check_ray_offsets(a, "ray_offsets", ray_offsets, n)
+    return [s, c, d, zz, offsets], n, offsets.shape[0] - 1
 
 
 def composite_forward(
-    sigma: U.ArrayLike,
-    rgb: U.ArrayLike,
-    delta: U.ArrayLike,
-    z: U.ArrayLike,
-    ray_offsets: U.ArrayLike,
+    sigma: A.ArrayLike,
+    rgb: A.ArrayLike,
+    delta: A.ArrayLike,
+    z: A.ArrayLike,
+    ray_offsets: A.ArrayLike,
     background: Any = (0.0, 0.0, 0.0),
     t_threshold: float = DEFAULT_T_THRESHOLD,
     device: str | wp.Device | None = None,
@@ -244,85 +244,85 @@ def composite_forward(
 ) -> CompositeResult:
     """Composite packed samples front to back (module docstring); one thread per ray.
 
-    sigma (N,), rgb (N, 3), delta (N,), z (N,) in float32 or float64 (one dtype), ray_offsets
-    (R+1,) integer, background (3,) or (R, 3). NumPy inputs are copied to `device` (default
-    the CPU); wp.arrays must already be there. `out`, if given, receives the outputs (and is
-    returned): reusing buffers saves the page faults of fresh ones (kernels.volume.workspace).
+    sigma (N,) >= 0, rgb (N, 3), delta (N,) >= 0, z (N,) in float32 or float64 (one dtype),
+    ray_offsets (R+1,) integer, background (3,) or (R, 3). Returns a CompositeResult in the kind of
+    `sigma` (NumPy arrays, or wp.arrays on the device). `out`, if given, is a CompositeResult of
+    wp.arrays that receives the outputs and is returned: reusing buffers saves the page faults of
+    fresh ones (kernels.volume.workspace).
     """
-    device = U.default_device(device)
-    dtype, n, n_rays = _validate(sigma, rgb, delta, z, ray_offsets, device)
-    if not (np.isfinite(t_threshold) and 0.0 <= t_threshold < 1.0):
+    a = A.Inputs(device, sigma, rgb, delta, z, ray_offsets)
+    args, n, n_rays = _samples(a, sigma, rgb, delta, z, ray_offsets, values=True)
+    t_threshold = A.check_float("t_threshold", t_threshold, nonnegative=True)
+    if not t_threshold < 1.0:
         raise ValueError(f"t_threshold: expected a value in [0, 1), got {t_threshold}")
-    bg, per_ray = _background(background, n_rays, dtype, device)
-    args = [U.to_warp("sigma", sigma, dtype, device), U.to_warp("rgb", rgb, dtype, device),
-            U.to_warp("delta", delta, dtype, device), U.to_warp("z", z, dtype, device),
-            U.to_int32("ray_offsets", ray_offsets, device), bg, per_ray, dtype(t_threshold)]
-    layout = _result_layout(n_rays, n, dtype)
+    bg, per_ray = _background(a, background, n_rays)
+    layout = _result_layout(n_rays, n, a.scalar)
     if out is None:
-        res = CompositeResult(**{k: wp.empty(shape, dtype=t, device=device) for k, (shape, t) in layout.items()})
+        res = CompositeResult(**{k: a.empty(shape, t) for k, (shape, t) in layout.items()})
     else:
-        res = CompositeResult(**{k: U.check_out(f"out.{k}", getattr(out, k), shape, t, device)
+        res = CompositeResult(**{k: A.check_out(f"out.{k}", getattr(out, k), shape, t, a.device)
                                  for k, (shape, t) in layout.items()})
-    if n_rays:
-        launch_split(_composite_forward_kernel, n_rays,
-                     args + [res.rgb, res.depth, res.opacity, res.transmittance, res.n_used, res.factor],
-                     device=device, min_chunk=256)
-    return res
+    a.launch(_composite_forward_kernel, n_rays,
+             args + [bg, per_ray, a.s(t_threshold), res.rgb, res.depth, res.opacity, res.transmittance, res.n_used,
+                     res.factor], min_chunk=256)
+    if out is not None or not a.as_numpy:
+        return res
+    return CompositeResult(**{k: a.out(v) for k, v in vars(res).items()})
 
 
 def composite_backward(
-    sigma: U.ArrayLike,
-    rgb: U.ArrayLike,
-    delta: U.ArrayLike,
-    z: U.ArrayLike,
-    ray_offsets: U.ArrayLike,
+    sigma: A.ArrayLike,
+    rgb: A.ArrayLike,
+    delta: A.ArrayLike,
+    z: A.ArrayLike,
+    ray_offsets: A.ArrayLike,
     result: CompositeResult,
-    grad_rgb: U.ArrayLike | None = None,
-    grad_depth: U.ArrayLike | None = None,
-    grad_opacity: U.ArrayLike | None = None,
+    grad_rgb: A.ArrayLike | None = None,
+    grad_depth: A.ArrayLike | None = None,
+    grad_opacity: A.ArrayLike | None = None,
     background: Any = (0.0, 0.0, 0.0),
     device: str | wp.Device | None = None,
     out: tuple[wp.array, wp.array] | None = None,
-) -> tuple[wp.array, wp.array]:
+) -> tuple[A.ArrayLike, A.ArrayLike]:
     """Gradients (d sigma (N,), d rgb (N, 3)) of <grad_rgb, C> + <grad_depth, D> + <grad_opacity, A>.
 
-    `result` is what `composite_forward` returned for the same inputs and background; missing
-    cotangents count as zero. Shapes and dtypes are checked again, the sample values are not
-    (composite_forward checked them, and stored in `result` what the backward needs of sigma);
-    the cotangents are. `out`, if given, is the pair of buffers (N,) and (N, 3) to write the
-    gradients into (and is returned); every entry is written.
+    Returns the pair in the kind of `sigma` (NumPy arrays, or wp.arrays on the device). `result`
+    is what `composite_forward` returned for the same inputs and background (NumPy or wp.arrays);
+    missing cotangents count as zero. Shapes and dtypes are checked again, the sample values are
+    not (composite_forward checked them, and stored in `result` what the backward needs of
+    sigma); the cotangents' are. `out`, if given, is the pair of wp.array buffers (N,) and (N, 3)
+    to write the gradients into (and is returned); every entry is written.
     """
-    device = U.default_device(device)
-    dtype, n, n_rays = _validate(sigma, rgb, delta, z, ray_offsets, device, values=False)
-    if result.rgb.shape != (n_rays, 3) or result.rgb.dtype != dtype or result.factor.shape != (n,) \
-            or result.factor.dtype != dtype:
-        raise ValueError(f"result: expected the CompositeResult of {n_rays} rays in {U.NP_TYPES[dtype].__name__}")
-    bg, per_ray = _background(background, n_rays, dtype, device)
+    a = A.Inputs(device, sigma, rgb, delta, z, ray_offsets)
+    (_, c, d, zz, offsets), n, n_rays = _samples(a, sigma, rgb, delta, z, ray_offsets, values=False)
+    if not isinstance(result, CompositeResult):
+        raise ValueError(f"result: expected the CompositeResult of composite_forward, got {type(result).__name__}")
+    layout = _result_layout(n_rays, n, a.scalar)
+    res = {}
+    for k in ("factor", "rgb", "depth", "transmittance", "n_used"):
+        shape, t = layout[k]
+        x = getattr(result, k)
+        res[k] = (a.ints(f"result.{k}", x, shape) if t == wp.int32
+                  else a.floats(f"result.{k}", x, shape, finite=False))  # factor: entries past termination unset
+    bg, per_ray = _background(a, background, n_rays)
     grads = []
     for name, g, shape in (("grad_rgb", grad_rgb, (n_rays, 3)), ("grad_depth", grad_depth, (n_rays,)),
                            ("grad_opacity", grad_opacity, (n_rays,))):
-        if g is None:
-            grads.append(wp.zeros(shape, dtype=dtype, device=device))
-            continue
-        U.check_shape(name, g, shape)
-        if U.float_dtype(name, g) != dtype:
-            raise ValueError(f"{name}: expected dtype {U.NP_TYPES[dtype].__name__}")
-        U.check_finite(name, g)
-        grads.append(U.to_warp(name, g, dtype, device))
+        grads.append(a.zeros(shape) if g is None else a.floats(name, g, shape))
     if out is None:
-        grad_sigma = wp.empty(n, dtype=dtype, device=device)
-        grad_sample_rgb = wp.empty((n, 3), dtype=dtype, device=device)
+        grad_sigma, grad_sample_rgb = a.empty(n), a.empty((n, 3))
     else:
         if not isinstance(out, (tuple, list)) or len(out) != 2:
             raise ValueError("out: expected a pair (grad_sigma (N,), grad_rgb (N, 3)) of wp.arrays")
-        grad_sigma = U.check_out("out[0]", out[0], (n,), dtype, device)
-        grad_sample_rgb = U.check_out("out[1]", out[1], (n, 3), dtype, device)
-    if n_rays:
-        launch_split(_composite_backward_kernel, n_rays,
-                     [result.factor, U.to_warp("rgb", rgb, dtype, device),
-                      U.to_warp("delta", delta, dtype, device), U.to_warp("z", z, dtype, device),
-                      U.to_int32("ray_offsets", ray_offsets, device), bg, per_ray,
-                      result.rgb, result.depth, result.transmittance, result.n_used,
-                      *grads, grad_sigma, grad_sample_rgb],
-                     device=device, min_chunk=256)
-    return grad_sigma, grad_sample_rgb
+        grad_sigma = A.check_out("out[0]", out[0], (n,), a.scalar, a.device)
+        grad_sample_rgb = A.check_out("out[1]", out[1], (n, 3), a.scalar, a.device)
+    a.launch(_composite_backward_kernel, n_rays,
+             [res["factor"], c, d, zz, offsets, bg, per_ray, res["rgb"], res["depth"], res["transmittance"],
+              res["n_used"], *grads, grad_sigma, grad_sample_rgb], min_chunk=256)
+    if out is not None:
+        return grad_sigma, grad_sample_rgb
+    return a.out(grad_sigma), a.out(grad_sample_rgb)
+
+
+A.declare_float_overloads(_composite_forward_kernel)
+A.declare_float_overloads(_composite_backward_kernel)

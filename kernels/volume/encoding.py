@@ -6,7 +6,8 @@ A point p in the box [lo, hi] is normalised to x = 2 (p - lo) / (hi - lo) - 1 in
 
 per coordinate, laid out as [x_0, x_1, x_2, then for k = 0..K-1: sin(2^k pi x_a) for a = 0..2,
 cos(2^k pi x_a) for a = 0..2], 3 + 6K values. The encoding has no parameters; the fields built
-on it need no gradient with respect to the points, so it has no backward.
+on it need no gradient with respect to the points, so it has no backward. `encode` takes and
+returns wp.arrays (the neural fields' intermediate values).
 """
 
 from __future__ import annotations
@@ -14,11 +15,11 @@ from __future__ import annotations
 import typing
 from typing import Any
 
-import numpy as np
 import warp as wp
 
+from kernels import _arrays as A
 from kernels.launch import launch_split
-from kernels.volume import _util as U
+from kernels.volume._checks import check_bbox
 
 wp.set_module_options({"enable_backward": False})
 
@@ -42,30 +43,27 @@ def _pe_kernel(
             scale = scale * points.dtype(2.0)
 
 
-def positional_encoding_numpy(points: np.ndarray, bbox: np.ndarray, n_freqs: int) -> np.ndarray:
-    """The same encoding in NumPy (the tests' reference)."""
-    x = 2.0 * (points - bbox[0]) / (bbox[1] - bbox[0]) - 1.0
-    cols = [x]
-    for k in range(n_freqs):
-        cols += [np.sin(2.0**k * np.pi * x), np.cos(2.0**k * np.pi * x)]
-    return np.concatenate(cols, axis=1)
-
-
 class PositionalEncoding:
     def __init__(self, bbox: Any, n_freqs: int = 8) -> None:
-        self.bbox = U.check_bbox("bbox", bbox)
-        if isinstance(n_freqs, bool) or not isinstance(n_freqs, (int, np.integer)) or n_freqs < 0:
-            raise ValueError(f"n_freqs: expected a non-negative integer, got {n_freqs!r}")
-        self.n_freqs = int(n_freqs)
+        self.bbox = check_bbox("bbox", bbox)
+        self.n_freqs = A.check_int("n_freqs", n_freqs, minimum=0)
 
     @property
     def n_outputs(self) -> int:
         return 3 + 6 * self.n_freqs
 
     def encode(self, points: wp.array) -> wp.array:
+        """gamma (N, 3 + 6K) for points (N, 3), a wp.array on the points' device."""
+        if not isinstance(points, wp.array):
+            raise ValueError(f"points: expected a wp.array, got {type(points).__name__}")
+        A.check_shape("points", points, (None, 3))
+        A.float_dtype("points", points)
         n = points.shape[0]
         out = wp.empty((n, self.n_outputs), dtype=points.dtype, device=points.device)
         if n:
             launch_split(_pe_kernel, n, [points, wp.array(self.bbox, dtype=points.dtype, device=points.device),
                                          self.n_freqs, out], device=points.device)
         return out
+
+
+A.declare_float_overloads(_pe_kernel)

@@ -5,6 +5,10 @@ and a colour c(x, d) in [0, 1]^3 (N, 3). Its learnable parameters are named wp.a
 `params`. `backward` returns, for cotangents (g_sigma, g_rgb), the gradient of
 <g_sigma, sigma> + <g_rgb, c> with respect to every parameter (positions and directions are
 constants: no gradient flows to them).
+
+Array kinds (kernels._arrays): `forward` returns sigma and rgb in the kind of `points` (NumPy, or
+wp.arrays on the field's device); `backward` returns a dict name -> wp.array, the kind of the
+parameters it differentiates. Points must have the field's dtype and live on its device.
 """
 
 from __future__ import annotations
@@ -16,15 +20,16 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from kernels.volume import _util as U
+from kernels import _arrays as A
+from kernels.volume._checks import check_dtype
 from kernels.volume.workspace import Workspace, check_workspace
 
 
 @dataclass
 class FieldOutput:
-    sigma: wp.array  # (N,)
-    rgb: wp.array  # (N, 3)
-    cache: dict[str, Any] = field(default_factory=dict)  # what backward needs from the forward
+    sigma: A.ArrayLike  # (N,)
+    rgb: A.ArrayLike  # (N, 3)
+    cache: dict[str, Any] = field(default_factory=dict)  # what backward needs from the forward (wp.arrays)
 
 
 class Field(ABC):
@@ -33,10 +38,10 @@ class Field(ABC):
     name = "field"
     needs_dirs = False
 
-    def __init__(self, params: dict[str, wp.array], dtype: Any, device: wp.Device) -> None:
+    def __init__(self, params: dict[str, wp.array], dtype: Any, device: Any) -> None:
         self.params = params
-        self.dtype = dtype
-        self.device = device
+        self.dtype = check_dtype("dtype", dtype)
+        self.device = A.get_device(device)
 
     # ------------------------------------------------------------------ parameters
     def param_shapes(self) -> dict[str, tuple[int, ...]]:
@@ -46,53 +51,56 @@ class Field(ABC):
         return int(sum(v.size for v in self.params.values()))
 
     def set_params(self, values: dict[str, Any]) -> None:
-        """Replace parameters by arrays of the same shapes (NumPy or wp.array); unknown names raise."""
+        """Replace parameters by arrays of the same shapes: NumPy (cast to the field's dtype) or
+        wp.arrays of its dtype on its device (used as they are, not copied); unknown names raise."""
         for k, v in values.items():
             if k not in self.params:
                 raise ValueError(f"params: unknown parameter {k!r}; expected one of {sorted(self.params)}")
-            U.check_shape(k, v, tuple(self.params[k].shape))
-            U.check_finite(k, v)
-            self.params[k] = U.to_warp(k, np.asarray(v, dtype=U.NP_TYPES[self.dtype])
-                                       if not isinstance(v, wp.array) else v, self.dtype, self.device)
+            x = v if isinstance(v, wp.array) else np.asarray(v, dtype=A.NP_OF_WP[self.dtype])
+            a = A.Inputs(self.device, x)
+            a.scalar = self.dtype
+            self.params[k] = a.floats(k, x, tuple(self.params[k].shape))
 
     def params_numpy(self) -> dict[str, np.ndarray]:
         return {k: v.numpy().copy() for k, v in self.params.items()}
 
     # ------------------------------------------------------------------ evaluation
-    def _points(self, points: U.ArrayLike, dirs: U.ArrayLike | None) -> tuple[wp.array, wp.array | None]:
-        if len(points.shape) != 2 or points.shape[1] != 3:
-            raise ValueError(f"points: expected shape (N, 3), got {tuple(points.shape)}")
-        if U.float_dtype("points", points) != self.dtype:
-            raise ValueError(f"points: expected dtype {U.NP_TYPES[self.dtype].__name__} (the field's)")
-        U.check_finite("points", points)
-        p = U.to_warp("points", points, self.dtype, self.device)
+    def _inputs(self, points: A.ArrayLike, dirs: A.ArrayLike | None
+                ) -> tuple[A.Inputs, wp.array, wp.array | None]:
+        """(the call's Inputs, points (N, 3), dirs (N, 3) or None) as wp.arrays on the field's device."""
+        a = A.Inputs(self.device, points, dirs)
+        for name, x in (("points", points), ("dirs", dirs)):
+            if A.is_array(x) and A.float_dtype(name, x) != self.dtype:
+                raise ValueError(f"{name}: expected dtype {A.type_name(self.dtype)} (the field's), "
+                                 f"got {A.type_name(A.float_dtype(name, x))}")
+        p = a.floats("points", points, (None, 3))
         if dirs is None:
             if self.needs_dirs:
                 raise ValueError(f"dirs: the {self.name} field is view-dependent and needs directions (N, 3)")
-            return p, None
-        U.check_shape("dirs", dirs, (points.shape[0], 3))
-        if U.float_dtype("dirs", dirs) != self.dtype:
-            raise ValueError(f"dirs: expected dtype {U.NP_TYPES[self.dtype].__name__} (the field's)")
-        U.check_finite("dirs", dirs)
-        return p, U.to_warp("dirs", dirs, self.dtype, self.device)
+            return a, p, None
+        return a, p, a.floats("dirs", dirs, (p.shape[0], 3))
 
-    def _cotangents(self, n: int, grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None
-                    ) -> tuple[wp.array, wp.array]:
-        out = []
-        for name, g, shape in (("grad_sigma", grad_sigma, (n,)), ("grad_rgb", grad_rgb, (n, 3))):
-            if g is None:
-                out.append(wp.zeros(shape, dtype=self.dtype, device=self.device))
-                continue
-            U.check_shape(name, g, shape)
-            if U.float_dtype(name, g) != self.dtype:
-                raise ValueError(f"{name}: expected dtype {U.NP_TYPES[self.dtype].__name__} (the field's)")
-            U.check_finite(name, g)
-            out.append(U.to_warp(name, g, self.dtype, self.device))
-        return out[0], out[1]
+    def _backward_inputs(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
+                         grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None) -> tuple:
+        """(Inputs, points, dirs or None, out.sigma, out.rgb, grad_sigma, grad_rgb) of a backward call,
+        as wp.arrays on the field's device; a missing cotangent is zeros."""
+        a, p, d = self._inputs(points, dirs)
+        n = p.shape[0]
+        if not isinstance(out, FieldOutput):
+            raise ValueError(f"out: expected the FieldOutput of forward, got {type(out).__name__}")
+        sigma = a.floats("out.sigma", out.sigma, (n,), finite=False)
+        rgb = a.floats("out.rgb", out.rgb, (n, 3), finite=False)
+        gs, gr = (a.zeros(shape) if g is None else a.floats(name, g, shape)
+                  for name, g, shape in (("grad_sigma", grad_sigma, (n,)), ("grad_rgb", grad_rgb, (n, 3))))
+        return a, p, d, sigma, rgb, gs, gr
+
+    def _result(self, a: A.Inputs, sigma: wp.array, rgb: wp.array, cache: dict[str, Any] | None = None
+                ) -> FieldOutput:
+        return FieldOutput(a.out(sigma), a.out(rgb), cache or {})
 
     @abstractmethod
-    def forward(self, points: U.ArrayLike, dirs: U.ArrayLike | None = None) -> FieldOutput:
-        """sigma (N,) and rgb (N, 3) at the points."""
+    def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
+        """sigma (N,) and rgb (N, 3) at the points, in the kind of `points`."""
 
     def _zero_grads(self, workspace: Workspace | None) -> dict[str, wp.array]:
         """Zeroed gradient arrays shaped like the parameters: new ones, or views into `workspace`
@@ -108,20 +116,21 @@ class Field(ABC):
         return grads
 
     @abstractmethod
-    def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
-                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None,
+    def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
+                 grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
-        """Gradient of <grad_sigma, sigma> + <grad_rgb, rgb> for every parameter (same shapes).
+        """Gradient of <grad_sigma, sigma> + <grad_rgb, rgb> for every parameter: a dict name ->
+        wp.array of the parameter's shape, on the field's device.
 
         With a `workspace`, fields whose gradients are large (grid, spheres) return views into it,
         valid until its next use; the neural fields' gradients are small and always new arrays.
         """
 
-    def density(self, points: U.ArrayLike) -> wp.array:
-        """sigma at the points (for occupancy-grid updates)."""
+    def density(self, points: A.ArrayLike) -> A.ArrayLike:
+        """sigma at the points, in their kind (for occupancy-grid updates)."""
         dirs = None
         if self.needs_dirs:
-            d = np.zeros((points.shape[0], 3), dtype=U.NP_TYPES[self.dtype])
+            d = np.zeros((points.shape[0], 3), dtype=A.NP_OF_WP[self.dtype])
             d[:, 2] = 1.0
-            dirs = d
+            dirs = d if isinstance(points, np.ndarray) else wp.array(d, dtype=self.dtype, device=self.device)
         return self.forward(points, dirs).sigma

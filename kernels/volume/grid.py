@@ -24,8 +24,9 @@ A total-variation regulariser (Plenoxels) sum_v sum_a (V[v + e_a] - V[v])^2 adds
 
 Backward, for cotangents (g_s, g):  dL/dD[v] = sum_points w_b g_s scale act'(D + bias) and
 dL/dK_{c,j}[v] = sum_points w_b g_c s_c (1 - s_c) Y_j(d), s_c = rgb_c. Many points hit the same
-vertex, so the backward scatters with atomic adds in ONE launch (notes/warp.md); the forward
-runs one thread per point through launch_split.
+vertex, so the backward scatters with atomic adds in ONE launch (no Warp atomic is atomic between
+concurrent CPU launches, docs/warp.md); the forward runs one thread per point through launch_split.
+Points follow the array contract of kernels.volume.field.
 """
 
 from __future__ import annotations
@@ -36,11 +37,11 @@ from typing import Any, Sequence
 import numpy as np
 import warp as wp
 
-from kernels.launch import launch_split
+from kernels import _arrays as A
 from kernels.sh import sh_component
 from kernels.volume import _act
-from kernels.volume import _util as U
 from kernels.volume._act import density_act, density_act_grad, sigmoid
+from kernels.volume._checks import check_bbox, check_dtype
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.workspace import Workspace
 
@@ -72,6 +73,44 @@ def corner_weight(b: int, f: typing.Any):
     return type(f)(1.0) - f
 
 
+@wp.func
+def corner_offsets(c: int):
+    """The offsets (b_x, b_y, b_z) in {0, 1}^3 of corner c = b_x + 2 b_y + 4 b_z of a cell."""
+    return c & 1, (c >> 1) & 1, (c >> 2) & 1
+
+
+@wp.func
+def trilinear_weight(c: int, fx: typing.Any, fy: typing.Any, fz: typing.Any):
+    """w_b of corner c for the fractions (f_x, f_y, f_z)."""
+    bx, by, bz = corner_offsets(c)
+    return corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
+
+
+@wp.func
+def grid_cell(points: wp.array2d(dtype=typing.Any), i: int, bbox: wp.array2d(dtype=typing.Any), res: wp.vec3i):
+    """Cell (i_x, i_y, i_z), fractions (f_x, f_y, f_z) and inside flag of point i on the vertex grid."""
+    ix, fx, inx = grid_axis(points[i, 0], bbox[0, 0], bbox[1, 0], res[0])
+    iy, fy, iny = grid_axis(points[i, 1], bbox[0, 1], bbox[1, 1], res[1])
+    iz, fz, inz = grid_axis(points[i, 2], bbox[0, 2], bbox[1, 2], res[2])
+    return ix, iy, iz, fx, fy, fz, inx * iny * inz
+
+
+@wp.func
+def corner_vertex(c: int, ix: int, iy: int, iz: int, res: wp.vec3i) -> int:
+    """Flat index of corner c of cell (i_x, i_y, i_z)."""
+    bx, by, bz = corner_offsets(c)
+    return (ix + bx) + res[0] * ((iy + by) + res[1] * (iz + bz))
+
+
+@wp.func
+def view_dir(dirs: wp.array2d(dtype=typing.Any), i: int, sh_mode: int):
+    """Direction of point i, or zeros for plain RGB (sh_mode -1, where dirs is a placeholder)."""
+    zero = dirs.dtype(0.0)
+    if sh_mode >= 0:
+        return dirs[i, 0], dirs[i, 1], dirs[i, 2]
+    return zero, zero, zero
+
+
 @wp.kernel
 def _grid_forward_kernel(
     points: wp.array2d(dtype=typing.Any),
@@ -91,32 +130,21 @@ def _grid_forward_kernel(
 ):
     i = wp.tid() + offset
     zero = points.dtype(0.0)
-    ix, fx, inx = grid_axis(points[i, 0], bbox[0, 0], bbox[1, 0], res[0])
-    iy, fy, iny = grid_axis(points[i, 1], bbox[0, 1], bbox[1, 1], res[1])
-    iz, fz, inz = grid_axis(points[i, 2], bbox[0, 2], bbox[1, 2], res[2])
-    if inx * iny * inz == 0:
+    ix, iy, iz, fx, fy, fz, inside = grid_cell(points, i, bbox, res)
+    if inside == 0:
         out_sigma[i] = zero
         out_rgb[i, 0] = zero
         out_rgb[i, 1] = zero
         out_rgb[i, 2] = zero
         return
-    dx = zero
-    dy = zero
-    dz = zero
-    if sh_mode >= 0:
-        dx = dirs[i, 0]
-        dy = dirs[i, 1]
-        dz = dirs[i, 2]
+    dx, dy, dz = view_dir(dirs, i, sh_mode)
     raw_d = zero
     r0 = zero
     r1 = zero
     r2 = zero
     for c in range(8):
-        bx = c & 1
-        by = (c >> 1) & 1
-        bz = (c >> 2) & 1
-        w = corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
-        v = (ix + bx) + res[0] * ((iy + by) + res[1] * (iz + bz))
+        w = trilinear_weight(c, fx, fy, fz)
+        v = corner_vertex(c, ix, iy, iz, res)
         raw_d += w * density[v]
         for j in range(n_coef):
             wy = w * sh_basis(j, dx, dy, dz, sh_mode)
@@ -150,35 +178,20 @@ def _grid_backward_kernel(
     i = wp.tid()
     zero = points.dtype(0.0)
     one = points.dtype(1.0)
-    ix, fx, inx = grid_axis(points[i, 0], bbox[0, 0], bbox[1, 0], res[0])
-    iy, fy, iny = grid_axis(points[i, 1], bbox[0, 1], bbox[1, 1], res[1])
-    iz, fz, inz = grid_axis(points[i, 2], bbox[0, 2], bbox[1, 2], res[2])
-    if inx * iny * inz == 0:
+    ix, iy, iz, fx, fy, fz, inside = grid_cell(points, i, bbox, res)
+    if inside == 0:
         return
-    dx = zero
-    dy = zero
-    dz = zero
-    if sh_mode >= 0:
-        dx = dirs[i, 0]
-        dy = dirs[i, 1]
-        dz = dirs[i, 2]
+    dx, dy, dz = view_dir(dirs, i, sh_mode)
     raw_d = zero
     for c in range(8):
-        bx = c & 1
-        by = (c >> 1) & 1
-        bz = (c >> 2) & 1
-        w = corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
-        raw_d += w * density[(ix + bx) + res[0] * ((iy + by) + res[1] * (iz + bz))]
+        raw_d += trilinear_weight(c, fx, fy, fz) * density[corner_vertex(c, ix, iy, iz, res)]
     g_raw_d = grad_sigma[i] * density_scale * density_act_grad(raw_d + density_bias, act_kind)
     g0 = grad_rgb[i, 0] * rgb[i, 0] * (one - rgb[i, 0])
     g1 = grad_rgb[i, 1] * rgb[i, 1] * (one - rgb[i, 1])
     g2 = grad_rgb[i, 2] * rgb[i, 2] * (one - rgb[i, 2])
     for c in range(8):
-        bx = c & 1
-        by = (c >> 1) & 1
-        bz = (c >> 2) & 1
-        w = corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
-        v = (ix + bx) + res[0] * ((iy + by) + res[1] * (iz + bz))
+        w = trilinear_weight(c, fx, fy, fz)
+        v = corner_vertex(c, ix, iy, iz, res)
         wp.atomic_add(grad_density, v, w * g_raw_d)
         for j in range(n_coef):
             wy = w * sh_basis(j, dx, dy, dz, sh_mode)
@@ -212,24 +225,25 @@ def _tv_grad_kernel(
         grad[v, c] = grad[v, c] + values.dtype(2.0) * weight * g
 
 
-def tv_loss(values: np.ndarray, resolution: Sequence[int]) -> float:
-    """sum over vertices, axes and channels of (x[v + e_a] - x[v])^2, for values (V,) or (V, C)."""
-    nx, ny, nz = resolution
-    x = np.asarray(values, dtype=np.float64).reshape(nz, ny, nx, -1)
-    return float(sum(np.sum(np.diff(x, axis=a) ** 2) for a in range(3)))
-
-
 def add_tv_grad(values: wp.array, resolution: Sequence[int], weight: float, grad: wp.array) -> None:
-    """grad += weight * d tv_loss(values) / d values (total variation of Plenoxels, squared differences).
+    """grad += weight * d TV(values) / d values for values (V,) or (V, C) wp.arrays on the grid's vertices.
+
+    TV is the total variation of Plenoxels with squared differences (module docstring;
+    kernels.reference.volume.total_variation computes it).
 
     A gather (each vertex reads its 6 neighbours and writes its own gradient): launch_split is safe.
     """
-    nv = int(np.prod(resolution))
-    if values.shape[0] != nv or tuple(grad.shape) != tuple(values.shape):
-        raise ValueError(f"values, grad: expected ({nv}, ...) arrays of one shape, got {values.shape}, {grad.shape}")
-    v2 = values.reshape((nv, -1))
-    g2 = grad.reshape((nv, -1))
-    launch_split(_tv_grad_kernel, nv, [v2, wp.vec3i(*resolution), values.dtype(weight), g2], device=values.device)
+    if len(resolution) != 3:
+        raise ValueError(f"resolution: expected three vertex counts (nx, ny, nz), got {resolution!r}")
+    nv = int(np.prod([A.check_int("resolution", r, minimum=1) for r in resolution]))
+    if not isinstance(values, wp.array) or values.ndim not in (1, 2) or values.shape[0] != nv:
+        raise ValueError(f"values: expected a wp.array of shape ({nv},) or ({nv}, C)")
+    a = A.Inputs(values.device, values)
+    a.floats("values", values, finite=False)
+    A.check_out("grad", grad, values.shape, values.dtype, values.device)
+    weight = A.check_float("weight", weight)
+    a.launch(_tv_grad_kernel, nv, [values.reshape((nv, -1)), wp.vec3i(*resolution), a.s(weight),
+                                   grad.reshape((nv, -1))])
 
 
 def n_sh_coefficients(sh_degree: int | None) -> int:
@@ -259,31 +273,24 @@ class GridField(Field):
         dtype: Any = wp.float32,
         device: str | wp.Device | None = None,
     ) -> None:
-        if dtype not in U.NP_TYPES:
-            raise ValueError(f"dtype: expected wp.float32 or wp.float64, got {dtype}")
-        self.bbox = U.check_bbox("bbox", bbox)
+        check_dtype("dtype", dtype)
+        self.bbox = check_bbox("bbox", bbox)
         if len(resolution) != 3:
             raise ValueError(f"resolution: expected three vertex counts (nx, ny, nz), got {resolution!r}")
-        self.resolution = tuple(U.check_positive_int("resolution", r) for r in resolution)
+        self.resolution = tuple(A.check_int("resolution", r, minimum=1) for r in resolution)
         if min(self.resolution) < 2:
             raise ValueError(f"resolution: expected at least 2 vertices per axis, got {self.resolution}")
         self.sh_degree = sh_degree
         self.n_coef = n_sh_coefficients(sh_degree)
-        if density_activation not in _act.DENSITY_ACTIVATIONS:
-            raise ValueError(f"density_activation: expected one of {sorted(_act.DENSITY_ACTIVATIONS)}, "
-                             f"got {density_activation!r}")
-        if not np.isfinite(density_bias):
-            raise ValueError(f"density_bias: expected a finite value, got {density_bias}")
+        self.act_code = _act.density_code("density_activation", density_activation)
         self.density_activation = density_activation
-        self.density_bias = float(density_bias)
-        if not (np.isfinite(density_scale) and density_scale > 0):
-            raise ValueError(f"density_scale: expected a positive finite value, got {density_scale}")
-        self.density_scale = float(density_scale)
+        self.density_bias = A.check_float("density_bias", density_bias)
+        self.density_scale = A.check_float("density_scale", density_scale, positive=True)
         self.needs_dirs = sh_degree is not None
-        device = U.default_device(device)
+        device = A.get_device(device)
         nv = int(np.prod(self.resolution))
         rng = np.random.default_rng(seed)
-        np_t = U.NP_TYPES[dtype]
+        np_t = A.NP_OF_WP[dtype]
         params = {
             "density": wp.array(np.full(nv, init_density, dtype=np_t), dtype=dtype, device=device),
             "color": wp.array((rng.standard_normal((nv, 3 * self.n_coef)) * init_color_std).astype(np_t),
@@ -291,38 +298,36 @@ class GridField(Field):
         }
         super().__init__(params, dtype, device)
 
-    def _static_args(self) -> list:
-        return [wp.array(self.bbox, dtype=self.dtype, device=self.device), wp.vec3i(*self.resolution),
-                self.params["density"]]
+    def _grid_args(self, a: A.Inputs, d: wp.array | None) -> tuple[list, list]:
+        """The kernels' arguments before and after the colour: (points' dirs, box, resolution,
+        density) and (n_coef, SH mode, bias, scale, activation). Plain RGB gets a placeholder for dirs."""
+        dirs = d if d is not None else a.zeros((1, 3))
+        sh_mode = -1 if self.sh_degree is None else self.sh_degree
+        return ([dirs, wp.array(self.bbox, dtype=self.dtype, device=self.device), wp.vec3i(*self.resolution),
+                 self.params["density"]],
+                [self.n_coef, sh_mode, a.s(self.density_bias), a.s(self.density_scale), self.act_code])
 
-    def _dirs_arg(self, d: wp.array | None) -> wp.array:
-        return d if d is not None else wp.zeros((1, 3), dtype=self.dtype, device=self.device)
-
-    def forward(self, points: U.ArrayLike, dirs: U.ArrayLike | None = None) -> FieldOutput:
-        p, d = self._points(points, dirs)
+    def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
+        a, p, d = self._inputs(points, dirs)
         n = p.shape[0]
-        sigma = wp.empty(n, dtype=self.dtype, device=self.device)
-        rgb = wp.empty((n, 3), dtype=self.dtype, device=self.device)
-        sh_mode = -1 if self.sh_degree is None else self.sh_degree
-        if n:
-            launch_split(_grid_forward_kernel, n,
-                         [p, self._dirs_arg(d), *self._static_args(), self.params["color"], self.n_coef, sh_mode,
-                          self.dtype(self.density_bias), self.dtype(self.density_scale),
-                          _act.DENSITY_ACTIVATIONS[self.density_activation], sigma, rgb],
-                         device=self.device)
-        return FieldOutput(sigma, rgb)
+        sigma, rgb = a.empty(n), a.empty((n, 3))
+        before, after = self._grid_args(a, d)
+        a.launch(_grid_forward_kernel, n, [p, *before, self.params["color"], *after, sigma, rgb])
+        return self._result(a, sigma, rgb)
 
-    def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
-                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None,
+    def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
+                 grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
-        p, d = self._points(points, dirs)
-        gs, gr = self._cotangents(p.shape[0], grad_sigma, grad_rgb)
+        a, p, d, _, rgb, gs, gr = self._backward_inputs(points, dirs, out, grad_sigma, grad_rgb)
+        n = p.shape[0]
         grads = self._zero_grads(workspace)
-        sh_mode = -1 if self.sh_degree is None else self.sh_degree
-        if p.shape[0]:
-            wp.launch(_grid_backward_kernel, dim=p.shape[0],
-                      inputs=[p, self._dirs_arg(d), *self._static_args(), self.n_coef, sh_mode, self.dtype(self.density_bias),
-                              self.dtype(self.density_scale),
-                              _act.DENSITY_ACTIVATIONS[self.density_activation], out.rgb, gs, gr,
-                              grads["density"], grads["color"]], device=self.device)
+        before, after = self._grid_args(a, d)
+        if n:  # a scatter: one launch (module docstring)
+            wp.launch(_grid_backward_kernel, dim=n, inputs=[p, *before, *after, rgb, gs, gr, grads["density"],
+                                                            grads["color"]], device=self.device)
         return grads
+
+
+A.declare_float_overloads(_grid_forward_kernel)
+A.declare_float_overloads(_grid_backward_kernel)
+A.declare_float_overloads(_tv_grad_kernel)

@@ -16,8 +16,10 @@ The encoding is the concatenation enc(p) = [enc_0, ..., enc_{L-1}] (N, L F); tab
 as one (L T, F) array, level l in rows l T .. l T + T - 1.
 
 Backward, for a cotangent G (N, L F): dL/dtable_l[h_l(i + b)] += w_b G[n, l F : l F + F] over all
-points -- a scatter, done with atomic adds in ONE launch (notes/warp.md). The forward runs one
-thread per (point, level) through launch_split. There is no gradient to the points.
+points -- a scatter, done with atomic adds in ONE launch (no Warp atomic is atomic between
+concurrent CPU launches, docs/warp.md). The forward runs one thread per (point, level) through
+launch_split. There is no gradient to the points. `encode` and `backward` take wp.arrays (the
+neural fields' intermediate values) and return wp.arrays on the points' device.
 """
 
 from __future__ import annotations
@@ -29,9 +31,10 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from kernels import _arrays as A
 from kernels.launch import launch_split
-from kernels.volume import _util as U
-from kernels.volume.grid import corner_weight
+from kernels.volume._checks import check_bbox
+from kernels.volume.grid import trilinear_weight
 
 wp.set_module_options({"enable_backward": False})
 
@@ -50,11 +53,27 @@ def hash_index(ix: int, iy: int, iz: int, res: int, dense: int, table_size: int)
 
 
 @wp.func
-def level_cell(p: typing.Any, lo: typing.Any, hi: typing.Any, res: int):
+def level_axis(p: typing.Any, lo: typing.Any, hi: typing.Any, res: int):
     x = wp.clamp((p - lo) / (hi - lo), type(p)(0.0), type(p)(1.0))
     u = x * type(p)(res)
     i = wp.clamp(int(wp.floor(u)), 0, res - 1)
     return i, u - type(p)(i)
+
+
+@wp.func
+def level_cell(points: wp.array2d(dtype=typing.Any), n: int, bbox: wp.array2d(dtype=typing.Any), res: int):
+    """Cell (i_x, i_y, i_z) and fractions (f_x, f_y, f_z) of point n on a level of resolution res."""
+    ix, fx = level_axis(points[n, 0], bbox[0, 0], bbox[1, 0], res)
+    iy, fy = level_axis(points[n, 1], bbox[0, 1], bbox[1, 1], res)
+    iz, fz = level_axis(points[n, 2], bbox[0, 2], bbox[1, 2], res)
+    return ix, iy, iz, fx, fy, fz
+
+
+@wp.func
+def corner_row(c: int, l: int, ix: int, iy: int, iz: int, res: int, dense: int, table_size: int) -> int:
+    """Table row of corner c of cell (i_x, i_y, i_z) on level l."""
+    return l * table_size + hash_index(ix + (c & 1), iy + ((c >> 1) & 1), iz + ((c >> 2) & 1), res, dense,
+                                       table_size)
 
 
 @wp.kernel
@@ -74,17 +93,12 @@ def _hash_forward_kernel(
     l = t - n * n_levels
     res = resolutions[l]
     F = table.shape[1]
-    ix, fx = level_cell(points[n, 0], bbox[0, 0], bbox[1, 0], res)
-    iy, fy = level_cell(points[n, 1], bbox[0, 1], bbox[1, 1], res)
-    iz, fz = level_cell(points[n, 2], bbox[0, 2], bbox[1, 2], res)
+    ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
     for f in range(F):
         out[n, l * F + f] = points.dtype(0.0)
     for c in range(8):
-        bx = c & 1
-        by = (c >> 1) & 1
-        bz = (c >> 2) & 1
-        w = corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
-        row = l * table_size + hash_index(ix + bx, iy + by, iz + bz, res, dense[l], table_size)
+        w = trilinear_weight(c, fx, fy, fz)
+        row = corner_row(c, l, ix, iy, iz, res, dense[l], table_size)
         for f in range(F):
             out[n, l * F + f] += w * table[row, f]
 
@@ -105,15 +119,10 @@ def _hash_backward_kernel(
     l = t - n * n_levels
     res = resolutions[l]
     F = grad_table.shape[1]
-    ix, fx = level_cell(points[n, 0], bbox[0, 0], bbox[1, 0], res)
-    iy, fy = level_cell(points[n, 1], bbox[0, 1], bbox[1, 1], res)
-    iz, fz = level_cell(points[n, 2], bbox[0, 2], bbox[1, 2], res)
+    ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
     for c in range(8):
-        bx = c & 1
-        by = (c >> 1) & 1
-        bz = (c >> 2) & 1
-        w = corner_weight(bx, fx) * corner_weight(by, fy) * corner_weight(bz, fz)
-        row = l * table_size + hash_index(ix + bx, iy + by, iz + bz, res, dense[l], table_size)
+        w = trilinear_weight(c, fx, fy, fz)
+        row = corner_row(c, l, ix, iy, iz, res, dense[l], table_size)
         for f in range(F):
             wp.atomic_add(grad_table, row, f, w * grad_out[n, l * F + f])
 
@@ -131,15 +140,12 @@ class HashEncoding:
 
     def __init__(self, bbox: Any, n_levels: int = 16, n_features: int = 2, log2_table_size: int = 19,
                  base_resolution: int = 16, max_resolution: int = 512) -> None:
-        self.bbox = U.check_bbox("bbox", bbox)
-        self.n_levels = U.check_positive_int("n_levels", n_levels)
-        self.n_features = U.check_positive_int("n_features", n_features)
-        log2_table_size = U.check_positive_int("log2_table_size", log2_table_size)
-        if log2_table_size > 30:
-            raise ValueError(f"log2_table_size: expected at most 30, got {log2_table_size}")
-        self.table_size = 1 << log2_table_size
-        base_resolution = U.check_positive_int("base_resolution", base_resolution)
-        max_resolution = U.check_positive_int("max_resolution", max_resolution)
+        self.bbox = check_bbox("bbox", bbox)
+        self.n_levels = A.check_int("n_levels", n_levels, minimum=1)
+        self.n_features = A.check_int("n_features", n_features, minimum=1)
+        self.table_size = 1 << A.check_int("log2_table_size", log2_table_size, minimum=1, maximum=30)
+        base_resolution = A.check_int("base_resolution", base_resolution, minimum=1)
+        max_resolution = A.check_int("max_resolution", max_resolution, minimum=1)
         if max_resolution < base_resolution:
             raise ValueError(f"max_resolution: expected >= base_resolution ({base_resolution}), got {max_resolution}")
         self.resolutions = level_resolutions(self.n_levels, base_resolution, max_resolution)
@@ -156,7 +162,7 @@ class HashEncoding:
     def init_table(self, seed: int, dtype: Any, device: wp.Device, scale: float = 1e-4) -> wp.array:
         """U(-scale, scale) entries (the paper's initialisation), from `seed`."""
         rng = np.random.default_rng(seed)
-        return wp.array(rng.uniform(-scale, scale, self.table_shape).astype(U.NP_TYPES[dtype]),
+        return wp.array(rng.uniform(-scale, scale, self.table_shape).astype(A.NP_OF_WP[dtype]),
                         dtype=dtype, device=device)
 
     def _static(self, dtype: Any, device: wp.Device) -> list:
@@ -164,14 +170,20 @@ class HashEncoding:
                 wp.array(self.resolutions, dtype=wp.int32, device=device),
                 wp.array(self.dense, dtype=wp.int32, device=device), self.table_size]
 
-    def _check_table(self, table: wp.array, points: wp.array) -> None:
-        U.check_shape("table", table, self.table_shape)
+    def _check(self, points: wp.array, table: wp.array) -> None:
+        """points (N, 3) and the table as wp.arrays of one dtype on one device."""
+        for name, x in (("points", points), ("table", table)):
+            if not isinstance(x, wp.array):
+                raise ValueError(f"{name}: expected a wp.array, got {type(x).__name__}")
+        A.check_shape("points", points, (None, 3))
+        A.check_shape("table", table, self.table_shape)
         if table.dtype != points.dtype or table.device != points.device:
-            raise ValueError(f"table: expected {points.dtype} on {points.device} (the points')")
+            raise ValueError(f"table: expected {A.type_name(points.dtype)} on {points.device} (the points'), "
+                             f"got {A.type_name(table.dtype)} on {table.device}")
 
     def encode(self, points: wp.array, table: wp.array) -> wp.array:
         """enc (N, L F) for points (N, 3)."""
-        self._check_table(table, points)
+        self._check(points, table)
         n = points.shape[0]
         out = wp.empty((n, self.n_outputs), dtype=points.dtype, device=points.device)
         if n:
@@ -181,11 +193,17 @@ class HashEncoding:
 
     def backward(self, points: wp.array, table: wp.array, grad_enc: wp.array) -> wp.array:
         """dL/dtable (L T, F) for the cotangent grad_enc (N, L F)."""
-        self._check_table(table, points)
-        U.check_shape("grad_enc", grad_enc, (points.shape[0], self.n_outputs))
+        self._check(points, table)
+        A.check_shape("grad_enc", grad_enc, (points.shape[0], self.n_outputs))
+        if not isinstance(grad_enc, wp.array) or grad_enc.dtype != points.dtype or grad_enc.device != points.device:
+            raise ValueError(f"grad_enc: expected a wp.array of {A.type_name(points.dtype)} on {points.device}")
         grad = wp.zeros(self.table_shape, dtype=points.dtype, device=points.device)
         if points.shape[0]:
             wp.launch(_hash_backward_kernel, dim=points.shape[0] * self.n_levels,
                       inputs=[points, *self._static(points.dtype, points.device), grad_enc, grad],
                       device=points.device)
         return grad
+
+
+A.declare_float_overloads(_hash_forward_kernel)
+A.declare_float_overloads(_hash_backward_kernel)

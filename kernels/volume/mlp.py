@@ -10,15 +10,16 @@ Backward, for the cotangent g = dL/dy (the standard back-propagation recursion):
     dz_{l-1} = da_l * [z_{l-1} > 0],     dL/dx = da_0.
 
 Two backends compute the same thing:
-  * "warp": every step is a Warp kernel (one thread per output element: (n, j) for z, (n, k) for
-    da, (j, k) for dW, j for db -- each a gather with disjoint writes, so launch_split is safe).
-    It runs on the CPU and on CUDA.
+  * "warp": every step is a Warp kernel. The three products are one kernel, C = A B (+ bias,
+    ReLU), with one thread per output element ((n, j) for z, (n, k) for da, (j, k) for dW) and
+    the transposes W^T, dz^T passed as strided views; j for db. Each is a gather with disjoint
+    writes, so launch_split is safe. It runs on the CPU and on CUDA.
   * "numpy" (the default on the CPU): the three matrix products (z = a W^T, dW = dz^T a,
     da = dz W) are NumPy/BLAS products written straight into the Warp arrays' memory, and the
-    per-sample parts (bias + ReLU, the ReLU mask) stay Warp kernels. Warp's CPU code is scalar and
-    single-threaded per launch (notes/warp.md), so a (N x 64) x (64 x 64) product is tens of times
-    faster in BLAS; that is the choice made here, as the issue's design note allows.
-The tests check both backends against a NumPy reference and against each other.
+    per-sample parts (bias + ReLU, the ReLU mask) stay Warp kernels. A Warp CPU launch runs on
+    one thread (docs/warp.md), so a (N x 64) x (64 x 64) product is tens of times faster in BLAS.
+The tests check both backends against a NumPy reference and against each other. The MLP works on
+wp.arrays (the neural fields' intermediate values) and returns wp.arrays.
 """
 
 from __future__ import annotations
@@ -30,8 +31,8 @@ from typing import Any, Sequence
 import numpy as np
 import warp as wp
 
+from kernels import _arrays as A
 from kernels.launch import launch_split
-from kernels.volume import _util as U
 
 wp.set_module_options({"enable_backward": False})
 
@@ -39,25 +40,43 @@ BACKENDS = ("numpy", "warp")
 
 
 @wp.kernel
-def _linear_kernel(
+def _matmul_kernel(
     a: wp.array2d(dtype=typing.Any),
-    W: wp.array2d(dtype=typing.Any),
-    b: wp.array(dtype=typing.Any),
+    b: wp.array2d(dtype=typing.Any),
+    bias: wp.array(dtype=typing.Any),
+    has_bias: int,
     relu: int,
-    z: wp.array2d(dtype=typing.Any),
+    out: wp.array2d(dtype=typing.Any),
     act: wp.array2d(dtype=typing.Any),
     offset: int,
 ):
+    # out = a b (+ bias) and act = relu(out); a and b may be strided (transposed) views.
     t = wp.tid() + offset
-    n_out = W.shape[0]
-    n = t / n_out
-    j = t - n * n_out
-    s = b[j]
-    for k in range(W.shape[1]):
-        s += W[j, k] * a[n, k]
-    z[n, j] = s
+    n_cols = out.shape[1]
+    i = t / n_cols
+    j = t - i * n_cols
+    s = out.dtype(0.0)
+    if has_bias != 0:
+        s = bias[j]
+    for k in range(a.shape[1]):
+        s += a[i, k] * b[k, j]
+    out[i, j] = s
     if relu != 0:
-        act[n, j] = wp.max(s, a.dtype(0.0))
+        act[i, j] = wp.max(s, out.dtype(0.0))
+
+
+def _matmul(a: wp.array, b: wp.array, out: wp.array, bias: wp.array | None = None, act: wp.array | None = None,
+            min_chunk: int | None = None) -> None:
+    """out = a b (+ bias); act = relu(out) when given. One thread per element of `out`."""
+    if bias is None:  # a placeholder the kernel does not read
+        bias = wp.zeros(1, dtype=out.dtype, device=out.device)
+        has_bias = 0
+    else:
+        has_bias = 1
+    inputs = [a, b, bias, has_bias, int(act is not None), out, act if act is not None else out]
+    if out.size:
+        kwargs = {} if min_chunk is None else {"min_chunk": min_chunk}
+        launch_split(_matmul_kernel, out.shape[0] * out.shape[1], inputs, device=out.device, **kwargs)
 
 
 @wp.kernel
@@ -86,40 +105,6 @@ def _relu_backward_kernel(
     for j in range(z.shape[1]):
         if not (z[n, j] > z.dtype(0.0)):
             da[n, j] = z.dtype(0.0)
-
-
-@wp.kernel
-def _grad_input_kernel(
-    dz: wp.array2d(dtype=typing.Any),
-    W: wp.array2d(dtype=typing.Any),
-    da: wp.array2d(dtype=typing.Any),
-    offset: int,
-):
-    t = wp.tid() + offset
-    n_in = W.shape[1]
-    n = t / n_in
-    k = t - n * n_in
-    s = dz.dtype(0.0)
-    for j in range(W.shape[0]):
-        s += dz[n, j] * W[j, k]
-    da[n, k] = s
-
-
-@wp.kernel
-def _grad_weight_kernel(
-    dz: wp.array2d(dtype=typing.Any),
-    a: wp.array2d(dtype=typing.Any),
-    dW: wp.array2d(dtype=typing.Any),
-    offset: int,
-):
-    t = wp.tid() + offset
-    n_in = dW.shape[1]
-    j = t / n_in
-    k = t - j * n_in
-    s = dz.dtype(0.0)
-    for n in range(dz.shape[0]):
-        s += dz[n, j] * a[n, k]
-    dW[j, k] = s
 
 
 @wp.kernel
@@ -156,7 +141,7 @@ class MLPCache:
 def init_mlp_params(sizes: Sequence[int], seed: int, dtype: Any, device: wp.Device) -> dict[str, wp.array]:
     """W_l, b_l ~ U(-1/sqrt(n_l), 1/sqrt(n_l)) (PyTorch's nn.Linear default), from `seed`."""
     rng = np.random.default_rng(seed)
-    np_t = U.NP_TYPES[dtype]
+    np_t = A.NP_OF_WP[dtype]
     params = {}
     for l, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
         bound = 1.0 / np.sqrt(n_in)
@@ -171,13 +156,13 @@ class MLP:
     def __init__(self, sizes: Sequence[int], params: dict[str, wp.array], backend: str | None = None) -> None:
         if len(sizes) < 2:
             raise ValueError(f"sizes: expected at least [n_in, n_out], got {list(sizes)}")
-        self.sizes = [U.check_positive_int("sizes", s) for s in sizes]
+        self.sizes = [A.check_int("sizes", s, minimum=1) for s in sizes]
         self.params = params
         for l, (n_in, n_out) in enumerate(zip(self.sizes[:-1], self.sizes[1:])):
             for name, shape in ((f"W{l}", (n_out, n_in)), (f"b{l}", (n_out,))):
                 if name not in params:
                     raise ValueError(f"params: missing {name!r}")
-                U.check_shape(name, params[name], shape)
+                A.check_shape(name, params[name], shape)
         self.dtype = params["W0"].dtype
         self.device = params["W0"].device
         if backend is None:
@@ -197,8 +182,10 @@ class MLP:
 
     def forward(self, x: wp.array) -> tuple[wp.array, MLPCache]:
         """y = MLP(x) for x (N, n_in) on the MLP's device and dtype; the cache feeds `backward`."""
-        U.check_shape("x", x, (None, self.sizes[0]))
-        if not isinstance(x, wp.array) or x.dtype != self.dtype or x.device != self.device:
+        if not isinstance(x, wp.array):
+            raise ValueError(f"x: expected a wp.array, got {type(x).__name__}")
+        A.check_shape("x", x, (None, self.sizes[0]))
+        if x.dtype != self.dtype or x.device != self.device:
             raise ValueError(f"x: expected a wp.array of {self.dtype} on {self.device}")
         n = x.shape[0]
         cache = MLPCache([], [])
@@ -213,7 +200,7 @@ class MLP:
                     np.matmul(a.numpy(), W.numpy().T, out=z.numpy())
                     launch_split(_bias_relu_kernel, n, [z, b, relu, act], device=self.device, min_chunk=256)
                 else:
-                    launch_split(_linear_kernel, n * self.sizes[l + 1], [a, W, b, relu, z, act], device=self.device)
+                    _matmul(a, W.transpose(), z, b, act if relu else None)
             cache.inputs.append(a)
             cache.pre.append(z)
             a = act
@@ -223,7 +210,9 @@ class MLP:
                  ) -> tuple[dict[str, wp.array], wp.array | None]:
         """(gradients of every W_l, b_l; dL/dx or None) for the cotangent grad_out (N, n_out)."""
         n = cache.inputs[0].shape[0]
-        U.check_shape("grad_out", grad_out, (n, self.sizes[-1]))
+        A.check_shape("grad_out", grad_out, (n, self.sizes[-1]))
+        if not isinstance(grad_out, wp.array) or grad_out.dtype != self.dtype or grad_out.device != self.device:
+            raise ValueError(f"grad_out: expected a wp.array of {A.type_name(self.dtype)} on {self.device}")
         grads: dict[str, wp.array] = {}
         dz = grad_out
         grad_x = None
@@ -240,10 +229,10 @@ class MLP:
                 if need_da:
                     np.matmul(dz_np, W.numpy(), out=da.numpy())
             else:
-                launch_split(_grad_weight_kernel, W.shape[0] * W.shape[1], [dz, a, dW], device=self.device, min_chunk=64)
+                _matmul(dz.transpose(), a, dW, min_chunk=64)
                 launch_split(_grad_bias_kernel, W.shape[0], [dz, db], device=self.device, min_chunk=16)
-                if need_da and n:
-                    launch_split(_grad_input_kernel, n * W.shape[1], [dz, W, da], device=self.device)
+                if need_da:
+                    _matmul(dz, W, da)
             grads[f"W{l}"], grads[f"b{l}"] = dW, db
             if l > 0:
                 if n:
@@ -252,3 +241,7 @@ class MLP:
             else:
                 grad_x = da
         return grads, grad_x
+
+
+for _kernel in (_matmul_kernel, _bias_relu_kernel, _relu_backward_kernel, _grad_bias_kernel):
+    A.declare_float_overloads(_kernel)

@@ -13,7 +13,8 @@ depend on the view direction (the scenes fitted here are diffuse; this keeps the
 
 Backward: the head's adjoint dy_0 = g_sigma act'(y_0 + bias), dy_c = g_c s_c (1 - s_c) (a Warp
 kernel, one thread per point), then the MLP backward (kernels.volume.mlp), then -- for the hash
-grid -- the encoding's scatter into the table with dL/denc = dL/dx of the MLP.
+grid -- the encoding's scatter into the table with dL/denc = dL/dx of the MLP. Points follow the
+array contract of kernels.volume.field.
 """
 
 from __future__ import annotations
@@ -21,13 +22,12 @@ from __future__ import annotations
 import typing
 from typing import Any, Sequence
 
-import numpy as np
 import warp as wp
 
-from kernels.launch import launch_split
+from kernels import _arrays as A
 from kernels.volume import _act
-from kernels.volume import _util as U
 from kernels.volume._act import density_act, density_act_grad, sigmoid
+from kernels.volume._checks import check_bbox, check_dtype
 from kernels.volume.encoding import PositionalEncoding
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.hashgrid import HashEncoding
@@ -100,17 +100,11 @@ class NeuralField(Field):
     def __init__(self, bbox: Any, enc_params: dict[str, wp.array], n_enc: int, hidden: Sequence[int],
                  density_bias: float, density_activation: str, seed: int, dtype: Any, device: wp.Device,
                  backend: str | None) -> None:
-        if dtype not in U.NP_TYPES:
-            raise ValueError(f"dtype: expected wp.float32 or wp.float64, got {dtype}")
-        if density_activation not in _act.DENSITY_ACTIVATIONS:
-            raise ValueError(f"density_activation: expected one of {sorted(_act.DENSITY_ACTIVATIONS)}, "
-                             f"got {density_activation!r}")
-        if not np.isfinite(density_bias):
-            raise ValueError(f"density_bias: expected a finite value, got {density_bias}")
-        self.bbox = U.check_bbox("bbox", bbox)
-        self.density_bias = float(density_bias)
+        self.act_code = _act.density_code("density_activation", density_activation)
+        self.density_bias = A.check_float("density_bias", density_bias)
+        self.bbox = check_bbox("bbox", bbox)
         self.density_activation = density_activation
-        self.sizes = [n_enc, *[U.check_positive_int("hidden", h) for h in hidden], 4]
+        self.sizes = [n_enc, *[A.check_int("hidden", h, minimum=1) for h in hidden], 4]
         params = dict(enc_params)
         params.update(init_mlp_params(self.sizes, seed + 1, dtype, device))
         super().__init__(params, dtype, device)
@@ -125,31 +119,25 @@ class NeuralField(Field):
     def _encode_backward(self, p: wp.array, grad_enc: wp.array) -> dict[str, wp.array]:
         raise NotImplementedError
 
-    def _head_static(self) -> list:
-        return [wp.array(self.bbox, dtype=self.dtype, device=self.device), self.dtype(self.density_bias),
-                _act.DENSITY_ACTIVATIONS[self.density_activation]]
+    def _head_static(self, a: A.Inputs) -> list:
+        return [wp.array(self.bbox, dtype=self.dtype, device=self.device), a.s(self.density_bias), self.act_code]
 
-    def forward(self, points: U.ArrayLike, dirs: U.ArrayLike | None = None) -> FieldOutput:
-        p, _ = self._points(points, dirs)
+    def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
+        a, p, _ = self._inputs(points, dirs)
         n = p.shape[0]
         raw, mlp_cache = self._mlp().forward(self._encode(p))
-        sigma = wp.empty(n, dtype=self.dtype, device=self.device)
-        rgb = wp.empty((n, 3), dtype=self.dtype, device=self.device)
-        if n:
-            launch_split(_head_forward_kernel, n, [raw, p, *self._head_static(), sigma, rgb], device=self.device)
-        return FieldOutput(sigma, rgb, {"raw": raw, "mlp": mlp_cache})
+        sigma, rgb = a.empty(n), a.empty((n, 3))
+        a.launch(_head_forward_kernel, n, [raw, p, *self._head_static(a), sigma, rgb])
+        return self._result(a, sigma, rgb, {"raw": raw, "mlp": mlp_cache})
 
-    def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
-                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None,
+    def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
+                 grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
-        p, _ = self._points(points, dirs)
+        a, p, _, _, rgb, gs, gr = self._backward_inputs(points, dirs, out, grad_sigma, grad_rgb)
         n = p.shape[0]
-        gs, gr = self._cotangents(n, grad_sigma, grad_rgb)
         raw = out.cache["raw"]
-        grad_raw = wp.empty((n, 4), dtype=self.dtype, device=self.device)
-        if n:
-            launch_split(_head_backward_kernel, n, [raw, p, *self._head_static(), out.rgb, gs, gr, grad_raw],
-                         device=self.device)
+        grad_raw = a.empty((n, 4))
+        a.launch(_head_backward_kernel, n, [raw, p, *self._head_static(a), rgb, gs, gr, grad_raw])
         needs_enc_grad = any(k not in self._mlp_names() for k in self.params)
         grads, grad_enc = self._mlp().backward(out.cache["mlp"], grad_raw, need_input_grad=needs_enc_grad)
         if needs_enc_grad:
@@ -170,10 +158,9 @@ class HashGridField(NeuralField):
                  density_bias: float = 0.0, density_activation: str = "exp", table_init_scale: float = 1e-4,
                  seed: int = 0, dtype: Any = wp.float32, device: str | wp.Device | None = None,
                  backend: str | None = None) -> None:
-        device = U.default_device(device)
+        device = A.get_device(device)
+        check_dtype("dtype", dtype)
         self.encoding = HashEncoding(bbox, n_levels, n_features, log2_table_size, base_resolution, max_resolution)
-        if dtype not in U.NP_TYPES:
-            raise ValueError(f"dtype: expected wp.float32 or wp.float64, got {dtype}")
         table = self.encoding.init_table(seed, dtype, device, table_init_scale)
         super().__init__(bbox, {"table": table}, self.encoding.n_outputs, hidden, density_bias, density_activation,
                          seed, dtype, device, backend)
@@ -193,7 +180,8 @@ class PEMLPField(NeuralField):
     def __init__(self, bbox: Any, n_freqs: int = 8, hidden: Sequence[int] = (64, 64), density_bias: float = 0.0,
                  density_activation: str = "exp", seed: int = 0, dtype: Any = wp.float32,
                  device: str | wp.Device | None = None, backend: str | None = None) -> None:
-        device = U.default_device(device)
+        device = A.get_device(device)
+        check_dtype("dtype", dtype)
         self.encoding = PositionalEncoding(bbox, n_freqs)
         super().__init__(bbox, {}, self.encoding.n_outputs, hidden, density_bias, density_activation, seed, dtype,
                          device, backend)
@@ -203,3 +191,7 @@ class PEMLPField(NeuralField):
 
     def _encode_backward(self, p: wp.array, grad_enc: wp.array) -> dict[str, wp.array]:
         return {}
+
+
+A.declare_float_overloads(_head_forward_kernel)
+A.declare_float_overloads(_head_backward_kernel)

@@ -15,15 +15,15 @@ points outside the box are looked up in the nearest cell.
 
 from __future__ import annotations
 
-import math
 import typing
 from typing import Any, Callable, Sequence
 
 import numpy as np
 import warp as wp
 
+from kernels import _arrays as A
 from kernels.launch import launch_split
-from kernels.volume import _util as U
+from kernels.volume._checks import check_bbox, check_dtype
 
 wp.set_module_options({"enable_backward": False})
 
@@ -95,17 +95,15 @@ class OccupancyGrid:
         threshold: float = 0.01,
         device: str | wp.Device | None = None,
     ) -> None:
-        self.bbox = U.check_bbox("bbox", bbox)
+        self.bbox = check_bbox("bbox", bbox)
         if len(resolution) != 3:
             raise ValueError(f"resolution: expected three cell counts (gx, gy, gz), got {resolution!r}")
-        self.resolution = tuple(U.check_positive_int("resolution", r) for r in resolution)
-        if not (0.0 <= decay < 1.0):
+        self.resolution = tuple(A.check_int("resolution", r, minimum=1) for r in resolution)
+        self.decay = A.check_float("decay", decay, nonnegative=True)
+        if not self.decay < 1.0:
             raise ValueError(f"decay: expected a value in [0, 1), got {decay}")
-        if not (math.isfinite(threshold) and threshold >= 0.0):
-            raise ValueError(f"threshold: expected a finite value >= 0, got {threshold}")
-        self.decay = float(decay)
-        self.threshold = float(threshold)
-        self.device = U.default_device(device)
+        self.threshold = A.check_float("threshold", threshold, nonnegative=True)
+        self.device = A.get_device(device)
         n = self.n_cells
         self.density = wp.zeros(n, dtype=wp.float32, device=self.device)
         self.occupied = wp.ones(n, dtype=wp.int32, device=self.device)
@@ -124,23 +122,28 @@ class OccupancyGrid:
         return float(self.occupied.numpy().mean())
 
     def cell_points(self, seed: int, dtype: Any = wp.float32) -> wp.array:
-        """One uniformly random point in every cell, (G, 3), drawn from `seed`."""
+        """One uniformly random point in every cell, (G, 3) wp.array on the grid's device, drawn from `seed`."""
+        check_dtype("dtype", dtype)
         pts = wp.empty((self.n_cells, 3), dtype=dtype, device=self.device)
         launch_split(_cell_points_kernel, self.n_cells,
                      [wp.array(self.bbox, dtype=dtype, device=self.device), wp.vec3i(*self.resolution), int(seed), pts],
                      device=self.device)
         return pts
 
-    def update(self, sigma: U.ArrayLike) -> None:
-        """EMA-max update with densities (G,) measured at this update's `cell_points`, then threshold."""
-        U.check_shape("sigma", sigma, (self.n_cells,))
-        U.check_nonnegative("sigma", sigma)
-        s = U.to_warp("sigma", sigma, U.float_dtype("sigma", sigma), self.device)
+    def update(self, sigma: A.ArrayLike) -> None:
+        """EMA-max update with densities (G,) >= 0 (NumPy or a wp.array on the grid's device, float32 or
+        float64) measured at this update's `cell_points`, then threshold."""
+        s = A.Inputs(self.device, sigma).floats("sigma", sigma, (self.n_cells,), finite=False)
+        A.check_at_least("sigma", s, 0.0)
         launch_split(_ema_kernel, self.n_cells, [self.density, s, self.decay], device=self.device)
         thr = min(float(self.density.numpy().mean()), self.threshold)
         launch_split(_threshold_kernel, self.n_cells, [self.density, thr, self.occupied], device=self.device)
         self.n_updates += 1
 
-    def update_from(self, density_fn: Callable[[wp.array], U.ArrayLike], seed: int, dtype: Any = wp.float32) -> None:
+    def update_from(self, density_fn: Callable[[wp.array], A.ArrayLike], seed: int, dtype: Any = wp.float32) -> None:
         """`update(density_fn(cell_points(seed)))`."""
         self.update(density_fn(self.cell_points(seed, dtype)))
+
+
+A.declare_float_overloads(_cell_points_kernel)
+A.declare_float_overloads(_ema_kernel)

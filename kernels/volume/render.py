@@ -12,25 +12,29 @@ with dL/dsigma_k, dL/dc_k from the compositing backward and the field's own back
 (kernels.volume.field.Field.backward) for the rest. An optional sparsity penalty
 lambda * sum_k sigma_k delta_k (the optical depth of every sample; an L1 prior on density in the
 spirit of Plenoxels' sparsity loss) adds lambda * delta_k to dL/dsigma_k.
+
+Array kinds (kernels._arrays): the rendered rgb, depth and opacity are in the kind of the rays
+(`origins` for render_rays, the samples' points for render_samples): NumPy, or wp.arrays on the
+field's device; with a `workspace` they are wp.arrays (views into it) whatever the rays' kind.
+The samples, field outputs and compositing state kept in a RenderResult are wp.arrays.
+`render_backward` returns a dict name -> wp.array, the kind of the field's parameters.
 """
 
 from __future__ import annotations
 
-import math
+import inspect
 import typing
 from dataclasses import dataclass
 from typing import Any
 
 import warp as wp
 
+from kernels import _arrays as A
 from kernels.launch import launch_split
-
-from kernels.volume import _util as U
 from kernels.volume.composite import (DEFAULT_T_THRESHOLD, CompositeResult, composite_backward, composite_buffers,
                                       composite_forward, composite_grad_buffers)
 from kernels.volume.field import Field, FieldOutput
-from kernels.volume.occupancy import OccupancyGrid
-from kernels.volume.sampling import Samples, sample_rays
+from kernels.volume.sampling import Samples, pack_samples, sample_rays
 from kernels.volume.workspace import Workspace, check_workspace
 
 
@@ -46,60 +50,85 @@ def _add_scaled_kernel(g: wp.array(dtype=typing.Any), x: wp.array(dtype=typing.A
 
 @dataclass
 class RenderResult:
-    rgb: wp.array  # (R, 3)
-    depth: wp.array  # (R,) expected z-depth (sum_k w_k z_k)
-    opacity: wp.array  # (R,)
-    samples: Samples
-    field_out: FieldOutput
-    composite: CompositeResult
+    rgb: A.ArrayLike  # (R, 3)
+    depth: A.ArrayLike  # (R,) expected z-depth (sum_k w_k z_k)
+    opacity: A.ArrayLike  # (R,)
+    samples: Samples  # wp.arrays
+    field_out: FieldOutput  # wp.arrays
+    composite: CompositeResult  # wp.arrays
     background: Any
+
+
+def _on_device(field: Field, samples: Samples) -> tuple[A.Inputs, Samples]:
+    """`samples` as wp.arrays on the field's device (NumPy samples are copied there), and the call's Inputs."""
+    if not isinstance(samples, Samples):
+        raise ValueError(f"samples: expected kernels.volume.Samples, got {type(samples).__name__}")
+    a = A.Inputs(field.device, samples.points)
+    if A.float_dtype("samples.points", samples.points) != field.dtype:
+        raise ValueError(f"samples: expected {A.type_name(field.dtype)} on {field.device} (the field's)")
+    n = samples.points.shape[0]
+    floats = {k: a.floats(f"samples.{k}", getattr(samples, k), shape, finite=False)
+              for k, shape in (("points", (n, 3)), ("dirs", (n, 3)), ("t", (n,)), ("delta", (n,)), ("z", (n,)))}
+    ints = {k: a.ints(f"samples.{k}", getattr(samples, k), shape)
+            for k, shape in (("ray_index", (n,)), ("ray_offsets", (None,)))}
+    return a, Samples(**floats, **ints)
+
+
+def _render(a: A.Inputs, field: Field, samples: Samples, background: Any, t_threshold: float,
+            workspace: Workspace | None) -> RenderResult:
+    out = field.forward(samples.points, samples.dirs if field.needs_dirs else None)
+    buffers = None if workspace is None else composite_buffers(workspace, samples.n_rays, samples.n_samples,
+                                                                field.dtype)
+    comp = composite_forward(out.sigma, out.rgb, samples.delta, samples.z, samples.ray_offsets, background,
+                             t_threshold, field.device, out=buffers)
+    kind = (lambda x: x) if workspace is not None else a.out
+    return RenderResult(kind(comp.rgb), kind(comp.depth), kind(comp.opacity), samples, out, comp, background)
 
 
 def render_samples(field: Field, samples: Samples, background: Any = (0.0, 0.0, 0.0),
                    t_threshold: float = DEFAULT_T_THRESHOLD, workspace: Workspace | None = None) -> RenderResult:
     """Evaluate `field` at the packed samples and composite them per ray.
 
-    With a `workspace` the per-ray outputs are views into it, valid until its next use.
+    rgb, depth and opacity come back in the kind of `samples.points`; with a `workspace` they are
+    views into it (wp.arrays), valid until its next use.
     """
-    if samples.points.dtype != field.dtype or samples.points.device != field.device:
-        raise ValueError(f"samples: expected {field.dtype} on {field.device} (the field's)")
     check_workspace(workspace, field.device)
-    out = field.forward(samples.points, samples.dirs if field.needs_dirs else None)
-    buffers = None if workspace is None else composite_buffers(workspace, samples.ray_offsets.shape[0] - 1,
-                                                                samples.n_samples, field.dtype)
-    comp = composite_forward(out.sigma, out.rgb, samples.delta, samples.z, samples.ray_offsets, background,
-                             t_threshold, field.device, out=buffers)
-    return RenderResult(comp.rgb, comp.depth, comp.opacity, samples, out, comp, background)
+    a, samples = _on_device(field, samples)
+    return _render(a, field, samples, background, t_threshold, workspace)
+
+
+# The keyword options of kernels.volume.sample_rays and their defaults, read from its signature.
+_SAMPLING_DEFAULTS = {k: p.default for k, p in inspect.signature(sample_rays).parameters.items()
+                      if p.kind is p.KEYWORD_ONLY and k != "device"}
 
 
 def render_rays(
     field: Field,
-    origins: U.ArrayLike,
-    dirs: U.ArrayLike,
+    origins: A.ArrayLike,
+    dirs: A.ArrayLike,
     bbox: Any,
     *,
-    near: float = 0.0,
-    far: float = 1e10,
-    n_samples: int | None = None,
-    step: float | None = None,
-    z_scale: U.ArrayLike | None = None,
-    occupancy: OccupancyGrid | None = None,
-    jitter: bool = False,
-    seed: int = 0,
     background: Any = (0.0, 0.0, 0.0),
     t_threshold: float = DEFAULT_T_THRESHOLD,
     workspace: Workspace | None = None,
+    **sampling: Any,
 ) -> RenderResult:
-    """Render rays (R, 3) through `field` inside `bbox` (see sample_rays for the sampling options).
+    """Render rays (R, 3) through `field` inside `bbox`.
 
-    `workspace` (optional) holds the compositing outputs across calls, as in render_samples.
+    `sampling` holds the keyword options of kernels.volume.sample_rays (near, far, n_samples, step,
+    z_scale, occupancy, jitter, seed). rgb, depth and opacity come back in the kind of `origins`;
+    with a `workspace` they are views into it (wp.arrays), valid until its next use.
     """
     check_workspace(workspace, field.device)
-    if U.float_dtype("origins", origins) != field.dtype:
-        raise ValueError(f"origins: expected dtype {U.NP_TYPES[field.dtype].__name__} (the field's)")
-    samples = sample_rays(origins, dirs, bbox, near=near, far=far, n_samples=n_samples, step=step, z_scale=z_scale,
-                          occupancy=occupancy, jitter=jitter, seed=seed, device=field.device)
-    return render_samples(field, samples, background, t_threshold, workspace)
+    unknown = set(sampling) - set(_SAMPLING_DEFAULTS)
+    if unknown:
+        raise ValueError(f"sampling: unknown options {sorted(unknown)}; expected some of {sorted(_SAMPLING_DEFAULTS)} "
+                         "(rays are rendered on the field's device)")
+    if A.is_array(origins) and A.float_dtype("origins", origins) != field.dtype:
+        raise ValueError(f"origins: expected dtype {A.type_name(field.dtype)} (the field's)")
+    a = A.Inputs(field.device, origins, dirs)
+    samples = pack_samples(a, origins, dirs, bbox, **{**_SAMPLING_DEFAULTS, **sampling})
+    return _render(a, field, samples, background, t_threshold, workspace)
 
 
 def optical_depth_sum(result: RenderResult) -> float:
@@ -107,18 +136,18 @@ def optical_depth_sum(result: RenderResult) -> float:
     return float((result.field_out.sigma.numpy().astype(float) * result.samples.delta.numpy()).sum())
 
 
-def render_backward(field: Field, result: RenderResult, grad_rgb: U.ArrayLike | None = None,
-                    grad_depth: U.ArrayLike | None = None, grad_opacity: U.ArrayLike | None = None,
+def render_backward(field: Field, result: RenderResult, grad_rgb: A.ArrayLike | None = None,
+                    grad_depth: A.ArrayLike | None = None, grad_opacity: A.ArrayLike | None = None,
                     sigma_l1: float = 0.0, workspace: Workspace | None = None) -> dict[str, wp.array]:
     """Gradient of <grad_rgb, C> + <grad_depth, D> + <grad_opacity, A> + sigma_l1 sum_k sigma_k delta_k
-    for every field parameter.
+    for every field parameter: a dict name -> wp.array of the parameter's shape, on the field's device.
 
-    `workspace` (optional) holds the per-sample gradients between the compositing and field
+    The cotangents are NumPy arrays or wp.arrays on the field's device (missing ones count as
+    zero). `workspace` (optional) holds the per-sample gradients between the compositing and field
     backward passes, and the parameter gradients of fields that use it (Field.backward), so
     repeated calls reuse their memory; the returned arrays are then valid until its next use.
     """
-    if not math.isfinite(sigma_l1):
-        raise ValueError(f"sigma_l1: expected a finite weight, got {sigma_l1}")
+    sigma_l1 = A.check_float("sigma_l1", sigma_l1)
     check_workspace(workspace, field.device)
     s, out = result.samples, result.field_out
     buffers = None if workspace is None else composite_grad_buffers(workspace, s.n_samples, field.dtype)
@@ -128,3 +157,6 @@ def render_backward(field: Field, result: RenderResult, grad_rgb: U.ArrayLike | 
     if sigma_l1 != 0.0 and s.n_samples:
         launch_split(_add_scaled_kernel, s.n_samples, [g_sigma, s.delta, field.dtype(sigma_l1)], device=field.device)
     return field.backward(s.points, s.dirs if field.needs_dirs else None, out, g_sigma, g_rgb, workspace)
+
+
+A.declare_float_overloads(_add_scaled_kernel)

@@ -21,12 +21,14 @@ the optical axis for z-depth with unit directions).
 Empty-space skipping (instant-ngp; nerfacc, Li et al. 2023): with an occupancy grid, a stratum
 whose midpoint lies in an unoccupied cell gets no sample. Samples are packed: ray r owns
 samples ray_offsets[r] .. ray_offsets[r+1]-1, found by a counting pass, a prefix sum and a
-filling pass (one thread per ray in both; disjoint writes, so launch_split is safe).
+filling pass of one kernel (one thread per ray in both; disjoint writes, so launch_split is safe).
+
+Inputs follow the array contract (kernels._arrays): `ray_aabb` and `sample_rays` return NumPy
+arrays for NumPy rays and wp.arrays on the device for wp.array rays.
 """
 
 from __future__ import annotations
 
-import math
 import typing
 from dataclasses import dataclass
 from typing import Any
@@ -34,8 +36,8 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from kernels.launch import launch_split
-from kernels.volume import _util as U
+from kernels import _arrays as A
+from kernels.volume._checks import check_bbox, check_directions
 from kernels.volume.occupancy import OccupancyGrid, occupied_at
 
 wp.set_module_options({"enable_backward": False})
@@ -81,48 +83,28 @@ def _ray_aabb_kernel(
 
 
 @wp.func
-def _n_strata(t0: typing.Any, t1: typing.Any, step: typing.Any, n_fixed: int) -> int:
+def _strata(t0: typing.Any, t1: typing.Any, step: typing.Any, n_fixed: int):
+    """(number of strata, stratum length) of [t0, t1]: n_fixed equal ones, or length `step`."""
     if n_fixed > 0:
-        return n_fixed
-    return wp.max(int(wp.ceil((t1 - t0) / step - type(t0)(1e-6))), 1)
+        return n_fixed, (t1 - t0) / type(t0)(n_fixed)
+    return wp.max(int(wp.ceil((t1 - t0) / step - type(t0)(1e-6))), 1), step
+
+
+@wp.func
+def _stratum(origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), r: int, k: int,
+             t0: typing.Any, t1: typing.Any, h: typing.Any, occ: wp.array(dtype=wp.int32),
+             occ_bbox: wp.array2d(dtype=typing.Any), occ_res: wp.vec3i):
+    """Stratum k = [a, b] of ray r, and whether its midpoint lies in an occupied cell."""
+    a = t0 + type(t0)(k) * h
+    b = wp.min(a + h, t1)
+    tm = type(t0)(0.5) * (a + b)
+    occupied = occupied_at(origins[r, 0] + tm * dirs[r, 0], origins[r, 1] + tm * dirs[r, 1],
+                           origins[r, 2] + tm * dirs[r, 2], occ, occ_bbox, occ_res)
+    return a, b, occupied
 
 
 @wp.kernel
-def _count_kernel(
-    origins: wp.array2d(dtype=typing.Any),
-    dirs: wp.array2d(dtype=typing.Any),
-    t_enter: wp.array(dtype=typing.Any),
-    t_exit: wp.array(dtype=typing.Any),
-    hit: wp.array(dtype=wp.int32),
-    step: typing.Any,
-    n_fixed: int,
-    occ: wp.array(dtype=wp.int32),
-    occ_bbox: wp.array2d(dtype=typing.Any),
-    occ_res: wp.vec3i,
-    counts: wp.array(dtype=wp.int32),
-    offset: int,
-):
-    r = wp.tid() + offset
-    count = int(0)
-    if hit[r] != 0:
-        t0 = t_enter[r]
-        t1 = t_exit[r]
-        n = _n_strata(t0, t1, step, n_fixed)
-        h = step
-        if n_fixed > 0:
-            h = (t1 - t0) / origins.dtype(n_fixed)
-        for k in range(n):
-            a = t0 + origins.dtype(k) * h
-            b = wp.min(a + h, t1)
-            tm = origins.dtype(0.5) * (a + b)
-            if occupied_at(origins[r, 0] + tm * dirs[r, 0], origins[r, 1] + tm * dirs[r, 1],
-                           origins[r, 2] + tm * dirs[r, 2], occ, occ_bbox, occ_res) != 0:
-                count += 1
-    counts[r] = count
-
-
-@wp.kernel
-def _fill_kernel(
+def _march_kernel(
     origins: wp.array2d(dtype=typing.Any),
     dirs: wp.array2d(dtype=typing.Any),
     z_scale: wp.array(dtype=typing.Any),
@@ -136,6 +118,8 @@ def _fill_kernel(
     occ_res: wp.vec3i,
     jitter: int,
     seed: int,
+    fill: int,
+    counts: wp.array(dtype=wp.int32),
     ray_offsets: wp.array(dtype=wp.int32),
     out_points: wp.array2d(dtype=typing.Any),
     out_dirs: wp.array2d(dtype=typing.Any),
@@ -145,47 +129,48 @@ def _fill_kernel(
     out_ray: wp.array(dtype=wp.int32),
     offset: int,
 ):
+    # Both passes over ray r's strata: fill = 0 counts the occupied ones into counts[r]; fill = 1
+    # writes their samples from ray_offsets[r] on (the outputs are placeholders in the counting pass).
     r = wp.tid() + offset
+    j = int(0)
+    if fill != 0:
+        j = ray_offsets[r]
     if hit[r] != 0:
         state = wp.rand_init(seed, r)
         t0 = t_enter[r]
         t1 = t_exit[r]
-        n = _n_strata(t0, t1, step, n_fixed)
-        h = step
-        if n_fixed > 0:
-            h = (t1 - t0) / origins.dtype(n_fixed)
-        j = ray_offsets[r]
+        n, h = _strata(t0, t1, step, n_fixed)
         for k in range(n):
-            a = t0 + origins.dtype(k) * h
-            b = wp.min(a + h, t1)
-            tm = origins.dtype(0.5) * (a + b)
-            if occupied_at(origins[r, 0] + tm * dirs[r, 0], origins[r, 1] + tm * dirs[r, 1],
-                           origins[r, 2] + tm * dirs[r, 2], occ, occ_bbox, occ_res) != 0:
-                u = origins.dtype(0.5)
-                if jitter != 0:
-                    u = origins.dtype(wp.randf(state))
-                t = a + u * (b - a)
-                for c in range(3):
-                    out_points[j, c] = origins[r, c] + t * dirs[r, c]
-                    out_dirs[j, c] = dirs[r, c]
-                out_t[j] = t
-                out_delta[j] = b - a
-                out_z[j] = t * z_scale[r]
-                out_ray[j] = r
+            a, b, occupied = _stratum(origins, dirs, r, k, t0, t1, h, occ, occ_bbox, occ_res)
+            if occupied != 0:
+                if fill != 0:
+                    u = origins.dtype(0.5)
+                    if jitter != 0:
+                        u = origins.dtype(wp.randf(state))
+                    t = a + u * (b - a)
+                    for c in range(3):
+                        out_points[j, c] = origins[r, c] + t * dirs[r, c]
+                        out_dirs[j, c] = dirs[r, c]
+                    out_t[j] = t
+                    out_delta[j] = b - a
+                    out_z[j] = t * z_scale[r]
+                    out_ray[j] = r
                 j += 1
+    if fill == 0:
+        counts[r] = j
 
 
 @dataclass
 class Samples:
-    """Packed samples along rays (wp.arrays): ray r owns ray_offsets[r] .. ray_offsets[r+1]-1."""
+    """Packed samples along rays (NumPy or wp.arrays): ray r owns ray_offsets[r] .. ray_offsets[r+1]-1."""
 
-    points: wp.array  # (N, 3) x_k = o + t_k d
-    dirs: wp.array  # (N, 3) the ray direction of each sample
-    t: wp.array  # (N,)
-    delta: wp.array  # (N,) stratum length
-    z: wp.array  # (N,) t_k * z_scale
-    ray_index: wp.array  # (N,) int32
-    ray_offsets: wp.array  # (R+1,) int32
+    points: A.ArrayLike  # (N, 3) x_k = o + t_k d
+    dirs: A.ArrayLike  # (N, 3) the ray direction of each sample
+    t: A.ArrayLike  # (N,)
+    delta: A.ArrayLike  # (N,) stratum length
+    z: A.ArrayLike  # (N,) t_k * z_scale
+    ray_index: A.ArrayLike  # (N,) int32
+    ray_offsets: A.ArrayLike  # (R+1,) int32
 
     @property
     def n_samples(self) -> int:
@@ -196,60 +181,59 @@ class Samples:
         return self.ray_offsets.shape[0] - 1
 
 
-def _rays(origins: U.ArrayLike, dirs: U.ArrayLike, device: wp.Device) -> tuple[Any, wp.array, wp.array]:
-    dtype = U.common_dtype([("origins", origins), ("dirs", dirs)])
-    if len(origins.shape) != 2 or origins.shape[1] != 3:
-        raise ValueError(f"origins: expected shape (R, 3), got {tuple(origins.shape)}")
-    U.check_shape("dirs", dirs, (origins.shape[0], 3))
-    U.check_finite("origins", origins)
-    d = U.check_finite("dirs", dirs)
-    if d.size and np.any(np.all(d == 0, axis=1)):
-        raise ValueError("dirs: contains a zero direction")
-    return dtype, U.to_warp("origins", origins, dtype, device), U.to_warp("dirs", dirs, dtype, device)
+def _rays(a: A.Inputs, origins: A.ArrayLike, dirs: A.ArrayLike) -> tuple[wp.array, wp.array]:
+    o = a.floats("origins", origins, (None, 3))
+    d = a.floats("dirs", dirs, (o.shape[0], 3))
+    check_directions("dirs", d)
+    return o, d
 
 
-def _near_far(near: float, far: float) -> None:
-    if not (np.isfinite(near) and np.isfinite(far)):
-        raise ValueError(f"near, far: expected finite values, got near={near}, far={far}")
+def _near_far(near: float, far: float) -> tuple[float, float]:
+    near = A.check_float("near", near)
+    far = A.check_float("far", far)
     if near < 0:
         raise ValueError(f"near: expected near >= 0, got {near}")
     if not near < far:
         raise ValueError(f"near, far: expected near < far, got near={near}, far={far}")
+    return near, far
+
+
+def _ray_aabb(a: A.Inputs, o: wp.array, d: wp.array, box: np.ndarray, near: float, far: float
+              ) -> tuple[wp.array, wp.array, wp.array]:
+    n = o.shape[0]
+    t0, t1, hit = a.empty(n), a.empty(n), a.empty(n, wp.int32)
+    a.launch(_ray_aabb_kernel, n, [o, d, wp.array(box, dtype=a.scalar, device=a.device), a.s(near), a.s(far),
+                                   t0, t1, hit])
+    return t0, t1, hit
 
 
 def ray_aabb(
-    origins: U.ArrayLike,
-    dirs: U.ArrayLike,
+    origins: A.ArrayLike,
+    dirs: A.ArrayLike,
     bbox: Any,
     near: float = 0.0,
     far: float = 1e10,
     device: str | wp.Device | None = None,
-) -> tuple[wp.array, wp.array, wp.array]:
-    """(t_enter (R,), t_exit (R,), hit (R,) int32) of rays o + t d, t in [near, far], with the box."""
-    device = U.default_device(device)
-    dtype, o, d = _rays(origins, dirs, device)
-    box = U.check_bbox("bbox", bbox)
-    _near_far(near, far)
-    n = o.shape[0]
-    t0 = wp.empty(n, dtype=dtype, device=device)
-    t1 = wp.empty(n, dtype=dtype, device=device)
-    hit = wp.empty(n, dtype=wp.int32, device=device)
-    if n:
-        launch_split(_ray_aabb_kernel, n, [o, d, wp.array(box, dtype=dtype, device=device), dtype(near),
-                                            dtype(far), t0, t1, hit], device=device)
-    return t0, t1, hit
+) -> tuple[A.ArrayLike, A.ArrayLike, A.ArrayLike]:
+    """(t_enter (R,), t_exit (R,), hit (R,) int32) of rays o + t d, t in [near, far], with the box,
+    in the kind of `origins`."""
+    a = A.Inputs(device, origins, dirs)
+    o, d = _rays(a, origins, dirs)
+    box = check_bbox("bbox", bbox)
+    near, far = _near_far(near, far)
+    return tuple(a.out(x) for x in _ray_aabb(a, o, d, box, near, far))
 
 
 def sample_rays(
-    origins: U.ArrayLike,
-    dirs: U.ArrayLike,
+    origins: A.ArrayLike,
+    dirs: A.ArrayLike,
     bbox: Any,
     *,
     near: float = 0.0,
     far: float = 1e10,
     n_samples: int | None = None,
     step: float | None = None,
-    z_scale: U.ArrayLike | None = None,
+    z_scale: A.ArrayLike | None = None,
     occupancy: OccupancyGrid | None = None,
     jitter: bool = False,
     seed: int = 0,
@@ -259,57 +243,58 @@ def sample_rays(
 
     Give exactly one of `n_samples` (S equal strata per ray) and `step` (fixed stratum length).
     `z_scale` (R,) defaults to 1 (z_k = t_k). With `occupancy`, strata whose midpoint is in an
-    unoccupied cell are skipped. `jitter` draws u_k from `seed`; otherwise u_k = 1/2.
+    unoccupied cell are skipped. `jitter` draws u_k from `seed`; otherwise u_k = 1/2. The Samples
+    hold arrays of the kind of `origins`.
     """
-    device = U.default_device(device)
-    dtype, o, d = _rays(origins, dirs, device)
-    box = U.check_bbox("bbox", bbox)
-    _near_far(near, far)
+    a = A.Inputs(device, origins, dirs, z_scale)
+    s = pack_samples(a, origins, dirs, bbox, near=near, far=far, n_samples=n_samples, step=step, z_scale=z_scale,
+                     occupancy=occupancy, jitter=jitter, seed=seed)
+    return s if not a.as_numpy else Samples(**{k: a.out(v) for k, v in vars(s).items()})
+
+
+def pack_samples(a: A.Inputs, origins: A.ArrayLike, dirs: A.ArrayLike, bbox: Any, *, near: float, far: float,
+                 n_samples: int | None, step: float | None, z_scale: A.ArrayLike | None,
+                 occupancy: OccupancyGrid | None, jitter: bool, seed: int) -> Samples:
+    """`sample_rays` for the call `a` (kernels._arrays.Inputs), as wp.arrays on its device."""
+    o, d = _rays(a, origins, dirs)
+    box = check_bbox("bbox", bbox)
+    near, far = _near_far(near, far)
     if (n_samples is None) == (step is None):
         raise ValueError("n_samples, step: give exactly one of them")
-    n_fixed = 0 if n_samples is None else U.check_positive_int("n_samples", n_samples)
-    if step is not None and not (math.isfinite(step) and step > 0):
-        raise ValueError(f"step: expected a positive finite length, got {step}")
+    n_fixed = 0 if n_samples is None else A.check_int("n_samples", n_samples, minimum=1)
+    if step is not None:
+        step = A.check_float("step", step, positive=True)
     n_rays = o.shape[0]
-    if z_scale is None:
-        zs = wp.array(np.ones(n_rays), dtype=dtype, device=device)
-    else:
-        U.check_shape("z_scale", z_scale, (n_rays,))
-        U.check_finite("z_scale", z_scale)
-        zs = U.to_warp("z_scale", z_scale, U.float_dtype("z_scale", z_scale), device)
-        if zs.dtype != dtype:
-            raise ValueError(f"z_scale: expected dtype {U.NP_TYPES[dtype].__name__}")
+    zs = a.floats("z_scale", z_scale, (n_rays,)) if z_scale is not None else \
+        wp.array(np.ones(n_rays), dtype=a.scalar, device=a.device)
     if occupancy is None:
-        occ = wp.ones(1, dtype=wp.int32, device=device)
+        occ = wp.ones(1, dtype=wp.int32, device=a.device)
         occ_box, occ_res = box, wp.vec3i(1, 1, 1)
     else:
-        if occupancy.device != device:
-            raise ValueError(f"occupancy: grid is on {occupancy.device}, expected {device}")
+        if not isinstance(occupancy, OccupancyGrid) or occupancy.device != a.device:
+            raise ValueError(f"occupancy: expected a kernels.volume.OccupancyGrid on {a.device}")
         occ, occ_box, occ_res = occupancy.occupied, occupancy.bbox, wp.vec3i(*occupancy.resolution)
-    occ_box = wp.array(occ_box, dtype=dtype, device=device)
+    occ_box = wp.array(occ_box, dtype=a.scalar, device=a.device)
 
-    t0, t1, hit = ray_aabb(o, d, box, near, far, device)
-    step_f = dtype(0.0 if step is None else step)
-    counts = wp.empty(n_rays, dtype=wp.int32, device=device)
-    if n_rays:
-        launch_split(_count_kernel, n_rays, [o, d, t0, t1, hit, step_f, n_fixed, occ, occ_box, occ_res, counts],
-                     device=device, min_chunk=256)
+    t0, t1, hit = _ray_aabb(a, o, d, box, near, far)
+    march = [o, d, zs, t0, t1, hit, a.s(0.0 if step is None else step), n_fixed, occ, occ_box, occ_res, int(jitter),
+             int(seed)]
+    counts = a.empty(n_rays, wp.int32)
+    placeholders = [a.empty((0, 3)), a.empty((0, 3)), a.empty(0), a.empty(0), a.empty(0), a.empty(0, wp.int32)]
+    a.launch(_march_kernel, n_rays, march + [0, counts, counts, *placeholders], min_chunk=256)
     offsets_np = np.zeros(n_rays + 1, dtype=np.int64)
     np.cumsum(counts.numpy(), out=offsets_np[1:])
     if offsets_np[-1] > np.iinfo(np.int32).max:
-        raise ValueError(f"too many samples ({offsets_np[-1]}) for int32 offsets; use fewer rays or a longer step")
-    offsets = wp.array(offsets_np.astype(np.int32), dtype=wp.int32, device=device)
+        raise ValueError(f"n_samples, step: too many samples ({offsets_np[-1]}) for int32 offsets; "
+                         "use fewer rays or a longer step")
+    offsets = wp.array(offsets_np.astype(np.int32), dtype=wp.int32, device=a.device)
     n = int(offsets_np[-1])
-    s = Samples(points=wp.empty((n, 3), dtype=dtype, device=device), dirs=wp.empty((n, 3), dtype=dtype, device=device),
-                t=wp.empty(n, dtype=dtype, device=device), delta=wp.empty(n, dtype=dtype, device=device),
-                z=wp.empty(n, dtype=dtype, device=device), ray_index=wp.empty(n, dtype=wp.int32, device=device),
-                ray_offsets=offsets)
-    if n_rays and n:
-        launch_split(_fill_kernel, n_rays,
-                     [o, d, zs, t0, t1, hit, step_f, n_fixed, occ, occ_box, occ_res, int(jitter), int(seed), offsets,
-                      s.points, s.dirs, s.t, s.delta, s.z, s.ray_index], device=device, min_chunk=256)
+    s = Samples(points=a.empty((n, 3)), dirs=a.empty((n, 3)), t=a.empty(n), delta=a.empty(n), z=a.empty(n),
+                ray_index=a.empty(n, wp.int32), ray_offsets=offsets)
+    if n:
+        a.launch(_march_kernel, n_rays, march + [1, counts, offsets, s.points, s.dirs, s.t, s.delta, s.z,
+                                                 s.ray_index], min_chunk=256)
     return s
-
 
 def dense_samples(
     origins: np.ndarray,
@@ -321,29 +306,39 @@ def dense_samples(
 ) -> Samples:
     """Packed Samples from explicit per-ray sample positions t (R, S) and lengths delta (R, S).
 
-    For sample layouts other than sample_rays' strata (e.g. the textbook's linspace with a final
-    delta of 1e-3). Points are o + t d; z = t * z_scale (default 1).
+    For sample layouts other than sample_rays' strata (e.g. the Video and 3D Vision chapter's linspace with a final
+    delta of 1e-3). Points are o + t d; z = t * z_scale (default 1). The inputs are NumPy arrays;
+    the Samples are packed as wp.arrays on `device` (default the CPU), ready for
+    kernels.volume.render_samples.
     """
-    device = U.default_device(device)
-    dtype = U.common_dtype([("origins", origins), ("dirs", dirs), ("t", t), ("delta", delta)])
-    o, d, t, delta = (np.asarray(a) for a in (origins, dirs, t, delta))
-    U.check_shape("origins", o, (None, 3))
+    o, d, t, delta = (np.asarray(x) for x in (origins, dirs, t, delta))
+    a = A.Inputs(device, o, d, t, delta)
+    A.check_shape("origins", o, (None, 3))
+    named = (("origins", o, (None, 3)), ("dirs", d, (o.shape[0], 3)), ("t", t, (o.shape[0], None)),
+             ("delta", delta, t.shape))
+    for name, x, shape in named:
+        dtype = A.float_dtype(name, x)
+        if a.scalar is None:
+            a.scalar = dtype
+        elif dtype != a.scalar:
+            raise ValueError(f"{name}: expected dtype {A.type_name(a.scalar)} like the other inputs, "
+                             f"got {A.type_name(dtype)}")
+        A.check_shape(name, x, shape)
+        A.check_finite(name, x)
+    A.check_at_least("delta", delta, 0.0)
     n_rays = o.shape[0]
-    U.check_shape("dirs", d, (n_rays, 3))
-    if t.ndim != 2 or t.shape[0] != n_rays:
-        raise ValueError(f"t: expected shape ({n_rays}, S), got {t.shape}")
-    U.check_shape("delta", delta, t.shape)
-    for name, a in (("origins", o), ("dirs", d), ("t", t)):
-        U.check_finite(name, a)
-    U.check_nonnegative("delta", delta)
     zs = np.ones(n_rays, dtype=t.dtype) if z_scale is None else np.asarray(z_scale, dtype=t.dtype)
-    U.check_shape("z_scale", zs, (n_rays,))
+    A.check_shape("z_scale", zs, (n_rays,))
     s = t.shape[1]
-    np_t = U.NP_TYPES[dtype]
+    np_t = a.np_dtype
     points = (o[:, None, :] + t[:, :, None] * d[:, None, :]).reshape(-1, 3)
-    arr = lambda a, dt=dtype: wp.array(np.ascontiguousarray(a), dtype=dt, device=device)  # noqa: E731
+    arr = lambda x, dt=a.scalar: wp.array(np.ascontiguousarray(x), dtype=dt, device=a.device)  # noqa: E731
     return Samples(points=arr(points.astype(np_t)), dirs=arr(np.repeat(d, s, axis=0).astype(np_t)),
                    t=arr(t.reshape(-1).astype(np_t)), delta=arr(delta.reshape(-1).astype(np_t)),
                    z=arr((t * zs[:, None]).reshape(-1).astype(np_t)),
                    ray_index=arr(np.repeat(np.arange(n_rays), s).astype(np.int32), wp.int32),
                    ray_offsets=arr((np.arange(n_rays + 1) * s).astype(np.int32), wp.int32))
+
+
+A.declare_float_overloads(_ray_aabb_kernel)
+A.declare_float_overloads(_march_kernel)

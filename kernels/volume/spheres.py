@@ -1,13 +1,13 @@
-"""Analytic soft spheres: the textbook's volume-rendering scene, with gradients.
+"""Analytic soft spheres: the Video and 3D Vision textbook chapter's volume-rendering scene, with gradients.
 
-Sphere k has centre c_k, radius r_k, colour col_k and sharpness s_k (the textbook's per-sphere
+Sphere k has centre c_k, radius r_k, colour col_k and sharpness s_k (the chapter's per-sphere
 "sigma"). At a point p, with m_k = max(0, |p - c_k| - r_k),
 
     d_k(p)   = s_k exp(-s_k m_k)                    density of sphere k (s_k inside the sphere)
     sigma(p) = sum_k d_k
     rgb(p)   = sum_k d_k col_k / sigma   if sigma > 1e-6, else sum_k d_k col_k
 
-(the textbook's `jnp.where(density > 1e-6, colour / density, colour)`). Colour does not depend
+(the chapter's `jnp.where(density > 1e-6, colour / density, colour)`). Colour does not depend
 on the view direction. Backward, for cotangents (g_s, g):
 
     dL/dd_k   = g_s + g . (col_k - rgb) / sigma      (g_s + g . col_k below the threshold)
@@ -16,8 +16,9 @@ on the view direction. Backward, for cotangents (g_s, g):
     dL/dr_k   = dL/dd_k s_k d_k,   dL/dc_k = dL/dd_k s_k d_k (p - c_k) / |p - c_k|   (outside, m_k > 0)
 
 The forward runs one thread per point (launch_split); the backward scatters every point's
-contribution into the (few) sphere parameters with atomic adds in ONE launch (float atomics
-race between concurrent CPU launches, notes/warp.md).
+contribution into the (few) sphere parameters with atomic adds in ONE launch (no Warp atomic is
+atomic between concurrent CPU launches, docs/warp.md). Points follow the array contract of
+kernels.volume.field.
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from kernels.launch import launch_split
-from kernels.volume import _util as U
+from kernels import _arrays as A
+from kernels.volume._checks import check_dtype
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.workspace import Workspace
 
@@ -37,7 +38,7 @@ wp.set_module_options({"enable_backward": False})
 
 COLOR_NORMALIZE_EPS = 1e-6
 
-# The textbook scene: (centre, radius, colour, sharpness).
+# The chapter's scene: (centre, radius, colour, sharpness).
 TEXTBOOK_SPHERES = (
     ((0.0, 0.0, 4.0), 0.8, (1.0, 0.2, 0.2), 5.0),
     ((1.5, 0.5, 5.0), 0.6, (0.2, 1.0, 0.2), 5.0),
@@ -143,22 +144,21 @@ class SphereField(Field):
 
     def __init__(self, centers: Any, radii: Any, colors: Any, sharpness: Any,
                  dtype: Any = wp.float32, device: str | wp.Device | None = None) -> None:
-        if dtype not in U.NP_TYPES:
-            raise ValueError(f"dtype: expected wp.float32 or wp.float64, got {dtype}")
-        device = U.default_device(device)
-        c = np.asarray(centers, dtype=np.float64)
+        check_dtype("dtype", dtype)
+        vals = {"centers": centers, "radii": radii, "colors": colors, "sharpness": sharpness}
+        vals = {k: np.asarray(v.numpy() if isinstance(v, wp.array) else v, dtype=np.float64) for k, v in vals.items()}
+        c = vals["centers"]
         if c.ndim != 2 or c.shape[1] != 3 or c.shape[0] < 1:
             raise ValueError(f"centers: expected shape (K, 3) with K >= 1, got {c.shape}")
         k = c.shape[0]
-        vals = {"centers": c, "radii": np.asarray(radii, dtype=np.float64),
-                "colors": np.asarray(colors, dtype=np.float64), "sharpness": np.asarray(sharpness, dtype=np.float64)}
         for name, shape in (("radii", (k,)), ("colors", (k, 3)), ("sharpness", (k,))):
-            U.check_shape(name, vals[name], shape)
+            A.check_shape(name, vals[name], shape)
         for name, v in vals.items():
-            U.check_finite(name, v)
-        U.check_nonnegative("radii", vals["radii"])
-        U.check_nonnegative("sharpness", vals["sharpness"])
-        np_t = U.NP_TYPES[dtype]
+            A.check_finite(name, v)
+        A.check_at_least("radii", vals["radii"], 0.0)
+        A.check_at_least("sharpness", vals["sharpness"], 0.0)
+        np_t = A.NP_OF_WP[dtype]
+        device = A.get_device(device)
         super().__init__({n: wp.array(v.astype(np_t), dtype=dtype, device=device) for n, v in vals.items()},
                          dtype, device)
 
@@ -167,27 +167,29 @@ class SphereField(Field):
         c, r, col, s = zip(*TEXTBOOK_SPHERES)
         return cls(c, r, col, s, dtype=dtype, device=device)
 
-    def forward(self, points: U.ArrayLike, dirs: U.ArrayLike | None = None) -> FieldOutput:
-        p, _ = self._points(points, dirs)
-        n = p.shape[0]
-        sigma = wp.empty(n, dtype=self.dtype, device=self.device)
-        rgb = wp.empty((n, 3), dtype=self.dtype, device=self.device)
+    def _param_args(self) -> list[wp.array]:
         P = self.params
-        if n:
-            launch_split(_spheres_forward_kernel, n,
-                         [p, P["centers"], P["radii"], P["colors"], P["sharpness"], sigma, rgb], device=self.device)
-        return FieldOutput(sigma, rgb)
+        return [P["centers"], P["radii"], P["colors"], P["sharpness"]]
 
-    def backward(self, points: U.ArrayLike, dirs: U.ArrayLike | None, out: FieldOutput,
-                 grad_sigma: U.ArrayLike | None, grad_rgb: U.ArrayLike | None,
+    def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
+        a, p, _ = self._inputs(points, dirs)
+        n = p.shape[0]
+        sigma, rgb = a.empty(n), a.empty((n, 3))
+        a.launch(_spheres_forward_kernel, n, [p, *self._param_args(), sigma, rgb])
+        return self._result(a, sigma, rgb)
+
+    def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
+                 grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
-        p, _ = self._points(points, dirs)
-        gs, gr = self._cotangents(p.shape[0], grad_sigma, grad_rgb)
+        a, p, _, sigma, rgb, gs, gr = self._backward_inputs(points, dirs, out, grad_sigma, grad_rgb)
+        n = p.shape[0]
         grads = self._zero_grads(workspace)
-        P = self.params
-        if p.shape[0]:
-            wp.launch(_spheres_backward_kernel, dim=p.shape[0],
-                      inputs=[p, P["centers"], P["radii"], P["colors"], P["sharpness"], out.sigma, out.rgb, gs, gr,
-                              grads["centers"], grads["radii"], grads["colors"], grads["sharpness"]],
-                      device=self.device)
+        if n:  # a scatter: one launch (module docstring)
+            wp.launch(_spheres_backward_kernel, dim=n,
+                      inputs=[p, *self._param_args(), sigma, rgb, gs, gr, grads["centers"], grads["radii"],
+                              grads["colors"], grads["sharpness"]], device=self.device)
         return grads
+
+
+A.declare_float_overloads(_spheres_forward_kernel)
+A.declare_float_overloads(_spheres_backward_kernel)

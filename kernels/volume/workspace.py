@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from kernels.volume import _util as U
+from kernels import _arrays as A
 
 GROWTH = 1.5
 
@@ -29,7 +29,7 @@ class Workspace:
     """Named, growable buffers on one device; `array(name, shape, dtype)` returns a view."""
 
     def __init__(self, device: str | wp.Device | None = None):
-        self.device = U.default_device(device)
+        self.device = A.get_device(device)
         self._buffers: dict[str, wp.array] = {}
 
     def array(self, name: str, shape: tuple[int, ...], dtype: Any) -> wp.array:

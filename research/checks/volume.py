@@ -53,7 +53,7 @@ def composite_inputs(seed: int) -> dict[str, Any]:
 def _composite_f(t_threshold: float) -> Callable:
     def f(sigma, rgb, delta, z, ray_offsets, background):
         r = composite_forward(sigma, rgb, delta, z, ray_offsets, background, t_threshold)
-        return {"rgb": r.rgb.numpy(), "depth": r.depth.numpy(), "opacity": r.opacity.numpy()}
+        return {"rgb": r.rgb, "depth": r.depth, "opacity": r.opacity}  # NumPy in, NumPy out
     return f
 
 
@@ -62,7 +62,7 @@ def _composite_vjp(t_threshold: float) -> Callable:
         args = (inp["sigma"], inp["rgb"], inp["delta"], inp["z"], inp["ray_offsets"])
         r = composite_forward(*args, inp["background"], t_threshold)
         gs, gr = composite_backward(*args, r, cot["rgb"], cot["depth"], cot["opacity"], inp["background"])
-        return {"sigma": gs.numpy(), "rgb": gr.numpy()}
+        return {"sigma": gs, "rgb": gr}
     return vjp
 
 
@@ -81,7 +81,7 @@ def _field_check(make: Callable[[dict[str, np.ndarray]], Field], params: dict[st
                  dirs: np.ndarray | None, name: str, seed: int) -> list[GradcheckResult]:
     def f(**kw):
         out = make(kw).forward(points, dirs)
-        return {"sigma": out.sigma.numpy(), "rgb": out.rgb.numpy()}
+        return {"sigma": out.sigma, "rgb": out.rgb}  # NumPy points, NumPy outputs
 
     def vjp(inp, cot):
         field = make(inp)
@@ -92,7 +92,8 @@ def _field_check(make: Callable[[dict[str, np.ndarray]], Field], params: dict[st
 
 
 def sphere_points(rng: np.random.Generator, field: SphereField, n: int) -> np.ndarray:
-    """Points in front of the textbook spheres, >= 0.05 from every surface."""
+    """Points in front of the Video and 3D Vision chapter's spheres (SphereField.textbook), >= 0.05 from
+    every surface."""
     P = field.params_numpy()
     pts: list[np.ndarray] = []
     while len(pts) < n:
@@ -181,8 +182,9 @@ def check_neural(kind: str, seeds=(0, 1), backend: str = "numpy") -> list[Gradch
 
 
 def check_tv(seeds=(0, 1)) -> list[GradcheckResult]:
-    """The grid's total-variation regulariser: add_tv_grad against FD of tv_loss."""
-    from kernels.volume.grid import add_tv_grad, tv_loss
+    """The grid's total-variation regulariser: add_tv_grad against FD of the NumPy total variation."""
+    from kernels.reference.volume import total_variation
+    from kernels.volume.grid import add_tv_grad
 
     results = []
     res = (3, 4, 5)
@@ -191,7 +193,7 @@ def check_tv(seeds=(0, 1)) -> list[GradcheckResult]:
         inputs = {"density": rng.normal(size=60), "color": rng.normal(size=(60, 3))}
 
         def f(density, color):
-            return np.array(0.7 * (tv_loss(density, res) + tv_loss(color, res)))
+            return np.array(0.7 * (total_variation(density, res) + total_variation(color, res)))
 
         def vjp(inp, cot):
             out = {}
@@ -249,7 +251,7 @@ def check_render(kind: str, seeds=(0, 1)) -> list[GradcheckResult]:
         def f(field=field, origins=origins, dirs=dirs, opts=opts, **kw):
             field.set_params(kw)
             r = render_rays(field, origins, dirs, BOX, **opts)
-            return {"rgb": r.rgb.numpy(), "depth": r.depth.numpy(), "opacity": r.opacity.numpy(),
+            return {"rgb": r.rgb, "depth": r.depth, "opacity": r.opacity,
                     "sparsity": np.array(SPARSITY_WEIGHT * optical_depth_sum(r))}
 
         def vjp(inp, cot, field=field, origins=origins, dirs=dirs, opts=opts):

@@ -2,8 +2,8 @@
 
 Rays go through every pixel centre (research.cameras, OpenCV convention) with unit directions;
 z_scale = cos(theta) to the optical axis turns the ray parameter t into z-depth, so `depth` is the
-expected z-depth sum_k w_k t_k cos(theta) (DESIGN.md: depth means z-depth). Rays are rendered in
-chunks by kernels.volume.render_rays.
+expected z-depth sum_k w_k t_k cos(theta) (depth means z-depth throughout the project). Rays are
+rendered in chunks by kernels.volume.render_rays.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from kernels import _arrays as A
 from kernels.volume import DEFAULT_T_THRESHOLD, Field, OccupancyGrid, Workspace, render_rays
-from kernels.volume import _util as U
 from research.cameras import Camera
 
 
@@ -52,8 +52,8 @@ def render_image(
     """Render `field` as seen by `camera` (see kernels.volume.sample_rays for the sampling options)."""
     if not isinstance(camera, Camera):
         raise ValueError(f"camera: expected a research.cameras.Camera, got {type(camera).__name__}")
-    U.check_positive_int("chunk", chunk)
-    o, d, zs = camera_rays(camera, U.NP_TYPES[field.dtype])
+    A.check_int("chunk", chunk, minimum=1)
+    o, d, zs = camera_rays(camera, A.NP_OF_WP[field.dtype])
     n = o.shape[0]
     rgb, depth, opacity = np.empty((n, 3)), np.empty(n), np.empty(n)
     n_samples_total = 0
@@ -64,7 +64,7 @@ def render_image(
         res = render_rays(field, o[s:e], d[s:e], bbox, near=near, far=far, n_samples=n_samples, step=step,
                           z_scale=zs[s:e], occupancy=occupancy, background=background, t_threshold=t_threshold,
                           workspace=workspace)
-        rgb[s:e], depth[s:e], opacity[s:e] = res.rgb.numpy(), res.depth.numpy(), res.opacity.numpy()
+        rgb[s:e], depth[s:e], opacity[s:e] = res.rgb.numpy(), res.depth.numpy(), res.opacity.numpy()  # workspace views
         n_samples_total += res.samples.n_samples
     h, w = camera.height, camera.width
     return Image(rgb.reshape(h, w, 3), depth.reshape(h, w), opacity.reshape(h, w), n_samples_total)

@@ -1,4 +1,4 @@
-"""The textbook's volume-rendering exercise (chapter "Video and 3D vision", exercise 3), ported to NumPy.
+"""The volume-rendering exercise of the Video and 3D Vision textbook chapter (exercise 3), ported to NumPy.
 
 A faithful, unvectorised port of its `render_ray` (loops over pixels, samples and spheres, as the
 JAX snippet does), kept as the reference the Warp kernels are compared with. The snippet's own

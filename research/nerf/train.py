@@ -10,8 +10,9 @@ Per iteration (instant-ngp's recipe, Mueller et al. 2022, on the CPU):
      so that surfaces form before cells can be declared empty (a cell declared empty gets no
      samples, hence no gradient, and would stay empty);
   4. loss = mean((C - target)^2) (+ an optional sparsity penalty `sigma_l1` * mean over rays of the
-     optical depth sum_k sigma_k delta_k, against floating fog); dL/dC = 2 (C - target) / (3 B); backward through compositing and
-     the field (kernels.volume.render_backward); one Adam step (kernels.volume.Adam);
+     optical depth sum_k sigma_k delta_k, against floating fog); dL/dC = 2 (C - target) / (3 B);
+     backward through compositing and the field (kernels.volume.render_backward); one Adam step
+     (kernels.optim.Adam);
   5. every `occupancy_every` iterations, update the occupancy grid from the field's density
      (EMA-max, threshold; kernels.volume.OccupancyGrid).
 Voxel grids also take a total-variation penalty (Plenoxels) with weights `tv_weight` on the mean
@@ -19,6 +20,11 @@ squared neighbour difference, and are fitted coarse to fine (`upsample_grid`, as
 Plenoxels do): a coarse grid sees many rays per vertex and converges in few iterations.
 Images are fitted in sRGB (the PNGs of the dataset: straight-alpha sRGB, then premultiplied),
 since the field's colour is a sigmoid in [0, 1].
+
+Validation: the ray bank is checked once (finite values), and the first iteration runs with the
+kernels' value checks on; the iterations after it run inside `kernels._arrays.value_checks(False)`
+(their inputs are slices of the checked bank and the loop's own outputs), so only shape and dtype
+checks remain in the loop.
 """
 
 from __future__ import annotations
@@ -31,7 +37,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-from kernels.volume import Adam, Field, GridField, OccupancyGrid, Workspace, render_backward, render_rays
+from kernels import _arrays as A
+from kernels.optim import Adam
+from kernels.volume import Field, GridField, OccupancyGrid, Workspace, render_backward, render_rays
 from kernels.volume.grid import add_tv_grad
 from research.cameras import Camera
 from research.metrics import srgb_on_black
@@ -145,8 +153,10 @@ def train(field: Field, bank: RayBank, bbox: np.ndarray, cfg: TrainConfig, occup
 
 def _train(field: Field, bank: RayBank, bbox: np.ndarray, cfg: TrainConfig, occupancy: OccupancyGrid,
            progress: bool, desc: str) -> TrainLog:
+    for name in ("origins", "dirs", "z_scale", "rgba"):
+        A.check_finite(f"bank.{name}", getattr(bank, name))
     rng = np.random.default_rng(cfg.seed)
-    np_t = np.float32 if field.dtype.__name__ == "float32" else np.float64
+    np_t = A.NP_OF_WP[field.dtype]
     opt = Adam(field.params, cfg.lr, cfg.betas, cfg.adam_eps)
     base_lr = dict(opt.lr)
     losses, spr, occ = [], [], []
@@ -154,33 +164,34 @@ def _train(field: Field, bank: RayBank, bbox: np.ndarray, cfg: TrainConfig, occu
     workspace = Workspace(field.device)  # compositing buffers, reused by every iteration
     bar = tqdm(range(cfg.iters), desc=desc, disable=not progress, mininterval=2.0)
     for it in bar:
-        warm = it < cfg.occupancy_start
-        if not warm and (it - cfg.occupancy_start) % cfg.occupancy_every == 0:
-            occupancy.update_from(field.density, seed=cfg.seed * 1_000_003 + it, dtype=field.dtype)
-        idx = rng.integers(0, len(bank), cfg.batch_rays)
-        bg = rng.uniform(0.0, 1.0, (cfg.batch_rays, 3)) if cfg.random_background else np.zeros((cfg.batch_rays, 3))
-        # Over a random background the target is blended in sRGB space: exact where alpha is 0 or 1,
-        # an approximation on the few partially covered edge pixels (the field renders in sRGB).
-        target = bank.rgba[idx, :3] + (1.0 - bank.rgba[idx, 3:]) * bg
-        res = render_rays(field, bank.origins[idx], bank.dirs[idx], bbox,
-                          step=cfg.step * (cfg.warmup_step_factor if warm else 1.0), z_scale=bank.z_scale[idx],
-                          occupancy=None if warm else occupancy, jitter=True, seed=cfg.seed * 1_000_003 + it,
-                          background=bg.astype(np_t), t_threshold=cfg.t_threshold, workspace=workspace)
-        diff = res.rgb.numpy().astype(np.float64) - target
-        loss = float(np.mean(diff**2))
-        grads = render_backward(field, res, (2.0 * diff / diff.size).astype(np_t),
-                                sigma_l1=cfg.sigma_l1 / cfg.batch_rays, workspace=workspace)
-        if isinstance(field, GridField):
-            nv = field.params["density"].shape[0]
-            for name, w in cfg.tv_weight.items():
-                add_tv_grad(field.params[name], field.resolution, w / nv, grads[name])
-        f = _lr_factor(cfg, it)
-        opt.lr = {k: v * f for k, v in base_lr.items()}
-        opt.step(grads)
-        losses.append(loss)
-        spr.append(res.samples.n_samples / cfg.batch_rays)
-        if it % 50 == 0:
-            occ.append(occupancy.occupied_fraction())
-            bar.set_postfix(loss=f"{loss:.4f}", spr=f"{spr[-1]:.1f}", occ=f"{occ[-1]:.3f}")
+        with A.value_checks(it == 0):  # one validated iteration (module docstring)
+            warm = it < cfg.occupancy_start
+            if not warm and (it - cfg.occupancy_start) % cfg.occupancy_every == 0:
+                occupancy.update_from(field.density, seed=cfg.seed * 1_000_003 + it, dtype=field.dtype)
+            idx = rng.integers(0, len(bank), cfg.batch_rays)
+            bg = rng.uniform(0.0, 1.0, (cfg.batch_rays, 3)) if cfg.random_background else np.zeros((cfg.batch_rays, 3))
+            # Over a random background the target is blended in sRGB space: exact where alpha is 0 or 1,
+            # an approximation on the few partially covered edge pixels (the field renders in sRGB).
+            target = bank.rgba[idx, :3] + (1.0 - bank.rgba[idx, 3:]) * bg
+            res = render_rays(field, bank.origins[idx], bank.dirs[idx], bbox,
+                              step=cfg.step * (cfg.warmup_step_factor if warm else 1.0), z_scale=bank.z_scale[idx],
+                              occupancy=None if warm else occupancy, jitter=True, seed=cfg.seed * 1_000_003 + it,
+                              background=bg.astype(np_t), t_threshold=cfg.t_threshold, workspace=workspace)
+            diff = res.rgb.numpy().astype(np.float64) - target  # res.rgb: a workspace view
+            loss = float(np.mean(diff**2))
+            grads = render_backward(field, res, (2.0 * diff / diff.size).astype(np_t),
+                                    sigma_l1=cfg.sigma_l1 / cfg.batch_rays, workspace=workspace)
+            if isinstance(field, GridField):
+                nv = field.params["density"].shape[0]
+                for name, w in cfg.tv_weight.items():
+                    add_tv_grad(field.params[name], field.resolution, w / nv, grads[name])
+            f = _lr_factor(cfg, it)
+            opt.lr = {k: v * f for k, v in base_lr.items()}
+            opt.step(grads)
+            losses.append(loss)
+            spr.append(res.samples.n_samples / cfg.batch_rays)
+            if it % 50 == 0:
+                occ.append(occupancy.occupied_fraction())
+                bar.set_postfix(loss=f"{loss:.4f}", spr=f"{spr[-1]:.1f}", occ=f"{occ[-1]:.3f}")
     occupancy.update_from(field.density, seed=cfg.seed * 1_000_003 + cfg.iters, dtype=field.dtype)
     return TrainLog(losses, spr, occ, time.perf_counter() - t0)

@@ -6,30 +6,12 @@ import numpy as np
 import pytest
 import warp as wp
 
+from kernels._arrays import value_checks
+from kernels.reference import volume as ref_volume
 from kernels.volume import CompositeResult, Workspace, composite_backward, composite_forward, dense_offsets
-from kernels.volume._util import all_finite
+from kernels.volume.composite import composite_buffers
 from research.checks.volume import check_composite, composite_inputs
 from research.gradcheck import assert_gradcheck
-
-
-def composite_reference(sigma, rgb, delta, z, offsets, background, t_threshold):
-    """Front-to-back alpha compositing, one ray at a time, straight from the equations."""
-    n_rays = len(offsets) - 1
-    bg = np.broadcast_to(np.asarray(background, dtype=np.float64).reshape(-1, 3), (n_rays, 3))
-    out_rgb, depth, opacity, n_used = np.zeros((n_rays, 3)), np.zeros(n_rays), np.zeros(n_rays), np.zeros(n_rays, int)
-    for r in range(n_rays):
-        T, C, D = 1.0, np.zeros(3), 0.0
-        for k in range(offsets[r], offsets[r + 1]):
-            if T < t_threshold:
-                break
-            alpha = 1.0 - np.exp(-sigma[k] * delta[k])
-            w = T * alpha
-            C += w * rgb[k]
-            D += w * z[k]
-            T *= 1.0 - alpha
-            n_used[r] += 1
-        out_rgb[r], depth[r], opacity[r] = C + T * bg[r], D, 1.0 - T
-    return out_rgb, depth, opacity, n_used
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
@@ -40,14 +22,34 @@ def test_forward_matches_reference(dtype, t_threshold, seed):
     args = [inp[k].astype(dtype) for k in ("sigma", "rgb", "delta", "z")]
     bg = inp["background"].astype(dtype) if seed == 0 else np.array([0.1, 0.2, 0.3], dtype)
     res = composite_forward(*args, inp["ray_offsets"], bg, t_threshold)
-    ref = composite_reference(*(a.astype(np.float64) for a in args), inp["ray_offsets"], bg.astype(np.float64),
-                              t_threshold)
+    ref = ref_volume.composite(*(a.astype(np.float64) for a in args), inp["ray_offsets"], bg.astype(np.float64),
+                               t_threshold)
     tol = 1e-5 if dtype == np.float32 else 1e-13
-    np.testing.assert_allclose(res.rgb.numpy(), ref[0], rtol=tol, atol=tol)
-    np.testing.assert_allclose(res.depth.numpy(), ref[1], rtol=tol, atol=tol)
-    np.testing.assert_allclose(res.opacity.numpy(), ref[2], rtol=tol, atol=tol)
-    np.testing.assert_array_equal(res.n_used.numpy(), ref[3])
-    assert res.rgb.dtype == wp.dtype_from_numpy(dtype)
+    np.testing.assert_allclose(res.rgb, ref[0], rtol=tol, atol=tol)
+    np.testing.assert_allclose(res.depth, ref[1], rtol=tol, atol=tol)
+    np.testing.assert_allclose(res.opacity, ref[2], rtol=tol, atol=tol)
+    np.testing.assert_array_equal(res.n_used, ref[3])
+    assert isinstance(res.rgb, np.ndarray) and res.rgb.dtype == dtype  # NumPy in, NumPy out
+
+
+@pytest.mark.parametrize("dtype", [wp.float32, wp.float64])
+def test_wp_arrays_in_give_wp_arrays_out_identical_to_numpy(dtype):
+    inp = composite_inputs(0)
+    np_t = wp.dtype_to_numpy(dtype)
+    host = [inp[k].astype(np_t) for k in ("sigma", "rgb", "delta", "z")] + [inp["ray_offsets"]]
+    dev = [wp.array(x, dtype=dtype if x.dtype.kind == "f" else wp.int32) for x in host]
+    bg = inp["background"].astype(np_t)
+    cot = [np.random.default_rng(1).normal(size=s).astype(np_t) for s in ((7, 3), 7, 7)]
+    res_np = composite_forward(*host, bg)
+    res_wp = composite_forward(*dev, wp.array(bg, dtype=dtype))
+    assert all(isinstance(getattr(res_wp, k), wp.array) for k in vars(res_wp))
+    for k in ("rgb", "depth", "opacity", "transmittance", "n_used"):
+        np.testing.assert_array_equal(getattr(res_wp, k).numpy(), getattr(res_np, k))
+    g_np = composite_backward(*host, res_np, *cot, bg)
+    g_wp = composite_backward(*dev, res_wp, *(wp.array(c, dtype=dtype) for c in cot), bg)
+    for a, b in zip(g_wp, g_np):
+        assert isinstance(a, wp.array) and isinstance(b, np.ndarray)
+        np.testing.assert_array_equal(a.numpy(), b)
 
 
 def test_early_termination_stops_at_threshold():
@@ -57,12 +59,12 @@ def test_early_termination_stops_at_threshold():
     full = composite_forward(*args, off, t_threshold=0.0)
     early = composite_forward(*args, off, t_threshold=1e-4)
     counts = np.diff(off)
-    np.testing.assert_array_equal(full.n_used.numpy(), counts)
+    np.testing.assert_array_equal(full.n_used, counts)
     # Ray 4 holds a sample with sigma 200: its transmittance falls below 1e-4 right after it.
-    assert early.n_used.numpy()[4] == 4 < counts[4]
-    assert early.transmittance.numpy()[4] < 1e-4
+    assert early.n_used[4] == 4 < counts[4]
+    assert early.transmittance[4] < 1e-4
     # The skipped samples carry weight < T < 1e-4, so the outputs barely move.
-    np.testing.assert_allclose(early.rgb.numpy(), full.rgb.numpy(), atol=1e-4)
+    np.testing.assert_allclose(early.rgb, full.rgb, atol=1e-4)
 
 
 def test_empty_ray_returns_background_with_zero_gradient():
@@ -73,11 +75,11 @@ def test_empty_ray_returns_background_with_zero_gradient():
     offsets = np.array([0, 0, 2], dtype=np.int32)  # ray 0 has no sample (it missed the box)
     bg = np.array([0.2, 0.4, 0.6])
     res = composite_forward(sigma, rgb, delta, z, offsets, bg)
-    np.testing.assert_array_equal(res.rgb.numpy()[0], bg)
-    assert res.depth.numpy()[0] == 0.0 and res.opacity.numpy()[0] == 0.0
+    np.testing.assert_array_equal(res.rgb[0], bg)
+    assert res.depth[0] == 0.0 and res.opacity[0] == 0.0
     g = np.ones((2, 3))
     gs, gr = composite_backward(sigma, rgb, delta, z, offsets, res, g, np.ones(2), np.ones(2), bg)
-    assert np.all(np.isfinite(gs.numpy())) and np.all(np.isfinite(gr.numpy()))
+    assert np.all(np.isfinite(gs)) and np.all(np.isfinite(gr))
 
 
 def test_gradients_match_finite_differences():
@@ -93,9 +95,9 @@ def test_terminated_samples_get_zero_gradient():
     rng = np.random.default_rng(0)
     gs, gr = composite_backward(*args, off, res, rng.normal(size=(7, 3)), rng.normal(size=7), rng.normal(size=7),
                                 inp["background"])
-    stop = off[4] + res.n_used.numpy()[4]
-    assert np.all(gs.numpy()[stop:off[5]] == 0.0) and np.all(gr.numpy()[stop:off[5]] == 0.0)
-    assert np.all(gs.numpy()[off[4]:stop] != 0.0)
+    stop = off[4] + res.n_used[4]
+    assert np.all(gs[stop:off[5]] == 0.0) and np.all(gr[stop:off[5]] == 0.0)
+    assert np.all(gs[off[4]:stop] != 0.0)
 
 
 def test_float32_backward_close_to_float64():
@@ -109,7 +111,7 @@ def test_float32_backward_close_to_float64():
         res = composite_forward(*args, inp["ray_offsets"], bg, 1e-4)
         grads[dt] = composite_backward(*args, inp["ray_offsets"], res, *(c.astype(dt) for c in cot), bg)
     for a, b in zip(grads[np.float32], grads[np.float64]):
-        np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
 
 
 # --------------------------------------------------------------------------- Dr.Jit oracle
@@ -169,9 +171,9 @@ def test_gradients_agree_with_drjit_autodiff(seed, t_threshold):
     gs, gr = composite_backward(*flat, off, res, g_rgb, g_depth, g_opacity, bg)
     d_sig, d_col = drjit_composite_grads(sigma, rgb, delta, z, bg, t_threshold, g_rgb, g_depth, g_opacity)
     if t_threshold > 0:
-        assert (res.n_used.numpy() < n_samples).sum() >= n_rays // 3
-    np.testing.assert_allclose(gs.numpy().reshape(n_rays, n_samples), d_sig, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(gr.numpy().reshape(n_rays, n_samples, 3), d_col, rtol=1e-9, atol=1e-12)
+        assert (res.n_used < n_samples).sum() >= n_rays // 3
+    np.testing.assert_allclose(gs.reshape(n_rays, n_samples), d_sig, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(gr.reshape(n_rays, n_samples, 3), d_col, rtol=1e-9, atol=1e-12)
 
 
 # --------------------------------------------------------------------------- bad input
@@ -188,14 +190,16 @@ def _valid(n=6):
     (dict(sigma=np.zeros((6, 1))), "sigma: expected shape"),
     (dict(delta=np.zeros(5)), "delta: expected shape"),
     (dict(sigma=np.array([1.0, -0.1, 1, 1, 1, 1])), "sigma: expected values >= 0"),
-    (dict(sigma=np.array([1.0, np.nan, 1, 1, 1, 1])), "sigma: contains NaN"),
-    (dict(rgb=np.full((6, 3), np.inf)), "rgb: contains NaN or infinite"),
+    (dict(sigma=np.array([1.0, np.nan, 1, 1, 1, 1])), "sigma: expected finite values >= 0, found NaN"),
+    (dict(rgb=np.full((6, 3), np.inf)), "rgb: expected finite values, found NaN or infinite"),
     (dict(delta=np.full(6, -0.1)), "delta: expected values >= 0"),
     (dict(ray_offsets=np.array([0, 4, 2, 6])), "ray_offsets: expected non-decreasing"),
+    (dict(ray_offsets=np.zeros((2, 2), np.int32)), r"ray_offsets: expected shape \(R\+1,\)"),
     (dict(ray_offsets=np.array([0, 2, 5])), "ray_offsets: expected non-decreasing offsets from 0"),
     (dict(ray_offsets=np.array([0.0, 2.0, 6.0])), "ray_offsets: expected an integer array"),
-    (dict(rgb=np.zeros((6, 3), np.float32)), "rgb: dtype float32 differs"),
-    (dict(sigma=np.arange(6)), "sigma: expected a float32 or float64 array"),
+    (dict(rgb=np.zeros((6, 3), np.float32)), "rgb: expected dtype float64 like the other inputs, got float32"),
+    (dict(sigma=np.arange(6)), "sigma: expected dtype float32 or float64, got int64"),
+    (dict(z=[1.0] * 6), "z: expected a NumPy array or a wp.array, got list"),
 ])
 def test_bad_input_raises(change, match):
     args = {**_valid(), **change}
@@ -208,7 +212,7 @@ def test_bad_background_and_threshold():
         composite_forward(**_valid(), background=np.zeros((3, 3)))
     with pytest.raises(ValueError, match="t_threshold"):
         composite_forward(**_valid(), t_threshold=1.5)
-    with pytest.raises(ValueError, match="background: contains NaN"):
+    with pytest.raises(ValueError, match="background: expected finite values"):
         composite_forward(**_valid(), background=[0.0, np.nan, 0.0])
 
 
@@ -217,7 +221,7 @@ def test_backward_bad_cotangent():
     res = composite_forward(**v)
     with pytest.raises(ValueError, match="grad_rgb: expected shape"):
         composite_backward(**v, result=res, grad_rgb=np.zeros((3, 3)))
-    with pytest.raises(ValueError, match="grad_depth: contains NaN"):
+    with pytest.raises(ValueError, match="grad_depth: expected finite values"):
         composite_backward(**v, result=res, grad_depth=np.array([np.nan, 0.0]))
 
 
@@ -227,7 +231,7 @@ def test_forward_stores_the_exponential_factors_it_used():
     inp = composite_inputs(0)
     args = [inp[k] for k in ("sigma", "rgb", "delta", "z")]
     res = composite_forward(*args, inp["ray_offsets"], t_threshold=1e-4)
-    factor, n_used = res.factor.numpy(), res.n_used.numpy()
+    factor, n_used = res.factor, res.n_used
     for r, (a, b) in enumerate(zip(inp["ray_offsets"][:-1], inp["ray_offsets"][1:])):
         used = slice(a, a + n_used[r])  # entries past early termination are not written
         # rtol of a few ulp, not equality: NumPy's vectorised exp need not round as the C library's does.
@@ -260,18 +264,21 @@ def test_out_buffers_give_the_same_results_and_are_returned():
         assert g[0].ptr == out[0].ptr and g[1].ptr == out[1].ptr
         for a, b in zip((res.rgb, res.depth, res.opacity, res.n_used), (fresh.rgb, fresh.depth, fresh.opacity,
                                                                        fresh.n_used)):
-            np.testing.assert_array_equal(a.numpy(), b.numpy())
-        np.testing.assert_array_equal(g[0].numpy(), fresh_g[0].numpy())
-        np.testing.assert_array_equal(g[1].numpy(), fresh_g[1].numpy())
+            np.testing.assert_array_equal(a.numpy(), b)
+        np.testing.assert_array_equal(g[0].numpy(), fresh_g[0])
+        np.testing.assert_array_equal(g[1].numpy(), fresh_g[1])
 
 
 def test_bad_out_buffers():
     v = _valid()
     res = composite_forward(**v)
-    bad = CompositeResult(res.rgb, res.depth, res.opacity, res.transmittance, res.n_used,
+    good = composite_buffers(Workspace(), 2, 6, wp.float64)
+    bad = CompositeResult(good.rgb, good.depth, good.opacity, good.transmittance, good.n_used,
                           wp.empty(5, dtype=wp.float64, device="cpu"))
     with pytest.raises(ValueError, match=r"out.factor: expected an output buffer of shape \(6,\)"):
         composite_forward(**v, out=bad)
+    with pytest.raises(ValueError, match="out.rgb: expected a wp.array output buffer, got ndarray"):
+        composite_forward(**v, out=res)  # NumPy results are not buffers
     with pytest.raises(ValueError, match="out: expected a pair"):
         composite_backward(**v, result=res, out=wp.empty(6, dtype=wp.float64, device="cpu"))
     with pytest.raises(ValueError, match="out\\[1\\]: expected an output buffer of shape \\(6, 3\\) and dtype float64"):
@@ -297,14 +304,18 @@ def test_workspace_grows_and_hands_out_views():
         ws.array("x", (-1,), wp.float32)
 
 
-def test_all_finite_covers_overflow_nan_and_inf():
-    big = np.full(1000, 1e30, np.float32)  # x . x overflows although every value is finite
-    assert all_finite(big)
-    for bad in (np.nan, np.inf, -np.inf):
-        x = big.copy()
-        x[517] = bad
-        assert not all_finite(x)
-        y = np.ones((50, 3))
-        y[7, 2] = bad
-        assert not all_finite(y)
-    assert all_finite(np.zeros((0, 3)))
+def test_value_checks_off_leaves_shape_and_dtype_checks():
+    """Inside value_checks(False) bad values pass through (the caller vouches for them); bad shapes do not."""
+    v = _valid()
+    nan_sigma = {**v, "sigma": np.array([1.0, np.nan, 1, 1, 1, 1])}
+    bad_order = {**v, "ray_offsets": np.array([0, 4, 2, 6])}
+    with value_checks(False):
+        composite_forward(**nan_sigma)
+        composite_forward(**{**v, "ray_offsets": np.array([0, 2, 6], np.int32)}, background=(0.0, np.inf, 0.0))
+        with pytest.raises(ValueError, match="rgb: expected shape"):
+            composite_forward(**{**v, "rgb": np.zeros((5, 3))})
+        with pytest.raises(ValueError, match="rgb: expected dtype float64"):
+            composite_forward(**{**v, "rgb": np.zeros((6, 3), np.float32)})
+    for bad in (nan_sigma, bad_order):  # and back on afterwards
+        with pytest.raises(ValueError):
+            composite_forward(**bad)

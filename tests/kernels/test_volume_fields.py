@@ -12,7 +12,8 @@ import warp as wp
 
 from kernels.volume import (GridField, HashEncoding, HashGridField, MLP, PEMLPField, PositionalEncoding, SphereField,
                             Workspace)
-from kernels.volume.hashgrid import PRIME_Y, PRIME_Z
+from kernels._arrays import value_checks
+from kernels.reference import volume as ref_volume
 from kernels.volume.mlp import init_mlp_params
 from research.checks.volume import BOX, check_grid, check_neural, check_spheres, neural_field
 from research.gradcheck import assert_gradcheck
@@ -20,31 +21,21 @@ from research.gradcheck import assert_gradcheck
 DTYPES = [(np.float32, wp.float32, 2e-5), (np.float64, wp.float64, 1e-12)]
 
 
-def softplus(x):
-    return np.logaddexp(0.0, x)
-
-
-def sigmoid(x):
-    return 1.0 / (1.0 + np.exp(-x))
-
-
 def unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def grid_reference(field, p, d):
+    return ref_volume.grid(field.params["density"].numpy(), field.params["color"].numpy(), field.resolution,
+                           field.bbox, field.sh_degree, field.density_bias, field.density_scale,
+                           field.density_activation, p, d)
+
+
+def hash_reference(enc: HashEncoding, p, table):
+    return ref_volume.hash_encoding(enc.bbox, enc.resolutions, enc.table_size, enc.n_features, p, table)
+
+
 # --------------------------------------------------------------------------- soft spheres
-
-def spheres_reference(p, centers, radii, colors, sharpness):
-    sigma, rgb = np.zeros(len(p)), np.zeros((len(p), 3))
-    for i, x in enumerate(p):
-        num = np.zeros(3)
-        for c, r, col, s in zip(centers, radii, colors, sharpness):
-            d = s * np.exp(-s * max(0.0, np.linalg.norm(x - c) - r))
-            sigma[i] += d
-            num += d * col
-        rgb[i] = num / sigma[i] if sigma[i] > 1e-6 else num
-    return sigma, rgb
-
 
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
 def test_spheres_forward(np_t, wp_t, tol):
@@ -54,10 +45,15 @@ def test_spheres_forward(np_t, wp_t, tol):
     p = np.concatenate([rng.uniform([-2, -1.5, 2.5], [2.5, 1.5, 6.5], (50, 3)), [[9.0, 9.0, 9.0]]]).astype(np_t)
     out = field.forward(p)
     P = {k: v.astype(np.float64) for k, v in field.params_numpy().items()}
-    ref = spheres_reference(p.astype(np.float64), P["centers"], P["radii"], P["colors"], P["sharpness"])
+    ref = ref_volume.spheres(p.astype(np.float64), P["centers"], P["radii"], P["colors"], P["sharpness"])
     assert ref[0][-1] < 1e-6
-    np.testing.assert_allclose(out.sigma.numpy(), ref[0], rtol=tol, atol=tol * 1e-3)
-    np.testing.assert_allclose(out.rgb.numpy(), ref[1], rtol=tol, atol=tol * 1e-3)
+    np.testing.assert_allclose(out.sigma, ref[0], rtol=tol, atol=tol * 1e-3)
+    np.testing.assert_allclose(out.rgb, ref[1], rtol=tol, atol=tol * 1e-3)
+    # wp.array points: wp.array outputs, the same numbers.
+    out_wp = field.forward(wp.array(p))
+    assert isinstance(out_wp.sigma, wp.array) and isinstance(out_wp.rgb, wp.array)
+    np.testing.assert_array_equal(out_wp.sigma.numpy(), out.sigma)
+    np.testing.assert_array_equal(out_wp.rgb.numpy(), out.rgb)
 
 
 def test_spheres_gradients():
@@ -65,51 +61,6 @@ def test_spheres_gradients():
 
 
 # --------------------------------------------------------------------------- voxel grid
-
-def sh_reference(d, degree):
-    if degree is None:
-        return np.ones((len(d), 1))
-    x, y, z = d.T
-    c0, c1 = 0.28209479177387814, 0.4886025119029199
-    c2 = [1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396]
-    cols = [np.full_like(x, c0)]
-    if degree >= 1:
-        cols += [-c1 * y, c1 * z, -c1 * x]
-    if degree >= 2:
-        cols += [c2[0] * x * y, c2[1] * y * z, c2[2] * (2 * z * z - x * x - y * y), c2[3] * x * z, c2[4] * (x * x - y * y)]
-    return np.stack(cols, axis=1)
-
-
-def trilinear_reference(values, res, box, p):
-    """values (nz, ny, nx, C); explicit 8-corner sum."""
-    u = (p - box[0]) / (box[1] - box[0]) * (np.array(res) - 1)
-    i = np.minimum(np.floor(u).astype(int), np.array(res) - 2)
-    f = u - i
-    out = np.zeros(values.shape[-1])
-    for bx in (0, 1):
-        for by in (0, 1):
-            for bz in (0, 1):
-                w = ((f[0] if bx else 1 - f[0]) * (f[1] if by else 1 - f[1]) * (f[2] if bz else 1 - f[2]))
-                out += w * values[i[2] + bz, i[1] + by, i[0] + bx]
-    return out
-
-
-def grid_reference(field, p, d):
-    nx, ny, nz = field.resolution
-    dens = field.params["density"].numpy().astype(np.float64).reshape(nz, ny, nx, 1)
-    col = field.params["color"].numpy().astype(np.float64).reshape(nz, ny, nx, 3, field.n_coef)
-    Y = sh_reference(d, field.sh_degree)
-    sigma, rgb = np.zeros(len(p)), np.zeros((len(p), 3))
-    act = softplus if field.density_activation == "softplus" else np.exp
-    for i, x in enumerate(p):
-        if np.any(x < field.bbox[0]) or np.any(x > field.bbox[1]):
-            continue
-        sigma[i] = field.density_scale * act(trilinear_reference(dens, field.resolution, field.bbox, x)[0]
-                                             + field.density_bias)
-        k = trilinear_reference(col.reshape(nz, ny, nx, -1), field.resolution, field.bbox, x).reshape(3, -1)
-        rgb[i] = sigmoid(k @ Y[i])
-    return sigma, rgb
-
 
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
 @pytest.mark.parametrize("sh_degree, activation", [(None, "softplus"), (1, "exp"), (2, "softplus")])
@@ -125,8 +76,8 @@ def test_grid_forward(np_t, wp_t, tol, sh_degree, activation):
     ref = grid_reference(field, p.astype(np.float64), d.astype(np.float64))
     outside = np.any((p < BOX[0]) | (p > BOX[1]), axis=1)
     assert 0 < outside.sum() < len(p)
-    np.testing.assert_allclose(out.sigma.numpy(), ref[0], rtol=tol, atol=tol)
-    np.testing.assert_allclose(out.rgb.numpy(), ref[1], rtol=tol, atol=tol)
+    np.testing.assert_allclose(out.sigma, ref[0], rtol=tol, atol=tol)
+    np.testing.assert_allclose(out.rgb, ref[1], rtol=tol, atol=tol)
 
 
 @pytest.mark.parametrize("sh_degree, activation", [(None, "softplus"), (1, "exp"), (2, "softplus")])
@@ -135,16 +86,19 @@ def test_grid_gradients(sh_degree, activation):
 
 
 def test_grid_total_variation():
-    from kernels.volume.grid import add_tv_grad, tv_loss
+    from kernels.volume.grid import add_tv_grad
     from research.checks.volume import check_tv
 
+    # 2 x 2 x 1 vertices (x fastest) [[0, 1], [2, 4]]: x-differences 1, 2 and y-differences 2, 3.
+    assert ref_volume.total_variation(np.array([0.0, 1.0, 2.0, 4.0]), (2, 2, 1)) == 1 + 4 + 4 + 9
     res = (3, 4, 2)
-    x = np.random.default_rng(0).normal(size=(24, 2))
-    ref = sum(np.sum(np.diff(x.reshape(2, 4, 3, 2), axis=a) ** 2) for a in range(3))
-    assert tv_loss(x, res) == pytest.approx(ref, rel=1e-12)
     g = wp.zeros((24, 2), dtype=wp.float64)
     add_tv_grad(wp.array(np.ones((24, 2)) * 3.0, dtype=wp.float64), res, 1.0, g)
     assert np.all(g.numpy() == 0.0)  # a constant field has no variation
+    with pytest.raises(ValueError, match=r"grad: expected an output buffer of shape \(24, 2\)"):
+        add_tv_grad(wp.zeros((24, 2), dtype=wp.float64), res, 1.0, wp.zeros(24, dtype=wp.float64))
+    with pytest.raises(ValueError, match=r"values: expected a wp.array of shape \(24,\) or \(24, C\)"):
+        add_tv_grad(np.zeros((24, 2)), res, 1.0, g)
     assert_gradcheck(check_tv(seeds=(0, 1, 2)))
 
 
@@ -157,33 +111,10 @@ def test_grid_vertex_values_are_reproduced():
     p = BOX[0] + v * (BOX[1] - BOX[0]) / 2.0
     out = field.forward(p)
     idx = 1 + 3 * (2 + 3 * 0)
-    assert out.sigma.numpy()[0] == pytest.approx(softplus(field.params["density"].numpy()[idx]), rel=1e-12)
+    assert out.sigma[0] == pytest.approx(ref_volume.softplus(field.params["density"].numpy()[idx]), rel=1e-12)
 
 
 # --------------------------------------------------------------------------- hash encoding
-
-def hash_reference(enc: HashEncoding, p, table):
-    T, F = enc.table_size, enc.n_features
-    x = np.clip((p - enc.bbox[0]) / (enc.bbox[1] - enc.bbox[0]), 0.0, 1.0)
-    out = np.zeros((len(p), enc.n_levels * F))
-    for l, res in enumerate(enc.resolutions):
-        res = int(res)
-        dense = (res + 1) ** 3 <= T
-        for n in range(len(p)):
-            u = x[n] * res
-            i = np.clip(np.floor(u).astype(int), 0, res - 1)
-            f = u - i
-            for b in np.ndindex(2, 2, 2):
-                v = i + np.array(b)
-                w = np.prod([f[a] if b[a] else 1 - f[a] for a in range(3)])
-                if dense:
-                    h = v[0] + (res + 1) * (v[1] + (res + 1) * v[2])
-                else:
-                    h = int((np.uint32(v[0]) ^ np.uint32((int(v[1]) * PRIME_Y) % 2**32)
-                             ^ np.uint32((int(v[2]) * PRIME_Z) % 2**32)) % np.uint32(T))
-                out[n, l * F:(l + 1) * F] += w * table[l * T + h]
-    return out
-
 
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
 def test_hash_encoding_forward(np_t, wp_t, tol):
@@ -212,20 +143,10 @@ def test_positional_encoding(np_t, wp_t, tol):
     rng = np.random.default_rng(3)
     p = rng.uniform(BOX[0], BOX[1], (30, 3)).astype(np_t)
     got = pe.encode(wp.array(p, dtype=wp_t)).numpy()
-    x = 2 * (p.astype(np.float64) - BOX[0]) / (BOX[1] - BOX[0]) - 1
+    ref = ref_volume.positional_encoding(p.astype(np.float64), BOX, 4)
     assert got.shape == (30, 27)
-    np.testing.assert_allclose(got[:, :3], x, atol=tol)
-    for k in range(4):
-        np.testing.assert_allclose(got[:, 3 + 6 * k:6 + 6 * k], np.sin(2**k * np.pi * x), atol=tol * 20)
-        np.testing.assert_allclose(got[:, 6 + 6 * k:9 + 6 * k], np.cos(2**k * np.pi * x), atol=tol * 20)
-
-
-def mlp_reference(params, x, n_layers):
-    a = x
-    for l in range(n_layers):
-        z = a @ params[f"W{l}"].T + params[f"b{l}"]
-        a = np.maximum(z, 0.0) if l < n_layers - 1 else z
-    return a
+    np.testing.assert_allclose(got[:, :3], ref[:, :3], atol=tol)
+    np.testing.assert_allclose(got[:, 3:], ref[:, 3:], atol=tol * 20)
 
 
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
@@ -236,7 +157,7 @@ def test_mlp_forward(np_t, wp_t, tol, backend):
     mlp = MLP(sizes, params, backend)
     x = np.random.default_rng(4).normal(size=(33, 5)).astype(np_t)
     y, _ = mlp.forward(wp.array(x, dtype=wp_t))
-    ref = mlp_reference({k: v.numpy().astype(np.float64) for k, v in params.items()}, x.astype(np.float64), 3)
+    ref = ref_volume.mlp({k: v.numpy().astype(np.float64) for k, v in params.items()}, x.astype(np.float64), 3)
     np.testing.assert_allclose(y.numpy(), ref, rtol=tol * 10, atol=tol * 10)
 
 
@@ -277,12 +198,10 @@ def test_neural_field_forward(kind, np_t, wp_t, tol):
     if kind == "hashgrid":
         enc = hash_reference(field.encoding, p64, P["table"])
     else:
-        x = 2 * (p64 - BOX[0]) / (BOX[1] - BOX[0]) - 1
-        enc = np.concatenate([x] + [f(2**k * np.pi * x) for k in range(2) for f in (np.sin, np.cos)], axis=1)
-    raw = mlp_reference(P, enc, 3)
-    inside = np.all((p64 >= BOX[0]) & (p64 <= BOX[1]), axis=1)
-    np.testing.assert_allclose(out.sigma.numpy(), np.exp(raw[:, 0] - 0.5) * inside, rtol=tol * 20, atol=tol * 20)
-    np.testing.assert_allclose(out.rgb.numpy(), sigmoid(raw[:, 1:]) * inside[:, None], rtol=tol * 20, atol=tol * 20)
+        enc = ref_volume.positional_encoding(p64, BOX, 2)
+    sigma, rgb = ref_volume.neural_head(ref_volume.mlp(P, enc, 3), p64, BOX, -0.5, "exp")
+    np.testing.assert_allclose(out.sigma, sigma, rtol=tol * 20, atol=tol * 20)
+    np.testing.assert_allclose(out.rgb, rgb, rtol=tol * 20, atol=tol * 20)
 
 
 @pytest.mark.parametrize("kind, backend", [("hashgrid", "numpy"), ("hashgrid", "warp"), ("pe_mlp", "numpy")])
@@ -303,8 +222,14 @@ def test_field_bad_input():
         field.forward(p.astype(np.float32), np.zeros((4, 3)))
     with pytest.raises(ValueError, match="dirs: expected shape"):
         field.forward(p, np.zeros((3, 3)))
-    with pytest.raises(ValueError, match="points: contains NaN"):
+    with pytest.raises(ValueError, match="points: expected finite values"):
         field.forward(np.full((4, 3), np.nan), np.zeros((4, 3)))
+    with value_checks(False):  # only the value check is off
+        field.forward(np.full((4, 3), np.nan), np.zeros((4, 3)))
+        with pytest.raises(ValueError, match="points: expected dtype float64"):
+            field.forward(p.astype(np.float32), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match=r"points: expected dtype float64 \(the field's\), got float32"):
+        field.forward(wp.array(p.astype(np.float32)), wp.array(np.zeros((4, 3))))
     with pytest.raises(ValueError, match="sh_degree"):
         GridField(BOX, (3, 3, 3), sh_degree=3)
     with pytest.raises(ValueError, match="resolution: expected at least 2"):

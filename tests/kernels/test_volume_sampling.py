@@ -8,28 +8,12 @@ import numpy as np
 import pytest
 import warp as wp
 
+from kernels._arrays import value_checks
+from kernels.reference import volume as ref_volume
 from kernels.volume import OccupancyGrid, ray_aabb, sample_rays
 from kernels.volume.sampling import dense_samples
 
 BOX = np.array([[-1.0, -0.5, -0.8], [1.2, 0.7, 0.9]])
-
-
-def ray_aabb_reference(o, d, box, near, far):
-    """Slab test, one ray at a time."""
-    t0s, t1s, hits = [], [], []
-    for oi, di in zip(o, d):
-        t0, t1, hit = near, far, True
-        for a in range(3):
-            if di[a] == 0.0:
-                hit &= box[0, a] <= oi[a] <= box[1, a]
-            else:
-                ta, tb = (box[0, a] - oi[a]) / di[a], (box[1, a] - oi[a]) / di[a]
-                t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
-        hit &= t1 > t0
-        t0s.append(t0 if hit else 0.0)
-        t1s.append(t1 if hit else 0.0)
-        hits.append(int(hit))
-    return np.array(t0s), np.array(t1s), np.array(hits)
 
 
 def random_rays(seed, n=40):
@@ -49,12 +33,13 @@ def test_ray_aabb_matches_reference(dtype, seed):
     o, d = random_rays(seed)
     for near, far in ((0.0, 1e10), (0.5, 3.0)):
         t0, t1, hit = ray_aabb(o.astype(dtype), d.astype(dtype), BOX, near, far)
-        r0, r1, rh = ray_aabb_reference(o.astype(dtype).astype(np.float64), d.astype(dtype).astype(np.float64),
+        r0, r1, rh = ref_volume.ray_aabb(o.astype(dtype).astype(np.float64), d.astype(dtype).astype(np.float64),
                                         BOX, near, far)
-        np.testing.assert_array_equal(hit.numpy(), rh)
+        np.testing.assert_array_equal(hit, rh)
         tol = 1e-5 if dtype == np.float32 else 1e-12
-        np.testing.assert_allclose(t0.numpy(), r0, atol=tol)
-        np.testing.assert_allclose(t1.numpy(), r1, atol=tol)
+        np.testing.assert_allclose(t0, r0, atol=tol)
+        np.testing.assert_allclose(t1, r1, atol=tol)
+        assert t0.dtype == dtype and hit.dtype == np.int32
         assert 0 < rh.sum() < len(rh)
 
 
@@ -65,19 +50,23 @@ def test_stratified_samples_without_jitter_are_midpoints(dtype):
     S = 7
     zs = np.linspace(0.5, 1.0, len(o)).astype(dtype)
     s = sample_rays(o, d, BOX, n_samples=S, z_scale=zs)
-    t0, t1, hit = ray_aabb_reference(o.astype(np.float64), d.astype(np.float64), BOX, 0.0, 1e10)
-    np.testing.assert_array_equal(np.diff(s.ray_offsets.numpy()), hit * S)
+    t0, t1, hit = ref_volume.ray_aabb(o.astype(np.float64), d.astype(np.float64), BOX, 0.0, 1e10)
+    np.testing.assert_array_equal(np.diff(s.ray_offsets), hit * S)
     hits = np.flatnonzero(hit)
-    h = (t1[hits] - t0[hits]) / S
-    t_ref = t0[hits, None] + (np.arange(S) + 0.5) * h[:, None]
+    t_ref, h = ref_volume.midpoint_strata(t0[hits], t1[hits], S)
     tol = 2e-5 if dtype == np.float32 else 1e-12
-    np.testing.assert_allclose(s.t.numpy(), t_ref.ravel(), atol=tol)
-    np.testing.assert_allclose(s.delta.numpy(), np.repeat(h, S), atol=tol)
-    np.testing.assert_allclose(s.z.numpy(), (t_ref * zs[hits, None]).ravel(), atol=tol)
-    np.testing.assert_array_equal(s.ray_index.numpy(), np.repeat(hits, S))
+    np.testing.assert_allclose(s.t, t_ref.ravel(), atol=tol)
+    np.testing.assert_allclose(s.delta, np.repeat(h, S), atol=tol)
+    np.testing.assert_allclose(s.z, (t_ref * zs[hits, None]).ravel(), atol=tol)
+    np.testing.assert_array_equal(s.ray_index, np.repeat(hits, S))
     pts_ref = o[hits, None, :] + t_ref[..., None] * d[hits, None, :]
-    np.testing.assert_allclose(s.points.numpy(), pts_ref.reshape(-1, 3), atol=10 * tol)
-    np.testing.assert_allclose(s.dirs.numpy(), np.repeat(d[hits], S, axis=0))
+    np.testing.assert_allclose(s.points, pts_ref.reshape(-1, 3), atol=10 * tol)
+    np.testing.assert_allclose(s.dirs, np.repeat(d[hits], S, axis=0))
+    # wp.arrays in: the same samples as wp.arrays.
+    w = sample_rays(wp.array(o), wp.array(d), BOX, n_samples=S, z_scale=wp.array(zs))
+    for k in vars(s):
+        assert isinstance(getattr(w, k), wp.array)
+        np.testing.assert_array_equal(getattr(w, k).numpy(), getattr(s, k))
 
 
 def test_jitter_is_seeded_and_stays_in_strata():
@@ -86,11 +75,11 @@ def test_jitter_is_seeded_and_stays_in_strata():
     b = sample_rays(o, d, BOX, step=0.13, jitter=True, seed=5)
     c = sample_rays(o, d, BOX, step=0.13, jitter=True, seed=6)
     mid = sample_rays(o, d, BOX, step=0.13, jitter=False)
-    np.testing.assert_array_equal(a.t.numpy(), b.t.numpy())
-    assert not np.array_equal(a.t.numpy(), c.t.numpy())
+    np.testing.assert_array_equal(a.t, b.t)
+    assert not np.array_equal(a.t, c.t)
     # Same strata; each jittered sample lies in its stratum [mid - delta/2, mid + delta/2).
-    np.testing.assert_array_equal(a.ray_offsets.numpy(), mid.ray_offsets.numpy())
-    u = (a.t.numpy() - (mid.t.numpy() - 0.5 * mid.delta.numpy())) / mid.delta.numpy()
+    np.testing.assert_array_equal(a.ray_offsets, mid.ray_offsets)
+    u = (a.t - (mid.t - 0.5 * mid.delta)) / mid.delta
     assert np.all(u >= -1e-9) and np.all(u < 1.0 + 1e-9)
     assert u.std() > 0.2  # spread over the stratum, not stuck at one point
 
@@ -99,20 +88,14 @@ def test_fixed_step_strata_cover_the_segment():
     o, d = random_rays(2)
     step = 0.11
     s = sample_rays(o, d, BOX, step=step)
-    t0, t1, hit = ray_aabb_reference(o, d, BOX, 0.0, 1e10)
-    off = s.ray_offsets.numpy()
-    delta = s.delta.numpy()
+    t0, t1, hit = ref_volume.ray_aabb(o, d, BOX, 0.0, 1e10)
+    off = s.ray_offsets
+    delta = s.delta
     for r in np.flatnonzero(hit):
         n = off[r + 1] - off[r]
         assert n == max(math.ceil((t1[r] - t0[r]) / step - 1e-6), 1)
         assert delta[off[r]:off[r + 1]].sum() == pytest.approx(t1[r] - t0[r], abs=1e-12)
         assert np.all(delta[off[r]:off[r + 1] - 1] == pytest.approx(step))
-
-
-def occupied_reference(points, grid_occ, box, res):
-    u = (points - box[0]) / (box[1] - box[0]) * np.array(res)
-    idx = np.clip(np.floor(u).astype(int), 0, np.array(res) - 1)
-    return grid_occ.reshape(res[2], res[1], res[0])[idx[:, 2], idx[:, 1], idx[:, 0]]
 
 
 def test_occupancy_skips_empty_cells():
@@ -126,11 +109,10 @@ def test_occupancy_skips_empty_cells():
     assert 0 < occ.sum() < occ.size
     full = sample_rays(o, d, BOX, step=0.05)
     skipped = sample_rays(o, d, BOX, step=0.05, occupancy=grid)
-    keep = occupied_reference(full.points.numpy(), occ, BOX, res).astype(bool)  # midpoints (no jitter)
-    np.testing.assert_allclose(skipped.t.numpy(), full.t.numpy()[keep])
-    np.testing.assert_array_equal(skipped.ray_index.numpy(), full.ray_index.numpy()[keep])
-    np.testing.assert_array_equal(np.diff(skipped.ray_offsets.numpy()),
-                                  np.bincount(full.ray_index.numpy()[keep], minlength=len(o)))
+    keep = ref_volume.occupied(full.points, occ, BOX, res).astype(bool)  # midpoints (no jitter)
+    np.testing.assert_allclose(skipped.t, full.t[keep])
+    np.testing.assert_array_equal(skipped.ray_index, full.ray_index[keep])
+    np.testing.assert_array_equal(np.diff(skipped.ray_offsets), np.bincount(full.ray_index[keep], minlength=len(o)))
 
 
 def test_occupancy_update_is_ema_max_then_threshold():
@@ -174,7 +156,9 @@ def test_dense_samples_layout():
     (dict(n_samples=4, step=0.1), "exactly one"),
     (dict(), "exactly one"),
     (dict(step=0.0), "step: expected a positive"),
-    (dict(n_samples=0), "n_samples: expected a positive integer"),
+    (dict(n_samples=0), "n_samples: expected an integer >= 1"),
+    (dict(n_samples=4, near=float("nan")), "near: expected a finite number"),
+    (dict(n_samples=4, z_scale=np.ones(8, np.float32)), "z_scale: expected dtype float64"),
     (dict(n_samples=4, z_scale=np.ones(3)), "z_scale: expected shape"),
 ])
 def test_sample_rays_bad_input(kwargs, match):
@@ -187,13 +171,17 @@ def test_ray_bad_input():
     o, d = random_rays(0, 8)
     with pytest.raises(ValueError, match="dirs: expected shape"):
         ray_aabb(o, d[:5], BOX)
-    with pytest.raises(ValueError, match="dirs: contains a zero direction"):
+    with pytest.raises(ValueError, match="dirs: expected non-zero directions"):
         ray_aabb(o, np.zeros_like(d), BOX)
-    with pytest.raises(ValueError, match="origins: contains NaN"):
+    with pytest.raises(ValueError, match="origins: expected finite values"):
         ray_aabb(np.full_like(o, np.nan), d, BOX)
+    with value_checks(False):  # the value checks are skipped, the shape checks stay
+        ray_aabb(o, np.zeros_like(d), BOX)
+        with pytest.raises(ValueError, match="dirs: expected shape"):
+            ray_aabb(o, d[:5], BOX)
     with pytest.raises(ValueError, match="bbox: expected finite corners with min < max"):
         ray_aabb(o, d, BOX[::-1])
-    with pytest.raises(ValueError, match="dirs: dtype float32 differs"):
+    with pytest.raises(ValueError, match="dirs: expected dtype float64 like the other inputs"):
         ray_aabb(o, d.astype(np.float32), BOX)
     with pytest.raises(ValueError, match="resolution"):
         OccupancyGrid(BOX, (4, 4))
@@ -201,3 +189,20 @@ def test_ray_bad_input():
         OccupancyGrid(BOX, (4, 4, 4), decay=1.0)
     with pytest.raises(ValueError, match="sigma: expected values >= 0"):
         OccupancyGrid(BOX, (2, 2, 2)).update(-np.ones(8))
+
+
+def test_device_value_checks_count_like_the_host_checks():
+    """The counting kernels that check offsets and directions on CUDA, run here as one CPU launch."""
+    from kernels.volume import _checks
+
+    def count(kernel, x, *extra):
+        return _checks._device_count(kernel, x.shape[0], [x, *extra], x.device)
+
+    offsets = lambda *v: wp.array(np.array(v, np.int32))  # noqa: E731
+    assert count(_checks._count_bad_offsets, offsets(0, 2, 2, 6), 6) == 0
+    assert count(_checks._count_bad_offsets, offsets(0, 4, 2, 6), 6) == 1  # decreasing
+    assert count(_checks._count_bad_offsets, offsets(1, 2, 2, 6), 6) == 1  # does not start at 0
+    assert count(_checks._count_bad_offsets, offsets(0, 2, 2, 6), 7) == 1  # does not end at N
+    for dtype in (wp.float32, wp.float64):
+        dirs = wp.array(np.array([[0, 0, 1.0], [0, 0, 0], [1e-30, 0, 0], [0, 0, 0]]), dtype=dtype)
+        assert count(_checks._count_zero_rows, dirs) == 2

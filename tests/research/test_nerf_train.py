@@ -64,5 +64,30 @@ def test_upsample_grid_keeps_the_field():
     fine = upsample_grid(coarse, (5, 7, 9))  # every coarse vertex is a fine vertex
     pts = rng.uniform(BBOX[0], BBOX[1], (200, 3))
     a, b = coarse.forward(pts), fine.forward(pts)
-    np.testing.assert_allclose(b.sigma.numpy(), a.sigma.numpy(), rtol=1e-12)
-    np.testing.assert_allclose(b.rgb.numpy(), a.rgb.numpy(), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(b.sigma, a.sigma, rtol=1e-12)
+    np.testing.assert_allclose(b.rgb, a.rgb, rtol=1e-12, atol=1e-14)
+
+
+def test_training_checks_values_on_the_first_iteration_only(bank, monkeypatch):
+    import research.nerf.train as train_module
+    from kernels._arrays import values_checked
+
+    seen = []
+
+    def recording(*args, **kwargs):
+        seen.append(values_checked())
+        return train_module.render_rays.__wrapped__(*args, **kwargs)
+
+    recording.__wrapped__ = train_module.render_rays
+    monkeypatch.setattr(train_module, "render_rays", recording)
+    _fit(bank, iters=4)
+    assert seen == [True, False, False, False]
+    assert values_checked()  # restored after the loop
+
+
+def test_training_rejects_a_bank_with_nan(bank):
+    bad = RayBank(bank.origins.copy(), bank.dirs, bank.z_scale, bank.rgba)
+    bad.origins[5, 1] = np.nan
+    field = GridField(BBOX, (5, 5, 5))
+    with pytest.raises(ValueError, match="bank.origins: expected finite values"):
+        train(field, bad, BBOX, TrainConfig(iters=2, batch_rays=16), OccupancyGrid(BBOX, (4, 4, 4)), progress=False)
