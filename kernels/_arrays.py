@@ -152,18 +152,33 @@ declare_float_overloads(_count_nonfinite)
 declare_float_overloads(_count_below)
 
 
-def _host_view(x: ArrayLike) -> np.ndarray | None:
-    """A zero-copy NumPy view of a host array, or None for an array on a CUDA device."""
+def host_view(x: ArrayLike) -> np.ndarray | None:
+    """A zero-copy NumPy view of a host array, or None for an array on a CUDA device.
+
+    Value checks read host arrays through it; for None they count on the device instead
+    (`device_count`).
+    """
     if isinstance(x, wp.array):
         return x.numpy() if x.device.is_cpu else None
     return np.asarray(x)
 
 
-def _device_count(kernel: Any, x: wp.array, *extra: Any) -> int:
-    count = wp.zeros(1, dtype=wp.int32, device=x.device)
-    flat = x.flatten() if x.is_contiguous else wp.clone(x).flatten()
-    wp.launch(kernel, dim=flat.size, inputs=[flat, *extra, count], device=x.device)
+def device_count(kernel: Any, dim: int, inputs: list[Any], device: wp.Device) -> int:
+    """Run a counting kernel as ONE launch and return its count.
+
+    The kernel's last parameter is `count: wp.array(dtype=wp.int32)` of one element, into which
+    offending threads `wp.atomic_add(count, 0, 1)`. One launch keeps the atomics exact on every
+    device (on the CPU one launch is one thread; docs/warp.md). Reading the count back is the only
+    transfer: the data stays where it is.
+    """
+    count = wp.zeros(1, dtype=wp.int32, device=device)
+    wp.launch(kernel, dim=dim, inputs=[*inputs, count], device=device)
     return int(count.numpy()[0])
+
+
+def _device_count(kernel: Any, x: wp.array, *extra: Any) -> int:
+    flat = x.flatten() if x.is_contiguous else wp.clone(x).flatten()
+    return device_count(kernel, flat.size, [flat, *extra], x.device)
 
 
 def all_finite(x: ArrayLike) -> bool:
@@ -173,7 +188,7 @@ def all_finite(x: ArrayLike) -> bool:
     for huge finite values, and only then is every element tested (one pass, no temporary: half
     the time of np.isfinite(x).all() on large arrays).
     """
-    h = _host_view(x)
+    h = host_view(x)
     if h is None:
         return x.size == 0 or _device_count(_count_nonfinite, x) == 0
     flat = h.reshape(-1)
@@ -195,7 +210,7 @@ def check_at_least(name: str, x: ArrayLike, bound: float = 0.0) -> None:
     """ValueError naming `name` unless every value is finite and >= `bound` (skipped while off)."""
     if not values_checked() or x.size == 0:
         return
-    h = _host_view(x)
+    h = host_view(x)
     if h is None:
         if _device_count(_count_below, x, float(bound)) or not all_finite(x):
             raise ValueError(f"{name}: expected finite values >= {bound:g}")
@@ -370,7 +385,7 @@ class Inputs:
         if shape is not None:
             check_shape(name, x, shape)
         if minimum is not None and values_checked() and x.size:
-            h = _host_view(x)
+            h = host_view(x)
             if h is None:  # an int32 wp.array on a CUDA device: count on the device
                 if _device_count(_count_below_int, x, int(minimum)):
                     raise ValueError(f"{name}: expected values >= {minimum}")

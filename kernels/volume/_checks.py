@@ -51,19 +51,6 @@ def _count_zero_rows(x: wp.array2d(dtype=typing.Any), count: wp.array(dtype=wp.i
 A.declare_float_overloads(_count_zero_rows)
 
 
-def _device_count(kernel: Any, dim: int, inputs: list[Any], device: wp.Device) -> int:
-    count = wp.zeros(1, dtype=wp.int32, device=device)
-    wp.launch(kernel, dim=dim, inputs=[*inputs, count], device=device)
-    return int(count.numpy()[0])
-
-
-def _host(x: Any) -> np.ndarray | None:
-    """A zero-copy NumPy view of a host array, None for an array on a CUDA device."""
-    if isinstance(x, wp.array):
-        return x.numpy() if x.device.is_cpu else None
-    return np.asarray(x)
-
-
 def check_bbox(name: str, bbox: Any) -> np.ndarray:
     """`bbox` as a (2, 3) float64 array [min corner, max corner] with finite corners and min < max."""
     b = np.asarray(bbox.numpy() if isinstance(bbox, wp.array) else bbox, dtype=np.float64)
@@ -89,9 +76,9 @@ def check_ray_offsets(a: A.Inputs, name: str, offsets: Any, n_samples: int) -> w
         raise ValueError(f"{name}: expected shape (R+1,), got {shape}")
     arr = a.ints(name, offsets)
     if A.values_checked():
-        h = _host(arr)
+        h = A.host_view(arr)
         if h is None:
-            bad = _device_count(_count_bad_offsets, arr.shape[0], [arr, int(n_samples)], arr.device) > 0
+            bad = A.device_count(_count_bad_offsets, arr.shape[0], [arr, int(n_samples)], arr.device) > 0
         else:
             bad = h[0] != 0 or h[-1] != n_samples or bool(np.any(h[1:] < h[:-1]))
         if bad:
@@ -103,8 +90,8 @@ def check_directions(name: str, dirs: wp.array) -> None:
     """ValueError if a row of the (R, 3) float array `dirs` is the zero vector (a value check)."""
     if not A.values_checked() or dirs.shape[0] == 0:
         return
-    h = _host(dirs)
+    h = A.host_view(dirs)
     zero = (np.any(np.all(h == 0, axis=1)) if h is not None
-            else _device_count(_count_zero_rows, dirs.shape[0], [dirs], dirs.device) > 0)
+            else A.device_count(_count_zero_rows, dirs.shape[0], [dirs], dirs.device) > 0)
     if zero:
         raise ValueError(f"{name}: expected non-zero directions, found a zero row")

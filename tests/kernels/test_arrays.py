@@ -88,7 +88,7 @@ def test_all_finite_overflow_and_warp_arrays():
 
 def test_device_reductions_match_host(monkeypatch):
     # The CUDA path (a counting kernel) runs here on the CPU by hiding the host view.
-    monkeypatch.setattr(A, "_host_view", lambda x: None if isinstance(x, wp.array) else np.asarray(x))
+    monkeypatch.setattr(A, "host_view", lambda x: None if isinstance(x, wp.array) else np.asarray(x))
     for dt in (np.float32, np.float64):
         good = wp.array(np.linspace(0, 1, 7).astype(dt), device="cpu")
         bad = wp.array(np.array([0.0, np.nan, -1.0], dt), device="cpu")

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import warp as wp
 
+from kernels import _arrays as A
 from kernels._arrays import value_checks
 from kernels.reference import volume as ref_volume
 from kernels.volume import OccupancyGrid, ray_aabb, sample_rays
@@ -196,7 +197,7 @@ def test_device_value_checks_count_like_the_host_checks():
     from kernels.volume import _checks
 
     def count(kernel, x, *extra):
-        return _checks._device_count(kernel, x.shape[0], [x, *extra], x.device)
+        return A.device_count(kernel, x.shape[0], [x, *extra], x.device)
 
     offsets = lambda *v: wp.array(np.array(v, np.int32))  # noqa: E731
     assert count(_checks._count_bad_offsets, offsets(0, 2, 2, 6), 6) == 0
