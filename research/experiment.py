@@ -23,8 +23,9 @@ Shared options, declared here once: --quick, --smoke (tiny sizes, seconds: what 
 
 Device: resolved and validated once, before the body runs: `cpu`, or `cuda` / `cuda:N` when Warp
 sees that device (otherwise a usage error naming --device). The body reads it from `ctx.device` and
-hands it to every stage (training, evaluation, timing). An experiment that runs NumPy only declares
-`warp=False`: it accepts --device (so `drlab reproduce --device cuda` can run it) and records `cpu`.
+hands it to every stage (training, evaluation, timing). An experiment that runs on the CPU only
+(NumPy, Mitsuba's LLVM variant) declares `warp=False`: it accepts a valid --device (so `drlab
+reproduce --device cuda` can run it) and records `cpu`.
 
 Results folder: the body writes into a temporary sibling `<out>.partial-<pid>`; only when it returns
 successfully does that folder replace `<out>` (the old folder is renamed aside, the new one renamed
@@ -254,7 +255,7 @@ class Experiment:
                                "run it); its numbers mean little")
         g.add_argument("--device", default="cpu",
                        help="Warp device: cpu (default), cuda or cuda:N when Warp sees one"
-                            + ("" if self.warp else "; this experiment runs NumPy on the CPU and records cpu"))
+                            + ("" if self.warp else "; this experiment runs on the CPU whatever the device, and records cpu"))
         g.add_argument("--out", type=Path, default=None,
                        help=f"results folder (default: {registry.describe_default_out(self.name)}). It is "
                             "replaced whole when the run finishes; a killed run leaves it as it was")
@@ -288,7 +289,7 @@ class Experiment:
                 p.error(str(e))
             device = "cpu"
             if args.device != "cpu":
-                print(f"note: --device {args.device} accepted; {self.name} runs NumPy on the CPU")
+                print(f"note: --device {args.device} accepted; {self.name} runs on the CPU")
         final = Path(args.out) if args.out is not None else registry.default_out(self.name, quick=args.quick,
                                                                                    smoke=args.smoke)
         final = final.absolute()
