@@ -90,7 +90,8 @@ def run(ctx: Context) -> int:
     for cfg in configs(ctx.quick, ctx.seed, ctx.smoke):
         path = ctx.data / (cfg.scene + ("" if ctx.mode == "full" else "-" + ctx.mode))
         t0 = time.perf_counter()
-        generate(cfg, path, force=True, show_progress=ctx.progress)  # always regenerate: the render time is one of the results
+        # Always regenerated: the render time is one of the results.
+        generate(cfg, path, force=True, show_progress=ctx.progress)
         seconds = time.perf_counter() - t0
         renderer = SceneRenderer(get_scene(cfg.scene), spp=1)
         ds = load(path, verify_hashes=True)
@@ -129,7 +130,8 @@ main = Experiment("datasets", __doc__, run, warp=False,
                   data_help="where the datasets are written: <data>/<scene> (with --quick <scene>-quick, with --smoke "
                             "<scene>-smoke), always regenerated",
                   seed_help="seed of camera poses, splits and render noise",
-                  sizes="Quick: 12 views at 64x64, 16 spp, per scene (about a minute); smoke: 4 views at 32x32, 4 spp.").main
+                  sizes="Quick: 12 views at 64x64, 16 spp, per scene (about a minute); smoke: 4 views at 32x32, "
+                        "4 spp.").main
 
 if __name__ == "__main__":
     sys.exit(main())

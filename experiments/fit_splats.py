@@ -192,8 +192,8 @@ def run(ctx: Context) -> int:
              + "\n![renders beside the ground truth](renders.png)\n\n![training](training.png)\n")
     renders_figure(test_split.rgba[..., :3], ev.renders, ev.per_view, ctx.out / "renders.png")
     training_figure(result.history, result.events, ctx.out / "training.png")
-    ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "train": {
-                          k: (asdict(v) if hasattr(v, "__dataclass_fields__") else v) for k, v in asdict(tcfg).items()}},
+    train_config = {k: (asdict(v) if hasattr(v, "__dataclass_fields__") else v) for k, v in asdict(tcfg).items()}
+    ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "train": train_config},
                       metrics=metrics, table_md=table)
     print(table)
 

@@ -305,7 +305,8 @@ main = Experiment("raft_flow", __doc__, run,
                   data_help="cache root of the flow datasets: <data>/raft_flow-<scene>[-quick|-smoke], rendered if "
                             "missing",
                   seed_help="dataset seed (camera path, render noise)",
-                  sizes="Quick: scene `objects` only, 2 frame pairs; smoke: `objects` at 128x128, 4 spp, one pair.").main
+                  sizes="Quick: scene `objects` only, 2 frame pairs; smoke: `objects` at 128x128, 4 spp, "
+                        "one pair.").main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -255,7 +255,8 @@ class Experiment:
                                "run it); its numbers mean little")
         g.add_argument("--device", default="cpu",
                        help="Warp device: cpu (default), cuda or cuda:N when Warp sees one"
-                            + ("" if self.warp else "; this experiment runs on the CPU whatever the device, and records cpu"))
+                            + ("" if self.warp else "; this experiment runs on the CPU whatever the device, and "
+                                                    "records cpu"))
         g.add_argument("--out", type=Path, default=None,
                        help=f"results folder (default: {registry.describe_default_out(self.name)}). It is "
                             "replaced whole when the run finishes; a killed run leaves it as it was")
