@@ -43,7 +43,10 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
 
 def _experiment_command(name: str, quick: bool, device: str, out: Path | None, seed: int | None,
                         extra: list[str] = ()) -> list[str]:
-    cmd = [sys.executable, "-m", EXPERIMENTS[name].module, "--device", device]
+    # -P (Python 3.11+): the current directory is not put on sys.path, so a folder there named
+    # `experiments` cannot shadow the package; the code comes from PYTHONPATH or site-packages.
+    safe_path = ["-P"] if sys.version_info >= (3, 11) else []
+    cmd = [sys.executable, *safe_path, "-m", EXPERIMENTS[name].module, "--device", device]
     if out is not None:
         cmd += ["--out", str(Path(out).absolute())]
     if quick:

@@ -295,6 +295,9 @@ def test_stale_old_folder_of_a_dead_run_is_put_back(tmp_path):
 
 def test_drlab_run_passes_options_after_double_dash(tmp_path):
     out = tmp_path / "kt"
+    if sys.version_info >= (3, 11):  # a folder named `experiments` where drlab runs must not shadow the package
+        (tmp_path / "experiments").mkdir()
+        (tmp_path / "experiments" / "__init__.py").write_text("raise ImportError('the wrong experiments')\n")
     r = _run(["-m", "research.cli", "run", "kalman_tracking", "--seed", "2", "--out", "kt", "--",
               "--smoke", "--trials", "7", "--no-progress"], cwd=tmp_path, timeout=240)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
