@@ -318,7 +318,9 @@ def _can_build_wheels() -> bool:
         return False
     if tuple(int(x) for x in setuptools.__version__.split(".")[:2]) >= (70, 1):
         return True
-    return importlib.util.find_spec("wheel") is not None
+    from importlib.metadata import entry_points  # the `wheel` distribution registers bdist_wheel
+
+    return any(ep.name == "bdist_wheel" for ep in entry_points(group="distutils.commands"))
 
 
 @pytest.mark.timeout(240)
