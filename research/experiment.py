@@ -9,8 +9,7 @@ An experiment module defines a body that receives a `Context`, and the options t
         ...                                   # everything it writes goes under ctx.out
         ctx.write_results(config=..., metrics=..., table_md=...)
 
-    EXPERIMENT = Experiment("kalman_tracking", __doc__, run, add_options, sizes="...")
-    main = EXPERIMENT.main                    # main(argv=None) -> exit status
+    main = Experiment("kalman_tracking", __doc__, run, add_options, sizes="...").main  # argv -> exit status
 
     if __name__ == "__main__":
         sys.exit(main())
@@ -275,22 +274,17 @@ class Experiment:
         args = p.parse_args(argv)
         if args.data is None:
             args.data = registry.default_data_dir()
+        try:
+            device = resolve_device(args.device)
+        except ValueError as e:
+            p.error(str(e))  # exit status 2, the message names --device
         if self.warp:
-            try:
-                device = resolve_device(args.device)
-            except ValueError as e:
-                p.error(str(e))
             from research.warp_runtime import init_warp
 
-            init_warp(device)
-        else:
-            try:
-                resolve_device(args.device)
-            except ValueError as e:
-                p.error(str(e))
+            init_warp(device)  # also Warp's default device, for objects an experiment creates without one
+        elif device != "cpu":
+            print(f"note: --device {args.device} accepted; {self.name} runs on the CPU")
             device = "cpu"
-            if args.device != "cpu":
-                print(f"note: --device {args.device} accepted; {self.name} runs on the CPU")
         final = Path(args.out) if args.out is not None else registry.default_out(self.name, quick=args.quick,
                                                                                    smoke=args.smoke)
         final = final.absolute()
