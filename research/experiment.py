@@ -130,14 +130,29 @@ def clean_stale(out: str | Path) -> list[Path]:
     return removed
 
 
+def check_replaceable(out: str | Path) -> None:
+    """Raise ValueError unless `out` is absent, empty, or a results folder (it holds metrics.json).
+
+    The whole folder is replaced, so `--out` must never name a folder with other contents (a home
+    directory, a checkout).
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / "metrics.json").is_file():
+        raise ValueError(f"--out {out}: the folder is replaced whole by the run, but it is neither empty nor an "
+                         "experiment's results folder (no metrics.json); choose another folder")
+
+
 @contextlib.contextmanager
 def results_folder(out: str | Path):
     """Yield a fresh temporary folder that replaces `out` when the block finishes without an exception.
 
     On an exception (KeyboardInterrupt and SystemExit included) the temporary folder is deleted and
-    `out` is left as it was.
+    `out` is left as it was. `out` must pass `check_replaceable`.
     """
     out = Path(out).absolute()
+    check_replaceable(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     clean_stale(out)
     tmp = out.with_name(f"{out.name}{_PARTIAL}{os.getpid()}")
@@ -288,6 +303,10 @@ class Experiment:
         final = Path(args.out) if args.out is not None else registry.default_out(self.name, quick=args.quick,
                                                                                    smoke=args.smoke)
         final = final.absolute()
+        try:
+            check_replaceable(final)
+        except ValueError as e:
+            p.error(str(e))
         with _sigterm_as_exit():
             with results_folder(final) as tmp:
                 ctx = Context(self.name, args, device, tmp, final)

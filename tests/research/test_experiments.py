@@ -208,9 +208,22 @@ def test_a_run_that_raises_leaves_the_previous_folder_intact(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
 
 
+def test_out_must_be_a_results_folder_since_it_is_replaced_whole(tmp_path):
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "notes.txt").write_text("not results")
+    r = _run(["-m", "experiments.kalman_tracking", "--smoke", "--out", str(home)], timeout=120)
+    assert r.returncode == 2 and "--out" in r.stderr and "no metrics.json" in r.stderr
+    assert [p.name for p in home.iterdir()] == ["notes.txt"]
+    with pytest.raises(ValueError, match="neither empty nor an experiment's results folder"):
+        with experiment.results_folder(home):
+            pass
+
+
 def test_a_finished_run_replaces_the_folder_whole(tmp_path):
     out = tmp_path / "res"
     out.mkdir()
+    (out / "metrics.json").write_text("{}")
     (out / "stale.png").write_bytes(b"from an older run")
 
     def body(ctx):
