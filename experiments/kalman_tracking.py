@@ -389,7 +389,8 @@ def table_markdown(metrics, obs_rmse, explain, tuned, trials, tune_trials) -> st
 
 
 main = Experiment(EXPERIMENT, __doc__, run, add_options, warp=False, seed_help="seed of all noise draws",
-                  sizes="Quick: 200 evaluation draws and 100 tuning trajectories (a few seconds).").main
+                  sizes="Quick: 200 evaluation draws and 100 tuning trajectories (a few seconds); smoke: 20 and "
+                        "10.").main
 
 if __name__ == "__main__":
     sys.exit(main())

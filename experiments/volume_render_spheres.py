@@ -141,7 +141,8 @@ def figure(ref: np.ndarray, warp64: np.ndarray, cv, path: Path) -> None:
 
 
 main = Experiment("volume_render_spheres", __doc__, run, seed_help="unused: the task is deterministic; recorded",
-                  sizes="Quick: a median of 3 timed runs per renderer instead of 5 (the images are the same).").main
+                  sizes="Quick: a median of 3 timed runs per renderer instead of 5 (the images are the same); "
+                        "smoke: the same view at 16x16.").main
 
 if __name__ == "__main__":
     sys.exit(main())

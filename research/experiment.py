@@ -261,11 +261,11 @@ class Experiment:
     def parser(self) -> argparse.ArgumentParser:
         p = argparse.ArgumentParser(prog=f"python -m experiments.{self.name}", description=self.doc,
                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-        g = p.add_argument_group("options every experiment has")
+        g = p.add_argument_group("options every experiment has", description=f"Sizes. {self.sizes}")
         size = g.add_mutually_exclusive_group()
-        size.add_argument("--quick", action="store_true", help=f"smaller settings. {self.sizes}")
+        size.add_argument("--quick", action="store_true", help="smaller settings (sizes above)")
         size.add_argument("--smoke", action="store_true",
-                          help="tiny sizes, a few seconds: checks that the experiment runs end to end (the tests "
+                          help="tiny sizes, seconds (above): checks that the experiment runs end to end (the tests "
                                "run it); its numbers mean little")
         g.add_argument("--device", default="cpu",
                        help="Warp device: cpu (default), cuda or cuda:N when Warp sees one"
