@@ -16,29 +16,29 @@ Writes results/datasets/{table.md, metrics.json, preview.png}.
 
 from __future__ import annotations
 
-import argparse
-from dataclasses import asdict
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from research.results import markdown_table, save_figure, write_results  # noqa: E402
+from research.experiment import Context, Experiment
+from research.results import markdown_table, save_figure
 
 SCENES = ("objects", "spheres", "cornell")
 
 
-def configs(quick: bool, seed: int):
+def configs(quick: bool, seed: int, smoke: bool = False):
     from research.datasets import DatasetConfig
 
+    if smoke:
+        return [DatasetConfig(s, views=4, res=32, spp=4, seed=seed, stereo=True, stereo_pairs=2, flow=True,
+                              flow_frames=3) for s in SCENES]
     if quick:
         return [DatasetConfig(s, views=12, res=64, spp=16, seed=seed, stereo=True, stereo_pairs=3, flow=True,
                               flow_frames=4) for s in SCENES]
-    # The headline configuration for `objects`; fewer views for the other two scenes.
+    # The headline configuration for `objects`; fewer views for the other two scenes.
     return [DatasetConfig("objects", views=100, res=256, spp=64, seed=seed, stereo=True, flow=True)] + [
         DatasetConfig(s, views=40, res=256, spp=64, seed=seed, stereo=True, flow=True) for s in SCENES[1:]]
 
@@ -80,30 +80,18 @@ def preview(paths: dict[str, Path], out: Path) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="12 views at 64x64, 16 spp (about a minute)")
-    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"],
-                    help="accepted for a uniform CLI; Mitsuba renders with its LLVM (CPU) variant")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "datasets", help="results directory")
-    ap.add_argument("--data", type=Path, default=REPO / "data", help="where datasets are written")
-    ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args(argv)
-    from research.warp_runtime import init_warp
-
-    init_warp()
-
+def run(ctx: Context) -> int:
     from research.datasets import consistency, generate, get_scene, load, load_flow, load_stereo
     from research.datasets.render import SceneRenderer
     from research.mitsuba_env import select_variant
 
     variant = select_variant()
-    t_start = time.perf_counter()
     rows, metrics, paths = [], {}, {}
-    for cfg in configs(args.quick, args.seed):
-        path = args.data / (cfg.scene + ("-quick" if args.quick else ""))
+    for cfg in configs(ctx.quick, ctx.seed, ctx.smoke):
+        path = ctx.data / (cfg.scene + ("" if ctx.mode == "full" else "-" + ctx.mode))
         t0 = time.perf_counter()
-        generate(cfg, path, force=True)  # always regenerate: the render time is one of the results
+        # Always regenerated: the render time is one of the results.
+        generate(cfg, path, force=True, show_progress=ctx.progress)
         seconds = time.perf_counter() - t0
         renderer = SceneRenderer(get_scene(cfg.scene), spp=1)
         ds = load(path, verify_hashes=True)
@@ -131,13 +119,19 @@ def main(argv: list[str] | None = None) -> int:
              "with the number of points above 1e-3 (the maximum, in metrics.json, can be a single point where "
              "the camera ray grazes an occluder's edge that the visibility ray misses).\n\n"
              + markdown_table(headers, rows))
-    preview(paths, args.out / "preview.png")
-    write_results(args.out, experiment="datasets", config={"quick": args.quick, "scenes": list(SCENES)},
-                  seed=args.seed, device="cpu", wall_time_s=time.perf_counter() - t_start,
-                  metrics={"mitsuba_variant": variant, "scenes": metrics}, table_md=table)
+    preview(paths, ctx.out / "preview.png")
+    ctx.write_results(config={"quick": ctx.quick, "scenes": list(SCENES)}, device="cpu",
+                      metrics={"mitsuba_variant": variant, "scenes": metrics}, table_md=table)
     print(table)
     return 0
 
+
+main = Experiment("datasets", __doc__, run, warp=False,
+                  data_help="where the datasets are written: <data>/<scene> (with --quick <scene>-quick, with --smoke "
+                            "<scene>-smoke), always regenerated",
+                  seed_help="seed of camera poses, splits and render noise",
+                  sizes="Quick: 12 views at 64x64, 16 spp, per scene (about a minute); smoke: 4 views at 32x32, "
+                        "4 spp.").main
 
 if __name__ == "__main__":
     sys.exit(main())

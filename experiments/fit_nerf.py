@@ -19,20 +19,17 @@ Writes results/fit_nerf/{table.md, metrics.json, renders_<field>.png, loss.png}.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from dataclasses import dataclass, field as dc_field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from research.datasets import CACHE_ROOT_HELP  # noqa: E402
-from research.results import markdown_table, save_figure, write_results  # noqa: E402
+from research.datasets import CACHE_ROOT_HELP
+from research.experiment import Context, Experiment
+from research.results import markdown_table, save_figure
 
 FIELDS = ("grid", "hashgrid", "pe_mlp")
 
@@ -51,21 +48,29 @@ def grid_resolution(bbox: np.ndarray, n_max: int) -> tuple[int, int, int]:
     return tuple(int(max(2, round(e / ext.max() * (n_max - 1)) + 1)) for e in ext)
 
 
-def plans(quick: bool, bbox: np.ndarray) -> dict[str, dict[str, Any]]:
+def plans(quick: bool, bbox: np.ndarray, smoke: bool = False) -> dict[str, dict[str, Any]]:
     """Per field: constructor, training stages and the TrainConfig options shared by its stages.
 
-    Chosen by short tuning runs on the default dataset (see the issue note): exp density activation
+    Chosen by short tuning runs on the default dataset: exp density activation
     for every field; black-background training (the metric's background); occupancy threshold
     sigma > 1 (sigma * step ~ 0.016, instant-ngp's minimum optical thickness of 0.01 at this step).
     """
     from kernels.volume import GridField, HashGridField, PEMLPField
 
     ext = float((bbox[1] - bbox[0]).max())
-    step = ext / (128 if quick else 256)
-    occ_res = tuple(max(1, r - 1) for r in grid_resolution(bbox, 65 if quick else 129))
-    grid_res = [grid_resolution(bbox, r) for r in ((33, 65, 129) if quick else (65, 129, 257))]
-    grid_iters = (300, 300, 300) if quick else (400, 500, 800)
-    common = dict(step=step, occupancy_res=occ_res, occupancy_threshold=1.0, batch_rays=2048 if quick else 4096)
+    if smoke:  # tiny: every stage runs, the numbers mean little
+        step = ext / 64
+        occ_res = tuple(max(1, r - 1) for r in grid_resolution(bbox, 17))
+        grid_res = [grid_resolution(bbox, r) for r in (9, 17)]
+        grid_iters = (15, 15)
+        common = dict(step=step, occupancy_res=occ_res, occupancy_threshold=1.0, batch_rays=256)
+    else:
+        step = ext / (128 if quick else 256)
+        occ_res = tuple(max(1, r - 1) for r in grid_resolution(bbox, 65 if quick else 129))
+        grid_res = [grid_resolution(bbox, r) for r in ((33, 65, 129) if quick else (65, 129, 257))]
+        grid_iters = (300, 300, 300) if quick else (400, 500, 800)
+        common = dict(step=step, occupancy_res=occ_res, occupancy_threshold=1.0, batch_rays=2048 if quick else 4096)
+    mlp_iters, mlp_batch = (20, 256) if smoke else (None, 2048)
     return {
         "grid": dict(
             make=lambda seed: GridField(bbox, grid_res[0], density_bias=-3.0, density_activation="exp", seed=seed),
@@ -74,18 +79,20 @@ def plans(quick: bool, bbox: np.ndarray) -> dict[str, dict[str, Any]]:
         "hashgrid": dict(
             make=lambda seed: HashGridField(bbox, n_levels=12, n_features=2, log2_table_size=15, base_resolution=16,
                                             max_resolution=256 if quick else 512, density_bias=-1.0, seed=seed),
-            stages=[Stage(400 if quick else 1200)],
-            config=dict(common, lr=1e-2, batch_rays=2048)),
+            stages=[Stage(mlp_iters or (400 if quick else 1200))],
+            config=dict(common, lr=1e-2, batch_rays=mlp_batch)),
         "pe_mlp": dict(
             make=lambda seed: PEMLPField(bbox, n_freqs=8, density_bias=-1.0, seed=seed),
-            stages=[Stage(400 if quick else 1500)],
-            config=dict(common, lr=5e-3, batch_rays=2048)),
+            stages=[Stage(mlp_iters or (400 if quick else 1500))],
+            config=dict(common, lr=5e-3, batch_rays=mlp_batch)),
     }
 
 
-def dataset_config(quick: bool, seed: int):
+def dataset_config(quick: bool, seed: int, smoke: bool = False):
     from research.datasets import DatasetConfig
 
+    if smoke:
+        return DatasetConfig("objects", views=8, res=32, spp=4, seed=seed)
     if quick:
         return DatasetConfig("objects", views=40, res=64, spp=32, seed=seed)
     return DatasetConfig("objects", views=100, res=128, spp=64, seed=seed)
@@ -197,20 +204,11 @@ def figures(results: dict[str, Any], split, gt_srgb: np.ndarray, out: Path, n_vi
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true",
-                    help="40 views at 64x64 (32 spp) and short schedules: all three fields in a few minutes")
-    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device (fields and rendering)")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "fit_nerf", help="results directory")
-    ap.add_argument("--data", type=Path, default=REPO / "data", help=CACHE_ROOT_HELP)
-    ap.add_argument("--fields", nargs="+", default=list(FIELDS), choices=FIELDS, help="fields to fit")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--no-progress", action="store_true", help="hide the tqdm bars")
-    args = ap.parse_args(argv)
-    from research.warp_runtime import init_warp
+def add_options(p) -> None:
+    p.add_argument("--fields", nargs="+", default=list(FIELDS), choices=FIELDS, help="fields to fit (default: all)")
 
-    init_warp(args.device)
+
+def run(ctx: Context) -> int:
     import warp as wp
 
     from research import comparison
@@ -218,23 +216,22 @@ def main(argv: list[str] | None = None) -> int:
     from research.metrics import EVAL_PROTOCOL
     from research.nerf.train import RayBank, srgb_targets
 
-    t_start = time.perf_counter()
-    cfg = dataset_config(args.quick, 0)
-    data = cache_dir(cfg, args.data)
+    args = ctx.args
+    cfg = dataset_config(ctx.quick, 0, ctx.smoke)
+    data = cache_dir(cfg, ctx.data)
     t0 = time.perf_counter()
-    ds = load(ensure(cfg, data, show_progress=not args.no_progress))
+    ds = load(ensure(cfg, data, show_progress=ctx.progress))
     dataset_s = time.perf_counter() - t0
     train_split, test_split = ds.load_split("train"), ds.load_split("test")
     bbox = ds.bbox.copy()
     bank = RayBank.from_views(train_split.cameras, train_split.rgba)
     gt = srgb_targets(test_split.rgba)
-    floor = noise_floor(ds, test_split, gt, 3, args.seed)
+    floor = noise_floor(ds, test_split, gt, 3, ctx.seed)
 
     results: dict[str, Any] = {}
-    all_plans = plans(args.quick, bbox)
+    all_plans = plans(ctx.quick, bbox, ctx.smoke)
     for name in args.fields:
-        field, occupancy, log = fit_one(name, all_plans[name], bank, bbox, args.quick, args.seed,
-                                        not args.no_progress)
+        field, occupancy, log = fit_one(name, all_plans[name], bank, bbox, ctx.quick, ctx.seed, ctx.progress)
         ev = evaluate(field, occupancy, bbox, all_plans[name]["config"]["step"], test_split, gt)
         results[name] = {"train": log, "eval": {k: v for k, v in ev.items() if k != "images"},
                          "images": ev["images"], "params": field.n_params(),
@@ -244,8 +241,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name}: PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, depth MAE {m['depth_mae']:.3f}, "
               f"train {log['train_s']:.0f} s, {m['seconds']:.2f} s/image", flush=True)
 
-    args.out.mkdir(parents=True, exist_ok=True)
-    figures(results, test_split, gt, args.out)
+    figures(results, test_split, gt, ctx.out)
     rows = []
     for name, r in results.items():
         m, t = r["eval"]["mean"], r["train"]
@@ -255,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
     headers = ["field", "parameters", "iterations", "test PSNR (dB)", "test SSIM", "depth MAE in mask",
                "train s", "s / image", "samples/ray (train, last 100 it)", "samples/ray (test)"]
     table = (f"`objects` from `drlab dataset` ({cfg.views} views, {cfg.res}x{cfg.res}, {cfg.spp} spp): "
-             f"{len(train_split.cameras)} training and {len(test_split.cameras)} test views, device `{args.device}`, "
+             f"{len(train_split.cameras)} training and {len(test_split.cameras)} test views, device `{ctx.device}`, "
              "2-core CPU. PSNR and SSIM in sRGB over a black background; depth MAE is |expected z-depth - "
              "Mitsuba z-depth| inside the ground-truth mask (scene units; the cameras are ~4.2 away).\n\n"
              + markdown_table(headers, rows)
@@ -275,14 +271,17 @@ def main(argv: list[str] | None = None) -> int:
                                  "config": {k: v for k, v in r["train"]["config"].items()},
                                  "final_loss": float(np.mean(r["train"]["losses"][-100:]))}
                           for name, r in results.items()}}
-    write_results(args.out, experiment="fit_nerf", config={"quick": args.quick, "fields": args.fields},
-                  seed=args.seed, device=args.device, wall_time_s=time.perf_counter() - t_start, metrics=metrics,
-                  table_md=table)
+    ctx.write_results(config={"quick": ctx.quick, "fields": args.fields}, metrics=metrics, table_md=table)
     print(table)
-    if not args.quick:
-        print(comparison.update_comparison(args.out.parent))
+    if not ctx.quick:  # reads this run's metrics.json, so only once the folder is in place
+        ctx.after_commit(lambda: comparison.update_comparison(ctx.final_out.parent))
     return 0
 
+
+main = Experiment("fit_nerf", __doc__, run, add_options, data_help=CACHE_ROOT_HELP,
+                  seed_help="seed of the fields' initialisation, ray batches and the noise-floor render",
+                  sizes="Quick: 40 views at 64x64 (32 spp) and short schedules, all three fields in a few minutes; "
+                        "smoke: 8 views at 32x32, 4 spp, tens of iterations.").main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -25,19 +25,18 @@ results/comparison/table.md (3DGS Table 1 form: research.comparison).
 
 from __future__ import annotations
 
-import argparse
 import sys
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+import numpy as np
 
-import numpy as np  # noqa: E402
+from research import registry
+from research.datasets import CACHE_ROOT_HELP
+from research.experiment import Context, Experiment
+from research.results import markdown_table, save_figure
 
-from research.datasets import CACHE_ROOT_HELP  # noqa: E402
-from research.results import markdown_table, save_figure, write_results  # noqa: E402
+REPO = registry.REPO_ROOT
 
 
 @dataclass(frozen=True)
@@ -50,7 +49,9 @@ class Setup:
     max_gaussians: int
 
 
-def setup(quick: bool) -> Setup:
+def setup(quick: bool, smoke: bool = False) -> Setup:
+    if smoke:
+        return Setup(views=8, res=32, spp=4, iterations=40, init_points=300, max_gaussians=1000)
     if quick:
         return Setup(views=40, res=64, spp=16, iterations=800, init_points=3000, max_gaussians=12_000)
     return Setup(views=100, res=128, spp=64, iterations=3000, init_points=8000, max_gaussians=30_000)
@@ -111,69 +112,61 @@ def training_figure(history: list[dict], events: list[dict], path: Path) -> None
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true",
-                    help="40 views at 64x64, 800 iterations (a few minutes on 2 cores)")
-    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device of the kernels")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "fit_splats", help="results directory")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--data", type=Path, default=REPO / "data", help=CACHE_ROOT_HELP)
-    ap.add_argument("--ply", type=Path, default=None,
-                    help="where to write the PLY (default build/fit_splats[-quick]/point_cloud.ply)")
-    ap.add_argument("--init", choices=["depth", "random"], default="depth",
-                    help="initial points: ground-truth depth of the train views, or random in the scene box")
-    ap.add_argument("--iterations", type=int, default=None, help="override the number of training iterations")
-    ap.add_argument("--no-progress", action="store_true", help="hide the progress bars")
-    args = ap.parse_args(argv)
+def add_options(p) -> None:
+    p.add_argument("--ply", type=Path, default=None,
+                   help="where to write the PLY (default build/fit_splats[-quick|-smoke]/point_cloud.ply, in the "
+                        "checkout when run from one, else under the current directory)")
+    p.add_argument("--init", choices=["depth", "random"], default="depth",
+                   help="initial points: ground-truth depth of the train views, or random in the scene box")
+    p.add_argument("--iterations", type=int, default=None, help="override the number of training iterations")
 
+
+def run(ctx: Context) -> int:
     import warp as wp
 
-    from research.warp_runtime import init_warp
-
-    init_warp()
     from research import comparison, datasets
     from research.metrics import EVAL_PROTOCOL
     from research.splats import model as sm, ply, train as st
 
-    cfg = setup(args.quick)
+    args = ctx.args
+    cfg = setup(ctx.quick, ctx.smoke)
     if args.iterations is not None:
         cfg = Setup(**{**asdict(cfg), "iterations": args.iterations})
-    t_start = time.perf_counter()
-    suffix = "-quick" if args.quick else ""
-    dcfg = datasets.DatasetConfig("objects", views=cfg.views, res=cfg.res, spp=cfg.spp, seed=args.seed)
-    path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, args.data), show_progress=not args.no_progress)
+    suffix = "" if ctx.mode == "full" else "-" + ctx.mode
+    dcfg = datasets.DatasetConfig("objects", views=cfg.views, res=cfg.res, spp=cfg.spp, seed=ctx.seed)
+    path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, ctx.data), show_progress=ctx.progress)
     ds = datasets.load(path)
     train_split, test_split = ds.load_split("train"), ds.load_split("test")
 
     if args.init == "depth":
         points, colors = sm.points_from_depth(train_split.cameras, train_split.rgba, train_split.depth,
-                                              cfg.init_points, args.seed)
+                                              cfg.init_points, ctx.seed)
     else:
-        points, colors = sm.random_points(ds.bbox, cfg.init_points, args.seed)
+        points, colors = sm.random_points(ds.bbox, cfg.init_points, ctx.seed)
     model = sm.from_points(points, colors)
     extent = sm.scene_extent(train_split.cameras)
-    tcfg = st.TrainConfig(iterations=cfg.iterations, seed=args.seed,
+    tcfg = st.TrainConfig(iterations=cfg.iterations, seed=ctx.seed,
                           densify=st.DensifyConfig(max_gaussians=cfg.max_gaussians))
-    result = st.train(model, train_split.cameras, train_split.rgba[..., :3], extent, tcfg, device=args.device,
-                      progress=not args.no_progress)
+    result = st.train(model, train_split.cameras, train_split.rgba[..., :3], extent, tcfg, device=ctx.device,
+                      progress=ctx.progress)
     model = result.model
 
-    ev = st.evaluate(model, test_split.cameras, test_split.rgba[..., :3], result.sh_degree)
-    ev_train = st.evaluate(model, train_split.cameras[:10], train_split.rgba[:10, ..., :3], result.sh_degree)
-    fps = st.render_fps(model, test_split.cameras, result.sh_degree)
+    ev = st.evaluate(model, test_split.cameras, test_split.rgba[..., :3], result.sh_degree, device=ctx.device)
+    ev_train = st.evaluate(model, train_split.cameras[:10], train_split.rgba[:10, ..., :3], result.sh_degree,
+                           device=ctx.device)
+    fps = st.render_fps(model, test_split.cameras, result.sh_degree, device=ctx.device)
 
-    ply_path = args.ply or REPO / "build" / f"fit_splats{suffix}" / "point_cloud.ply"
+    ply_path = (args.ply or registry.base_dir() / "build" / f"fit_splats{suffix}" / "point_cloud.ply").absolute()
     ply.save_ply(ply_path, model)
     ply_bytes = ply_path.stat().st_size
     reloaded = ply.load_ply(ply_path)
-    same = np.array_equal(sm.render(reloaded, test_split.cameras[0], sh_degree=result.sh_degree).rgb.numpy(),
-                          ev.renders[0])
+    same = np.array_equal(sm.render(reloaded, test_split.cameras[0], sh_degree=result.sh_degree,
+                                    device=ctx.device).rgb.numpy(), ev.renders[0])
     if not same:
         raise RuntimeError(f"{ply_path}: the reloaded model renders a different image")
 
     metrics = {
-        "method": "3DGS (drlab Warp kernels, CPU)" if args.device == "cpu" else "3DGS (drlab Warp kernels)",
+        "method": "3DGS (drlab Warp kernels, CPU)" if ctx.device == "cpu" else "3DGS (drlab Warp kernels)",
         "scene": f"objects {cfg.res}x{cfg.res}, {len(train_split.cameras)} train / {len(test_split.cameras)} test",
         "eval_protocol": EVAL_PROTOCOL,
         "test_psnr": ev.psnr, "test_ssim": ev.ssim, "test_psnr_linear": ev.psnr_linear,
@@ -192,24 +185,27 @@ def main(argv: list[str] | None = None) -> int:
              f"{ev.psnr_linear:.2f}", f"{ev_train.psnr:.2f}", f"{result.seconds:.0f} s", f"{fps:.1f}",
              f"{ply_bytes / 1e6:.2f} MB"]]
     table = (f"3D Gaussian splatting fitted with drlab's Warp kernels (hand-written backward) on Warp device "
-             f"`{wp.get_device(args.device)}`: 3DGS loss, learning rates and schedule scaled to {cfg.iterations} "
+             f"`{wp.get_device(ctx.device)}`: 3DGS loss, learning rates and schedule scaled to {cfg.iterations} "
              f"iterations, at most {cfg.max_gaussians} splats (a CPU-time cap on densification). Evaluation: "
              f"{EVAL_PROTOCOL}. Render FPS: forward only (projection, binning, sorting, rasterisation) at the "
              "test resolution. Train-view PSNR on the first 10 train views.\n\n" + markdown_table(headers, rows)
              + "\n![renders beside the ground truth](renders.png)\n\n![training](training.png)\n")
-    renders_figure(test_split.rgba[..., :3], ev.renders, ev.per_view, args.out / "renders.png")
-    training_figure(result.history, result.events, args.out / "training.png")
-    write_results(args.out, experiment="fit_splats",
-                  config={"quick": args.quick, **asdict(cfg), "train": {
-                      k: (asdict(v) if hasattr(v, "__dataclass_fields__") else v) for k, v in asdict(tcfg).items()}},
-                  seed=args.seed, device=args.device, wall_time_s=time.perf_counter() - t_start,
-                  metrics=metrics, table_md=table)
+    renders_figure(test_split.rgba[..., :3], ev.renders, ev.per_view, ctx.out / "renders.png")
+    training_figure(result.history, result.events, ctx.out / "training.png")
+    train_config = {k: (asdict(v) if hasattr(v, "__dataclass_fields__") else v) for k, v in asdict(tcfg).items()}
+    ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "train": train_config},
+                      metrics=metrics, table_md=table)
     print(table)
 
-    if not args.quick:
-        print(comparison.update_comparison(args.out.parent))
+    if not ctx.quick:  # reads this run's metrics.json, so only once the folder is in place
+        ctx.after_commit(lambda: comparison.update_comparison(ctx.final_out.parent))
     return 0
 
+
+main = Experiment("fit_splats", __doc__, run, add_options, data_help=CACHE_ROOT_HELP,
+                  seed_help="seed of the dataset render, the initial points and training",
+                  sizes="Quick: 40 views at 64x64, 800 iterations (a few minutes on 2 cores); smoke: 8 views at "
+                        "32x32, 4 spp, 40 iterations.").main
 
 if __name__ == "__main__":
     sys.exit(main())

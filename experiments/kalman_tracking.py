@@ -1,6 +1,6 @@
-"""Kalman filtering of the textbook's circular trajectory (issue 7).
+"""Kalman filtering of the circular trajectory of the Video and 3D Vision textbook chapter.
 
-The textbook's coding task: a point goes once round a circle (50 steps,
+The chapter's coding task: a point goes once round a circle (50 steps,
 radius 10, centre (20, 20)), observed with isotropic Gaussian noise of
 sigma 2. Compared over many noise draws:
 
@@ -25,18 +25,15 @@ Writes results/kalman_tracking/: metrics.json, table.md, trajectory.png.
 
 from __future__ import annotations
 
-import argparse
 import sys
-import time
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 from scipy.optimize import minimize_scalar
-from tqdm import tqdm
 
-from research.registry import RESULTS_DIR
-from research.results import markdown_table, save_figure, write_results
+from research.experiment import Context, Experiment
+from research.results import markdown_table, save_figure
 from research.tracking import kalman
 from research.tracking.synthetic import circular_trajectory
 
@@ -45,25 +42,11 @@ N_STEPS, RADIUS, CENTRE, SIGMA = 50, 10.0, (20.0, 20.0), 2.0
 TEXTBOOK_Q, TEXTBOOK_P0 = 0.01, 10.0
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(
-        description="Kalman filter / RTS smoother on the textbook's noisy circle: textbook settings vs tuned "
-        "process noise vs smoothing, over many noise draws.",
-    )
-    p.add_argument("--quick", action="store_true", help="fewer trajectories (a smoke run of a few seconds)")
-    p.add_argument(
-        "--device", default="cpu", choices=["cpu", "cuda"],
-        help="accepted for the common CLI; NumPy runs on the CPU (default: cpu)",
-    )
-    p.add_argument(
-        "--out", type=Path, default=RESULTS_DIR / EXPERIMENT, help=f"output directory (default: results/{EXPERIMENT})"
-    )
-    p.add_argument("--seed", type=int, default=0, help="seed of all noise draws (default: 0)")
-    p.add_argument("--trials", type=int, default=None, help="evaluation noise draws (default 2000; quick 200)")
-    p.add_argument(
-        "--tune-trials", type=int, default=None, help="held-out tuning trajectories (default 500; quick 100)"
-    )
-    return p.parse_args(argv)
+def add_options(p) -> None:
+    p.add_argument("--trials", type=int, default=None,
+                   help="evaluation noise draws (default 2000; quick 200; smoke 20)")
+    p.add_argument("--tune-trials", type=int, default=None,
+                   help="held-out tuning trajectories (default 500; quick 100; smoke 10)")
 
 
 # -- models -----------------------------------------------------------------
@@ -225,22 +208,19 @@ def make_figure(truth, zs, outs, curve, q_hat, path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv: Sequence[str] | None = None) -> dict:
-    args = parse_args(argv)
-    if args.device != "cpu":
-        print(f"note: --device {args.device} accepted; this experiment runs on the CPU (NumPy)")
-    t_start = time.perf_counter()
-    trials = args.trials or (200 if args.quick else 2000)
-    tune_trials = args.tune_trials or (100 if args.quick else 500)
-    truth, zs = eval_measurements(args.seed, trials)
-    z_tune = tuning_measurements(args.seed, tune_trials)
+def run(ctx: Context) -> int:
+    args = ctx.args
+    trials = args.trials or (20 if ctx.smoke else 200 if ctx.quick else 2000)
+    tune_trials = args.tune_trials or (10 if ctx.smoke else 100 if ctx.quick else 500)
+    truth, zs = eval_measurements(ctx.seed, trials)
+    z_tune = tuning_measurements(ctx.seed, tune_trials)
 
     methods: dict[str, tuple[str, kalman.LinearGaussianModel, Callable, float]] = {
         "textbook": ("textbook: CV, Q = q I, textbook init", textbook_model(), textbook_prior, TEXTBOOK_Q),
         "textbook_diffuse": ("CV, Q = q I, diffuse prior", textbook_model(), diffuse, TEXTBOOK_Q),
     }
     tuned = {}
-    for key in tqdm(MODELS, desc="tuning q", disable=None):
+    for key in ctx.tqdm(MODELS, desc="tuning q", disable=None):
         q_hat, ll = tune_q(MODELS[key], z_tune)
         tuned[key] = {"q": q_hat, "heldout_loglik": ll}
     labels = {
@@ -255,7 +235,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     obs_rmse = rmse(zs, truth)
     obs_me = mean_euclid(zs, truth)
     outs, metrics = {}, {}
-    for key, (label, model, prior, q) in tqdm(methods.items(), desc="methods", disable=None):
+    for key, (label, model, prior, q) in ctx.tqdm(methods.items(), desc="methods", disable=None):
         out = run_method(model, prior, zs, truth)
         outs[key] = out
         f_rmse, s_rmse = rmse(out["filter"], truth), rmse(out["smoother"], truth)
@@ -289,11 +269,9 @@ def main(argv: Sequence[str] | None = None) -> dict:
         m = MODELS["cv_white_accel"](q)
         err_curve.append(float(rmse(kalman.kalman_filter(zs, m, *diffuse(zs, m)).x_filt[..., :2], truth).mean()))
 
-    args.out.mkdir(parents=True, exist_ok=True)
-    make_figure(truth, zs, outs, (qs, ll_curve, err_curve), tuned["cv_white_accel"]["q"], args.out / "trajectory.png")
+    make_figure(truth, zs, outs, (qs, ll_curve, err_curve), tuned["cv_white_accel"]["q"], ctx.out / "trajectory.png")
 
     table = table_markdown(metrics, obs_rmse, explain, tuned, trials, tune_trials)
-    wall = time.perf_counter() - t_start
     all_metrics = {
         "trials": trials,
         "tune_trials": tune_trials,
@@ -304,7 +282,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
         "q_sweep": {"q": qs.tolist(), "heldout_loglik": ll_curve, "eval_filter_rmse": err_curve},
     }
     config = {
-        "quick": args.quick,
+        "quick": ctx.quick,
         "n_steps": N_STEPS,
         "radius": RADIUS,
         "centre": list(CENTRE),
@@ -314,19 +292,9 @@ def main(argv: Sequence[str] | None = None) -> dict:
         "textbook": {"Q": "0.01 I", "R": "4 I", "P0": "10 I", "x0": "[z0, 0, 0]"},
         "diffuse_prior_var": 1e6,
     }
-    write_results(
-        args.out,
-        experiment=EXPERIMENT,
-        config=config,
-        seed=args.seed,
-        device="cpu",
-        wall_time_s=wall,
-        metrics=all_metrics,
-        table_md=table,
-    )
+    ctx.write_results(config=config, metrics=all_metrics, table_md=table)
     print(table)
-    print(f"wrote {args.out} in {wall:.1f} s")
-    return all_metrics
+    return 0
 
 
 def table_markdown(metrics, obs_rmse, explain, tuned, trials, tune_trials) -> str:
@@ -420,5 +388,9 @@ def table_markdown(metrics, obs_rmse, explain, tuned, trials, tune_trials) -> st
     return "\n".join(text)
 
 
+main = Experiment(EXPERIMENT, __doc__, run, add_options, warp=False, seed_help="seed of all noise draws",
+                  sizes="Quick: 200 evaluation draws and 100 tuning trajectories (a few seconds); smoke: 20 and "
+                        "10.").main
+
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    sys.exit(main())

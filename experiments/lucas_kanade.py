@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The textbook's Lucas-Kanade task: a white 20x20 square moved 5 px right.
+"""The Lucas-Kanade task of the Video and 3D Vision textbook chapter: a white 20x20 square moved 5 px right.
 
 A 64x64 frame holds a white square at rows 20-40, columns 15-35; in the second
 frame it sits 5 px further right. The textbook computes LK with a 7x7 window and
@@ -18,26 +18,22 @@ estimation with re-warping, which recovers 5.0.
 Rows of the table:
   1. the textbook code as written (NumPy port of its JAX loops);
   2. the same code with the gradient axes corrected (the only change);
-  3. kernels.flow.lucas_kanade, one step (the textbook's single-scale solve);
-  4. kernels.flow.lucas_kanade, 10 iterations with warping, still single scale;
-  5. kernels.flow.pyramidal_lucas_kanade, 3 levels, 10 iterations per level.
+  3. kernels.lucas_kanade.lucas_kanade, one step (the textbook's single-scale solve);
+  4. kernels.lucas_kanade.lucas_kanade, 10 iterations with warping, still single scale;
+  5. kernels.lucas_kanade.pyramidal_lucas_kanade, 3 levels, 10 iterations per level.
 
 Writes results/lucas_kanade/{table.md, metrics.json, quiver.png}.
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from research.results import markdown_table, save_figure, write_results  # noqa: E402
+from research.experiment import Context, Experiment
+from research.results import markdown_table, save_figure
 
 SIZE, ROWS, COLS, SHIFT = 64, (20, 40), (15, 35), 5
 WINDOW = 7  # the textbook's window_size
@@ -123,20 +119,9 @@ def quiver_figure(f1: np.ndarray, f2: np.ndarray, panels: list[tuple[str, np.nda
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="same task (it takes seconds either way)")
-    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device for kernels.flow")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "lucas_kanade", help="results directory")
-    ap.add_argument("--seed", type=int, default=0, help="unused: the task is deterministic (kept for the CLI)")
-    args = ap.parse_args(argv)
-    from research.warp_runtime import init_warp
-
-    init_warp()
-
+def run(ctx: Context) -> int:
     from kernels import lucas_kanade as flow
 
-    t_start = time.perf_counter()
     f1, f2 = frames()
     runs: dict[str, dict] = {}
     flows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
@@ -156,14 +141,14 @@ def main(argv: list[str] | None = None) -> int:
     record("textbook, axes fixed", u, v, (u != 0) | (v != 0), time.perf_counter() - t0)
 
     half = WINDOW // 2
-    settings = [("kernels.flow single scale, 1 step", dict(iterations=1), False),
-                ("kernels.flow single scale, 10 steps", dict(iterations=10), False),
-                ("kernels.flow pyramidal, 3 levels x 10 steps", dict(levels=3, iterations=10), True)]
+    settings = [("kernels.lucas_kanade single scale, 1 step", dict(iterations=1), False),
+                ("kernels.lucas_kanade single scale, 10 steps", dict(iterations=10), False),
+                ("kernels.lucas_kanade pyramidal, 3 levels x 10 steps", dict(levels=3, iterations=10), True)]
     for name, kwargs, pyramidal in settings:
         fn = flow.pyramidal_lucas_kanade if pyramidal else flow.lucas_kanade
-        fn(f1, f2, half_window=half, device=args.device, **kwargs)  # warm-up: compilation is not timed
+        fn(f1, f2, half_window=half, device=ctx.device, **kwargs)  # warm-up: compilation is not timed
         t0 = time.perf_counter()
-        fl, valid, _ = fn(f1, f2, half_window=half, device=args.device, **kwargs)
+        fl, valid, _ = fn(f1, f2, half_window=half, device=ctx.device, **kwargs)
         record(name, fl[..., 0], fl[..., 1], valid, time.perf_counter() - t0)
 
     headers = ["method", "printed mean u (textbook statistic)", "mean u, valid px", "mean v, valid px",
@@ -174,27 +159,28 @@ def main(argv: list[str] | None = None) -> int:
     table = (
         "Square 20x20 moved 5 px right (truth u = 5.0, v = 0); 7x7 window. 'Printed mean u' is the textbook's "
         "statistic: the mean of u over the pixels of rows 20-40, columns 15-35 where u != 0. Valid pixels: the "
-        "textbook's `|det| > 1e-6` for its rows, min-eigenvalue >= 1e-4 for kernels.flow.\n\n"
+        "textbook's `|det| > 1e-6` for its rows, min-eigenvalue >= 1e-4 for kernels.lucas_kanade.\n\n"
         + markdown_table(headers, rows, floatfmt=".3f")
         + f"\nThe textbook's printed value is {written['textbook_mean_u']:.2f}: its `Ix` differentiates along the "
         "rows (dI/dy), so its `u` is the vertical flow, zero for this motion. Its unprinted `v` holds the "
         f"horizontal estimate ({written['its_v_mean_nonzero']:.2f}). With the axes fixed, single-scale LK still "
         f"reaches only {runs['textbook, axes fixed']['textbook_mean_u']:.2f} px, as one linearisation of a step "
         "edge cannot see a 5 px motion; the pyramid with warping gives "
-        f"{runs['kernels.flow pyramidal, 3 levels x 10 steps']['mean_u_valid']:.3f} px at its valid pixels.\n")
+        f"{runs['kernels.lucas_kanade pyramidal, 3 levels x 10 steps']['mean_u_valid']:.3f} px at its valid pixels.\n")
     quiver_figure(f1, f2, [("textbook as written: its (u, v) drawn as (x, y)",
                             *flows["textbook as written (prints its u)"]),
                            ("axes fixed, single scale", *flows["textbook, axes fixed"]),
-                           ("pyramidal LK (valid pixels)", *flows["kernels.flow pyramidal, 3 levels x 10 steps"])],
-                  args.out / "quiver.png")
-    write_results(args.out, experiment="lucas_kanade",
-                  config={"quick": args.quick, "size": SIZE, "rows": ROWS, "cols": COLS, "shift": SHIFT,
-                          "window": WINDOW, "min_eigenvalue": 1e-4},
-                  seed=args.seed, device=args.device, wall_time_s=time.perf_counter() - t_start,
-                  metrics={"runs": runs, "truth_u": float(SHIFT)}, table_md=table)
+                           ("pyramidal LK (valid pixels)", *flows["kernels.lucas_kanade pyramidal, 3 levels x 10 steps"])],
+                  ctx.out / "quiver.png")
+    ctx.write_results(config={"quick": ctx.quick, "size": SIZE, "rows": ROWS, "cols": COLS, "shift": SHIFT,
+                              "window": WINDOW, "min_eigenvalue": 1e-4},
+                      metrics={"runs": runs, "truth_u": float(SHIFT)}, table_md=table)
     print(table)
     return 0
 
+
+main = Experiment("lucas_kanade", __doc__, run, seed_help="unused: the task is deterministic; recorded",
+                  sizes="The task is the same in every mode (it takes seconds).").main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,4 +1,4 @@
-"""Multi-object tracking on synthetic sequences: SORT, ByteTrack, ByteTrack + appearance (issue 7).
+"""Multi-object tracking on synthetic sequences: SORT, ByteTrack, ByteTrack + appearance.
 
 Data: research.tracking.synthetic (moving two-tone boxes with varied dynamics,
 mutual and pillar occlusions; a simulated detector whose score falls with
@@ -29,18 +29,16 @@ Writes results/mot_tracking/: metrics.json, table.md, tracks.png, recall_vs_visi
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 import warnings
 from pathlib import Path
-from typing import Callable, Sequence as Seq
+from typing import Callable
 
 import numpy as np
-from tqdm import tqdm
 
-from research.registry import RESULTS_DIR
-from research.results import markdown_table, save_figure, write_results
+from research.experiment import Context, Experiment
+from research.results import markdown_table, save_figure
 from research.tracking import ByteTrack, ByteTrackConfig, Sort, SortConfig
 from research.tracking.appearance import embed_boxes
 from research.tracking.boxes import InvalidDetectionWarning
@@ -68,24 +66,10 @@ TRACKERS: dict[str, tuple[str, Callable[[], object]]] = {
 }
 
 
-def parse_args(argv: Seq[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(
-        description="SORT vs ByteTrack vs ByteTrack+appearance on synthetic multi-object sequences "
-        "(MOTA, IDF1, ID switches, FPS).",
-    )
-    p.add_argument("--quick", action="store_true", help="2 short sequences (a smoke run of about 10 s)")
-    p.add_argument(
-        "--device", default="cpu", choices=["cpu", "cuda"],
-        help="accepted for the common CLI; runs on the CPU (default: cpu)",
-    )
-    p.add_argument(
-        "--out", type=Path, default=RESULTS_DIR / EXPERIMENT, help=f"output directory (default: results/{EXPERIMENT})"
-    )
-    p.add_argument("--seed", type=int, default=0, help="base seed; sequence i uses seed 1000 * seed + i (default: 0)")
-    p.add_argument("--sequences", type=int, default=None, help="number of sequences (default 8; quick 2)")
-    p.add_argument("--frames", type=int, default=None, help="frames per sequence (default 400; quick 100)")
+def add_options(p) -> None:
+    p.add_argument("--sequences", type=int, default=None, help="number of sequences (default 8; quick 2; smoke 1)")
+    p.add_argument("--frames", type=int, default=None, help="frames per sequence (default 400; quick 100; smoke 40)")
     p.add_argument("--objects", type=int, default=10, help="objects per sequence (default: 10)")
-    return p.parse_args(argv)
 
 
 def compute_embeddings(seq: Sequence) -> tuple[list[np.ndarray], float, float]:
@@ -237,13 +221,10 @@ def make_figures(seq: Sequence, outputs: dict[str, list[np.ndarray]], recall: di
     plt.close(fig)
 
 
-def main(argv: Seq[str] | None = None) -> dict:
-    args = parse_args(argv)
-    if args.device != "cpu":
-        print(f"note: --device {args.device} accepted; this experiment runs on the CPU (NumPy)")
-    t_start = time.perf_counter()
-    n_seq = args.sequences or (2 if args.quick else 8)
-    n_frames = args.frames or (100 if args.quick else 400)
+def run(ctx: Context) -> int:
+    args = ctx.args
+    n_seq = args.sequences or (1 if ctx.smoke else 2 if ctx.quick else 8)
+    n_frames = args.frames or (40 if ctx.smoke else 100 if ctx.quick else 400)
     scene = SceneConfig(n_objects=args.objects, n_frames=n_frames)
     detector = DetectorConfig()
 
@@ -254,8 +235,8 @@ def main(argv: Seq[str] | None = None) -> dict:
     vis_hits = {k: ([], []) for k in TRACKERS}
     seqs, t_embed_total, t_render_total, frames_total = [], 0.0, 0.0, 0
     first_outputs, first_embs = {}, None
-    for i in tqdm(range(n_seq), desc="sequences", disable=None):
-        seq = make_sequence(1000 * args.seed + i, scene, detector)
+    for i in ctx.tqdm(range(n_seq), desc="sequences", disable=None):
+        seq = make_sequence(1000 * ctx.seed + i, scene, detector)
         seqs.append(seq)
         embs, t_render, t_embed = compute_embeddings(seq)
         t_render_total += t_render
@@ -282,9 +263,8 @@ def main(argv: Seq[str] | None = None) -> dict:
     recall = {
         k: recall_by_visibility(np.concatenate(v[0]), np.concatenate(v[1]), VIS_BINS) for k, v in vis_hits.items()
     }
-    robust = robustness(seqs[0], first_embs, args.seed, n_frames=min(n_frames, 200))
-    args.out.mkdir(parents=True, exist_ok=True)
-    make_figures(seqs[0], first_outputs, recall, args.out, n_show=min(n_frames, 300))
+    robust = robustness(seqs[0], first_embs, ctx.seed, n_frames=min(n_frames, 200))
+    make_figures(seqs[0], first_outputs, recall, ctx.out, n_show=min(n_frames, 300))
     det = detector_stats(seqs)
 
     metrics = {"trackers": {}, "detector": det, "robustness": robust,
@@ -302,9 +282,8 @@ def main(argv: Seq[str] | None = None) -> dict:
             "per_sequence": per_seq[key],
         }
     table = table_markdown(metrics, n_seq, n_frames, args.objects)
-    wall = time.perf_counter() - t_start
     config = {
-        "quick": args.quick,
+        "quick": ctx.quick,
         "sequences": n_seq,
         "frames": n_frames,
         "scene": scene.__dict__,
@@ -314,11 +293,9 @@ def main(argv: Seq[str] | None = None) -> dict:
         "low_thresh": LOW,
         "iou_threshold_eval": 0.5,
     }
-    write_results(args.out, experiment=EXPERIMENT, config=config, seed=args.seed, device="cpu",
-                  wall_time_s=wall, metrics=metrics, table_md=table)
+    ctx.write_results(config=config, metrics=metrics, table_md=table)
     print(table)
-    print(f"wrote {args.out} in {wall:.1f} s")
-    return metrics
+    return 0
 
 
 def summary(x: list[float]) -> dict[str, float]:
@@ -446,5 +423,9 @@ def table_markdown(metrics: dict, n_seq: int, n_frames: int, n_obj: int) -> str:
     return "\n".join(lines)
 
 
+main = Experiment(EXPERIMENT, __doc__, run, add_options, warp=False,
+                  seed_help="base seed; sequence i uses seed 1000 * seed + i",
+                  sizes="Quick: 2 sequences of 100 frames (about 10 s); smoke: 1 sequence of 40 frames.").main
+
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    sys.exit(main())

@@ -15,7 +15,7 @@ k -> k+1, evaluated on non-occluded surface pixels (the datasets' `valid`).
 Reported:
   * EPE (px) and F1-all (KITTI: % of pixels with EPE > 3 px and > 5% of |gt|)
     for CorrFlow (levels 4, radius 4) against pyramidal Lucas-Kanade
-    (kernels.flow), OpenCV's Farneback and DIS (medium preset) and zero flow;
+    (kernels.lucas_kanade), OpenCV's Farneback and DIS (medium preset) and zero flow;
   * the ablation levels {1,2,3,4} x radius {1,2,3,4}, as in RAFT's ablations;
   * memory and time of the dense pyramid lookup against the on-the-fly one
     (which never stores the volume), and the largest difference between the
@@ -26,18 +26,15 @@ Writes results/raft_flow/{table.md, metrics.json, flow_<scene>.png, ablation.png
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from research.results import markdown_table, save_figure, write_results  # noqa: E402
+from research.experiment import Context, Experiment
+from research.results import markdown_table, save_figure
 
 SCENES = ("objects", "spheres", "cornell")
 LEVELS = (1, 2, 3, 4)
@@ -45,18 +42,21 @@ RADII = (1, 2, 3, 4)
 STRIDE = 4
 HEADLINE = (4, 4)  # levels, radius
 RES, SPP, STEP_DEG = 256, 32, 4.0
+SMOKE_RES, SMOKE_SPP = 128, 4  # 128: the LK baseline's 4 levels need a 9-px window at the coarsest
 
 
-def datasets(quick: bool, seed: int, data: Path) -> dict[str, Path]:
+def datasets(quick: bool, seed: int, data: Path, smoke: bool = False) -> dict[str, Path]:
     from research.datasets import DatasetConfig, ensure
 
-    scenes = SCENES[:1] if quick else SCENES
-    frames = 3 if quick else 4
+    scenes = SCENES[:1] if quick or smoke else SCENES
+    frames = 2 if smoke else 3 if quick else 4
+    res, spp = (SMOKE_RES, SMOKE_SPP) if smoke else (RES, SPP)
+    suffix = "-smoke" if smoke else "-quick" if quick else ""
     out = {}
     for scene in scenes:
-        cfg = DatasetConfig(scene, views=3, res=RES, spp=SPP, seed=seed, flow=True, flow_frames=frames,
+        cfg = DatasetConfig(scene, views=3, res=res, spp=spp, seed=seed, flow=True, flow_frames=frames,
                             flow_step_deg=STEP_DEG)
-        out[scene] = ensure(cfg, data / f"raft_flow-{scene}{'-quick' if quick else ''}", show_progress=False)
+        out[scene] = ensure(cfg, data / f"raft_flow-{scene}{suffix}", show_progress=False)
     return out
 
 
@@ -186,26 +186,14 @@ def ablation_figure(grid: np.ndarray, path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="scene `objects` only, 2 frame pairs")
-    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device for the kernels")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "raft_flow", help="results directory")
-    ap.add_argument("--data", type=Path, default=REPO / "data", help="where the flow datasets are rendered")
-    ap.add_argument("--seed", type=int, default=0, help="dataset seed")
-    args = ap.parse_args(argv)
-    from research.warp_runtime import init_warp
-
-    init_warp()
-
-    from tqdm import tqdm
-
+def run(ctx: Context) -> int:
     from research.datasets import load_flow, provenance
     from research.opticalflow import CorrFlow, CorrFlowConfig, flow_metrics, srgb
 
-    t_start = time.perf_counter()
-    paths = datasets(args.quick, args.seed, args.data)
-    t_data = time.perf_counter() - t_start
+    t0 = time.perf_counter()
+    paths = datasets(ctx.quick, ctx.seed, ctx.data, ctx.smoke)
+    t_data = time.perf_counter() - t0
+    res, spp = (SMOKE_RES, SMOKE_SPP) if ctx.smoke else (RES, SPP)
     pairs = [(scene, k) for scene, p in paths.items() for k in range(len(load_flow(p).flow))]
     ours_name = f"CorrFlow (L={HEADLINE[0]}, r={HEADLINE[1]})"
     per_scene: dict[str, dict[str, Pooled]] = {}
@@ -216,13 +204,13 @@ def main(argv: list[str] | None = None) -> int:
     gt_mag = np.concatenate([np.linalg.norm(seqs[sc].flow[k], axis=-1)[seqs[sc].valid[k]] for sc, k in pairs])
     motion = {"median_px": float(np.median(gt_mag)), "p90_px": float(np.percentile(gt_mag, 90)),
               "max_px": float(gt_mag.max())}
-    bar = tqdm(total=len(pairs) * (len(LEVELS) * len(RADII) + 1), desc="raft_flow", unit="run")
+    bar = ctx.tqdm(total=len(pairs) * (len(LEVELS) * len(RADII) + 1), desc="raft_flow", unit="run")
     for scene, k in pairs:
         seq = seqs[scene]
         rgb1, rgb2 = srgb(seq.frames[k]), srgb(seq.frames[k + 1])
         gt, mask = seq.flow[k].astype(np.float64), seq.valid[k]
         t0 = time.perf_counter()
-        cf = CorrFlow(rgb1, rgb2, stride=STRIDE, max_levels=max(LEVELS), device=args.device)
+        cf = CorrFlow(rgb1, rgb2, stride=STRIDE, max_levels=max(LEVELS), device=ctx.device)
         build_s = time.perf_counter() - t0
         flows = {}
         row = {"scene": scene, "pair": k, "build_s": build_s, "ablation": {}}
@@ -238,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
                     flows[ours_name] = fl
                     per_scene.setdefault(scene, {}).setdefault(ours_name, Pooled()).add(m, seconds)
                 bar.update()
-        for name, (fl, seconds) in baselines(rgb1, rgb2, args.device).items():
+        for name, (fl, seconds) in baselines(rgb1, rgb2, ctx.device).items():
             m = flow_metrics(fl, gt, mask)
             per_scene[scene].setdefault(name, Pooled()).add(m, seconds)
             row[name] = m
@@ -247,9 +235,9 @@ def main(argv: list[str] | None = None) -> int:
         bar.update()
         per_pair.append(row)
         if k == 0:
-            flow_figure(scene, rgb1, gt, mask, flows, args.out / f"flow_{scene}.png")
+            flow_figure(scene, rgb1, gt, mask, flows, ctx.out / f"flow_{scene}.png")
         if memtime is None:
-            memtime = memory_time(rgb1, rgb2, gt, mask, args.device)
+            memtime = memory_time(rgb1, rgb2, gt, mask, ctx.device)
     bar.close()
 
     # ------------------------------------------------------------------ tables
@@ -280,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
                for name, v in memtime.items() if isinstance(v, dict)]
     n_pairs = {scene: sum(1 for s, _ in pairs if s == scene) for scene in paths}
     table = (
-        f"Mitsuba flow pairs at {RES}x{RES} ({SPP} spp, camera azimuth step {STEP_DEG} deg), frame k -> k+1; "
+        f"Mitsuba flow pairs at {res}x{res} ({spp} spp, camera azimuth step {STEP_DEG} deg), frame k -> k+1; "
         f"pairs per scene: {n_pairs}. Metrics over non-occluded surface pixels: EPE in px, F1-all = % of "
         "pixels with EPE > 3 px and > 5% of |gt| (KITTI). CorrFlow: kernels.corr lookups driving a "
         f"weight-free update (research/opticalflow.py), features at stride {STRIDE}, 12 lookups. "
@@ -298,21 +286,27 @@ def main(argv: list[str] | None = None) -> int:
         f"largest difference between their flows: {memtime['max_flow_diff_px']:.2e} px.\n\n"
         + markdown_table(["path", "features C x h x w", "MiB", "setup s", "lookup ms", "estimate s (12 lookups)",
                           "EPE"], mt_rows))
-    ablation_figure(grid, args.out / "ablation.png")
+    ablation_figure(grid, ctx.out / "ablation.png")
     metrics = {
         "per_scene": {sc: {m: p.summary() for m, p in d.items()} for sc, d in per_scene.items()},
         "ablation": {f"L{lv}_r{r}": ablation[(lv, r)].summary() for lv in LEVELS for r in RADII},
         "memory_time": memtime, "per_pair": per_pair, "dataset_seconds": t_data, "gt_motion": motion,
         "datasets": {scene: provenance(p) for scene, p in paths.items()},
     }
-    config = {"quick": args.quick, "scenes": list(paths), "res": RES, "spp": SPP, "flow_step_deg": STEP_DEG,
+    config = {"quick": ctx.quick, "scenes": list(paths), "res": res, "spp": spp, "flow_step_deg": STEP_DEG,
               "stride": STRIDE, "headline": HEADLINE, "corrflow": CorrFlowConfig().__dict__,
               "levels": LEVELS, "radii": RADII}
-    write_results(args.out, experiment="raft_flow", config=config, seed=args.seed, device=args.device,
-                  wall_time_s=time.perf_counter() - t_start, metrics=metrics, table_md=table)
+    ctx.write_results(config=config, metrics=metrics, table_md=table)
     print(table)
     return 0
 
+
+main = Experiment("raft_flow", __doc__, run,
+                  data_help="cache root of the flow datasets: <data>/raft_flow-<scene>[-quick|-smoke], rendered if "
+                            "missing",
+                  seed_help="dataset seed (camera path, render noise)",
+                  sizes="Quick: scene `objects` only, 2 frame pairs; smoke: `objects` at 128x128, 4 spp, "
+                        "one pair.").main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -29,7 +29,6 @@ Writes results/stereo_depth/{table.md, metrics.json, disparity_maps.png, d1_by_m
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import os
 import sys
@@ -38,12 +37,10 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from research.results import markdown_table, save_figure, write_results  # noqa: E402
+from research.experiment import Context, Experiment
+from research.results import markdown_table, save_figure
 
 SCENES = ("objects", "cornell")
 METRIC_KEYS = ("epe", "bad1", "bad2", "bad3", "d1", "abs_rel", "density")
@@ -57,8 +54,10 @@ class Setup:
     dmax: int  # disparities [0, dmax); a multiple of 16 for OpenCV
 
 
-def setup(quick: bool) -> Setup:
+def setup(quick: bool, smoke: bool = False) -> Setup:
     # Ground-truth disparities reach ~43 px at 256x256 (~22 px at 128x128) in both scenes.
+    if smoke:
+        return Setup(res=64, spp=4, pairs=2, dmax=16)
     return Setup(res=128, spp=16, pairs=3, dmax=32) if quick else Setup(res=256, spp=64, pairs=6, dmax=64)
 
 
@@ -79,7 +78,7 @@ class Pair:
     left_rgb: np.ndarray
 
 
-def load_pairs(args: argparse.Namespace, st: Setup, used: dict[str, Any]) -> list[Pair]:
+def load_pairs(ctx: Context, st: Setup, used: dict[str, Any]) -> list[Pair]:
     """Every stereo pair of every scene; `used` receives each dataset's provenance."""
     from research.datasets import DatasetConfig, ensure, load_stereo, provenance
     from research.io import linear_to_srgb
@@ -87,9 +86,10 @@ def load_pairs(args: argparse.Namespace, st: Setup, used: dict[str, Any]) -> lis
 
     pairs = []
     for scene in SCENES:
-        cfg = DatasetConfig(scene, views=3, res=st.res, spp=st.spp, seed=args.seed, stereo=True,
+        cfg = DatasetConfig(scene, views=3, res=st.res, spp=st.spp, seed=ctx.seed, stereo=True,
                             stereo_pairs=st.pairs)
-        path = ensure(cfg, args.data / f"stereo_depth-{scene}{'-quick' if args.quick else ''}")
+        suffix = "" if ctx.mode == "full" else "-" + ctx.mode
+        path = ensure(cfg, ctx.data / f"stereo_depth-{scene}{suffix}", show_progress=ctx.progress)
         used[scene] = provenance(path)
         for p in load_stereo(path):
             has_gt = p.disparity > 0
@@ -179,12 +179,15 @@ def pooled(rows: list[dict[str, dict[str, float]]]) -> dict[str, float]:
     return out
 
 
-def tune(candidates: list[Method], tuning: list[Pair], desc: str) -> tuple[Method, list[dict]]:
-    """The candidate with the lowest mean D1 (noc) on the tuning pairs, and every candidate's score."""
-    from tqdm import tqdm
+def tune(candidates: list[Method], tuning: list[Pair], desc: str, ctx: Context) -> tuple[Method, list[dict]]:
+    """The candidate with the lowest mean D1 (noc) on the tuning pairs, and every candidate's score.
 
+    A smoke run tries only the first and the last candidate of each grid.
+    """
+    if ctx.smoke:
+        candidates = candidates[:1] + candidates[1:][-1:]
     scores = []
-    for m in tqdm(candidates, desc=desc, leave=False):
+    for m in ctx.tqdm(candidates, desc=desc, leave=False):
         d1 = float(np.mean([score(*m.run(p)[:2], p)["noc"]["d1"] for p in tuning]))
         scores.append({"params": m.params, "tuning_d1": d1})
     best = int(np.argmin([s["tuning_d1"] for s in scores]))
@@ -278,29 +281,16 @@ def figures(best: dict[str, Method], pairs: list[Pair], results: dict, out: Path
 # --------------------------------------------------------------------------- main
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="128x128 pairs, 16 spp, 3 pairs per scene (a few minutes)")
-    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device for drlab's kernels")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "stereo_depth", help="results directory")
-    ap.add_argument("--data", type=Path, default=REPO / "data", help="where the datasets are rendered")
-    ap.add_argument("--seed", type=int, default=0, help="dataset seed (camera poses, render noise)")
-    args = ap.parse_args(argv)
-
+def run(ctx: Context) -> int:
     import cv2
-    import warp as wp
-    from tqdm import tqdm
 
     from kernels.launch import default_threads
     from research.stereo import AGGREGATIONS, COSTS, StereoConfig
-    from research.warp_runtime import init_warp
 
-    init_warp()
-    t_start = time.perf_counter()
     load_start = os.getloadavg()[0]
-    st = setup(args.quick)
+    st = setup(ctx.quick, ctx.smoke)
     datasets: dict[str, Any] = {}
-    pairs = load_pairs(args, st, datasets)
+    pairs = load_pairs(ctx, st, datasets)
     tuning = [p for p in pairs if p.name == "p_000"]
     evaluation = [p for p in pairs if p.name != "p_000"]
 
@@ -317,21 +307,21 @@ def main(argv: list[str] | None = None) -> int:
     for cost in COSTS:
         cache: dict = {}  # cost volumes of the tuning pairs, shared by this cost's candidates
         for agg in AGGREGATIONS:
-            m, log = tune(drlab_candidates(cost, agg, st.dmax, args.device, cache), tuning, f"tune {cost}+{agg}")
-            keep(drlab_method(StereoConfig(**m.params), st.dmax, args.device), log)
+            m, log = tune(drlab_candidates(cost, agg, st.dmax, ctx.device, cache), tuning, f"tune {cost}+{agg}", ctx)
+            keep(drlab_method(StereoConfig(**m.params), st.dmax, ctx.device), log)
         del cache
     best_sgm = min((k for k in chosen if "SGM" in k), key=lambda k: tuning_d1[k])
     base = chosen[best_sgm].params
     soft = [drlab_method(StereoConfig(**{**base, "disparity": "soft_argmin", "temperature": base["p1"] * f}),
-                         st.dmax, args.device) for f in (0.25, 1.0, 4.0)]
-    keep(*tune(soft, tuning, "tune soft-argmin"))
+                         st.dmax, ctx.device) for f in (0.25, 1.0, 4.0)]
+    keep(*tune(soft, tuning, "tune soft-argmin", ctx))
     for name in ("OpenCV StereoSGBM", "OpenCV StereoBM"):
-        keep(*tune([c for c in opencv_methods(st.dmax) if c.name == name], tuning, f"tune {name}"))
+        keep(*tune([c for c in opencv_methods(st.dmax) if c.name == name], tuning, f"tune {name}", ctx))
     best_drlab = min((k for k in chosen if chosen[k].family == "drlab"), key=lambda k: tuning_d1[k])
 
     # ---- evaluation
     results: dict[str, Any] = {}
-    for name, m in tqdm(chosen.items(), desc="evaluate"):
+    for name, m in ctx.tqdm(chosen.items(), desc="evaluate"):
         per_pair, seconds = [], []
         for p in evaluation:
             d, v, s = m.run(p)
@@ -366,7 +356,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{len(evaluation)} evaluation pairs (p_000 of each scene tunes every method's parameters). "
         f"Metrics over non-occluded ground truth (noc) after KITTI fill, pooled over pairs; D1 all counts "
         f"occluded pixels too. Time: wall per pair on this machine, drlab with {threads} CPU threads "
-        f"(device {args.device}), OpenCV with {cv2.getNumThreads()} threads; the machine is shared, 1-minute "
+        f"(device {ctx.device}), OpenCV with {cv2.getNumThreads()} threads; the machine is shared, 1-minute "
         f"load average {load_start:.1f} at the start and {load_end:.1f} at the end.{d1_note}\n\n"
         f"**Goal**: the best drlab configuration chosen on the tuning pairs, **{best_drlab}**, has D1 noc "
         f"{best['pooled']['d1']:.4f} against OpenCV SGBM's {sgbm['pooled']['d1']:.4f}: it {verdict} SGBM "
@@ -382,15 +372,14 @@ def main(argv: list[str] | None = None) -> int:
                          [[n, f"{tuning_d1[n]:.4f}", _short(results[n]["params"])] for n in results])
     )
     figures({best_drlab: chosen[best_drlab], "OpenCV StereoSGBM": chosen["OpenCV StereoSGBM"]}, evaluation, results,
-            args.out)
-    config = {"quick": args.quick, "scenes": list(SCENES), **asdict(st), "tuning_pairs": [f"{p.scene}/{p.name}"
+            ctx.out)
+    config = {"quick": ctx.quick, "scenes": list(SCENES), **asdict(st), "tuning_pairs": [f"{p.scene}/{p.name}"
               for p in tuning], "evaluation_pairs": [f"{p.scene}/{p.name}" for p in evaluation],
               "drlab_threads": threads, "opencv_threads": cv2.getNumThreads(), "opencv": cv2.__version__,
               "load_average_1min": [load_start, load_end]}
-    write_results(args.out, experiment="stereo_depth", config=config, seed=args.seed, device=args.device,
-                  wall_time_s=time.perf_counter() - t_start,
-                  metrics={"best_drlab": best_drlab, "goal_met": bool(best["pooled"]["d1"] < sgbm["pooled"]["d1"]),
-                           "methods": results, "tuning": tuning_log, "datasets": datasets}, table_md=table)
+    ctx.write_results(config=config, table_md=table,
+                      metrics={"best_drlab": best_drlab, "goal_met": bool(best["pooled"]["d1"] < sgbm["pooled"]["d1"]),
+                               "methods": results, "tuning": tuning_log, "datasets": datasets})
     print(table)
     return 0
 
@@ -406,6 +395,13 @@ def _short(params: dict[str, Any]) -> str:
              and not (k == "temperature" and params.get("disparity") != "soft_argmin")]
     return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in items)
 
+
+main = Experiment("stereo_depth", __doc__, run,
+                  data_help="cache root of the stereo datasets: <data>/stereo_depth-<scene>[-quick|-smoke], "
+                            "rendered if missing",
+                  seed_help="dataset seed (camera poses, render noise)",
+                  sizes="Quick: 128x128 pairs, 16 spp, 3 pairs per scene (a few minutes); smoke: 64x64, 4 spp, "
+                        "2 pairs per scene, two candidates per tuning grid.").main
 
 if __name__ == "__main__":
     sys.exit(main())

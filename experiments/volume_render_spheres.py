@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The textbook's volume-rendering exercise: three soft spheres, Warp kernels vs a NumPy port.
+"""The volume-rendering exercise of the Video and 3D Vision textbook chapter: three soft spheres, Warp vs NumPy.
 
 Scene and camera exactly as the textbook states them: spheres red (0,0,4) r 0.8, green
 (1.5,0.5,5) r 0.6, blue (-1,-0.5,3.5) r 0.5, all with sigma 5; a 64x64 image, focal 60, the camera
@@ -22,34 +22,21 @@ Writes results/volume_render_spheres/{table.md, metrics.json, spheres.png, figur
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from research.results import markdown_table, save_figure, write_results  # noqa: E402
+from research.experiment import Context, Experiment
+from research.results import markdown_table, save_figure
 
 AGREEMENT_TOL = 1e-5
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="one timed run per renderer instead of a median of 5")
-    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Warp device")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "volume_render_spheres", help="results directory")
-    ap.add_argument("--seed", type=int, default=0, help="unused (the task is deterministic); recorded")
-    args = ap.parse_args(argv)
-
+def run(ctx: Context) -> int:
     import warp as wp
 
-    from research.warp_runtime import init_warp
-
-    init_warp()
     from kernels.volume import SphereField, render_samples
     from kernels.volume.sampling import dense_samples
     from research import io
@@ -58,28 +45,30 @@ def main(argv: list[str] | None = None) -> int:
     from research.nerf import textbook as tb
     from research.nerf.render import render_image
 
-    t_start = time.perf_counter()
-    repeats = 3 if args.quick else 5
-    origins, dirs = tb.textbook_rays()
+    repeats = 3 if ctx.quick else 5
+    # A smoke run renders the same view at 16x16 (the loop port takes seconds at 64x64).
+    h, w = (16, 16) if ctx.smoke else (tb.IMG_H, tb.IMG_W)
+    focal = tb.FOCAL * w / tb.IMG_W
+    origins, dirs = tb.textbook_rays(h, w, focal)
     t, delta = tb.textbook_t_delta()
     n_rays = origins.shape[0]
 
     t0 = time.perf_counter()
-    ref = tb.render_image_loop()
+    ref = tb.render_image_loop(h, w, focal)
     loop_s = time.perf_counter() - t0
-    vec_img = tb.render_image_vectorized()
-    vec_s = time_median(tb.render_image_vectorized, repeats=repeats)
+    vec_img = tb.render_image_vectorized(h, w, focal)
+    vec_s = time_median(lambda: tb.render_image_vectorized(h, w, focal), repeats=repeats)
 
     def warp_render(np_t, wp_t):
-        field = SphereField.textbook(wp_t, device=args.device)
+        field = SphereField.textbook(wp_t, device=ctx.device)
 
         def run():
             s = dense_samples(origins.astype(np_t), dirs.astype(np_t), np.tile(t, (n_rays, 1)).astype(np_t),
-                              np.tile(delta, (n_rays, 1)).astype(np_t), device=args.device)
+                              np.tile(delta, (n_rays, 1)).astype(np_t), device=ctx.device)
             return render_samples(field, s, background=(0.0, 0.0, 0.0), t_threshold=0.0).rgb.numpy()
 
-        img = run().reshape(tb.IMG_H, tb.IMG_W, 3).astype(np.float64)
-        return img, time_median(run, repeats=repeats, sync=lambda: wp.synchronize_device(args.device))
+        img = run().reshape(h, w, 3).astype(np.float64)
+        return img, time_median(run, repeats=repeats, sync=lambda: wp.synchronize_device(ctx.device))
 
     warp64, warp64_s = warp_render(np.float64, wp.float64)
     warp32, warp32_s = warp_render(np.float32, wp.float32)
@@ -87,15 +76,14 @@ def main(argv: list[str] | None = None) -> int:
            (("numpy_vec", vec_img), ("warp_float64", warp64), ("warp_float32", warp32))}
 
     # The project's camera convention, with z-depth and opacity.
-    K = np.array([[tb.FOCAL, 0.0, tb.IMG_W / 2], [0.0, tb.FOCAL, tb.IMG_H / 2], [0.0, 0.0, 1.0]])
-    cam = Camera(K, np.eye(4), tb.IMG_W, tb.IMG_H)
-    field64 = SphereField.textbook(wp.float64, device=args.device)
+    K = np.array([[focal, 0.0, w / 2], [0.0, focal, h / 2], [0.0, 0.0, 1.0]])
+    cam = Camera(K, np.eye(4), w, h)
+    field64 = SphereField.textbook(wp.float64, device=ctx.device)
     big_box = np.array([[-10.0, -10.0, 0.0], [10.0, 10.0, 10.0]])
     cv = render_image(cam, field64, big_box, near=tb.T_NEAR, far=tb.T_FAR, n_samples=tb.N_SAMPLES, t_threshold=0.0)
 
-    args.out.mkdir(parents=True, exist_ok=True)
-    io.write_png_u8(args.out / "spheres.png", np.floor(np.clip(warp64, 0, 1) * 255 + 0.5).astype(np.uint8))
-    figure(ref, warp64, cv, args.out / "figure.png")
+    io.write_png_u8(ctx.out / "spheres.png", np.floor(np.clip(warp64, 0, 1) * 255 + 0.5).astype(np.uint8))
+    figure(ref, warp64, cv, ctx.out / "figure.png")
 
     rows = [
         ["NumPy port of the textbook loop (reference)", "float64", loop_s, "0"],
@@ -103,8 +91,8 @@ def main(argv: list[str] | None = None) -> int:
         ["Warp kernels (kernels.volume)", "float64", warp64_s, f"{err['warp_float64']:.1e}"],
         ["Warp kernels (kernels.volume)", "float32", warp32_s, f"{err['warp_float32']:.1e}"],
     ]
-    table = (f"Textbook task: 64x64, focal 60, 64 samples on t in [1, 6], 3 soft spheres (sigma 5), "
-             f"{n_rays * tb.N_SAMPLES} samples; device `{args.device}`. Times: "
+    table = (f"Textbook task: {h}x{w}, focal {focal:g}, 64 samples on t in [1, 6], 3 soft spheres (sigma 5), "
+             f"{n_rays * tb.N_SAMPLES} samples; device `{ctx.device}`. Times: "
              f"median of {repeats} for NumPy-vectorised and Warp (after a warm-up), "
              "one run for the loop port. Error: max |pixel - reference| over all pixels and channels "
              "(unclipped).\n\n"
@@ -119,10 +107,9 @@ def main(argv: list[str] | None = None) -> int:
                "warp_float32_s": warp32_s, "max_abs_err": err, "agreement_tol": AGREEMENT_TOL,
                "image_min": float(ref.min()), "image_max": float(ref.max()),
                "opencv_render": {"mean_opacity": float(cv.opacity.mean()), "n_samples": cv.n_samples}}
-    config = {"quick": args.quick, "height": tb.IMG_H, "width": tb.IMG_W, "focal": tb.FOCAL,
+    config = {"quick": ctx.quick, "height": h, "width": w, "focal": focal,
               "n_samples": tb.N_SAMPLES, "t_near": tb.T_NEAR, "t_far": tb.T_FAR, "repeats": repeats}
-    write_results(args.out, experiment="volume_render_spheres", config=config, seed=args.seed, device=args.device,
-                  wall_time_s=time.perf_counter() - t_start, metrics=metrics, table_md=table)
+    ctx.write_results(config=config, metrics=metrics, table_md=table)
     print(table)
     if not err["warp_float64"] <= AGREEMENT_TOL:
         print(f"FAIL: Warp float64 differs from the NumPy port by {err['warp_float64']:.3g}", file=sys.stderr)
@@ -152,6 +139,10 @@ def figure(ref: np.ndarray, warp64: np.ndarray, cv, path: Path) -> None:
     save_figure(fig, path)
     plt.close(fig)
 
+
+main = Experiment("volume_render_spheres", __doc__, run, seed_help="unused: the task is deterministic; recorded",
+                  sizes="Quick: a median of 3 timed runs per renderer instead of 5 (the images are the same); "
+                        "smoke: the same view at 16x16.").main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,29 +1,30 @@
 """The `drlab` command line.
 
     drlab dataset --scene NAME [--views N --res R --spp S --stereo --flow] --out DIR [--resume] [--force]
-    drlab run EXPERIMENT [--quick] [--device cpu|cuda] [--out results/EXPERIMENT] [--seed N]
+    drlab run EXPERIMENT [--quick] [--device cpu|cuda] [--out DIR] [--seed N] [-- EXPERIMENT OPTIONS]
     drlab reproduce [--quick]          every registered experiment, then results/README.md
     drlab gradcheck [KERNEL ...]       finite-difference table; exit status 1 on any failure
     drlab bench [FAMILY ...] [--json]  timings (median of >= 3 runs after a warm-up)
     drlab list                         registered experiments, gradient checks and bench families
 
-Experiments run as their own processes (`python experiments/<name>.py ...`), so
-research/ never imports experiments/ and every script also works on its own.
+Experiments run as their own processes (`python -m experiments.<name> ...`), so
+research never imports experiments and every experiment also works on its own.
+Default folders (research.registry): results/<name> in a checkout, ./results/<name>
+under the current directory when drlab is installed from a wheel.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from research import atomic
-from research.registry import BENCH_MODULES, EXPERIMENTS, REPO_ROOT, RESULTS_DIR
-
-QUICK_RESULTS_DIR = REPO_ROOT / "build" / "results-quick"
+from research import atomic, registry
+from research.registry import BENCH_MODULES, EXPERIMENTS, REPO_ROOT
 
 
 def _cmd_dataset(args: argparse.Namespace) -> int:
@@ -40,34 +41,50 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     return 0
 
 
-def _experiment_command(name: str, quick: bool, device: str, out: Path, seed: int | None) -> list[str]:
-    spec = EXPERIMENTS[name]
-    cmd = [sys.executable, str(spec.script), "--device", device, "--out", str(out)]
+def _experiment_command(name: str, quick: bool, device: str, out: Path | None, seed: int | None,
+                        extra: list[str] = ()) -> list[str]:
+    # -P (Python 3.11+): the current directory is not put on sys.path, so a folder there named
+    # `experiments` cannot shadow the package; the code comes from PYTHONPATH or site-packages.
+    safe_path = ["-P"] if sys.version_info >= (3, 11) else []
+    cmd = [sys.executable, *safe_path, "-m", EXPERIMENTS[name].module, "--device", device]
+    if out is not None:
+        cmd += ["--out", str(Path(out).absolute())]
     if quick:
         cmd.append("--quick")
     if seed is not None:
         cmd += ["--seed", str(seed)]
-    return cmd
+    return cmd + list(extra)
 
 
-def _run_one(name: str, quick: bool, device: str, out: Path | None, seed: int | None) -> int:
+def _experiment_env() -> dict[str, str]:
+    """The environment of an experiment's process: from a checkout, it imports this checkout's code."""
+    env = dict(os.environ)
+    if registry.in_checkout():
+        env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    return env
+
+
+def _run_one(name: str, quick: bool, device: str, out: Path | None, seed: int | None, extra: list[str] = ()) -> int:
     if name not in EXPERIMENTS:
         print(f"drlab run: unknown experiment {name!r}; registered: {', '.join(sorted(EXPERIMENTS)) or 'none'}",
               file=sys.stderr)
         return 2
     if out is None:
-        out = (QUICK_RESULTS_DIR if quick else RESULTS_DIR) / name
-    cmd = _experiment_command(name, quick, device, out, seed)
+        out = registry.default_out(name, quick=quick)
+    cmd = _experiment_command(name, quick, device, out, seed, extra)
     print(f"drlab run {name}: {' '.join(cmd[1:])}", flush=True)
     t0 = time.perf_counter()
-    rc = subprocess.run(cmd, cwd=REPO_ROOT).returncode
+    # The current directory is kept, so relative paths among the extra options mean what they say.
+    rc = subprocess.run(cmd, env=_experiment_env()).returncode
     status = "ok" if rc == 0 else f"FAILED (exit {rc})"
     print(f"drlab run {name}: {status} in {time.perf_counter() - t0:.1f} s", flush=True)
     return rc
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    return _run_one(args.experiment, args.quick, args.device, Path(args.out) if args.out else None, args.seed)
+    extra = args.extra
+    return _run_one(args.experiment, args.quick, args.device, Path(args.out) if args.out else None, args.seed,
+                    extra)
 
 
 def _provenance(metrics_path: Path) -> str:
@@ -117,7 +134,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     if not names:
         print("drlab reproduce: no experiments are registered yet")
         return 0
-    results_dir = QUICK_RESULTS_DIR if args.quick else RESULTS_DIR
+    results_dir = registry.results_dir(quick=args.quick)
     failed = []
     for name in names:
         if _run_one(name, args.quick, args.device, results_dir / name, None) != 0:
@@ -201,17 +218,25 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--force", action="store_true", help="replace an existing dataset")
     d.set_defaults(fn=_cmd_dataset)
 
-    r = sub.add_parser("run", help="run one registered experiment")
-    r.add_argument("experiment")
+    r = sub.add_parser(
+        "run", help="run one registered experiment", usage="drlab run EXPERIMENT [options] [-- EXPERIMENT OPTIONS]",
+        description="Run one experiment in a fresh process (python -m experiments.EXPERIMENT). Options after "
+                    "`--` go to the experiment itself, e.g. `drlab run fit_nerf -- --fields grid --no-progress`; "
+                    "`python -m experiments.EXPERIMENT --help` lists them.")
+    r.add_argument("experiment", help="a registered experiment (drlab list)")
     r.add_argument("--quick", action="store_true", help="small settings (minutes on 2 cores)")
-    r.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
-    r.add_argument("--out", default=None, help="output directory (default results/EXPERIMENT)")
-    r.add_argument("--seed", type=int, default=None)
+    r.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
+    r.add_argument("--out", default=None,
+                   help="results folder (default: results/EXPERIMENT, with --quick build/results-quick/EXPERIMENT; "
+                        "in the checkout when drlab runs from one, else under the current directory)")
+    r.add_argument("--seed", type=int, default=None, help="the experiment's seed (default: its own, 0)")
     r.set_defaults(fn=_cmd_run)
 
     rp = sub.add_parser("reproduce", help="run every registered experiment and write results/README.md")
-    rp.add_argument("--quick", action="store_true", help=f"quick settings, written to {QUICK_RESULTS_DIR}")
-    rp.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    rp.add_argument("--quick", action="store_true",
+                    help="quick settings, written to build/results-quick (in the checkout, else under the current "
+                         "directory)")
+    rp.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
     rp.set_defaults(fn=_cmd_reproduce)
 
     g = sub.add_parser("gradcheck", help="finite-difference checks of every registered backward pass")
@@ -231,7 +256,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # Everything after the first `--` belongs to the experiment (`drlab run X -- --its-option`).
+    extra = argv[argv.index("--") + 1:] if "--" in argv else []
+    argv = argv[:argv.index("--")] if "--" in argv else argv
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if extra and args.command != "run":
+        parser.error(f"options after `--` are only for `drlab run`: {' '.join(extra)}")
+    args.extra = extra
     return int(args.fn(args) or 0)
 
 

@@ -1,15 +1,22 @@
-"""Registries that later issues extend: experiments, gradient checks and benchmarks.
+"""Registries: experiments, gradient checks and benchmarks, and where results and data go by default.
 
-Everything is registered by *name and location*, not by import, so that
+Everything is registered by *name and module*, not by import, so that
 `drlab --help` stays fast and a broken optional module cannot break the CLI.
 
-* EXPERIMENTS: name -> ExperimentSpec. Each is a standalone script
-  `experiments/<name>.py` accepting `--quick --device --out --seed`. The CLI
-  runs it in a fresh process (research never imports experiments/).
+* EXPERIMENTS: name -> ExperimentSpec. Each is the module `experiments.<name>`
+  (research.experiment's contract: `main(argv) -> int`, the shared options
+  `--quick --smoke --device --out --seed --data --no-progress` and its own). The
+  CLI runs it in a fresh process, `python -m experiments.<name>` (research never
+  imports experiments).
 * GRADCHECK_MODULES: modules whose import registers gradient checks with
   `research.gradcheck.register_check`.
-* BENCH_MODULES: family -> module exposing `cases(device: str, quick: bool)`,
+* BENCH_MODULES: family -> module exposing `cases(device: str, quick: bool, tiny: bool = False)`,
   an iterator of JSON-ready dicts (see research/bench/__init__.py).
+
+Default folders: in a checkout (this package beside pyproject.toml and experiments/), results go to
+`<checkout>/results/<name>` (quick runs: `<checkout>/build/results-quick/<name>`, smoke runs:
+`<checkout>/build/results-smoke/<name>`) and datasets to `<checkout>/data`; installed from a wheel
+(no checkout), the same paths under the current directory: `./results/<name>`, `./data`, ...
 """
 
 from __future__ import annotations
@@ -17,21 +24,55 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+# The folder holding research/ and kernels/: a checkout's root, or site-packages when installed.
 REPO_ROOT = Path(__file__).resolve().parent.parent
-EXPERIMENTS_DIR = REPO_ROOT / "experiments"
-RESULTS_DIR = REPO_ROOT / "results"
+
+
+def in_checkout() -> bool:
+    """Whether this code runs from a source checkout (else it was installed from a wheel)."""
+    return (REPO_ROOT / "pyproject.toml").is_file() and (REPO_ROOT / "experiments").is_dir()
+
+
+def base_dir() -> Path:
+    """The root of default folders: the checkout, else the current directory."""
+    return REPO_ROOT if in_checkout() else Path.cwd()
+
+
+def results_dir(quick: bool = False, smoke: bool = False) -> Path:
+    """Where `drlab run` / `drlab reproduce` put each experiment's folder by default."""
+    if smoke:
+        return base_dir() / "build" / "results-smoke"
+    return base_dir() / ("build/results-quick" if quick else "results")
+
+
+def default_out(name: str, quick: bool = False, smoke: bool = False) -> Path:
+    return results_dir(quick, smoke) / name
+
+
+def describe_default_out(name: str) -> str:
+    return (f"results/{name}, with --quick build/results-quick/{name}, with --smoke build/results-smoke/{name}; "
+            "in the checkout when run from one, else under the current directory")
+
+
+def default_data_dir() -> Path:
+    return base_dir() / "data"
+
+
+def describe_default_data() -> str:
+    return "data/ in the checkout when run from one, else ./data"
 
 
 @dataclass(frozen=True)
 class ExperimentSpec:
     name: str
     description: str
-    # Budget for --quick mode on 2 CPU cores, seconds (stated by the issue).
+    # Budget for --quick mode on 2 CPU cores, seconds.
     quick_budget_s: float
 
     @property
-    def script(self) -> Path:
-        return EXPERIMENTS_DIR / f"{self.name}.py"
+    def module(self) -> str:
+        """The module to run with `python -m`."""
+        return f"experiments.{self.name}"
 
 
 EXPERIMENTS: dict[str, ExperimentSpec] = {}

@@ -1,7 +1,9 @@
 """Benchmark infrastructure: median timings and the benchmark-family registry.
 
 A family is a module named in research.registry.BENCH_MODULES exposing
-`cases(device: str, quick: bool)`, a generator of JSON-ready dicts, one per case:
+`cases(device: str, quick: bool, tiny: bool = False)`, a generator of JSON-ready dicts, one per case
+(`tiny`: every case, with the same keys and phases, at sizes that run in about a second in total,
+so the tests can run it):
 
     {"bench": "<family>.<case>", "device": "cpu", "threads": 2,
      <size keys>..., "<phase>_s": seconds, ...}

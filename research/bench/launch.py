@@ -8,7 +8,7 @@ Case `launch.split`: a compute-bound, race-free kernel. Thread i iterates
 launch (`single_s`) and split over `default_threads()` threads (DRLAB_THREADS,
 else os.cpu_count()) (`split_s`), interleaved, the median of REPEATS runs each;
 the two results must agree bit for bit. Sizes give ~0.7 s single-threaded on
-the project's CPU (~0.12 s with quick).
+the project's CPU (~0.12 s with quick; tiny, for the tests, a few milliseconds).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from research.bench import time_medians
 ITERS = 256
 ELEMENTS = 98_304
 QUICK_ELEMENTS = 16_384
+TINY_ELEMENTS = 1_024
 # Per-run times on the project's VMs drift by ~15% even pinned to one core; 5 interleaved runs steady the ratio.
 REPEATS = 5
 
@@ -43,8 +44,9 @@ def recurrence(
     out[i] = x
 
 
-def cases(device: str = "cpu", quick: bool = False) -> Iterator[dict]:
-    n = QUICK_ELEMENTS if quick else ELEMENTS
+def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Iterator[dict]:
+    """The case `launch.split` (module docstring); `tiny`: the same case at a size that runs in milliseconds."""
+    n = TINY_ELEMENTS if tiny else QUICK_ELEMENTS if quick else ELEMENTS
     threads = 1 if wp.get_device(device).is_cuda else default_threads()
     x0 = wp.array(np.random.default_rng(0).uniform(-2.0, 2.0, n), dtype=wp.float64, device=device)
     single = wp.zeros(n, dtype=wp.float64, device=device)

@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -21,15 +22,33 @@ def test_help_lists_every_subcommand():
         assert cmd in out
 
 
-def test_every_registered_experiment_script_exists_and_documents_its_options():
+def test_every_registered_experiment_is_a_module_of_the_experiments_package():
+    # Their --help and smoke runs: tests/research/test_experiments.py.
+    import importlib.util
+
     assert EXPERIMENTS, "no experiment registered"
     for spec in EXPERIMENTS.values():
-        assert spec.script.is_file(), spec.script
-        out = subprocess.run([sys.executable, str(spec.script), "--help"], capture_output=True, text=True,
-                             timeout=120)
-        assert out.returncode == 0, out.stderr
-        for opt in ("--quick", "--device", "--out", "--seed"):
-            assert opt in out.stdout, f"{spec.name}: --help does not document {opt}"
+        assert spec.module == f"experiments.{spec.name}"
+        found = importlib.util.find_spec(spec.module)
+        assert found is not None and Path(found.origin) == REPO_ROOT / "experiments" / f"{spec.name}.py"
+
+
+def test_run_command_is_python_m_with_options_passed_through(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    cmd = cli._experiment_command("kalman_tracking", True, "cpu", Path("rel"), 5, ["--trials", "3"])
+    if cmd[1] == "-P":  # Python 3.11+: the current directory stays off sys.path
+        del cmd[1]
+    assert cmd[:3] == [sys.executable, "-m", "experiments.kalman_tracking"]
+    assert cmd[3:] == ["--device", "cpu", "--out", str(tmp_path / "rel"), "--quick", "--seed", "5", "--trials", "3"]
+    calls = []
+    monkeypatch.setattr(cli, "_run_one", lambda *a: calls.append(a) or 0)
+    assert cli.main(["run", "kalman_tracking", "--quick", "--", "--data", "d", "--no-progress"]) == 0
+    assert calls == [("kalman_tracking", True, "cpu", None, None, ["--data", "d", "--no-progress"])]
+
+
+def test_options_after_double_dash_are_only_for_run():
+    r = run_cli("list", "--", "--smoke")
+    assert r.returncode == 2 and "only for `drlab run`" in r.stderr
 
 
 def test_run_unknown_experiment_fails_clearly():

@@ -1,0 +1,387 @@
+"""The experiment contract (research.experiment) and every registered experiment's smoke run.
+
+Each experiment runs in its own process, as `drlab run` starts it (`python -m experiments.<name>`),
+with --smoke: tiny sizes, seconds each. The results folder must hold metrics.json and table.md with
+the run's provenance, and numbers that make sense for that experiment.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from research import experiment
+from research.registry import BENCH_MODULES, EXPERIMENTS, REPO_ROOT
+
+SHARED_OPTIONS = ("--quick", "--smoke", "--device", "--out", "--seed", "--data", "--no-progress")
+
+
+def _env() -> dict[str, str]:
+    """Import this checkout's code in child processes, whatever the current directory."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    return env
+
+
+def _run(args: list[str], cwd: Path | str = REPO_ROOT, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], cwd=cwd, env=_env(), capture_output=True, text=True,
+                          timeout=timeout)
+
+
+# --------------------------------------------------------------------------- smoke runs
+
+
+def _finite(x) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def _check_datasets(m):
+    assert set(m["scenes"]) == {"objects", "spheres", "cornell"}
+    for s in m["scenes"].values():
+        assert s["aov"]["pixel_err_max"] < 1e-2  # the stored cameras agree with Mitsuba's own positions
+        assert 0.5 < s["stereo"]["noc_fraction"] <= 1.0 and 0.5 < s["flow"]["valid_fraction"] <= 1.0
+
+
+def _check_kalman(m):
+    for method in m["methods"].values():
+        assert method["smoother_rmse"]["mean"] < m["observation_rmse"]["mean"]
+    assert m["methods"]["cv_white_accel"]["filter_rmse"]["mean"] < m["observation_rmse"]["mean"]
+
+
+def _check_mot(m):
+    assert set(m["trackers"]) >= {"sort", "bytetrack", "bytetrack_app"}
+    for t in m["trackers"].values():
+        assert -1.0 <= t["mota"] <= 1.0 and 0.0 <= t["idf1"] <= 1.0 and t["fps"] > 0
+
+
+def _check_lucas_kanade(m):
+    # The task itself is the same at every size: the pyramid recovers the 5 px motion.
+    assert abs(m["runs"]["kernels.flow pyramidal, 3 levels x 10 steps"]["mean_u_valid"] - 5.0) < 0.1
+
+
+def _check_raft(m):
+    scene = m["per_scene"]["objects"]
+    assert all(_finite(v["epe"]) and v["epe"] >= 0 for v in scene.values())
+    assert scene["CorrFlow (L=4, r=4)"]["epe"] < scene["zero flow"]["epe"]
+
+
+def _check_stereo(m):
+    for r in m["methods"].values():
+        assert 0.0 <= r["pooled"]["d1"] <= 1.0 and 0.0 < r["pooled"]["density"] <= 1.0
+    assert m["best_drlab"] in m["methods"]
+
+
+def _check_splats(m):
+    assert m["ply_roundtrip_identical"] is True
+    assert _finite(m["test_psnr"]) and m["test_psnr"] > 5 and m["gaussians"] > 0 and m["render_fps"] > 0
+
+
+def _check_nerf(m):
+    assert set(m["fields"]) == {"grid", "hashgrid", "pe_mlp"}
+    for f in m["fields"].values():
+        assert _finite(f["eval"]["mean"]["psnr"]) and f["eval"]["mean"]["psnr"] > 5 and f["params"] > 0
+    assert m["noise_floor"]["psnr_between_two_renders"] > 5
+
+
+def _check_volume(m):
+    assert m["max_abs_err"]["warp_float64"] <= m["agreement_tol"]
+    assert m["max_abs_err"]["warp_float32"] < 1e-3
+
+
+CHECKS = {"datasets": _check_datasets, "kalman_tracking": _check_kalman, "mot_tracking": _check_mot,
+          "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft, "stereo_depth": _check_stereo,
+          "fit_splats": _check_splats, "fit_nerf": _check_nerf, "volume_render_spheres": _check_volume}
+
+
+def test_every_registered_experiment_has_a_smoke_check():
+    assert set(CHECKS) == set(EXPERIMENTS)
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory) -> Path:
+    """One dataset cache for every smoke run (several experiments share a configuration)."""
+    return tmp_path_factory.mktemp("data")
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("name", list(EXPERIMENTS))
+def test_smoke_run(name, tmp_path, data_dir):
+    out = tmp_path / "out"
+    extra = ["--ply", str(tmp_path / "model.ply")] if name == "fit_splats" else []
+    t0 = time.perf_counter()
+    r = _run(["-m", f"experiments.{name}", "--smoke", "--no-progress", "--out", str(out), "--data", str(data_dir),
+              "--seed", "3", *extra])
+    seconds = time.perf_counter() - t0
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert (out / "table.md").read_text().strip()
+    doc = json.loads((out / "metrics.json").read_text())
+    assert doc["experiment"] == name and doc["seed"] == 3 and doc["device"] == "cpu"
+    assert doc["config"]["smoke"] is True and doc["wall_time_s"] > 0
+    assert {"commit"} <= set(doc["source"]) and doc["versions"]["numpy"] and doc["host"]["cpus"] >= 1
+    assert not list(tmp_path.glob("out.partial-*")) and not list(tmp_path.glob("out.old-*"))
+    assert not [p for p in out.iterdir() if ".tmp" in p.name], "a temporary file was left in the results"
+    CHECKS[name](doc["metrics"])
+    print(f"{name} --smoke: {seconds:.1f} s")
+
+
+# --------------------------------------------------------------------------- options and help
+
+
+@pytest.mark.parametrize("name", list(EXPERIMENTS))
+def test_help_via_python_m_documents_every_shared_option(name):
+    r = _run(["-m", f"experiments.{name}", "--help"], timeout=120)
+    assert r.returncode == 0, r.stderr
+    for opt in SHARED_OPTIONS:
+        assert opt in r.stdout, f"{name}: --help does not document {opt}"
+
+
+def test_script_by_path_runs_without_path_hacks(tmp_path):
+    # `python experiments/<name>.py` imports the installed packages; PYTHONPATH stands in for the install here.
+    r = _run([str(REPO_ROOT / "experiments" / "stereo_depth.py"), "--help"], cwd=tmp_path, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "--smoke" in r.stdout and "stereo_depth" in r.stdout
+    for path in (REPO_ROOT / "experiments").glob("*.py"):
+        assert "sys.path" not in path.read_text(), f"{path.name} manipulates sys.path"
+
+
+def test_every_experiment_module_exposes_main():
+    for spec in EXPERIMENTS.values():
+        module = importlib.import_module(spec.module)
+        assert callable(module.main), spec.name
+
+
+def test_bad_device_is_a_usage_error_naming_the_option(tmp_path):
+    r = _run(["-m", "experiments.lucas_kanade", "--device", "tpu", "--out", str(tmp_path / "o")], timeout=120)
+    assert r.returncode == 2 and "--device" in r.stderr and "'tpu'" in r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_cuda_is_refused_clearly_when_warp_sees_none():
+    import warp as wp
+
+    from research.warp_runtime import init_warp
+
+    init_warp()
+    if wp.is_cuda_available():
+        assert experiment.resolve_device("cuda").startswith("cuda")
+    else:
+        with pytest.raises(ValueError, match="--device cuda: Warp sees no CUDA device"):
+            experiment.resolve_device("cuda")
+    assert experiment.resolve_device("cpu") == "cpu"
+
+
+# --------------------------------------------------------------------------- results folder
+
+
+def _write_run(folder: Path, tag: str) -> None:
+    (folder / "metrics.json").write_text(json.dumps({"run": tag}))
+    (folder / "table.md").write_text(f"| {tag} |\n")
+
+
+def test_a_run_that_raises_leaves_the_previous_folder_intact(tmp_path):
+    out = tmp_path / "res"
+    with experiment.results_folder(out) as tmp:
+        _write_run(tmp, "first")
+    assert json.loads((out / "metrics.json").read_text()) == {"run": "first"}
+
+    def body(ctx):
+        (ctx.out / "figure.png").write_bytes(b"new figure")
+        raise RuntimeError("killed in the middle")
+
+    exp = experiment.Experiment("dummy", "a test experiment", body, sizes="-", warp=False)
+    with pytest.raises(RuntimeError, match="killed in the middle"):
+        exp.main(["--out", str(out)])
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json", "table.md"]
+    assert json.loads((out / "metrics.json").read_text()) == {"run": "first"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
+
+
+def test_out_must_be_a_results_folder_since_it_is_replaced_whole(tmp_path):
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "notes.txt").write_text("not results")
+    r = _run(["-m", "experiments.kalman_tracking", "--smoke", "--out", str(home)], timeout=120)
+    assert r.returncode == 2 and "--out" in r.stderr and "no metrics.json" in r.stderr
+    assert [p.name for p in home.iterdir()] == ["notes.txt"]
+    with pytest.raises(ValueError, match="neither empty nor an experiment's results folder"):
+        with experiment.results_folder(home):
+            pass
+
+
+def test_a_finished_run_replaces_the_folder_whole(tmp_path):
+    out = tmp_path / "res"
+    out.mkdir()
+    (out / "metrics.json").write_text("{}")
+    (out / "stale.png").write_bytes(b"from an older run")
+
+    def body(ctx):
+        ctx.write_results(config={"quick": ctx.quick}, metrics={"value": 1.5}, table_md="| x |\n")
+        ctx.after_commit(lambda: f"after commit: {(ctx.final_out / 'metrics.json').is_file()}")
+
+    assert experiment.Experiment("dummy", None, body, sizes="-", warp=False).main(["--out", str(out),
+                                                                                   "--seed", "4"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json", "table.md"]
+    doc = json.loads((out / "metrics.json").read_text())
+    assert doc["metrics"] == {"value": 1.5} and doc["seed"] == 4 and doc["experiment"] == "dummy"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
+
+
+_SLOW_EXPERIMENT = textwrap.dedent("""
+    import sys, time
+    from research.experiment import Experiment
+
+    def body(ctx):
+        (ctx.out / "disparity_maps.png").write_bytes(b"new figure")
+        print("figure written", flush=True)
+        time.sleep(60)
+        ctx.write_results(config={}, metrics={}, table_md="| new |\\n")
+
+    sys.exit(Experiment("slow", None, body, sizes="-", warp=False).main())
+""")
+
+
+def test_sigkill_mid_run_leaves_the_previous_folder_and_the_next_run_cleans_up(tmp_path):
+    out = tmp_path / "res"
+    out.mkdir()
+    _write_run(out, "old")
+    script = tmp_path / "slow.py"
+    script.write_text(_SLOW_EXPERIMENT)
+    proc = subprocess.Popen([sys.executable, str(script), "--out", str(out)], env=_env(), stdout=subprocess.PIPE,
+                            text=True)
+    try:
+        assert proc.stdout.readline().strip() == "figure written"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    proc.stdout.close()
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json", "table.md"]
+    assert json.loads((out / "metrics.json").read_text()) == {"run": "old"}
+    partial = tmp_path / f"res.partial-{proc.pid}"
+    assert (partial / "disparity_maps.png").is_file()  # the killed run's files stay out of res/
+
+    with experiment.results_folder(out) as tmp:  # the next run into res/ removes the dead run's folder
+        _write_run(tmp, "new")
+    assert not partial.exists()
+    assert json.loads((out / "metrics.json").read_text()) == {"run": "new"}
+
+
+def test_sigterm_cleans_the_temporary_folder(tmp_path):
+    out = tmp_path / "res"
+    script = tmp_path / "slow.py"
+    script.write_text(_SLOW_EXPERIMENT)
+    proc = subprocess.Popen([sys.executable, str(script), "--out", str(out)], env=_env(), stdout=subprocess.PIPE,
+                            text=True)
+    assert proc.stdout.readline().strip() == "figure written"
+    proc.terminate()
+    assert proc.wait(timeout=30) == 128 + signal.SIGTERM
+    proc.stdout.close()
+    assert list(tmp_path.iterdir()) == [script]
+
+
+def test_stale_old_folder_of_a_dead_run_is_put_back(tmp_path):
+    out = tmp_path / "res"
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    old = tmp_path / f"res.old-{dead}"  # killed between its two renames: res/ moved aside, new one not in
+    old.mkdir()
+    _write_run(old, "previous")
+    assert experiment.clean_stale(out) == []
+    assert json.loads((out / "metrics.json").read_text()) == {"run": "previous"} and not old.exists()
+
+
+# --------------------------------------------------------------------------- CLI and packaging
+
+
+def test_drlab_run_passes_options_after_double_dash(tmp_path):
+    out = tmp_path / "kt"
+    if sys.version_info >= (3, 11):  # a folder named `experiments` where drlab runs must not shadow the package
+        (tmp_path / "experiments").mkdir()
+        (tmp_path / "experiments" / "__init__.py").write_text("raise ImportError('the wrong experiments')\n")
+    r = _run(["-m", "research.cli", "run", "kalman_tracking", "--seed", "2", "--out", "kt", "--",
+              "--smoke", "--trials", "7", "--no-progress"], cwd=tmp_path, timeout=240)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    assert "-m experiments.kalman_tracking" in r.stdout
+    doc = json.loads((out / "metrics.json").read_text())  # --out is relative to the caller's directory
+    assert doc["metrics"]["trials"] == 7 and doc["seed"] == 2 and doc["config"]["smoke"] is True
+
+
+def test_drlab_run_reports_an_experiment_option_error():
+    r = _run(["-m", "research.cli", "run", "kalman_tracking", "--", "--no-such-option"], timeout=120)
+    assert r.returncode == 2 and "--no-such-option" in r.stderr
+
+
+def _can_build_wheels() -> bool:
+    try:
+        import setuptools
+    except ImportError:
+        return False
+    if tuple(int(x) for x in setuptools.__version__.split(".")[:2]) >= (70, 1):
+        return True
+    from importlib.metadata import entry_points  # the `wheel` distribution registers bdist_wheel
+
+    return any(ep.name == "bdist_wheel" for ep in entry_points(group="distutils.commands"))
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.skipif(not _can_build_wheels(), reason="no bdist_wheel here (setuptools < 70.1 without `wheel`; "
+                                                    "`make setup` installs it with the dev extras)")
+def test_wheel_contains_experiments_and_drlab_run_works_from_it(tmp_path):
+    src = tmp_path / "src"
+    src.mkdir()
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+    for name in ("research", "kernels", "experiments"):
+        shutil.copytree(REPO_ROOT / name, src / name, ignore=ignore)
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(REPO_ROOT / name, src / name)
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
+                        "-q", "-w", str(tmp_path / "dist"), str(src)], capture_output=True, text=True, timeout=200)
+    assert r.returncode == 0, r.stderr[-3000:]
+    (wheel,) = (tmp_path / "dist").glob("drlab-*.whl")
+    with zipfile.ZipFile(wheel) as z:
+        names = z.namelist()
+        assert "experiments/__init__.py" in names
+        for spec in EXPERIMENTS.values():
+            assert f"experiments/{spec.name}.py" in names
+        assert not [n for n in names if n.startswith("tests/")]
+        z.extractall(tmp_path / "site")
+    # As after `pip install` from the wheel: no checkout, so results go under the current directory.
+    work = tmp_path / "work"
+    work.mkdir()
+    env = dict(os.environ, PYTHONPATH=str(tmp_path / "site"))
+    r = subprocess.run([sys.executable, "-m", "research.cli", "run", "kalman_tracking", "--", "--smoke",
+                        "--no-progress"], cwd=work, env=env, capture_output=True, text=True, timeout=200)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    assert (work / "results" / "kalman_tracking" / "metrics.json").is_file()
+
+
+# --------------------------------------------------------------------------- bench families
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("family", list(BENCH_MODULES))
+def test_bench_family_tiny_cases(family):
+    module = importlib.import_module(BENCH_MODULES[family])
+    t0 = time.perf_counter()
+    rows = list(module.cases("cpu", quick=True, tiny=True))
+    seconds = time.perf_counter() - t0
+    assert rows, f"{family}: no cases"
+    for row in rows:
+        assert str(row["bench"]).startswith(family + "."), row
+        assert row["device"] == "cpu" and row["threads"] >= 1
+        timings = {k: v for k, v in row.items() if k.endswith("_s")}
+        assert any(isinstance(v, float) and v > 0 for v in timings.values()), row
+    print(f"bench {family} tiny: {seconds:.2f} s")
