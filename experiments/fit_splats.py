@@ -8,7 +8,7 @@ views back-projected to coloured points (or, with --init random, from random
 points in the scene box), and trains them as 3DGS does (research.splats.train:
 L1 + 0.2 D-SSIM, Adam with the 3DGS learning rates, the SH degree schedule and
 densification on the 3DGS schedule scaled to the iteration count), on the
-Warp kernels of kernels/splat.py with their hand-written backward.
+Warp kernels of kernels/splat/ with their hand-written backward.
 
 Reported on the test split: PSNR and SSIM (research.metrics; images clipped to
 [0, 1] and sRGB-encoded as the dataset's PNGs, premultiplied on black, the
@@ -126,7 +126,7 @@ def run(ctx: Context) -> int:
 
     from research import comparison, datasets
     from research.metrics import EVAL_PROTOCOL
-    from research.splats import model as sm, ply, train as st
+    from research.splats import model as sm, train as st
 
     args = ctx.args
     cfg = setup(ctx.quick, ctx.smoke)
@@ -157,11 +157,9 @@ def run(ctx: Context) -> int:
     fps = st.render_fps(model, test_split.cameras, result.sh_degree, device=ctx.device)
 
     ply_path = (args.ply or registry.base_dir() / "build" / f"fit_splats{suffix}" / "point_cloud.ply").absolute()
-    ply.save_ply(ply_path, model)
+    same = st.ply_round_trip_identical(ply_path, model, test_split.cameras[0], result.sh_degree,
+                                       device=ctx.device)
     ply_bytes = ply_path.stat().st_size
-    reloaded = ply.load_ply(ply_path)
-    same = np.array_equal(sm.render(reloaded, test_split.cameras[0], sh_degree=result.sh_degree,
-                                    device=ctx.device).rgb.numpy(), ev.renders[0])
     if not same:
         raise RuntimeError(f"{ply_path}: the reloaded model renders a different image")
 

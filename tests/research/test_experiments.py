@@ -68,7 +68,7 @@ def _check_mot(m):
 
 def _check_lucas_kanade(m):
     # The task itself is the same at every size: the pyramid recovers the 5 px motion.
-    assert abs(m["runs"]["kernels.flow pyramidal, 3 levels x 10 steps"]["mean_u_valid"] - 5.0) < 0.1
+    assert abs(m["runs"]["kernels.lucas_kanade pyramidal, 3 levels x 10 steps"]["mean_u_valid"] - 5.0) < 0.1
 
 
 def _check_raft(m):
