@@ -92,7 +92,7 @@ register_experiment(
 
 register_experiment(
     "kalman_tracking",
-    "Kalman filter and RTS smoother on the textbook's noisy circle: textbook Q vs likelihood-tuned Q.",
+    "Kalman filter and RTS smoother on the noisy circle of the Video and 3D Vision textbook chapter: textbook Q vs likelihood-tuned Q.",
     quick_budget_s=180,
 )
 register_experiment(
