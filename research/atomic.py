@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
@@ -19,6 +20,34 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+# The names atomic_path gives its temporary files: `.<stem>.<8 random characters>.tmp<ext>`
+# (tempfile.mkstemp's random part is 8 characters of [a-z0-9_]).
+_TEMP_NAME = re.compile(r"^\..*\.[a-z0-9_]{8}\.tmp(\.[^./]+)?$")
+
+
+def is_temporary(name: str) -> bool:
+    """Whether a file name is one of atomic_path's temporary names."""
+    return bool(_TEMP_NAME.match(name))
+
+
+def sweep_temporary(root: str | os.PathLike) -> list[Path]:
+    """Delete atomic_path's temporary files under `root` (recursively); return what was deleted.
+
+    Only a killed run leaves them (an exception removes its own), so call this at the start of a
+    run that owns `root`, before it writes anything, never while another process writes there.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        return []
+    gone = []
+    for p in root.rglob(".*"):
+        if p.is_file() and not p.is_symlink() and is_temporary(p.name):
+            with contextlib.suppress(FileNotFoundError):
+                p.unlink()
+                gone.append(p)
+    return gone
 
 
 @contextlib.contextmanager

@@ -2,7 +2,7 @@
 
     from research.datasets import DatasetConfig, generate, load
     generate(DatasetConfig("objects", views=100, res=256, spp=64), "data/objects")
-    ds = load("data/objects"); train = ds.load_split("train")
+    ds = load("data/objects"); train = ds.load_split("train")   # verified against manifest.json
 """
 
 from research.datasets.generate import (CACHE_ROOT_HELP, DatasetConfig, cache_dir, ensure, generate,
@@ -10,7 +10,8 @@ from research.datasets.generate import (CACHE_ROOT_HELP, DatasetConfig, cache_di
 from research.datasets.loader import (Dataset, DatasetError, FlowSequence, StereoPair, load, load_flow,
                                       load_stereo)
 from research.datasets.scenes import SCENES, SceneSpec, get_scene
+from research.datasets.verify import verify
 
 __all__ = ["CACHE_ROOT_HELP", "DatasetConfig", "cache_dir", "ensure", "generate", "provenance", "Dataset",
            "DatasetError", "FlowSequence", "StereoPair", "load", "load_flow", "load_stereo", "SCENES", "SceneSpec",
-           "get_scene"]
+           "get_scene", "verify"]

@@ -1,14 +1,18 @@
 """Loading and validating a dataset directory written by research.datasets.generate.
 
-`load(path)` reads manifest.json and cameras.json, checks that every listed file
-exists, that the NeRF transforms agree with the OpenCV cameras, and that image
-headers match the camera sizes. Every error names the offending file.
-Pixels are read on demand (`Dataset.load_split`).
+`load(path)` verifies the files against manifest.json's SHA-256 hashes
+(research.datasets.verify; `verify_hashes=False` skips that, for tools that need
+it), reads cameras.json, checks that the NeRF transforms agree with the OpenCV
+cameras, and that image headers match the camera sizes. Pixels are read on demand
+(`Dataset.load_split`). `load_stereo` and `load_flow` verify the same way.
+Ground truth is checked for meaning as it is read: depth >= 0, disparity >= 0,
+a finite positive baseline, finite flow. Every error names the offending file.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,12 +22,11 @@ import OpenImageIO as oiio
 
 from research import io
 from research.cameras import Camera
+from research.datasets.verify import DatasetError, verify
 
 SPLITS = ("train", "val", "test")
 
 
-class DatasetError(ValueError):
-    """A dataset on disk is missing files or holds inconsistent data."""
 
 
 @dataclass(frozen=True)
@@ -62,7 +65,8 @@ class Dataset:
     def load_split(self, split: str, limit: int | None = None) -> Split:
         views = self.split_views(split)[:limit]
         rgba = np.stack([_checked(io.read_exr, v.path(".exr"), v.camera, 4) for v in views])
-        depth = np.stack([_checked(io.read_exr, v.path("_depth.exr"), v.camera, 1) for v in views])
+        depth = np.stack([_nonnegative(_checked(io.read_exr, v.path("_depth.exr"), v.camera, 1), v.path("_depth.exr"),
+                                       "depth") for v in views])
         mask = np.stack([_checked(io.read_png_u8, v.path("_mask.png"), v.camera, 1) for v in views]) > 127
         return Split([v.camera for v in views], rgba, depth, mask, [v.name for v in views])
 
@@ -76,6 +80,12 @@ def _checked(reader, path: Path, cam: Camera, channels: int) -> np.ndarray:
         raise DatasetError(f"{path}: expected an image of shape {expected}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise DatasetError(f"{path}: contains non-finite values")
+    return arr
+
+
+def _nonnegative(arr: np.ndarray, path: Path, what: str) -> np.ndarray:
+    if arr.size and arr.min() < 0:
+        raise DatasetError(f"{path}: {what} must be >= 0, found {float(arr.min()):.6g}")
     return arr
 
 
@@ -99,24 +109,25 @@ def _image_size(path: Path) -> tuple[int, int]:
         inp.close()
 
 
-def load(path: str | Path, *, verify_hashes: bool = False) -> Dataset:
-    """Open and validate a dataset directory (see module docstring)."""
+def _open(path: str | Path, verify_hashes: bool) -> Path:
     root = Path(path)
     if not root.is_dir():
         partial = root.with_name(root.name + ".partial")
         hint = f" (an interrupted run left {partial}; finish it with --resume)" if partial.exists() else ""
         raise DatasetError(f"{root}: no such dataset directory{hint}")
+    if verify_hashes:
+        verify(root)
+    return root
+
+
+def load(path: str | Path, *, verify_hashes: bool = True) -> Dataset:
+    """Open and validate a dataset directory (see module docstring)."""
+    root = _open(path, verify_hashes)
     manifest = _read_json(root / "manifest.json")
-    files: dict[str, str] = manifest.get("files", {})
+    files = manifest.get("files", {}) if isinstance(manifest, dict) else {}
     for rel in files:
         if not (root / rel).is_file():
             raise DatasetError(f"{root / rel}: listed in manifest.json but missing")
-    if verify_hashes:
-        from research.datasets.generate import file_sha256
-
-        for rel, digest in files.items():
-            if file_sha256(root / rel) != digest:
-                raise DatasetError(f"{root / rel}: content does not match the hash in manifest.json")
 
     cams_path = root / "cameras.json"
     cams_doc = _read_json(cams_path)
@@ -183,10 +194,13 @@ class StereoPair:
     depth: np.ndarray  # (H, W) left z-depth
 
 
-def load_stereo(path: str | Path) -> list[StereoPair]:
+def load_stereo(path: str | Path, *, verify_hashes: bool = True) -> list[StereoPair]:
     """Rectified pairs written with --stereo."""
-    root = Path(path) / "stereo"
+    root = _open(path, verify_hashes) / "stereo"
     doc = _read_json(root / "stereo.json")
+    baseline = doc.get("baseline") if isinstance(doc, dict) else None
+    if isinstance(baseline, bool) or not isinstance(baseline, (int, float)) or not (0 < baseline < math.inf):
+        raise DatasetError(f"{root / 'stereo.json'}: baseline must be a finite distance > 0, got {baseline!r}")
     out = []
     for p in doc.get("pairs", []):
         stem = root / p["name"]
@@ -195,13 +209,15 @@ def load_stereo(path: str | Path) -> list[StereoPair]:
         except (KeyError, ValueError) as e:
             raise DatasetError(f"{root / 'stereo.json'}: pair {p.get('name')}: {e}") from None
         out.append(StereoPair(
-            p["name"], lc, rc, float(doc["baseline"]),
+            p["name"], lc, rc, float(baseline),
             _checked(io.read_exr, Path(f"{stem}_left.exr"), lc, 4),
             _checked(io.read_exr, Path(f"{stem}_right.exr"), rc, 4),
-            _checked(io.read_pfm, Path(f"{stem}_disp.pfm"), lc, 1),
+            _nonnegative(_checked(io.read_pfm, Path(f"{stem}_disp.pfm"), lc, 1), Path(f"{stem}_disp.pfm"),
+                         "disparity"),
             _checked(io.read_png_u8, Path(f"{stem}_noc.png"), lc, 1) > 127,
             _checked(io.read_png_u8, Path(f"{stem}_mask.png"), lc, 1) > 127,
-            _checked(io.read_exr, Path(f"{stem}_left_depth.exr"), lc, 1),
+            _nonnegative(_checked(io.read_exr, Path(f"{stem}_left_depth.exr"), lc, 1),
+                         Path(f"{stem}_left_depth.exr"), "depth"),
         ))
     if not out:
         raise DatasetError(f"{root / 'stereo.json'}: lists no pairs")
@@ -217,9 +233,9 @@ class FlowSequence:
     valid: np.ndarray  # (N - 1, H, W) bool
 
 
-def load_flow(path: str | Path) -> FlowSequence:
+def load_flow(path: str | Path, *, verify_hashes: bool = True) -> FlowSequence:
     """The camera-path sequence written with --flow."""
-    root = Path(path) / "flow"
+    root = _open(path, verify_hashes) / "flow"
     doc = _read_json(root / "flow.json")
     frames = doc.get("frames", [])
     if len(frames) < 2:
@@ -233,7 +249,8 @@ def load_flow(path: str | Path) -> FlowSequence:
             raise DatasetError(f"{root / 'flow.json'}: frame {f.get('name')}: {e}") from None
         cams.append(cam)
         rgba.append(_checked(io.read_exr, Path(f"{stem}.exr"), cam, 4))
-        depth.append(_checked(io.read_exr, Path(f"{stem}_depth.exr"), cam, 1))
+        depth.append(_nonnegative(_checked(io.read_exr, Path(f"{stem}_depth.exr"), cam, 1), Path(f"{stem}_depth.exr"),
+                                  "depth"))
         if k < len(frames) - 1:
             flow.append(_checked(io.read_flo, Path(f"{stem}_flow.flo"), cam, 2))
             valid.append(_checked(io.read_png_u8, Path(f"{stem}_valid.png"), cam, 1) > 127)
