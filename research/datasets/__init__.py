@@ -10,7 +10,7 @@ from research.datasets.generate import (CACHE_ROOT_HELP, DatasetConfig, cache_di
 from research.datasets.loader import (Dataset, DatasetError, FlowSequence, StereoPair, load, load_flow,
                                       load_stereo)
 from research.datasets.scenes import SCENES, SceneSpec, get_scene
-from research.datasets.verify import verify
+from research.datasets.integrity import verify
 
 __all__ = ["CACHE_ROOT_HELP", "DatasetConfig", "cache_dir", "ensure", "generate", "provenance", "Dataset",
            "DatasetError", "FlowSequence", "StereoPair", "load", "load_flow", "load_stereo", "SCENES", "SceneSpec",

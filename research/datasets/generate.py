@@ -14,7 +14,7 @@ Layout of `<out>/`:
     flow/   (with --flow)              f_NNN.{png,exr}, f_NNN_depth.exr, f_NNN_mask.png,
                                        f_NNN_flow.flo and f_NNN_valid.png (frame NNN -> NNN+1), flow.json
     manifest.json                      config, Mitsuba variant, versions, seed, SHA-256 of every file
-    .drlab-verified.json               research.datasets.verify's cache (sizes and times); not content
+    .drlab-verified.json               research.datasets.integrity's cache (sizes and times); not content
 
 Safety:
 * Every argument is validated (ValueError naming the `drlab dataset` option) before any file or
@@ -53,7 +53,7 @@ from research.cameras import Camera, smooth_path
 from research.datasets.groundtruth import forward_flow, stereo_disparity, stereo_right_camera
 from research.datasets.render import SceneRenderer
 from research.datasets.scenes import SceneSpec, get_scene
-from research.datasets.verify import (GENERATOR, MANIFEST, VERIFIED, content_hash, file_sha256, read_manifest,
+from research.datasets.integrity import (GENERATOR, MANIFEST, VERIFIED, content_hash, file_sha256, read_manifest,
                                      verify, write_cache)
 from research.results import host, versions
 
@@ -322,20 +322,13 @@ def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force
     out = check_out(out, force=force)
     partial = partial_dir(out)
     cfg_dict = asdict(cfg)
+    _partial_state(partial, cfg_dict, resume)  # its errors too come before the lock file is created
     with dataset_lock(out):
         _recover_swap(out)
         out = check_out(out, force=force)  # again, under the lock: another process may have finished it
-        if partial.exists():
-            recorded = _partial_config(partial)
-            if recorded is None:
-                notice(f"note: replacing {partial}: its configuration record is missing or unreadable")
-                shutil.rmtree(partial)
-            elif not resume:
-                raise ValueError(f"--resume: an interrupted run left {partial}; pass --resume to finish it, "
-                                 "or delete that folder")
-            elif recorded != cfg_dict:
-                raise ValueError(f"--resume: {partial} was started with a different configuration "
-                                 f"({_config_diff(recorded, cfg_dict)}); delete that folder or rerun with its settings")
+        if _partial_state(partial, cfg_dict, resume) == "unreadable":
+            notice(f"note: replacing {partial}: its configuration record is missing or unreadable")
+            shutil.rmtree(partial)
         if partial.exists():
             atomic.sweep_temporary(partial)  # left by a killed run; nothing else writes here (we hold the lock)
         else:
@@ -401,6 +394,22 @@ def _commit(out: Path, partial: Path) -> None:
         shutil.rmtree(old) if not old.is_symlink() else old.unlink()
     else:
         os.replace(partial, out)
+
+
+def _partial_state(partial: Path, cfg_dict: dict[str, Any], resume: bool) -> str:
+    """"none", "resume" or "unreadable" (to be replaced); ValueError when the user must decide."""
+    if not partial.exists():
+        return "none"
+    recorded = _partial_config(partial)
+    if recorded is None:
+        return "unreadable"
+    if not resume:
+        raise ValueError(f"--resume: an interrupted run left {partial}; pass --resume to finish it, or delete that "
+                         "folder")
+    if recorded != cfg_dict:
+        raise ValueError(f"--resume: {partial} was started with a different configuration "
+                         f"({_config_diff(recorded, cfg_dict)}); delete that folder or rerun with its settings")
+    return "resume"
 
 
 def partial_dir(out: Path) -> Path:
@@ -553,7 +562,7 @@ def provenance(path: str | Path) -> dict[str, Any]:
     """What an experiment should record about a dataset it used: directory name, generator
     revision, content hash and the host that rendered it (from its manifest).
 
-    The dataset is verified first (research.datasets.verify), so the content hash recorded is one
+    The dataset is verified first (research.datasets.integrity), so the content hash recorded is one
     the files on disk were just checked against. The content hash identifies the pixels; the
     revision and host explain why two runs of the same configuration can differ.
     """

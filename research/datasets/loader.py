@@ -1,7 +1,7 @@
 """Loading and validating a dataset directory written by research.datasets.generate.
 
 `load(path)` verifies the files against manifest.json's SHA-256 hashes
-(research.datasets.verify; `verify_hashes=False` skips that, for tools that need
+(research.datasets.integrity; `verify_hashes=False` skips that, for tools that need
 it), reads cameras.json, checks that the NeRF transforms agree with the OpenCV
 cameras, and that image headers match the camera sizes. Pixels are read on demand
 (`Dataset.load_split`). `load_stereo` and `load_flow` verify the same way.
@@ -22,7 +22,7 @@ import OpenImageIO as oiio
 
 from research import io
 from research.cameras import Camera
-from research.datasets.verify import DatasetError, verify
+from research.datasets.integrity import DatasetError, verify
 
 SPLITS = ("train", "val", "test")
 

@@ -251,3 +251,24 @@ def test_every_scene_renders_with_bbox_containing_geometry(renderer):
             P = g.position[g.mask]
             lo, hi = spec.bbox
             assert np.all(P >= lo - 1e-3) and np.all(P <= hi + 1e-3), name
+
+
+def test_verification_fast_path_rehashes_only_changed_files(tmp_path, monkeypatch):
+    from research.datasets import integrity as verify_mod
+
+    out = generate(DatasetConfig("spheres", views=3, res=8, spp=1, seed=4), tmp_path / "ds", show_progress=False)
+    hashed = []
+    original = verify_mod.file_sha256
+    monkeypatch.setattr(verify_mod, "file_sha256", lambda p: hashed.append(p.name) or original(p))
+    m = json.loads((out / "manifest.json").read_text())
+    assert verify_mod.verify(out) == m["content_hash"] and hashed == []  # the generator left the cache
+    assert provenance(out)["content_hash"] == m["content_hash"] and hashed == []
+    png = out / "train" / "r_000.png"
+    png.write_bytes(png.read_bytes())  # same bytes, new mtime: rehashed once, then trusted again
+    load(out)
+    assert hashed == ["r_000.png"]
+    load(out)
+    assert hashed == ["r_000.png"]
+    (out / verify_mod.VERIFIED).unlink()  # no cache: everything is hashed
+    load(out)
+    assert len(hashed) == 1 + len(m["files"])

@@ -1,4 +1,4 @@
-"""Checking a dataset directory against the SHA-256 hashes in its manifest.json.
+"""Checking a dataset directory against the SHA-256 hashes in its manifest.json (`verify`).
 
 `verify(root)` checks that manifest.json was written by drlab's generator, that its content hash
 agrees with the file hashes it lists, that every listed file exists with that hash, and that the
