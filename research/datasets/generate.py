@@ -26,7 +26,8 @@ Safety:
   configuration must match the recorded one). A `.partial` whose record is missing or unreadable
   is replaced with a one-line notice. Temporary files of a killed run are swept before rendering.
 * `force=True` replaces only a directory holding a manifest.json written by drlab's generator, and
-  only once the new dataset is complete.
+  only once the new dataset is complete; it also starts over from a `.partial` (with a notice)
+  unless `resume=True`.
 * The run holds an fcntl lock on `<out>.lock`, so two processes never write the same dataset;
   `ensure` holds it too, so a second process waits and reuses the first one's data.
 """
@@ -322,12 +323,15 @@ def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force
     out = check_out(out, force=force)
     partial = partial_dir(out)
     cfg_dict = asdict(cfg)
-    _partial_state(partial, cfg_dict, resume)  # its errors too come before the lock file is created
+    _partial_state(partial, cfg_dict, resume, force)  # its errors too come before the lock file is created
     with dataset_lock(out):
         _recover_swap(out)
         out = check_out(out, force=force)  # again, under the lock: another process may have finished it
-        if _partial_state(partial, cfg_dict, resume) == "unreadable":
-            notice(f"note: replacing {partial}: its configuration record is missing or unreadable")
+        state = _partial_state(partial, cfg_dict, resume, force)
+        if state in ("unreadable", "force"):
+            why = ("its configuration record is missing or unreadable" if state == "unreadable" else
+                   "--force starts over (--resume would finish it)")
+            notice(f"note: replacing {partial}: {why}")
             shutil.rmtree(partial)
         if partial.exists():
             atomic.sweep_temporary(partial)  # left by a killed run; nothing else writes here (we hold the lock)
@@ -396,13 +400,15 @@ def _commit(out: Path, partial: Path) -> None:
         os.replace(partial, out)
 
 
-def _partial_state(partial: Path, cfg_dict: dict[str, Any], resume: bool) -> str:
-    """"none", "resume" or "unreadable" (to be replaced); ValueError when the user must decide."""
+def _partial_state(partial: Path, cfg_dict: dict[str, Any], resume: bool, force: bool) -> str:
+    """"none", "resume", "unreadable" or "force" (the last two: replace it); ValueError when the user must decide."""
     if not partial.exists():
         return "none"
     recorded = _partial_config(partial)
     if recorded is None:
         return "unreadable"
+    if force and not resume:
+        return "force"
     if not resume:
         raise ValueError(f"--resume: an interrupted run left {partial}; pass --resume to finish it, or delete that "
                          "folder")

@@ -462,6 +462,7 @@ RECOVERIES = {
                                                                        "unreadable"),
     "partial-config-missing": (_missing_config, dict(resume=True), "its configuration record is missing"),
     "stale-temp-files-swept": (_stale_temps, dict(resume=True), None),
+    "force-starts-over": (lambda partial: None, dict(force=True), "--force starts over (--resume would finish it)"),
 }
 
 
