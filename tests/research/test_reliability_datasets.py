@@ -523,8 +523,10 @@ def test_corrupt_verification_cache_is_ignored(reference, tmp_path):
     root = tmp_path / "ds"
     shutil.copytree(reference, root)
     (root / VERIFIED).write_text("[not the cache")
+    (root / ".drlab-verified.ab12cd34.tmp.json").write_text("{")  # a cache write killed half-way
     assert verify(root) == _hash(root)
     assert json.loads((root / VERIFIED).read_text())["files"]  # rewritten
+    assert _leftovers(tmp_path) == []
 
 
 def test_force_replaces_a_tampered_dataset_only_when_whole(reference, tmp_path):
