@@ -120,9 +120,12 @@ def verify(root: str | Path) -> str:
         for name in sorted(filenames):
             p = Path(dirpath) / name
             rel = p.relative_to(root).as_posix()
-            if rel == MANIFEST or (Path(dirpath) == root and is_sidecar(name)):
-                if name != VERIFIED:  # a cache write killed half-way; a live writer tolerates losing it
-                    p.unlink(missing_ok=True)
+            if rel == MANIFEST or rel == VERIFIED:
+                continue
+            if Path(dirpath) == root and is_sidecar(name):
+                # A cache write killed half-way. Deleting it is safe even if a live process is writing
+                # it: write_cache ignores the OSError that process then gets.
+                p.unlink(missing_ok=True)
                 continue
             if rel not in files:
                 raise DatasetError(f"{p}: not listed in manifest.json (a file added after the dataset was written)")
