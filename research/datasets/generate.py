@@ -386,7 +386,8 @@ def _commit(out: Path, partial: Path) -> None:
     """Rename the finished `partial` to `out`; with --force the old dataset is renamed aside first.
 
     A kill between the renames leaves `<out>.drlab-old`, which the next run puts back or deletes
-    (`_recover_swap`); the finished `.partial` still holds its manifest, so --resume completes it.
+    (`_recover_swap`); the finished `.partial` still holds its manifest, so `--force --resume`
+    completes it without rendering (plain `--force` starts over).
     """
     (partial / _PARTIAL_CONFIG).unlink(missing_ok=True)  # the manifest records the configuration from here on
     if out.is_dir() and not out.is_symlink() and not any(out.iterdir()):
@@ -395,7 +396,10 @@ def _commit(out: Path, partial: Path) -> None:
         old = _old_dir(out)
         os.replace(out, old)
         os.replace(partial, out)
-        shutil.rmtree(old) if not old.is_symlink() else old.unlink()
+        if old.is_symlink():  # --out was a link to a dataset: drop the link, keep what it pointed to
+            old.unlink()
+        else:
+            shutil.rmtree(old)
     else:
         os.replace(partial, out)
 
