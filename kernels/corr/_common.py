@@ -94,16 +94,9 @@ def _scatter_tap(g: wp.array3d(dtype=typing.Any), p: int, row: int, col: int, va
 
 
 @wp.kernel
-def sample_windows(
-    s: wp.array3d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
-    out: wp.array3d(dtype=typing.Any),
-    scale: typing.Any,
-    radius: int,
-    channel0: int,
-    from_patch: int,
-    offset: int,
-):
+def sample_windows(s: wp.array3d(dtype=typing.Any), coords: wp.array3d(dtype=typing.Any),
+                   out: wp.array3d(dtype=typing.Any),
+                   scale: typing.Any, radius: int, channel0: int, from_patch: int, offset: int):
     """Equation (4) for one level and one window column a, sampling S = s[p] by (3); thread = pixel * (2r+1) + a.
 
     Dense: s is V^l (H W, H_l, W_l), read from the window's origin (j0, i0). On the fly
@@ -130,18 +123,10 @@ def sample_windows(
 
 
 @wp.kernel
-def sample_windows_adjoint(
-    s: wp.array3d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
-    grad_out: wp.array3d(dtype=typing.Any),
-    grad_s: wp.array3d(dtype=typing.Any),
-    grad_coords: wp.array3d(dtype=typing.Any),
-    scale: typing.Any,
-    radius: int,
-    channel0: int,
-    from_patch: int,
-    offset: int,
-):
+def sample_windows_adjoint(s: wp.array3d(dtype=typing.Any), coords: wp.array3d(dtype=typing.Any),
+                           grad_out: wp.array3d(dtype=typing.Any), grad_s: wp.array3d(dtype=typing.Any),
+                           grad_coords: wp.array3d(dtype=typing.Any),
+                           scale: typing.Any, radius: int, channel0: int, from_patch: int, offset: int):
     """Adjoint of `sample_windows`; thread = pixel. Adds into row p of grad_s (which it first zeroes
     when `from_patch`: the patch's gradient buffer serves every level) and pixel p of grad_coords only."""
     p = wp.tid() + offset

@@ -57,14 +57,8 @@ def _store_col(out: wp.array2d(dtype=typing.Any), m0: int, col: int, v0: typing.
 
 
 @wp.kernel
-def _gemm_tn(
-    a: wp.array2d(dtype=typing.Any),
-    b_v: wp.array2d(dtype=typing.Any),
-    out: wp.array2d(dtype=typing.Any),
-    scale: typing.Any,
-    n_col_blocks: int,
-    offset: int,
-):
+def _gemm_tn(a: wp.array2d(dtype=typing.Any), b_v: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any),
+             scale: typing.Any, n_col_blocks: int, offset: int):
     """out[m, n] = scale * sum_k a[k, m] b[k, n] for a 4 x 16 block of (m, n) per thread."""
     t = wp.tid() + offset
     m0 = (t // n_col_blocks) * GEMM_ROWS

@@ -46,19 +46,8 @@ SGM_VEC = {wp.float32: wp.types.vector(length=SGM_LANES, dtype=wp.float32),
 
 
 @wp.func
-def _sgm_walk(
-    cost_v: wp.array(dtype=typing.Any),
-    agg_v: wp.array(dtype=typing.Any),
-    buf_v: wp.array(dtype=typing.Any),
-    nb: int,
-    bb: int,
-    base: int,
-    step: int,
-    n: int,
-    p1: typing.Any,
-    p2: typing.Any,
-    write: int,
-):
+def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), buf_v: wp.array(dtype=typing.Any),
+              nb: int, bb: int, base: int, step: int, n: int, p1: typing.Any, p2: typing.Any, write: int):
     """L_r along one scanline of n + 1 pixels starting at flat vector index `base`, moving by `step`.
 
     Each pixel holds nb vectors; buf_v[bb:bb + nb] carries L_r(p - r) and is updated in place.
@@ -109,19 +98,8 @@ def _sgm_walk(
 
 
 @wp.kernel
-def _sgm_axis(
-    cost_v: wp.array(dtype=typing.Any),
-    agg_v: wp.array(dtype=typing.Any),
-    buf_v: wp.array(dtype=typing.Any),
-    H: int,
-    W: int,
-    dy: int,
-    dx: int,
-    p1: typing.Any,
-    p2: typing.Any,
-    first: int,
-    offset: int,
-):
+def _sgm_axis(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), buf_v: wp.array(dtype=typing.Any),
+              H: int, W: int, dy: int, dx: int, p1: typing.Any, p2: typing.Any, first: int, offset: int):
     # One thread per scanline along axis (dy, dx), dy >= 0: it runs the path r = (dy, dx), then the
     # opposite path -r back along the same pixels, which are still in cache. Volumes are flat arrays
     # of 8-wide vectors, nb per pixel.
