@@ -199,14 +199,17 @@ def pack_rows(x: wp.array, n_vec: int, a: Inputs) -> wp.array:
 # --------------------------------------------------------------------------- 2x2 average pooling
 
 
+@wp.func
+def _nhw(t: int, height: int, width: int):
+    """(n, h, w) of the flat index t = (n * height + h) * width + w."""
+    per = height * width
+    return t // per, (t % per) // width, t % width
+
+
 @wp.kernel
 def _pool2x2(x: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any), offset: int):
     """out[n, h, w] = mean of x[n, 2h : 2h + 2, 2w : 2w + 2]  (equation (2))."""
-    t = wp.tid() + offset
-    per = out.shape[1] * out.shape[2]
-    n = t // per
-    h = (t % per) // out.shape[2]
-    w = t % out.shape[2]
+    n, h, w = _nhw(wp.tid() + offset, out.shape[1], out.shape[2])
     s = x[n, 2 * h, 2 * w] + x[n, 2 * h, 2 * w + 1] + x[n, 2 * h + 1, 2 * w] + x[n, 2 * h + 1, 2 * w + 1]
     out[n, h, w] = s * x.dtype(0.25)
 
@@ -214,11 +217,7 @@ def _pool2x2(x: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any),
 @wp.kernel
 def _pool2x2_adjoint_add(g_coarse: wp.array3d(dtype=typing.Any), g_fine: wp.array3d(dtype=typing.Any), offset: int):
     """g_fine[n, h, w] += g_coarse[n, h // 2, w // 2] / 4 where that coarse pixel exists (adjoint of (2))."""
-    t = wp.tid() + offset
-    per = g_fine.shape[1] * g_fine.shape[2]
-    n = t // per
-    h = (t % per) // g_fine.shape[2]
-    w = t % g_fine.shape[2]
+    n, h, w = _nhw(wp.tid() + offset, g_fine.shape[1], g_fine.shape[2])
     hc = h // 2
     wc = w // 2
     if hc < g_coarse.shape[1] and wc < g_coarse.shape[2]:

@@ -46,6 +46,18 @@ SGM_VEC = {wp.float32: wp.types.vector(length=SGM_LANES, dtype=wp.float32),
 
 
 @wp.func
+def _record(buf_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), b: int, i: int, lr: typing.Any,
+            lanes_min: typing.Any, write: int):
+    """buf_v[b] = lr and agg_v[i] = lr (assigned when `write`, else added); returns min(lanes_min, lr)."""
+    buf_v[b] = lr
+    if write != 0:
+        agg_v[i] = lr
+    else:
+        agg_v[i] = agg_v[i] + lr
+    return wp.min(lanes_min, lr)
+
+
+@wp.func
 def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), buf_v: wp.array(dtype=typing.Any),
               nb: int, bb: int, base: int, step: int, n: int, p1: typing.Any, p2: typing.Any, write: int):
     """L_r along one scanline of n + 1 pixels starting at flat vector index `base`, moving by `step`.
@@ -57,13 +69,7 @@ def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.A
     p2_v = cost_v.dtype(p2)
     lanes_min = cost_v[base]
     for j in range(nb):
-        c = cost_v[base + j]
-        buf_v[bb + j] = c
-        lanes_min = wp.min(lanes_min, c)
-        if write != 0:
-            agg_v[base + j] = c
-        else:
-            agg_v[base + j] = agg_v[base + j] + c
+        lanes_min = _record(buf_v, agg_v, bb + j, base + j, cost_v[base + j], lanes_min, write)
     prev_min = wp.min(lanes_min)
     for _s in range(n):
         base += step
@@ -84,13 +90,7 @@ def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.A
             down = cost_v.dtype(below, cur[0], cur[1], cur[2], cur[3], cur[4], cur[5], cur[6])
             up = cost_v.dtype(cur[1], cur[2], cur[3], cur[4], cur[5], cur[6], cur[7], above)
             best = wp.min(wp.min(cur, jump_v), wp.min(down, up) + p1_v)
-            lr = cost_v[base + j] + best - prev_v
-            buf_v[bb + j] = lr
-            lanes_min = wp.min(lanes_min, lr)
-            if write != 0:
-                agg_v[base + j] = lr
-            else:
-                agg_v[base + j] = agg_v[base + j] + lr
+            lanes_min = _record(buf_v, agg_v, bb + j, base + j, cost_v[base + j] + best - prev_v, lanes_min, write)
             below = cur[7]
             cur = nxt
         prev_min = wp.min(lanes_min)
