@@ -56,6 +56,18 @@ def _store_col(out: wp.array2d(dtype=typing.Any), m0: int, col: int, v0: typing.
             out[m0 + 3, col] = v3
 
 
+@wp.func
+def _block_terms(a: wp.array2d(dtype=typing.Any), b_v: wp.array2d(dtype=typing.Any), k: int, m0: int, jv: int):
+    """Row k's terms of a 4 x 16 block: a[k, m0 + i] times b's vectors jv (s_i) and jv + 1 (t_i), i = 0..3."""
+    b0 = b_v[k, jv]
+    b1 = b_v[k, jv + 1]
+    a0 = a[k, m0]
+    a1 = a[k, m0 + 1]
+    a2 = a[k, m0 + 2]
+    a3 = a[k, m0 + 3]
+    return a0 * b0, a1 * b0, a2 * b0, a3 * b0, a0 * b1, a1 * b1, a2 * b1, a3 * b1
+
+
 @wp.kernel
 def _gemm_tn(a: wp.array2d(dtype=typing.Any), b_v: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any),
              scale: typing.Any, n_col_blocks: int, offset: int):
@@ -64,39 +76,17 @@ def _gemm_tn(a: wp.array2d(dtype=typing.Any), b_v: wp.array2d(dtype=typing.Any),
     m0 = (t // n_col_blocks) * GEMM_ROWS
     jv = (t % n_col_blocks) * 2
     # a's columns are padded to a multiple of 4, so all four rows can be read (padding is not written).
-    r0 = m0
-    r1 = m0 + 1
-    r2 = m0 + 2
-    r3 = m0 + 3
-    b0 = b_v[0, jv]
-    b1 = b_v[0, jv + 1]
-    a0 = a[0, r0]
-    a1 = a[0, r1]
-    a2 = a[0, r2]
-    a3 = a[0, r3]
-    s0 = a0 * b0
-    s1 = a1 * b0
-    s2 = a2 * b0
-    s3 = a3 * b0
-    t0 = a0 * b1
-    t1 = a1 * b1
-    t2 = a2 * b1
-    t3 = a3 * b1
+    s0, s1, s2, s3, t0, t1, t2, t3 = _block_terms(a, b_v, 0, m0, jv)
     for k in range(1, a.shape[0]):
-        b0 = b_v[k, jv]
-        b1 = b_v[k, jv + 1]
-        a0 = a[k, r0]
-        a1 = a[k, r1]
-        a2 = a[k, r2]
-        a3 = a[k, r3]
-        s0 += a0 * b0
-        s1 += a1 * b0
-        s2 += a2 * b0
-        s3 += a3 * b0
-        t0 += a0 * b1
-        t1 += a1 * b1
-        t2 += a2 * b1
-        t3 += a3 * b1
+        p0, p1, p2, p3, q0, q1, q2, q3 = _block_terms(a, b_v, k, m0, jv)
+        s0 += p0
+        s1 += p1
+        s2 += p2
+        s3 += p3
+        t0 += q0
+        t1 += q1
+        t2 += q2
+        t3 += q3
     n0 = jv * VEC
     # Literal bounds: Warp unrolls these loops, so every vector index is static and the
     # accumulators stay in registers (a runtime index would force them to memory).
