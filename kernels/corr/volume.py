@@ -97,22 +97,14 @@ def _gemm_tn(a: wp.array2d(dtype=typing.Any), b_v: wp.array2d(dtype=typing.Any),
 
 @wp.kernel
 def _copy_cols(x: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), offset: int):
-    """out[:, :M] = x for x (K, M) and a wider out."""
+    """out[:, :M] = x for x (K, M), which may be a strided view (a transpose), and an out at least as wide."""
     t = wp.tid() + offset
     i = t // x.shape[1]
     j = t % x.shape[1]
     out[i, j] = x[i, j]
 
 
-@wp.kernel
-def _transpose(x: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), offset: int):
-    t = wp.tid() + offset
-    i = t // x.shape[0]
-    j = t % x.shape[0]
-    out[i, j] = x[j, i]
-
-
-for _k in (_gemm_tn, _copy_cols, _transpose):
+for _k in (_gemm_tn, _copy_cols):
     declare_float_overloads(_k, vector_types=VEC_OF)
 
 
@@ -137,7 +129,7 @@ def _gemm_tn_wp(x: wp.array, y: wp.array, scale: float, a: Inputs) -> wp.array:
 
 def _transpose_wp(x: wp.array, a: Inputs) -> wp.array:
     out = a.empty((x.shape[1], x.shape[0]))
-    a.launch(_transpose, x.shape[0] * x.shape[1], [x, out])
+    a.launch(_copy_cols, out.size, [x.transpose(), out])
     return out
 
 

@@ -53,9 +53,12 @@ def check_volume(seed: int, shape: tuple[int, int, int] = SHAPE) -> list[Gradche
     return check_vjp(corr.correlation_volume, vjp, inputs, seed=seed, name="corr.volume")
 
 
-def _check_pooling(seed: int, name: str, arg: str, x: np.ndarray, forward: Callable[..., list],
+def _check_pooling(seed: int, name: str, arg: str, shape: tuple[int, ...], forward: Callable[..., list],
                    backward: Callable[[list], dict]) -> list[GradcheckResult]:
-    """Every level of a pooled pyramid `forward(x)` against x, whose gradient is backward(cotangents)[arg]."""
+    """Every level of a pooled pyramid `forward(x)` against a standard-normal x of `shape`, whose gradient is
+    backward(cotangents)[arg]."""
+    x = np.random.default_rng(seed).standard_normal(shape)
+
     def f(**x_in: np.ndarray) -> tuple[np.ndarray, ...]:
         return tuple(forward(x_in[arg]))
 
@@ -67,9 +70,8 @@ def _check_pooling(seed: int, name: str, arg: str, x: np.ndarray, forward: Calla
 
 def check_pyramid(seed: int, height: int = 9, width: int = 10, levels: int = LEVELS) -> list[GradcheckResult]:
     """2x2 average pooling over frame 2's dimensions, every level's output against V^0."""
-    volume = np.random.default_rng(seed).standard_normal((height, width, height, width))
-    return _check_pooling(seed, "corr.pyramid", "volume", volume, lambda v: corr.correlation_pyramid(v, levels),
-                          corr.correlation_pyramid_backward)
+    return _check_pooling(seed, "corr.pyramid", "volume", (height, width, height, width),
+                          lambda v: corr.correlation_pyramid(v, levels), corr.correlation_pyramid_backward)
 
 
 def check_lookup(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
@@ -119,8 +121,7 @@ def check_dense_chain(seed: int, shape: tuple[int, int, int] = SHAPE, levels: in
 def check_pool_features(seed: int, shape: tuple[int, int, int] = (2, 9, 10),
                         levels: int = LEVELS) -> list[GradcheckResult]:
     """P^l(f2) for every level, against f2."""
-    f2 = np.random.default_rng(seed).standard_normal(shape)
-    return _check_pooling(seed, "corr.pool_features", "f2", f2, lambda v: corr.pool_features(v, levels),
+    return _check_pooling(seed, "corr.pool_features", "f2", shape, lambda v: corr.pool_features(v, levels),
                           corr.pool_features_backward)
 
 
