@@ -423,4 +423,5 @@ def table_markdown(metrics: dict, n_seq: int, n_frames: int, n_obj: int) -> str:
 
 main = Experiment(EXPERIMENT, __doc__, run, add_options, warp=False,
                   seed_help="base seed; sequence i uses seed 1000 * seed + i",
-                  sizes="Quick: 2 sequences of 100 frames (about 10 s); smoke: 1 sequence of 40 frames.").script(__name__)
+                  sizes="Quick: 2 sequences of 100 frames (about 10 s); smoke: 1 sequence of 40 "
+                        "frames.").script(__name__)
