@@ -16,7 +16,6 @@ Writes results/datasets/{table.md, metrics.json, preview.png}.
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -122,7 +121,6 @@ def run(ctx: Context) -> int:
     preview(paths, ctx.out / "preview.png")
     ctx.write_results(config={"quick": ctx.quick, "scenes": list(SCENES)}, device="cpu",
                       metrics={"mitsuba_variant": variant, "scenes": metrics}, table_md=table)
-    print(table)
     return 0
 
 
@@ -131,7 +129,4 @@ main = Experiment("datasets", __doc__, run, warp=False,
                             "<scene>-smoke), always regenerated",
                   seed_help="seed of camera poses, splits and render noise",
                   sizes="Quick: 12 views at 64x64, 16 spp, per scene (about a minute); smoke: 4 views at 32x32, "
-                        "4 spp.").main
-
-if __name__ == "__main__":
-    sys.exit(main())
+                        "4 spp.").script(__name__)

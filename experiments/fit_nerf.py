@@ -19,7 +19,6 @@ Writes results/fit_nerf/{table.md, metrics.json, renders_<field>.png, loss.png}.
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass, field as dc_field
 from pathlib import Path
@@ -211,7 +210,6 @@ def add_options(p) -> None:
 def run(ctx: Context) -> int:
     import warp as wp
 
-    from research import comparison
     from research.datasets import cache_dir, ensure, load
     from research.metrics import EVAL_PROTOCOL
     from research.nerf.train import RayBank, srgb_targets
@@ -271,17 +269,12 @@ def run(ctx: Context) -> int:
                                  "config": {k: v for k, v in r["train"]["config"].items()},
                                  "final_loss": float(np.mean(r["train"]["losses"][-100:]))}
                           for name, r in results.items()}}
-    ctx.write_results(config={"quick": ctx.quick, "fields": args.fields}, metrics=metrics, table_md=table)
-    print(table)
-    if not ctx.quick:  # reads this run's metrics.json, so only once the folder is in place
-        ctx.after_commit(lambda: comparison.update_comparison(ctx.final_out.parent))
+    ctx.write_results(config={"quick": ctx.quick, "fields": args.fields}, metrics=metrics, table_md=table,
+                      compare=True)
     return 0
 
 
 main = Experiment("fit_nerf", __doc__, run, add_options, data_help=CACHE_ROOT_HELP,
                   seed_help="seed of the fields' initialisation, ray batches and the noise-floor render",
                   sizes="Quick: 40 views at 64x64 (32 spp) and short schedules, all three fields in a few minutes; "
-                        "smoke: 8 views at 32x32, 4 spp, tens of iterations.").main
-
-if __name__ == "__main__":
-    sys.exit(main())
+                        "smoke: 8 views at 32x32, 4 spp, tens of iterations.").script(__name__)

@@ -25,7 +25,6 @@ results/comparison/table.md (3DGS Table 1 form: research.comparison).
 
 from __future__ import annotations
 
-import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -124,7 +123,7 @@ def add_options(p) -> None:
 def run(ctx: Context) -> int:
     import warp as wp
 
-    from research import comparison, datasets
+    from research import datasets
     from research.metrics import EVAL_PROTOCOL
     from research.splats import model as sm, train as st
 
@@ -192,18 +191,11 @@ def run(ctx: Context) -> int:
     training_figure(result.history, result.events, ctx.out / "training.png")
     train_config = {k: (asdict(v) if hasattr(v, "__dataclass_fields__") else v) for k, v in asdict(tcfg).items()}
     ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "train": train_config},
-                      metrics=metrics, table_md=table)
-    print(table)
-
-    if not ctx.quick:  # reads this run's metrics.json, so only once the folder is in place
-        ctx.after_commit(lambda: comparison.update_comparison(ctx.final_out.parent))
+                      metrics=metrics, table_md=table, compare=True)
     return 0
 
 
 main = Experiment("fit_splats", __doc__, run, add_options, data_help=CACHE_ROOT_HELP,
                   seed_help="seed of the dataset render, the initial points and training",
                   sizes="Quick: 40 views at 64x64, 800 iterations (a few minutes on 2 cores); smoke: 8 views at "
-                        "32x32, 4 spp, 40 iterations.").main
-
-if __name__ == "__main__":
-    sys.exit(main())
+                        "32x32, 4 spp, 40 iterations.").script(__name__)

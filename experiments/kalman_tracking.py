@@ -25,7 +25,6 @@ Writes results/kalman_tracking/: metrics.json, table.md, trajectory.png.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Callable
 
@@ -293,7 +292,6 @@ def run(ctx: Context) -> int:
         "diffuse_prior_var": 1e6,
     }
     ctx.write_results(config=config, metrics=all_metrics, table_md=table)
-    print(table)
     return 0
 
 
@@ -390,7 +388,4 @@ def table_markdown(metrics, obs_rmse, explain, tuned, trials, tune_trials) -> st
 
 main = Experiment(EXPERIMENT, __doc__, run, add_options, warp=False, seed_help="seed of all noise draws",
                   sizes="Quick: 200 evaluation draws and 100 tuning trajectories (a few seconds); smoke: 20 and "
-                        "10.").main
-
-if __name__ == "__main__":
-    sys.exit(main())
+                        "10.").script(__name__)

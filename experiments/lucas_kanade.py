@@ -27,7 +27,6 @@ Writes results/lucas_kanade/{table.md, metrics.json, quiver.png}.
 
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np
@@ -175,12 +174,8 @@ def run(ctx: Context) -> int:
     ctx.write_results(config={"quick": ctx.quick, "size": SIZE, "rows": ROWS, "cols": COLS, "shift": SHIFT,
                               "window": WINDOW, "min_eigenvalue": 1e-4},
                       metrics={"runs": runs, "truth_u": float(SHIFT)}, table_md=table)
-    print(table)
     return 0
 
 
 main = Experiment("lucas_kanade", __doc__, run, seed_help="unused: the task is deterministic; recorded",
-                  sizes="The task is the same in every mode (it takes seconds).").main
-
-if __name__ == "__main__":
-    sys.exit(main())
+                  sizes="The task is the same in every mode (it takes seconds).").script(__name__)

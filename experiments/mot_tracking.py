@@ -29,7 +29,6 @@ Writes results/mot_tracking/: metrics.json, table.md, tracks.png, recall_vs_visi
 
 from __future__ import annotations
 
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -294,7 +293,6 @@ def run(ctx: Context) -> int:
         "iou_threshold_eval": 0.5,
     }
     ctx.write_results(config=config, metrics=metrics, table_md=table)
-    print(table)
     return 0
 
 
@@ -425,7 +423,5 @@ def table_markdown(metrics: dict, n_seq: int, n_frames: int, n_obj: int) -> str:
 
 main = Experiment(EXPERIMENT, __doc__, run, add_options, warp=False,
                   seed_help="base seed; sequence i uses seed 1000 * seed + i",
-                  sizes="Quick: 2 sequences of 100 frames (about 10 s); smoke: 1 sequence of 40 frames.").main
-
-if __name__ == "__main__":
-    sys.exit(main())
+                  sizes="Quick: 2 sequences of 100 frames (about 10 s); smoke: 1 sequence of 40 "
+                        "frames.").script(__name__)

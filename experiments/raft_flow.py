@@ -27,13 +27,12 @@ Writes results/raft_flow/{table.md, metrics.json, flow_<scene>.png, ablation.png
 from __future__ import annotations
 
 import statistics
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from research.experiment import Context, Experiment
+from research.experiment import Context, Experiment, rendered_cache_help
 from research.results import markdown_table, save_figure
 
 SCENES = ("objects", "spheres", "cornell")
@@ -297,16 +296,11 @@ def run(ctx: Context) -> int:
               "stride": STRIDE, "headline": HEADLINE, "corrflow": CorrFlowConfig().__dict__,
               "levels": LEVELS, "radii": RADII}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
-    print(table)
     return 0
 
 
 main = Experiment("raft_flow", __doc__, run,
-                  data_help="cache root of the flow datasets: <data>/raft_flow-<scene>[-quick|-smoke], rendered if "
-                            "missing",
+                  data_help=rendered_cache_help("flow", "raft_flow"),
                   seed_help="dataset seed (camera path, render noise)",
                   sizes="Quick: scene `objects` only, 2 frame pairs; smoke: `objects` at 128x128, 4 spp, "
-                        "one pair.").main
-
-if __name__ == "__main__":
-    sys.exit(main())
+                        "one pair.").script(__name__)

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import itertools
 import os
-import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -39,7 +38,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from research.experiment import Context, Experiment
+from research.experiment import Context, Experiment, rendered_cache_help
 from research.results import markdown_table, save_figure
 
 SCENES = ("objects", "cornell")
@@ -380,7 +379,6 @@ def run(ctx: Context) -> int:
     ctx.write_results(config=config, table_md=table,
                       metrics={"best_drlab": best_drlab, "goal_met": bool(best["pooled"]["d1"] < sgbm["pooled"]["d1"]),
                                "methods": results, "tuning": tuning_log, "datasets": datasets})
-    print(table)
     return 0
 
 
@@ -397,11 +395,7 @@ def _short(params: dict[str, Any]) -> str:
 
 
 main = Experiment("stereo_depth", __doc__, run,
-                  data_help="cache root of the stereo datasets: <data>/stereo_depth-<scene>[-quick|-smoke], "
-                            "rendered if missing",
+                  data_help=rendered_cache_help("stereo", "stereo_depth"),
                   seed_help="dataset seed (camera poses, render noise)",
                   sizes="Quick: 128x128 pairs, 16 spp, 3 pairs per scene (a few minutes); smoke: 64x64, 4 spp, "
-                        "2 pairs per scene, two candidates per tuning grid.").main
-
-if __name__ == "__main__":
-    sys.exit(main())
+                        "2 pairs per scene, two candidates per tuning grid.").script(__name__)

@@ -110,7 +110,6 @@ def run(ctx: Context) -> int:
     config = {"quick": ctx.quick, "height": h, "width": w, "focal": focal,
               "n_samples": tb.N_SAMPLES, "t_near": tb.T_NEAR, "t_far": tb.T_FAR, "repeats": repeats}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
-    print(table)
     if not err["warp_float64"] <= AGREEMENT_TOL:
         print(f"FAIL: Warp float64 differs from the NumPy port by {err['warp_float64']:.3g}", file=sys.stderr)
         return 1
@@ -142,7 +141,4 @@ def figure(ref: np.ndarray, warp64: np.ndarray, cv, path: Path) -> None:
 
 main = Experiment("volume_render_spheres", __doc__, run, seed_help="unused: the task is deterministic; recorded",
                   sizes="Quick: a median of 3 timed runs per renderer instead of 5 (the images are the same); "
-                        "smoke: the same view at 16x16.").main
-
-if __name__ == "__main__":
-    sys.exit(main())
+                        "smoke: the same view at 16x16.").script(__name__)

@@ -113,19 +113,11 @@ def _gradients(img: wp.array2d(dtype=typing.Any), ix: wp.array2d(dtype=typing.An
 
 
 @wp.kernel
-def _lk_step(
-    img1: wp.array2d(dtype=typing.Any),
-    ix: wp.array2d(dtype=typing.Any),
-    iy: wp.array2d(dtype=typing.Any),
-    img2: wp.array2d(dtype=typing.Any),
-    flow_in: wp.array3d(dtype=typing.Any),
-    flow_out: wp.array3d(dtype=typing.Any),
-    min_eig: wp.array2d(dtype=typing.Any),
-    valid: wp.array2d(dtype=wp.uint8),
-    half_window: int,
-    min_eigenvalue: typing.Any,
-    offset: int,
-):
+def _lk_step(img1: wp.array2d(dtype=typing.Any), ix: wp.array2d(dtype=typing.Any), iy: wp.array2d(dtype=typing.Any),
+             img2: wp.array2d(dtype=typing.Any), flow_in: wp.array3d(dtype=typing.Any),
+             flow_out: wp.array3d(dtype=typing.Any), min_eig: wp.array2d(dtype=typing.Any),
+             valid: wp.array2d(dtype=wp.uint8),
+             half_window: int, min_eigenvalue: typing.Any, offset: int):
     """Equations (2) and (3) at one pixel."""
     t = wp.tid() + offset
     height = img1.shape[0]

@@ -33,19 +33,10 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def _adam_kernel(
-    param: wp.array(dtype=typing.Any),
-    grad: wp.array(dtype=typing.Any),
-    m: wp.array(dtype=typing.Any),
-    v: wp.array(dtype=typing.Any),
-    lr: wp.float64,
-    b1: wp.float64,
-    b2: wp.float64,
-    eps: wp.float64,
-    bias1: wp.float64,
-    bias2: wp.float64,
-    offset: int,
-):
+def _adam_kernel(param: wp.array(dtype=typing.Any), grad: wp.array(dtype=typing.Any),
+                 m: wp.array(dtype=typing.Any), v: wp.array(dtype=typing.Any),
+                 lr: wp.float64, b1: wp.float64, b2: wp.float64, eps: wp.float64,
+                 bias1: wp.float64, bias2: wp.float64, offset: int):
     i = wp.tid() + offset
     g = grad[i]
     one = param.dtype(1.0)

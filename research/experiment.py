@@ -7,15 +7,14 @@ An experiment module defines a body that receives a `Context`, and the options t
 
     def run(ctx: Context) -> int | None:
         ...                                   # everything it writes goes under ctx.out
-        ctx.write_results(config=..., metrics=..., table_md=...)
+        ctx.write_results(config=..., metrics=..., table_md=...)   # and prints the table
 
-    main = Experiment("kalman_tracking", __doc__, run, add_options, sizes="...").main  # argv -> exit status
+    main = Experiment("kalman_tracking", __doc__, run, add_options, sizes="...").script(__name__)
 
-    if __name__ == "__main__":
-        sys.exit(main())
-
-so that it runs as `python -m experiments.<name>` and as `python experiments/<name>.py` (the
-`experiments` package is installed with `research`, so no path manipulation is needed).
+so that it runs as `python -m experiments.<name>` and as `python experiments/<name>.py` (`script`
+exits with the run's status when the module runs as a script; `main`, argv -> exit status, is what
+the tests and `drlab run` call). The `experiments` package is installed with `research`, so no path
+manipulation is needed.
 
 Shared options, declared here once: --quick, --smoke (tiny sizes, seconds: what the tests run),
 --device, --out, --seed, --data, --no-progress.
@@ -234,16 +233,31 @@ class Context:
         self._after.append(fn)
 
     def write_results(self, *, config: dict[str, Any], metrics: dict[str, Any], table_md: str,
-                      device: str | None = None) -> Path:
-        """metrics.json (with provenance and wall time so far) and table.md, into `out`."""
+                      device: str | None = None, compare: bool = False) -> Path:
+        """metrics.json (with provenance and wall time so far) and table.md, into `out`; prints the table.
+
+        `compare`: after a full run, refresh the comparison table of the results root
+        (research.comparison), once the folder is in place (it reads this run's metrics.json).
+        """
         if self.smoke:
             config = {**config, "smoke": True}
-        return results.write_results(self.out, experiment=self.name, config=config, seed=self.seed,
+        path = results.write_results(self.out, experiment=self.name, config=config, seed=self.seed,
                                      device=device or self.device, wall_time_s=self.elapsed(), metrics=metrics,
                                      table_md=table_md)
+        print(table_md)
+        if compare and not self.quick:
+            from research import comparison
+
+            self.after_commit(lambda: comparison.update_comparison(self.final_out.parent))
+        return path
 
 
 # --------------------------------------------------------------------------- experiment
+
+
+def rendered_cache_help(what: str, name: str) -> str:
+    """--data help of an experiment that renders its datasets into <data>/<name>-<scene>[-quick|-smoke]."""
+    return f"cache root of the {what} datasets: <data>/{name}-<scene>[-quick|-smoke], rendered if missing"
 
 
 class Experiment:
@@ -282,6 +296,13 @@ class Experiment:
         if self.add_options is not None:
             self.add_options(p.add_argument_group(f"options of {self.name}"))
         return p
+
+    def script(self, module_name: str) -> Callable[[list[str] | None], int]:
+        """An experiment module's `main`; when the module runs as a script (`module_name` is "__main__"),
+        runs it on the command line and exits with its status."""
+        if module_name == "__main__":
+            sys.exit(self.main())
+        return self.main
 
     def main(self, argv: list[str] | None = None) -> int:
         """Parse `argv`, resolve the device, run the body into a temporary folder, swap it in; exit status."""

@@ -94,16 +94,9 @@ def _scatter_tap(g: wp.array3d(dtype=typing.Any), p: int, row: int, col: int, va
 
 
 @wp.kernel
-def sample_windows(
-    s: wp.array3d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
-    out: wp.array3d(dtype=typing.Any),
-    scale: typing.Any,
-    radius: int,
-    channel0: int,
-    from_patch: int,
-    offset: int,
-):
+def sample_windows(s: wp.array3d(dtype=typing.Any), coords: wp.array3d(dtype=typing.Any),
+                   out: wp.array3d(dtype=typing.Any),
+                   scale: typing.Any, radius: int, channel0: int, from_patch: int, offset: int):
     """Equation (4) for one level and one window column a, sampling S = s[p] by (3); thread = pixel * (2r+1) + a.
 
     Dense: s is V^l (H W, H_l, W_l), read from the window's origin (j0, i0). On the fly
@@ -130,18 +123,10 @@ def sample_windows(
 
 
 @wp.kernel
-def sample_windows_adjoint(
-    s: wp.array3d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
-    grad_out: wp.array3d(dtype=typing.Any),
-    grad_s: wp.array3d(dtype=typing.Any),
-    grad_coords: wp.array3d(dtype=typing.Any),
-    scale: typing.Any,
-    radius: int,
-    channel0: int,
-    from_patch: int,
-    offset: int,
-):
+def sample_windows_adjoint(s: wp.array3d(dtype=typing.Any), coords: wp.array3d(dtype=typing.Any),
+                           grad_out: wp.array3d(dtype=typing.Any), grad_s: wp.array3d(dtype=typing.Any),
+                           grad_coords: wp.array3d(dtype=typing.Any),
+                           scale: typing.Any, radius: int, channel0: int, from_patch: int, offset: int):
     """Adjoint of `sample_windows`; thread = pixel. Adds into row p of grad_s (which it first zeroes
     when `from_patch`: the patch's gradient buffer serves every level) and pixel p of grad_coords only."""
     p = wp.tid() + offset
@@ -214,14 +199,17 @@ def pack_rows(x: wp.array, n_vec: int, a: Inputs) -> wp.array:
 # --------------------------------------------------------------------------- 2x2 average pooling
 
 
+@wp.func
+def _nhw(t: int, height: int, width: int):
+    """(n, h, w) of the flat index t = (n * height + h) * width + w."""
+    per = height * width
+    return t // per, (t % per) // width, t % width
+
+
 @wp.kernel
 def _pool2x2(x: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any), offset: int):
     """out[n, h, w] = mean of x[n, 2h : 2h + 2, 2w : 2w + 2]  (equation (2))."""
-    t = wp.tid() + offset
-    per = out.shape[1] * out.shape[2]
-    n = t // per
-    h = (t % per) // out.shape[2]
-    w = t % out.shape[2]
+    n, h, w = _nhw(wp.tid() + offset, out.shape[1], out.shape[2])
     s = x[n, 2 * h, 2 * w] + x[n, 2 * h, 2 * w + 1] + x[n, 2 * h + 1, 2 * w] + x[n, 2 * h + 1, 2 * w + 1]
     out[n, h, w] = s * x.dtype(0.25)
 
@@ -229,11 +217,7 @@ def _pool2x2(x: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any),
 @wp.kernel
 def _pool2x2_adjoint_add(g_coarse: wp.array3d(dtype=typing.Any), g_fine: wp.array3d(dtype=typing.Any), offset: int):
     """g_fine[n, h, w] += g_coarse[n, h // 2, w // 2] / 4 where that coarse pixel exists (adjoint of (2))."""
-    t = wp.tid() + offset
-    per = g_fine.shape[1] * g_fine.shape[2]
-    n = t // per
-    h = (t % per) // g_fine.shape[2]
-    w = t % g_fine.shape[2]
+    n, h, w = _nhw(wp.tid() + offset, g_fine.shape[1], g_fine.shape[2])
     hc = h // 2
     wc = w // 2
     if hc < g_coarse.shape[1] and wc < g_coarse.shape[2]:

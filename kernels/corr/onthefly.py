@@ -68,18 +68,9 @@ def _dot_v(a_v: wp.array2d(dtype=typing.Any), i: int, b_v: wp.array2d(dtype=typi
 
 
 @wp.kernel
-def _patch_level(
-    f1_v: wp.array2d(dtype=typing.Any),
-    f2l_v: wp.array2d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
-    patch: wp.array3d(dtype=typing.Any),
-    height_l: int,
-    width_l: int,
-    scale: typing.Any,
-    radius: int,
-    inv_sqrt_c: typing.Any,
-    offset: int,
-):
+def _patch_level(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typing.Any),
+                 coords: wp.array3d(dtype=typing.Any), patch: wp.array3d(dtype=typing.Any),
+                 height_l: int, width_l: int, scale: typing.Any, radius: int, inv_sqrt_c: typing.Any, offset: int):
     """patch[p, ty, tx] = f1[:, p] . P^l(f2)[:, tap] / sqrt(C), 0 outside; thread = pixel * (2r+2) + ty."""
     t = wp.tid() + offset
     side = 2 * radius + 2
@@ -96,22 +87,11 @@ def _patch_level(
 
 
 @wp.kernel
-def _patch_adjoint_features(
-    grad_patch: wp.array3d(dtype=typing.Any),
-    f1_v: wp.array2d(dtype=typing.Any),
-    f2l_v: wp.array2d(dtype=typing.Any),
-    coords: wp.array3d(dtype=typing.Any),
-    grad_f1_v: wp.array2d(dtype=typing.Any),
-    grad_f2l_v: wp.array3d(dtype=typing.Any),
-    height_l: int,
-    width_l: int,
-    scale: typing.Any,
-    radius: int,
-    inv_sqrt_c: typing.Any,
-    atomic: int,
-    slot: int,
-    offset: int,
-):
+def _patch_adjoint_features(grad_patch: wp.array3d(dtype=typing.Any), f1_v: wp.array2d(dtype=typing.Any),
+                            f2l_v: wp.array2d(dtype=typing.Any), coords: wp.array3d(dtype=typing.Any),
+                            grad_f1_v: wp.array2d(dtype=typing.Any), grad_f2l_v: wp.array3d(dtype=typing.Any),
+                            height_l: int, width_l: int, scale: typing.Any, radius: int, inv_sqrt_c: typing.Any,
+                            atomic: int, slot: int, offset: int):
     """For every tap of pixel p's patch inside frame 2, with g = dT[p, tap] / sqrt(C):
     grad_f1[:, p] += g P^l(f2)[:, tap] (a gather: thread p writes its own row) and
     grad_f2l[slot, tap] += g f1[:, p] (a scatter across pixels: on the CPU each concurrent launch

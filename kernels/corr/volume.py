@@ -56,53 +56,37 @@ def _store_col(out: wp.array2d(dtype=typing.Any), m0: int, col: int, v0: typing.
             out[m0 + 3, col] = v3
 
 
+@wp.func
+def _block_terms(a: wp.array2d(dtype=typing.Any), b_v: wp.array2d(dtype=typing.Any), k: int, m0: int, jv: int):
+    """Row k's terms of a 4 x 16 block: a[k, m0 + i] times b's vectors jv (s_i) and jv + 1 (t_i), i = 0..3."""
+    b0 = b_v[k, jv]
+    b1 = b_v[k, jv + 1]
+    a0 = a[k, m0]
+    a1 = a[k, m0 + 1]
+    a2 = a[k, m0 + 2]
+    a3 = a[k, m0 + 3]
+    return a0 * b0, a1 * b0, a2 * b0, a3 * b0, a0 * b1, a1 * b1, a2 * b1, a3 * b1
+
+
 @wp.kernel
-def _gemm_tn(
-    a: wp.array2d(dtype=typing.Any),
-    b_v: wp.array2d(dtype=typing.Any),
-    out: wp.array2d(dtype=typing.Any),
-    scale: typing.Any,
-    n_col_blocks: int,
-    offset: int,
-):
+def _gemm_tn(a: wp.array2d(dtype=typing.Any), b_v: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any),
+             scale: typing.Any, n_col_blocks: int, offset: int):
     """out[m, n] = scale * sum_k a[k, m] b[k, n] for a 4 x 16 block of (m, n) per thread."""
     t = wp.tid() + offset
     m0 = (t // n_col_blocks) * GEMM_ROWS
     jv = (t % n_col_blocks) * 2
     # a's columns are padded to a multiple of 4, so all four rows can be read (padding is not written).
-    r0 = m0
-    r1 = m0 + 1
-    r2 = m0 + 2
-    r3 = m0 + 3
-    b0 = b_v[0, jv]
-    b1 = b_v[0, jv + 1]
-    a0 = a[0, r0]
-    a1 = a[0, r1]
-    a2 = a[0, r2]
-    a3 = a[0, r3]
-    s0 = a0 * b0
-    s1 = a1 * b0
-    s2 = a2 * b0
-    s3 = a3 * b0
-    t0 = a0 * b1
-    t1 = a1 * b1
-    t2 = a2 * b1
-    t3 = a3 * b1
+    s0, s1, s2, s3, t0, t1, t2, t3 = _block_terms(a, b_v, 0, m0, jv)
     for k in range(1, a.shape[0]):
-        b0 = b_v[k, jv]
-        b1 = b_v[k, jv + 1]
-        a0 = a[k, r0]
-        a1 = a[k, r1]
-        a2 = a[k, r2]
-        a3 = a[k, r3]
-        s0 += a0 * b0
-        s1 += a1 * b0
-        s2 += a2 * b0
-        s3 += a3 * b0
-        t0 += a0 * b1
-        t1 += a1 * b1
-        t2 += a2 * b1
-        t3 += a3 * b1
+        p0, p1, p2, p3, q0, q1, q2, q3 = _block_terms(a, b_v, k, m0, jv)
+        s0 += p0
+        s1 += p1
+        s2 += p2
+        s3 += p3
+        t0 += q0
+        t1 += q1
+        t2 += q2
+        t3 += q3
     n0 = jv * VEC
     # Literal bounds: Warp unrolls these loops, so every vector index is static and the
     # accumulators stay in registers (a runtime index would force them to memory).
@@ -113,22 +97,14 @@ def _gemm_tn(
 
 @wp.kernel
 def _copy_cols(x: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), offset: int):
-    """out[:, :M] = x for x (K, M) and a wider out."""
+    """out[:, :M] = x for x (K, M), which may be a strided view (a transpose), and an out at least as wide."""
     t = wp.tid() + offset
     i = t // x.shape[1]
     j = t % x.shape[1]
     out[i, j] = x[i, j]
 
 
-@wp.kernel
-def _transpose(x: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), offset: int):
-    t = wp.tid() + offset
-    i = t // x.shape[0]
-    j = t % x.shape[0]
-    out[i, j] = x[j, i]
-
-
-for _k in (_gemm_tn, _copy_cols, _transpose):
+for _k in (_gemm_tn, _copy_cols):
     declare_float_overloads(_k, vector_types=VEC_OF)
 
 
@@ -153,7 +129,7 @@ def _gemm_tn_wp(x: wp.array, y: wp.array, scale: float, a: Inputs) -> wp.array:
 
 def _transpose_wp(x: wp.array, a: Inputs) -> wp.array:
     out = a.empty((x.shape[1], x.shape[0]))
-    a.launch(_transpose, x.shape[0] * x.shape[1], [x, out])
+    a.launch(_copy_cols, out.size, [x.transpose(), out])
     return out
 
 

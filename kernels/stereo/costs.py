@@ -73,12 +73,8 @@ def _box(t: wp.array2d(dtype=wp.float64), y0: int, y1: int, x0: int, x1: int) ->
 
 
 @wp.kernel
-def _integral_rows(
-    img: wp.array2d(dtype=typing.Any),
-    t1: wp.array2d(dtype=wp.float64),
-    t2: wp.array2d(dtype=wp.float64),
-    offset: int,
-):
+def _integral_rows(img: wp.array2d(dtype=typing.Any), t1: wp.array2d(dtype=wp.float64),
+                   t2: wp.array2d(dtype=wp.float64), offset: int):
     # Row pass: t[y + 1, x + 1] = sum_{u <= x} I(u, y) (and I^2); row 0 and column 0 stay zero.
     y = wp.tid() + offset
     s1 = wp.float64(0.0)
@@ -104,16 +100,8 @@ def _integral_cols(t1: wp.array2d(dtype=wp.float64), t2: wp.array2d(dtype=wp.flo
 
 
 @wp.func
-def _add_row(
-    left: wp.array2d(dtype=typing.Any),
-    right: wp.array2d(dtype=typing.Any),
-    colsum: wp.array3d(dtype=wp.float64),
-    b: int,
-    v: int,
-    sign: wp.float64,
-    dmin: int,
-    mode: int,
-):
+def _add_row(left: wp.array2d(dtype=typing.Any), right: wp.array2d(dtype=typing.Any),
+             colsum: wp.array3d(dtype=wp.float64), b: int, v: int, sign: wp.float64, dmin: int, mode: int):
     """colsum[b, x, k] += sign * term(x, v, d_k) for every column x and hypothesis k of row v."""
     W = left.shape[1]
     D = colsum.shape[2]
@@ -131,24 +119,12 @@ def _add_row(
 
 
 @wp.kernel
-def _window_cost(
-    left: wp.array2d(dtype=typing.Any),
-    right: wp.array2d(dtype=typing.Any),
-    tl: wp.array2d(dtype=wp.float64),
-    tl2: wp.array2d(dtype=wp.float64),
-    tr: wp.array2d(dtype=wp.float64),
-    tr2: wp.array2d(dtype=wp.float64),
-    colsum: wp.array3d(dtype=wp.float64),
-    rowsum: wp.array2d(dtype=wp.float64),
-    out: wp.array3d(dtype=typing.Any),
-    dmin: int,
-    radius: int,
-    band: int,
-    mode: int,
-    invalid: wp.float64,
-    eps: wp.float64,
-    offset: int,
-):
+def _window_cost(left: wp.array2d(dtype=typing.Any), right: wp.array2d(dtype=typing.Any),
+                 tl: wp.array2d(dtype=wp.float64), tl2: wp.array2d(dtype=wp.float64),
+                 tr: wp.array2d(dtype=wp.float64), tr2: wp.array2d(dtype=wp.float64),
+                 colsum: wp.array3d(dtype=wp.float64), rowsum: wp.array2d(dtype=wp.float64),
+                 out: wp.array3d(dtype=typing.Any),
+                 dmin: int, radius: int, band: int, mode: int, invalid: wp.float64, eps: wp.float64, offset: int):
     # One thread per band of `band` rows; it owns colsum[b] and rowsum[b] and writes out[y0:y1].
     b = wp.tid() + offset
     H = left.shape[0]
@@ -232,14 +208,8 @@ def _census_transform(img: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=w
 
 
 @wp.kernel
-def _census_cost(
-    cl: wp.array2d(dtype=wp.uint64),
-    cr: wp.array2d(dtype=wp.uint64),
-    out: wp.array3d(dtype=typing.Any),
-    dmin: int,
-    invalid: int,
-    offset: int,
-):
+def _census_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64), out: wp.array3d(dtype=typing.Any),
+                 dmin: int, invalid: int, offset: int):
     W = cl.shape[1]
     y, x = pixel(wp.tid() + offset, W)
     a = cl[y, x]
@@ -263,14 +233,8 @@ def _channels_last(src: wp.array3d(dtype=typing.Any), dst: wp.array3d(dtype=typi
 
 
 @wp.kernel
-def _corr_forward(
-    fl: wp.array3d(dtype=typing.Any),
-    fr: wp.array3d(dtype=typing.Any),
-    out: wp.array3d(dtype=typing.Any),
-    dmin: int,
-    scale: wp.float64,
-    offset: int,
-):
+def _corr_forward(fl: wp.array3d(dtype=typing.Any), fr: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any),
+                  dmin: int, scale: wp.float64, offset: int):
     # Features channels-last (H, W, C) here, so each dot product reads two contiguous rows.
     W = fl.shape[1]
     y, x = pixel(wp.tid() + offset, W)
@@ -285,14 +249,8 @@ def _corr_forward(
 
 
 @wp.kernel
-def _corr_backward_left(
-    grad: wp.array3d(dtype=typing.Any),
-    fr: wp.array3d(dtype=typing.Any),
-    dfl: wp.array3d(dtype=typing.Any),
-    dmin: int,
-    scale: wp.float64,
-    offset: int,
-):
+def _corr_backward_left(grad: wp.array3d(dtype=typing.Any), fr: wp.array3d(dtype=typing.Any),
+                        dfl: wp.array3d(dtype=typing.Any), dmin: int, scale: wp.float64, offset: int):
     W = fr.shape[2]
     y, x = pixel(wp.tid() + offset, W)
     k0 = wp.max(0, x - W + 1 - dmin)
@@ -305,14 +263,8 @@ def _corr_backward_left(
 
 
 @wp.kernel
-def _corr_backward_right(
-    grad: wp.array3d(dtype=typing.Any),
-    fl: wp.array3d(dtype=typing.Any),
-    dfr: wp.array3d(dtype=typing.Any),
-    dmin: int,
-    scale: wp.float64,
-    offset: int,
-):
+def _corr_backward_right(grad: wp.array3d(dtype=typing.Any), fl: wp.array3d(dtype=typing.Any),
+                         dfr: wp.array3d(dtype=typing.Any), dmin: int, scale: wp.float64, offset: int):
     # Gather form: right pixel u receives from every left pixel x = u + d_k that matched it.
     W = fl.shape[2]
     y, u = pixel(wp.tid() + offset, W)

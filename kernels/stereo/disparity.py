@@ -48,15 +48,8 @@ def _parabola(cm: typing.Any, c0: typing.Any, cp: typing.Any):
 
 
 @wp.kernel
-def _wta(
-    cost: wp.array3d(dtype=typing.Any),
-    disp: wp.array2d(dtype=typing.Any),
-    valid: wp.array2d(dtype=wp.uint8),
-    dmin: int,
-    subpixel: int,
-    uniqueness: wp.float64,
-    offset: int,
-):
+def _wta(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing.Any), valid: wp.array2d(dtype=wp.uint8),
+         dmin: int, subpixel: int, uniqueness: wp.float64, offset: int):
     W = cost.shape[1]
     D = cost.shape[2]
     y, x = pixel(wp.tid() + offset, W)
@@ -84,14 +77,8 @@ def _wta(
 
 
 @wp.kernel
-def _wta_right(
-    cost: wp.array3d(dtype=typing.Any),
-    disp: wp.array2d(dtype=typing.Any),
-    valid: wp.array2d(dtype=wp.uint8),
-    dmin: int,
-    subpixel: int,
-    offset: int,
-):
+def _wta_right(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing.Any),
+               valid: wp.array2d(dtype=wp.uint8), dmin: int, subpixel: int, offset: int):
     # Right pixel xr: hypothesis k lives in the left volume at x = xr + d_k.
     W = cost.shape[1]
     D = cost.shape[2]
@@ -142,14 +129,8 @@ def _soft_argmin_forward(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dt
 
 
 @wp.kernel
-def _soft_argmin_backward(
-    cost: wp.array3d(dtype=typing.Any),
-    grad_disp: wp.array2d(dtype=typing.Any),
-    grad_cost: wp.array3d(dtype=typing.Any),
-    dmin: int,
-    temperature: wp.float64,
-    offset: int,
-):
+def _soft_argmin_backward(cost: wp.array3d(dtype=typing.Any), grad_disp: wp.array2d(dtype=typing.Any),
+                          grad_cost: wp.array3d(dtype=typing.Any), dmin: int, temperature: wp.float64, offset: int):
     # dd/dC_k = sigma_k (d - d_k) / T, with sigma and d recomputed from the cost as the forward does.
     y, x = pixel(wp.tid() + offset, cost.shape[1])
     inv_t = cost.dtype(wp.float64(1.0) / temperature)
@@ -162,15 +143,9 @@ def _soft_argmin_backward(
 
 
 @wp.kernel
-def _left_right_check(
-    disp_l: wp.array2d(dtype=typing.Any),
-    valid_l: wp.array2d(dtype=wp.uint8),
-    disp_r: wp.array2d(dtype=typing.Any),
-    valid_r: wp.array2d(dtype=wp.uint8),
-    out: wp.array2d(dtype=wp.uint8),
-    max_diff: wp.float64,
-    offset: int,
-):
+def _left_right_check(disp_l: wp.array2d(dtype=typing.Any), valid_l: wp.array2d(dtype=wp.uint8),
+                      disp_r: wp.array2d(dtype=typing.Any), valid_r: wp.array2d(dtype=wp.uint8),
+                      out: wp.array2d(dtype=wp.uint8), max_diff: wp.float64, offset: int):
     W = disp_l.shape[1]
     y, x = pixel(wp.tid() + offset, W)
     dl = disp_l[y, x]
@@ -185,14 +160,8 @@ def _left_right_check(
 
 
 @wp.kernel
-def _depth(
-    disp: wp.array2d(dtype=typing.Any),
-    valid: wp.array2d(dtype=wp.uint8),
-    depth: wp.array2d(dtype=typing.Any),
-    valid_out: wp.array2d(dtype=wp.uint8),
-    fb: wp.float64,
-    offset: int,
-):
+def _depth(disp: wp.array2d(dtype=typing.Any), valid: wp.array2d(dtype=wp.uint8), depth: wp.array2d(dtype=typing.Any),
+           valid_out: wp.array2d(dtype=wp.uint8), fb: wp.float64, offset: int):
     y, x = pixel(wp.tid() + offset, disp.shape[1])
     d = disp[y, x]
     z = depth.dtype(0.0)

@@ -46,19 +46,20 @@ SGM_VEC = {wp.float32: wp.types.vector(length=SGM_LANES, dtype=wp.float32),
 
 
 @wp.func
-def _sgm_walk(
-    cost_v: wp.array(dtype=typing.Any),
-    agg_v: wp.array(dtype=typing.Any),
-    buf_v: wp.array(dtype=typing.Any),
-    nb: int,
-    bb: int,
-    base: int,
-    step: int,
-    n: int,
-    p1: typing.Any,
-    p2: typing.Any,
-    write: int,
-):
+def _record(buf_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), b: int, i: int, lr: typing.Any,
+            lanes_min: typing.Any, write: int):
+    """buf_v[b] = lr and agg_v[i] = lr (assigned when `write`, else added); returns min(lanes_min, lr)."""
+    buf_v[b] = lr
+    if write != 0:
+        agg_v[i] = lr
+    else:
+        agg_v[i] = agg_v[i] + lr
+    return wp.min(lanes_min, lr)
+
+
+@wp.func
+def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), buf_v: wp.array(dtype=typing.Any),
+              nb: int, bb: int, base: int, step: int, n: int, p1: typing.Any, p2: typing.Any, write: int):
     """L_r along one scanline of n + 1 pixels starting at flat vector index `base`, moving by `step`.
 
     Each pixel holds nb vectors; buf_v[bb:bb + nb] carries L_r(p - r) and is updated in place.
@@ -68,13 +69,7 @@ def _sgm_walk(
     p2_v = cost_v.dtype(p2)
     lanes_min = cost_v[base]
     for j in range(nb):
-        c = cost_v[base + j]
-        buf_v[bb + j] = c
-        lanes_min = wp.min(lanes_min, c)
-        if write != 0:
-            agg_v[base + j] = c
-        else:
-            agg_v[base + j] = agg_v[base + j] + c
+        lanes_min = _record(buf_v, agg_v, bb + j, base + j, cost_v[base + j], lanes_min, write)
     prev_min = wp.min(lanes_min)
     for _s in range(n):
         base += step
@@ -95,13 +90,7 @@ def _sgm_walk(
             down = cost_v.dtype(below, cur[0], cur[1], cur[2], cur[3], cur[4], cur[5], cur[6])
             up = cost_v.dtype(cur[1], cur[2], cur[3], cur[4], cur[5], cur[6], cur[7], above)
             best = wp.min(wp.min(cur, jump_v), wp.min(down, up) + p1_v)
-            lr = cost_v[base + j] + best - prev_v
-            buf_v[bb + j] = lr
-            lanes_min = wp.min(lanes_min, lr)
-            if write != 0:
-                agg_v[base + j] = lr
-            else:
-                agg_v[base + j] = agg_v[base + j] + lr
+            lanes_min = _record(buf_v, agg_v, bb + j, base + j, cost_v[base + j] + best - prev_v, lanes_min, write)
             below = cur[7]
             cur = nxt
         prev_min = wp.min(lanes_min)
@@ -109,19 +98,8 @@ def _sgm_walk(
 
 
 @wp.kernel
-def _sgm_axis(
-    cost_v: wp.array(dtype=typing.Any),
-    agg_v: wp.array(dtype=typing.Any),
-    buf_v: wp.array(dtype=typing.Any),
-    H: int,
-    W: int,
-    dy: int,
-    dx: int,
-    p1: typing.Any,
-    p2: typing.Any,
-    first: int,
-    offset: int,
-):
+def _sgm_axis(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), buf_v: wp.array(dtype=typing.Any),
+              H: int, W: int, dy: int, dx: int, p1: typing.Any, p2: typing.Any, first: int, offset: int):
     # One thread per scanline along axis (dy, dx), dy >= 0: it runs the path r = (dy, dx), then the
     # opposite path -r back along the same pixels, which are still in cache. Volumes are flat arrays
     # of 8-wide vectors, nb per pixel.

@@ -31,12 +31,7 @@ REPEATS = 5
 
 
 @wp.kernel
-def recurrence(
-    x0: wp.array(dtype=typing.Any),
-    out: wp.array(dtype=typing.Any),
-    iters: int,
-    offset: int,
-):
+def recurrence(x0: wp.array(dtype=typing.Any), out: wp.array(dtype=typing.Any), iters: int, offset: int):
     i = wp.tid() + offset
     x = x0[i]
     for _k in range(iters):

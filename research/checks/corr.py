@@ -35,6 +35,13 @@ def smooth_coords(rng: np.random.Generator, height: int, width: int, margin: flo
     return np.stack([axis(width), axis(height)])
 
 
+def _random_levels(rng: np.random.Generator, prefix: str, lead: tuple[int, ...], height: int, width: int,
+                   levels: int) -> dict[str, np.ndarray]:
+    """Standard-normal pyramid levels {prefix0: (*lead, H_0, W_0), prefix1: ...}, drawn in level order."""
+    return {f"{prefix}{lvl}": rng.standard_normal((*lead, hl, wl))
+            for lvl, (hl, wl) in enumerate(corr.level_shapes(height, width, levels))}
+
+
 def check_volume(seed: int, shape: tuple[int, int, int] = SHAPE) -> list[GradcheckResult]:
     """V = f1 . f2 / sqrt(C), against f1 and f2."""
     rng = np.random.default_rng(seed)
@@ -46,9 +53,12 @@ def check_volume(seed: int, shape: tuple[int, int, int] = SHAPE) -> list[Gradche
     return check_vjp(corr.correlation_volume, vjp, inputs, seed=seed, name="corr.volume")
 
 
-def _check_pooling(seed: int, name: str, arg: str, x: np.ndarray, forward: Callable[..., list],
+def _check_pooling(seed: int, name: str, arg: str, shape: tuple[int, ...], forward: Callable[..., list],
                    backward: Callable[[list], dict]) -> list[GradcheckResult]:
-    """Every level of a pooled pyramid `forward(x)` against x, whose gradient is backward(cotangents)[arg]."""
+    """Every level of a pooled pyramid `forward(x)` against a standard-normal x of `shape`, whose gradient is
+    backward(cotangents)[arg]."""
+    x = np.random.default_rng(seed).standard_normal(shape)
+
     def f(**x_in: np.ndarray) -> tuple[np.ndarray, ...]:
         return tuple(forward(x_in[arg]))
 
@@ -60,9 +70,8 @@ def _check_pooling(seed: int, name: str, arg: str, x: np.ndarray, forward: Calla
 
 def check_pyramid(seed: int, height: int = 9, width: int = 10, levels: int = LEVELS) -> list[GradcheckResult]:
     """2x2 average pooling over frame 2's dimensions, every level's output against V^0."""
-    volume = np.random.default_rng(seed).standard_normal((height, width, height, width))
-    return _check_pooling(seed, "corr.pyramid", "volume", volume, lambda v: corr.correlation_pyramid(v, levels),
-                          corr.correlation_pyramid_backward)
+    return _check_pooling(seed, "corr.pyramid", "volume", (height, width, height, width),
+                          lambda v: corr.correlation_pyramid(v, levels), corr.correlation_pyramid_backward)
 
 
 def check_lookup(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
@@ -70,10 +79,9 @@ def check_lookup(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = L
     """Dense lookup (4), against every pyramid level and the coordinates."""
     rng = np.random.default_rng(seed)
     _, height, width = shape
-    inputs = {f"level{lvl}": rng.standard_normal((height, width, hl, wl))
-              for lvl, (hl, wl) in enumerate(corr.level_shapes(height, width, levels))}
-    inputs["coords"] = smooth_coords(rng, height, width)
-    names = [f"level{lvl}" for lvl in range(levels)]
+    pyramid = _random_levels(rng, "level", (height, width), height, width, levels)
+    inputs = {**pyramid, "coords": smooth_coords(rng, height, width)}
+    names = list(pyramid)
 
     def f(coords: np.ndarray, **levels_in: np.ndarray) -> np.ndarray:
         return corr.lookup([levels_in[n] for n in names], coords, radius)
@@ -85,13 +93,18 @@ def check_lookup(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = L
     return check_vjp(f, vjp, inputs, seed=seed, name="corr.lookup")
 
 
+def _chain_inputs(seed: int, shape: tuple[int, int, int]) -> dict[str, np.ndarray]:
+    """The inputs of a whole lookup path: features f1, f2 (C, H, W) and coordinates (2, H, W)."""
+    rng = np.random.default_rng(seed)
+    _, height, width = shape
+    return {"f1": rng.standard_normal(shape), "f2": rng.standard_normal(shape),
+            "coords": smooth_coords(rng, height, width)}
+
+
 def check_dense_chain(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
                       radius: int = RADIUS) -> list[GradcheckResult]:
     """lookup(pyramid(volume(f1, f2)), coords), the whole dense path, against f1, f2 and the coordinates."""
-    rng = np.random.default_rng(seed)
-    _, height, width = shape
-    inputs = {"f1": rng.standard_normal(shape), "f2": rng.standard_normal(shape),
-              "coords": smooth_coords(rng, height, width)}
+    inputs = _chain_inputs(seed, shape)
 
     def f(f1: np.ndarray, f2: np.ndarray, coords: np.ndarray) -> np.ndarray:
         return corr.lookup(corr.correlation_pyramid(corr.correlation_volume(f1, f2), levels), coords, radius)
@@ -108,8 +121,7 @@ def check_dense_chain(seed: int, shape: tuple[int, int, int] = SHAPE, levels: in
 def check_pool_features(seed: int, shape: tuple[int, int, int] = (2, 9, 10),
                         levels: int = LEVELS) -> list[GradcheckResult]:
     """P^l(f2) for every level, against f2."""
-    f2 = np.random.default_rng(seed).standard_normal(shape)
-    return _check_pooling(seed, "corr.pool_features", "f2", f2, lambda v: corr.pool_features(v, levels),
+    return _check_pooling(seed, "corr.pool_features", "f2", shape, lambda v: corr.pool_features(v, levels),
                           corr.pool_features_backward)
 
 
@@ -118,11 +130,10 @@ def check_lookup_onthefly(seed: int, shape: tuple[int, int, int] = SHAPE, levels
     """On-the-fly lookup, against f1, every pooled f2 level and the coordinates."""
     rng = np.random.default_rng(seed)
     channels, height, width = shape
-    inputs = {"f1": rng.standard_normal(shape)}
-    for lvl, (hl, wl) in enumerate(corr.level_shapes(height, width, levels)):
-        inputs[f"f2_level{lvl}"] = rng.standard_normal((channels, hl, wl))
-    inputs["coords"] = smooth_coords(rng, height, width)
-    names = [f"f2_level{lvl}" for lvl in range(levels)]
+    f1 = rng.standard_normal(shape)
+    f2_levels = _random_levels(rng, "f2_level", (channels,), height, width, levels)
+    inputs = {"f1": f1, **f2_levels, "coords": smooth_coords(rng, height, width)}
+    names = list(f2_levels)
 
     def f(f1: np.ndarray, coords: np.ndarray, **f2_levels: np.ndarray) -> np.ndarray:
         return corr.lookup_onthefly(f1, [f2_levels[n] for n in names], coords, radius)
@@ -137,10 +148,7 @@ def check_lookup_onthefly(seed: int, shape: tuple[int, int, int] = SHAPE, levels
 def check_onthefly_chain(seed: int, shape: tuple[int, int, int] = SHAPE, levels: int = LEVELS,
                          radius: int = RADIUS) -> list[GradcheckResult]:
     """lookup_onthefly(f1, pool_features(f2), coords), against f1, f2 and the coordinates."""
-    rng = np.random.default_rng(seed)
-    _, height, width = shape
-    inputs = {"f1": rng.standard_normal(shape), "f2": rng.standard_normal(shape),
-              "coords": smooth_coords(rng, height, width)}
+    inputs = _chain_inputs(seed, shape)
 
     def f(f1: np.ndarray, f2: np.ndarray, coords: np.ndarray) -> np.ndarray:
         return corr.lookup_onthefly(f1, corr.pool_features(f2, levels), coords, radius)

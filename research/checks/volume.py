@@ -268,51 +268,22 @@ def check_render(kind: str, seeds=(0, 1)) -> list[GradcheckResult]:
 # --------------------------------------------------------------------------- registry
 
 
-@register_check("volume.composite")
-def _composite() -> list[GradcheckResult]:
-    return check_composite()
+def _with(check: Callable[..., list[GradcheckResult]], **kwargs: Any) -> Callable[[], list[GradcheckResult]]:
+    """`check(**kwargs)` as the zero-argument function a registered check is."""
+    def run() -> list[GradcheckResult]:
+        return check(**kwargs)
+
+    return run
 
 
-@register_check("volume.field.spheres")
-def _spheres() -> list[GradcheckResult]:
-    return check_spheres()
-
-
-@register_check("volume.field.grid_rgb")
-def _grid_rgb() -> list[GradcheckResult]:
-    return check_grid(sh_degree=None, activation="softplus")
-
-
-@register_check("volume.field.grid_sh2")
-def _grid_sh2() -> list[GradcheckResult]:
-    return check_grid(sh_degree=2, activation="exp")
-
-
-@register_check("volume.grid_tv")
-def _grid_tv() -> list[GradcheckResult]:
-    return check_tv()
-
-
-@register_check("volume.field.hashgrid")
-def _hashgrid() -> list[GradcheckResult]:
-    return check_neural("hashgrid")
-
-
-@register_check("volume.field.pe_mlp")
-def _pe_mlp() -> list[GradcheckResult]:
-    return check_neural("pe_mlp")
-
-
-@register_check("volume.render.grid")
-def _render_grid() -> list[GradcheckResult]:
-    return check_render("grid")
-
-
-@register_check("volume.render.hashgrid")
-def _render_hashgrid() -> list[GradcheckResult]:
-    return check_render("hashgrid")
-
-
-@register_check("volume.render.pe_mlp")
-def _render_pe_mlp() -> list[GradcheckResult]:
-    return check_render("pe_mlp")
+for _name, _check, _kwargs in [
+        ("volume.composite", check_composite, {}), ("volume.field.spheres", check_spheres, {}),
+        ("volume.field.grid_rgb", check_grid, {"sh_degree": None, "activation": "softplus"}),
+        ("volume.field.grid_sh2", check_grid, {"sh_degree": 2, "activation": "exp"}),
+        ("volume.grid_tv", check_tv, {}),
+        ("volume.field.hashgrid", check_neural, {"kind": "hashgrid"}),
+        ("volume.field.pe_mlp", check_neural, {"kind": "pe_mlp"}),
+        ("volume.render.grid", check_render, {"kind": "grid"}),
+        ("volume.render.hashgrid", check_render, {"kind": "hashgrid"}),
+        ("volume.render.pe_mlp", check_render, {"kind": "pe_mlp"})]:
+    register_check(_name)(_with(_check, **_kwargs))

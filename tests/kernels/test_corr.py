@@ -158,12 +158,17 @@ def test_mismatched_feature_shapes():
         corr.lookup_onthefly(f1, [rng.standard_normal((4, 8, 8)), rng.standard_normal((3, 4, 4))], coords, 1)
 
 
-def test_nan_coordinates():
+def _with_nan_coordinate(index: tuple[int, int, int]):
+    """Features f1, f2 (3, 8, 8), coordinates (2, 8, 8) holding NaN at `index`, and the 2-level pyramid."""
     rng = np.random.default_rng(0)
     f1, f2 = rng.standard_normal((2, 3, 8, 8))
     coords = checks.smooth_coords(rng, 8, 8)
-    coords[1, 2, 3] = np.nan
-    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 2)
+    coords[index] = np.nan
+    return f1, f2, coords, corr.correlation_pyramid(corr.correlation_volume(f1, f2), 2)
+
+
+def test_nan_coordinates():
+    f1, f2, coords, pyramid = _with_nan_coordinate((1, 2, 3))
     with pytest.raises(ValueError, match="coords: expected finite values, found NaN"):
         corr.lookup(pyramid, coords, 2)
     with pytest.raises(ValueError, match="coords: expected finite values"):
@@ -174,11 +179,7 @@ def test_nan_coordinates():
 
 def test_value_checks_switch():
     """value_checks(False) skips the NaN checks (for training loops); shape checks stay on."""
-    rng = np.random.default_rng(0)
-    f1, f2 = rng.standard_normal((2, 3, 8, 8))
-    coords = checks.smooth_coords(rng, 8, 8)
-    coords[0, 1, 1] = np.nan
-    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 2)
+    _, _, coords, pyramid = _with_nan_coordinate((0, 1, 1))
     with value_checks(False):
         out = corr.lookup(pyramid, coords, 1)
         with pytest.raises(ValueError, match=r"coords: expected shape \(2, 8, 8\)"):

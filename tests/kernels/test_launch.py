@@ -20,12 +20,8 @@ DEVICE = "cpu"
 
 
 @wp.kernel
-def affine_offset(
-    x: wp.array(dtype=typing.Any),
-    y: wp.array(dtype=typing.Any),
-    hits: wp.array(dtype=wp.int32),
-    offset: int,
-):
+def affine_offset(x: wp.array(dtype=typing.Any), y: wp.array(dtype=typing.Any), hits: wp.array(dtype=wp.int32),
+                  offset: int):
     i = wp.tid() + offset
     v = x[i]
     for _k in range(8):

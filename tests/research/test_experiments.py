@@ -238,6 +238,22 @@ def test_a_finished_run_replaces_the_folder_whole(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
 
 
+def test_script_runs_only_as_main_and_the_table_is_printed(tmp_path, monkeypatch, capsys):
+    def body(ctx):
+        ctx.write_results(config={}, metrics={}, table_md="| printed |\n", compare=True)  # smoke: no comparison
+        return 3
+
+    exp = experiment.Experiment("dummy", None, body, sizes="-", warp=False)
+    assert exp.script("experiments.dummy") == exp.main  # imported: nothing runs
+    assert not (tmp_path / "res").exists()
+    monkeypatch.setattr(sys, "argv", ["dummy", "--smoke", "--out", str(tmp_path / "res")])
+    with pytest.raises(SystemExit) as e:
+        exp.script("__main__")
+    assert e.value.code == 3 and (tmp_path / "res" / "metrics.json").is_file()
+    out = capsys.readouterr().out
+    assert "| printed |" in out and "comparison" not in out
+
+
 _SLOW_EXPERIMENT = textwrap.dedent("""
     import sys, time
     from research.experiment import Experiment
