@@ -57,14 +57,18 @@ def n_coeffs(degree: int) -> int:
 
 
 @wp.func
+def _squares(x: Any, y: Any, z: Any):
+    """(x^2, y^2, z^2), the squares every polynomial below uses."""
+    return x * x, y * y, z * z
+
+
+@wp.func
 def sh_component(j: int, x: Any, y: Any, z: Any):
     """Y_j(x, y, z) for one index 0 <= j < 16 (for loops that need one function at a time).
 
     The same expressions, in the same order of operations, as `sh_basis`: the two agree bit for bit.
     """
-    xx = x * x
-    yy = y * y
-    zz = z * z
+    xx, yy, zz = _squares(x, y, z)
     if j == 0:
         return type(x)(SH_C0)
     if j == 1:
@@ -101,9 +105,7 @@ def sh_component(j: int, x: Any, y: Any, z: Any):
 @wp.func
 def sh_basis(x: Any, y: Any, z: Any):
     """The 16 values Y_k(x, y, z) of degree <= 3, as a vector."""
-    xx = x * x
-    yy = y * y
-    zz = z * z
+    xx, yy, zz = _squares(x, y, z)
     return wp.vector(
         type(x)(SH_C0),
         -type(x)(SH_C1) * y, type(x)(SH_C1) * z, -type(x)(SH_C1) * x,
@@ -120,9 +122,7 @@ def sh_basis(x: Any, y: Any, z: Any):
 @wp.func
 def sh_basis_dx(x: Any, y: Any, z: Any):
     """dY_k/dx for the 16 functions of `sh_basis`."""
-    xx = x * x
-    yy = y * y
-    zz = z * z
+    xx, yy, zz = _squares(x, y, z)
     zero = type(x)(0.0)
     return wp.vector(
         zero,
@@ -144,9 +144,7 @@ def sh_basis_dx(x: Any, y: Any, z: Any):
 @wp.func
 def sh_basis_dy(x: Any, y: Any, z: Any):
     """dY_k/dy for the 16 functions of `sh_basis`."""
-    xx = x * x
-    yy = y * y
-    zz = z * z
+    xx, yy, zz = _squares(x, y, z)
     zero = type(x)(0.0)
     return wp.vector(
         zero,
@@ -169,9 +167,7 @@ def sh_basis_dy(x: Any, y: Any, z: Any):
 @wp.func
 def sh_basis_dz(x: Any, y: Any, z: Any):
     """dY_k/dz for the 16 functions of `sh_basis`."""
-    xx = x * x
-    yy = y * y
-    zz = z * z
+    xx, yy, zz = _squares(x, y, z)
     zero = type(x)(0.0)
     return wp.vector(
         zero,
