@@ -26,7 +26,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.volume import _act
-from kernels.volume._act import density_act, density_act_grad, sigmoid
+from kernels.volume._act import density_act, density_act_grad, sigmoid, sigmoid_vjp
 from kernels.volume._checks import check_bbox, check_dtype
 from kernels.volume.encoding import PositionalEncoding
 from kernels.volume.field import Field, FieldOutput
@@ -90,8 +90,7 @@ def _head_backward_kernel(
         return
     grad_raw[n, 0] = grad_sigma[n] * density_act_grad(raw[n, 0] + density_bias, act_kind)
     for c in range(3):
-        s = rgb[n, c]
-        grad_raw[n, 1 + c] = grad_rgb[n, c] * s * (raw.dtype(1.0) - s)
+        grad_raw[n, 1 + c] = sigmoid_vjp(grad_rgb[n, c], rgb[n, c])
 
 
 class NeuralField(Field):

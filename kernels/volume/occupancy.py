@@ -24,6 +24,7 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.launch import launch_split
 from kernels.volume._checks import check_bbox, check_dtype
+from kernels.volume.grid import flat_coords
 
 wp.set_module_options({"enable_backward": False})
 
@@ -53,10 +54,7 @@ def _cell_points_kernel(
 ):
     c = wp.tid() + offset
     state = wp.rand_init(seed, c)
-    ix = c % res[0]
-    iy = (c / res[0]) % res[1]
-    iz = c / (res[0] * res[1])
-    ijk = wp.vec3i(ix, iy, iz)
+    ijk = flat_coords(c, res)
     for a in range(3):
         u = (bbox.dtype(ijk[a]) + bbox.dtype(wp.randf(state))) / bbox.dtype(res[a])
         out_points[c, a] = bbox[0, a] + u * (bbox[1, a] - bbox[0, a])

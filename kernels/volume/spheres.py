@@ -46,6 +46,15 @@ TEXTBOOK_SPHERES = (
 )
 
 
+@wp.func
+def center_offset(points: wp.array2d(dtype=typing.Any), i: int, centers: wp.array2d(dtype=typing.Any), k: int):
+    """(p_i - c_k, |p_i - c_k|): point i's offset from the centre of sphere k, and its length."""
+    dx = points[i, 0] - centers[k, 0]
+    dy = points[i, 1] - centers[k, 1]
+    dz = points[i, 2] - centers[k, 2]
+    return dx, dy, dz, wp.sqrt(dx * dx + dy * dy + dz * dz)
+
+
 @wp.kernel
 def _spheres_forward_kernel(
     points: wp.array2d(dtype=typing.Any),
@@ -64,10 +73,8 @@ def _spheres_forward_kernel(
     ng = zero
     nb = zero
     for k in range(radii.shape[0]):
-        dx = points[i, 0] - centers[k, 0]
-        dy = points[i, 1] - centers[k, 1]
-        dz = points[i, 2] - centers[k, 2]
-        m = wp.max(zero, wp.sqrt(dx * dx + dy * dy + dz * dz) - radii[k])
+        dx, dy, dz, dist = center_offset(points, i, centers, k)
+        m = wp.max(zero, dist - radii[k])
         d = sharpness[k] * wp.exp(-sharpness[k] * m)
         sig += d
         nr += d * colors[k, 0]
@@ -112,10 +119,7 @@ def _spheres_backward_kernel(
     g1 = grad_rgb[i, 1]
     g2 = grad_rgb[i, 2]
     for k in range(radii.shape[0]):
-        dx = points[i, 0] - centers[k, 0]
-        dy = points[i, 1] - centers[k, 1]
-        dz = points[i, 2] - centers[k, 2]
-        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz, dist = center_offset(points, i, centers, k)
         m = wp.max(zero, dist - radii[k])
         s = sharpness[k]
         e = wp.exp(-s * m)
