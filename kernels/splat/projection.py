@@ -84,6 +84,18 @@ def _screen_conic(Wr: Any, q: Any, l: Any, p: Any, cam: wp.array(dtype=Any), wid
 
 
 @wp.func
+def _store_screen(means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), depths: wp.array(dtype=Any), i: int,
+                  u: Any, v: Any, qa: Any, qb: Any, qc: Any, tz: Any):
+    """Write splat i's screen-space mean (u, v), conic (qa, qb, qc) and depth tz."""
+    means2d[i, 0] = u
+    means2d[i, 1] = v
+    conics[i, 0] = qa
+    conics[i, 1] = qb
+    conics[i, 2] = qc
+    depths[i] = tz
+
+
+@wp.func
 def sh_color(sh: wp.array3d(dtype=Any), i: int, ch: int, basis: Any, n_coeffs: int):
     """sum_k f_k Y_k(d) + 1/2 for channel ch of splat i, before the clamp at 0."""
     acc = sh.dtype(0.5)
@@ -94,34 +106,16 @@ def sh_color(sh: wp.array3d(dtype=Any), i: int, ch: int, basis: Any, n_coeffs: i
 
 @wp.kernel
 def _project_kernel(
-    means: wp.array2d(dtype=Any),
-    log_scales: wp.array2d(dtype=Any),
-    quats: wp.array2d(dtype=Any),
-    opacity_logits: wp.array(dtype=Any),
-    sh: wp.array3d(dtype=Any),
-    view: wp.array2d(dtype=Any),
-    cam: wp.array(dtype=Any),
-    width: int,
-    height: int,
-    sh_degree: int,
-    antialiased: int,
-    means2d: wp.array2d(dtype=Any),
-    conics: wp.array2d(dtype=Any),
-    depths: wp.array(dtype=Any),
-    radii: wp.array(dtype=wp.int32),
-    colors: wp.array2d(dtype=Any),
-    opacities: wp.array(dtype=Any),
-    offset: int,
+    means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
+    opacity_logits: wp.array(dtype=Any), sh: wp.array3d(dtype=Any), view: wp.array2d(dtype=Any),
+    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, antialiased: int,
+    means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), depths: wp.array(dtype=Any),
+    radii: wp.array(dtype=wp.int32), colors: wp.array2d(dtype=Any), opacities: wp.array(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     zero = means.dtype(0.0)
     radii[i] = 0
-    means2d[i, 0] = zero
-    means2d[i, 1] = zero
-    conics[i, 0] = zero
-    conics[i, 1] = zero
-    conics[i, 2] = zero
-    depths[i] = zero
+    _store_screen(means2d, conics, depths, i, zero, zero, zero, zero, zero, zero)
     colors[i, 0] = zero
     colors[i, 1] = zero
     colors[i, 2] = zero
@@ -142,12 +136,7 @@ def _project_kernel(
         return
 
     radii[i] = int(r)
-    means2d[i, 0] = u
-    means2d[i, 1] = v
-    conics[i, 0] = qa
-    conics[i, 1] = qb
-    conics[i, 2] = qc
-    depths[i] = tz
+    _store_screen(means2d, conics, depths, i, u, v, qa, qb, qc, tz)
 
     d, dn = view_direction(mu, Wr, tv)
     basis = sh_basis(d[0], d[1], d[2])
@@ -164,29 +153,14 @@ def _project_kernel(
 
 @wp.kernel
 def _project_backward_kernel(
-    means: wp.array2d(dtype=Any),
-    log_scales: wp.array2d(dtype=Any),
-    quats: wp.array2d(dtype=Any),
-    opacity_logits: wp.array(dtype=Any),
-    sh: wp.array3d(dtype=Any),
-    view: wp.array2d(dtype=Any),
-    cam: wp.array(dtype=Any),
-    width: int,
-    height: int,
-    sh_degree: int,
-    antialiased: int,
+    means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
+    opacity_logits: wp.array(dtype=Any), sh: wp.array3d(dtype=Any), view: wp.array2d(dtype=Any),
+    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, antialiased: int,
     radii: wp.array(dtype=wp.int32),
-    g_means2d: wp.array2d(dtype=Any),
-    g_conics: wp.array2d(dtype=Any),
-    g_depths: wp.array(dtype=Any),
-    g_colors: wp.array2d(dtype=Any),
-    g_opacities: wp.array(dtype=Any),
-    d_means: wp.array2d(dtype=Any),
-    d_log_scales: wp.array2d(dtype=Any),
-    d_quats: wp.array2d(dtype=Any),
-    d_opacity_logits: wp.array(dtype=Any),
-    d_sh: wp.array3d(dtype=Any),
-    offset: int,
+    g_means2d: wp.array2d(dtype=Any), g_conics: wp.array2d(dtype=Any), g_depths: wp.array(dtype=Any),
+    g_colors: wp.array2d(dtype=Any), g_opacities: wp.array(dtype=Any),
+    d_means: wp.array2d(dtype=Any), d_log_scales: wp.array2d(dtype=Any), d_quats: wp.array2d(dtype=Any),
+    d_opacity_logits: wp.array(dtype=Any), d_sh: wp.array3d(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     zero = means.dtype(0.0)

@@ -70,20 +70,10 @@ def _gauss_power(packed: wp.array2d(dtype=Any), g: int, pxf: Any, pyf: Any):
 
 @wp.kernel
 def _raster_forward_kernel(
-    packed: wp.array2d(dtype=Any),
-    colors: wp.array2d(dtype=Any),
-    background: wp.array(dtype=Any),
-    sorted_gid: wp.array(dtype=wp.int32),
-    ranges: wp.array2d(dtype=wp.int32),
-    width: int,
-    height: int,
-    tiles_x: int,
-    out_rgb: wp.array3d(dtype=Any),
-    out_alpha: wp.array2d(dtype=Any),
-    out_depth: wp.array2d(dtype=Any),
-    final_T: wp.array2d(dtype=Any),
-    n_contrib: wp.array2d(dtype=wp.int32),
-    offset: int,
+    packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
+    sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
+    out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any), out_depth: wp.array2d(dtype=Any),
+    final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32), offset: int,
 ):
     t = wp.tid() + offset
     tile = t / TILE_PIXELS
@@ -131,23 +121,11 @@ def _raster_forward_kernel(
 
 @wp.kernel
 def _raster_backward_tile_kernel(
-    packed: wp.array2d(dtype=Any),
-    colors: wp.array2d(dtype=Any),
-    background: wp.array(dtype=Any),
-    sorted_gid: wp.array(dtype=wp.int32),
-    sorted_entry: wp.array(dtype=wp.int32),
-    ranges: wp.array2d(dtype=wp.int32),
-    width: int,
-    height: int,
-    tiles_x: int,
-    final_T: wp.array2d(dtype=Any),
-    n_contrib: wp.array2d(dtype=wp.int32),
-    g_rgb: wp.array3d(dtype=Any),
-    g_alpha: wp.array2d(dtype=Any),
-    g_depth: wp.array2d(dtype=Any),
-    entry_grads: wp.array2d(dtype=Any),
-    tile_bg_grads: wp.array2d(dtype=Any),
-    offset: int,
+    packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
+    sorted_gid: wp.array(dtype=wp.int32), sorted_entry: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
+    width: int, height: int, tiles_x: int, final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32),
+    g_rgb: wp.array3d(dtype=Any), g_alpha: wp.array2d(dtype=Any), g_depth: wp.array2d(dtype=Any),
+    entry_grads: wp.array2d(dtype=Any), tile_bg_grads: wp.array2d(dtype=Any), offset: int,
 ):
     # One thread per tile: it alone writes the rows of its (tile, splat) entries and its background row.
     tile = wp.tid() + offset
@@ -226,15 +204,9 @@ def _raster_backward_tile_kernel(
 
 @wp.kernel
 def _gather_entry_grads_kernel(
-    starts: wp.array(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32),
-    entry_grads: wp.array2d(dtype=Any),
-    g_means2d: wp.array2d(dtype=Any),
-    g_conics: wp.array2d(dtype=Any),
-    g_opacities: wp.array(dtype=Any),
-    g_colors: wp.array2d(dtype=Any),
-    g_depths: wp.array(dtype=Any),
-    offset: int,
+    starts: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32), entry_grads: wp.array2d(dtype=Any),
+    g_means2d: wp.array2d(dtype=Any), g_conics: wp.array2d(dtype=Any), g_opacities: wp.array(dtype=Any),
+    g_colors: wp.array2d(dtype=Any), g_depths: wp.array(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     acc = wp.vector(length=10, dtype=entry_grads.dtype)

@@ -129,20 +129,10 @@ def view_dir(dirs: wp.array2d(dtype=typing.Any), i: int, sh_mode: int):
 
 @wp.kernel
 def _grid_forward_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    dirs: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    res: wp.vec3i,
-    density: wp.array(dtype=typing.Any),
-    color: wp.array2d(dtype=typing.Any),
-    n_coef: int,
-    sh_mode: int,
-    density_bias: typing.Any,
-    density_scale: typing.Any,
-    act_kind: int,
-    out_sigma: wp.array(dtype=typing.Any),
-    out_rgb: wp.array2d(dtype=typing.Any),
-    offset: int,
+    points: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
+    res: wp.vec3i, density: wp.array(dtype=typing.Any), color: wp.array2d(dtype=typing.Any),
+    n_coef: int, sh_mode: int, density_bias: typing.Any, density_scale: typing.Any, act_kind: int,
+    out_sigma: wp.array(dtype=typing.Any), out_rgb: wp.array2d(dtype=typing.Any), offset: int,
 ):
     i = wp.tid() + offset
     zero = points.dtype(0.0)
@@ -174,21 +164,11 @@ def _grid_forward_kernel(
 
 @wp.kernel
 def _grid_backward_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    dirs: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    res: wp.vec3i,
-    density: wp.array(dtype=typing.Any),
-    n_coef: int,
-    sh_mode: int,
-    density_bias: typing.Any,
-    density_scale: typing.Any,
-    act_kind: int,
-    rgb: wp.array2d(dtype=typing.Any),
-    grad_sigma: wp.array(dtype=typing.Any),
-    grad_rgb: wp.array2d(dtype=typing.Any),
-    grad_density: wp.array(dtype=typing.Any),
-    grad_color: wp.array2d(dtype=typing.Any),
+    points: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
+    res: wp.vec3i, density: wp.array(dtype=typing.Any),
+    n_coef: int, sh_mode: int, density_bias: typing.Any, density_scale: typing.Any, act_kind: int,
+    rgb: wp.array2d(dtype=typing.Any), grad_sigma: wp.array(dtype=typing.Any), grad_rgb: wp.array2d(dtype=typing.Any),
+    grad_density: wp.array(dtype=typing.Any), grad_color: wp.array2d(dtype=typing.Any),
 ):
     i = wp.tid()
     ix, iy, iz, fx, fy, fz, inside = grid_cell(points, i, bbox, res)
@@ -213,11 +193,8 @@ def _grid_backward_kernel(
 
 @wp.kernel
 def _tv_grad_kernel(
-    values: wp.array2d(dtype=typing.Any),
-    res: wp.vec3i,
-    weight: typing.Any,
-    grad: wp.array2d(dtype=typing.Any),
-    offset: int,
+    values: wp.array2d(dtype=typing.Any), res: wp.vec3i, weight: typing.Any,
+    grad: wp.array2d(dtype=typing.Any), offset: int,
 ):
     v = wp.tid() + offset
     ijk = flat_coords(v, res)
@@ -327,13 +304,8 @@ class GridField(Field):
                  grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
         a, p, d, _, rgb, gs, gr = self._backward_inputs(points, dirs, out, grad_sigma, grad_rgb)
-        n = p.shape[0]
-        grads = self._zero_grads(workspace)
         before, after = self._grid_args(a, d)
-        if n:  # a scatter: one launch (module docstring)
-            wp.launch(_grid_backward_kernel, dim=n, inputs=[p, *before, *after, rgb, gs, gr, grads["density"],
-                                                            grads["color"]], device=self.device)
-        return grads
+        return self._scatter_grads(_grid_backward_kernel, p.shape[0], [p, *before, *after, rgb, gs, gr], workspace)
 
 
 A.declare_float_overloads(_grid_forward_kernel)

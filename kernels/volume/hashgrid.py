@@ -90,14 +90,9 @@ def point_level(t: int, points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(d
 
 @wp.kernel
 def _hash_forward_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    resolutions: wp.array(dtype=wp.int32),
-    dense: wp.array(dtype=wp.int32),
-    table_size: int,
-    table: wp.array2d(dtype=typing.Any),
-    out: wp.array2d(dtype=typing.Any),
-    offset: int,
+    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
+    dense: wp.array(dtype=wp.int32), table_size: int,
+    table: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), offset: int,
 ):
     n, l, res, ix, iy, iz, fx, fy, fz = point_level(wp.tid() + offset, points, bbox, resolutions)
     F = table.shape[1]
@@ -112,13 +107,9 @@ def _hash_forward_kernel(
 
 @wp.kernel
 def _hash_backward_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    resolutions: wp.array(dtype=wp.int32),
-    dense: wp.array(dtype=wp.int32),
-    table_size: int,
-    grad_out: wp.array2d(dtype=typing.Any),
-    grad_table: wp.array2d(dtype=typing.Any),
+    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
+    dense: wp.array(dtype=wp.int32), table_size: int,
+    grad_out: wp.array2d(dtype=typing.Any), grad_table: wp.array2d(dtype=typing.Any),
 ):
     n, l, res, ix, iy, iz, fx, fy, fz = point_level(wp.tid(), points, bbox, resolutions)
     F = grad_table.shape[1]

@@ -48,14 +48,9 @@ def inside_box(points: wp.array2d(dtype=typing.Any), n: int, bbox: wp.array2d(dt
 
 @wp.kernel
 def _head_forward_kernel(
-    raw: wp.array2d(dtype=typing.Any),
-    points: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    density_bias: typing.Any,
-    act_kind: int,
-    out_sigma: wp.array(dtype=typing.Any),
-    out_rgb: wp.array2d(dtype=typing.Any),
-    offset: int,
+    raw: wp.array2d(dtype=typing.Any), points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
+    density_bias: typing.Any, act_kind: int,
+    out_sigma: wp.array(dtype=typing.Any), out_rgb: wp.array2d(dtype=typing.Any), offset: int,
 ):
     n = wp.tid() + offset
     zero = raw.dtype(0.0)
@@ -71,16 +66,10 @@ def _head_forward_kernel(
 
 @wp.kernel
 def _head_backward_kernel(
-    raw: wp.array2d(dtype=typing.Any),
-    points: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    density_bias: typing.Any,
-    act_kind: int,
-    rgb: wp.array2d(dtype=typing.Any),
-    grad_sigma: wp.array(dtype=typing.Any),
-    grad_rgb: wp.array2d(dtype=typing.Any),
-    grad_raw: wp.array2d(dtype=typing.Any),
-    offset: int,
+    raw: wp.array2d(dtype=typing.Any), points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
+    density_bias: typing.Any, act_kind: int, rgb: wp.array2d(dtype=typing.Any),
+    grad_sigma: wp.array(dtype=typing.Any), grad_rgb: wp.array2d(dtype=typing.Any),
+    grad_raw: wp.array2d(dtype=typing.Any), offset: int,
 ):
     n = wp.tid() + offset
     zero = raw.dtype(0.0)

@@ -46,11 +46,7 @@ def occupied_at(x: typing.Any, y: typing.Any, z: typing.Any, occ: wp.array(dtype
 
 @wp.kernel
 def _cell_points_kernel(
-    bbox: wp.array2d(dtype=typing.Any),
-    res: wp.vec3i,
-    seed: int,
-    out_points: wp.array2d(dtype=typing.Any),
-    offset: int,
+    bbox: wp.array2d(dtype=typing.Any), res: wp.vec3i, seed: int, out_points: wp.array2d(dtype=typing.Any), offset: int,
 ):
     c = wp.tid() + offset
     state = wp.rand_init(seed, c)
@@ -62,10 +58,7 @@ def _cell_points_kernel(
 
 @wp.kernel
 def _ema_kernel(
-    density: wp.array(dtype=wp.float32),
-    sigma: wp.array(dtype=typing.Any),
-    decay: float,
-    offset: int,
+    density: wp.array(dtype=wp.float32), sigma: wp.array(dtype=typing.Any), decay: float, offset: int,
 ):
     c = wp.tid() + offset
     density[c] = wp.max(decay * density[c], wp.float32(sigma[c]))
@@ -73,10 +66,7 @@ def _ema_kernel(
 
 @wp.kernel
 def _threshold_kernel(
-    density: wp.array(dtype=wp.float32),
-    threshold: float,
-    occupied: wp.array(dtype=wp.int32),
-    offset: int,
+    density: wp.array(dtype=wp.float32), threshold: float, occupied: wp.array(dtype=wp.int32), offset: int,
 ):
     c = wp.tid() + offset
     occupied[c] = wp.where(density[c] > threshold, 1, 0)
