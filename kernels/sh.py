@@ -16,7 +16,7 @@ with C0 = 1 / (2 sqrt(pi)), C1 = sqrt(3 / (4 pi)) and the constants below. The f
 orthonormal on the unit sphere. A colour channel is c(d) = sum_k f_k Y_k(d) for coefficients f.
 
 The polynomials are written in x, y, z without using |d| = 1, so their partial derivatives
-dY_k/dx, dY_k/dy, dY_k/dz (`sh_basis_dx`, `_dy`, `_dz`) are those of the polynomials; a caller
+dY_k/dx, dY_k/dy, dY_k/dz (`sh_basis_grad`) are those of the polynomials; a caller
 whose d = v / |v| is a normalised vector projects the gradient with (I - d d^T) / |v|.
 
 Every function is generic over float32 and float64 (the type of x); the constants are written
@@ -57,14 +57,18 @@ def n_coeffs(degree: int) -> int:
 
 
 @wp.func
+def _squares(x: Any, y: Any, z: Any):
+    """(x^2, y^2, z^2), the squares every polynomial below uses."""
+    return x * x, y * y, z * z
+
+
+@wp.func
 def sh_component(j: int, x: Any, y: Any, z: Any):
     """Y_j(x, y, z) for one index 0 <= j < 16 (for loops that need one function at a time).
 
     The same expressions, in the same order of operations, as `sh_basis`: the two agree bit for bit.
     """
-    xx = x * x
-    yy = y * y
-    zz = z * z
+    xx, yy, zz = _squares(x, y, z)
     if j == 0:
         return type(x)(SH_C0)
     if j == 1:
@@ -101,9 +105,7 @@ def sh_component(j: int, x: Any, y: Any, z: Any):
 @wp.func
 def sh_basis(x: Any, y: Any, z: Any):
     """The 16 values Y_k(x, y, z) of degree <= 3, as a vector."""
-    xx = x * x
-    yy = y * y
-    zz = z * z
+    xx, yy, zz = _squares(x, y, z)
     return wp.vector(
         type(x)(SH_C0),
         -type(x)(SH_C1) * y, type(x)(SH_C1) * z, -type(x)(SH_C1) * x,
@@ -118,13 +120,11 @@ def sh_basis(x: Any, y: Any, z: Any):
 
 
 @wp.func
-def sh_basis_dx(x: Any, y: Any, z: Any):
-    """dY_k/dx for the 16 functions of `sh_basis`."""
-    xx = x * x
-    yy = y * y
-    zz = z * z
+def sh_basis_grad(x: Any, y: Any, z: Any):
+    """(dY_k/dx, dY_k/dy, dY_k/dz) for the 16 functions of `sh_basis`: three vectors."""
+    xx, yy, zz = _squares(x, y, z)
     zero = type(x)(0.0)
-    return wp.vector(
+    dx = wp.vector(
         zero,
         zero, zero, -type(x)(SH_C1),
         type(x)(SH_C2_0) * y,
@@ -139,16 +139,7 @@ def sh_basis_dx(x: Any, y: Any, z: Any):
         type(x)(SH_C3_4) * (type(x)(4.0) * zz - type(x)(3.0) * xx - yy),
         type(x)(2.0) * type(x)(SH_C3_5) * x * z, type(x)(3.0) * type(x)(SH_C3_6) * (xx - yy),
         length=16, dtype=type(x))
-
-
-@wp.func
-def sh_basis_dy(x: Any, y: Any, z: Any):
-    """dY_k/dy for the 16 functions of `sh_basis`."""
-    xx = x * x
-    yy = y * y
-    zz = z * z
-    zero = type(x)(0.0)
-    return wp.vector(
+    dy = wp.vector(
         zero,
         -type(x)(SH_C1), zero, zero,
         type(x)(SH_C2_0) * x,
@@ -164,16 +155,7 @@ def sh_basis_dy(x: Any, y: Any, z: Any):
         -type(x)(2.0) * type(x)(SH_C3_5) * y * z,
         -type(x)(6.0) * type(x)(SH_C3_6) * x * y,
         length=16, dtype=type(x))
-
-
-@wp.func
-def sh_basis_dz(x: Any, y: Any, z: Any):
-    """dY_k/dz for the 16 functions of `sh_basis`."""
-    xx = x * x
-    yy = y * y
-    zz = z * z
-    zero = type(x)(0.0)
-    return wp.vector(
+    dz = wp.vector(
         zero,
         zero, type(x)(SH_C1), zero,
         zero, type(x)(SH_C2_1) * y, type(x)(4.0) * type(x)(SH_C2_2) * z, type(x)(SH_C2_3) * x, zero,
@@ -182,3 +164,4 @@ def sh_basis_dz(x: Any, y: Any, z: Any):
         type(x)(8.0) * type(x)(SH_C3_4) * x * z,
         type(x)(SH_C3_5) * (xx - yy), zero,
         length=16, dtype=type(x))
+    return dx, dy, dz

@@ -54,16 +54,28 @@ def gaussian_window(size: int = WINDOW, sigma: float = SIGMA) -> np.ndarray:
     return w / w.sum()
 
 
+@wp.func
+def _pixel(i: int, w: int, c: int):
+    """(row, col, channel) of flat index i over an (H, W, C) image, channel fastest."""
+    return i / (c * w), (i / c) % w, i % c
+
+
+@wp.func
+def _ssim_terms(mom: wp.array4d(dtype=Any), row: int, col: int, ch: int, c1: Any, c2: Any):
+    """(mu_x, mu_y, A1, A2, B1, B2) at one pixel and channel from the filtered moments (module docstring)."""
+    two = mom.dtype(2.0)
+    mx = mom[0, row, col, ch]
+    my = mom[1, row, col, ch]
+    sxx = mom[2, row, col, ch] - mx * mx
+    syy = mom[3, row, col, ch] - my * my
+    sxy = mom[4, row, col, ch] - mx * my
+    return mx, my, two * mx * my + c1, two * sxy + c2, mx * mx + my * my + c1, sxx + syy + c2
+
+
 @wp.kernel
 def _moments_kernel(x: wp.array3d(dtype=Any), y: wp.array3d(dtype=Any), out: wp.array4d(dtype=Any), offset: int):
-    i = wp.tid() + offset
-    h = x.shape[0]
-    w = x.shape[1]
-    c = x.shape[2]
-    ch = i % c
-    col = (i / c) % w
-    row = i / (c * w)
-    if row >= h:
+    row, col, ch = _pixel(wp.tid() + offset, x.shape[1], x.shape[2])
+    if row >= x.shape[0]:
         return
     a = x[row, col, ch]
     b = y[row, col, ch]
@@ -79,13 +91,9 @@ def _blur_kernel(src: wp.array4d(dtype=Any), taps: wp.array(dtype=Any), axis: in
                  offset: int):
     # One pixel and channel of all M maps: a 1-D correlation along `axis` (1 = rows, 2 = columns),
     # zero outside the image.
-    i = wp.tid() + offset
+    row, col, ch = _pixel(wp.tid() + offset, src.shape[2], src.shape[3])
     h = src.shape[1]
     w = src.shape[2]
-    c = src.shape[3]
-    ch = i % c
-    col = (i / c) % w
-    row = i / (c * w)
     lo = wp.max(0, _HALF - (col if axis == 2 else row))
     hi = wp.min(WINDOW, (w if axis == 2 else h) + _HALF - (col if axis == 2 else row))
     for m in range(src.shape[0]):
@@ -100,41 +108,18 @@ def _blur_kernel(src: wp.array4d(dtype=Any), taps: wp.array(dtype=Any), axis: in
 
 @wp.kernel
 def _ssim_map_kernel(mom: wp.array4d(dtype=Any), c1: Any, c2: Any, out: wp.array3d(dtype=Any), offset: int):
-    i = wp.tid() + offset
-    w = out.shape[1]
-    c = out.shape[2]
-    ch = i % c
-    col = (i / c) % w
-    row = i / (c * w)
-    two = mom.dtype(2.0)
-    mx = mom[0, row, col, ch]
-    my = mom[1, row, col, ch]
-    sxx = mom[2, row, col, ch] - mx * mx
-    syy = mom[3, row, col, ch] - my * my
-    sxy = mom[4, row, col, ch] - mx * my
-    out[row, col, ch] = (two * mx * my + c1) * (two * sxy + c2) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
+    row, col, ch = _pixel(wp.tid() + offset, out.shape[1], out.shape[2])
+    mx, my, a1, a2, b1, b2 = _ssim_terms(mom, row, col, ch, c1, c2)
+    out[row, col, ch] = a1 * a2 / (b1 * b2)
 
 
 @wp.kernel
 def _ssim_partials_kernel(mom: wp.array4d(dtype=Any), g_map: wp.array3d(dtype=Any), c1: Any, c2: Any,
                           out: wp.array4d(dtype=Any), offset: int):
     # out[m] = g_map * dS/d(moment m), for m = mu_x, mu_y, e_xx, e_yy, e_xy.
-    i = wp.tid() + offset
-    w = g_map.shape[1]
-    c = g_map.shape[2]
-    ch = i % c
-    col = (i / c) % w
-    row = i / (c * w)
+    row, col, ch = _pixel(wp.tid() + offset, g_map.shape[1], g_map.shape[2])
     two = mom.dtype(2.0)
-    mx = mom[0, row, col, ch]
-    my = mom[1, row, col, ch]
-    sxx = mom[2, row, col, ch] - mx * mx
-    syy = mom[3, row, col, ch] - my * my
-    sxy = mom[4, row, col, ch] - mx * my
-    a1 = two * mx * my + c1
-    a2 = two * sxy + c2
-    b1 = mx * mx + my * my + c1
-    b2 = sxx + syy + c2
+    mx, my, a1, a2, b1, b2 = _ssim_terms(mom, row, col, ch, c1, c2)
     gs = g_map[row, col, ch] * a1 * a2 / (b1 * b2)
     out[0, row, col, ch] = gs * (two * my / a1 - two * my / a2 - two * mx / b1 + two * mx / b2)
     out[1, row, col, ch] = gs * (two * mx / a1 - two * mx / a2 - two * my / b1 + two * my / b2)
@@ -146,12 +131,7 @@ def _ssim_partials_kernel(mom: wp.array4d(dtype=Any), g_map: wp.array3d(dtype=An
 @wp.kernel
 def _ssim_input_grads_kernel(x: wp.array3d(dtype=Any), y: wp.array3d(dtype=Any), gm: wp.array4d(dtype=Any),
                              dx: wp.array3d(dtype=Any), dy: wp.array3d(dtype=Any), offset: int):
-    i = wp.tid() + offset
-    w = x.shape[1]
-    c = x.shape[2]
-    ch = i % c
-    col = (i / c) % w
-    row = i / (c * w)
+    row, col, ch = _pixel(wp.tid() + offset, x.shape[1], x.shape[2])
     two = x.dtype(2.0)
     a = x[row, col, ch]
     b = y[row, col, ch]

@@ -21,11 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from kernels.reference.sh import sh_basis
+
 PRIME_Y = 2654435761  # the spatial hash of instant-ngp (Mueller et al. 2022)
 PRIME_Z = 805459861
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
 
 
 def softplus(x: np.ndarray) -> np.ndarray:
@@ -112,20 +111,6 @@ def spheres(p, centers, radii, colors, sharpness):
     return sigma, rgb
 
 
-def sh_basis(d, degree):
-    """Y_j(d) (N, n_coef) of real spherical harmonics up to `degree` <= 2; None gives the constant 1."""
-    if degree is None:
-        return np.ones((len(d), 1))
-    x, y, z = d.T
-    cols = [np.full_like(x, SH_C0)]
-    if degree >= 1:
-        cols += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
-    if degree >= 2:
-        cols += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * z * z - x * x - y * y), SH_C2[3] * x * z,
-                 SH_C2[4] * (x * x - y * y)]
-    return np.stack(cols, axis=1)
-
-
 def trilinear(values, res, box, p):
     """Trilinear value at one point p of `values` (nz, ny, nx, C) on the vertex grid: the 8-corner sum."""
     u = (p - box[0]) / (box[1] - box[0]) * (np.array(res) - 1)
@@ -149,7 +134,7 @@ def grid(density, color, resolution, bbox, sh_degree, density_bias, density_scal
     n_coef = 1 if sh_degree is None else (sh_degree + 1) ** 2
     dens = np.asarray(density, dtype=np.float64).reshape(nz, ny, nx, 1)
     col = np.asarray(color, dtype=np.float64).reshape(nz, ny, nx, 3 * n_coef)
-    Y = sh_basis(d, sh_degree)
+    Y = np.ones((len(p), 1)) if sh_degree is None else sh_basis(d, sh_degree)  # kernels/reference/sh.py
     act = softplus if activation == "softplus" else np.exp
     sigma, rgb = np.zeros(len(p)), np.zeros((len(p), 3))
     for i, x in enumerate(p):

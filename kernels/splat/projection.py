@@ -17,7 +17,7 @@ coefficients f (K = (L+1)^2, 3), for the world-to-camera [W | t] and intrinsics 
         c = sqrt(max(0, det(Sigma2d) / det(Sigma2d + 0.3 I)))            (ewa.aa_compensation)
 
 The backward kernel recomputes the forward through the same functions of kernels/splat/ewa.py and
-chains their VJPs in reverse: colour and SH (sh.sh_basis_dx/dy/dz, view_direction_vjp), opacity
+chains their VJPs in reverse: colour and SH (sh.sh_basis_grad, view_direction_vjp), opacity
 and compensation, conic inverse and dilation, EWA projection, covariance. One thread per splat
 writes only that splat's gradients, so both kernels run split over CPU threads.
 """
@@ -32,7 +32,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.sh import sh_basis, sh_basis_dx, sh_basis_dy, sh_basis_dz
+from kernels.sh import sh_basis, sh_basis_grad
 from kernels.splat.camera import SplatCamera
 from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
                                dilate_cov2d_vjp, persp_proj, persp_proj_vjp, quat_scale_to_covar,
@@ -64,6 +64,38 @@ def _load_splat(means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any),
 
 
 @wp.func
+def _camera_frame(view: wp.array2d(dtype=Any), means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any),
+                  quats: wp.array2d(dtype=Any), i: int):
+    """(W, t, mu, q, l, p = W mu + t) of splat i: the view, its parameters and its camera-frame mean."""
+    Wr, tv = _load_view(view)
+    mu, q, l = _load_splat(means, log_scales, quats, i)
+    return Wr, tv, mu, q, l, Wr * mu + tv
+
+
+@wp.func
+def _screen_conic(Wr: Any, q: Any, l: Any, p: Any, cam: wp.array(dtype=Any), width: int, height: int):
+    """The forward from the camera-frame mean p to the conic (module docstring): (cov_c, u, v, the
+    undilated a, b, c and det0, the dilated a1, c1, and det, qa, qb, qc of the conic inverse)."""
+    cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
+    u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
+    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
+    det, qa, qb, qc = conic_inverse(a1, b, c1)
+    return cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc
+
+
+@wp.func
+def _store_screen(means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), depths: wp.array(dtype=Any), i: int,
+                  u: Any, v: Any, qa: Any, qb: Any, qc: Any, tz: Any):
+    """Write splat i's screen-space mean (u, v), conic (qa, qb, qc) and depth tz."""
+    means2d[i, 0] = u
+    means2d[i, 1] = v
+    conics[i, 0] = qa
+    conics[i, 1] = qb
+    conics[i, 2] = qc
+    depths[i] = tz
+
+
+@wp.func
 def sh_color(sh: wp.array3d(dtype=Any), i: int, ch: int, basis: Any, n_coeffs: int):
     """sum_k f_k Y_k(d) + 1/2 for channel ch of splat i, before the clamp at 0."""
     acc = sh.dtype(0.5)
@@ -74,49 +106,26 @@ def sh_color(sh: wp.array3d(dtype=Any), i: int, ch: int, basis: Any, n_coeffs: i
 
 @wp.kernel
 def _project_kernel(
-    means: wp.array2d(dtype=Any),
-    log_scales: wp.array2d(dtype=Any),
-    quats: wp.array2d(dtype=Any),
-    opacity_logits: wp.array(dtype=Any),
-    sh: wp.array3d(dtype=Any),
-    view: wp.array2d(dtype=Any),
-    cam: wp.array(dtype=Any),
-    width: int,
-    height: int,
-    sh_degree: int,
-    antialiased: int,
-    means2d: wp.array2d(dtype=Any),
-    conics: wp.array2d(dtype=Any),
-    depths: wp.array(dtype=Any),
-    radii: wp.array(dtype=wp.int32),
-    colors: wp.array2d(dtype=Any),
-    opacities: wp.array(dtype=Any),
-    offset: int,
+    means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
+    opacity_logits: wp.array(dtype=Any), sh: wp.array3d(dtype=Any), view: wp.array2d(dtype=Any),
+    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, antialiased: int,
+    means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), depths: wp.array(dtype=Any),
+    radii: wp.array(dtype=wp.int32), colors: wp.array2d(dtype=Any), opacities: wp.array(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     zero = means.dtype(0.0)
     radii[i] = 0
-    means2d[i, 0] = zero
-    means2d[i, 1] = zero
-    conics[i, 0] = zero
-    conics[i, 1] = zero
-    conics[i, 2] = zero
-    depths[i] = zero
+    _store_screen(means2d, conics, depths, i, zero, zero, zero, zero, zero, zero)
     colors[i, 0] = zero
     colors[i, 1] = zero
     colors[i, 2] = zero
     opacities[i] = zero
 
-    Wr, tv = _load_view(view)
-    mu, q, l = _load_splat(means, log_scales, quats, i)
-    p = Wr * mu + tv
+    Wr, tv, mu, q, l, p = _camera_frame(view, means, log_scales, quats, i)
     tz = p[2]
     if tz < cam[4] or tz > cam[5]:
         return
-    cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
-    u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
-    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
-    det, qa, qb, qc = conic_inverse(a1, b, c1)
+    cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _screen_conic(Wr, q, l, p, cam, width, height)
     if det <= zero:
         return
     half = means.dtype(0.5)
@@ -127,12 +136,7 @@ def _project_kernel(
         return
 
     radii[i] = int(r)
-    means2d[i, 0] = u
-    means2d[i, 1] = v
-    conics[i, 0] = qa
-    conics[i, 1] = qb
-    conics[i, 2] = qc
-    depths[i] = tz
+    _store_screen(means2d, conics, depths, i, u, v, qa, qb, qc, tz)
 
     d, dn = view_direction(mu, Wr, tv)
     basis = sh_basis(d[0], d[1], d[2])
@@ -149,29 +153,14 @@ def _project_kernel(
 
 @wp.kernel
 def _project_backward_kernel(
-    means: wp.array2d(dtype=Any),
-    log_scales: wp.array2d(dtype=Any),
-    quats: wp.array2d(dtype=Any),
-    opacity_logits: wp.array(dtype=Any),
-    sh: wp.array3d(dtype=Any),
-    view: wp.array2d(dtype=Any),
-    cam: wp.array(dtype=Any),
-    width: int,
-    height: int,
-    sh_degree: int,
-    antialiased: int,
+    means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
+    opacity_logits: wp.array(dtype=Any), sh: wp.array3d(dtype=Any), view: wp.array2d(dtype=Any),
+    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, antialiased: int,
     radii: wp.array(dtype=wp.int32),
-    g_means2d: wp.array2d(dtype=Any),
-    g_conics: wp.array2d(dtype=Any),
-    g_depths: wp.array(dtype=Any),
-    g_colors: wp.array2d(dtype=Any),
-    g_opacities: wp.array(dtype=Any),
-    d_means: wp.array2d(dtype=Any),
-    d_log_scales: wp.array2d(dtype=Any),
-    d_quats: wp.array2d(dtype=Any),
-    d_opacity_logits: wp.array(dtype=Any),
-    d_sh: wp.array3d(dtype=Any),
-    offset: int,
+    g_means2d: wp.array2d(dtype=Any), g_conics: wp.array2d(dtype=Any), g_depths: wp.array(dtype=Any),
+    g_colors: wp.array2d(dtype=Any), g_opacities: wp.array(dtype=Any),
+    d_means: wp.array2d(dtype=Any), d_log_scales: wp.array2d(dtype=Any), d_quats: wp.array2d(dtype=Any),
+    d_opacity_logits: wp.array(dtype=Any), d_sh: wp.array3d(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     zero = means.dtype(0.0)
@@ -189,13 +178,8 @@ def _project_backward_kernel(
         return
 
     # Forward values this backward needs, from the forward's own functions.
-    Wr, tv = _load_view(view)
-    mu, q, l = _load_splat(means, log_scales, quats, i)
-    p = Wr * mu + tv
-    cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
-    u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
-    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
-    det, qa, qb, qc = conic_inverse(a1, b, c1)
+    Wr, tv, mu, q, l, p = _camera_frame(view, means, log_scales, quats, i)
+    cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _screen_conic(Wr, q, l, p, cam, width, height)
     sig = sigmoid(opacity_logits[i])
 
     # Opacity o = sigmoid(a) comp.
@@ -225,9 +209,7 @@ def _project_backward_kernel(
     # Colour = max(0, sum_k f_k Y_k(d) + 1/2).
     d, dn = view_direction(mu, Wr, tv)
     basis = sh_basis(d[0], d[1], d[2])
-    bdx = sh_basis_dx(d[0], d[1], d[2])
-    bdy = sh_basis_dy(d[0], d[1], d[2])
-    bdz = sh_basis_dz(d[0], d[1], d[2])
+    bdx, bdy, bdz = sh_basis_grad(d[0], d[1], d[2])
     n_coeffs = (sh_degree + 1) * (sh_degree + 1)
     g_d = wp.vector(zero, zero, zero, length=3, dtype=means.dtype)
     for ch in range(3):

@@ -46,36 +46,43 @@ MIN_CHUNK = 1024
 _GRAD_COLS = 10
 
 
+@wp.func
+def _tile_pixel(tile: int, local: int, tiles_x: int):
+    """(px, py) of pixel `local` (row-major in the TILE x TILE block) of tile `tile` (row-major, tiles_x wide)."""
+    tile_y = tile / tiles_x
+    return (tile - tile_y * tiles_x) * TILE + local % TILE, tile_y * TILE + local / TILE
+
+
+@wp.func
+def _pixel_centre(packed: wp.array2d(dtype=Any), px: int, py: int):
+    """(px + 1/2, py + 1/2) in the dtype of the splats."""
+    half = packed.dtype(0.5)
+    return packed.dtype(float(px)) + half, packed.dtype(float(py)) + half
+
+
+@wp.func
+def _gauss_power(packed: wp.array2d(dtype=Any), g: int, pxf: Any, pyf: Any):
+    """(dx, dy, -1/2 d^T Q d) of splat g's packed row at the pixel centre (pxf, pyf), d = mean2d - p."""
+    dx = packed[g, 0] - pxf
+    dy = packed[g, 1] - pyf
+    return dx, dy, -packed.dtype(0.5) * (packed[g, 2] * dx * dx + packed[g, 4] * dy * dy) - packed[g, 3] * dx * dy
+
+
 @wp.kernel
 def _raster_forward_kernel(
-    packed: wp.array2d(dtype=Any),
-    colors: wp.array2d(dtype=Any),
-    background: wp.array(dtype=Any),
-    sorted_gid: wp.array(dtype=wp.int32),
-    ranges: wp.array2d(dtype=wp.int32),
-    width: int,
-    height: int,
-    tiles_x: int,
-    out_rgb: wp.array3d(dtype=Any),
-    out_alpha: wp.array2d(dtype=Any),
-    out_depth: wp.array2d(dtype=Any),
-    final_T: wp.array2d(dtype=Any),
-    n_contrib: wp.array2d(dtype=wp.int32),
-    offset: int,
+    packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
+    sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
+    out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any), out_depth: wp.array2d(dtype=Any),
+    final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32), offset: int,
 ):
     t = wp.tid() + offset
     tile = t / TILE_PIXELS
-    local = t - tile * TILE_PIXELS
-    tile_y = tile / tiles_x
-    px = (tile - tile_y * tiles_x) * TILE + local % TILE
-    py = tile_y * TILE + local / TILE
+    px, py = _tile_pixel(tile, t - tile * TILE_PIXELS, tiles_x)
     if px >= width or py >= height:
         return
     zero = packed.dtype(0.0)
     one = packed.dtype(1.0)
-    half = packed.dtype(0.5)
-    pxf = packed.dtype(float(px)) + half
-    pyf = packed.dtype(float(py)) + half
+    pxf, pyf = _pixel_centre(packed, px, py)
     start = ranges[tile, 0]
     end = ranges[tile, 1]
     tr = one
@@ -86,9 +93,7 @@ def _raster_forward_kernel(
     last = start
     for s in range(start, end):
         g = sorted_gid[s]
-        dx = packed[g, 0] - pxf
-        dy = packed[g, 1] - pyf
-        power = -half * (packed[g, 2] * dx * dx + packed[g, 4] * dy * dy) - packed[g, 3] * dx * dy
+        dx, dy, power = _gauss_power(packed, g, pxf, pyf)
         # packed[g, 6] = -ln(255 o): below it alpha < 1/255, so exp() is skipped.
         if power > zero or power < packed[g, 6]:
             continue
@@ -116,23 +121,11 @@ def _raster_forward_kernel(
 
 @wp.kernel
 def _raster_backward_tile_kernel(
-    packed: wp.array2d(dtype=Any),
-    colors: wp.array2d(dtype=Any),
-    background: wp.array(dtype=Any),
-    sorted_gid: wp.array(dtype=wp.int32),
-    sorted_entry: wp.array(dtype=wp.int32),
-    ranges: wp.array2d(dtype=wp.int32),
-    width: int,
-    height: int,
-    tiles_x: int,
-    final_T: wp.array2d(dtype=Any),
-    n_contrib: wp.array2d(dtype=wp.int32),
-    g_rgb: wp.array3d(dtype=Any),
-    g_alpha: wp.array2d(dtype=Any),
-    g_depth: wp.array2d(dtype=Any),
-    entry_grads: wp.array2d(dtype=Any),
-    tile_bg_grads: wp.array2d(dtype=Any),
-    offset: int,
+    packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
+    sorted_gid: wp.array(dtype=wp.int32), sorted_entry: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
+    width: int, height: int, tiles_x: int, final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32),
+    g_rgb: wp.array3d(dtype=Any), g_alpha: wp.array2d(dtype=Any), g_depth: wp.array2d(dtype=Any),
+    entry_grads: wp.array2d(dtype=Any), tile_bg_grads: wp.array2d(dtype=Any), offset: int,
 ):
     # One thread per tile: it alone writes the rows of its (tile, splat) entries and its background row.
     tile = wp.tid() + offset
@@ -140,8 +133,6 @@ def _raster_backward_tile_kernel(
     one = packed.dtype(1.0)
     half = packed.dtype(0.5)
     start = ranges[tile, 0]
-    tile_y = tile / tiles_x
-    tile_x = tile - tile_y * tiles_x
     bg0 = background[0]
     bg1 = background[1]
     bg2 = background[2]
@@ -149,12 +140,10 @@ def _raster_backward_tile_kernel(
     gbg1 = zero
     gbg2 = zero
     for local in range(TILE_PIXELS):
-        px = tile_x * TILE + local % TILE
-        py = tile_y * TILE + local / TILE
+        px, py = _tile_pixel(tile, local, tiles_x)
         if px >= width or py >= height:
             continue
-        pxf = packed.dtype(float(px)) + half
-        pyf = packed.dtype(float(py)) + half
+        pxf, pyf = _pixel_centre(packed, px, py)
         tf = final_T[py, px]
         gr = g_rgb[py, px, 0]
         gg = g_rgb[py, px, 1]
@@ -173,12 +162,10 @@ def _raster_backward_tile_kernel(
         s = n_contrib[py, px] - 1
         while s >= start:
             g = sorted_gid[s]
-            dx = packed[g, 0] - pxf
-            dy = packed[g, 1] - pyf
+            dx, dy, power = _gauss_power(packed, g, pxf, pyf)
             qa = packed[g, 2]
             qb = packed[g, 3]
             qc = packed[g, 4]
-            power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
             if power <= zero and power >= packed[g, 6]:
                 gauss = wp.exp(power)
                 raw = packed[g, 5] * gauss
@@ -217,15 +204,9 @@ def _raster_backward_tile_kernel(
 
 @wp.kernel
 def _gather_entry_grads_kernel(
-    starts: wp.array(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32),
-    entry_grads: wp.array2d(dtype=Any),
-    g_means2d: wp.array2d(dtype=Any),
-    g_conics: wp.array2d(dtype=Any),
-    g_opacities: wp.array(dtype=Any),
-    g_colors: wp.array2d(dtype=Any),
-    g_depths: wp.array(dtype=Any),
-    offset: int,
+    starts: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32), entry_grads: wp.array2d(dtype=Any),
+    g_means2d: wp.array2d(dtype=Any), g_conics: wp.array2d(dtype=Any), g_opacities: wp.array(dtype=Any),
+    g_colors: wp.array2d(dtype=Any), g_depths: wp.array(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     acc = wp.vector(length=10, dtype=entry_grads.dtype)

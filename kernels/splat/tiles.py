@@ -31,17 +31,9 @@ MIN_CHUNK = 1024
 
 @wp.kernel
 def _tile_counts_kernel(
-    means2d: wp.array2d(dtype=Any),
-    conics: wp.array2d(dtype=Any),
-    opacities: wp.array(dtype=Any),
-    depths: wp.array(dtype=Any),
-    radii: wp.array(dtype=wp.int32),
-    tiles_x: int,
-    tiles_y: int,
-    rects: wp.array2d(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32),
-    packed: wp.array2d(dtype=Any),
-    offset: int,
+    means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), opacities: wp.array(dtype=Any),
+    depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), tiles_x: int, tiles_y: int,
+    rects: wp.array2d(dtype=wp.int32), counts: wp.array(dtype=wp.int32), packed: wp.array2d(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     r = radii[i]
@@ -84,11 +76,8 @@ def _tile_counts_kernel(
 
 @wp.kernel
 def _depth_keys_kernel(
-    depths: wp.array(dtype=Any),
-    radii: wp.array(dtype=wp.int32),
-    keys: wp.array(dtype=Any),
-    values: wp.array(dtype=wp.int32),
-    offset: int,
+    depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), keys: wp.array(dtype=Any),
+    values: wp.array(dtype=wp.int32), offset: int,
 ):
     i = wp.tid() + offset
     # Culled splats sort last; their rank is never used.
@@ -106,16 +95,9 @@ def _rank_kernel(order: wp.array(dtype=wp.int32), rank: wp.array(dtype=wp.int32)
 
 @wp.kernel
 def _emit_kernel(
-    rects: wp.array2d(dtype=wp.int32),
-    starts: wp.array(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32),
-    rank: wp.array(dtype=wp.int32),
-    tiles_x: int,
-    rank_stride: wp.int64,
-    keys: wp.array(dtype=wp.int64),
-    values: wp.array(dtype=wp.int32),
-    entry_gid: wp.array(dtype=wp.int32),
-    offset: int,
+    rects: wp.array2d(dtype=wp.int32), starts: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
+    rank: wp.array(dtype=wp.int32), tiles_x: int, rank_stride: wp.int64,
+    keys: wp.array(dtype=wp.int64), values: wp.array(dtype=wp.int32), entry_gid: wp.array(dtype=wp.int32), offset: int,
 ):
     i = wp.tid() + offset
     if counts[i] == 0:
@@ -131,14 +113,9 @@ def _emit_kernel(
 
 @wp.kernel
 def _ranges_kernel(
-    keys: wp.array(dtype=wp.int64),
-    values: wp.array(dtype=wp.int32),
-    entry_gid: wp.array(dtype=wp.int32),
-    n: int,
-    rank_stride: wp.int64,
-    sorted_gid: wp.array(dtype=wp.int32),
-    ranges: wp.array2d(dtype=wp.int32),
-    offset: int,
+    keys: wp.array(dtype=wp.int64), values: wp.array(dtype=wp.int32), entry_gid: wp.array(dtype=wp.int32),
+    n: int, rank_stride: wp.int64,
+    sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), offset: int,
 ):
     s = wp.tid() + offset
     sorted_gid[s] = entry_gid[values[s]]

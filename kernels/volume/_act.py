@@ -1,7 +1,7 @@
 """Warp functions shared by the field kernels: output activations and their derivatives.
 
     softplus(x) = log(1 + e^x),           softplus'(x) = sigmoid(x)
-    sigmoid(x)  = 1 / (1 + e^-x),         sigmoid'(x)  = sigmoid(x) (1 - sigmoid(x))
+    sigmoid(x)  = 1 / (1 + e^-x),         sigmoid'(x)  = sigmoid(x) (1 - sigmoid(x))   (sigmoid_vjp: from the output)
     exp_act(x)  = exp(min(x, EXP_CLAMP)), derivative exp(x) below the clamp, 0 above it
 
 Density activation codes: DENSITY_SOFTPLUS (DVGO, Sun et al. 2022) and DENSITY_EXP (instant-ngp's
@@ -29,6 +29,12 @@ def sigmoid(x: typing.Any):
         return one / (one + wp.exp(-x))
     e = wp.exp(x)
     return e / (one + e)
+
+
+@wp.func
+def sigmoid_vjp(g: typing.Any, s: typing.Any):
+    """g sigmoid'(x) written with the output s = sigmoid(x): g s (1 - s)."""
+    return g * s * (type(s)(1.0) - s)
 
 
 @wp.func

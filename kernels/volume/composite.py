@@ -60,25 +60,15 @@ DEFAULT_T_THRESHOLD = 1e-4
 
 @wp.kernel
 def _composite_forward_kernel(
-    sigma: wp.array(dtype=typing.Any),
-    rgb: wp.array2d(dtype=typing.Any),
-    delta: wp.array(dtype=typing.Any),
-    z: wp.array(dtype=typing.Any),
-    ray_offsets: wp.array(dtype=wp.int32),
-    background: wp.array2d(dtype=typing.Any),
-    background_per_ray: int,
-    t_threshold: typing.Any,
-    out_rgb: wp.array2d(dtype=typing.Any),
-    out_depth: wp.array(dtype=typing.Any),
-    out_opacity: wp.array(dtype=typing.Any),
-    out_transmittance: wp.array(dtype=typing.Any),
-    out_n_used: wp.array(dtype=wp.int32),
-    out_factor: wp.array(dtype=typing.Any),
-    offset: int,
+    sigma: wp.array(dtype=typing.Any), rgb: wp.array2d(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
+    z: wp.array(dtype=typing.Any), ray_offsets: wp.array(dtype=wp.int32), background: wp.array2d(dtype=typing.Any),
+    background_per_ray: int, t_threshold: typing.Any,
+    out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
+    out_opacity: wp.array(dtype=typing.Any), out_transmittance: wp.array(dtype=typing.Any),
+    out_n_used: wp.array(dtype=wp.int32), out_factor: wp.array(dtype=typing.Any), offset: int,
 ):
     r = wp.tid() + offset
     one = sigma.dtype(1.0)
-    thr = t_threshold
     T = one
     cr = sigma.dtype(0.0)
     cg = sigma.dtype(0.0)
@@ -86,7 +76,7 @@ def _composite_forward_kernel(
     d = sigma.dtype(0.0)
     n = int(0)
     for k in range(ray_offsets[r], ray_offsets[r + 1]):
-        if T < thr:
+        if T < t_threshold:
             break
         e = wp.exp(-sigma[k] * delta[k])
         out_factor[k] = e
@@ -109,23 +99,13 @@ def _composite_forward_kernel(
 
 @wp.kernel
 def _composite_backward_kernel(
-    factor: wp.array(dtype=typing.Any),
-    rgb: wp.array2d(dtype=typing.Any),
-    delta: wp.array(dtype=typing.Any),
-    z: wp.array(dtype=typing.Any),
-    ray_offsets: wp.array(dtype=wp.int32),
-    background: wp.array2d(dtype=typing.Any),
-    background_per_ray: int,
-    out_rgb: wp.array2d(dtype=typing.Any),
-    out_depth: wp.array(dtype=typing.Any),
-    out_transmittance: wp.array(dtype=typing.Any),
-    out_n_used: wp.array(dtype=wp.int32),
-    grad_rgb: wp.array2d(dtype=typing.Any),
-    grad_depth: wp.array(dtype=typing.Any),
-    grad_opacity: wp.array(dtype=typing.Any),
-    grad_sigma: wp.array(dtype=typing.Any),
-    grad_sample_rgb: wp.array2d(dtype=typing.Any),
-    offset: int,
+    factor: wp.array(dtype=typing.Any), rgb: wp.array2d(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
+    z: wp.array(dtype=typing.Any), ray_offsets: wp.array(dtype=wp.int32), background: wp.array2d(dtype=typing.Any),
+    background_per_ray: int, out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
+    out_transmittance: wp.array(dtype=typing.Any), out_n_used: wp.array(dtype=wp.int32),
+    grad_rgb: wp.array2d(dtype=typing.Any), grad_depth: wp.array(dtype=typing.Any),
+    grad_opacity: wp.array(dtype=typing.Any), grad_sigma: wp.array(dtype=typing.Any),
+    grad_sample_rgb: wp.array2d(dtype=typing.Any), offset: int,
 ):
     r = wp.tid() + offset
     zero = factor.dtype(0.0)

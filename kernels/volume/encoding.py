@@ -26,11 +26,8 @@ wp.set_module_options({"enable_backward": False})
 
 @wp.kernel
 def _pe_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    n_freqs: int,
-    out: wp.array2d(dtype=typing.Any),
-    offset: int,
+    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), n_freqs: int,
+    out: wp.array2d(dtype=typing.Any), offset: int,
 ):
     n = wp.tid() + offset
     for a in range(3):

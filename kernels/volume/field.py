@@ -115,6 +115,15 @@ class Field(ABC):
             grads[k].zero_()
         return grads
 
+    def _scatter_grads(self, kernel: Any, n: int, inputs: list, workspace: Workspace | None) -> dict[str, wp.array]:
+        """Zeroed gradients (`_zero_grads`), then one launch of `kernel` over the n points with `inputs`
+        followed by the gradient arrays in parameter order, which it scatters into with atomic adds
+        (one launch: no Warp atomic is atomic between concurrent CPU launches, docs/warp.md)."""
+        grads = self._zero_grads(workspace)
+        if n:
+            wp.launch(kernel, dim=n, inputs=inputs + list(grads.values()), device=self.device)
+        return grads
+
     @abstractmethod
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
                  grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,

@@ -40,7 +40,7 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.sh import sh_component
 from kernels.volume import _act
-from kernels.volume._act import density_act, density_act_grad, sigmoid
+from kernels.volume._act import density_act, density_act_grad, sigmoid, sigmoid_vjp
 from kernels.volume._checks import check_bbox, check_dtype
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.workspace import Workspace
@@ -103,6 +103,22 @@ def corner_vertex(c: int, ix: int, iy: int, iz: int, res: wp.vec3i) -> int:
 
 
 @wp.func
+def flat_coords(v: int, res: wp.vec3i) -> wp.vec3i:
+    """(i_x, i_y, i_z) of flat index v = i_x + res_x (i_y + res_y i_z), x fastest."""
+    return wp.vec3i(v % res[0], (v / res[0]) % res[1], v / (res[0] * res[1]))
+
+
+@wp.func
+def trilinear_density(density: wp.array(dtype=typing.Any), ix: int, iy: int, iz: int, fx: typing.Any,
+                      fy: typing.Any, fz: typing.Any, res: wp.vec3i):
+    """sum_c w_c density[corner c] over the 8 corners of cell (i_x, i_y, i_z)."""
+    raw_d = type(fx)(0.0)
+    for c in range(8):
+        raw_d += trilinear_weight(c, fx, fy, fz) * density[corner_vertex(c, ix, iy, iz, res)]
+    return raw_d
+
+
+@wp.func
 def view_dir(dirs: wp.array2d(dtype=typing.Any), i: int, sh_mode: int):
     """Direction of point i, or zeros for plain RGB (sh_mode -1, where dirs is a placeholder)."""
     zero = dirs.dtype(0.0)
@@ -113,20 +129,10 @@ def view_dir(dirs: wp.array2d(dtype=typing.Any), i: int, sh_mode: int):
 
 @wp.kernel
 def _grid_forward_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    dirs: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    res: wp.vec3i,
-    density: wp.array(dtype=typing.Any),
-    color: wp.array2d(dtype=typing.Any),
-    n_coef: int,
-    sh_mode: int,
-    density_bias: typing.Any,
-    density_scale: typing.Any,
-    act_kind: int,
-    out_sigma: wp.array(dtype=typing.Any),
-    out_rgb: wp.array2d(dtype=typing.Any),
-    offset: int,
+    points: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
+    res: wp.vec3i, density: wp.array(dtype=typing.Any), color: wp.array2d(dtype=typing.Any),
+    n_coef: int, sh_mode: int, density_bias: typing.Any, density_scale: typing.Any, act_kind: int,
+    out_sigma: wp.array(dtype=typing.Any), out_rgb: wp.array2d(dtype=typing.Any), offset: int,
 ):
     i = wp.tid() + offset
     zero = points.dtype(0.0)
@@ -138,14 +144,13 @@ def _grid_forward_kernel(
         out_rgb[i, 2] = zero
         return
     dx, dy, dz = view_dir(dirs, i, sh_mode)
-    raw_d = zero
+    raw_d = trilinear_density(density, ix, iy, iz, fx, fy, fz, res)
     r0 = zero
     r1 = zero
     r2 = zero
     for c in range(8):
         w = trilinear_weight(c, fx, fy, fz)
         v = corner_vertex(c, ix, iy, iz, res)
-        raw_d += w * density[v]
         for j in range(n_coef):
             wy = w * sh_basis(j, dx, dy, dz, sh_mode)
             r0 += wy * color[v, j]
@@ -159,36 +164,22 @@ def _grid_forward_kernel(
 
 @wp.kernel
 def _grid_backward_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    dirs: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    res: wp.vec3i,
-    density: wp.array(dtype=typing.Any),
-    n_coef: int,
-    sh_mode: int,
-    density_bias: typing.Any,
-    density_scale: typing.Any,
-    act_kind: int,
-    rgb: wp.array2d(dtype=typing.Any),
-    grad_sigma: wp.array(dtype=typing.Any),
-    grad_rgb: wp.array2d(dtype=typing.Any),
-    grad_density: wp.array(dtype=typing.Any),
-    grad_color: wp.array2d(dtype=typing.Any),
+    points: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
+    res: wp.vec3i, density: wp.array(dtype=typing.Any),
+    n_coef: int, sh_mode: int, density_bias: typing.Any, density_scale: typing.Any, act_kind: int,
+    rgb: wp.array2d(dtype=typing.Any), grad_sigma: wp.array(dtype=typing.Any), grad_rgb: wp.array2d(dtype=typing.Any),
+    grad_density: wp.array(dtype=typing.Any), grad_color: wp.array2d(dtype=typing.Any),
 ):
     i = wp.tid()
-    zero = points.dtype(0.0)
-    one = points.dtype(1.0)
     ix, iy, iz, fx, fy, fz, inside = grid_cell(points, i, bbox, res)
     if inside == 0:
         return
     dx, dy, dz = view_dir(dirs, i, sh_mode)
-    raw_d = zero
-    for c in range(8):
-        raw_d += trilinear_weight(c, fx, fy, fz) * density[corner_vertex(c, ix, iy, iz, res)]
+    raw_d = trilinear_density(density, ix, iy, iz, fx, fy, fz, res)
     g_raw_d = grad_sigma[i] * density_scale * density_act_grad(raw_d + density_bias, act_kind)
-    g0 = grad_rgb[i, 0] * rgb[i, 0] * (one - rgb[i, 0])
-    g1 = grad_rgb[i, 1] * rgb[i, 1] * (one - rgb[i, 1])
-    g2 = grad_rgb[i, 2] * rgb[i, 2] * (one - rgb[i, 2])
+    g0 = sigmoid_vjp(grad_rgb[i, 0], rgb[i, 0])
+    g1 = sigmoid_vjp(grad_rgb[i, 1], rgb[i, 1])
+    g2 = sigmoid_vjp(grad_rgb[i, 2], rgb[i, 2])
     for c in range(8):
         w = trilinear_weight(c, fx, fy, fz)
         v = corner_vertex(c, ix, iy, iz, res)
@@ -202,17 +193,11 @@ def _grid_backward_kernel(
 
 @wp.kernel
 def _tv_grad_kernel(
-    values: wp.array2d(dtype=typing.Any),
-    res: wp.vec3i,
-    weight: typing.Any,
-    grad: wp.array2d(dtype=typing.Any),
-    offset: int,
+    values: wp.array2d(dtype=typing.Any), res: wp.vec3i, weight: typing.Any,
+    grad: wp.array2d(dtype=typing.Any), offset: int,
 ):
     v = wp.tid() + offset
-    ix = v % res[0]
-    iy = (v / res[0]) % res[1]
-    iz = v / (res[0] * res[1])
-    ijk = wp.vec3i(ix, iy, iz)
+    ijk = flat_coords(v, res)
     stride = wp.vec3i(1, res[0], res[0] * res[1])
     for c in range(values.shape[1]):
         g = values.dtype(0.0)
@@ -319,13 +304,8 @@ class GridField(Field):
                  grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
         a, p, d, _, rgb, gs, gr = self._backward_inputs(points, dirs, out, grad_sigma, grad_rgb)
-        n = p.shape[0]
-        grads = self._zero_grads(workspace)
         before, after = self._grid_args(a, d)
-        if n:  # a scatter: one launch (module docstring)
-            wp.launch(_grid_backward_kernel, dim=n, inputs=[p, *before, *after, rgb, gs, gr, grads["density"],
-                                                            grads["color"]], device=self.device)
-        return grads
+        return self._scatter_grads(_grid_backward_kernel, p.shape[0], [p, *before, *after, rgb, gs, gr], workspace)
 
 
 A.declare_float_overloads(_grid_forward_kernel)

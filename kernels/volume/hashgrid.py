@@ -76,24 +76,26 @@ def corner_row(c: int, l: int, ix: int, iy: int, iz: int, res: int, dense: int, 
                                        table_size)
 
 
-@wp.kernel
-def _hash_forward_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    resolutions: wp.array(dtype=wp.int32),
-    dense: wp.array(dtype=wp.int32),
-    table_size: int,
-    table: wp.array2d(dtype=typing.Any),
-    out: wp.array2d(dtype=typing.Any),
-    offset: int,
-):
-    t = wp.tid() + offset
+@wp.func
+def point_level(t: int, points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
+                resolutions: wp.array(dtype=wp.int32)):
+    """(point n, level l, its resolution, cell and fractions) of thread t = n L + l."""
     n_levels = resolutions.shape[0]
     n = t / n_levels
     l = t - n * n_levels
     res = resolutions[l]
-    F = table.shape[1]
     ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
+    return n, l, res, ix, iy, iz, fx, fy, fz
+
+
+@wp.kernel
+def _hash_forward_kernel(
+    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
+    dense: wp.array(dtype=wp.int32), table_size: int,
+    table: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), offset: int,
+):
+    n, l, res, ix, iy, iz, fx, fy, fz = point_level(wp.tid() + offset, points, bbox, resolutions)
+    F = table.shape[1]
     for f in range(F):
         out[n, l * F + f] = points.dtype(0.0)
     for c in range(8):
@@ -105,21 +107,12 @@ def _hash_forward_kernel(
 
 @wp.kernel
 def _hash_backward_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    resolutions: wp.array(dtype=wp.int32),
-    dense: wp.array(dtype=wp.int32),
-    table_size: int,
-    grad_out: wp.array2d(dtype=typing.Any),
-    grad_table: wp.array2d(dtype=typing.Any),
+    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
+    dense: wp.array(dtype=wp.int32), table_size: int,
+    grad_out: wp.array2d(dtype=typing.Any), grad_table: wp.array2d(dtype=typing.Any),
 ):
-    t = wp.tid()
-    n_levels = resolutions.shape[0]
-    n = t / n_levels
-    l = t - n * n_levels
-    res = resolutions[l]
+    n, l, res, ix, iy, iz, fx, fy, fz = point_level(wp.tid(), points, bbox, resolutions)
     F = grad_table.shape[1]
-    ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
     for c in range(8):
         w = trilinear_weight(c, fx, fy, fz)
         row = corner_row(c, l, ix, iy, iz, res, dense[l], table_size)

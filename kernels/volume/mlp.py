@@ -41,14 +41,8 @@ BACKENDS = ("numpy", "warp")
 
 @wp.kernel
 def _matmul_kernel(
-    a: wp.array2d(dtype=typing.Any),
-    b: wp.array2d(dtype=typing.Any),
-    bias: wp.array(dtype=typing.Any),
-    has_bias: int,
-    relu: int,
-    out: wp.array2d(dtype=typing.Any),
-    act: wp.array2d(dtype=typing.Any),
-    offset: int,
+    a: wp.array2d(dtype=typing.Any), b: wp.array2d(dtype=typing.Any), bias: wp.array(dtype=typing.Any),
+    has_bias: int, relu: int, out: wp.array2d(dtype=typing.Any), act: wp.array2d(dtype=typing.Any), offset: int,
 ):
     # out = a b (+ bias) and act = relu(out); a and b may be strided (transposed) views.
     t = wp.tid() + offset
@@ -81,11 +75,8 @@ def _matmul(a: wp.array, b: wp.array, out: wp.array, bias: wp.array | None = Non
 
 @wp.kernel
 def _bias_relu_kernel(
-    z: wp.array2d(dtype=typing.Any),
-    b: wp.array(dtype=typing.Any),
-    relu: int,
-    act: wp.array2d(dtype=typing.Any),
-    offset: int,
+    z: wp.array2d(dtype=typing.Any), b: wp.array(dtype=typing.Any), relu: int,
+    act: wp.array2d(dtype=typing.Any), offset: int,
 ):
     n = wp.tid() + offset
     for j in range(z.shape[1]):
@@ -97,9 +88,7 @@ def _bias_relu_kernel(
 
 @wp.kernel
 def _relu_backward_kernel(
-    da: wp.array2d(dtype=typing.Any),
-    z: wp.array2d(dtype=typing.Any),
-    offset: int,
+    da: wp.array2d(dtype=typing.Any), z: wp.array2d(dtype=typing.Any), offset: int,
 ):
     n = wp.tid() + offset
     for j in range(z.shape[1]):
@@ -109,9 +98,7 @@ def _relu_backward_kernel(
 
 @wp.kernel
 def _grad_bias_kernel(
-    dz: wp.array2d(dtype=typing.Any),
-    db: wp.array(dtype=typing.Any),
-    offset: int,
+    dz: wp.array2d(dtype=typing.Any), db: wp.array(dtype=typing.Any), offset: int,
 ):
     j = wp.tid() + offset
     s = dz.dtype(0.0)

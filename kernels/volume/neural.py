@@ -26,7 +26,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.volume import _act
-from kernels.volume._act import density_act, density_act_grad, sigmoid
+from kernels.volume._act import density_act, density_act_grad, sigmoid, sigmoid_vjp
 from kernels.volume._checks import check_bbox, check_dtype
 from kernels.volume.encoding import PositionalEncoding
 from kernels.volume.field import Field, FieldOutput
@@ -48,14 +48,9 @@ def inside_box(points: wp.array2d(dtype=typing.Any), n: int, bbox: wp.array2d(dt
 
 @wp.kernel
 def _head_forward_kernel(
-    raw: wp.array2d(dtype=typing.Any),
-    points: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    density_bias: typing.Any,
-    act_kind: int,
-    out_sigma: wp.array(dtype=typing.Any),
-    out_rgb: wp.array2d(dtype=typing.Any),
-    offset: int,
+    raw: wp.array2d(dtype=typing.Any), points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
+    density_bias: typing.Any, act_kind: int,
+    out_sigma: wp.array(dtype=typing.Any), out_rgb: wp.array2d(dtype=typing.Any), offset: int,
 ):
     n = wp.tid() + offset
     zero = raw.dtype(0.0)
@@ -71,16 +66,10 @@ def _head_forward_kernel(
 
 @wp.kernel
 def _head_backward_kernel(
-    raw: wp.array2d(dtype=typing.Any),
-    points: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    density_bias: typing.Any,
-    act_kind: int,
-    rgb: wp.array2d(dtype=typing.Any),
-    grad_sigma: wp.array(dtype=typing.Any),
-    grad_rgb: wp.array2d(dtype=typing.Any),
-    grad_raw: wp.array2d(dtype=typing.Any),
-    offset: int,
+    raw: wp.array2d(dtype=typing.Any), points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
+    density_bias: typing.Any, act_kind: int, rgb: wp.array2d(dtype=typing.Any),
+    grad_sigma: wp.array(dtype=typing.Any), grad_rgb: wp.array2d(dtype=typing.Any),
+    grad_raw: wp.array2d(dtype=typing.Any), offset: int,
 ):
     n = wp.tid() + offset
     zero = raw.dtype(0.0)
@@ -90,8 +79,7 @@ def _head_backward_kernel(
         return
     grad_raw[n, 0] = grad_sigma[n] * density_act_grad(raw[n, 0] + density_bias, act_kind)
     for c in range(3):
-        s = rgb[n, c]
-        grad_raw[n, 1 + c] = grad_rgb[n, c] * s * (raw.dtype(1.0) - s)
+        grad_raw[n, 1 + c] = sigmoid_vjp(grad_rgb[n, c], rgb[n, c])
 
 
 class NeuralField(Field):

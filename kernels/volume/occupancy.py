@@ -24,6 +24,7 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.launch import launch_split
 from kernels.volume._checks import check_bbox, check_dtype
+from kernels.volume.grid import flat_coords
 
 wp.set_module_options({"enable_backward": False})
 
@@ -45,18 +46,11 @@ def occupied_at(x: typing.Any, y: typing.Any, z: typing.Any, occ: wp.array(dtype
 
 @wp.kernel
 def _cell_points_kernel(
-    bbox: wp.array2d(dtype=typing.Any),
-    res: wp.vec3i,
-    seed: int,
-    out_points: wp.array2d(dtype=typing.Any),
-    offset: int,
+    bbox: wp.array2d(dtype=typing.Any), res: wp.vec3i, seed: int, out_points: wp.array2d(dtype=typing.Any), offset: int,
 ):
     c = wp.tid() + offset
     state = wp.rand_init(seed, c)
-    ix = c % res[0]
-    iy = (c / res[0]) % res[1]
-    iz = c / (res[0] * res[1])
-    ijk = wp.vec3i(ix, iy, iz)
+    ijk = flat_coords(c, res)
     for a in range(3):
         u = (bbox.dtype(ijk[a]) + bbox.dtype(wp.randf(state))) / bbox.dtype(res[a])
         out_points[c, a] = bbox[0, a] + u * (bbox[1, a] - bbox[0, a])
@@ -64,10 +58,7 @@ def _cell_points_kernel(
 
 @wp.kernel
 def _ema_kernel(
-    density: wp.array(dtype=wp.float32),
-    sigma: wp.array(dtype=typing.Any),
-    decay: float,
-    offset: int,
+    density: wp.array(dtype=wp.float32), sigma: wp.array(dtype=typing.Any), decay: float, offset: int,
 ):
     c = wp.tid() + offset
     density[c] = wp.max(decay * density[c], wp.float32(sigma[c]))
@@ -75,10 +66,7 @@ def _ema_kernel(
 
 @wp.kernel
 def _threshold_kernel(
-    density: wp.array(dtype=wp.float32),
-    threshold: float,
-    occupied: wp.array(dtype=wp.int32),
-    offset: int,
+    density: wp.array(dtype=wp.float32), threshold: float, occupied: wp.array(dtype=wp.int32), offset: int,
 ):
     c = wp.tid() + offset
     occupied[c] = wp.where(density[c] > threshold, 1, 0)

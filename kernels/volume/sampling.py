@@ -45,14 +45,9 @@ wp.set_module_options({"enable_backward": False})
 
 @wp.kernel
 def _ray_aabb_kernel(
-    origins: wp.array2d(dtype=typing.Any),
-    dirs: wp.array2d(dtype=typing.Any),
-    bbox: wp.array2d(dtype=typing.Any),
-    near: typing.Any,
-    far: typing.Any,
-    out_t0: wp.array(dtype=typing.Any),
-    out_t1: wp.array(dtype=typing.Any),
-    out_hit: wp.array(dtype=wp.int32),
+    origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
+    near: typing.Any, far: typing.Any,
+    out_t0: wp.array(dtype=typing.Any), out_t1: wp.array(dtype=typing.Any), out_hit: wp.array(dtype=wp.int32),
     offset: int,
 ):
     r = wp.tid() + offset
@@ -105,28 +100,13 @@ def _stratum(origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typin
 
 @wp.kernel
 def _march_kernel(
-    origins: wp.array2d(dtype=typing.Any),
-    dirs: wp.array2d(dtype=typing.Any),
-    z_scale: wp.array(dtype=typing.Any),
-    t_enter: wp.array(dtype=typing.Any),
-    t_exit: wp.array(dtype=typing.Any),
-    hit: wp.array(dtype=wp.int32),
-    step: typing.Any,
-    n_fixed: int,
-    occ: wp.array(dtype=wp.int32),
-    occ_bbox: wp.array2d(dtype=typing.Any),
-    occ_res: wp.vec3i,
-    jitter: int,
-    seed: int,
-    fill: int,
-    counts: wp.array(dtype=wp.int32),
-    ray_offsets: wp.array(dtype=wp.int32),
-    out_points: wp.array2d(dtype=typing.Any),
-    out_dirs: wp.array2d(dtype=typing.Any),
-    out_t: wp.array(dtype=typing.Any),
-    out_delta: wp.array(dtype=typing.Any),
-    out_z: wp.array(dtype=typing.Any),
-    out_ray: wp.array(dtype=wp.int32),
+    origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), z_scale: wp.array(dtype=typing.Any),
+    t_enter: wp.array(dtype=typing.Any), t_exit: wp.array(dtype=typing.Any), hit: wp.array(dtype=wp.int32),
+    step: typing.Any, n_fixed: int, occ: wp.array(dtype=wp.int32), occ_bbox: wp.array2d(dtype=typing.Any),
+    occ_res: wp.vec3i, jitter: int, seed: int, fill: int,
+    counts: wp.array(dtype=wp.int32), ray_offsets: wp.array(dtype=wp.int32),
+    out_points: wp.array2d(dtype=typing.Any), out_dirs: wp.array2d(dtype=typing.Any), out_t: wp.array(dtype=typing.Any),
+    out_delta: wp.array(dtype=typing.Any), out_z: wp.array(dtype=typing.Any), out_ray: wp.array(dtype=wp.int32),
     offset: int,
 ):
     # Both passes over ray r's strata: fill = 0 counts the occupied ones into counts[r]; fill = 1
@@ -207,14 +187,8 @@ def _ray_aabb(a: A.Inputs, o: wp.array, d: wp.array, box: np.ndarray, near: floa
     return t0, t1, hit
 
 
-def ray_aabb(
-    origins: A.ArrayLike,
-    dirs: A.ArrayLike,
-    bbox: Any,
-    near: float = 0.0,
-    far: float = 1e10,
-    device: str | wp.Device | None = None,
-) -> tuple[A.ArrayLike, A.ArrayLike, A.ArrayLike]:
+def ray_aabb(origins: A.ArrayLike, dirs: A.ArrayLike, bbox: Any, near: float = 0.0, far: float = 1e10,
+             device: str | wp.Device | None = None) -> tuple[A.ArrayLike, A.ArrayLike, A.ArrayLike]:
     """(t_enter (R,), t_exit (R,), hit (R,) int32) of rays o + t d, t in [near, far], with the box,
     in the kind of `origins`."""
     a = A.Inputs(device, origins, dirs)

@@ -46,16 +46,20 @@ TEXTBOOK_SPHERES = (
 )
 
 
+@wp.func
+def center_offset(points: wp.array2d(dtype=typing.Any), i: int, centers: wp.array2d(dtype=typing.Any), k: int):
+    """(p_i - c_k, |p_i - c_k|): point i's offset from the centre of sphere k, and its length."""
+    dx = points[i, 0] - centers[k, 0]
+    dy = points[i, 1] - centers[k, 1]
+    dz = points[i, 2] - centers[k, 2]
+    return dx, dy, dz, wp.sqrt(dx * dx + dy * dy + dz * dz)
+
+
 @wp.kernel
 def _spheres_forward_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    centers: wp.array2d(dtype=typing.Any),
-    radii: wp.array(dtype=typing.Any),
-    colors: wp.array2d(dtype=typing.Any),
-    sharpness: wp.array(dtype=typing.Any),
-    out_sigma: wp.array(dtype=typing.Any),
-    out_rgb: wp.array2d(dtype=typing.Any),
-    offset: int,
+    points: wp.array2d(dtype=typing.Any), centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
+    colors: wp.array2d(dtype=typing.Any), sharpness: wp.array(dtype=typing.Any),
+    out_sigma: wp.array(dtype=typing.Any), out_rgb: wp.array2d(dtype=typing.Any), offset: int,
 ):
     i = wp.tid() + offset
     zero = points.dtype(0.0)
@@ -64,10 +68,8 @@ def _spheres_forward_kernel(
     ng = zero
     nb = zero
     for k in range(radii.shape[0]):
-        dx = points[i, 0] - centers[k, 0]
-        dy = points[i, 1] - centers[k, 1]
-        dz = points[i, 2] - centers[k, 2]
-        m = wp.max(zero, wp.sqrt(dx * dx + dy * dy + dz * dz) - radii[k])
+        dx, dy, dz, dist = center_offset(points, i, centers, k)
+        m = wp.max(zero, dist - radii[k])
         d = sharpness[k] * wp.exp(-sharpness[k] * m)
         sig += d
         nr += d * colors[k, 0]
@@ -85,19 +87,11 @@ def _spheres_forward_kernel(
 
 @wp.kernel
 def _spheres_backward_kernel(
-    points: wp.array2d(dtype=typing.Any),
-    centers: wp.array2d(dtype=typing.Any),
-    radii: wp.array(dtype=typing.Any),
-    colors: wp.array2d(dtype=typing.Any),
-    sharpness: wp.array(dtype=typing.Any),
-    sigma: wp.array(dtype=typing.Any),
-    rgb: wp.array2d(dtype=typing.Any),
-    grad_sigma: wp.array(dtype=typing.Any),
-    grad_rgb: wp.array2d(dtype=typing.Any),
-    grad_centers: wp.array2d(dtype=typing.Any),
-    grad_radii: wp.array(dtype=typing.Any),
-    grad_colors: wp.array2d(dtype=typing.Any),
-    grad_sharpness: wp.array(dtype=typing.Any),
+    points: wp.array2d(dtype=typing.Any), centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
+    colors: wp.array2d(dtype=typing.Any), sharpness: wp.array(dtype=typing.Any), sigma: wp.array(dtype=typing.Any),
+    rgb: wp.array2d(dtype=typing.Any), grad_sigma: wp.array(dtype=typing.Any), grad_rgb: wp.array2d(dtype=typing.Any),
+    grad_centers: wp.array2d(dtype=typing.Any), grad_radii: wp.array(dtype=typing.Any),
+    grad_colors: wp.array2d(dtype=typing.Any), grad_sharpness: wp.array(dtype=typing.Any),
 ):
     i = wp.tid()
     zero = points.dtype(0.0)
@@ -112,10 +106,7 @@ def _spheres_backward_kernel(
     g1 = grad_rgb[i, 1]
     g2 = grad_rgb[i, 2]
     for k in range(radii.shape[0]):
-        dx = points[i, 0] - centers[k, 0]
-        dy = points[i, 1] - centers[k, 1]
-        dz = points[i, 2] - centers[k, 2]
-        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz, dist = center_offset(points, i, centers, k)
         m = wp.max(zero, dist - radii[k])
         s = sharpness[k]
         e = wp.exp(-s * m)
@@ -182,13 +173,8 @@ class SphereField(Field):
                  grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
         a, p, _, sigma, rgb, gs, gr = self._backward_inputs(points, dirs, out, grad_sigma, grad_rgb)
-        n = p.shape[0]
-        grads = self._zero_grads(workspace)
-        if n:  # a scatter: one launch (module docstring)
-            wp.launch(_spheres_backward_kernel, dim=n,
-                      inputs=[p, *self._param_args(), sigma, rgb, gs, gr, grads["centers"], grads["radii"],
-                              grads["colors"], grads["sharpness"]], device=self.device)
-        return grads
+        return self._scatter_grads(_spheres_backward_kernel, p.shape[0], [p, *self._param_args(), sigma, rgb, gs, gr],
+                                   workspace)
 
 
 A.declare_float_overloads(_spheres_forward_kernel)

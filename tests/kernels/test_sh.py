@@ -21,9 +21,7 @@ def _eval_kernel(d: wp.array2d(dtype=typing.Any), basis: wp.array2d(dtype=typing
     y = d[i, 1]
     z = d[i, 2]
     b = sh.sh_basis(x, y, z)
-    bx = sh.sh_basis_dx(x, y, z)
-    by = sh.sh_basis_dy(x, y, z)
-    bz = sh.sh_basis_dz(x, y, z)
+    bx, by, bz = sh.sh_basis_grad(x, y, z)
     for k in range(16):
         basis[i, k] = b[k]
         component[i, k] = sh.sh_component(k, x, y, z)
