@@ -6,11 +6,29 @@ coefficients f (K = (L+1)^2, 3), for the world-to-camera [W | t] and intrinsics 
     Sigma = R(q/|q|) S S^T R^T,  S = diag(exp l)                      (ewa.quat_scale_to_covar)
     p = W mu + t = (x, y, z);  culled if z < near or z > far
     mean2d, Sigma2d = EWA projection of (p, W Sigma W^T)               (ewa.persp_proj)
-    (a1, b, c1) = Sigma2d + 0.3 I  (a 0.3 px^2 low-pass dilation); culled if det <= 0
+    (a1, b, c1) = Sigma2d + 0.3 I  (a 0.3 px^2 low-pass dilation); culled if det <= 0 or is not finite
     conic Q = (a1, b, c1)^-1 stored as (Q00, Q01, Q11)                 (ewa.conic_inverse)
     radius = ceil(3 sqrt(lambda_max)),  lambda_max = h + sqrt(max(0.01, h^2 - det)), h = (a1 + c1)/2;
         culled if the square mean2d +- radius misses the image (radius 0 marks a culled splat,
         whose other outputs are 0)
+    stored radius = min(radius, reach),  reach = 2 max(|u|, |u - W|, |v|, |v - H|) + 16 for
+        mean2d = (u, v) and a W x H image                                (clamp_radius)
+
+The radius clamp. The radius is only a culling flag (> 0) and the half-size of the square a splat
+is binned with (kernels/splat/tiles.py clamps that square to the image's tiles); the rasteriser
+reads the conic, never the radius. Any square mean2d +- r with r >= reach contains the whole
+image, so clamping to reach changes neither the culling nor the tiles nor any pixel or gradient:
+a splat larger than the image still covers it all, and its gradients (about 1e-24 for the conic
+of a log-scale-30 splat seen from 4 units) stay finite and non-zero. Splats whose radius is below
+reach are untouched, bit for bit. Without the clamp the float-to-int32 conversion overflowed from
+about log-scale 20 (radius > 2^31) to -2^31, and the splat vanished with a zero gradient.
+Largest scale that renders exactly: in float64, every |log-scale| <= 80 that gaussian_inputs
+accepts, except one case: a splat whose clamped radius would still exceed RADIUS_CAP = 2^30
+(its mean2d is over 2^29 px off the image while its radius is larger still) is culled, so that
+the tile arithmetic stays in int32. In float32 the limit is the dynamic range, not the clamp:
+det = a1 c1 - b^2 overflows once the 2D standard deviations pass about 4e9 px
+((4e9)^4 > 3.4e38: about log-scale 20 where fx / z = 10 px per unit), the conic is then NaN, and such a
+splat is culled (radius 0, zero gradient) instead of rendering NaN; use float64 for such scenes.
     colour = max(0, sum_k f_k Y_k(d) + 1/2),  d = (mu - camera centre) / |mu - camera centre|
         (the real SH basis Y_k of kernels/sh.py)
     opacity = sigmoid(a) c, with c = 1 (classic) or, antialiased, Mip-Splatting's
@@ -34,6 +52,7 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.sh import sh_basis, sh_basis_dx, sh_basis_dy, sh_basis_dz
 from kernels.splat.camera import SplatCamera
+from kernels.splat.tiles import TILE
 from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
                                dilate_cov2d_vjp, persp_proj, persp_proj_vjp, quat_scale_to_covar,
                                quat_scale_to_covar_vjp, sigmoid, transform_cov, transform_cov_vjp, view_direction,
@@ -42,6 +61,8 @@ from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inver
 wp.set_module_options({"enable_backward": False})
 
 MIN_CHUNK = 1024
+# Largest radius stored (2^30: exact in float32, and u +- radius stays inside int32 in the tile binning).
+RADIUS_CAP = float(2**30)
 
 
 @wp.func
@@ -70,6 +91,20 @@ def sh_color(sh: wp.array3d(dtype=Any), i: int, ch: int, basis: Any, n_coeffs: i
     for k in range(n_coeffs):
         acc += basis[k] * sh[i, k, ch]
     return acc
+
+
+@wp.func
+def clamp_radius(r: Any, u: Any, v: Any, width: int, height: int):
+    """min(r, reach), reach = 2 max(|u|, |u - W|, |v|, |v - H|) + TILE; 0 (culled) when both exceed
+    RADIUS_CAP (module docstring)."""
+    w = type(r)(float(width))
+    h = type(r)(float(height))
+    far = wp.max(wp.max(wp.abs(u), wp.abs(u - w)), wp.max(wp.abs(v), wp.abs(v - h)))
+    reach = wp.ceil(type(r)(2.0) * far) + type(r)(float(TILE))
+    out = wp.min(r, reach)
+    if out > type(r)(RADIUS_CAP):
+        out = type(r)(0.0)
+    return out
 
 
 @wp.kernel
@@ -117,16 +152,21 @@ def _project_kernel(
     u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
     a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
     det, qa, qb, qc = conic_inverse(a1, b, c1)
-    if det <= zero:
+    if det <= zero or wp.isnan(det) or wp.isinf(det):
         return
     half = means.dtype(0.5)
     bb = half * (a1 + c1)
     lam = bb + wp.sqrt(wp.max(means.dtype(0.01), bb * bb - det))
     r = wp.ceil(means.dtype(3.0) * wp.sqrt(lam))
+    if wp.isnan(r):
+        return
     if u + r <= zero or u - r >= means.dtype(float(width)) or v + r <= zero or v - r >= means.dtype(float(height)):
         return
 
-    radii[i] = int(r)
+    rc = clamp_radius(r, u, v, width, height)
+    if rc <= zero:
+        return
+    radii[i] = int(rc)
     means2d[i, 0] = u
     means2d[i, 1] = v
     conics[i, 0] = qa
