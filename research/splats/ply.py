@@ -32,7 +32,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from plyfile import PlyData, PlyElement
+from plyfile import PlyData, PlyElement, PlyListProperty
 
 from research import atomic
 from research.splats.model import SH_COEFFS, GaussianModel
@@ -40,7 +40,9 @@ from research.splats.model import SH_COEFFS, GaussianModel
 # SH degree of each valid f_rest count (3 channels x ((d + 1)^2 - 1) coefficients).
 _DEGREE_OF_REST = {3 * ((d + 1) ** 2 - 1): d for d in range(4)}
 _GROUPS = {"f_dc_": 3, "scale_": 3, "rot_": 4}  # fixed-size numbered groups
-_FLOAT_TYPES = ("f4", "f8")  # plyfile's names of the float and double property types
+_FLOAT_TYPES = ("f4", "f8")  # NumPy codes of the PLY float and double property types
+_PLY_TYPE_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint",
+                   "f4": "float", "f8": "double"}
 
 
 class PlyNote(UserWarning):
@@ -91,8 +93,7 @@ def _read(path: Path) -> PlyData:
     if not path.is_file():
         raise ValueError(f"{path}: no such file")
     try:
-        with open(path, "rb") as f:
-            return PlyData.read(f, mmap=False)
+        return PlyData.read(str(path), mmap=False)
     except ValueError:
         raise
     except Exception as e:  # plyfile's header and element parse errors, and NumPy's short reads
@@ -139,8 +140,9 @@ def load_ply(path: str | Path) -> GaussianModel:
     required = property_names(n_rest3 // 3, normals=False) + normals
     for name in required:
         p = props[name]
-        if not hasattr(p, "val_dtype") or p.val_dtype[1:] not in _FLOAT_TYPES:
-            kind = "a list" if hasattr(p, "len_dtype") else getattr(p, "val_dtype", "?")[1:]
+        code = p.val_dtype.lstrip("<>=|")
+        if isinstance(p, PlyListProperty) or code not in _FLOAT_TYPES:
+            kind = "a list" if isinstance(p, PlyListProperty) else _PLY_TYPE_NAMES.get(code, code)
             raise ValueError(f"{path}: property {name!r} is {kind}; expected float or double")
     extra_props = [n for n in names if n not in required]
     extra_elems = [e for e in elements if e != "vertex"]
