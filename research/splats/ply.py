@@ -90,6 +90,8 @@ def save_ply(path: str | Path, model: GaussianModel) -> Path:
 
 
 def _read(path: Path) -> PlyData:
+    if path.is_dir():
+        raise ValueError(f"{path}: is a directory; expected a PLY file")
     if not path.is_file():
         raise ValueError(f"{path}: no such file")
     try:
@@ -155,10 +157,15 @@ def load_ply(path: str | Path) -> GaussianModel:
     count = len(data)
 
     def col(name: str) -> np.ndarray:
-        v = np.asarray(data[name], dtype=np.float32)
-        if not np.all(np.isfinite(v)):
+        raw = np.asarray(data[name])
+        if not np.all(np.isfinite(raw)):
             raise ValueError(f"{path}: property {name!r} has NaN or infinite values (vertex "
-                             f"{int(np.flatnonzero(~np.isfinite(v))[0])}); expected finite values")
+                             f"{int(np.flatnonzero(~np.isfinite(raw))[0])}); expected finite values")
+        with np.errstate(over="ignore"):
+            v = raw.astype(np.float32)
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"{path}: property {name!r} has values beyond the float32 range (vertex "
+                             f"{int(np.flatnonzero(~np.isfinite(v))[0])}); expected |value| < 3.4e38")
         return v
 
     for name in normals:
@@ -168,13 +175,13 @@ def load_ply(path: str | Path) -> GaussianModel:
     if k_rest:
         rest = np.stack([col(f"f_rest_{i}") for i in range(n_rest3)], axis=1).reshape(count, 3, k_rest)
         sh_rest[:, :k_rest] = rest.transpose(0, 2, 1)
+    arrays = dict(means=np.stack([col(a) for a in "xyz"], axis=1),
+                  log_scales=np.stack([col(f"scale_{i}") for i in range(3)], axis=1),
+                  quats=np.stack([col(f"rot_{i}") for i in range(4)], axis=1),
+                  opacity_logits=col("opacity"),
+                  sh_dc=np.stack([col(f"f_dc_{c}") for c in range(3)], axis=1)[:, None, :],
+                  sh_rest=sh_rest)
     try:
-        return GaussianModel(
-            means=np.stack([col(a) for a in "xyz"], axis=1),
-            log_scales=np.stack([col(f"scale_{i}") for i in range(3)], axis=1),
-            quats=np.stack([col(f"rot_{i}") for i in range(4)], axis=1),
-            opacity_logits=col("opacity"),
-            sh_dc=np.stack([col(f"f_dc_{c}") for c in range(3)], axis=1)[:, None, :],
-            sh_rest=sh_rest)
+        return GaussianModel(**arrays)
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from None
