@@ -194,6 +194,20 @@ def test_failed_write_leaves_previous_file_and_no_temp(tmp_path, monkeypatch, fa
     ply.load_ply(path)  # still a good file
 
 
+def _kill_after(script: str, line: bytes, delay: float) -> int:
+    """Run `script`, wait for it to print `line`, SIGKILL it `delay` seconds later; its return code."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    with subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, env=env, cwd=ROOT) as proc:
+        try:
+            assert proc.stdout.readline().strip() == line
+            time.sleep(delay)
+            os.kill(proc.pid, signal.SIGKILL)
+            return proc.wait(timeout=30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+
+
 def test_writer_killed_before_rename_leaves_destination_untouched(tmp_path):
     """SIGKILL a process that has written the temporary file but not renamed it yet."""
     dest = tmp_path / "m.ply"
@@ -215,16 +229,7 @@ def test_writer_killed_before_rename_leaves_destination_untouched(tmp_path):
                              sh_dc=rng.normal(size=(n, 1, 3)), sh_rest=rng.normal(size=(n, 15, 3)))
         ply.save_ply({str(dest)!r}, m)
     """)
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, env=env, cwd=ROOT)
-    try:
-        assert proc.stdout.readline().strip() == b"written"
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == -signal.SIGKILL
+    assert _kill_after(script, b"written", 0.0) == -signal.SIGKILL
     assert dest.read_bytes() == before  # the destination is the previous, complete file
     temps = [p for p in tmp_path.iterdir() if p != dest]
     assert len(temps) == 1 and temps[0].name.startswith(".m.") and ".tmp" in temps[0].name  # hidden leftover
@@ -247,15 +252,6 @@ def test_writer_killed_at_random_points_never_leaves_a_partial_destination(tmp_p
             if i == 0:
                 print("first", flush=True)
     """)
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, env=env, cwd=ROOT)
-    try:
-        assert proc.stdout.readline().strip() == b"first"
-        time.sleep(float(np.random.default_rng().uniform(0.05, 0.4)))
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    assert _kill_after(script, b"first", float(np.random.default_rng().uniform(0.05, 0.4))) == -signal.SIGKILL
     model = ply.load_ply(dest)  # complete and valid, whichever iteration it came from
     assert isinstance(model, sm.GaussianModel) and model.n >= 1
