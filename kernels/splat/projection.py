@@ -6,7 +6,7 @@ coefficients f (K = (L+1)^2, 3), for the world-to-camera [W | t] and intrinsics 
     Sigma = R(q/|q|) S S^T R^T,  S = diag(exp l)                      (ewa.quat_scale_to_covar)
     p = W mu + t = (x, y, z);  culled if z < near or z > far
     mean2d, Sigma2d = EWA projection of (p, W Sigma W^T)               (ewa.persp_proj)
-    (a1, b, c1) = Sigma2d + 0.3 I  (a 0.3 px^2 low-pass dilation); culled if det <= 0 or is not finite
+    (a1, b, c1) = Sigma2d + 0.3 I  (a 0.3 px^2 low-pass dilation); culled if det <= 0
     conic Q = (a1, b, c1)^-1 stored as (Q00, Q01, Q11)                 (ewa.conic_inverse)
     radius = ceil(3 sqrt(lambda_max)),  lambda_max = h + sqrt(max(0.01, h^2 - det)), h = (a1 + c1)/2;
         culled if the square mean2d +- radius misses the image (radius 0 marks a culled splat,
@@ -18,21 +18,27 @@ The radius clamp. The radius is only a culling flag (> 0) and the half-size of t
 is binned with (kernels/splat/tiles.py clamps that square to the image's tiles); the rasteriser
 reads the conic, never the radius. Any square mean2d +- r with r >= reach contains the whole
 image, so clamping to reach changes neither the culling nor the tiles nor any pixel or gradient:
-a splat larger than the image still covers it all, and its gradients (about 1e-24 for the conic
-of a log-scale-30 splat seen from 4 units) stay finite and non-zero. Splats whose radius is below
-reach are untouched, bit for bit. Without the clamp the float-to-int32 conversion overflowed from
-about log-scale 20 (radius > 2^31) to -2^31, and the splat vanished with a zero gradient.
-Largest scale that renders exactly: in float64, every |log-scale| <= 80 that gaussian_inputs
-accepts, except one case: a splat whose clamped radius would still exceed RADIUS_CAP = 2^30
-(its mean2d is over 2^29 px off the image while its radius is larger still) is culled, so that
-the tile arithmetic stays in int32. In float32 the limit is the dynamic range, not the clamp:
-det = a1 c1 - b^2 overflows once the 2D standard deviations pass about 4e9 px
-((4e9)^4 > 3.4e38: about log-scale 20 where fx / z = 10 px per unit), the conic is then NaN, and such a
-splat is culled (radius 0, zero gradient) instead of rendering NaN; use float64 for such scenes.
-    colour = max(0, sum_k f_k Y_k(d) + 1/2),  d = (mu - camera centre) / |mu - camera centre|
-        (the real SH basis Y_k of kernels/sh.py)
-    opacity = sigmoid(a) c, with c = 1 (classic) or, antialiased, Mip-Splatting's
-        c = sqrt(max(0, det(Sigma2d) / det(Sigma2d + 0.3 I)))            (ewa.aa_compensation)
+a splat larger than the image still covers it all, and its gradients stay finite and non-zero
+(about 1e-24 through the conic of a log-scale-30 splat seen from 4 units). Splats whose radius is
+below reach are untouched, bit for bit. Without the clamp the float-to-int32 conversion overflowed
+from about log-scale 20 (radius > 2^31) to -2^31, and the splat vanished with a zero gradient.
+
+The wide path. In float32, det = a1 c1 - b^2 overflows once the 2D standard deviations pass about
+4e9 px ((4e9)^4 > 3.4e38: log-scale 20 where fx / z = 10 px per unit). For such a splat (det not
+finite) both kernels redo its geometry in float64: the forward its conic, radius and compensation,
+the backward the VJP of its opacity factor, conic, dilation, projection and covariance, and round
+the results to float32. No other splat takes this path, so float32 results are otherwise unchanged.
+
+Largest scale that renders exactly: in float64, no limit within the |log-scale| <= 80 that
+gaussian_inputs accepts (the backward's det^2 stays finite while fx / z < about 5e3 px per
+unit), with one exception: a splat whose clamped radius would still exceed RADIUS_CAP = 2^30 (its
+mean2d over 2^29 px off the image, its radius larger still) is culled, so the tile arithmetic stays
+in int32. In float32 the limit is the conic's magnitude, about (fx / z)^-2 exp(-2 log-scale): it
+leaves float32's normal range (1.2e-38) near log-scale 41 where fx / z = 10; beyond, it rounds to
+a subnormal and then to 0. The splat still covers the image with alpha = its opacity, as the math
+gives to float32 precision (the tile box then falls back to the radius: wp.min is fmin, which
+ignores a NaN 0/0 extent), and its opacity and colour gradients stay exact, but the gradients that
+flow through the conic (log-scales, quaternion, mean) fall below float32's range and read 0.
 
 The backward kernel recomputes the forward through the same functions of kernels/splat/ewa.py and
 chains their VJPs in reverse: colour and SH (sh.sh_basis_dx/dy/dz, view_direction_vjp), opacity
@@ -52,11 +58,11 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.sh import sh_basis, sh_basis_dx, sh_basis_dy, sh_basis_dz
 from kernels.splat.camera import SplatCamera
-from kernels.splat.tiles import TILE
 from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
                                dilate_cov2d_vjp, persp_proj, persp_proj_vjp, quat_scale_to_covar,
                                quat_scale_to_covar_vjp, sigmoid, transform_cov, transform_cov_vjp, view_direction,
                                view_direction_vjp)
+from kernels.splat.tiles import TILE
 
 wp.set_module_options({"enable_backward": False})
 
@@ -82,6 +88,79 @@ def _load_splat(means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any),
     q = wp.vector(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3], length=4, dtype=means.dtype)
     l = wp.vector(log_scales[i, 0], log_scales[i, 1], log_scales[i, 2], length=3, dtype=means.dtype)
     return mu, q, l
+
+
+@wp.func
+def _load_view_f64(view: wp.array2d(dtype=Any)):
+    """(W, t) of `view` in float64 (the float32 kernels' wide path)."""
+    Wr = wp.matrix(wp.float64(view[0, 0]), wp.float64(view[0, 1]), wp.float64(view[0, 2]),
+                   wp.float64(view[1, 0]), wp.float64(view[1, 1]), wp.float64(view[1, 2]),
+                   wp.float64(view[2, 0]), wp.float64(view[2, 1]), wp.float64(view[2, 2]),
+                   shape=(3, 3), dtype=wp.float64)
+    t = wp.vector(wp.float64(view[0, 3]), wp.float64(view[1, 3]), wp.float64(view[2, 3]), length=3,
+                  dtype=wp.float64)
+    return Wr, t
+
+
+@wp.func
+def _load_splat_f64(means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any),
+                    quats: wp.array2d(dtype=Any), i: int):
+    """(mu, q, l) of splat i in float64 (the float32 kernels' wide path)."""
+    mu = wp.vector(wp.float64(means[i, 0]), wp.float64(means[i, 1]), wp.float64(means[i, 2]), length=3,
+                   dtype=wp.float64)
+    q = wp.vector(wp.float64(quats[i, 0]), wp.float64(quats[i, 1]), wp.float64(quats[i, 2]),
+                  wp.float64(quats[i, 3]), length=4, dtype=wp.float64)
+    l = wp.vector(wp.float64(log_scales[i, 0]), wp.float64(log_scales[i, 1]), wp.float64(log_scales[i, 2]),
+                  length=3, dtype=wp.float64)
+    return mu, q, l
+
+
+@wp.func
+def _screen_conic(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int,
+                  height: int):
+    """(u, v, det0, det, Q00, Q01, Q11, unclamped radius) of one splat (module docstring)."""
+    p = Wr * mu + tv
+    cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
+    u, v, cov2d = persp_proj(p, cov_c, fx, fy, cx, cy, width, height)
+    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
+    det, qa, qb, qc = conic_inverse(a1, b, c1)
+    half = type(det)(0.5)
+    bb = half * (a1 + c1)
+    lam = bb + wp.sqrt(wp.max(type(det)(0.01), bb * bb - det))
+    r = wp.ceil(type(det)(3.0) * wp.sqrt(lam))
+    return u, v, det0, det, qa, qb, qc, r
+
+
+@wp.func
+def _projection_vjp(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int,
+                    height: int, antialiased: int, g_comp: Any, gQa: Any, gQb: Any, gQc: Any, gu: Any, gv: Any,
+                    g_depth: Any):
+    """(dL/dmu, dL/dq, dL/dl, opacity factor c, det) of the projection's geometry, for the cotangents of
+    the conic, mean2d and depth and dL/dc = g_comp (c = 1 unless antialiased)."""
+    zero = type(g_comp)(0.0)
+    p = Wr * mu + tv
+    cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
+    u, v, cov2d = persp_proj(p, cov_c, fx, fy, cx, cy, width, height)
+    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
+    det, qa, qb, qc = conic_inverse(a1, b, c1)
+
+    # Opacity o = sigmoid(a) comp.
+    g_det0 = zero
+    g_det = zero
+    comp = type(g_comp)(1.0)
+    if antialiased != 0:
+        comp = aa_compensation(det0, det)
+        g_det0, g_det = aa_compensation_vjp(det0, det, g_comp)
+
+    # Conic and dilation (det0 = a c - b^2 adds its share).
+    g_a1, g_b1, g_c1 = conic_inverse_vjp(a1, b, c1, gQa, gQb, gQc, g_det)
+    g_cov2d = dilate_cov2d_vjp(a, b, c, g_a1, g_b1, g_c1, g_det0)
+
+    # EWA projection, then the world-to-camera transforms of the mean and the covariance.
+    g_p, g_cov_c = persp_proj_vjp(p, cov_c, fx, fy, cx, cy, width, height, g_cov2d, gu, gv, g_depth)
+    g_mu = wp.transpose(Wr) * g_p
+    g_q, g_l = quat_scale_to_covar_vjp(q, l, transform_cov_vjp(Wr, g_cov_c))
+    return g_mu, g_q, g_l, comp, det
 
 
 @wp.func
@@ -148,17 +227,27 @@ def _project_kernel(
     tz = p[2]
     if tz < cam[4] or tz > cam[5]:
         return
-    cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
-    u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
-    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
-    det, qa, qb, qc = conic_inverse(a1, b, c1)
-    if det <= zero or wp.isnan(det) or wp.isinf(det):
-        return
-    half = means.dtype(0.5)
-    bb = half * (a1 + c1)
-    lam = bb + wp.sqrt(wp.max(means.dtype(0.01), bb * bb - det))
-    r = wp.ceil(means.dtype(3.0) * wp.sqrt(lam))
-    if wp.isnan(r):
+    u, v, det0, det, qa, qb, qc, r = _screen_conic(mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height)
+    comp = means.dtype(1.0)
+    if wp.isnan(det) or wp.isinf(det):
+        # Past float32's range (module docstring): the conic, radius and compensation in float64.
+        W64, t64 = _load_view_f64(view)
+        mu64, q64, l64 = _load_splat_f64(means, log_scales, quats, i)
+        u64, v64, det0_64, det64, qa64, qb64, qc64, r64 = _screen_conic(
+            mu64, q64, l64, W64, t64, wp.float64(cam[0]), wp.float64(cam[1]), wp.float64(cam[2]),
+            wp.float64(cam[3]), width, height)
+        if det64 <= wp.float64(0.0) or wp.isnan(det64) or wp.isinf(det64):
+            return
+        qa = means.dtype(qa64)
+        qb = means.dtype(qb64)
+        qc = means.dtype(qc64)
+        r = means.dtype(r64)
+        det = means.dtype(1.0)  # only its sign is read below
+        if antialiased != 0:
+            comp = means.dtype(aa_compensation(det0_64, det64))
+    elif antialiased != 0:
+        comp = aa_compensation(det0, det)
+    if det <= zero:
         return
     if u + r <= zero or u - r >= means.dtype(float(width)) or v + r <= zero or v - r >= means.dtype(float(height)):
         return
@@ -183,7 +272,7 @@ def _project_kernel(
 
     o = sigmoid(opacity_logits[i])
     if antialiased != 0:
-        o = o * aa_compensation(det0, det)
+        o = o * comp
     opacities[i] = o
 
 
@@ -228,35 +317,32 @@ def _project_backward_kernel(
     if radii[i] == 0:
         return
 
-    # Forward values this backward needs, from the forward's own functions.
+    # The forward recomputed by its own functions, and the geometry's VJP (opacity, conic and
+    # dilation, EWA projection, world-to-camera transforms), in float64 where float32 overflowed
+    # (the forward's wide path).
     Wr, tv = _load_view(view)
     mu, q, l = _load_splat(means, log_scales, quats, i)
-    p = Wr * mu + tv
-    cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
-    u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
-    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
-    det, qa, qb, qc = conic_inverse(a1, b, c1)
     sig = sigmoid(opacity_logits[i])
-
-    # Opacity o = sigmoid(a) comp.
     g_o = g_opacities[i]
-    g_det0 = zero
-    g_det = zero
-    comp = one
-    if antialiased != 0:
-        comp = aa_compensation(det0, det)
-        g_det0, g_det = aa_compensation_vjp(det0, det, g_o * sig)
+    g_mu, g_q, g_l, comp, det = _projection_vjp(mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height,
+                                                antialiased, g_o * sig, g_conics[i, 0], g_conics[i, 1],
+                                                g_conics[i, 2], g_means2d[i, 0], g_means2d[i, 1], g_depths[i])
+    if wp.isnan(det) or wp.isinf(det):
+        W64, t64 = _load_view_f64(view)
+        mu64, q64, l64 = _load_splat_f64(means, log_scales, quats, i)
+        g_mu64, g_q64, g_l64, comp64, det64 = _projection_vjp(
+            mu64, q64, l64, W64, t64, wp.float64(cam[0]), wp.float64(cam[1]), wp.float64(cam[2]),
+            wp.float64(cam[3]), width, height, antialiased, wp.float64(g_o * sig), wp.float64(g_conics[i, 0]),
+            wp.float64(g_conics[i, 1]), wp.float64(g_conics[i, 2]), wp.float64(g_means2d[i, 0]),
+            wp.float64(g_means2d[i, 1]), wp.float64(g_depths[i]))
+        g_mu = wp.vector(means.dtype(g_mu64[0]), means.dtype(g_mu64[1]), means.dtype(g_mu64[2]), length=3,
+                         dtype=means.dtype)
+        g_l = wp.vector(means.dtype(g_l64[0]), means.dtype(g_l64[1]), means.dtype(g_l64[2]), length=3,
+                        dtype=means.dtype)
+        g_q = wp.vector(means.dtype(g_q64[0]), means.dtype(g_q64[1]), means.dtype(g_q64[2]), means.dtype(g_q64[3]),
+                        length=4, dtype=means.dtype)
+        comp = means.dtype(comp64)
     d_opacity_logits[i] = g_o * comp * sig * (one - sig)
-
-    # Conic and dilation (det0 = a c - b^2 adds its share).
-    g_a1, g_b1, g_c1 = conic_inverse_vjp(a1, b, c1, g_conics[i, 0], g_conics[i, 1], g_conics[i, 2], g_det)
-    g_cov2d = dilate_cov2d_vjp(a, b, c, g_a1, g_b1, g_c1, g_det0)
-
-    # EWA projection, then the world-to-camera transforms of the mean and the covariance.
-    g_p, g_cov_c = persp_proj_vjp(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height, g_cov2d,
-                                  g_means2d[i, 0], g_means2d[i, 1], g_depths[i])
-    g_mu = wp.transpose(Wr) * g_p
-    g_q, g_l = quat_scale_to_covar_vjp(q, l, transform_cov_vjp(Wr, g_cov_c))
     for j in range(3):
         d_log_scales[i, j] = g_l[j]
     for j in range(4):
