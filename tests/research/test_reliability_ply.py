@@ -116,7 +116,8 @@ BAD_FILES = {
                                                              r"\(vertex 0\)"),
     "nan_f_rest_7": (_plyfile(f_rest_7=_with("f_rest_7", np.nan)), r"property 'f_rest_7' has NaN"),
     "nan_normal": (_plyfile(ny=_with("ny", np.nan)), r"property 'ny' has NaN"),
-    "float64_overflows_float32": (_plyfile(scale_1=np.full(4, 1e300)), r"property 'scale_1' has values beyond the float32 range"),
+    "float64_overflows_float32": (_plyfile(scale_1=np.full(4, 1e300)),
+                                  r"property 'scale_1' has values beyond the float32 range"),
     "no_vertex_element": (_only_face, r"no 'vertex' element"),
     "x_is_uchar": (_plyfile(x=np.arange(4, dtype=np.uint8)), r"property 'x' is uchar; expected float or double"),
     "opacity_is_int": (_plyfile(opacity=np.arange(4, dtype=np.int32)), r"property 'opacity' is int; expected"),
@@ -147,6 +148,36 @@ def test_bad_file_gives_one_line_error_naming_file_and_property(tmp_path, case):
     assert msg.startswith(f"{path}: "), msg
     assert re.search(expected, msg), msg
     assert msg.count(str(path)) == 1, msg
+
+
+def _face():
+    return PlyElement.describe(np.array([([0, 1, 2],)], dtype=[("vertex_indices", "O")]), "face")
+
+
+# Files the reference loader reads: accepted, with ONE PlyNote naming what was ignored.
+NOTED = {
+    "uchar_red": (dict(red=np.arange(4, dtype=np.uint8)), False, ["vertex properties ['red']"]),
+    "rgb_and_alpha": (dict(red=np.zeros(4, np.uint8), green=np.zeros(4, np.uint8), blue=np.zeros(4, np.uint8),
+                           alpha=np.zeros(4, np.float32)), False, ["'red', 'green', 'blue', 'alpha'"]),
+    "face_element": ({}, True, ["elements ['face']"]),
+    "property_and_element": (dict(red=np.zeros(4, np.uint8)), True, ["['red']", "['face']"]),
+}
+
+
+@pytest.mark.parametrize("case", list(NOTED))
+def test_extras_are_ignored_with_one_note(tmp_path, case):
+    extra, face, expected = NOTED[case]
+    m = random_model(4, seed=1)
+    write_ply(tmp_path / "x.ply", {**layout_props(m), **extra}, extra_elements=[_face()] if face else ())
+    with pytest.warns(ply.PlyNote) as rec:
+        back = ply.load_ply(tmp_path / "x.ply")
+    assert len(rec) == 1
+    msg = str(rec[0].message)
+    assert "\n" not in msg and msg.startswith(f"{tmp_path / 'x.ply'}: ignored ")
+    for part in expected:
+        assert part in msg, msg
+    for k, v in m.arrays().items():
+        np.testing.assert_array_equal(getattr(back, k), v, err_msg=k)
 
 
 @pytest.mark.parametrize("case, arg, expected", [
