@@ -36,9 +36,9 @@ mean2d over 2^29 px off the image, its radius larger still) is culled, so the ti
 in int32. In float32 the limit is the conic's magnitude, about (fx / z)^-2 exp(-2 log-scale): it
 leaves float32's normal range (1.2e-38) near log-scale 41 where fx / z = 10; beyond, it rounds to
 a subnormal and then to 0. The splat still covers the image with alpha = its opacity, as the math
-gives to float32 precision (the tile box then falls back to the radius: wp.min is fmin, which
-ignores a NaN 0/0 extent), and its opacity and colour gradients stay exact, but the gradients that
-flow through the conic (log-scales, quaternion, mean) fall below float32's range and read 0.
+gives to float32 precision (its tile box is then the clamped radius, kernels/splat/tiles.py), and
+its opacity and colour gradients stay exact, but the gradients that flow through the conic
+(log-scales, quaternion, mean) fall below float32's range and read 0.
 
 The backward kernel recomputes the forward through the same functions of kernels/splat/ewa.py and
 chains their VJPs in reverse: colour and SH (sh.sh_basis_dx/dy/dz, view_direction_vjp), opacity
