@@ -59,10 +59,10 @@ def random_scene(rng: np.random.Generator, n: int = 12, width: int = 40, height:
     """Overlapping, anisotropic, rotated splats in front of a slightly rotated camera 4 units away.
 
     With `off_frustum`, splat 0 sits right of the image beyond the Jacobian clamp (x/z = 0.75
-    against a limit of 0.64) and is large enough to reach into it. With `big`, splats 1..big are
-    scaled up to scale about 3 (3 sigma of 95-130 px) at opacity 0.1-0.3: each covers the whole image, and
-    its radius hits the clamp of kernels/splat/projection.py (drawn after everything else, so the
-    other splats are those of the same rng without `big`).
+    against a limit of 0.64) and is large enough to reach into it. With `big`, splats 1..big get
+    scales near 3 (3 sigma of 95-130 px) and opacity 0.1-0.3: each covers the whole image, and its
+    radius hits the clamp of kernels/splat/projection.py (drawn after everything else, so the other
+    splats are those of the same rng without `big`).
     """
     R = _rotation(rng, 0.3)
     view = np.eye(4)
