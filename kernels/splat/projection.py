@@ -11,10 +11,34 @@ coefficients f (K = (L+1)^2, 3), for the world-to-camera [W | t] and intrinsics 
     radius = ceil(3 sqrt(lambda_max)),  lambda_max = h + sqrt(max(0.01, h^2 - det)), h = (a1 + c1)/2;
         culled if the square mean2d +- radius misses the image (radius 0 marks a culled splat,
         whose other outputs are 0)
-    colour = max(0, sum_k f_k Y_k(d) + 1/2),  d = (mu - camera centre) / |mu - camera centre|
-        (the real SH basis Y_k of kernels/sh.py)
-    opacity = sigmoid(a) c, with c = 1 (classic) or, antialiased, Mip-Splatting's
-        c = sqrt(max(0, det(Sigma2d) / det(Sigma2d + 0.3 I)))            (ewa.aa_compensation)
+    stored radius = min(radius, reach),  reach = 2 max(|u|, |u - W|, |v|, |v - H|) + 16 for
+        mean2d = (u, v) and a W x H image                                (clamp_radius)
+
+The radius clamp. The radius is only a culling flag (> 0) and the half-size of the square a splat
+is binned with (kernels/splat/tiles.py clamps that square to the image's tiles); the rasteriser
+reads the conic, never the radius. Any square mean2d +- r with r >= reach contains the whole
+image, so clamping to reach changes neither the culling nor the tiles nor any pixel or gradient:
+a splat larger than the image still covers it all, and its gradients stay finite and non-zero
+(about 1e-24 through the conic of a log-scale-30 splat seen from 4 units). Splats whose radius is
+below reach are untouched, bit for bit. Without the clamp the float-to-int32 conversion overflowed
+from about log-scale 20 (radius > 2^31) to -2^31, and the splat vanished with a zero gradient.
+
+The wide path. In float32, det = a1 c1 - b^2 overflows once the 2D standard deviations pass about
+4e9 px ((4e9)^4 > 3.4e38: log-scale 20 where fx / z = 10 px per unit). For such a splat (det not
+finite) both kernels redo its geometry in float64: the forward its conic, radius and compensation,
+the backward the VJP of its opacity factor, conic, dilation, projection and covariance, and round
+the results to float32. No other splat takes this path, so float32 results are otherwise unchanged.
+
+Largest scale that renders exactly: in float64, no limit within the |log-scale| <= 80 that
+gaussian_inputs accepts (the backward's det^2 stays finite while fx / z < about 5e3 px per
+unit), with one exception: a splat whose clamped radius would still exceed RADIUS_CAP = 2^30 (its
+mean2d over 2^29 px off the image, its radius larger still) is culled, so the tile arithmetic stays
+in int32. In float32 the limit is the conic's magnitude, about (fx / z)^-2 exp(-2 log-scale): it
+leaves float32's normal range (1.2e-38) near log-scale 41 where fx / z = 10; beyond, it rounds to
+a subnormal and then to 0. The splat still covers the image with alpha = its opacity, as the math
+gives to float32 precision (its tile box is then the clamped radius, kernels/splat/tiles.py), and
+its opacity and colour gradients stay exact, but the gradients that flow through the conic
+(log-scales, quaternion, mean) fall below float32's range and read 0.
 
 The backward kernel recomputes the forward through the same functions of kernels/splat/ewa.py and
 chains their VJPs in reverse: colour and SH (sh.sh_basis_grad, view_direction_vjp), opacity
@@ -38,10 +62,13 @@ from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inver
                                dilate_cov2d_vjp, persp_proj, persp_proj_vjp, quat_scale_to_covar,
                                quat_scale_to_covar_vjp, sigmoid, transform_cov, transform_cov_vjp, view_direction,
                                view_direction_vjp)
+from kernels.splat.tiles import TILE
 
 wp.set_module_options({"enable_backward": False})
 
 MIN_CHUNK = 1024
+# Largest radius stored (2^30: exact in float32, and u +- radius stays inside int32 in the tile binning).
+RADIUS_CAP = float(2**30)
 
 
 @wp.func
@@ -73,11 +100,11 @@ def _camera_frame(view: wp.array2d(dtype=Any), means: wp.array2d(dtype=Any), log
 
 
 @wp.func
-def _screen_conic(Wr: Any, q: Any, l: Any, p: Any, cam: wp.array(dtype=Any), width: int, height: int):
+def _conic_chain(Wr: Any, q: Any, l: Any, p: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int):
     """The forward from the camera-frame mean p to the conic (module docstring): (cov_c, u, v, the
     undilated a, b, c and det0, the dilated a1, c1, and det, qa, qb, qc of the conic inverse)."""
     cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
-    u, v, cov2d = persp_proj(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height)
+    u, v, cov2d = persp_proj(p, cov_c, fx, fy, cx, cy, width, height)
     a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
     det, qa, qb, qc = conic_inverse(a1, b, c1)
     return cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc
@@ -96,12 +123,93 @@ def _store_screen(means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any),
 
 
 @wp.func
+def _load_view_f64(view: wp.array2d(dtype=Any)):
+    """(W, t) of `view` in float64 (the float32 kernels' wide path)."""
+    Wr = wp.matrix(wp.float64(view[0, 0]), wp.float64(view[0, 1]), wp.float64(view[0, 2]),
+                   wp.float64(view[1, 0]), wp.float64(view[1, 1]), wp.float64(view[1, 2]),
+                   wp.float64(view[2, 0]), wp.float64(view[2, 1]), wp.float64(view[2, 2]),
+                   shape=(3, 3), dtype=wp.float64)
+    t = wp.vector(wp.float64(view[0, 3]), wp.float64(view[1, 3]), wp.float64(view[2, 3]), length=3,
+                  dtype=wp.float64)
+    return Wr, t
+
+
+@wp.func
+def _load_splat_f64(means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any),
+                    quats: wp.array2d(dtype=Any), i: int):
+    """(mu, q, l) of splat i in float64 (the float32 kernels' wide path)."""
+    mu = wp.vector(wp.float64(means[i, 0]), wp.float64(means[i, 1]), wp.float64(means[i, 2]), length=3,
+                   dtype=wp.float64)
+    q = wp.vector(wp.float64(quats[i, 0]), wp.float64(quats[i, 1]), wp.float64(quats[i, 2]),
+                  wp.float64(quats[i, 3]), length=4, dtype=wp.float64)
+    l = wp.vector(wp.float64(log_scales[i, 0]), wp.float64(log_scales[i, 1]), wp.float64(log_scales[i, 2]),
+                  length=3, dtype=wp.float64)
+    return mu, q, l
+
+
+@wp.func
+def _screen_conic(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int,
+                  height: int):
+    """(u, v, det0, det, Q00, Q01, Q11, unclamped radius) of one splat (module docstring)."""
+    cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _conic_chain(Wr, q, l, Wr * mu + tv, fx, fy, cx, cy,
+                                                                       width, height)
+    half = type(det)(0.5)
+    bb = half * (a1 + c1)
+    lam = bb + wp.sqrt(wp.max(type(det)(0.01), bb * bb - det))
+    r = wp.ceil(type(det)(3.0) * wp.sqrt(lam))
+    return u, v, det0, det, qa, qb, qc, r
+
+
+@wp.func
+def _projection_vjp(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int,
+                    height: int, antialiased: int, g_comp: Any, gQa: Any, gQb: Any, gQc: Any, gu: Any, gv: Any,
+                    g_depth: Any):
+    """(dL/dmu, dL/dq, dL/dl, opacity factor c, det) of the projection's geometry, for the cotangents of
+    the conic, mean2d and depth and dL/dc = g_comp (c = 1 unless antialiased)."""
+    zero = type(g_comp)(0.0)
+    p = Wr * mu + tv
+    cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _conic_chain(Wr, q, l, p, fx, fy, cx, cy, width, height)
+
+    # Opacity o = sigmoid(a) comp.
+    g_det0 = zero
+    g_det = zero
+    comp = type(g_comp)(1.0)
+    if antialiased != 0:
+        comp = aa_compensation(det0, det)
+        g_det0, g_det = aa_compensation_vjp(det0, det, g_comp)
+
+    # Conic and dilation (det0 = a c - b^2 adds its share).
+    g_a1, g_b1, g_c1 = conic_inverse_vjp(a1, b, c1, gQa, gQb, gQc, g_det)
+    g_cov2d = dilate_cov2d_vjp(a, b, c, g_a1, g_b1, g_c1, g_det0)
+
+    # EWA projection, then the world-to-camera transforms of the mean and the covariance.
+    g_p, g_cov_c = persp_proj_vjp(p, cov_c, fx, fy, cx, cy, width, height, g_cov2d, gu, gv, g_depth)
+    g_mu = wp.transpose(Wr) * g_p
+    g_q, g_l = quat_scale_to_covar_vjp(q, l, transform_cov_vjp(Wr, g_cov_c))
+    return g_mu, g_q, g_l, comp, det
+
+
+@wp.func
 def sh_color(sh: wp.array3d(dtype=Any), i: int, ch: int, basis: Any, n_coeffs: int):
     """sum_k f_k Y_k(d) + 1/2 for channel ch of splat i, before the clamp at 0."""
     acc = sh.dtype(0.5)
     for k in range(n_coeffs):
         acc += basis[k] * sh[i, k, ch]
     return acc
+
+
+@wp.func
+def clamp_radius(r: Any, u: Any, v: Any, width: int, height: int):
+    """min(r, reach), reach = 2 max(|u|, |u - W|, |v|, |v - H|) + TILE; 0 (culled) when both exceed
+    RADIUS_CAP (module docstring)."""
+    w = type(r)(float(width))
+    h = type(r)(float(height))
+    far = wp.max(wp.max(wp.abs(u), wp.abs(u - w)), wp.max(wp.abs(v), wp.abs(v - h)))
+    reach = wp.ceil(type(r)(2.0) * far) + type(r)(float(TILE))
+    out = wp.min(r, reach)
+    if out > type(r)(RADIUS_CAP):
+        out = type(r)(0.0)
+    return out
 
 
 @wp.kernel
@@ -125,17 +233,35 @@ def _project_kernel(
     tz = p[2]
     if tz < cam[4] or tz > cam[5]:
         return
-    cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _screen_conic(Wr, q, l, p, cam, width, height)
+    u, v, det0, det, qa, qb, qc, r = _screen_conic(mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height)
+    comp = means.dtype(1.0)
+    if wp.isnan(det) or wp.isinf(det):
+        # Past float32's range (module docstring): the conic, radius and compensation in float64.
+        W64, t64 = _load_view_f64(view)
+        mu64, q64, l64 = _load_splat_f64(means, log_scales, quats, i)
+        u64, v64, det0_64, det64, qa64, qb64, qc64, r64 = _screen_conic(
+            mu64, q64, l64, W64, t64, wp.float64(cam[0]), wp.float64(cam[1]), wp.float64(cam[2]),
+            wp.float64(cam[3]), width, height)
+        if det64 <= wp.float64(0.0) or wp.isnan(det64) or wp.isinf(det64):
+            return
+        qa = means.dtype(qa64)
+        qb = means.dtype(qb64)
+        qc = means.dtype(qc64)
+        r = means.dtype(r64)
+        det = means.dtype(1.0)  # only its sign is read below
+        if antialiased != 0:
+            comp = means.dtype(aa_compensation(det0_64, det64))
+    elif antialiased != 0:
+        comp = aa_compensation(det0, det)
     if det <= zero:
         return
-    half = means.dtype(0.5)
-    bb = half * (a1 + c1)
-    lam = bb + wp.sqrt(wp.max(means.dtype(0.01), bb * bb - det))
-    r = wp.ceil(means.dtype(3.0) * wp.sqrt(lam))
     if u + r <= zero or u - r >= means.dtype(float(width)) or v + r <= zero or v - r >= means.dtype(float(height)):
         return
 
-    radii[i] = int(r)
+    rc = clamp_radius(r, u, v, width, height)
+    if rc <= zero:
+        return
+    radii[i] = int(rc)
     _store_screen(means2d, conics, depths, i, u, v, qa, qb, qc, tz)
 
     d, dn = view_direction(mu, Wr, tv)
@@ -147,7 +273,7 @@ def _project_kernel(
 
     o = sigmoid(opacity_logits[i])
     if antialiased != 0:
-        o = o * aa_compensation(det0, det)
+        o = o * comp
     opacities[i] = o
 
 
@@ -177,30 +303,32 @@ def _project_backward_kernel(
     if radii[i] == 0:
         return
 
-    # Forward values this backward needs, from the forward's own functions.
-    Wr, tv, mu, q, l, p = _camera_frame(view, means, log_scales, quats, i)
-    cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _screen_conic(Wr, q, l, p, cam, width, height)
+    # The forward recomputed by its own functions, and the geometry's VJP (opacity, conic and
+    # dilation, EWA projection, world-to-camera transforms), in float64 where float32 overflowed
+    # (the forward's wide path).
+    Wr, tv = _load_view(view)
+    mu, q, l = _load_splat(means, log_scales, quats, i)
     sig = sigmoid(opacity_logits[i])
-
-    # Opacity o = sigmoid(a) comp.
     g_o = g_opacities[i]
-    g_det0 = zero
-    g_det = zero
-    comp = one
-    if antialiased != 0:
-        comp = aa_compensation(det0, det)
-        g_det0, g_det = aa_compensation_vjp(det0, det, g_o * sig)
+    g_mu, g_q, g_l, comp, det = _projection_vjp(mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height,
+                                                antialiased, g_o * sig, g_conics[i, 0], g_conics[i, 1],
+                                                g_conics[i, 2], g_means2d[i, 0], g_means2d[i, 1], g_depths[i])
+    if wp.isnan(det) or wp.isinf(det):
+        W64, t64 = _load_view_f64(view)
+        mu64, q64, l64 = _load_splat_f64(means, log_scales, quats, i)
+        g_mu64, g_q64, g_l64, comp64, det64 = _projection_vjp(
+            mu64, q64, l64, W64, t64, wp.float64(cam[0]), wp.float64(cam[1]), wp.float64(cam[2]),
+            wp.float64(cam[3]), width, height, antialiased, wp.float64(g_o * sig), wp.float64(g_conics[i, 0]),
+            wp.float64(g_conics[i, 1]), wp.float64(g_conics[i, 2]), wp.float64(g_means2d[i, 0]),
+            wp.float64(g_means2d[i, 1]), wp.float64(g_depths[i]))
+        g_mu = wp.vector(means.dtype(g_mu64[0]), means.dtype(g_mu64[1]), means.dtype(g_mu64[2]), length=3,
+                         dtype=means.dtype)
+        g_l = wp.vector(means.dtype(g_l64[0]), means.dtype(g_l64[1]), means.dtype(g_l64[2]), length=3,
+                        dtype=means.dtype)
+        g_q = wp.vector(means.dtype(g_q64[0]), means.dtype(g_q64[1]), means.dtype(g_q64[2]), means.dtype(g_q64[3]),
+                        length=4, dtype=means.dtype)
+        comp = means.dtype(comp64)
     d_opacity_logits[i] = g_o * comp * sig * (one - sig)
-
-    # Conic and dilation (det0 = a c - b^2 adds its share).
-    g_a1, g_b1, g_c1 = conic_inverse_vjp(a1, b, c1, g_conics[i, 0], g_conics[i, 1], g_conics[i, 2], g_det)
-    g_cov2d = dilate_cov2d_vjp(a, b, c, g_a1, g_b1, g_c1, g_det0)
-
-    # EWA projection, then the world-to-camera transforms of the mean and the covariance.
-    g_p, g_cov_c = persp_proj_vjp(p, cov_c, cam[0], cam[1], cam[2], cam[3], width, height, g_cov2d,
-                                  g_means2d[i, 0], g_means2d[i, 1], g_depths[i])
-    g_mu = wp.transpose(Wr) * g_p
-    g_q, g_l = quat_scale_to_covar_vjp(q, l, transform_cov_vjp(Wr, g_cov_c))
     for j in range(3):
         d_log_scales[i, j] = g_l[j]
     for j in range(4):

@@ -50,8 +50,11 @@ def _tile_counts_kernel(
     k2 = means2d.dtype(2.0) * wp.log(o * means2d.dtype(255.0))
     det = qa * qc - qb * qb
     rf = means2d.dtype(float(r))
-    ext_x = wp.min(rf, wp.sqrt(k2 * qc / det))
-    ext_y = wp.min(rf, wp.sqrt(k2 * qa / det))
+    ext_x = rf
+    ext_y = rf
+    if det > means2d.dtype(0.0):  # else a conic rounded to 0 (float32, huge splat): the radius alone
+        ext_x = wp.min(rf, wp.sqrt(k2 * qc / det))
+        ext_y = wp.min(rf, wp.sqrt(k2 * qa / det))
     t = means2d.dtype(float(TILE))
     u = means2d[i, 0]
     v = means2d[i, 1]

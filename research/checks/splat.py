@@ -55,11 +55,14 @@ def _rotation(rng: np.random.Generator, max_angle: float) -> np.ndarray:
 
 
 def random_scene(rng: np.random.Generator, n: int = 12, width: int = 40, height: int = 36, sh_k: int = 16,
-                 off_frustum: bool = False) -> Scene:
+                 off_frustum: bool = False, big: int = 0) -> Scene:
     """Overlapping, anisotropic, rotated splats in front of a slightly rotated camera 4 units away.
 
     With `off_frustum`, splat 0 sits right of the image beyond the Jacobian clamp (x/z = 0.75
-    against a limit of 0.64) and is large enough to reach into it.
+    against a limit of 0.64) and is large enough to reach into it. With `big`, splats 1..big get
+    scales near 3 (3 sigma of 95-130 px) and opacity 0.1-0.3: each covers the whole image, and its
+    radius hits the clamp of kernels/splat/projection.py (drawn after everything else, so the other
+    splats are those of the same rng without `big`).
     """
     R = _rotation(rng, 0.3)
     view = np.eye(4)
@@ -86,6 +89,12 @@ def random_scene(rng: np.random.Generator, n: int = 12, width: int = 40, height:
     sh = rng.normal(0.0, 0.15, (n, sh_k, 3))
     sh[:, 0, :] = (rng.uniform(0.3, 0.8, (n, 3)) - 0.5) / ks.SH_C0
     background = rng.uniform(0.1, 0.9, 3)
+    if big:
+        grow = slice(1, 1 + big)
+        pc[grow, :2] = rng.uniform(-0.2, 0.2, (big, 2))
+        log_scales[grow] = np.log(3.0) + rng.uniform(-0.15, 0.15, (big, 3))
+        logits[grow] = rng.uniform(-2.2, -0.85, big)
+        means = (pc - view[:3, 3]) @ R
     params = {"means": means, "log_scales": log_scales, "quats": quats, "opacity_logits": logits, "sh": sh}
     return Scene(params, camera, background)
 
@@ -139,6 +148,8 @@ def discontinuity_margins(scene: Scene, sh_degree: int | None = None, antialiase
         half_tr = 0.5 * (a + c)
         det = a * c - b * b
         r = 3.0 * math.sqrt(half_tr + math.sqrt(max(0.01, half_tr * half_tr - det)))
+        if r > radii[i]:
+            continue  # the radius hit the clamp: its ceil no longer matters
         ceil_margin = min(ceil_margin, abs(r - round(r)))
     out["tile_px"] = px_margin
     out["radius_ceil"] = ceil_margin
@@ -294,11 +305,11 @@ def check_rasterize(seed: int) -> list[GradcheckResult]:
     return check_vjp(f, vjp, inputs, seed=seed, name=f"splat.rasterize[seed={seed}]")
 
 
-def check_render(seed: int, antialiased: bool) -> list[GradcheckResult]:
-    scene = smooth_scene(seed, antialiased=antialiased, require_events=not antialiased)
+def check_render(seed: int, antialiased: bool, big: int = 0) -> list[GradcheckResult]:
+    scene = smooth_scene(seed, antialiased=antialiased, require_events=not antialiased, big=big)
     f, vjp = render_fn(scene.camera, None, antialiased)
     inputs = dict(scene.params, background=scene.background)
-    name = f"splat.render[{'aa' if antialiased else 'classic'},seed={seed}]"
+    name = f"splat.render[{'aa' if antialiased else 'classic'},seed={seed}{f',big={big}' if big else ''}]"
     return check_vjp(f, vjp, inputs, seed=seed, name=name)
 
 
@@ -320,4 +331,6 @@ def rasterize_checks() -> list[GradcheckResult]:
 
 @register_check("splat.render")
 def render_checks() -> list[GradcheckResult]:
-    return check_render(0, False) + check_render(1, True) + check_render(2, False)
+    # The last two: splats whose radius hits the clamp (kernels/splat/projection.py).
+    return (check_render(0, False) + check_render(1, True) + check_render(2, False) + check_render(3, False, big=2)
+            + check_render(4, True, big=1))

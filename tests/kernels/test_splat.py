@@ -146,6 +146,113 @@ def test_backward_independent_of_thread_count(monkeypatch):
             np.testing.assert_array_equal(other[k], grads[0][k], err_msg=k)
 
 
+# --------------------------------------------------------------------------- the radius clamp
+
+
+def _reach(means2d: np.ndarray, width: int, height: int) -> np.ndarray:
+    """reach of kernels/splat/projection.py: 2 max(|u|, |u - W|, |v|, |v - H|) + TILE."""
+    u, v = means2d[:, 0].astype(np.float64), means2d[:, 1].astype(np.float64)
+    return np.ceil(2 * np.max(np.abs([u, u - width, v, v - height]), axis=0)) + ks.TILE
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_radius_clamp_changes_no_pixel_and_no_gradient(dtype):
+    """Rasterising with the reference's unclamped radii gives the same image and gradients, bit for bit."""
+    scene = cs.smooth_scene(3, big=2, require_events=True)
+    cam = scene.camera
+    W, H = cam.width, cam.height
+    params = as_dtype(scene.params, dtype)
+    p = ks.project(ks.gaussian_inputs(*(params[k] for k in PARAMS)), cam)
+    want = ref.project({k: v.astype(np.float64) for k, v in params.items()}, cam)["radii"]
+    clamped = want > p.radii
+    assert list(np.flatnonzero(clamped)) == [1, 2]
+    if dtype == np.float64:
+        np.testing.assert_array_equal(p.radii, np.minimum(want, _reach(p.means2d, W, H)))
+    np.testing.assert_array_equal(p.radii[clamped], _reach(p.means2d, W, H)[clamped])
+    unclamped = np.where(clamped, want, p.radii).astype(np.int32)
+    inputs = [p.means2d, p.conics, p.colors, p.opacities, p.depths]
+    rng = np.random.default_rng(0)
+    cot = [rng.normal(size=s).astype(dtype) for s in ((H, W, 3), (H, W), (H, W))]
+    results = []
+    for radii in (p.radii, unclamped):
+        s = ks.splats_2d(*inputs, radii)
+        r, tiles = ks.rasterize(s, W, H, scene.background.astype(dtype))
+        results.append((tiles.n_entries, r, ks.rasterize_backward(s, W, H, scene.background.astype(dtype), tiles,
+                                                                   r, *cot)))
+    (n0, r0, g0), (n1, r1, g1) = results
+    assert n0 == n1  # the same (tile, splat) pairs
+    for key in ("rgb", "alpha", "depth"):
+        np.testing.assert_array_equal(getattr(r0, key), getattr(r1, key), err_msg=key)
+    for key in g0:
+        np.testing.assert_array_equal(g0[key], g1[key], err_msg=key)
+        assert np.all(np.isfinite(g0[key]))
+    assert np.all(g0["conics"][clamped] != 0) and np.all(g0["opacities"][clamped] != 0)
+
+
+def _huge_splat_scene(log_scale: float) -> cs.Scene:
+    rng = np.random.default_rng(21)
+    scene = cs.random_scene(rng, n=6, width=32, height=24)
+    scene.params["log_scales"][0] = [log_scale, log_scale - 0.7, log_scale - 0.3]
+    scene.params["opacity_logits"][0] = 0.0  # opacity 1/2
+    return scene
+
+
+@pytest.mark.parametrize("log_scale", [20.0, 30.0, 80.0])
+def test_huge_splat_covers_the_image_with_a_nonzero_gradient(log_scale):
+    """float64: a splat far larger than the image renders as the reference says (it covers every pixel)
+    and keeps finite, non-zero gradients; its radius used to overflow int32."""
+    scene = _huge_splat_scene(log_scale)
+    cam = scene.camera
+    g = ks.gaussian_inputs(*(scene.params[k] for k in PARAMS))
+    r = ks.render(g, cam, scene.background)
+    assert 0 < r.projection.radii.numpy()[0] <= 2 * (cam.width + cam.height) + ks.TILE
+    if log_scale <= 30:  # beyond, the reference's own radius (an int64) overflows
+        want = ref.render(scene.params, cam, scene.background)
+        for got, w in zip((r.rgb, r.alpha, r.depth), want):
+            np.testing.assert_allclose(got, w, **TOL[np.float64])
+    assert r.alpha.min() >= 0.5 - 1e-12  # every pixel has the opacity-1/2 splat behind or in front of the rest
+    rng = np.random.default_rng(1)
+    grads = ks.render_backward(g, r, rng.normal(size=r.rgb.shape), rng.normal(size=r.alpha.shape))
+    for key in PARAMS:
+        assert np.all(np.isfinite(grads[key])), key
+        assert np.all(grads[key][0] != 0), key
+    # the conic's gradient reaches the log-scales: about the conic's size, exp(-2 log_scale) (fx/z)^-2
+    assert np.abs(grads["log_scales"][0]).max() < 1e3 * np.exp(-2 * (log_scale - 1.0))
+
+
+@pytest.mark.parametrize("antialiased", [False, True])
+@pytest.mark.parametrize("log_scale", [21.0, 30.0, 40.0, 60.0])
+def test_huge_splat_in_float32_takes_the_wide_path(log_scale, antialiased):
+    """float32: past the float32 range of det the splat's geometry is computed in float64 (module
+    docstring of kernels/splat/projection.py), so it renders like the float64 kernels and its gradients
+    match theirs; where the true conic is below float32's range (log-scale 60 here) it rounds to 0,
+    and so do the log-scale gradients, while the opacity and colour gradients stay."""
+    scene = _huge_splat_scene(log_scale)
+    out = {}
+    for dtype in (np.float32, np.float64):
+        params = as_dtype(scene.params, dtype)
+        g = ks.gaussian_inputs(*(params[k] for k in PARAMS))
+        r = ks.render(g, scene.camera, scene.background.astype(dtype), antialiased=antialiased)
+        rng = np.random.default_rng(2)
+        grads = ks.render_backward(g, r, rng.normal(size=r.rgb.shape).astype(dtype))
+        out[dtype] = r, grads
+    (r32, g32), (r64, g64) = out[np.float32], out[np.float64]
+    assert r32.projection.radii.numpy()[0] == r64.projection.radii.numpy()[0] > 0
+    for key in ("rgb", "alpha", "depth"):
+        np.testing.assert_allclose(getattr(r32, key), getattr(r64, key), **TOL[np.float32], err_msg=key)
+    for key in PARAMS:
+        assert np.all(np.isfinite(g32[key])), key
+        want = g64[key][0].astype(np.float32)  # what float32 can hold of the float64 gradient
+        np.testing.assert_allclose(g32[key][0], want, rtol=2e-3, atol=2e-3 * np.abs(want).max(), err_msg=key)
+    for key in ("opacity_logits", "sh"):
+        assert np.all(g32[key][0] != 0), key
+    if not antialiased:
+        # With antialiasing, the compensation's two VJP terms (about +-g / (2 Sigma2d)) cancel to
+        # below their rounding from about log-scale 16, in float64 too: the log-scale gradient
+        # then reads 0 in both dtypes (checked equal above).
+        assert np.all(g32["log_scales"][0] != 0) == (log_scale <= 40)  # 60: the conic is below float32's range
+
+
 # --------------------------------------------------------------------------- empty scenes and bad input
 
 
