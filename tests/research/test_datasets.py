@@ -38,6 +38,23 @@ def renderer():
     return SceneRenderer(get_scene("objects"), spp=4)
 
 
+
+def interrupt_after_views(monkeypatch, views: int):
+    """Make the renderer raise KeyboardInterrupt (Ctrl-C) after `views` colour renders; returns the
+    real render function, to put back with monkeypatch.setattr."""
+    from research.datasets.render import SceneRenderer
+
+    original, calls = SceneRenderer.render_rgba, {"n": 0}
+
+    def dying(self, cam, seed):
+        calls["n"] += 1
+        if calls["n"] > views:
+            raise KeyboardInterrupt
+        return original(self, cam, seed)
+
+    monkeypatch.setattr(SceneRenderer, "render_rgba", dying)
+    return original
+
 def test_layout_and_manifest(objects_ds):
     ds = load(objects_ds, verify_hashes=True)
     assert {v.split for v in ds.views} == {"train", "val", "test"}
@@ -146,16 +163,7 @@ def test_same_seed_same_hash_and_resume_after_interruption(tmp_path, monkeypatch
     assert h3["content_hash"] != h1["content_hash"]
 
     # Kill the run after two views.
-    calls = {"n": 0}
-    original = SceneRenderer.render_rgba
-
-    def dying(self, cam, seed):
-        calls["n"] += 1
-        if calls["n"] > 2:
-            raise KeyboardInterrupt
-        return original(self, cam, seed)
-
-    monkeypatch.setattr(SceneRenderer, "render_rgba", dying)
+    original = interrupt_after_views(monkeypatch, 2)
     out = tmp_path / "d"
     with pytest.raises(KeyboardInterrupt):
         generate(cfg, out, show_progress=False)

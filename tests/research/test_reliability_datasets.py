@@ -470,16 +470,9 @@ RECOVERIES = {
 def test_broken_partial_recovers(case, cli_reference, tmp_path, monkeypatch, capsys):
     """A run stopped after two views leaves a .partial; a damaged one is replaced (one notice), temp files swept."""
     from research.datasets.render import SceneRenderer
+    from tests.research.test_datasets import interrupt_after_views
 
-    original, calls = SceneRenderer.render_rgba, {"n": 0}
-
-    def dying(self, cam, seed):
-        calls["n"] += 1
-        if calls["n"] > 2:
-            raise KeyboardInterrupt
-        return original(self, cam, seed)
-
-    monkeypatch.setattr(SceneRenderer, "render_rgba", dying)
+    original = interrupt_after_views(monkeypatch, 2)
     out = tmp_path / "ds"
     with pytest.raises(KeyboardInterrupt):
         generate(CLI_CFG, out, show_progress=False)
