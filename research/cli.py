@@ -1,7 +1,7 @@
 """The `drlab` command line.
 
     drlab dataset --scene NAME [--views N --res R --spp S --stereo --flow] --out DIR [--resume] [--force]
-    drlab run EXPERIMENT [--quick] [--device cpu|cuda] [--out DIR] [--seed N] [-- EXPERIMENT OPTIONS]
+    drlab run EXPERIMENT [--quick|--smoke] [--device cpu|cuda] [--out DIR] [--seed N] [-- EXPERIMENT OPTIONS]
     drlab reproduce [--quick]          every registered experiment, then results/README.md
     drlab gradcheck [KERNEL ...]       finite-difference table; exit status 1 on any failure
     drlab bench [FAMILY ...] [--json]  timings (median of >= 3 runs after a warm-up)
@@ -57,7 +57,7 @@ def one_line(exc: BaseException) -> str:
         where = f"{exc.filename}: " if exc.filename is not None else ""
         return f"{where}{exc.strerror[0].lower()}{exc.strerror[1:]}"
     text = str(exc).strip() or type(exc).__name__
-    return " ".join(text.split())  # newlines and indentation folded into one line
+    return " ".join(part.strip() for part in text.splitlines() if part.strip())  # lines folded into one
 
 
 def directory_path(value: str) -> str:
@@ -160,8 +160,11 @@ class _ChildInterrupted(KeyboardInterrupt):
 def _cmd_run(args: argparse.Namespace) -> int:
     _check_experiment(args.experiment)
     _check_device(args.device)
-    return _run_one(args.experiment, args.quick, args.device, Path(args.out) if args.out is not None else None,
-                    args.seed, args.extra + (["--debug"] if args.debug else []))
+    out = Path(args.out) if args.out is not None else None
+    if out is None and args.smoke:
+        out = registry.default_out(args.experiment, smoke=True)
+    extra = (["--smoke"] if args.smoke else []) + args.extra + (["--debug"] if args.debug else [])
+    return _run_one(args.experiment, args.quick, args.device, out, args.seed, extra)
 
 
 def _provenance(metrics_path: Path) -> str:
@@ -309,7 +312,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "`--` go to the experiment itself, e.g. `drlab run fit_nerf -- --fields grid --no-progress`; "
                     "`python -m experiments.EXPERIMENT --help` lists them.")
     r.add_argument("experiment", help="a registered experiment (drlab list)")
-    r.add_argument("--quick", action="store_true", help="small settings (minutes on 2 cores)")
+    size = r.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="small settings (minutes on 2 cores)")
+    size.add_argument("--smoke", action="store_true",
+                      help="tiny sizes (seconds): checks that the experiment runs end to end; passed on to it")
     r.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
     r.add_argument("--out", default=None, type=directory_path,
                    help="results folder (default: results/EXPERIMENT, with --quick build/results-quick/EXPERIMENT; "
@@ -373,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         if debug:
             raise
-        print(f"{prog}: interrupted (Ctrl-C); nothing half-written was left in place", file=sys.stderr, flush=True)
+        print(f"{prog}: interrupted (Ctrl-C)", file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
 
 
