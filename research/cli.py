@@ -60,6 +60,18 @@ def one_line(exc: BaseException) -> str:
     return " ".join(part.strip() for part in text.splitlines() if part.strip())  # lines folded into one
 
 
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether Ctrl-C is behind `exc`: some libraries (Mitsuba's render, through Dr.Jit) re-raise the
+    KeyboardInterrupt as another exception whose cause or context it is."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def directory_path(value: str) -> str:
     """argparse type of a folder option: any non-blank path (whether it exists is checked later)."""
     if not value.strip():
@@ -374,6 +386,10 @@ def main(argv: list[str] | None = None) -> int:
                 raise
             print(f"{prog}: {one_line(e)}", file=sys.stderr, flush=True)
             return EXIT_USAGE
+        except Exception as e:
+            if caused_by_interrupt(e):
+                raise KeyboardInterrupt from e
+            raise
     except _ChildInterrupted:
         return EXIT_INTERRUPTED  # the experiment's process has said so
     except KeyboardInterrupt:

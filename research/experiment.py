@@ -40,7 +40,7 @@ Errors, as in the `drlab` CLI (research.cli): a user mistake (a bad option or va
 unwritable file or folder) prints one line `<prog>: <message>` to stderr and exits with status 2
 (`<prog>` is `drlab run <name>` under `drlab run`, else `python -m experiments.<name>`); `--debug`
 shows the traceback instead. Ctrl-C exits with status 130 after one line, its temporary folder
-deleted and `<out>` as it was.
+deleted and `<out>` as it was (the two renames that swap the folder in hold Ctrl-C until done).
 """
 
 from __future__ import annotations
@@ -170,7 +170,21 @@ def results_folder(out: str | Path):
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    commit_folder(tmp, out)
+    with _signals_deferred():  # Ctrl-C / SIGTERM between the two renames would leave no <out> in place
+        commit_folder(tmp, out)
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """Hold SIGINT and SIGTERM until the block ends (they are delivered then); a no-op without sigmask."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def commit_folder(tmp: Path, out: Path) -> None:
@@ -302,12 +316,17 @@ class Experiment:
 
         User mistakes exit 2 and Ctrl-C exits 130, each after one line on stderr (module docstring).
         """
-        from research.cli import EXIT_INTERRUPTED, EXIT_USAGE, USER_ERRORS, one_line
+        from research.cli import EXIT_INTERRUPTED, EXIT_USAGE, USER_ERRORS, caused_by_interrupt, one_line
 
         argv = list(sys.argv[1:] if argv is None else argv)
         debug = "--debug" in argv
         try:
-            return self._main(argv)
+            try:
+                return self._main(argv)
+            except Exception as e:
+                if caused_by_interrupt(e) and not debug:
+                    raise KeyboardInterrupt from e  # Ctrl-C re-raised by a library as another exception
+                raise
         except USER_ERRORS as e:
             if debug:
                 raise
@@ -316,7 +335,7 @@ class Experiment:
         except KeyboardInterrupt:
             if debug:
                 raise
-            print(f"{self.prog}: interrupted (Ctrl-C); the results folder was left as it was", file=sys.stderr,
+            print(f"{self.prog}: interrupted (Ctrl-C); no half-written results were kept", file=sys.stderr,
                   flush=True)
             return EXIT_INTERRUPTED
 

@@ -240,6 +240,45 @@ def test_keyboard_interrupt_in_a_body_exits_130_and_leaves_the_folder_as_it_was(
     assert json.loads((out / "metrics.json").read_text()) == {"run": "first"}
 
 
+def test_ctrl_c_between_the_two_renames_is_held_until_the_new_folder_is_in_place(capsys, tmp_path, monkeypatch):
+    import signal as _signal
+
+    out = tmp_path / "res"
+    _write_run(out, "first")
+    real_replace, calls = os.replace, []
+
+    def replace_then_ctrl_c(src, dst):
+        real_replace(src, dst)
+        if Path(dst).parent != tmp_path:  # a file written inside the run's folder
+            return
+        calls.append(dst)
+        if len(calls) == 1:  # the old folder is aside, the new one not yet in: the worst moment
+            os.kill(os.getpid(), _signal.SIGINT)
+            sum(range(10000))  # bytecode runs here, where an undeferred KeyboardInterrupt would be raised
+
+    monkeypatch.setattr(os, "replace", replace_then_ctrl_c)
+    assert _dummy().main(["--out", str(out)]) == 130
+    monkeypatch.undo()
+    assert len(calls) == 2
+    assert json.loads((out / "metrics.json").read_text())["experiment"] == "dummy"  # the new run, whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
+    assert len(_lines(capsys.readouterr().err)) == 1
+
+
+def test_ctrl_c_re_raised_by_a_library_as_another_exception_still_exits_130(capsys, tmp_path):
+    """Mitsuba's render (through Dr.Jit) turns Ctrl-C into a RuntimeError whose cause is the KeyboardInterrupt."""
+
+    def body(ctx):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise RuntimeError("drjit.custom(...): error while performing a custom operation") from e
+
+    assert _dummy(body).main(["--out", str(tmp_path / "res")]) == 130
+    assert len(_lines(capsys.readouterr().err)) == 1
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_keyboard_interrupt_in_a_command_exits_130_with_one_line(capsys, monkeypatch):
     def interrupted(args):
         raise KeyboardInterrupt
@@ -336,8 +375,7 @@ def test_ctrl_c_during_drlab_run_exits_130_with_one_line_and_nothing_half_writte
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stdout + stderr
     err = _lines(stderr)
-    assert err == ["drlab run volume_render_spheres: interrupted (Ctrl-C); the results folder was left as it was"], \
-        stderr
+    assert err == ["drlab run volume_render_spheres: interrupted (Ctrl-C); no half-written results were kept"], stderr
     assert list(tmp_path.iterdir()) == []  # no results folder, no temporary one
 
 
