@@ -176,15 +176,36 @@ def results_folder(out: str | Path):
 
 @contextlib.contextmanager
 def _signals_deferred():
-    """Hold SIGINT and SIGTERM until the block ends (they are delivered then); a no-op without sigmask."""
-    if not hasattr(signal, "pthread_sigmask"):
+    """Hold SIGINT and SIGTERM until the block ends, then act on the first one that came.
+
+    Python-level handlers that only record the signal, not a signal mask: a process-directed signal
+    goes to any thread that does not block it (Warp, SciPy or tqdm threads), and Python would still
+    raise KeyboardInterrupt in the main thread. Outside the main thread (where handlers cannot be
+    set) this is a no-op.
+    """
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    pending: list[int] = []
+    wanted = [s for s in (getattr(signal, "SIGINT", None), getattr(signal, "SIGTERM", None)) if s is not None]
+    previous = {s: signal.getsignal(s) for s in wanted}
+    for s in wanted:
+        signal.signal(s, lambda signum, frame: pending.append(signum))
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+        if pending:
+            signum, handler = pending[0], previous[pending[0]]
+            if callable(handler):
+                handler(signum, None)  # SIGINT's default handler raises KeyboardInterrupt here
+            elif handler == signal.SIG_DFL:
+                if signum == signal.SIGINT:
+                    raise KeyboardInterrupt
+                os.kill(os.getpid(), signum)  # the default action, now that the folder is in place
 
 
 def commit_folder(tmp: Path, out: Path) -> None:
