@@ -1,11 +1,18 @@
 """The `drlab` command line.
 
     drlab dataset --scene NAME [--views N --res R --spp S --stereo --flow] --out DIR [--resume] [--force]
-    drlab run EXPERIMENT [--quick] [--device cpu|cuda] [--out DIR] [--seed N] [-- EXPERIMENT OPTIONS]
+    drlab run EXPERIMENT [--quick|--smoke] [--device cpu|cuda] [--out DIR] [--seed N] [-- EXPERIMENT OPTIONS]
     drlab reproduce [--quick]          every registered experiment, then results/README.md
     drlab gradcheck [KERNEL ...]       finite-difference table; exit status 1 on any failure
     drlab bench [FAMILY ...] [--json]  timings (median of >= 3 runs after a warm-up)
     drlab list                         registered experiments, gradient checks and bench families
+
+Errors: a user mistake (a bad option or value, a folder that exists or is missing, a file that
+cannot be written, an unknown name) prints one line `drlab <command>: <message>` to stderr and
+exits with status 2; `drlab --debug ...` shows the traceback instead (and passes --debug on to
+experiments). Ctrl-C exits with status 130 after one line; the dataset generator and the
+experiment contract write to temporary names, so nothing half-written is left in place.
+`--device cuda` on a machine where Warp sees no GPU is refused the same way before any work.
 
 Experiments run as their own processes (`python -m experiments.<name> ...`), so
 research never imports experiments and every experiment also works on its own.
@@ -25,6 +32,69 @@ from pathlib import Path
 
 from research import atomic, registry
 from research.registry import BENCH_MODULES, EXPERIMENTS, REPO_ROOT
+
+#: Exceptions that mean the user asked for something that cannot be done (not a bug in drlab).
+USER_ERRORS = (ValueError, FileExistsError, FileNotFoundError, PermissionError, NotADirectoryError,
+               IsADirectoryError)
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
+
+
+class UsageError(ValueError):
+    """A bad command line, raised by the parser instead of printing its usage text."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are exceptions, so `main` prints them as one line."""
+
+    def error(self, message: str):  # type: ignore[override]
+        raise UsageError(message[len("argument "):] if message.startswith("argument ") else message)
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one line: an OSError as "<path>: <reason>", anything else by its text."""
+    if isinstance(exc, OSError) and exc.strerror:
+        where = f"{exc.filename}: " if exc.filename is not None else ""
+        return f"{where}{exc.strerror[0].lower()}{exc.strerror[1:]}"
+    text = str(exc).strip() or type(exc).__name__
+    return " ".join(part.strip() for part in text.splitlines() if part.strip())  # lines folded into one
+
+
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether Ctrl-C is behind `exc`: some libraries (Mitsuba's render, through Dr.Jit) re-raise the
+    KeyboardInterrupt as another exception whose cause or context it is."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def directory_path(value: str) -> str:
+    """argparse type of a folder option: any non-blank path (whether it exists is checked later)."""
+    if not value.strip():
+        raise argparse.ArgumentTypeError(f"expected a directory path, got {value!r}")
+    return value
+
+
+def seed_value(value: str) -> int:
+    """argparse type of --seed: an integer in [0, 2^32) (what NumPy's generators accept)."""
+    try:
+        seed = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2^32), got {value!r}") from None
+    if not 0 <= seed < 2**32:
+        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2^32), got {value!r}")
+    return seed
+
+
+def _check_device(value: str) -> str:
+    """`--device` resolved by the experiment contract's rule; ValueError naming --device otherwise."""
+    from research.experiment import resolve_device
+
+    return resolve_device(value)
 
 
 def _cmd_dataset(args: argparse.Namespace) -> int:
@@ -64,27 +134,49 @@ def _experiment_env() -> dict[str, str]:
     return env
 
 
-def _run_one(name: str, quick: bool, device: str, out: Path | None, seed: int | None, extra: list[str] = ()) -> int:
+def _check_experiment(name: str) -> None:
     if name not in EXPERIMENTS:
-        print(f"drlab run: unknown experiment {name!r}; registered: {', '.join(sorted(EXPERIMENTS)) or 'none'}",
-              file=sys.stderr)
-        return 2
+        raise ValueError(f"unknown experiment {name!r}; registered: {', '.join(sorted(EXPERIMENTS)) or 'none'}")
+
+
+def _run_one(name: str, quick: bool, device: str, out: Path | None, seed: int | None, extra: list[str] = ()) -> int:
+    """Run one experiment in its own process; its exit status (130 when Ctrl-C stopped it)."""
+    _check_experiment(name)
     if out is None:
         out = registry.default_out(name, quick=quick)
     cmd = _experiment_command(name, quick, device, out, seed, extra)
     print(f"drlab run {name}: {' '.join(cmd[1:])}", flush=True)
     t0 = time.perf_counter()
     # The current directory is kept, so relative paths among the extra options mean what they say.
-    rc = subprocess.run(cmd, env=_experiment_env()).returncode
+    # The child is in our process group, so Ctrl-C reaches it too: it cleans its temporary folder and
+    # says so in one line; we wait for that instead of killing it half-way.
+    proc = subprocess.Popen(cmd, env={**_experiment_env(), "DRLAB_PROG": f"drlab run {name}"})
+    try:
+        rc = proc.wait()
+    except KeyboardInterrupt:
+        try:
+            rc = proc.wait(timeout=30)
+        except (subprocess.TimeoutExpired, KeyboardInterrupt):
+            proc.kill()
+            proc.wait()
+        raise _ChildInterrupted() from None
     status = "ok" if rc == 0 else f"FAILED (exit {rc})"
     print(f"drlab run {name}: {status} in {time.perf_counter() - t0:.1f} s", flush=True)
     return rc
 
 
+class _ChildInterrupted(KeyboardInterrupt):
+    """Ctrl-C during an experiment's process, which has already said so on stderr."""
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
-    extra = args.extra
-    return _run_one(args.experiment, args.quick, args.device, Path(args.out) if args.out else None, args.seed,
-                    extra)
+    _check_experiment(args.experiment)
+    _check_device(args.device)
+    out = Path(args.out) if args.out is not None else None
+    if out is None and args.smoke:
+        out = registry.default_out(args.experiment, smoke=True)
+    extra = (["--smoke"] if args.smoke else []) + args.extra + (["--debug"] if args.debug else [])
+    return _run_one(args.experiment, args.quick, args.device, out, args.seed, extra)
 
 
 def _provenance(metrics_path: Path) -> str:
@@ -130,6 +222,7 @@ def write_results_index(results_dir: Path, names: list[str], quick: bool) -> Pat
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    _check_device(args.device)
     names = list(EXPERIMENTS)
     if not names:
         print("drlab reproduce: no experiments are registered yet")
@@ -137,7 +230,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     results_dir = registry.results_dir(quick=args.quick)
     failed = []
     for name in names:
-        if _run_one(name, args.quick, args.device, results_dir / name, None) != 0:
+        if _run_one(name, args.quick, args.device, results_dir / name, None, ["--debug"] if args.debug else []) != 0:
             failed.append(name)
     index = write_results_index(results_dir, names, args.quick)
     print(f"drlab reproduce: wrote {index}")
@@ -148,8 +241,13 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def _cmd_gradcheck(args: argparse.Namespace) -> int:
-    from research.gradcheck import format_table, run_checks
+    from research.gradcheck import _select, format_table, load_checks, run_checks
 
+    load_checks()
+    try:
+        _select(args.kernels or None)
+    except KeyError as e:  # an unknown name is a usage error, named before anything runs
+        raise ValueError(f"kernels: {e.args[0]}") from None
     _quiet_warp()
     results = run_checks(args.kernels or None)
     print(format_table(results))
@@ -168,14 +266,13 @@ def _quiet_warp() -> None:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from research.bench import run_bench
 
-    _quiet_warp()
-
     unknown = [f for f in args.families if f not in BENCH_MODULES]
     if unknown:
-        print(f"drlab bench: unknown famil{'y' if len(unknown) == 1 else 'ies'} {unknown}; "
-              f"registered: {sorted(BENCH_MODULES)}", file=sys.stderr)
-        return 2
-    rows = run_bench(args.families or None, args.device, args.quick)
+        raise ValueError(f"families: unknown famil{'y' if len(unknown) == 1 else 'ies'} {unknown}; "
+                         f"registered: {sorted(BENCH_MODULES)}")
+    device = _check_device(args.device)
+    _quiet_warp()
+    rows = run_bench(args.families or None, device, args.quick)
     for row in rows:
         if args.json:
             print(json.dumps(row), flush=True)
@@ -199,8 +296,11 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="drlab", description="drlab: differentiable rendering and 3D/video vision.")
-    sub = p.add_subparsers(dest="command", required=True)
+    p = _Parser(prog="drlab", description="drlab: differentiable rendering and 3D/video vision.")
+    p.add_argument("--debug", action="store_true",
+                   help="show the traceback of an error instead of one line (anywhere before `--`; passed on to "
+                        "experiments)")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     d = sub.add_parser("dataset", help="render a Mitsuba ground-truth dataset")
     d.add_argument("--scene", required=True, help="built-in scene: spheres, objects or cornell")
@@ -213,7 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--baseline", type=float, default=None, help="stereo baseline (default 8%% of camera distance)")
     d.add_argument("--flow", action="store_true", help="add a camera-path sequence with forward flow")
     d.add_argument("--flow-frames", type=int, default=12, help="frames in the flow sequence")
-    d.add_argument("--out", required=True, help="output directory")
+    d.add_argument("--out", required=True, type=directory_path, help="output directory")
     d.add_argument("--resume", action="store_true", help="finish an interrupted run (<out>.partial)")
     d.add_argument("--force", action="store_true", help="replace an existing dataset")
     d.set_defaults(fn=_cmd_dataset)
@@ -224,12 +324,15 @@ def build_parser() -> argparse.ArgumentParser:
                     "`--` go to the experiment itself, e.g. `drlab run fit_nerf -- --fields grid --no-progress`; "
                     "`python -m experiments.EXPERIMENT --help` lists them.")
     r.add_argument("experiment", help="a registered experiment (drlab list)")
-    r.add_argument("--quick", action="store_true", help="small settings (minutes on 2 cores)")
+    size = r.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="small settings (minutes on 2 cores)")
+    size.add_argument("--smoke", action="store_true",
+                      help="tiny sizes (seconds): checks that the experiment runs end to end; passed on to it")
     r.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
-    r.add_argument("--out", default=None,
+    r.add_argument("--out", default=None, type=directory_path,
                    help="results folder (default: results/EXPERIMENT, with --quick build/results-quick/EXPERIMENT; "
                         "in the checkout when drlab runs from one, else under the current directory)")
-    r.add_argument("--seed", type=int, default=None, help="the experiment's seed (default: its own, 0)")
+    r.add_argument("--seed", type=seed_value, default=None, help="the experiment's seed (default: its own, 0)")
     r.set_defaults(fn=_cmd_run)
 
     rp = sub.add_parser("reproduce", help="run every registered experiment and write results/README.md")
@@ -246,7 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="timings of registered kernels")
     b.add_argument("families", nargs="*", help=f"families (default: all of {', '.join(BENCH_MODULES)})")
     b.add_argument("--json", action="store_true", help="one JSON object per line")
-    b.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    b.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
     b.add_argument("--quick", action="store_true", help="smaller sizes, for smoke tests")
     b.set_defaults(fn=_cmd_bench)
 
@@ -255,17 +358,45 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _command_name(argv: list[str]) -> str:
+    """`drlab <command>` for messages: the first word that is a command, else plain `drlab`."""
+    commands = {"dataset", "run", "reproduce", "gradcheck", "bench", "list"}
+    word = next((a for a in argv if a in commands), None)
+    return f"drlab {word}" if word else "drlab"
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Parse `argv` and run the command; its exit status (module docstring: errors, Ctrl-C)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     # Everything after the first `--` belongs to the experiment (`drlab run X -- --its-option`).
     extra = argv[argv.index("--") + 1:] if "--" in argv else []
     argv = argv[:argv.index("--")] if "--" in argv else argv
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if extra and args.command != "run":
-        parser.error(f"options after `--` are only for `drlab run`: {' '.join(extra)}")
-    args.extra = extra
-    return int(args.fn(args) or 0)
+    debug = "--debug" in argv
+    argv = [a for a in argv if a != "--debug"]  # global: accepted before or after the command
+    prog = _command_name(argv)
+    try:
+        try:
+            args = build_parser().parse_args(argv)
+            if extra and args.command != "run":
+                raise UsageError(f"options after `--` are only for `drlab run`: {' '.join(extra)}")
+            args.extra, args.debug = extra, debug
+            return int(args.fn(args) or 0)
+        except USER_ERRORS as e:
+            if debug:
+                raise
+            print(f"{prog}: {one_line(e)}", file=sys.stderr, flush=True)
+            return EXIT_USAGE
+        except Exception as e:
+            if caused_by_interrupt(e):
+                raise KeyboardInterrupt from e
+            raise
+    except _ChildInterrupted:
+        return EXIT_INTERRUPTED  # the experiment's process has said so
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print(f"{prog}: interrupted (Ctrl-C)", file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

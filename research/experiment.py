@@ -34,6 +34,12 @@ killed leaves it behind, and the next run into the same `<out>` deletes it (its 
 
 Provenance (commit, host, versions, config, seed, device, wall time) is written by
 `ctx.write_results`, through research.results.write_results.
+
+Errors, as in the `drlab` CLI (research.cli): a user mistake (a bad option or value, a missing or
+unwritable file or folder) prints one line `<prog>: <message>` to stderr and exits with status 2
+(`<prog>` is `drlab run <name>` under `drlab run`, else `python -m experiments.<name>`); `--debug`
+shows the traceback instead. Ctrl-C exits with status 130 after one line, its temporary folder
+deleted and `<out>` as it was (the two renames that swap the folder in hold Ctrl-C until done).
 """
 
 from __future__ import annotations
@@ -78,7 +84,7 @@ def resolve_device(value: str) -> str:
     try:
         return str(wp.get_device(value))
     except (RuntimeError, ValueError) as e:
-        raise ValueError(f"--device {value}: {e}") from None
+        raise ValueError(f"--device: {value!r} is not a device Warp sees ({e})") from None
 
 
 # --------------------------------------------------------------------------- results folder
@@ -137,9 +143,9 @@ def check_replaceable(out: str | Path) -> None:
     """
     out = Path(out)
     if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: exists and is not a folder")
+        raise ValueError(f"--out: expected a folder, but {out} is a file")
     if out.is_dir() and any(out.iterdir()) and not (out / "metrics.json").is_file():
-        raise ValueError(f"--out {out}: the folder is replaced whole by the run, but it is neither empty nor an "
+        raise ValueError(f"--out: {out} is replaced whole by the run, but it is neither empty nor an "
                          "experiment's results folder (no metrics.json); choose another folder")
 
 
@@ -163,7 +169,42 @@ def results_folder(out: str | Path):
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    commit_folder(tmp, out)
+    with _signals_deferred():  # Ctrl-C / SIGTERM between the two renames would leave no <out> in place
+        commit_folder(tmp, out)
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """Hold SIGINT and SIGTERM until the block ends, then act on the first one that came.
+
+    Python-level handlers that only record the signal, not a signal mask: a process-directed signal
+    goes to any thread that does not block it (Warp, SciPy or tqdm threads), and Python would still
+    raise KeyboardInterrupt in the main thread. Outside the main thread (where handlers cannot be
+    set) this is a no-op.
+    """
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    wanted = [s for s in (getattr(signal, "SIGINT", None), getattr(signal, "SIGTERM", None)) if s is not None]
+    previous = {s: signal.getsignal(s) for s in wanted}
+    for s in wanted:
+        signal.signal(s, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+        if pending:
+            signum, handler = pending[0], previous[pending[0]]
+            if callable(handler):
+                handler(signum, None)  # SIGINT's default handler raises KeyboardInterrupt here
+            elif handler == signal.SIG_DFL:
+                if signum == signal.SIGINT:
+                    raise KeyboardInterrupt
+                os.kill(os.getpid(), signum)  # the default action, now that the folder is in place
 
 
 def commit_folder(tmp: Path, out: Path) -> None:
@@ -272,9 +313,16 @@ class Experiment:
         self.name, self.doc, self.body, self.add_options = name, doc, body, add_options
         self.sizes, self.data_help, self.seed_help, self.warp = sizes, data_help, seed_help, warp
 
+    @property
+    def prog(self) -> str:
+        """The name its one-line errors start with: `drlab run <name>` under drlab, else the module."""
+        return os.environ.get("DRLAB_PROG") or f"python -m experiments.{self.name}"
+
     def parser(self) -> argparse.ArgumentParser:
-        p = argparse.ArgumentParser(prog=f"python -m experiments.{self.name}", description=self.doc,
-                                    formatter_class=argparse.RawDescriptionHelpFormatter)
+        from research.cli import _Parser
+
+        p = _Parser(prog=f"python -m experiments.{self.name}", description=self.doc,
+                    formatter_class=argparse.RawDescriptionHelpFormatter)
         g = p.add_argument_group("options every experiment has", description=f"Sizes. {self.sizes}")
         size = g.add_mutually_exclusive_group()
         size.add_argument("--quick", action="store_true", help="smaller settings (sizes above)")
@@ -285,14 +333,15 @@ class Experiment:
                        help="Warp device: cpu (default), cuda or cuda:N when Warp sees one"
                             + ("" if self.warp else "; this experiment runs on the CPU whatever the device, and "
                                                     "records cpu"))
-        g.add_argument("--out", type=Path, default=None,
+        g.add_argument("--out", type=_folder, default=None,
                        help=f"results folder (default: {registry.describe_default_out(self.name)}). It is "
                             "replaced whole when the run finishes; a killed run leaves it as it was")
-        g.add_argument("--seed", type=int, default=0, help=f"{self.seed_help} (default: 0)")
-        g.add_argument("--data", type=Path, default=None,
+        g.add_argument("--seed", type=_seed, default=0, help=f"{self.seed_help} (default: 0); 0 <= seed < 2^32")
+        g.add_argument("--data", type=_folder, default=None,
                        help=(f"{self.data_help} (default: {registry.describe_default_data()})" if self.data_help
                              else "not used: this experiment generates its data in memory"))
         g.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+        g.add_argument("--debug", action="store_true", help="show the traceback of an error instead of one line")
         if self.add_options is not None:
             self.add_options(p.add_argument_group(f"options of {self.name}"))
         return p
@@ -305,15 +354,39 @@ class Experiment:
         return self.main
 
     def main(self, argv: list[str] | None = None) -> int:
-        """Parse `argv`, resolve the device, run the body into a temporary folder, swap it in; exit status."""
+        """Parse `argv`, resolve the device, run the body into a temporary folder, swap it in; exit status.
+
+        User mistakes exit 2 and Ctrl-C exits 130, each after one line on stderr (module docstring).
+        """
+        from research.cli import EXIT_INTERRUPTED, EXIT_USAGE, USER_ERRORS, caused_by_interrupt, one_line
+
+        argv = list(sys.argv[1:] if argv is None else argv)
+        debug = "--debug" in argv
+        try:
+            try:
+                return self._main(argv)
+            except Exception as e:
+                if caused_by_interrupt(e) and not debug:
+                    raise KeyboardInterrupt from e  # Ctrl-C re-raised by a library as another exception
+                raise
+        except USER_ERRORS as e:
+            if debug:
+                raise
+            print(f"{self.prog}: {one_line(e)}", file=sys.stderr, flush=True)
+            return EXIT_USAGE
+        except KeyboardInterrupt:
+            if debug:
+                raise
+            print(f"{self.prog}: interrupted (Ctrl-C); no half-written results were kept", file=sys.stderr,
+                  flush=True)
+            return EXIT_INTERRUPTED
+
+    def _main(self, argv: list[str]) -> int:
         p = self.parser()
         args = p.parse_args(argv)
         if args.data is None:
             args.data = registry.default_data_dir()
-        try:
-            device = resolve_device(args.device)
-        except ValueError as e:
-            p.error(str(e))  # exit status 2, the message names --device
+        device = resolve_device(args.device)  # ValueError naming --device: before any work
         if self.warp:
             from research.warp_runtime import init_warp
 
@@ -324,10 +397,7 @@ class Experiment:
         final = Path(args.out) if args.out is not None else registry.default_out(self.name, quick=args.quick,
                                                                                    smoke=args.smoke)
         final = final.absolute()
-        try:
-            check_replaceable(final)
-        except ValueError as e:
-            p.error(str(e))
+        check_replaceable(final)
         with _sigterm_as_exit():
             with results_folder(final) as tmp:
                 ctx = Context(self.name, args, device, tmp, final)
@@ -340,6 +410,19 @@ class Experiment:
                 print(said)
         print(f"{self.name}: wrote {final} in {ctx.elapsed():.1f} s", flush=True)
         return rc
+
+
+def _folder(value: str) -> Path:
+    """argparse type of --out and --data: a non-blank path."""
+    from research.cli import directory_path
+
+    return Path(directory_path(value))
+
+
+def _seed(value: str) -> int:
+    from research.cli import seed_value
+
+    return seed_value(value)
 
 
 @contextlib.contextmanager

@@ -13,6 +13,12 @@ averaged over every window position lying fully inside the image ("valid"), then
 channels. This matches skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5,
 use_sample_covariance=False, data_range=L) and the usual NeRF evaluation code.
 
+Domain: `psnr` and `ssim` refuse (ValueError naming the argument) images of different shapes,
+NaN or infinite values, a `data_range` that is not finite and > 0, and pixel values outside
+[0, data_range] beyond a rounding slack of 1e-6 data_range: a 0-255 image scored against a 0-1
+one, or with the default data_range 1, gives a meaningless number (-43.6 dB) instead of an error
+otherwise. `mse` compares any finite images.
+
 Novel-view evaluation (`EVAL_PROTOCOL`, shared by fit_nerf and fit_splats so that their rows in
 results/comparison are comparable): the linear image composited on black (premultiplied RGB),
 clipped to [0, 1], then sRGB-encoded (`srgb_on_black`) -- for prediction and ground truth alike.
@@ -50,6 +56,25 @@ def _pair(pred: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return a, b
 
 
+RANGE_SLACK = 1e-6  # relative to data_range: sRGB encoding of 1.0 may land an ulp above it
+
+
+def _check_data_range(data_range: float) -> float:
+    if isinstance(data_range, bool) or not isinstance(data_range, (int, float, np.number)) \
+            or not np.isfinite(data_range) or not data_range > 0:
+        raise ValueError(f"data_range: expected a finite number > 0, got {data_range!r}")
+    return float(data_range)
+
+
+def _check_in_range(a: np.ndarray, name: str, data_range: float) -> None:
+    slack = RANGE_SLACK * data_range
+    lo, hi = float(a.min()), float(a.max())
+    if lo < -slack or hi > data_range + slack:
+        hint = " (a 0-255 image? divide it by 255, or pass data_range=255 for both)" if 2 < hi <= 255 else ""
+        raise ValueError(f"{name}: expected values in [0, data_range={data_range:g}], got [{lo:.6g}, {hi:.6g}]"
+                         f"{hint}")
+
+
 def mse(pred: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> float:
     a, b = _pair(pred, target)
     err = (a - b) ** 2
@@ -64,10 +89,12 @@ def mse(pred: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) ->
 
 
 def psnr(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0, mask: np.ndarray | None = None) -> float:
-    """10 log10(L^2 / MSE); +inf for identical images."""
-    if not data_range > 0:
-        raise ValueError(f"data_range: expected a positive value, got {data_range}")
-    e = mse(pred, target, mask)
+    """10 log10(L^2 / MSE); +inf for identical images. Both images must lie in [0, L] (module docstring)."""
+    data_range = _check_data_range(data_range)
+    a, b = _pair(pred, target)
+    _check_in_range(a, "pred", data_range)
+    _check_in_range(b, "target", data_range)
+    e = mse(a, b, mask)
     return float("inf") if e == 0 else float(10.0 * np.log10(data_range**2 / e))
 
 
@@ -85,10 +112,11 @@ def _filter_valid(img: np.ndarray, g: np.ndarray) -> np.ndarray:
 
 
 def ssim(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0) -> float:
-    """Mean SSIM (module docstring); images (H, W) or (H, W, C) with H, W >= 11."""
+    """Mean SSIM (module docstring); images (H, W) or (H, W, C) with H, W >= 11, in [0, data_range]."""
+    data_range = _check_data_range(data_range)
     a, b = _pair(pred, target)
-    if not data_range > 0:
-        raise ValueError(f"data_range: expected a positive value, got {data_range}")
+    _check_in_range(a, "pred", data_range)
+    _check_in_range(b, "target", data_range)
     if min(a.shape[:2]) < SSIM_WINDOW:
         raise ValueError(f"pred: SSIM needs images at least {SSIM_WINDOW}x{SSIM_WINDOW}, got {a.shape[:2]}")
     if a.ndim == 2:

@@ -32,7 +32,15 @@ replaced by fixed ones:
 Metrics (`flow_metrics`): EPE = mean |flow - gt| over a mask, and F1-all, the
 KITTI 2015 outlier rate: the percentage of pixels with EPE > 3 px AND
 EPE > 5% of |gt|. Colours (`flow_to_color`): the Middlebury colour wheel of
-Baker et al. (2011), hue = direction, saturation = magnitude.
+Baker et al. (2011), hue = direction, saturation = magnitude; a pixel whose flow is NaN or
+infinite (or outside an optional `valid` mask) has no direction and is drawn black, the colour
+no valid flow can take (valid colours have at least one channel at 1), and the scale comes from
+the valid pixels only.
+
+Images: `CorrFlow` takes uint8, uint16 or float colour images in [0, 1] (grey ones are repeated
+into three channels), and `lucas_kanade` / `pyramidal_lucas_kanade` here wrap kernels.lucas_kanade
+with research.images.to_unit_grey (uint8 / 255, uint16 / 65535, colour by Rec. 601 luma, a float
+image outside [0, 1] refused; float64 frames stay float64, so existing callers get identical flow).
 """
 
 from __future__ import annotations
@@ -44,6 +52,7 @@ import warp as wp
 from scipy import ndimage
 
 from kernels import corr
+from research.images import to_unit, unit_grey_pair
 
 PATCH = 5
 SCALES = 4
@@ -113,8 +122,21 @@ def upsample_flow(flow: np.ndarray, stride: int, height: int, width: int) -> np.
 # --------------------------------------------------------------------------- the estimator
 
 
+def _check_int(name: str, value, low: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
+
+
+def _check_positive(name: str, value) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not np.isfinite(value) \
+            or value <= 0:
+        raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
+
+
 @dataclass(frozen=True)
 class CorrFlowConfig:
+    """Settings of `CorrFlow.estimate` (module docstring); each is checked when the config is made."""
+
     levels: int = 4
     radius: int = 4
     iterations: int = 12
@@ -123,12 +145,48 @@ class CorrFlowConfig:
     min_confidence: float = 0.02
     aggregate: int = 1
 
+    def __post_init__(self) -> None:
+        _check_int("levels", self.levels, 1)
+        _check_int("radius", self.radius, 1)  # the soft-argmax reads 3 x 3 samples around the peak
+        _check_int("iterations", self.iterations, 1)
+        _check_positive("temperature", self.temperature)
+        _check_int("smooth_radius", self.smooth_radius, 0)
+        _check_positive("min_confidence", self.min_confidence)
+        _check_int("aggregate", self.aggregate, 0)
+
+
+def _unit_rgb(image: np.ndarray, name: str) -> np.ndarray:
+    """Colour in [0, 1] by research.images' unit rule; a grey (H, W) image repeated into 3 channels."""
+    unit = to_unit(image, name)
+    return np.repeat(unit[..., None], 3, axis=2) if unit.ndim == 2 else unit
+
+
+def lucas_kanade(frame1: np.ndarray, frame2: np.ndarray, **kwargs):
+    """kernels.lucas_kanade.lucas_kanade on frames normalised by research.images.to_unit_grey (module docstring)."""
+    from kernels import lucas_kanade as lk
+
+    f1, f2 = unit_grey_pair(frame1, frame2, ("frame1", "frame2"), dtype=None)
+    return lk.lucas_kanade(f1, f2, **kwargs)
+
+
+def pyramidal_lucas_kanade(frame1: np.ndarray, frame2: np.ndarray, **kwargs):
+    """kernels.lucas_kanade.pyramidal_lucas_kanade on frames normalised like `lucas_kanade` here."""
+    from kernels import lucas_kanade as lk
+
+    f1, f2 = unit_grey_pair(frame1, frame2, ("frame1", "frame2"), dtype=None)
+    return lk.pyramidal_lucas_kanade(f1, f2, **kwargs)
+
 
 class CorrFlow:
     """Correlation state for one frame pair; `estimate` runs the iterative update for any levels <= max_levels."""
 
     def __init__(self, rgb1: np.ndarray, rgb2: np.ndarray, *, stride: int = 4, max_levels: int = 4,
                  onthefly: bool = False, device: str = "cpu"):
+        rgb1, rgb2 = _unit_rgb(rgb1, "rgb1"), _unit_rgb(rgb2, "rgb2")
+        if rgb1.shape != rgb2.shape:
+            raise ValueError(f"rgb2: expected the shape of rgb1 {rgb1.shape}, got {rgb2.shape}")
+        _check_int("stride", stride, 1)
+        _check_int("max_levels", max_levels, 1)
         self.stride = stride
         self.image_shape = rgb1.shape[:2]
         self.f1 = fixed_features(rgb1, stride)
@@ -261,11 +319,27 @@ def _colour_wheel() -> np.ndarray:
     return np.concatenate(rows)
 
 
-def flow_to_color(flow: np.ndarray, max_flow: float | None = None) -> np.ndarray:
-    """(H, W, 3) colours in [0, 1]: hue from direction, saturation from |flow| / max_flow."""
+def flow_to_color(flow: np.ndarray, max_flow: float | None = None, valid: np.ndarray | None = None) -> np.ndarray:
+    """(H, W, 3) colours in [0, 1]: hue from direction, saturation from |flow| / max_flow.
+
+    `max_flow`: the magnitude drawn fully saturated (None: the largest valid magnitude). Pixels
+    with NaN or infinite flow, or False in `valid` (H, W), are drawn black (module docstring).
+    """
+    flow = np.asarray(flow, dtype=np.float64)
+    if flow.ndim != 3 or flow.shape[-1] != 2:
+        raise ValueError(f"flow: expected shape (H, W, 2), got {flow.shape}")
+    if max_flow is not None and not (np.isfinite(max_flow) and max_flow > 0):
+        raise ValueError(f"max_flow: expected a finite number > 0 or None, got {max_flow!r}")
+    ok = np.all(np.isfinite(flow), axis=-1)
+    if valid is not None:
+        valid = np.asarray(valid)
+        if valid.shape != flow.shape[:2]:
+            raise ValueError(f"valid: expected shape {flow.shape[:2]}, got {valid.shape}")
+        ok &= valid.astype(bool)
+    flow = np.where(ok[..., None], flow, 0.0)
     u, v = flow[..., 0], flow[..., 1]
     mag = np.hypot(u, v)
-    scale = float(max_flow) if max_flow else max(float(mag.max()), 1e-9)
+    scale = float(max_flow) if max_flow else max(float(mag.max()) if ok.any() else 0.0, 1e-9)
     wheel = _colour_wheel()
     n = len(wheel)
     angle = np.arctan2(-v, -u) / np.pi  # in [-1, 1]
@@ -275,4 +349,4 @@ def flow_to_color(flow: np.ndarray, max_flow: float | None = None) -> np.ndarray
     f = (pos - k0)[..., None]
     col = (1 - f) * wheel[k0] + f * wheel[k1]
     sat = np.clip(mag / scale, 0, 1)[..., None]
-    return 1 - sat * (1 - col)
+    return np.where(ok[..., None], 1 - sat * (1 - col), 0.0)

@@ -18,6 +18,12 @@ Menze & Geiger; Middlebury, Scharstein & Szeliski), with e = |d - d_gt|:
   * D1 = fraction of M with e > 3 px AND e > 5% of d_gt;
   * depth abs-rel = mean |Z - Z_gt| / Z_gt over the pixels of M whose
     estimate gives a valid depth (Z = f b / d, kernels.stereo.depth_from_disparity).
+Images: `match` and `cost_volume` take uint8, uint16 or float images in [0, 1], grey (H, W) or
+colour (H, W, 3), through research.images.to_unit_grey (uint8 / 255, uint16 / 65535, colour by
+Rec. 601 luma; a float image outside [0, 1] is refused). The SGM penalties (P1 = 8, P2 = 64 by
+default) and the ZNCC epsilon are tuned for costs of images in [0, 1]: 0-255 images would make
+every SAD cost 255 times larger against the same penalties, which is why units are normalised.
+
 Invalid estimates are first filled as KITTI's devkit does before evaluating
 (`fill_invalid`): along each row, a gap takes the smaller (background)
 disparity of its two valid ends, or the one valid end at a border. So every
@@ -35,6 +41,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from kernels import stereo
+from research.images import unit_grey_pair
 from research.io import linear_to_srgb
 
 COSTS = ("sad", "zncc", "census", "corr")
@@ -80,6 +87,16 @@ class StereoConfig:
                                      ("disparity", self.disparity, DISPARITY_METHODS)):
             if value not in allowed:
                 raise ValueError(f"{name}: expected one of {allowed}, got {value!r}")
+        for name in ("p1", "p2", "zncc_eps", "temperature", "uniqueness", "lr_max_diff"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+                raise ValueError(f"{name}: expected a finite number >= 0, got {value!r}")
+        if self.p2 < self.p1:
+            raise ValueError(f"p2: expected p2 >= p1 = {self.p1}, got {self.p2}")
+        if self.temperature <= 0:
+            raise ValueError(f"temperature: expected a finite number > 0, got {self.temperature!r}")
+        if isinstance(self.radius, bool) or not isinstance(self.radius, (int, np.integer)) or self.radius < 0:
+            raise ValueError(f"radius: expected an integer >= 0, got {self.radius!r}")
 
     @property
     def label(self) -> str:
@@ -101,9 +118,18 @@ class StereoResult:
 
 def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: StereoConfig,
                 device: str = "cpu") -> Any:
-    """The matching cost (H, W, D) of `cfg.cost`, as a wp.array on `device` (lower is better)."""
+    """The matching cost (H, W, D) of `cfg.cost`, as a wp.array on `device` (lower is better).
+
+    `left`, `right`: uint8, uint16 or float in [0, 1], grey or colour (module docstring: Images).
+    """
     import warp as wp
 
+    left, right = unit_grey_pair(left, right)
+    if isinstance(dmin, bool) or isinstance(dmax, bool) or not all(isinstance(d, (int, np.integer))
+                                                                   for d in (dmin, dmax)):
+        raise ValueError(f"dmin, dmax: expected integers, got {dmin!r} and {dmax!r}")
+    if not dmin <= dmax:
+        raise ValueError(f"dmax: expected dmax >= dmin = {dmin}, got {dmax}")
     if cfg.cost == "corr":
         fl, fr = (wp.array(patch_features(x, cfg.radius), device=device) for x in (left, right))
         corr = stereo.feature_correlation(fl, fr, dmin, dmax, device=device)
@@ -141,7 +167,11 @@ def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "
 
 def match(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: StereoConfig,
           device: str = "cpu") -> StereoResult:
-    """Run the pipeline of `cfg` on grayscale images (H, W) in [0, 1]; each phase is timed."""
+    """Run the pipeline of `cfg` on one image pair; each phase is timed.
+
+    `left`, `right`: uint8, uint16 or float in [0, 1], grey (H, W) or colour (H, W, 3), normalised
+    by research.images.to_unit_grey; the penalties of `cfg` assume that [0, 1] range (module docstring).
+    """
     import warp as wp
 
     t0 = time.perf_counter()

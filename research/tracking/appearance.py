@@ -38,6 +38,15 @@ class HistogramConfig:
     val_min: float = 0.15
     shrink: float = 0.1  # trim this fraction of width/height on each side before counting
 
+    def __post_init__(self) -> None:
+        from research.tracking import checks
+
+        for name in ("hue_bins", "sat_bins", "val_bins"):
+            checks.integer(name, getattr(self, name), 1)
+        checks.probability("sat_min", self.sat_min)
+        checks.probability("val_min", self.val_min)
+        checks.number("shrink", self.shrink, 0.0, 0.49)
+
     @property
     def dim(self) -> int:
         return self.hue_bins * self.sat_bins + self.val_bins

@@ -8,6 +8,11 @@ SORT's measurement (Bewley et al. 2016) is z = [u, v, s, r]: the box centre
 w = sqrt(s r) and h = s / w.
 
 IoU(a, b) = |a ∩ b| / |a ∪ b|, and 0 when the union is empty.
+
+Domain: `iou_matrix` and the xyxy/xywh conversions take finite boxes with w, h >= 0 (an empty box
+has IoU 0 with everything); `xyxy_to_z` needs w, h > 0 (r = w / h). Anything else raises
+ValueError naming the argument. Detections are different: trackers drop bad rows with a warning
+(`sanitize_detections`), so one bad detector output does not stop a sequence.
 """
 
 from __future__ import annotations
@@ -17,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from research.tracking import checks
+
 
 class InvalidDetectionWarning(RuntimeWarning):
     """Raised (as a warning) when a tracker drops NaN or degenerate detections."""
@@ -24,17 +31,25 @@ class InvalidDetectionWarning(RuntimeWarning):
 
 def xyxy_to_xywh(boxes: np.ndarray) -> np.ndarray:
     """[x1, y1, x2, y2] -> [x1, y1, w, h] (py-motmetrics' and MOTChallenge's layout)."""
-    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    b = checks.boxes("boxes", boxes)
     return np.concatenate([b[:, :2], b[:, 2:] - b[:, :2]], axis=1)
 
 
 def xywh_to_xyxy(boxes: np.ndarray) -> np.ndarray:
-    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    b = np.asarray(boxes, dtype=float)
+    if b.size and b.shape[-1] != 4:
+        raise ValueError(f"boxes: expected xywh boxes (..., 4), got shape {b.shape}")
+    b = b.reshape(-1, 4)
+    if not np.all(np.isfinite(b)) or np.any(b[:, 2:] < 0):
+        raise ValueError("boxes: expected finite xywh boxes with w, h >= 0")
     return np.concatenate([b[:, :2], b[:, :2] + b[:, 2:]], axis=1)
 
 
 def xyxy_to_z(box: np.ndarray) -> np.ndarray:
-    """One box [x1, y1, x2, y2] -> SORT measurement [u, v, s, r]."""
+    """One box [x1, y1, x2, y2] (finite, w, h > 0) -> SORT measurement [u, v, s, r]."""
+    if np.shape(box) != (4,):
+        raise ValueError(f"box: expected one xyxy box of 4 values, got shape {np.shape(box)}")
+    box = checks.boxes("box", box, allow_empty_box=False)[0]
     w = box[2] - box[0]
     h = box[3] - box[1]
     return np.array([box[0] + 0.5 * w, box[1] + 0.5 * h, w * h, w / h])
@@ -55,8 +70,8 @@ def z_to_xyxy(z: np.ndarray, min_area: float = 1e-6, min_ratio: float = 1e-3) ->
 
 def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pairwise IoU of xyxy boxes a (N, 4) and b (M, 4) -> (N, M); 0 where a union is empty."""
-    a = np.asarray(a, dtype=float).reshape(-1, 4)
-    b = np.asarray(b, dtype=float).reshape(-1, 4)
+    a = checks.boxes("a", a)
+    b = checks.boxes("b", b)
     ix1 = np.maximum(a[:, None, 0], b[None, :, 0])
     iy1 = np.maximum(a[:, None, 1], b[None, :, 1])
     ix2 = np.minimum(a[:, None, 2], b[None, :, 2])

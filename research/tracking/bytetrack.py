@@ -56,6 +56,7 @@ import numpy as np
 from research.tracking.appearance import cosine_distance, ema_feature
 from research.tracking.assignment import gated_assignment
 from research.tracking.box_track import KalmanBoxTrack
+from research.tracking import checks
 from research.tracking.boxes import iou_matrix, sanitize_detections
 from research.tracking.sort import empty_output
 
@@ -83,6 +84,20 @@ class ByteTrackConfig:
     gate_sigma: float = 0.05  # extra position std per unobserved frame, in box heights
     ema_alpha: float = 0.9
 
+    def __post_init__(self) -> None:
+        for name in ("track_thresh", "low_thresh", "new_track_thresh", "match_thresh", "second_match_thresh",
+                     "unconfirmed_match_thresh", "duplicate_iou", "ema_alpha"):
+            checks.probability(name, getattr(self, name))
+        if self.low_thresh > self.track_thresh:
+            raise ValueError(f"low_thresh: expected low_thresh <= track_thresh = {self.track_thresh}, "
+                             f"got {self.low_thresh}")
+        checks.integer("track_buffer", self.track_buffer, 0)
+        checks.flag("fuse_score", self.fuse_score)
+        checks.flag("use_appearance", self.use_appearance)
+        checks.number("app_thresh", self.app_thresh, 0.0, 2.0)  # a cosine distance
+        checks.number("gate_chi2", self.gate_chi2, 0.0, low_open=True)
+        checks.number("gate_sigma", self.gate_sigma, 0.0)
+
 
 class _Track(KalmanBoxTrack):
     def __init__(self, box: np.ndarray, track_id: int, score: float, frame: int, feature: np.ndarray | None):
@@ -101,6 +116,8 @@ class ByteTrack:
     returns (M, 5) rows [x1, y1, x2, y2, track_id] (ids start at 1)."""
 
     def __init__(self, config: ByteTrackConfig = ByteTrackConfig()) -> None:
+        if not isinstance(config, ByteTrackConfig):
+            raise ValueError(f"config: expected a ByteTrackConfig, got {type(config).__name__}")
         self.config = config
         self.tracked: list[_Track] = []  # state TRACKED, confirmed or not
         self.lost: list[_Track] = []

@@ -64,12 +64,22 @@ class LinearGaussianModel:
     R: np.ndarray  # (m, m) measurement noise covariance
 
     def __post_init__(self) -> None:
+        """Shapes, finite F and H, and Q, R symmetric positive semi-definite (research.tracking.checks)."""
+        from research.tracking import checks
+
+        if np.ndim(self.F) != 2 or np.ndim(self.H) != 2:
+            raise ValueError(f"F, H: expected matrices, got shapes {np.shape(self.F)}, {np.shape(self.H)}")
         n = self.F.shape[0]
         m = self.H.shape[0]
         if self.F.shape != (n, n) or self.Q.shape != (n, n):
             raise ValueError(f"F and Q must be ({n}, {n}); got {self.F.shape}, {self.Q.shape}")
         if self.H.shape != (m, n) or self.R.shape != (m, m):
             raise ValueError(f"H must be ({m}, {n}) and R ({m}, {m}); got {self.H.shape}, {self.R.shape}")
+        for name in ("F", "H"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValueError(f"{name}: contains NaN or infinite values")
+        checks.covariance("Q", self.Q)
+        checks.covariance("R", self.R)
 
     @property
     def state_dim(self) -> int:
@@ -158,8 +168,13 @@ def kalman_filter(
         raise ValueError(f"zs must be (T, {model.meas_dim}) or (B, T, {model.meas_dim}); got {zs.shape}")
     B, T = zb.shape[:2]
     n = model.state_dim
-    x = np.broadcast_to(np.asarray(x0, dtype=float), (B, n)).copy()
-    P = np.asarray(P0, dtype=float)
+    from research.tracking import checks
+
+    P = checks.covariance("P0", P0, n)
+    x0 = np.asarray(x0, dtype=float)
+    if x0.shape not in ((n,), (B, n)) or not np.all(np.isfinite(x0)):
+        raise ValueError(f"x0: expected finite values of shape ({n},) or ({B}, {n}), got shape {x0.shape}")
+    x = np.broadcast_to(x0, (B, n)).copy()
     present = np.isfinite(zb).all(axis=2)  # (B, T)
     if not np.all(present == present[:1]):
         raise ValueError("in a batch, a missing measurement (NaN) must be missing in every sequence")
@@ -234,7 +249,16 @@ def _kinematic_blocks(order: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def kinematic_model(order: int, ndim: int, q: float, r: float, dt: float = 1.0) -> LinearGaussianModel:
-    """CV (order 1) or CA (order 2) model in `ndim` axes, positions observed with variance r."""
+    """CV (order 1) or CA (order 2) model in `ndim` axes, positions observed with variance r.
+
+    q >= 0 and r >= 0 finite (a variance; q = 0 is a noiseless motion), dt > 0 finite, ndim >= 1.
+    """
+    from research.tracking import checks
+
+    checks.integer("ndim", ndim, 1)
+    checks.number("q", q, 0.0)
+    checks.number("r", r, 0.0)
+    checks.number("dt", dt, 0.0, low_open=True)
     F1, Q1 = _kinematic_blocks(order, dt)
     eye = np.eye(ndim)
     F = np.kron(F1, eye)
@@ -260,5 +284,7 @@ def diffuse_prior(model: LinearGaussianModel, z0: np.ndarray, var: float = 1e6) 
     about R, and the derivatives are learnt from the following measurements
     instead of being assumed zero.
     """
+    if isinstance(var, bool) or not isinstance(var, (int, float, np.number)) or not (np.isfinite(var) and var > 0):
+        raise ValueError(f"var: expected a finite number > 0, got {var!r}")
     x0 = model.H.T @ np.asarray(z0, dtype=float)
     return x0, var * np.eye(model.state_dim)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from research.tracking import checks
 from research.tracking.assignment import max_iou_assignment
 from research.tracking.box_track import KalmanBoxTrack
 from research.tracking.boxes import iou_matrix, sanitize_detections
@@ -39,6 +40,12 @@ class SortConfig:
     iou_threshold: float = 0.3
     det_thresh: float = 0.0  # detections below this score are ignored
 
+    def __post_init__(self) -> None:
+        checks.integer("max_age", self.max_age, 0)
+        checks.integer("min_hits", self.min_hits, 0)
+        checks.probability("iou_threshold", self.iou_threshold)
+        checks.probability("det_thresh", self.det_thresh)
+
 
 def empty_output() -> np.ndarray:
     return np.zeros((0, 5))
@@ -49,6 +56,8 @@ class Sort:
     returns (M, 5) rows [x1, y1, x2, y2, track_id] (ids start at 1)."""
 
     def __init__(self, config: SortConfig = SortConfig()) -> None:
+        if not isinstance(config, SortConfig):
+            raise ValueError(f"config: expected a SortConfig, got {type(config).__name__}")
         self.config = config
         self.tracks: list[KalmanBoxTrack] = []
         self.frame_count = 0

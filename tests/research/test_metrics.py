@@ -49,7 +49,7 @@ def test_ssim_identity_and_bounds():
 def test_psnr_matches_definition():
     rng = np.random.default_rng(0)
     x = rng.uniform(0, 1, (8, 9, 3))
-    y = x + rng.normal(0, 0.05, x.shape)
+    y = np.clip(x + rng.normal(0, 0.05, x.shape), 0.0, 1.0)  # PSNR needs both images in [0, 1]
     assert psnr(y, x) == pytest.approx(10 * np.log10(1.0 / np.mean((y - x) ** 2)), rel=1e-12)
     mask = rng.uniform(size=(8, 9)) > 0.5
     assert psnr(y, x, mask=mask) == pytest.approx(10 * np.log10(1.0 / np.mean((y - x)[mask] ** 2)), rel=1e-12)

@@ -202,9 +202,11 @@ def test_iou_matrix_against_brute_force_and_degenerate_boxes():
         inter = w * h
         area = lambda r: (r[2] - r[0]) * (r[3] - r[1])  # noqa: E731
         assert iou[i, j] == pytest.approx(inter / (area(a[i]) + area(b[j]) - inter), abs=1e-12)
-    degenerate = np.array([[5, 5, 5, 5], [10, 10, 0, 0], [0, 0, 0, 10.0]])
+    degenerate = np.array([[5, 5, 5, 5], [0, 0, 0, 10.0], [3, 4, 9, 4]])  # empty boxes: IoU 0
     out = iou_matrix(degenerate, np.concatenate([degenerate, a[:2]]))
     assert np.all(np.isfinite(out)) and np.all(out == 0)
+    with pytest.raises(ValueError, match=r"a: expected boxes \[x1, y1, x2, y2\] with w, h >= 0"):
+        iou_matrix(np.array([[10, 10, 0, 0.0]]), a)  # negative size: refused (test_reliability_tracking)
     assert iou_matrix(np.zeros((0, 4)), a).shape == (0, 6)
 
 
