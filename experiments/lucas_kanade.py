@@ -28,6 +28,7 @@ Writes results/lucas_kanade/{table.md, metrics.json, quiver.png}.
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 

@@ -398,7 +398,8 @@ def test_ctrl_c_during_drlab_dataset_exits_130_and_resume_finishes_it(tmp_path):
     assert r.returncode == 0, r.stderr
     manifest = json.loads((out / "manifest.json").read_text())
     assert all((out / f).is_file() for f in manifest["files"])
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+    # Only the dataset and its lock file (kept on purpose: removing a lock file races with a waiter).
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "ds.lock"]
 
 
 @pytest.mark.parametrize("point", [0, 1, 2])
