@@ -30,19 +30,17 @@ Safety:
   unless `resume=True`.
 * The run holds an fcntl lock on `<out>.lock`, so two processes never write the same dataset;
   `ensure` holds it too, so a second process waits and reuses the first one's data.
+
+The configuration and its validation are in research/datasets/config.py; the folder handling
+(`--out` checks, `.partial` state, the --force swap, the lock) in research/datasets/folders.py.
 """
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import json
 import math
-import os
 import shutil
-import sys
-import threading
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable
 
@@ -51,6 +49,9 @@ from tqdm import tqdm
 
 from research import atomic, io
 from research.cameras import Camera, smooth_path
+from research.datasets.config import DatasetConfig
+from research.datasets.folders import (PARTIAL_CONFIG, check_out, commit, config_diff, dataset_lock, notice,
+                                      partial_config, partial_dir, partial_state, recover_swap)
 from research.datasets.groundtruth import forward_flow, stereo_disparity, stereo_right_camera
 from research.datasets.render import SceneRenderer
 from research.datasets.scenes import SceneSpec, get_scene
@@ -59,89 +60,11 @@ from research.datasets.integrity import (GENERATOR, MANIFEST, VERIFIED, content_
 from research.results import host, versions
 
 SPLITS = ("train", "val", "test")
-_PARTIAL_CONFIG = ".drlab-partial.json"
 # Bump whenever the generator would write different files for the same DatasetConfig (a change of
 # pixel filter, integrator, scene or file layout). ensure() regenerates datasets of an older revision,
 # so experiments never silently train on data the current code would not produce.
 GENERATOR_REVISION = 2  # 2: box pixel filter for the RGB pass
 VIEW_SUFFIXES = (".png", ".exr", "_depth.exr", "_normal.exr", "_mask.png")
-
-
-@dataclass(frozen=True)
-class DatasetConfig:
-    scene: str
-    views: int = 100
-    res: int = 256
-    spp: int = 64
-    seed: int = 0
-    val_fraction: float = 0.1
-    test_fraction: float = 0.1
-    stereo: bool = False
-    stereo_pairs: int = 10
-    baseline: float | None = None  # default: 8% of the scene's camera distance
-    flow: bool = False
-    flow_frames: int = 12
-    flow_step_deg: float = 1.5  # camera azimuth step between consecutive flow frames
-
-    def validate(self) -> None:
-        """Raise ValueError naming the `drlab dataset` option (or the field, for those without one)."""
-        from research.datasets.scenes import SCENES
-
-        if not isinstance(self.scene, str) or self.scene not in SCENES:
-            raise ValueError(f"--scene: expected one of {', '.join(SCENES)}, got {self.scene!r}")
-        for name in ("views", "res", "spp", "stereo_pairs", "flow_frames"):
-            v = getattr(self, name)
-            if not _is_int(v) or v <= 0:
-                raise ValueError(f"{_OPTION[name]}: expected a positive integer, got {v!r}")
-        if self.views < 3:
-            raise ValueError(f"--views: expected at least 3 (one per split), got {self.views}")
-        if self.res > MAX_RES:
-            raise ValueError(f"--res: expected at most {MAX_RES} pixels, got {self.res}")
-        if not _is_int(self.seed) or not 0 <= self.seed < 2**63:
-            raise ValueError(f"--seed: expected an integer in [0, 2**63), got {self.seed!r}")
-        for name in ("stereo", "flow"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{_OPTION[name]}: expected True or False, got {getattr(self, name)!r}")
-        if self.flow and self.flow_frames < 2:
-            raise ValueError(f"--flow-frames: expected at least 2, got {self.flow_frames}")
-        for name in ("val_fraction", "test_fraction"):
-            v = getattr(self, name)
-            if not _is_real(v) or not 0.0 < v < 0.5:
-                raise ValueError(f"{name}: expected a value in (0, 0.5), got {v!r}")
-        if max(1, round(self.views * self.val_fraction)) + max(1, round(self.views * self.test_fraction)) >= self.views:
-            raise ValueError(f"--views: {self.views} views leave no training view after the val and test splits")
-        if not _is_real(self.flow_step_deg) or not 0.0 < self.flow_step_deg <= 90.0:
-            raise ValueError(f"flow_step_deg: expected a camera step in (0, 90] degrees, got {self.flow_step_deg!r}")
-        if self.baseline is not None:
-            spec = SCENES[self.scene]
-            limit = max_baseline(spec)
-            if not _is_real(self.baseline) or not 0.0 < self.baseline <= limit:
-                raise ValueError(f"--baseline: expected a finite distance in (0, {limit:.4g}] for scene {self.scene} "
-                                 f"(a wider baseline moves the scene out of the right view), got {self.baseline!r}")
-
-
-# `drlab dataset` options of the DatasetConfig fields that have one.
-_OPTION = {"views": "--views", "res": "--res", "spp": "--spp", "stereo_pairs": "--stereo-pairs",
-           "flow_frames": "--flow-frames", "stereo": "--stereo", "flow": "--flow"}
-MAX_RES = 8192
-
-
-def _is_int(v: Any) -> bool:
-    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-
-
-def _is_real(v: Any) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def max_baseline(spec: SceneSpec) -> float:
-    """The widest stereo baseline that keeps the scene's target inside the right view.
-
-    Cameras sit `spec.radius` from the target, looking at it; moving the right camera by b along
-    its x axis shifts the target by b / radius * (focal length) pixels, and it leaves the image at
-    b = radius * tan(fov_x / 2). Half of that keeps the target in the right view's central half.
-    """
-    return 0.5 * spec.radius * math.tan(math.radians(spec.fov_x_deg) / 2)
 
 
 def split_assignment(n: int, val_fraction: float, test_fraction: float, seed: int) -> list[str]:
@@ -323,11 +246,11 @@ def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force
     out = check_out(out, force=force)
     partial = partial_dir(out)
     cfg_dict = asdict(cfg)
-    _partial_state(partial, cfg_dict, resume, force)  # its errors too come before the lock file is created
+    partial_state(partial, cfg_dict, resume, force)  # its errors too come before the lock file is created
     with dataset_lock(out):
-        _recover_swap(out)
+        recover_swap(out)
         out = check_out(out, force=force)  # again, under the lock: another process may have finished it
-        state = _partial_state(partial, cfg_dict, resume, force)
+        state = partial_state(partial, cfg_dict, resume, force)
         if state in ("unreadable", "force"):
             why = ("its configuration record is missing or unreadable" if state == "unreadable" else
                    "--force starts over (--resume would finish it)")
@@ -337,9 +260,9 @@ def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force
             atomic.sweep_temporary(partial)  # left by a killed run; nothing else writes here (we hold the lock)
         else:
             partial.mkdir(parents=True)
-            atomic.write_json(partial / _PARTIAL_CONFIG, cfg_dict)  # first, before any work
+            atomic.write_json(partial / PARTIAL_CONFIG, cfg_dict)  # first, before any work
         _render(cfg, partial, show_progress)
-        _commit(out, partial)
+        commit(out, partial)
     return out
 
 
@@ -363,7 +286,7 @@ def _render(cfg: DatasetConfig, partial: Path, show_progress: bool) -> None:
         if flow_cams:
             w.render_flow(flow_cams, bar.update)
 
-    skip = {MANIFEST, _PARTIAL_CONFIG, VERIFIED}
+    skip = {MANIFEST, PARTIAL_CONFIG, VERIFIED}
     files = {p.relative_to(partial).as_posix(): file_sha256(p)
              for p in sorted(partial.rglob("*")) if p.is_file() and p.relative_to(partial).as_posix() not in skip}
     variant = w._renderer.variant if w._renderer is not None else _recorded_variant(partial)
@@ -380,170 +303,6 @@ def _render(cfg: DatasetConfig, partial: Path, show_progress: bool) -> None:
         "files": files,
     })
     write_cache(partial, (partial / MANIFEST).read_bytes(), files)
-
-
-def _commit(out: Path, partial: Path) -> None:
-    """Rename the finished `partial` to `out`; with --force the old dataset is renamed aside first.
-
-    A kill between the renames leaves `<out>.drlab-old`, which the next run puts back or deletes
-    (`_recover_swap`); the finished `.partial` still holds its manifest, so `--force --resume`
-    completes it without rendering (plain `--force` starts over).
-    """
-    (partial / _PARTIAL_CONFIG).unlink(missing_ok=True)  # the manifest records the configuration from here on
-    if out.is_dir() and not out.is_symlink() and not any(out.iterdir()):
-        out.rmdir()
-    if out.exists() or out.is_symlink():
-        old = _old_dir(out)
-        os.replace(out, old)
-        os.replace(partial, out)
-        if old.is_symlink():  # --out was a link to a dataset: drop the link, keep what it pointed to
-            old.unlink()
-        else:
-            shutil.rmtree(old)
-    else:
-        os.replace(partial, out)
-
-
-def _partial_state(partial: Path, cfg_dict: dict[str, Any], resume: bool, force: bool) -> str:
-    """"none", "resume", "unreadable" or "force" (the last two: replace it); ValueError when the user must decide."""
-    if not partial.exists():
-        return "none"
-    recorded = _partial_config(partial)
-    if recorded is None:
-        return "unreadable"
-    if force and not resume:
-        return "force"
-    if not resume:
-        raise ValueError(f"--resume: an interrupted run left {partial}; pass --resume to finish it, or delete that "
-                         "folder")
-    if recorded != cfg_dict:
-        raise ValueError(f"--resume: {partial} was started with a different configuration "
-                         f"({_config_diff(recorded, cfg_dict)}); delete that folder or rerun with its settings")
-    return "resume"
-
-
-def partial_dir(out: Path) -> Path:
-    return out.with_name(out.name + ".partial")
-
-
-def _old_dir(out: Path) -> Path:
-    return out.with_name(out.name + ".drlab-old")
-
-
-def notice(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
-
-
-def _holds_dataset(path: Path) -> bool:
-    """Whether `path` is a directory with a manifest.json written by drlab's generator."""
-    try:
-        m = json.loads((path / MANIFEST).read_text())
-    except (OSError, ValueError):
-        return False
-    return isinstance(m, dict) and m.get("generator") == GENERATOR
-
-
-def _partial_config(partial: Path) -> dict[str, Any] | None:
-    """The configuration a `.partial` folder was started with; None when missing or unreadable.
-
-    A run killed after writing its manifest (but before the final rename) has already removed the
-    configuration record; the manifest's copy counts then.
-    """
-    for name, key in ((_PARTIAL_CONFIG, None), (MANIFEST, "config")):
-        try:
-            doc = json.loads((partial / name).read_text())
-        except (OSError, ValueError):
-            continue
-        doc = doc.get(key) if key and isinstance(doc, dict) else doc
-        if isinstance(doc, dict) and set(doc) == set(asdict(DatasetConfig("spheres"))):
-            return doc
-    return None
-
-
-def _config_diff(recorded: dict[str, Any], wanted: dict[str, Any]) -> str:
-    diff = [f"{k} {recorded.get(k)!r} there, {v!r} now" for k, v in wanted.items() if recorded.get(k) != v]
-    return "; ".join(diff) or "same settings"
-
-
-def check_out(out: str | Path, *, force: bool) -> Path:
-    """`--out` checked before anything is created: a directory path whose parent can be written, not a
-    file, and (unless empty) replaced only with `force` and only when it holds a drlab dataset."""
-    if not isinstance(out, (str, os.PathLike)) or not str(out).strip():
-        raise ValueError(f"--out: expected a directory path, got {out!r}")
-    out = Path(out)
-    if out.name in ("", ".", ".."):
-        raise ValueError(f"--out: expected a path that names the dataset directory, got {str(out)!r}")
-    if out.name.endswith(".partial") or out.name.endswith(".drlab-old") or out.name.endswith(".lock"):
-        raise ValueError(f"--out: names ending in .partial, .drlab-old or .lock are drlab's own, got {out.name!r}")
-    if (out.exists() or out.is_symlink()) and not out.is_dir():
-        raise ValueError(f"--out: {out} is a file (or a broken link); expected a dataset directory")
-    partial = partial_dir(out)
-    if (partial.exists() or partial.is_symlink()) and not partial.is_dir():
-        raise ValueError(f"--out: {partial} is a file, and drlab keeps the unfinished dataset there; move it away")
-    anc = out.absolute().parent
-    while not anc.exists():
-        anc = anc.parent
-    if not anc.is_dir():
-        raise ValueError(f"--out: {anc} is a file, so {out} cannot be created")
-    if not os.access(anc, os.W_OK | os.X_OK):
-        raise ValueError(f"--out: cannot create {out}: no write permission in {anc}")
-    if out.is_dir() and any(out.iterdir()):
-        if not force:
-            raise ValueError(f"--out: {out} already exists; pass --force to replace it (only a drlab dataset is "
-                             "replaced)")
-        if not _holds_dataset(out):
-            raise ValueError(f"--out: {out} does not hold a drlab dataset (no manifest.json written by drlab "
-                             "dataset); --force replaces only datasets, so nothing was touched")
-    return out
-
-
-def _recover_swap(out: Path) -> None:
-    """Finish what a run killed during the --force swap left: put the old dataset back or delete it."""
-    old = _old_dir(out)
-    if not old.is_dir() or not _holds_dataset(old):
-        return
-    if out.exists():
-        shutil.rmtree(old)
-    else:
-        os.replace(old, out)
-        notice(f"note: restored {out} from {old}, left by a run killed while replacing it")
-
-
-_locks = threading.local()
-
-
-@contextlib.contextmanager
-def dataset_lock(out: Path):
-    """An exclusive fcntl.flock on `<out>.lock` (kept beside the dataset), re-entrant within a thread.
-
-    Another process preparing the same dataset waits here (with a one-line notice) and then sees the
-    finished dataset. The lock file stays: deleting it would let a third process lock a new file.
-    """
-    path = out.absolute().with_name(out.name + ".lock")
-    held = _locks.__dict__.setdefault("held", {})
-    key = str(path)
-    if held.get(key):
-        held[key] += 1
-        try:
-            yield
-        finally:
-            held[key] -= 1
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            notice(f"note: waiting for another process preparing {out} (lock {path})")
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        held[key] = 1
-        try:
-            yield
-        finally:
-            held.pop(key, None)
-    finally:
-        os.close(fd)  # releases the lock
 
 
 def _recorded_variant(root: Path) -> str:
@@ -605,16 +364,16 @@ def ensure(cfg: DatasetConfig, out: str | Path, show_progress: bool = True) -> P
     cfg.validate()
     out = check_out(out, force=True)
     with dataset_lock(out):
-        _recover_swap(out)
+        recover_swap(out)
         if _matches(out, cfg):
             verify(out)
             return out
         partial = partial_dir(out)
-        recorded = _partial_config(partial) if partial.is_dir() else None
+        recorded = partial_config(partial) if partial.is_dir() else None
         resume = recorded == asdict(cfg)
         if partial.exists() and not resume:
             why = "its configuration record is missing or unreadable" if recorded is None else \
-                f"it was started with a different configuration ({_config_diff(recorded, asdict(cfg))})"
+                f"it was started with a different configuration ({config_diff(recorded, asdict(cfg))})"
             notice(f"note: replacing {partial}: {why}")
             shutil.rmtree(partial)
         return generate(cfg, out, resume=resume, force=out.exists(), show_progress=show_progress)

@@ -32,7 +32,7 @@ import pytest
 from research import atomic, io
 from research.datasets import (DatasetConfig, DatasetError, ensure, generate, load, load_flow, load_stereo,
                                provenance, verify)
-from research.datasets.generate import _PARTIAL_CONFIG, dataset_lock
+from research.datasets.folders import PARTIAL_CONFIG, dataset_lock
 from research.datasets.integrity import VERIFIED, content_hash
 
 REPO = Path(__file__).resolve().parents[2]
@@ -127,7 +127,7 @@ def _broken_link(tmp):
 def _partial_of(**kw):
     def make(tmp):
         (tmp / "ds.partial").mkdir()
-        (tmp / "ds.partial" / _PARTIAL_CONFIG).write_text(json.dumps(asdict(DatasetConfig(**{**TINY, **kw}))))
+        (tmp / "ds.partial" / PARTIAL_CONFIG).write_text(json.dumps(asdict(DatasetConfig(**{**TINY, **kw}))))
     return make
 
 
@@ -444,11 +444,11 @@ def _hash(out: Path) -> str:
 
 
 def _garbage_config(partial):
-    (partial / _PARTIAL_CONFIG).write_text("{half a reco")
+    (partial / PARTIAL_CONFIG).write_text("{half a reco")
 
 
 def _missing_config(partial):
-    (partial / _PARTIAL_CONFIG).unlink()
+    (partial / PARTIAL_CONFIG).unlink()
 
 
 def _stale_temps(partial):
@@ -496,7 +496,7 @@ def test_killed_between_manifest_and_rename_resumes(cli_reference, tmp_path):
     generate(CLI_CFG, out, show_progress=False)
     partial = tmp_path / "ds.partial"
     os.replace(out, partial)  # the state a kill after the manifest and before the rename leaves
-    assert not (partial / _PARTIAL_CONFIG).exists()
+    assert not (partial / PARTIAL_CONFIG).exists()
     generate(CLI_CFG, out, resume=True, show_progress=False)
     assert verify(out) == cli_reference and _leftovers(tmp_path) == []
 
