@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from research.tracking import kalman
-from research.tracking.boxes import xyxy_to_z, z_to_xyxy
+from research.tracking.boxes import box_to_z, z_to_xyxy
 
 F = np.eye(7)
 F[0, 4] = F[1, 5] = F[2, 6] = 1.0
@@ -31,8 +31,10 @@ class KalmanBoxTrack:
     """One tracked box: its Kalman state and SORT's bookkeeping counters."""
 
     def __init__(self, box: np.ndarray, track_id: int, score: float = 1.0) -> None:
+        # `box` and the boxes given to `update` are detections the tracker has cleaned
+        # (boxes.sanitize_detections: finite, w, h > 0), so they are not checked again here.
         self.x = np.zeros(7)
-        self.x[:4] = xyxy_to_z(np.asarray(box, dtype=float))
+        self.x[:4] = box_to_z(np.asarray(box, dtype=float))
         self.P = P0.copy()
         self.id = track_id
         self.score = float(score)
@@ -59,7 +61,7 @@ class KalmanBoxTrack:
         return self.box
 
     def update(self, box: np.ndarray, score: float = 1.0) -> None:
-        z = xyxy_to_z(np.asarray(box, dtype=float))
+        z = box_to_z(np.asarray(box, dtype=float))
         res = kalman.update(self.x, self.P, z, H, R, with_loglik=False)
         self.x, self.P = res.x, res.P
         self.score = float(score)

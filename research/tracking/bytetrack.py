@@ -57,7 +57,7 @@ from research.tracking.appearance import cosine_distance, ema_feature
 from research.tracking.assignment import gated_assignment
 from research.tracking.box_track import KalmanBoxTrack
 from research.tracking import checks
-from research.tracking.boxes import iou_matrix, sanitize_detections
+from research.tracking.boxes import pairwise_iou, sanitize_detections
 from research.tracking.sort import empty_output
 
 
@@ -132,7 +132,7 @@ class ByteTrack:
     # -- costs ---------------------------------------------------------------
     def _iou_cost(self, tracks: list[_Track], dets: np.ndarray, fuse: bool) -> np.ndarray:
         boxes = np.array([t.box for t in tracks]).reshape(-1, 4)
-        iou = iou_matrix(boxes, dets[:, :4])
+        iou = pairwise_iou(boxes, dets[:, :4])
         if fuse:
             iou = iou * dets[None, :, 4]
         return 1.0 - iou
@@ -262,7 +262,7 @@ class ByteTrack:
         with IoU > duplicate_iou, keep the one that has been tracked longer."""
         if not self.tracked or not self.lost:
             return
-        iou = iou_matrix(np.array([t.box for t in self.tracked]), np.array([t.box for t in self.lost]))
+        iou = pairwise_iou(np.array([t.box for t in self.tracked]), np.array([t.box for t in self.lost]))
         drop_tracked, drop_lost = set(), set()
         for i, j in zip(*np.nonzero(iou > self.config.duplicate_iou)):
             a, b = self.tracked[i], self.lost[j]

@@ -30,7 +30,7 @@ import numpy as np
 from research.tracking import checks
 from research.tracking.assignment import max_iou_assignment
 from research.tracking.box_track import KalmanBoxTrack
-from research.tracking.boxes import iou_matrix, sanitize_detections
+from research.tracking.boxes import pairwise_iou, sanitize_detections
 
 
 @dataclass(frozen=True)
@@ -84,7 +84,7 @@ class Sort:
         pred_boxes = np.array([b for b, ok in zip(predicted, finite) if ok]).reshape(-1, 4)
 
         matches, unmatched_dets, _ = max_iou_assignment(
-            iou_matrix(d[:, :4], pred_boxes), cfg.iou_threshold
+            pairwise_iou(d[:, :4], pred_boxes), cfg.iou_threshold
         )
         for det_i, trk_i in matches:
             self.tracks[trk_i].update(d[det_i, :4], d[det_i, 4])
