@@ -132,9 +132,13 @@ def read_seqinfo(path: str | Path) -> SeqInfo:
         cp.read_string(text, source=str(path))
     except configparser.Error as e:
         line = getattr(e, "lineno", None)
+        if line is None and getattr(e, "errors", None):  # ParsingError: [(lineno, line), ...]
+            line = e.errors[0][0]
         where = f"{path}:{line}" if line else str(path)
-        msg = " ".join(str(getattr(e, "message", e)).split())
-        raise DatasetError(f"{where}: not a valid ini file ({msg})") from None
+        kind = {"MissingSectionHeaderError": "no [section] header before this line",
+                "ParsingError": "expected key=value", "DuplicateOptionError": "a key appears twice",
+                "DuplicateSectionError": "a section appears twice"}.get(type(e).__name__, type(e).__name__)
+        raise DatasetError(f"{where}: not a valid ini file ({kind})") from None
     if not cp.has_section("Sequence"):
         raise DatasetError(f"{path}: expected a [Sequence] section")
     sec = cp["Sequence"]
@@ -206,7 +210,7 @@ def _read_table(path: Path, columns: Seq[str], min_cols: int, max_cols: int, n_f
             raise DatasetError(f"{path}:{lines[i]}: {message(data[i]) if callable(message) else message}")
 
     for c in range(min_cols):
-        fail(~np.isfinite(data[:, c]), lambda r, c=c: f"{columns[c]} expected a finite number, got {r[c]!r}")
+        fail(~np.isfinite(data[:, c]), lambda r, c=c: f"{columns[c]} expected a finite number, got {r[c]:g}")
     frame = data[:, 0]
     fail((frame != np.round(frame)) | (frame < 1) | (frame > n_frames),
          lambda r: f"frame expected an integer in [1, {n_frames}] (seqLength), got {r[0]:g}")

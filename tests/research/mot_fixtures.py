@@ -23,7 +23,7 @@ def make_gt(rng: np.random.Generator, n_frames: int, width: int = 320, height: i
     """gt.txt rows (frame, id, left, top, w, h, consider, class, visibility)."""
     rows = []
     n = len(CLASSES)
-    start = rng.uniform([0, 0], [width - 40, height - 80], (n, 2))
+    start = rng.uniform([0, 0], [max(width - 40, 1), max(height - 80, 1)], (n, 2))
     vel = rng.normal(0, 2.0, (n, 2))
     size = rng.uniform([12, 30], [30, 70], (n, 2))
     life = np.sort(rng.integers(1, n_frames + 1, (n, 2)), axis=1)

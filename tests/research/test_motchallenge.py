@@ -198,3 +198,46 @@ def test_hota_equals_trackeval_with_empty_output(tmp_path):
         _compare(h, theirs[name]["pedestrian"]["HOTA"])
         assert h.hota == 0.0
     _compare(total, theirs["COMBINED_SEQ"]["pedestrian"]["HOTA"])
+
+
+# --------------------------------------------------------------------------- mot_tracking --data
+
+
+def test_mot_tracking_data_end_to_end(tmp_path):
+    """`mot_tracking --data` on a folder of two MOT17 sequences with frames: the three trackers run,
+    their tracks are written in the MOTChallenge result format, and the HOTA, DetA, AssA and MOTA it
+    reports equal trackeval's on those files."""
+    import json
+
+    from experiments import mot_tracking
+
+    data = tmp_path / "gt"
+    seqs = {}
+    for k, name in enumerate(["MOT17-02-FRCNN", "MOT17-13-SDP"]):
+        write_sequence(data, name=name, n_frames=20 + 4 * k, seed=40 + k, images=True, width=160, height=120)
+        seqs[name] = 20 + 4 * k
+    out = tmp_path / "out"
+    assert mot_tracking.main(["--data", str(data), "--out", str(out), "--no-progress"]) == 0
+    doc = json.loads((out / "metrics.json").read_text())
+    m = doc["metrics"]
+    assert set(m["trackers"]) == {"sort", "bytetrack", "bytetrack_app"}
+    assert m["dataset"]["sequences"] == list(seqs) and m["dataset"]["benchmarks"] == ["MOT17"]
+    table = (out / "table.md").read_text()
+    assert "TrackEval's MOTChallenge2DBox protocol" in table and str(data) in table
+    assert "| tracker | HOTA % | DetA % | AssA % | LocA % | MOTA % | IDF1 % | ID sw. |" in table
+    for key, mine in m["trackers"].items():
+        assert mine["fps"] > 0 and mine["ass_a"] > 0
+        trackers = tmp_path / "trackers" / key / "data"
+        trackers.mkdir(parents=True)
+        for name in seqs:
+            (trackers / f"{name}.txt").write_text((out / "tracks" / key / f"{name}.txt").read_text())
+    for key, mine in m["trackers"].items():
+        te_root = tmp_path / f"te-{key}"
+        (te_root / "trackers" / "drlab").mkdir(parents=True)
+        (te_root / "trackers" / "drlab" / "data").symlink_to(tmp_path / "trackers" / key / "data")
+        (te_root / "gt").symlink_to(data)
+        theirs = _run_trackeval(te_root, "MOT17", seqs)["COMBINED_SEQ"]["pedestrian"]
+        for mine_key, their_key in (("hota", "HOTA"), ("det_a", "DetA"), ("ass_a", "AssA"), ("loc_a", "LocA")):
+            assert mine[mine_key] == pytest.approx(float(np.mean(theirs["HOTA"][their_key])), abs=1e-6, rel=0), key
+        assert mine["mota"] == pytest.approx(theirs["CLEAR"]["MOTA"], abs=1e-9)
+        assert mine["idf1"] == pytest.approx(theirs["Identity"]["IDF1"], abs=1e-9)
