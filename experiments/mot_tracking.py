@@ -451,8 +451,9 @@ PROTOCOL = (
 
 
 def data_sequences(ctx: Context) -> list[Path] | None:
-    """MOTChallenge sequence folders under --data; None (the synthetic run) when --data is the default
-    data folder and holds none. Another --data without any is a usage error."""
+    """MOTChallenge sequence folders under --data, or None for the synthetic run: when --data is a
+    folder that holds none (such as the shared dataset cache every experiment is handed), or is the
+    default data folder and does not exist yet. Any other --data that does not exist is a usage error."""
     data = ctx.data
     if not data.exists():
         if data.absolute() == registry.default_data_dir().absolute():
@@ -462,12 +463,11 @@ def data_sequences(ctx: Context) -> list[Path] | None:
     if not data.is_dir():
         raise ValueError(f"--data: expected a folder, but {data} is a file")
     dirs = mc.find_sequences(data)
-    if dirs:
-        return dirs
-    if data.absolute() == registry.default_data_dir().absolute():
+    if not dirs:
+        print(f"note: no MOTChallenge sequence (seqinfo.ini) in {data}, its sub-folders or theirs; "
+              "running the synthetic sequences")
         return None
-    raise ValueError(f"--data: {data} holds no MOTChallenge sequence (no seqinfo.ini in it, its sub-folders or "
-                     "theirs)")
+    return dirs
 
 
 def run_on_data(ctx: Context, dirs: list[Path]) -> int:
@@ -602,6 +602,6 @@ main = Experiment(EXPERIMENT, __doc__, run, add_options, warp=False,
                   seed_help="base seed; sequence i uses seed 1000 * seed + i",
                   data_help="a MOTChallenge (MOT17/MOT20) sequence folder or a folder of them (MOT17/train): "
                             "track det/det.txt and score with TrackEval's protocol; the synthetic sequences "
-                            "when the default folder holds none",
+                            "when the folder holds none",
                   sizes="Quick: 2 sequences of 100 frames (about 10 s); smoke: 1 sequence of 40 "
                         "frames.").script(__name__)

@@ -148,8 +148,6 @@ def test_bad_sequence_folder_at_the_cli(tmp_path, capsys, case):
 DATA_CASES = [
     ("data-missing", lambda d: d / "nowhere", r"--data: .*nowhere does not exist; expected a MOTChallenge sequence "
                                               r"folder \(with seqinfo.ini\) or a folder of them"),
-    ("data-no-sequence", lambda d: d, r"--data: .* holds no MOTChallenge sequence \(no seqinfo.ini in it, its "
-                                      r"sub-folders or theirs\)"),
     ("data-a-file", lambda d: (d / "f.txt", (d / "f.txt").write_text("x"))[0],
      r"--data: expected a folder, but .*f.txt is a file"),
 ]
@@ -214,3 +212,17 @@ def test_data_faults_are_reported(tmp_path, make, trackers, note):
     assert re.search(note, (out / "table.md").read_text())
     for t in m["trackers"].values():
         assert 0.0 <= t["hota"] <= 1.0 and np.isfinite(t["mota"])
+
+
+def test_data_without_sequences_runs_the_synthetic_sequences(tmp_path, capsys):
+    """--data naming a folder with no seqinfo.ini (every experiment is handed the shared dataset cache)
+    falls back to the synthetic sequences, and says so."""
+    data = tmp_path / "data"
+    (data / "objects-smoke").mkdir(parents=True)
+    out = tmp_path / "out"
+    assert mot_tracking.main(["--smoke", "--frames", "20", "--data", str(data), "--out", str(out),
+                              "--no-progress"]) == 0
+    said = capsys.readouterr().out
+    assert f"note: no MOTChallenge sequence (seqinfo.ini) in {data}" in said
+    assert (out / "table.md").read_text().startswith("# Multi-object tracking: SORT vs ByteTrack")
+    assert (out / "tracks.png").is_file()
