@@ -79,8 +79,10 @@ TRACKERS: dict[str, tuple[str, Callable[[], object]]] = {
 
 
 def add_options(p) -> None:
-    p.add_argument("--sequences", type=int, default=None, help="number of sequences (default 8; quick 2; smoke 1; with --data: all, smoke 1)")
-    p.add_argument("--frames", type=int, default=None, help="frames per sequence (default 400; quick 100; smoke 40; with --data: all, quick 100, smoke 40)")
+    p.add_argument("--sequences", type=int, default=None,
+                   help="number of sequences (default 8; quick 2; smoke 1; with --data: all, smoke 1)")
+    p.add_argument("--frames", type=int, default=None,
+                   help="frames per sequence (default 400; quick 100; smoke 40; with --data: all, quick 100, smoke 40)")
     p.add_argument("--objects", type=int, default=10, help="objects per sequence (default: 10)")
 
 
@@ -487,7 +489,7 @@ def run_on_data(ctx: Context, dirs: list[Path]) -> int:
     n_frames = {s.name: min(s.n_frames, max_frames or s.n_frames) for s in seqs}
     missing = {}
     for s in seqs:
-        gone = [p for p in (s.image_path(t) for t in range(n_frames[s.name])) if not p.is_file()]
+        gone = s.missing_images(n_frames[s.name])
         if gone:
             missing[s.name] = str(gone[0])
     keys = [k for k in DATA_TRACKERS if k != "bytetrack_app" or not missing]

@@ -37,7 +37,7 @@ import configparser
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Sequence as Seq
+from typing import Callable, Iterable, Sequence as Seq
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -102,9 +102,10 @@ class MOTSequence:
         """Frame t (0-based) of the image folder: <imDir>/<t + 1, six digits><imExt>."""
         return self.root / self.info.im_dir / f"{t + 1:06d}{self.info.im_ext}"
 
-    def missing_images(self) -> list[Path]:
-        """The frame files that are not there (all of them when imDir is absent)."""
-        return [p for p in (self.image_path(t) for t in range(self.n_frames)) if not p.is_file()]
+    def missing_images(self, n_frames: int | None = None) -> list[Path]:
+        """The files of the first n_frames frames (all by default) that are not there."""
+        n = self.n_frames if n_frames is None else min(n_frames, self.n_frames)
+        return [p for p in (self.image_path(t) for t in range(n)) if not p.is_file()]
 
     def read_image(self, t: int) -> np.ndarray:
         """Frame t (0-based) as uint8 RGB (H, W, 3); a grey image is repeated over the channels."""
@@ -174,8 +175,8 @@ def read_seqinfo(path: str | Path) -> SeqInfo:
 
 def _read_table(path: Path, columns: Seq[str], min_cols: int, max_cols: int, n_frames: int,
                 what: str) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of a MOTChallenge text file as float64 (N, max_cols) (missing trailing columns NaN-free:
-    filled with -1), and each row's line number. Every check names the file and line."""
+    """Rows of a MOTChallenge text file as float64 (N, max_cols), optional trailing columns that a row
+    leaves out filled with -1, and each row's line number. Every check names the file and line."""
     if not path.is_file():
         raise DatasetError(f"{path}: missing")
     rows, lines = [], []
@@ -203,11 +204,10 @@ def _read_table(path: Path, columns: Seq[str], min_cols: int, max_cols: int, n_f
     data = np.array(rows, dtype=float).reshape(-1, max_cols)
     lines = np.array(lines, dtype=np.int64)
 
-    def fail(mask: np.ndarray, message: str) -> None:
+    def fail(mask: np.ndarray, message: Callable[[np.ndarray], str]) -> None:
         bad = np.flatnonzero(mask)
         if len(bad):
-            i = bad[0]
-            raise DatasetError(f"{path}:{lines[i]}: {message(data[i]) if callable(message) else message}")
+            raise DatasetError(f"{path}:{lines[bad[0]]}: {message(data[bad[0]])}")
 
     for c in range(min_cols):
         fail(~np.isfinite(data[:, c]), lambda r, c=c: f"{columns[c]} expected a finite number, got {r[c]:g}")

@@ -241,3 +241,11 @@ def test_mot_tracking_data_end_to_end(tmp_path):
             assert mine[mine_key] == pytest.approx(float(np.mean(theirs["HOTA"][their_key])), abs=1e-6, rel=0), key
         assert mine["mota"] == pytest.approx(theirs["CLEAR"]["MOTA"], abs=1e-9)
         assert mine["idf1"] == pytest.approx(theirs["Identity"]["IDF1"], abs=1e-9)
+
+
+def test_read_frame(tmp_path):
+    seq_dir, _, _ = write_sequence(tmp_path, n_frames=3, seed=7, images=True, width=96, height=72)
+    seq = mc.load_sequence(seq_dir)
+    img = seq.read_image(2)
+    assert img.dtype == np.uint8 and img.shape == (72, 96, 3)
+    assert seq.missing_images() == [] and seq.image_path(2).name == "000003.jpg"

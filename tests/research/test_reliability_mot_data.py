@@ -87,7 +87,8 @@ CASES = [
      r"visibility expected a number in \[0, 1\], got 1.5"),
     ("gt-duplicate-id", _edit("gt/gt.txt", 2, "1,1,10,20,30,40,1,1,0.5"), "gt/gt.txt:2",
      r"id 1 appears twice in frame 1"),
-    ("seqinfo-missing", _remove("seqinfo.ini"), "seqinfo.ini", r"missing \(a MOTChallenge sequence folder has seqinfo.ini\)"),
+    ("seqinfo-missing", _remove("seqinfo.ini"), "seqinfo.ini",
+     r"missing \(a MOTChallenge sequence folder has seqinfo.ini\)"),
     ("seqinfo-no-frameRate", _write("seqinfo.ini", _seqinfo(drop="frameRate")), "seqinfo.ini:1",
      r"\[Sequence\] has no key 'frameRate' \(expected name, imDir, frameRate, seqLength, imWidth, imHeight\)"),
     ("seqinfo-no-seqLength", _write("seqinfo.ini", _seqinfo(drop="seqLength")), "seqinfo.ini:1",
@@ -226,3 +227,14 @@ def test_data_without_sequences_runs_the_synthetic_sequences(tmp_path, capsys):
     assert f"note: no MOTChallenge sequence (seqinfo.ini) in {data}" in said
     assert (out / "table.md").read_text().startswith("# Multi-object tracking: SORT vs ByteTrack")
     assert (out / "tracks.png").is_file()
+
+
+def test_frame_of_another_size(tmp_path):
+    """A frame whose size disagrees with seqinfo.ini is a one-line error naming the frame."""
+    seq_dir, _, _ = write_sequence(tmp_path, n_frames=3, seed=7, images=True, width=96, height=72)
+    ini = seq_dir / "seqinfo.ini"
+    ini.write_text(ini.read_text().replace("imWidth=96", "imWidth=100"))
+    seq = mc.load_sequence(seq_dir)
+    with pytest.raises(ValueError) as info:
+        seq.read_image(1)
+    assert str(info.value) == f"{seq_dir / 'img1' / '000002.jpg'}: image is 96x72, seqinfo.ini says 100x72"
