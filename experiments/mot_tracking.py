@@ -25,6 +25,17 @@ injected into a sequence must leave every metric unchanged, and empty frames
 must not crash or drop tracks.
 
 Writes results/mot_tracking/: metrics.json, table.md, tracks.png, recall_vs_visibility.png.
+
+With `--data PATH` naming a MOTChallenge (MOT17/MOT20) sequence folder, or a folder of them such as
+MOT17/train (research.tracking.motchallenge), it runs SORT, ByteTrack and ByteTrack + appearance on
+each sequence's det/det.txt instead, and scores them with TrackEval's MOTChallenge protocol
+(pedestrians with the consider flag; tracker boxes on distractor classes removed): HOTA, DetA, AssA,
+LocA (TrackEval's definitions), MOTA, IDF1 and ID switches (py-motmetrics' definitions, on the same
+preprocessed boxes) and FPS. The appearance row needs the frames (imDir); without them it is
+skipped with a note. Sequences without gt/gt.txt (the test split) are listed, not scored. Each
+tracker's output is written in the MOTChallenge result format to tracks/<tracker>/<sequence>.txt,
+ready for TrackEval. --sequences and --frames limit the sequences and frames used (smoke: 1
+sequence, 40 frames; quick: 100 frames). No figures on this path.
 """
 
 from __future__ import annotations
@@ -36,13 +47,15 @@ from typing import Callable
 
 import numpy as np
 
+from research import registry
 from research.experiment import Context, Experiment
 from research.results import markdown_table, save_figure
 from research.tracking import ByteTrack, ByteTrackConfig, Sort, SortConfig
 from research.tracking.appearance import embed_boxes
 from research.tracking.boxes import InvalidDetectionWarning
 from research.tracking.harness import corrupt_detections, evaluate_tracking, recall_by_visibility, run_tracker
-from research.tracking.metrics import MOTCounts
+from research.tracking import motchallenge as mc
+from research.tracking.metrics import HOTACounts, MOTCounts, evaluate_sequence, hota_sequence
 from research.tracking.synthetic import DetectorConfig, SceneConfig, Sequence, make_sequence
 
 EXPERIMENT = "mot_tracking"
@@ -66,8 +79,10 @@ TRACKERS: dict[str, tuple[str, Callable[[], object]]] = {
 
 
 def add_options(p) -> None:
-    p.add_argument("--sequences", type=int, default=None, help="number of sequences (default 8; quick 2; smoke 1)")
-    p.add_argument("--frames", type=int, default=None, help="frames per sequence (default 400; quick 100; smoke 40)")
+    p.add_argument("--sequences", type=int, default=None,
+                   help="number of sequences (default 8; quick 2; smoke 1; with --data: all, smoke 1)")
+    p.add_argument("--frames", type=int, default=None,
+                   help="frames per sequence (default 400; quick 100; smoke 40; with --data: all, quick 100, smoke 40)")
     p.add_argument("--objects", type=int, default=10, help="objects per sequence (default: 10)")
 
 
@@ -221,6 +236,9 @@ def make_figures(seq: Sequence, outputs: dict[str, list[np.ndarray]], recall: di
 
 
 def run(ctx: Context) -> int:
+    dirs = data_sequences(ctx)
+    if dirs is not None:
+        return run_on_data(ctx, dirs)
     args = ctx.args
     n_seq = args.sequences or (1 if ctx.smoke else 2 if ctx.quick else 8)
     n_frames = args.frames or (40 if ctx.smoke else 100 if ctx.quick else 400)
@@ -421,7 +439,171 @@ def table_markdown(metrics: dict, n_seq: int, n_frames: int, n_obj: int) -> str:
     return "\n".join(lines)
 
 
+# --------------------------------------------------------------------------- MOTChallenge data
+
+DATA_TRACKERS = ("sort", "bytetrack", "bytetrack_app")
+PROTOCOL = (
+    "TrackEval's MOTChallenge2DBox protocol (the official MOT17/MOT20 evaluation): ground truth of class 1 "
+    "(pedestrian) with consider flag 1; per frame, tracker boxes matched (Hungarian, IoU ≥ 0.5) to a distractor "
+    "class (person on vehicle, static person, distractor, reflection; MOT20 also non-motorized vehicle) are "
+    "removed. HOTA, DetA, AssA, LocA: TrackEval's definitions, means over α = 0.05…0.95, combined over "
+    "sequences as TrackEval's COMBINED_SEQ. MOTA, IDF1, ID switches, FP, FN: py-motmetrics' definitions at "
+    "IoU ≥ 0.5 on the same preprocessed boxes, counts summed over sequences."
+)
+
+
+def data_sequences(ctx: Context) -> list[Path] | None:
+    """MOTChallenge sequence folders under --data, or None for the synthetic run: when --data is a
+    folder that holds none (such as the shared dataset cache every experiment is handed), or is the
+    default data folder and does not exist yet. Any other --data that does not exist is a usage error."""
+    data = ctx.data
+    if not data.exists():
+        if data.absolute() == registry.default_data_dir().absolute():
+            return None
+        raise ValueError(f"--data: {data} does not exist; expected a MOTChallenge sequence folder (with "
+                         "seqinfo.ini) or a folder of them")
+    if not data.is_dir():
+        raise ValueError(f"--data: expected a folder, but {data} is a file")
+    dirs = mc.find_sequences(data)
+    if not dirs:
+        print(f"note: no MOTChallenge sequence (seqinfo.ini) in {data}, its sub-folders or theirs; "
+              "running the synthetic sequences")
+        return None
+    return dirs
+
+
+def run_on_data(ctx: Context, dirs: list[Path]) -> int:
+    args = ctx.args
+    if args.sequences is not None and args.sequences < 1:
+        raise ValueError(f"--sequences: expected an integer >= 1, got {args.sequences}")
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--frames: expected an integer >= 1, got {args.frames}")
+    n_seq = args.sequences or (1 if ctx.smoke else None)
+    max_frames = args.frames or (40 if ctx.smoke else 100 if ctx.quick else None)
+    seqs = [mc.load_sequence(d) for d in dirs]  # every file is checked before any tracker runs
+    unscored = [s.name for s in seqs if s.gt is None]
+    seqs = [s for s in seqs if s.gt is not None][:n_seq]
+    if not seqs:
+        raise ValueError(f"--data: no sequence under {ctx.data} has gt/gt.txt (the test split has none); "
+                         "nothing to score")
+    n_frames = {s.name: min(s.n_frames, max_frames or s.n_frames) for s in seqs}
+    missing = {}
+    for s in seqs:
+        gone = s.missing_images(n_frames[s.name])
+        if gone:
+            missing[s.name] = str(gone[0])
+    keys = [k for k in DATA_TRACKERS if k != "bytetrack_app" or not missing]
+    benchmarks = sorted({s.benchmark for s in seqs})
+
+    totals = {k: (HOTACounts(), MOTCounts()) for k in keys}
+    times = {k: 0.0 for k in keys}
+    per_seq = {k: {} for k in keys}
+    removed = {k: 0 for k in keys}
+    frames_total = 0
+    for s in ctx.tqdm(seqs, desc="sequences", disable=None):
+        n = n_frames[s.name]
+        dets = s.dets[:n]
+        frames_total += n
+        embs, t_embed = None, 0.0
+        if "bytetrack_app" in keys:
+            embs = []
+            for t in range(n):
+                image = s.read_image(t)
+                t0 = time.perf_counter()
+                embs.append(embed_boxes(image, dets[t][:, :4]))
+                t_embed += time.perf_counter() - t0
+        for key in keys:
+            use_app = key == "bytetrack_app"
+            outputs, elapsed, _ = run_tracker(TRACKERS[key][1], dets, embs if use_app else None)
+            times[key] += elapsed + (t_embed if use_app else 0.0)
+            mc.write_results(ctx.out / "tracks" / key / f"{s.name}.txt", outputs)
+            gt_f, hyp_f, n_removed = mc.evaluation_frames(s, outputs)
+            h, c = hota_sequence(gt_f, hyp_f), evaluate_sequence(gt_f, hyp_f)
+            totals[key] = (totals[key][0] + h, totals[key][1] + c)
+            removed[key] += n_removed
+            per_seq[key][s.name] = {"frames": n, "hota": h.hota, "det_a": h.det_a, "ass_a": h.ass_a,
+                                    "mota": c.mota, "idf1": c.idf1, "switches": c.num_switches,
+                                    "gt_boxes": c.num_objects, "removed_on_distractors": n_removed}
+
+    metrics = {
+        "dataset": {"path": str(ctx.data), "benchmarks": benchmarks, "sequences": [s.name for s in seqs],
+                    "frames": n_frames, "not_scored_no_gt": unscored,
+                    "detections": "public detections, det/det.txt, scores as given"},
+        "protocol": PROTOCOL,
+        "trackers": {},
+        "skipped": ({"bytetrack_app": f"no frames to read appearance from: {next(iter(missing.values()))} is "
+                                      "missing (seqinfo.ini imDir)"} if missing else {}),
+    }
+    for key in keys:
+        h, c = totals[key]
+        metrics["trackers"][key] = {
+            "label": TRACKERS[key][0],
+            **h.summary(),
+            **c.summary(),
+            "hota_alpha": h.hota_alpha.tolist(),
+            "removed_on_distractors": removed[key],
+            "fps": frames_total / times[key] if times[key] > 0 else float("nan"),
+            "per_sequence": per_seq[key],
+        }
+    config = {
+        "quick": ctx.quick,
+        "data": str(ctx.data),
+        "sequences": len(seqs),
+        "max_frames": max_frames,
+        "trackers": {k: TRACKERS[k][0] for k in keys},
+        "high_thresh": HIGH,
+        "low_thresh": LOW,
+        "iou_threshold_eval": 0.5,
+    }
+    ctx.write_results(config=config, metrics=metrics, table_md=data_table_markdown(metrics, seqs, n_frames),
+                      device="cpu")
+    return 0
+
+
+def data_table_markdown(metrics: dict, seqs: list[mc.MOTSequence], n_frames: dict[str, int]) -> str:
+    tr, ds = metrics["trackers"], metrics["dataset"]
+    rows = [[m["label"], *(f"{100 * m[k]:.1f}" for k in ("hota", "det_a", "ass_a", "loc_a", "mota", "idf1")),
+             int(m["num_switches"]), int(m["num_false_positives"]), int(m["num_misses"]), f"{m['fps']:.0f}"]
+            for m in tr.values()]
+    headers = ["tracker", "HOTA %", "DetA %", "AssA %", "LocA %", "MOTA %", "IDF1 %", "ID sw.", "FP", "FN", "FPS"]
+    seq_rows = []
+    for s in seqs:
+        per = [m["per_sequence"][s.name] for m in tr.values()]
+        seq_rows.append([s.name, n_frames[s.name], per[0]["gt_boxes"],
+                         *(f"{100 * p['hota']:.1f} / {100 * p['mota']:.1f}" for p in per)])
+    truncated = any(n_frames[s.name] < s.n_frames for s in seqs)
+    lines = [
+        "# Multi-object tracking on MOTChallenge data: SORT vs ByteTrack vs ByteTrack + appearance",
+        "",
+        f"Dataset: {ds['path']} ({', '.join(ds['benchmarks'])}), {len(seqs)} sequence(s), "
+        f"{sum(n_frames.values())} frames{' (the first frames of each sequence only)' if truncated else ''}; "
+        "public detections from det/det.txt with their scores as given (ByteTrack's thresholds 0.5 / 0.1 "
+        "assume scores in [0, 1]).",
+        "",
+        f"Protocol: {PROTOCOL} FPS: tracker update only (the appearance variant includes the colour "
+        "histograms, not reading the frames), one CPU core; compare within one run only.",
+        "",
+        markdown_table(headers, rows),
+        "## Per sequence (HOTA % / MOTA %)",
+        "",
+        markdown_table(["sequence", "frames", "GT boxes", *(m["label"] for m in tr.values())], seq_rows),
+    ]
+    notes = []
+    for key, why in metrics["skipped"].items():
+        notes.append(f"- {TRACKERS[key][0]} skipped: {why}.")
+    if ds["not_scored_no_gt"]:
+        notes.append(f"- Not scored (no gt/gt.txt): {', '.join(ds['not_scored_no_gt'])}.")
+    notes.append("- Tracker boxes removed on distractors: "
+                 + "; ".join(f"{m['label']}: {m['removed_on_distractors']}" for m in tr.values()) + ".")
+    notes.append("- Tracker output in the MOTChallenge result format: tracks/<tracker>/<sequence>.txt.")
+    lines += ["## Notes", "", *notes, ""]
+    return "\n".join(lines)
+
+
 main = Experiment(EXPERIMENT, __doc__, run, add_options, warp=False,
                   seed_help="base seed; sequence i uses seed 1000 * seed + i",
+                  data_help="a MOTChallenge (MOT17/MOT20) sequence folder or a folder of them (MOT17/train): "
+                            "track det/det.txt and score with TrackEval's protocol; the synthetic sequences "
+                            "when the folder holds none",
                   sizes="Quick: 2 sequences of 100 frames (about 10 s); smoke: 1 sequence of 40 "
                         "frames.").script(__name__)

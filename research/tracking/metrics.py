@@ -28,13 +28,34 @@ to hypothesis trajectories maximises IDTP = sum n_oh over matched pairs
 Over several sequences the counts are summed (each sequence has its own
 global matching), as motmetrics' "OVERALL" row does.
 
+HOTA (Luiten et al., IJCV 2021), with TrackEval's definitions (HOTA class of the
+`trackeval` package, v1.3), for IoU similarity S(o, h) between boxes:
+1. over the whole sequence, for every object o and hypothesis h, the soft
+   co-occurrence P(o, h) = sum over frames of S(o, h) / (sum_h' S(o, h') +
+   sum_o' S(o', h) - S(o, h)), and the global alignment
+   A(o, h) = P(o, h) / (n_o + n_h - P(o, h)) (n_o, n_h: frames with o, with h);
+2. per frame, ONE Hungarian matching maximising sum A(o, h) S(o, h); then for each
+   alpha in 0.05, 0.10, ..., 0.95 the matched pairs with S >= alpha are true
+   positives (TP_a), the other objects FN_a and hypotheses FP_a, and LocA sums S
+   over them;
+3. with c_a(o, h) the number of frames o and h are a TP_a pair,
+   AssA_a = sum over TP_a pairs of c_a / (n_o + n_h - c_a), divided by TP_a
+   (max 1), DetA_a = TP_a / (TP_a + FN_a + FP_a) (denominator max 1),
+   HOTA_a = sqrt(DetA_a AssA_a), LocA_a = sum S / TP_a;
+4. HOTA, DetA, AssA and LocA are the means over the 19 alphas (so HOTA is not
+   sqrt(DetA AssA) of the means).
+Over several sequences TP, FN and FP are summed and AssA and LocA are averaged
+with weights TP_a (TrackEval's COMBINED_SEQ); `HOTACounts` holds the additive
+sums. Pass the frames after the benchmark's preprocessing
+(research.tracking.motchallenge.evaluation_frames for MOTChallenge).
+
 Boxes are xyxy (boxes.py); py-motmetrics takes xywh.
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from typing import Iterable
 
 import numpy as np
@@ -257,3 +278,177 @@ def tracker_output_frames(outputs: Iterable[np.ndarray]) -> list[tuple[np.ndarra
         rows = np.asarray(rows, dtype=float).reshape(-1, 5)
         frames.append((rows[:, 4].astype(np.int64), rows[:, :4]))
     return frames
+
+
+# --------------------------------------------------------------------------- HOTA
+
+HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)  # TrackEval's array_labels: 0.05, 0.10, ..., 0.95
+_EPS = np.finfo(float).eps
+
+
+def _zeros() -> np.ndarray:
+    return np.zeros(len(HOTA_ALPHAS))
+
+
+@dataclass
+class HOTACounts:
+    """Additive HOTA sums, one value per alpha (HOTA_ALPHAS); the metrics are properties."""
+
+    tp: np.ndarray = field(default_factory=_zeros)
+    fn: np.ndarray = field(default_factory=_zeros)
+    fp: np.ndarray = field(default_factory=_zeros)
+    ass_sum: np.ndarray = field(default_factory=_zeros)  # AssA_a * TP_a
+    ass_re_sum: np.ndarray = field(default_factory=_zeros)  # AssRe_a * TP_a
+    ass_pr_sum: np.ndarray = field(default_factory=_zeros)  # AssPr_a * TP_a
+    loc_sum: np.ndarray = field(default_factory=_zeros)  # sum of IoU over TP_a pairs
+
+    def __add__(self, other: "HOTACounts") -> "HOTACounts":
+        return HOTACounts(**{f.name: getattr(self, f.name) + getattr(other, f.name) for f in fields(self)})
+
+    # per-alpha arrays, as TrackEval's _compute_final_fields
+    @property
+    def det_a_alpha(self) -> np.ndarray:
+        return self.tp / np.maximum(1, self.tp + self.fn + self.fp)
+
+    @property
+    def ass_a_alpha(self) -> np.ndarray:
+        return self.ass_sum / np.maximum(1.0, self.tp)
+
+    @property
+    def hota_alpha(self) -> np.ndarray:
+        return np.sqrt(self.det_a_alpha * self.ass_a_alpha)
+
+    @property
+    def loc_a_alpha(self) -> np.ndarray:
+        return np.maximum(1e-10, self.loc_sum) / np.maximum(1e-10, self.tp)
+
+    @property
+    def hota(self) -> float:
+        return float(np.mean(self.hota_alpha))
+
+    @property
+    def det_a(self) -> float:
+        return float(np.mean(self.det_a_alpha))
+
+    @property
+    def ass_a(self) -> float:
+        return float(np.mean(self.ass_a_alpha))
+
+    @property
+    def loc_a(self) -> float:
+        return float(np.mean(self.loc_a_alpha))
+
+    @property
+    def det_re(self) -> float:
+        return float(np.mean(self.tp / np.maximum(1, self.tp + self.fn)))
+
+    @property
+    def det_pr(self) -> float:
+        return float(np.mean(self.tp / np.maximum(1, self.tp + self.fp)))
+
+    @property
+    def ass_re(self) -> float:
+        return float(np.mean(self.ass_re_sum / np.maximum(1.0, self.tp)))
+
+    @property
+    def ass_pr(self) -> float:
+        return float(np.mean(self.ass_pr_sum / np.maximum(1.0, self.tp)))
+
+    @property
+    def hota0(self) -> float:
+        """HOTA at alpha = 0.05 (TrackEval's HOTA(0))."""
+        return float(self.hota_alpha[0])
+
+    def summary(self) -> dict[str, float]:
+        return {name: getattr(self, name) for name in
+                ("hota", "det_a", "ass_a", "loc_a", "det_re", "det_pr", "ass_re", "ass_pr", "hota0")}
+
+
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU of xyxy boxes (N, 4) x (M, 4), with TrackEval's rules for empty boxes and unions (0)."""
+    a = np.asarray(a, dtype=float).reshape(-1, 4)
+    b = np.asarray(b, dtype=float).reshape(-1, 4)
+    lo = np.minimum(a[:, None, :], b[None, :, :])
+    hi = np.maximum(a[:, None, :], b[None, :, :])
+    inter = np.maximum(lo[..., 2] - hi[..., 0], 0) * np.maximum(lo[..., 3] - hi[..., 1], 0)
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area_a[:, None] + area_b[None, :] - inter
+    inter[area_a <= _EPS, :] = 0
+    inter[:, area_b <= _EPS] = 0
+    inter[union <= _EPS] = 0
+    union[union <= _EPS] = 1
+    return inter / union
+
+
+def _relabel(frames: list[tuple[np.ndarray, np.ndarray]]) -> tuple[list[np.ndarray], int]:
+    ids = [np.asarray(i, dtype=np.int64).reshape(-1) for i, _ in frames]
+    for t, i in enumerate(ids):
+        if len(np.unique(i)) != len(i):
+            raise ValueError(f"ids must be unique within a frame (frame index {t})")
+    uniq = np.unique(np.concatenate(ids)) if ids else np.zeros(0, np.int64)
+    return [np.searchsorted(uniq, i) for i in ids], len(uniq)
+
+
+def hota_sequence(gt: Iterable[tuple[np.ndarray, np.ndarray]],
+                  hyp: Iterable[tuple[np.ndarray, np.ndarray]]) -> HOTACounts:
+    """HOTA sums of one sequence (module docstring); gt and hyp yield (ids (N,), xyxy boxes (N, 4))
+    per frame, the same number of frames."""
+    gt, hyp = list(gt), list(hyp)
+    if len(gt) != len(hyp):
+        raise ValueError(f"hyp: expected {len(gt)} frames like gt, got {len(hyp)}")
+    gt_ids, n_gt = _relabel(gt)
+    hyp_ids, n_hyp = _relabel(hyp)
+    gt_boxes = [np.asarray(b, dtype=float).reshape(len(i), 4) for i, (_, b) in zip(gt_ids, gt)]
+    hyp_boxes = [np.asarray(b, dtype=float).reshape(len(i), 4) for i, (_, b) in zip(hyp_ids, hyp)]
+    res = HOTACounts()
+    n_gt_dets = sum(len(i) for i in gt_ids)
+    n_hyp_dets = sum(len(i) for i in hyp_ids)
+    if n_hyp_dets == 0 or n_gt_dets == 0:  # TrackEval's early returns
+        res.fn += n_gt_dets
+        res.fp += n_hyp_dets
+        return res
+    sims = [box_iou(g, h) for g, h in zip(gt_boxes, hyp_boxes)]
+
+    # 1. global alignment between ids
+    potential = np.zeros((n_gt, n_hyp))
+    gt_count = np.zeros((n_gt, 1))
+    hyp_count = np.zeros((1, n_hyp))
+    for g, h, s in zip(gt_ids, hyp_ids, sims):
+        denom = s.sum(0)[np.newaxis, :] + s.sum(1)[:, np.newaxis] - s
+        s_iou = np.zeros_like(s)
+        mask = denom > 0 + _EPS
+        s_iou[mask] = s[mask] / denom[mask]
+        potential[g[:, np.newaxis], h[np.newaxis, :]] += s_iou
+        gt_count[g] += 1
+        hyp_count[0, h] += 1
+    alignment = potential / (gt_count + hyp_count - potential)
+
+    # 2. per-frame matching, thresholded at every alpha
+    matches = [np.zeros_like(potential) for _ in HOTA_ALPHAS]
+    for g, h, s in zip(gt_ids, hyp_ids, sims):
+        if len(g) == 0:
+            res.fp += len(h)
+            continue
+        if len(h) == 0:
+            res.fn += len(g)
+            continue
+        score = alignment[g[:, np.newaxis], h[np.newaxis, :]] * s
+        rows, cols = linear_sum_assignment(-score)
+        for a, alpha in enumerate(HOTA_ALPHAS):
+            ok = s[rows, cols] >= alpha - _EPS
+            r, c = rows[ok], cols[ok]
+            res.tp[a] += len(r)
+            res.fn[a] += len(g) - len(r)
+            res.fp[a] += len(h) - len(r)
+            if len(r):
+                res.loc_sum[a] += sum(s[r, c])
+                matches[a][g[r], h[c]] += 1
+
+    # 3. association
+    for a in range(len(HOTA_ALPHAS)):
+        m = matches[a]
+        res.ass_sum[a] = np.sum(m * (m / np.maximum(1, gt_count + hyp_count - m)))
+        res.ass_re_sum[a] = np.sum(m * (m / np.maximum(1, gt_count)))
+        res.ass_pr_sum[a] = np.sum(m * (m / np.maximum(1, hyp_count)))
+    return res
