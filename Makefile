@@ -16,6 +16,10 @@ $(STAMP): pyproject.toml
 	test -x $(VPY) || $(PYTHON) -m venv $(VENV)
 	$(VPY) -m pip install --quiet --upgrade pip
 	$(VPY) -m pip install --quiet -e '.[dev]'
+	# trackeval is the tests' reference for HOTA. It lists opencv-python (the GUI build, which needs
+	# libGL and shares its cv2/ folder with our opencv-python-headless) although the HOTA and
+	# MOTChallenge code never imports cv2, so it is installed without its dependencies.
+	$(VPY) -m pip install --quiet --no-deps 'trackeval>=1.3'
 	$(VPY) -m research.mitsuba_env --ensure
 	touch $(STAMP)
 
