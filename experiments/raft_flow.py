@@ -253,6 +253,7 @@ def run_benchmark(ctx: Context, bench) -> int:
     seconds: dict[str, list[float]] = {}
     lookup_paths: set[str] = set()
     n_pairs = sum(min(i.pairs, limit or i.pairs) for i in items)
+    bench.verify(items)  # every file's contents, before any kernel runs
     bar = ctx.tqdm(total=n_pairs, desc=f"raft_flow {bench.format}", unit="pair")
     figure_done = False
     for item in items:

@@ -22,11 +22,13 @@ Layouts (the folder given may be the benchmark's root or its `training/` folder)
   pixels are left out of `valid` and their flow is set to 0 (Middlebury gives no occlusion masks, so
   `valid` here is every known pixel, occluded or not).
 
-`open_benchmark` checks the whole layout from file headers before any pixel is read or any kernel runs:
-every file a pair needs exists, every image is a PNG of the expected bit depth and channels, every
-.flo's magic, size and length are right, and the files of a pair share one size. Pixels are read
-per sequence by `FlowBenchmark.load` (each KITTI flow PNG's validity channel, and every .flo's values,
-are checked for meaning then). Every error is a DatasetError (a ValueError) of one line naming the file.
+`open_benchmark` checks the whole layout from file headers, before any pixel is read: every file a
+pair needs exists, every image is a PNG of the expected bit depth and channels, every .flo's magic,
+size and length are right, and the files of a pair share one size. Pixels are read per sequence by
+`FlowBenchmark.load`, which checks them for meaning (a KITTI flow PNG's validity channel is 0 or 1 and
+flow_noc knows no pixel flow_occ does not; a .flo holds no NaN; a PNG decodes to its end).
+`FlowBenchmark.verify` runs those reads over the pairs an experiment will use before it starts work.
+Every error is a DatasetError (a ValueError) of one line naming the file.
 
 Frames are returned as drlab's sequences hold them: linear RGBA with alpha 1 (research.io.read_png
 inverts the sRGB curve of the 8-bit PNG; research.opticalflow.srgb gives the stored values back),
@@ -99,6 +101,13 @@ class FlowBenchmark:
     def load(self, item: FlowItem) -> FlowSequence:
         """Read one sequence's pixels (module docstring)."""
         return _LOADERS[self.format](item)
+
+    def verify(self, items: list[FlowItem] | None = None) -> None:
+        """Read every file of `items` (default: all) once and drop the pixels: what the header check cannot
+        see (a PNG cut short after its header, NaN in a .flo, a bad KITTI validity code) is refused before
+        an experiment starts work, one sequence in memory at a time."""
+        for item in self.items if items is None else items:
+            self.load(item)
 
 
 # --------------------------------------------------------------------------- header checks
@@ -316,7 +325,8 @@ def _read(reader, path: Path) -> np.ndarray:
     except FileNotFoundError:
         raise DatasetError(f"{path}: missing") from None
     except ValueError as e:
-        raise DatasetError(str(e) if str(e).startswith(str(path)) else f"{path}: {e}") from None
+        text = " ".join(str(e).split())  # one line, whatever the decoder said
+        raise DatasetError(text if text.startswith(str(path)) else f"{path}: {text}") from None
 
 
 def _frame(path: Path, size: tuple[int, int]) -> np.ndarray:
