@@ -242,3 +242,22 @@ def test_raft_flow_on_benchmark_folders(folders, tmp_path, key, extra, dataset, 
     for entry in methods.values():
         for region in entry["pooled"].values():
             assert region["pixels"] > 0 and math.isfinite(region["epe"]) and region["epe"] >= 0
+
+
+def test_raft_flow_uses_the_onthefly_lookup_above_the_memory_budget(folders, tmp_path, monkeypatch):
+    """With a zero budget the on-the-fly lookup runs instead of the dense pyramid, says so, and scores the same."""
+    import experiments.raft_flow as rf
+
+    root, _ = folders["middlebury"]
+    runs = {}
+    for name, budget in (("dense", rf.MEMORY_BUDGET_MIB), ("onthefly", 0)):
+        monkeypatch.setattr(rf, "MEMORY_BUDGET_MIB", budget)
+        out = tmp_path / name
+        assert rf.main(["--smoke", "--no-progress", "--data", str(root), "--out", str(out)]) == 0
+        runs[name] = json.loads((out / "metrics.json").read_text())["metrics"]
+        assert runs[name]["lookup"] == (["dense pyramid"] if name == "dense" else ["on the fly"])
+        assert ("on the fly" in (out / "table.md").read_text()) == (name == "onthefly")
+    ours = "CorrFlow (L=4, r=4)"
+    dense, onthefly = (runs[n]["methods"][ours]["pooled"]["all"]["epe"] for n in ("dense", "onthefly"))
+    # The two paths sum the same products in another order (float32): their flows differ by ~1e-4 px at most.
+    assert onthefly == pytest.approx(dense, abs=1e-3)
