@@ -5,7 +5,8 @@ Per pixel, with flow (u, v) and ground truth (u', v'):
 * EPE, the endpoint error: |(u, v) - (u', v')| in px;
 * AE, Middlebury's angular error: the angle in degrees between (u, v, 1) and (u', v', 1),
   arccos((u u' + v v' + 1) / sqrt((u^2 + v^2 + 1) (u'^2 + v'^2 + 1)));
-* a KITTI outlier: EPE > 3 px AND EPE > 5% of |(u', v')|. Fl is the percentage of outliers.
+* a KITTI outlier: EPE > 3 px AND EPE > 5% of |(u', v')|. Fl is the percentage of outliers (KITTI
+  2015's Fl; KITTI 2012's own tables count EPE > 3 px alone, Out-Noc / Out-All, reported beside it).
 
 Regions (boolean masks over the pixels of a pair):
 
@@ -61,42 +62,47 @@ def kitti_outliers(epe: np.ndarray, gt: np.ndarray) -> np.ndarray:
 
 
 class FlowTally:
-    """EPE, AE and KITTI-outlier sums per region, pooled over the pairs added."""
+    """EPE, AE, KITTI-outlier and > 3 px sums per region, pooled over the pairs added."""
+
+    _KEYS = ("epe", "ae", "outliers", "over_3px", "pixels")
 
     def __init__(self) -> None:
-        self.sums: dict[str, list[float]] = {}  # region -> [epe sum, ae sum, outliers, pixels]
+        self.sums: dict[str, dict[str, float]] = {}  # region -> sums of _KEYS
+
+    def _slot(self, name: str) -> dict[str, float]:
+        return self.sums.setdefault(name, dict.fromkeys(self._KEYS, 0))
 
     def add(self, flow: np.ndarray, gt: np.ndarray, regions: dict[str, np.ndarray]) -> None:
         epe = endpoint_error(flow, gt)
-        ae = angular_error(flow, gt)
-        out = kitti_outliers(epe, gt)
+        per_pixel = {"epe": epe, "ae": angular_error(flow, gt), "outliers": kitti_outliers(epe, gt),
+                     "over_3px": epe > KITTI_ABS_PX}
         for name, mask in regions.items():
             mask = np.asarray(mask)
             if mask.dtype != bool or mask.shape != epe.shape:
                 raise ValueError(f"regions[{name!r}]: expected a bool mask of shape {epe.shape}, got "
                                  f"{mask.dtype} {mask.shape}")
-            s = self.sums.setdefault(name, [0.0, 0.0, 0, 0])
-            s[0] += float(epe[mask].sum())
-            s[1] += float(ae[mask].sum())
-            s[2] += int(out[mask].sum())
-            s[3] += int(mask.sum())
+            s = self._slot(name)
+            for key, values in per_pixel.items():
+                s[key] += values[mask].sum().item()
+            s["pixels"] += int(mask.sum())
 
     def merge(self, other: "FlowTally") -> None:
-        for name, (e, a, o, n) in other.sums.items():
-            s = self.sums.setdefault(name, [0.0, 0.0, 0, 0])
-            s[0] += e
-            s[1] += a
-            s[2] += o
-            s[3] += n
+        for name, sums in other.sums.items():
+            s = self._slot(name)
+            for key in self._KEYS:
+                s[key] += sums[key]
 
     def summary(self) -> dict[str, dict]:
-        """Per region: epe (px), ae_deg, fl_percent (KITTI outliers, %) and pixels; None where no pixel."""
+        """Per region: epe (px), ae_deg, fl_percent (KITTI outliers, %), out3_percent (% with EPE > 3 px, KITTI
+        2012's Out-Noc / Out-All) and pixels; None where the region has no pixel."""
         out = {}
-        for name, (e, a, o, n) in self.sums.items():
+        for name, s in self.sums.items():
+            n = s["pixels"]
             if n == 0:
-                out[name] = {"epe": None, "ae_deg": None, "fl_percent": None, "pixels": 0}
+                out[name] = {"epe": None, "ae_deg": None, "fl_percent": None, "out3_percent": None, "pixels": 0}
             else:
-                out[name] = {"epe": e / n, "ae_deg": a / n, "fl_percent": 100.0 * o / n, "pixels": n}
+                out[name] = {"epe": s["epe"] / n, "ae_deg": s["ae"] / n, "fl_percent": 100.0 * s["outliers"] / n,
+                             "out3_percent": 100.0 * s["over_3px"] / n, "pixels": int(n)}
         return out
 
 
@@ -153,9 +159,11 @@ def sintel_metrics(flow: np.ndarray, gt: np.ndarray, occluded: np.ndarray,
 
 def kitti_metrics(flow: np.ndarray, gt: np.ndarray, valid_noc: np.ndarray,
                   valid_occ: np.ndarray) -> dict[str, float | None]:
-    """fl_noc, fl_occ (% outliers), epe_noc, epe_occ (px) of one pair, and their pixel counts."""
+    """fl_noc, fl_occ (% outliers), out3_noc, out3_occ (% EPE > 3 px), epe_noc, epe_occ (px) of one pair,
+    and their pixel counts."""
     s = _one(flow, gt, kitti_regions(valid_noc, _bool("valid_occ", valid_occ, np.shape(gt)[:2])))
-    return {f"{m}_{r}": s[r][key] for r in ("noc", "occ") for m, key in (("fl", "fl_percent"), ("epe", "epe"))} | {
+    return {f"{m}_{r}": s[r][key] for r in ("noc", "occ")
+            for m, key in (("fl", "fl_percent"), ("out3", "out3_percent"), ("epe", "epe"))} | {
         f"pixels_{r}": s[r]["pixels"] for r in ("noc", "occ")}
 
 

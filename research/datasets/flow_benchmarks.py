@@ -93,6 +93,7 @@ class FlowBenchmark:
     root: Path
     pass_: str | None
     items: list[FlowItem] = field(default_factory=list)
+    year: str | None = None  # KITTI: "2012" or "2015"
 
     @property
     def pairs(self) -> int:
@@ -295,8 +296,10 @@ def _open_kitti(root: Path, pass_: str | None) -> FlowBenchmark:
         item = FlowItem(stem, (image_dir / f"{stem}_10.png", image_dir / f"{stem}_11.png"), (pairs[n],),
                         noc=(noc_dir / f"{stem}_10.png",))
         items.append(_check_item(item, _kitti_flow_size))
-    return FlowBenchmark("kitti", f"KITTI {year} flow training ({image_dir.name})", PROTOCOLS["kitti"], root, None,
-                         items)
+    protocol = PROTOCOLS["kitti"] + ("; KITTI 2012's Out (% of pixels with EPE > 3 px) beside it" if year == "2012"
+                                     else "")
+    return FlowBenchmark("kitti", f"KITTI {year} flow training ({image_dir.name})", protocol, root, None, items,
+                         year)
 
 
 def _open_middlebury(root: Path, pass_: str | None) -> FlowBenchmark:

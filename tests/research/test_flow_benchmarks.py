@@ -164,6 +164,7 @@ def test_kitti_metrics_by_hand_and_pooled_over_pixels():
     m = kitti_metrics(flow, gt, noc, occ)
     assert m["fl_noc"] == pytest.approx(100 / 3) and m["fl_occ"] == pytest.approx(50.0)
     assert m["epe_noc"] == pytest.approx(8.5 / 3) and m["epe_occ"] == pytest.approx(18.5 / 4)
+    assert m["out3_noc"] == pytest.approx(200 / 3) and m["out3_occ"] == pytest.approx(75.0)  # EPE > 3 px alone
     # Pooled over pixels, not averaged over pairs: 1 of 3 and 1 of 1 noc outliers -> 2 of 4 = 50%, not 66.7%.
     tally = FlowTally()
     tally.add(flow, gt, {"noc": noc, "occ": occ})
@@ -205,6 +206,8 @@ def test_protocol_regions_of_read_sequences(folders):
     ("sintel", ["--pass", "final"], "MPI-Sintel training (final pass)", ["EPE all", "EPE matched", "EPE unmatched"]),
     ("kitti", ["--format", "kitti"], "KITTI 2015 flow training (image_2)",
      ["Fl-all noc %", "Fl-all occ %", "EPE noc", "EPE occ"]),
+    ("kitti2012", [], "KITTI 2012 flow training (colored_0)",
+     ["Fl-all noc %", "Fl-all occ %", "Out-Noc (> 3 px) %", "Out-All (> 3 px) %", "EPE noc", "EPE occ"]),
     ("middlebury", [], "Middlebury flow (other-data, other-gt-flow)", ["EPE", "AE (deg)"]),
 ])
 def test_raft_flow_on_benchmark_folders(folders, tmp_path, key, extra, dataset, columns):
@@ -217,7 +220,7 @@ def test_raft_flow_on_benchmark_folders(folders, tmp_path, key, extra, dataset, 
     metrics = json.loads((out / "metrics.json").read_text())["metrics"]
     assert f"Dataset: {dataset}" in table and "Protocol: " in table and all(c in table for c in columns)
     bench = metrics["benchmark"]
-    assert bench["format"] == key and bench["dataset"] == dataset
+    assert bench["format"] == key.removesuffix("2012") and bench["dataset"] == dataset
     assert bench["pairs_evaluated"] == len(written)  # quick: the first pair of each sequence
     methods = metrics["methods"]
     assert set(methods) == {"CorrFlow (L=4, r=4)", "pyramidal LK (4 levels, 9x9)", "OpenCV Farneback",
@@ -231,10 +234,12 @@ def test_raft_flow_on_benchmark_folders(folders, tmp_path, key, extra, dataset, 
         assert zero["pooled"]["all"]["epe"] == pytest.approx(all_.mean(), rel=1e-9)
         assert zero["pooled"]["unmatched"]["epe"] == pytest.approx(unm.mean(), rel=1e-9)
         assert "Per sequence" in table and "alley_1" in table
-    elif key == "kitti":
+    elif key.startswith("kitti"):
         noc = np.concatenate([np.linalg.norm(r["flow"], axis=-1)[r["known_noc"]] for r in written.values()])
         assert zero["pooled"]["noc"]["epe"] == pytest.approx(noc.mean(), rel=1e-6)
         assert zero["pooled"]["noc"]["fl_percent"] == pytest.approx(100 * (noc > 3).mean())
+        assert zero["pooled"]["noc"]["out3_percent"] == pytest.approx(100 * (noc > 3).mean())
+        assert ("Out-Noc" in table) == (key == "kitti2012")
     else:
         means = [np.linalg.norm(r["flow"], axis=-1)[~r["unknown"]].mean() for r in written.values()]
         assert zero["sequence_mean"]["epe"] == pytest.approx(np.mean(means), rel=1e-6)
