@@ -22,6 +22,16 @@ Reported:
     flows they produce.
 
 Writes results/raft_flow/{table.md, metrics.json, flow_<scene>.png, ablation.png}.
+
+Benchmarks: `--data PATH` naming an MPI-Sintel, KITTI 2012/2015 flow or Middlebury flow training
+folder (detected from its layout, or named by `--format sintel|kitti|middlebury`; `--pass
+clean|final` picks Sintel's pass, clean by default) runs the headline CorrFlow and the same baselines
+on every pair of it (quick: the first pair of each sequence; smoke: the first pair only) and writes
+that benchmark's protocol (research.flow_metrics): Sintel EPE all / matched / unmatched, KITTI Fl-all
+and EPE on noc and occ, Middlebury EPE and angular error per sequence. The table names the dataset,
+the protocol and the pass. CorrFlow keeps the dense correlation pyramid only while it fits in
+MEMORY_BUDGET_MIB; above it, it uses the on-the-fly lookup (the same flow to float rounding), and
+the table says which ran. Without such a folder, --data is the cache root above and nothing changes.
 """
 
 from __future__ import annotations
@@ -42,6 +52,17 @@ STRIDE = 4
 HEADLINE = (4, 4)  # levels, radius
 RES, SPP, STEP_DEG = 256, 32, 4.0
 SMOKE_RES, SMOKE_SPP = 128, 4  # 128: the LK baseline's 4 levels need a 9-px window at the coarsest
+MEMORY_BUDGET_MIB = 1024  # benchmarks: the dense pyramid above this, the on-the-fly lookup instead
+FORMATS = ("sintel", "kitti", "middlebury")
+PASSES = ("clean", "final")
+
+
+def add_options(p) -> None:
+    p.add_argument("--format", choices=FORMATS, default=None,
+                   help="the benchmark layout --data holds (default: detected from the folder; without one, --data "
+                        "is the cache root of the rendered datasets)")
+    p.add_argument("--pass", dest="pass_", choices=PASSES, default=None,
+                   help="MPI-Sintel's rendering pass (default: clean); Sintel only")
 
 
 def datasets(quick: bool, seed: int, data: Path, smoke: bool = False) -> dict[str, Path]:
@@ -185,7 +206,140 @@ def ablation_figure(grid: np.ndarray, path: Path) -> None:
     plt.close(fig)
 
 
+def benchmark_of(ctx: Context):
+    """The benchmark folder --data names (checked from headers, before any work), or None for the cache root."""
+    from research.datasets import detect_flow_format, open_flow_benchmark
+
+    fmt, pass_ = getattr(ctx.args, "format", None), getattr(ctx.args, "pass_", None)
+    if fmt is None and detect_flow_format(ctx.data) is None:
+        if pass_ is not None:
+            raise ValueError(f"--pass: needs --data naming an MPI-Sintel folder; {ctx.data} is not one")
+        return None
+    if pass_ is not None and (fmt or detect_flow_format(ctx.data)) != "sintel":
+        raise ValueError(f"--pass: only MPI-Sintel has clean and final passes; {ctx.data} is a "
+                         f"{fmt or detect_flow_format(ctx.data)} folder")
+    return open_flow_benchmark(ctx.data, fmt, pass_)
+
+
+_COLUMNS = {  # protocol -> (region, metric key, column header)
+    "sintel": [("all", "epe", "EPE all"), ("matched", "epe", "EPE matched"), ("unmatched", "epe", "EPE unmatched")],
+    "kitti": [("noc", "fl_percent", "Fl-all noc %"), ("occ", "fl_percent", "Fl-all occ %"),
+              ("noc", "epe", "EPE noc"), ("occ", "epe", "EPE occ")],
+    "middlebury": [("all", "epe", "EPE"), ("all", "ae_deg", "AE (deg)")],
+}
+
+
+def _mean_or_none(values: list) -> float | None:
+    known = [v for v in values if v is not None]
+    return statistics.mean(known) if known else None
+
+
+def _cell(value) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
+def run_benchmark(ctx: Context, bench) -> int:
+    """CorrFlow (headline setting) and the baselines on a benchmark folder, scored by its protocol."""
+    from kernels import corr
+    from research.flow_metrics import FlowTally, protocol_regions
+    from research.opticalflow import CorrFlow, CorrFlowConfig, srgb
+
+    t_start = time.perf_counter()
+    limit = 1 if ctx.quick else None  # pairs per sequence
+    items = bench.items[:1] if ctx.smoke else bench.items
+    ours_name = f"CorrFlow (L={HEADLINE[0]}, r={HEADLINE[1]})"
+    tallies: dict[str, FlowTally] = {}
+    per_seq: dict[str, dict[str, FlowTally]] = {}
+    seconds: dict[str, list[float]] = {}
+    lookup_paths: set[str] = set()
+    n_pairs = sum(min(i.pairs, limit or i.pairs) for i in items)
+    bench.verify(items)  # every file's contents, before any kernel runs
+    bar = ctx.tqdm(total=n_pairs, desc=f"raft_flow {bench.format}", unit="pair")
+    figure_done = False
+    for item in items:
+        seq = bench.load(item)
+        for k in range(min(item.pairs, limit or item.pairs)):
+            rgb1, rgb2 = srgb(seq.frames[k]), srgb(seq.frames[k + 1])
+            gt = seq.flow[k].astype(np.float64)
+            regions = protocol_regions(bench.format, seq, k)
+            h, w = rgb1.shape[:2]
+            fh, fw = h // STRIDE, w // STRIDE
+            onthefly = corr.dense_bytes(fh, fw, HEADLINE[0]) > MEMORY_BUDGET_MIB * 2 ** 20
+            lookup_paths.add("on the fly" if onthefly else "dense pyramid")
+            t0 = time.perf_counter()
+            cf = CorrFlow(rgb1, rgb2, stride=STRIDE, max_levels=HEADLINE[0], onthefly=onthefly, device=ctx.device)
+            flows = {ours_name: (cf.estimate(CorrFlowConfig(levels=HEADLINE[0], radius=HEADLINE[1])),
+                                 time.perf_counter() - t0)}
+            flows.update(baselines(rgb1, rgb2, ctx.device))
+            for name, (fl, sec) in flows.items():
+                tallies.setdefault(name, FlowTally()).add(fl, gt, regions)
+                per_seq.setdefault(name, {}).setdefault(item.name, FlowTally()).add(fl, gt, regions)
+                seconds.setdefault(name, []).append(sec)
+            mask = seq.valid[k]
+            if not figure_done and mask.any() and np.linalg.norm(gt[mask], axis=-1).max() > 0:
+                shown = {n: f for n, (f, _) in flows.items() if n != "zero flow"}
+                flow_figure(f"{bench.format} {item.name}", rgb1, gt, mask, shown, ctx.out / "flow_benchmark.png")
+                figure_done = True
+            bar.update()
+    bar.close()
+
+    columns = _COLUMNS[bench.format]
+    if bench.year == "2012":  # KITTI 2012's tables count EPE > 3 px alone
+        columns = columns[:2] + [("noc", "out3_percent", "Out-Noc (> 3 px) %"),
+                                 ("occ", "out3_percent", "Out-All (> 3 px) %")] + columns[2:]
+    rows, methods = [], {}
+    for name, tally in tallies.items():
+        pooled = tally.summary()
+        seqs = {s: t.summary() for s, t in per_seq[name].items()}
+        entry = {"pooled": pooled, "per_sequence": seqs, "seconds_per_pair": statistics.mean(seconds[name])}
+        if bench.format == "middlebury":  # Middlebury's tables average the sequences
+            entry["sequence_mean"] = {key: _mean_or_none([v["all"][key] for v in seqs.values()])
+                                      for key in ("epe", "ae_deg")}
+            cells = [entry["sequence_mean"]["epe"], entry["sequence_mean"]["ae_deg"]]
+        else:
+            cells = [pooled[region][key] for region, key, _ in columns]
+        methods[name] = entry
+        rows.append([name] + [_cell(c) for c in cells] + [f"{entry['seconds_per_pair']:.3f}"])
+    headers = ["method"] + [c[2] for c in columns] + ["s / pair"]
+    which = ("mean over sequences" if bench.format == "middlebury" else "pooled over all pixels of all pairs")
+    sizes = sorted({f"{i.size[0]}x{i.size[1]}" for i in items})
+    mode = "smoke: first pair only" if ctx.smoke else "quick: first pair of each sequence" if ctx.quick else "all"
+    table = (f"Dataset: {bench.dataset}, {bench.root}. Pairs evaluated: {n_pairs} of {bench.pairs} ({mode}), "
+             f"at {', '.join(sizes)}.\nProtocol: {bench.protocol}. Values: {which}.\n"
+             f"CorrFlow: research/opticalflow.py at its headline setting (L={HEADLINE[0]}, r={HEADLINE[1]}, stride "
+             f"{STRIDE}), correlation lookup: {' and '.join(sorted(lookup_paths))} (the dense pyramid is kept only "
+             f"below {MEMORY_BUDGET_MIB} MiB). 's / pair' runs on a shared CPU.\n\n"
+             + markdown_table(headers, rows))
+    if bench.format in ("sintel", "middlebury") and len(items) > 1:
+        region, key = columns[0][0], columns[0][1]
+        label = "EPE px / AE deg" if bench.format == "middlebury" else f"EPE px, {region} pixels"
+        seq_rows = []
+        for item in items:
+            cells = []
+            for entry in methods.values():
+                v = entry["per_sequence"][item.name][region]
+                cells.append(f"{_cell(v['epe'])} / {_cell(v['ae_deg'])}" if bench.format == "middlebury"
+                             else _cell(v[key]))
+            seq_rows.append([item.name] + cells)
+        table += f"\nPer sequence ({label}):\n\n" + markdown_table(["sequence"] + list(methods), seq_rows)
+    metrics = {"benchmark": {"format": bench.format, "dataset": bench.dataset, "protocol": bench.protocol,
+                             "pass": bench.pass_, "root": str(bench.root), "pairs_evaluated": n_pairs,
+                             "pairs_in_folder": bench.pairs, "sequences": [i.name for i in items]},
+               "methods": methods, "lookup": sorted(lookup_paths), "seconds": time.perf_counter() - t_start}
+    config = {"quick": ctx.quick, "format": bench.format, "pass": bench.pass_, "stride": STRIDE, "headline": HEADLINE,
+              "corrflow": CorrFlowConfig().__dict__, "memory_budget_mib": MEMORY_BUDGET_MIB}
+    ctx.write_results(config=config, metrics=metrics, table_md=table)
+    return 0
+
+
 def run(ctx: Context) -> int:
+    bench = benchmark_of(ctx)
+    if bench is not None:
+        return run_benchmark(ctx, bench)
+    return run_rendered(ctx)
+
+
+def run_rendered(ctx: Context) -> int:
     from research.datasets import load_flow, provenance
     from research.opticalflow import CorrFlow, CorrFlowConfig, flow_metrics, srgb
 
@@ -299,8 +453,10 @@ def run(ctx: Context) -> int:
     return 0
 
 
-main = Experiment("raft_flow", __doc__, run,
-                  data_help=rendered_cache_help("flow", "raft_flow"),
+main = Experiment("raft_flow", __doc__, run, add_options,
+                  data_help=rendered_cache_help("flow", "raft_flow") + "; or an MPI-Sintel, KITTI flow or "
+                            "Middlebury flow folder, scored by that benchmark's protocol (--format, --pass)",
                   seed_help="dataset seed (camera path, render noise)",
                   sizes="Quick: scene `objects` only, 2 frame pairs; smoke: `objects` at 128x128, 4 spp, "
-                        "one pair.").script(__name__)
+                        "one pair. On a benchmark folder: quick, the first pair of each sequence; smoke, the "
+                        "first pair only.").script(__name__)

@@ -19,7 +19,8 @@ premultiplied and would alter the values, so every PNG is written and read with
 the attribute ``oiio:UnassociatedAlpha = 1``; ``write_png_u8`` / ``read_png_u8``
 therefore round-trip uint8 data bit-exactly, alpha == 0 pixels included.
 ``read_png(linear=True)`` inverts the curve on the colour channels (never on
-alpha) and returns straight alpha.
+alpha) and returns straight alpha. ``write_png_u16`` / ``read_png_u16`` store and read 16-bit
+PNGs (KITTI's flow and disparity maps) as raw uint16 codes, bit-exactly, with no colour curve.
 
 **EXR**: float32 channels (never HALF), zip compression, any number of channels.
 OpenEXR sorts channels by name on disk, so the written order is kept in the
@@ -224,11 +225,33 @@ def write_png_u8(path: PathLike, u8: npt.ArrayLike) -> None:
         _oiio_write(tmp, spec, a, target)
 
 
+def write_png_u16(path: PathLike, u16: npt.ArrayLike) -> None:
+    """Write uint16 (H, W) or (H, W, C), C in {1, 3, 4}, to a 16-bit PNG exactly as given (no colour curve)."""
+    a = np.asarray(u16)
+    if a.dtype != np.uint16:
+        raise ValueError(f"u16: expected dtype uint16, got {a.dtype}")
+    a = _check_image_shape("u16", a, (1, 3, 4))
+    h, w, c = a.shape
+    spec = oiio.ImageSpec(w, h, c, "uint16")
+    spec.attribute("oiio:UnassociatedAlpha", 1)
+    target = Path(path)
+    with atomic_path(target) as tmp:
+        _oiio_write(tmp, spec, a, target)
+
+
 def read_png_u8(path: PathLike) -> np.ndarray:
     """Read an 8-bit PNG as uint8 (H, W, C), exactly as stored (straight alpha)."""
     pixels, spec = _oiio_read(path, "png", None)
     if pixels.dtype != np.uint8:
         raise ValueError(f"{path}: expected an 8-bit PNG, got pixel format {spec.format}")
+    return pixels
+
+
+def read_png_u16(path: PathLike) -> np.ndarray:
+    """Read a 16-bit PNG as uint16 (H, W, C), exactly as stored (KITTI's flow and disparity maps)."""
+    pixels, spec = _oiio_read(path, "png", None)
+    if pixels.dtype != np.uint16:
+        raise ValueError(f"{path}: expected a 16-bit PNG, got pixel format {spec.format}")
     return pixels
 
 

@@ -10,8 +10,10 @@ from research.datasets.generate import (CACHE_ROOT_HELP, DatasetConfig, cache_di
 from research.datasets.loader import (Dataset, DatasetError, FlowSequence, StereoPair, load, load_flow,
                                       load_stereo)
 from research.datasets.scenes import SCENES, SceneSpec, get_scene
+from research.datasets.flow_benchmarks import (FlowBenchmark, detect_format as detect_flow_format,
+                                               load_flow_benchmark, open_benchmark as open_flow_benchmark)
 from research.datasets.integrity import verify
 
 __all__ = ["CACHE_ROOT_HELP", "DatasetConfig", "cache_dir", "ensure", "generate", "provenance", "Dataset",
            "DatasetError", "FlowSequence", "StereoPair", "load", "load_flow", "load_stereo", "SCENES", "SceneSpec",
-           "get_scene", "verify"]
+           "get_scene", "verify", "FlowBenchmark", "detect_flow_format", "load_flow_benchmark", "open_flow_benchmark"]

@@ -226,11 +226,19 @@ def load_stereo(path: str | Path, *, verify_hashes: bool = True) -> list[StereoP
 
 @dataclass
 class FlowSequence:
+    """Frames and forward flow. drlab's own sequences fill the first five fields; benchmark readers
+    (research.datasets.flow_benchmarks) have no cameras (an empty list) and no depth (None), and fill the
+    optional fields below."""
+
     cameras: list[Camera]
     frames: np.ndarray  # (N, H, W, 4) linear premultiplied RGBA
-    depth: np.ndarray  # (N, H, W)
+    depth: np.ndarray | None  # (N, H, W); None where the data has no depth (benchmarks)
     flow: np.ndarray  # (N - 1, H, W, 2): frame k -> k + 1, (x right, y down) pixels
-    valid: np.ndarray  # (N - 1, H, W) bool
+    valid: np.ndarray  # (N - 1, H, W) bool: ground truth known and the pixel visible in frame k + 1
+    name: str = ""  # the sequence or pair a benchmark names it by
+    occluded: np.ndarray | None = None  # (N - 1, H, W) bool: ground truth known, pixel occluded in frame k + 1
+    invalid: np.ndarray | None = None  # (N - 1, H, W) bool: pixels the protocol leaves out of every region
+    valid_all: np.ndarray | None = None  # (N - 1, H, W) bool: ground truth known, occluded or not (KITTI flow_occ)
 
 
 def load_flow(path: str | Path, *, verify_hashes: bool = True) -> FlowSequence:
