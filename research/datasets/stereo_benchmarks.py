@@ -466,6 +466,7 @@ def load_benchmark(path: str | Path, fmt: str | None = None, resolution: str = "
     if fmt is not None and fmt not in FORMATS:
         raise ValueError(f"format: expected one of {FORMATS}, got {fmt!r}")
     _resolution(resolution)
+    _root(path)
     fmt = fmt or detect_format(path)
     if fmt is None:
         raise DatasetError(f"{path}: not a stereo benchmark folder (Middlebury/ETH3D: im0.png, im1.png, calib.txt; "
