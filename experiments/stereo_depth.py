@@ -420,7 +420,9 @@ def benchmark_format(ctx: Context) -> str | None:
     from research.datasets.stereo_benchmarks import detect_format
 
     args = ctx.args
-    fmt = args.format or detect_format(ctx.data)
+    # Without --data (the default cache root) this is the Mitsuba run whatever that folder holds.
+    explicit = ctx.data.absolute() != registry.default_data_dir().absolute()
+    fmt = args.format or (detect_format(ctx.data) if explicit else None)
     if fmt is None:
         if args.resolution != "full" or args.max_disp is not None:
             raise ValueError("--resolution, --max-disp: apply to a benchmark --data folder only, and "
@@ -439,6 +441,23 @@ def _sgbm(dmax: int, channels: int) -> Any:
     return cv2.StereoSGBM_create(minDisparity=0, numDisparities=dmax, blockSize=block, P1=8 * channels * block ** 2,
                                  P2=32 * channels * block ** 2, disp12MaxDiff=1, preFilterCap=63, uniquenessRatio=10,
                                  speckleWindowSize=100, speckleRange=32, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+
+
+def _volume_bytes(shape: tuple[int, int], dmax: int) -> int:
+    """drlab's peak for one pair: four float32 (H, W, D) volumes (the cost, SGM's padded copy of it, its
+    aggregate and its output; kernels.stereo.sgm)."""
+    return 4 * 4 * int(shape[0]) * int(shape[1]) * int(dmax)
+
+
+def _free_memory() -> int | None:
+    """MemAvailable of /proc/meminfo in bytes (None where there is no such file)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
 
 
 def _as_u8(img: np.ndarray) -> np.ndarray:
@@ -464,11 +483,18 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
             return int(min(256, max(16, (p.disparity.shape[1] - 1) // 16 * 16)))
         return int(-(-p.ndisp // 16) * 16)
 
-    for p in pairs:  # before any matching: every range must fit its image
+    free = _free_memory() if ctx.device == "cpu" else None
+    for p in pairs:  # before any matching: every range must fit its image, every volume the memory
         if drange(p) >= p.disparity.shape[1]:
             where = "--max-disp" if args.max_disp is not None else f"{p.source}/calib.txt: ndisp={p.ndisp}"
             raise ValueError(f"{where}: the disparity range [0, {drange(p)}) must be narrower than the image "
                              f"({p.disparity.shape[1]} px wide)")
+        need = _volume_bytes(p.disparity.shape, drange(p))
+        if free is not None and need > free:
+            raise ValueError(f"{p.source}: drlab's float32 volumes for {p.disparity.shape[1]}x{p.disparity.shape[0]}"
+                             f" x {drange(p)} disparities need about {need / 2**30:.1f} GiB, more than the "
+                             f"{free / 2**30:.1f} GiB available; use --resolution half or quarter, or --max-disp")
+    peak = max(_volume_bytes(p.disparity.shape, drange(p)) for p in pairs)
 
     methods = {name: StereoConfig(**cfg) for name, cfg in BENCHMARK_DRLAB.items()}
     results: dict[str, Any] = {name: {"family": "drlab", "params": cfg.to_dict(), "pairs": {}}
@@ -531,9 +557,11 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
         f"{dranges}. Protocol: {PROTOCOL_NAMES[fmt]}; invalid estimates filled as KITTI's devkit does, scores "
         f"{pooling}.{noc_note}{fg_note} drlab configurations chosen on the Mitsuba tuning pairs of the default "
         f"run, not on this data; OpenCV StereoSGBM with standard parameters. Time: wall per pair, drlab with "
-        f"{default_threads()} CPU threads (device {ctx.device}), OpenCV with {cv2.getNumThreads()} threads.\n\n"
+        f"{default_threads()} CPU threads (device {ctx.device}), OpenCV with {cv2.getNumThreads()} threads; "
+        f"drlab's cost volumes take up to {peak / 2**20:.1f} MiB per pair (four float32 H x W x D volumes).\n\n"
         + markdown_table(headers, rows))
     config = {"benchmark": fmt, "data": str(ctx.data), "resolution": args.resolution, "pairs": [p.name for p in pairs],
+              "drlab_volume_peak_bytes": peak,
               "image_sizes": res, "disparity_ranges": dranges, "protocol": PROTOCOL_NAMES[fmt],
               "opencv": cv2.__version__, "drlab_threads": default_threads(), "opencv_threads": cv2.getNumThreads()}
     ctx.write_results(config=config, table_md=table,

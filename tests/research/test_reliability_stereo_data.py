@@ -216,14 +216,21 @@ CLI_CASES = [
      r"--resolution, --max-disp: apply to a benchmark --data folder only"),
     ("format-on-a-cache-root", ["--format", "eth3d", "--out", "{out}", "@nodata"],
      r": holds no eth3d pair"),
+    ("volume-exceeds-free-memory", ["--out", "{out}", "@lowmem"],
+     r"p: drlab's float32 volumes for 48x24 x 16 disparities need about 0\.0 GiB, more than the 0\.0 GiB "
+     r"available; use --resolution half or quarter, or --max-disp"),
     ("corrupt-pair-keeps-old-results", ["--out", "{out}", "@corrupt"], r"p/disp0\.pfm: expected 4608 bytes"),
 ]
 
 
 @pytest.mark.parametrize("case, argv, expected", CLI_CASES, ids=[c[0] for c in CLI_CASES])
-def test_bad_stereo_depth_benchmark_run(tmp_path, capsys, case, argv, expected):
+def test_bad_stereo_depth_benchmark_run(tmp_path, capsys, monkeypatch, case, argv, expected):
     """One line `<prog>: <message>`, exit status 2; the previous --out folder is left as it was."""
+    from experiments import stereo_depth
     from experiments.stereo_depth import main
+
+    if "@lowmem" in argv:
+        monkeypatch.setattr(stereo_depth, "_free_memory", lambda: 1000)
 
     data = tmp_path / "data"
     out = tmp_path / "out"

@@ -222,3 +222,22 @@ def test_stereo_depth_on_a_benchmark_folder(tmp_path, fmt):
     assert (best["noc"]["d1_all"] if bench == "kitti" else best["nonocc"]["bad2"]) < 0.1
     if fmt == "middlebury":
         assert "Jadeplant" in table and "without mask0nocc.png" in table
+
+
+def test_without_data_the_run_stays_the_mitsuba_one(tmp_path, monkeypatch):
+    """The default --data (the cache root) is never taken for a benchmark, whatever it holds."""
+    import argparse
+
+    from experiments.stereo_depth import benchmark_format
+    from research import registry
+    from research.experiment import Context
+
+    fx.middlebury_pair(tmp_path / "data" / "Adirondack")
+    monkeypatch.setattr(registry, "default_data_dir", lambda: tmp_path / "data")
+
+    def ctx(data: Path) -> Context:
+        args = argparse.Namespace(data=data, format=None, resolution="full", max_disp=None)
+        return Context("stereo_depth", args, "cpu", tmp_path / "tmp", tmp_path / "out")
+
+    assert benchmark_format(ctx(tmp_path / "data")) is None
+    assert benchmark_format(ctx(tmp_path / "data" / "Adirondack")) == "middlebury"
