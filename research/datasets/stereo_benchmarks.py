@@ -13,8 +13,9 @@ Middlebury 2014 / 2021 and ETH3D two-view: one folder per pair holding
   * `calib.txt`: one `key=value` a line, `cam0=[f 0 cx; 0 f cy; 0 0 1]`, `cam1=[...]`, `doffs`,
     `baseline`, `width`, `height`, `ndisp` required; `isint`, `vmin`, `vmax`, `dyavg`, `dymax`
     optional. Depth = baseline * f / (d + doffs), in the unit of the baseline (mm for Middlebury).
-The root may be one pair's folder or a folder whose sub-folders (to two levels: MiddEval3/trainingH/
-<scene>) are pairs; they are read in sorted order.
+The root may be one pair's folder, a folder whose sub-folders are pairs, or a folder with one
+sub-folder of pairs (MiddEval3/trainingH holding only trainingH, 2021's data/<scene>); they are read in
+sorted order. Pairs under several sub-folders (MiddEval3's trainingF, trainingH, testH) are refused.
 
 Resolution (`resolution="full" | "half" | "quarter"`, relative to the stored files): the images are
 averaged over k x k blocks (k = 1, 2, 4; a trailing partial block is cropped); a reduced ground-truth
@@ -247,17 +248,28 @@ def _block_all(mask: np.ndarray, k: int) -> np.ndarray:
 # --------------------------------------------------------------------------- Middlebury / ETH3D
 
 
+def _is_pair(folder: Path) -> bool:
+    return (folder / "calib.txt").is_file() or (folder / "im0.png").is_file()
+
+
 def _pair_folders(root: Path) -> list[Path]:
-    if (root / "calib.txt").is_file() or (root / "im0.png").is_file():
+    """`root` if it is a pair, else its sub-folders that are, else those of ONE sub-folder (data/<scene>).
+
+    Pairs under several sub-folders two levels down (MiddEval3's trainingF, trainingH, testH, ...: other
+    resolutions, or no ground truth) are refused rather than mixed.
+    """
+    if _is_pair(root):
         return [root]
-    found = []
-    for child in sorted(p for p in root.iterdir() if p.is_dir()):
-        if (child / "calib.txt").is_file() or (child / "im0.png").is_file():
-            found.append(child)
-        else:
-            found += [g for g in sorted(p for p in child.iterdir() if p.is_dir())
-                      if (g / "calib.txt").is_file() or (g / "im0.png").is_file()]
-    return found
+    children = sorted(p for p in root.iterdir() if p.is_dir())
+    found = [c for c in children if _is_pair(c)]
+    if found:
+        return found
+    nested = {c: [g for g in sorted(p for p in c.iterdir() if p.is_dir()) if _is_pair(g)] for c in children}
+    nested = {c: g for c, g in nested.items() if g}
+    if len(nested) > 1:
+        raise DatasetError(f"{root}: holds pairs in {len(nested)} folders ({', '.join(c.name for c in nested)}); "
+                           "pass one of them (one resolution, with ground truth)")
+    return next(iter(nested.values()), [])
 
 
 def _root(path: str | Path) -> Path:

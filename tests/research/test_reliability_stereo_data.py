@@ -187,12 +187,17 @@ ARGUMENT_CASES = [
     ("kitti-format-on-middlebury", dict(fmt="kitti"), r": not a KITTI stereo folder"),
     ("middlebury-format-on-empty", dict(fmt="middlebury", empty=True), r": holds no middlebury pair"),
     ("folder-missing", dict(missing=True), r"absent: no such benchmark folder$"),
+    ("middeval3-root-with-two-resolutions", dict(middeval3=True),
+     r": holds pairs in 2 folders \(trainingH, trainingQ\); pass one of them \(one resolution, with ground truth\)$"),
 ]
 
 
 @pytest.mark.parametrize("case, kw, expected", ARGUMENT_CASES, ids=[c[0] for c in ARGUMENT_CASES])
 def test_bad_reader_arguments(tmp_path, case, kw, expected):
-    if not kw.pop("empty", False):
+    if kw.pop("middeval3", False):
+        fx.middlebury_pair(tmp_path / "trainingH" / "Adirondack")
+        fx.middlebury_pair(tmp_path / "trainingQ" / "Adirondack")
+    elif not kw.pop("empty", False):
         fx.middlebury_pair(tmp_path / "p")
     root = tmp_path / "absent" if kw.pop("missing", False) else tmp_path
     with pytest.raises(ValueError) as e:
