@@ -36,8 +36,12 @@ KITTI 2012 / 2015 stereo: the `training` folder (or its parent):
     matrices (baseline = (P_left[0, 3] - P_right[0, 3]) / f, metres). Without it the pair has no
     cameras and a NaN baseline.
 
-`detect_format(path)` tells the layouts apart: KITTI by its folders, a calib.txt layout as ETH3D when
-its im0.png is grey (ETH3D's two-view images are) and Middlebury when it is colour.
+ETH3D ships its ground truth in a separate tree: for a pair folder `two_view_training/<scene>` without
+disp0GT.pfm, `two_view_training_gt/<scene>` is read for disp0GT.pfm and mask0nocc.png.
+
+`detect_format(path)` tells the layouts apart: KITTI by its folders; a calib.txt layout is ETH3D when
+its ground truth lies in a separate `_gt` tree, its im0.png is grey, or its doffs is 0 (ETH3D's
+principal points coincide; Middlebury's differ), and Middlebury otherwise.
 
 Every error is a DatasetError (a ValueError) of one line naming the file, and the line of calib.txt
 where one applies; nothing is written.
@@ -301,6 +305,14 @@ def load_eth3d(path: str | Path, resolution: str = "full") -> list[StereoPair]:
     return load_middlebury(path, resolution, benchmark="eth3d")
 
 
+def _gt_folder(folder: Path) -> Path:
+    """Where a pair's ground truth lies: its own folder, or ETH3D's separate tree
+    (two_view_training/<scene> -> two_view_training_gt/<scene>) when that exists and the folder holds none."""
+    own = any((folder / n).is_file() for n in ("disp0.pfm", "disp0GT.pfm"))
+    sibling = folder.parent.with_name(folder.parent.name + "_gt") / folder.name
+    return sibling if not own and sibling.is_dir() else folder
+
+
 def _middlebury_pair(folder: Path, k: int, resolution: str, benchmark: str) -> StereoPair:
     calib = read_calib(folder / "calib.txt")
     left, right = read_image(folder / "im0.png"), read_image(folder / "im1.png")
@@ -312,9 +324,11 @@ def _middlebury_pair(folder: Path, k: int, resolution: str, benchmark: str) -> S
     if left.ndim != right.ndim:
         raise DatasetError(f"{folder / 'im1.png'}: {'colour' if right.ndim == 3 else 'grey'}, but im0.png is "
                            f"{'colour' if left.ndim == 3 else 'grey'}")
-    gt_path = next((folder / n for n in ("disp0.pfm", "disp0GT.pfm") if (folder / n).is_file()), None)
+    gt_dir = _gt_folder(folder)
+    gt_path = next((gt_dir / n for n in ("disp0.pfm", "disp0GT.pfm") if (gt_dir / n).is_file()), None)
     if gt_path is None:
-        raise DatasetError(f"{folder / 'disp0.pfm'}: missing (nor is there a disp0GT.pfm)")
+        raise DatasetError(f"{folder / 'disp0.pfm'}: missing (nor is there a disp0GT.pfm"
+                           + (")" if gt_dir == folder else f", here or in {gt_dir})"))
     try:
         gt = io.read_pfm(gt_path)
     except ValueError as e:
@@ -327,7 +341,7 @@ def _middlebury_pair(folder: Path, k: int, resolution: str, benchmark: str) -> S
     known = np.isfinite(gt)
     if known.any() and gt[known].min() < 0:
         raise DatasetError(f"{gt_path}: disparities must be >= 0 (or inf where unknown), found {gt[known].min():.6g}")
-    mask_path = folder / "mask0nocc.png"
+    mask_path = gt_dir / "mask0nocc.png"
     has_noc = mask_path.is_file()
     noc = (_read_mask(mask_path, shape) == 255) & known if has_noc else known.copy()
 
@@ -465,12 +479,14 @@ def detect_format(path: str | Path) -> str | None:
     folders = _pair_folders(root)
     if not folders:
         return None
-    im0 = folders[0] / "im0.png"
+    if _gt_folder(folders[0]) != folders[0]:
+        return "eth3d"  # ETH3D's separate ground-truth tree
     try:
-        grey = read_image(im0).ndim == 2
+        grey = read_image(folders[0] / "im0.png").ndim == 2
+        doffs = read_calib(folders[0] / "calib.txt").doffs
     except (DatasetError, FileNotFoundError):
         return "middlebury"  # the reader will then name what is wrong
-    return "eth3d" if grey else "middlebury"
+    return "eth3d" if grey or doffs == 0 else "middlebury"
 
 
 def load_benchmark(path: str | Path, fmt: str | None = None, resolution: str = "full") -> list[StereoPair]:

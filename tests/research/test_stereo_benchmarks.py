@@ -97,6 +97,17 @@ def test_eth3d_round_trip_and_format_detection(tmp_path):
     assert np.array_equal(p.mask, np.isfinite(w["gt"])) and p.doffs == 0.0
 
 
+def test_eth3d_ground_truth_in_its_separate_tree(tmp_path):
+    w = fx.eth3d_pair(tmp_path / "two_view_training" / "playground_1l")
+    gt_dir = tmp_path / "two_view_training_gt" / "playground_1l"
+    gt_dir.mkdir(parents=True)
+    for name in ("disp0GT.pfm", "mask0nocc.png"):
+        (tmp_path / "two_view_training" / "playground_1l" / name).rename(gt_dir / name)
+    assert detect_format(tmp_path / "two_view_training") == "eth3d"
+    (p,) = load_benchmark(tmp_path / "two_view_training")
+    assert p.has_noc_mask and np.array_equal(p.noc, w["mask"] == 255) and np.array_equal(p.mask, np.isfinite(w["gt"]))
+
+
 @pytest.mark.parametrize("version", [2015, 2012])
 def test_kitti_round_trip(tmp_path, version):
     written = fx.kitti_folder(tmp_path, version)
