@@ -38,8 +38,8 @@ normalisation (colour to grey, uint8 / 255); SGBM gets the stored 8-bit images (
 to 8 bits). Scores follow the benchmark's protocol (research.stereo.protocol_metrics: Middlebury
 bad-0.5/1/2/4 and avgerr on nonocc and all; KITTI D1-bg/fg/all on noc and occ; ETH3D bad-1/2 and
 avgerr), at `--resolution` (full, half or quarter of the stored Middlebury/ETH3D files). Such a run
-needs its own `--out` (the default results/stereo_depth holds the Mitsuba table); --smoke reads the
-first 2 pairs, --quick the first 5.
+needs its own `--out` (the default results/stereo_depth holds the Mitsuba table) and writes table.md,
+metrics.json and disparity_maps.png (the first pair); --smoke reads the first 2 pairs, --quick the first 5.
 """
 
 from __future__ import annotations
@@ -443,6 +443,44 @@ def _sgbm(dmax: int, channels: int) -> Any:
                                  speckleWindowSize=100, speckleRange=32, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
 
 
+def benchmark_figure(p: Any, runs: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path) -> None:
+    """One pair: left image, ground truth, and each method's filled disparity and |error| (clipped at 5 px)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from research.stereo import fill_invalid
+
+    vmax = float(p.disparity[p.mask].max()) if p.mask.any() else 1.0
+    panels: list[tuple[str, Any, dict]] = [
+        ("left image", p.left_image, {"cmap": "gray"} if p.left_image.ndim == 2 else {}),
+        ("ground truth", np.ma.masked_where(~p.mask, p.disparity), {"vmin": 0, "vmax": vmax})]
+    for name, (d, v, _) in runs.items():
+        dense = fill_invalid(d, v)
+        panels.append((name, dense, {"vmin": 0, "vmax": vmax}))
+        panels.append((f"|error| {name}", np.ma.masked_where(~p.mask, np.abs(dense - p.disparity)),
+                       {"vmin": 0, "vmax": 5, "cmap": "inferno"}))
+    cols = 2
+    rows = (len(panels) + cols - 1) // cols
+    aspect = p.disparity.shape[0] / p.disparity.shape[1]
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 4.2 * aspect * rows + 0.6), squeeze=False)
+    for ax, (title, img, kw) in zip(axes.flat, panels):
+        im = ax.imshow(img, **kw)
+        if title != "left image":
+            fig.colorbar(im, ax=ax, fraction=0.046)
+        ax.set_title(title, fontsize=8)
+    for ax in axes.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    fig.suptitle(f"{p.benchmark} {p.name}: disparity (px) after KITTI fill; masked: no ground truth", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
+
+
 def _volume_bytes(shape: tuple[int, int], dmax: int) -> int:
     """drlab's peak for one pair: four float32 (H, W, D) volumes (the cost, SGM's padded copy of it, its
     aggregate and its output; kernels.stereo.sgm)."""
@@ -519,6 +557,8 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
         for name, (d, v, s) in runs.items():
             row = protocol_metrics(fmt, d, v, p.disparity, p.noc, p.mask, p.foreground)
             results[name]["pairs"][p.name] = {**row, "seconds": s, "dmax": dmax}
+        if p is pairs[0]:
+            benchmark_figure(p, runs, ctx.out / "disparity_maps.png")
     for name, r in results.items():
         r["pooled"] = pool_protocol(fmt, list(r["pairs"].values()))
         r["time_s_mean"] = float(np.mean([x["seconds"] for x in r["pairs"].values()]))

@@ -24,6 +24,9 @@ Rec. 601 luma; a float image outside [0, 1] is refused). The SGM penalties (P1 =
 default) and the ZNCC epsilon are tuned for costs of images in [0, 1]: 0-255 images would make
 every SAD cost 255 times larger against the same penalties, which is why units are normalised.
 
+Benchmark protocols (Middlebury, KITTI, ETH3D; `protocol_metrics`, `pool_protocol`) are described
+at the end of this module.
+
 Invalid estimates are first filled as KITTI's devkit does before evaluating
 (`fill_invalid`): along each row, a gap takes the smaller (background)
 disparity of its two valid ends, or the one valid end at a border. So every

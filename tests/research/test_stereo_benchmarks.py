@@ -220,6 +220,7 @@ def test_stereo_depth_on_a_benchmark_folder(tmp_path, fmt):
     methods = doc["metrics"]["methods"]
     assert set(methods) == {"SAD + SGM-4 soft-argmin", "census + SGM-8", "OpenCV StereoSGBM"}
     table = (out / "table.md").read_text()
+    assert (out / "disparity_maps.png").stat().st_size > 1000
     assert f"Dataset: {bench}" in table and "Protocol:" in table and "resolution full" in table
     for m in methods.values():
         pooled = m["pooled"]
