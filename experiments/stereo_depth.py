@@ -510,6 +510,9 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
     from research.stereo import PROTOCOLS, StereoConfig, match, pool_protocol, protocol_metrics
 
     args = ctx.args
+    if fmt == "kitti" and args.resolution != "full":
+        raise ValueError(f"--resolution: KITTI's sparse ground truth is evaluated at full resolution only, got "
+                         f"{args.resolution!r}")
     pairs = load_benchmark(ctx.data, fmt, args.resolution)
     limit = 2 if ctx.smoke else 5 if ctx.quick else None
     pairs = pairs[:limit]

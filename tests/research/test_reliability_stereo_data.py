@@ -224,6 +224,8 @@ CLI_CASES = [
     ("volume-exceeds-free-memory", ["--out", "{out}", "@lowmem"],
      r"p: drlab's float32 volumes for 48x24 x 16 disparities need about 0\.0 GiB, more than the 0\.0 GiB "
      r"available; use --resolution half or quarter, or --max-disp"),
+    ("kitti-at-half-resolution", ["--resolution", "half", "--out", "{out}", "@kitti"],
+     r"--resolution: KITTI's sparse ground truth is evaluated at full resolution only, got 'half'"),
     ("corrupt-pair-keeps-old-results", ["--out", "{out}", "@corrupt"], r"p/disp0\.pfm: expected 4608 bytes"),
 ]
 
@@ -243,6 +245,8 @@ def test_bad_stereo_depth_benchmark_run(tmp_path, capsys, monkeypatch, case, arg
     (out / "metrics.json").write_text(json.dumps({"previous": True}))
     if "@nodata" in argv:
         data.mkdir()
+    elif "@kitti" in argv:
+        fx.kitti_folder(data)
     else:
         fx.middlebury_pair(data / "p")
     if "@ndisp=64" in argv:
