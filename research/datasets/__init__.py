@@ -11,9 +11,11 @@ from research.datasets.loader import (Dataset, DatasetError, FlowSequence, Stere
                                       load_stereo)
 from research.datasets.scenes import SCENES, SceneSpec, get_scene
 from research.datasets.integrity import verify
-from research.datasets.stereo_benchmarks import (detect_format, load_benchmark, load_eth3d, load_kitti,
+from research.datasets.stereo_benchmarks import (detect_format as detect_stereo_format, load_benchmark as
+                                                 load_stereo_benchmark, load_eth3d, load_kitti as load_kitti_stereo,
                                                  load_middlebury)
 
 __all__ = ["CACHE_ROOT_HELP", "DatasetConfig", "cache_dir", "ensure", "generate", "provenance", "Dataset",
            "DatasetError", "FlowSequence", "StereoPair", "load", "load_flow", "load_stereo", "SCENES", "SceneSpec",
-           "get_scene", "verify", "detect_format", "load_benchmark", "load_eth3d", "load_kitti", "load_middlebury"]
+           "get_scene", "verify", "detect_stereo_format", "load_stereo_benchmark", "load_eth3d", "load_kitti_stereo",
+           "load_middlebury"]

@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 import stereo_fixtures as fx
-from research.datasets import detect_format, load_benchmark, load_eth3d, load_kitti, load_middlebury
-from research.datasets.stereo_benchmarks import read_calib, read_kitti_disparity
+from research.datasets import detect_stereo_format, load_stereo_benchmark
+from research.datasets.stereo_benchmarks import (detect_format, load_benchmark, load_eth3d, load_kitti,
+                                                 load_middlebury, read_calib, read_kitti_disparity)
 from research.registry import REPO_ROOT
 from research.stereo import bad_pixel_metrics, d1_outliers, kitti_d1, pool_protocol, protocol_metrics
 
@@ -90,6 +91,7 @@ def test_eth3d_round_trip_and_format_detection(tmp_path):
     fx.kitti_folder(tmp_path / "k12", 2012)
     assert [detect_format(tmp_path / n) for n in ("eth", "mb", "k15", "k15/training", "k12")] == \
         ["eth3d", "middlebury", "kitti", "kitti", "kitti"]
+    assert detect_stereo_format is detect_format and load_stereo_benchmark is load_benchmark  # the package's names
     (tmp_path / "empty" / "sub").mkdir(parents=True)
     assert detect_format(tmp_path / "empty") is None and detect_format(tmp_path / "absent") is None
     (p,) = load_eth3d(tmp_path / "eth")
