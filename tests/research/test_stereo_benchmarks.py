@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -255,3 +256,20 @@ def test_without_data_the_run_stays_the_mitsuba_one(tmp_path, monkeypatch):
 
     assert benchmark_format(ctx(tmp_path / "data")) is None
     assert benchmark_format(ctx(tmp_path / "data" / "Adirondack")) == "middlebury"
+
+
+def test_kitti_2012_grey_pairs_use_P0_and_P1(tmp_path):
+    fx.kitti_folder(tmp_path, 2012, ids=("000003",))
+    t = tmp_path / "training"
+    for side in ("0", "1"):
+        (t / f"colored_{side}").rename(t / f"image_{side}")
+        path = t / f"image_{side}" / "000003_10.png"
+        fx.write_png(path, np.ascontiguousarray(cv2.imread(str(path))[..., 1]))  # grey, as KITTI 2012's image_0/1
+    calib = (t / "calib" / "000003.txt").read_text().splitlines()
+    # P0/P1 with a 0.3 m baseline; P2/P3 (the colour cameras) keep theirs, 0.54 m
+    calib[1] = "P1: " + " ".join(f"{v:.12e}" for v in [fx.KITTI_F, 0, 23.5, -fx.KITTI_F * 0.3, 0, fx.KITTI_F, 11.5, 0,
+                                                          0, 0, 1, 0])
+    (t / "calib" / "000003.txt").write_text("\n".join(calib) + "\n")
+    assert detect_format(tmp_path) == "kitti"
+    (p,) = load_kitti(tmp_path)
+    assert p.left_image.ndim == 2 and p.baseline == pytest.approx(0.3, rel=1e-12)
