@@ -25,6 +25,21 @@ then EPE, bad-1/2/3, D1 and depth abs-rel over the non-occluded ground truth
 CPU threads (kernels.launch), OpenCV with cv2.getNumThreads() threads.
 
 Writes results/stereo_depth/{table.md, metrics.json, disparity_maps.png, d1_by_method.png}.
+
+Benchmarks (`--data PATH` of a Middlebury 2014/2021, KITTI 2012/2015 or ETH3D two-view folder, its
+format detected or given with `--format`; research.datasets.stereo_benchmarks reads it): runs the
+two drlab configurations the default run chose on its Mitsuba tuning pairs (SAD + SGM-4 soft-argmin
+and census + SGM-8; nothing is tuned on the benchmark) and OpenCV StereoSGBM with standard
+parameters (blockSize 3, P1 = 8 * cn * 3^2, P2 = 32 * cn * 3^2 for cn image channels, 3-way, uniqueness
+10, speckle window 100 and range 32, disp12MaxDiff 1, preFilterCap 63) on every pair, over
+disparities [0, D) with D the pair's ndisp (calib.txt) rounded up to a multiple of 16, or
+`--max-disp` (KITTI's default 256). drlab matches the stored images through research.images'
+normalisation (colour to grey, uint8 / 255); SGBM gets the stored 8-bit images (16-bit ones shifted
+to 8 bits). Scores follow the benchmark's protocol (research.stereo.protocol_metrics: Middlebury
+bad-0.5/1/2/4 and avgerr on nonocc and all; KITTI D1-bg/fg/all on noc and occ; ETH3D bad-1/2 and
+avgerr), at `--resolution` (full, half or quarter of the stored Middlebury/ETH3D files). Such a run
+needs its own `--out` (the default results/stereo_depth holds the Mitsuba table) and writes table.md,
+metrics.json and disparity_maps.png (the first pair); --smoke reads the first 2 pairs, --quick the first 5.
 """
 
 from __future__ import annotations
@@ -286,6 +301,9 @@ def run(ctx: Context) -> int:
     from kernels.launch import default_threads
     from research.stereo import AGGREGATIONS, COSTS, StereoConfig
 
+    fmt = benchmark_format(ctx)
+    if fmt is not None:
+        return run_benchmark(ctx, fmt)
     load_start = os.getloadavg()[0]
     st = setup(ctx.quick, ctx.smoke)
     datasets: dict[str, Any] = {}
@@ -382,6 +400,218 @@ def run(ctx: Context) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- benchmarks
+
+# The configurations the default run chose on its Mitsuba tuning pairs (results/stereo_depth/metrics.json):
+# the best drlab configuration there, and census + SGM-8 (census is robust to gain and offset between cameras).
+BENCHMARK_DRLAB = {
+    "SAD + SGM-4 soft-argmin": {"cost": "sad", "aggregation": "sgm4", "p1": 0.02, "p2": 0.08, "radius": 4,
+                                "disparity": "soft_argmin", "temperature": 0.02},
+    "census + SGM-8": {"cost": "census", "aggregation": "sgm8", "p1": 16.0, "p2": 128.0, "census_radii": (3, 4)},
+}
+PROTOCOL_NAMES = {"middlebury": "Middlebury 2014/2021 (bad-0.5/1/2/4 and avgerr; nonocc and all masks)",
+                  "kitti": "KITTI 2012/2015 stereo (D1: error > 3 px and > 5 % of the true disparity; noc and occ)",
+                  "eth3d": "ETH3D two-view (bad-1, bad-2 and avgerr; nonocc and all masks)"}
+
+
+def benchmark_format(ctx: Context) -> str | None:
+    """The benchmark format of --data (None: the Mitsuba run, --data is the dataset cache root)."""
+    from research import registry
+    from research.datasets.stereo_benchmarks import detect_format
+
+    args = ctx.args
+    # Without --data (the default cache root) this is the Mitsuba run whatever that folder holds.
+    explicit = ctx.data.absolute() != registry.default_data_dir().absolute()
+    fmt = args.format or (detect_format(ctx.data) if explicit else None)
+    if fmt is None:
+        if args.resolution != "full" or args.max_disp is not None:
+            raise ValueError("--resolution, --max-disp: apply to a benchmark --data folder only, and "
+                             f"{ctx.data} is not one")
+        return None
+    if ctx.final_out == registry.default_out(ctx.name).absolute():
+        raise ValueError(f"--out: a benchmark run needs its own results folder; the default {ctx.final_out} "
+                         "holds the Mitsuba table")
+    return fmt
+
+
+def _sgbm(dmax: int, channels: int) -> Any:
+    import cv2
+
+    block = 3
+    return cv2.StereoSGBM_create(minDisparity=0, numDisparities=dmax, blockSize=block, P1=8 * channels * block ** 2,
+                                 P2=32 * channels * block ** 2, disp12MaxDiff=1, preFilterCap=63, uniquenessRatio=10,
+                                 speckleWindowSize=100, speckleRange=32, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+
+
+def benchmark_figure(p: Any, runs: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path) -> None:
+    """One pair: left image, ground truth, and each method's filled disparity and |error| (clipped at 5 px)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from research.stereo import fill_invalid
+
+    vmax = float(p.disparity[p.mask].max()) if p.mask.any() else 1.0
+    panels: list[tuple[str, Any, dict]] = [
+        ("left image", p.left_image, {"cmap": "gray"} if p.left_image.ndim == 2 else {}),
+        ("ground truth", np.ma.masked_where(~p.mask, p.disparity), {"vmin": 0, "vmax": vmax})]
+    for name, (d, v, _) in runs.items():
+        dense = fill_invalid(d, v)
+        panels.append((name, dense, {"vmin": 0, "vmax": vmax}))
+        panels.append((f"|error| {name}", np.ma.masked_where(~p.mask, np.abs(dense - p.disparity)),
+                       {"vmin": 0, "vmax": 5, "cmap": "inferno"}))
+    cols = 2
+    rows = (len(panels) + cols - 1) // cols
+    aspect = p.disparity.shape[0] / p.disparity.shape[1]
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 4.2 * aspect * rows + 0.6), squeeze=False)
+    for ax, (title, img, kw) in zip(axes.flat, panels):
+        im = ax.imshow(img, **kw)
+        if title != "left image":
+            fig.colorbar(im, ax=ax, fraction=0.046)
+        ax.set_title(title, fontsize=8)
+    for ax in axes.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    fig.suptitle(f"{p.benchmark} {p.name}: disparity (px) after KITTI fill; masked: no ground truth", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
+
+
+def _volume_bytes(shape: tuple[int, int], dmax: int) -> int:
+    """drlab's peak for one pair: four float32 (H, W, D) volumes (the cost, SGM's padded copy of it, its
+    aggregate and its output; kernels.stereo.sgm)."""
+    return 4 * 4 * int(shape[0]) * int(shape[1]) * int(dmax)
+
+
+def _free_memory() -> int | None:
+    """MemAvailable of /proc/meminfo in bytes (None where there is no such file)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def _as_u8(img: np.ndarray) -> np.ndarray:
+    return img if img.dtype == np.uint8 else (img >> 8).astype(np.uint8)
+
+
+def run_benchmark(ctx: Context, fmt: str) -> int:
+    import cv2
+
+    from kernels.launch import default_threads
+    from research.datasets.stereo_benchmarks import load_benchmark
+    from research.stereo import PROTOCOLS, StereoConfig, match, pool_protocol, protocol_metrics
+
+    args = ctx.args
+    if fmt == "kitti" and args.resolution != "full":
+        raise ValueError(f"--resolution: KITTI's sparse ground truth is evaluated at full resolution only, got "
+                         f"{args.resolution!r}")
+    pairs = load_benchmark(ctx.data, fmt, args.resolution)
+    limit = 2 if ctx.smoke else 5 if ctx.quick else None
+    pairs = pairs[:limit]
+
+    def drange(p: Any) -> int:
+        if args.max_disp is not None:
+            return int(args.max_disp)
+        if p.ndisp is None:  # KITTI: 256, or less where the image is narrower
+            return int(min(256, max(16, (p.disparity.shape[1] - 1) // 16 * 16)))
+        return int(-(-p.ndisp // 16) * 16)
+
+    free = _free_memory() if ctx.device == "cpu" else None
+    for p in pairs:  # before any matching: every range must fit its image, every volume the memory
+        if drange(p) >= p.disparity.shape[1]:
+            where = "--max-disp" if args.max_disp is not None else f"{p.source}/calib.txt: ndisp={p.ndisp}"
+            raise ValueError(f"{where}: the disparity range [0, {drange(p)}) must be narrower than the image "
+                             f"({p.disparity.shape[1]} px wide)")
+        need = _volume_bytes(p.disparity.shape, drange(p))
+        if free is not None and need > free:
+            raise ValueError(f"{p.source}: drlab's float32 volumes for {p.disparity.shape[1]}x{p.disparity.shape[0]}"
+                             f" x {drange(p)} disparities need about {need / 2**30:.1f} GiB, more than the "
+                             f"{free / 2**30:.1f} GiB available; use --resolution half or quarter, or --max-disp")
+    peak = max(_volume_bytes(p.disparity.shape, drange(p)) for p in pairs)
+
+    methods = {name: StereoConfig(**cfg) for name, cfg in BENCHMARK_DRLAB.items()}
+    results: dict[str, Any] = {name: {"family": "drlab", "params": cfg.to_dict(), "pairs": {}}
+                               for name, cfg in methods.items()}
+    results["OpenCV StereoSGBM"] = {"family": "opencv", "params": {
+        "blockSize": 3, "P1": "8*cn*9", "P2": "32*cn*9", "mode": "3WAY", "uniquenessRatio": 10,
+        "speckleWindowSize": 100, "speckleRange": 32, "disp12MaxDiff": 1, "preFilterCap": 63}, "pairs": {}}
+    for p in ctx.tqdm(pairs, desc=f"{fmt} pairs"):
+        dmax = drange(p)
+        runs = {}
+        for name, cfg in methods.items():
+            r = match(p.left_image, p.right_image, 0, dmax, cfg, ctx.device)
+            runs[name] = (r.disparity, r.valid, r.timings["total_s"])
+        left, right = _as_u8(p.left_image), _as_u8(p.right_image)
+        channels = 1 if left.ndim == 2 else 3
+        bgr = (lambda x: x) if channels == 1 else (lambda x: np.ascontiguousarray(x[..., ::-1]))
+        t0 = time.perf_counter()
+        raw = _sgbm(dmax, channels).compute(bgr(left), bgr(right))
+        seconds = time.perf_counter() - t0
+        disp = raw.astype(np.float32) / 16.0
+        runs["OpenCV StereoSGBM"] = (disp, disp >= 0, seconds)
+        for name, (d, v, s) in runs.items():
+            row = protocol_metrics(fmt, d, v, p.disparity, p.noc, p.mask, p.foreground)
+            results[name]["pairs"][p.name] = {**row, "seconds": s, "dmax": dmax}
+        if p is pairs[0]:
+            benchmark_figure(p, runs, ctx.out / "disparity_maps.png")
+    for name, r in results.items():
+        r["pooled"] = pool_protocol(fmt, list(r["pairs"].values()))
+        r["time_s_mean"] = float(np.mean([x["seconds"] for x in r["pairs"].values()]))
+
+    masks = PROTOCOLS[fmt]["masks"]
+    res = sorted({f"{p.disparity.shape[1]}x{p.disparity.shape[0]}" for p in pairs})
+    noc_note = ""
+    if fmt != "kitti" and not all(p.has_noc_mask for p in pairs):
+        missing = [p.name for p in pairs if not p.has_noc_mask]
+        noc_note = (f" Pairs without mask0nocc.png ({', '.join(missing)}): their nonocc scores are over all known "
+                    "pixels.")
+    if fmt == "kitti":
+        has_fg = all(p.foreground is not None for p in pairs)
+        parts = ("bg", "fg", "all") if has_fg else ("all",)
+        headers = ["method"] + [f"D1-{part} {m}" for m in masks for part in parts] + ["density noc", "time ms"]
+        fg_note = "" if has_fg else " No obj_map folder: D1-bg/fg need KITTI 2015's object maps, so D1-all only."
+
+        def cells(r: dict) -> list[str]:
+            return [f"{r[m][f'd1_{part}']:.4f}" for m in masks for part in parts]
+    else:
+        keys = [f"bad{t:g}" for t in PROTOCOLS[fmt]["thresholds"]]
+        headers = ["method"] + [f"{k.replace('bad', 'bad-')} {m}" for m in masks for k in keys + ["avgerr"]] + \
+                  [f"density {masks[0]}", "time ms"]
+        fg_note = ""
+
+        def cells(r: dict) -> list[str]:
+            return [f"{r[m][k]:.4f}" if k != "avgerr" else f"{r[m][k]:.3f}" for m in masks for k in keys + ["avgerr"]]
+
+    rows = [[name] + cells(r["pooled"]) + [f"{r['pooled'][masks[0]]['density']:.3f}", f"{1000 * r['time_s_mean']:.1f}"]
+            for name, r in results.items()]
+    pooling = ("pixel-pooled over pairs (KITTI devkit)" if fmt == "kitti" else "mean over pairs (equal weights)")
+    dranges = sorted({v["dmax"] for v in next(iter(results.values()))["pairs"].values()})
+    table = (
+        f"Dataset: {fmt} stereo benchmark at {ctx.data}, {len(pairs)} pair(s) ({', '.join(p.name for p in pairs)}), "
+        f"resolution {args.resolution} of the stored files ({', '.join(res)}), disparities [0, D) with D in "
+        f"{dranges}. Protocol: {PROTOCOL_NAMES[fmt]}; invalid estimates filled as KITTI's devkit does, scores "
+        f"{pooling}.{noc_note}{fg_note} drlab configurations chosen on the Mitsuba tuning pairs of the default "
+        f"run, not on this data; OpenCV StereoSGBM with standard parameters. Time: wall per pair, drlab with "
+        f"{default_threads()} CPU threads (device {ctx.device}), OpenCV with {cv2.getNumThreads()} threads; "
+        f"drlab's cost volumes take up to {peak / 2**20:.1f} MiB per pair (four float32 H x W x D volumes).\n\n"
+        + markdown_table(headers, rows))
+    config = {"benchmark": fmt, "data": str(ctx.data), "resolution": args.resolution, "pairs": [p.name for p in pairs],
+              "drlab_volume_peak_bytes": peak,
+              "image_sizes": res, "disparity_ranges": dranges, "protocol": PROTOCOL_NAMES[fmt],
+              "opencv": cv2.__version__, "drlab_threads": default_threads(), "opencv_threads": cv2.getNumThreads()}
+    ctx.write_results(config=config, table_md=table,
+                      metrics={"benchmark": fmt, "protocol": PROTOCOL_NAMES[fmt], "methods": results})
+    return 0
+
+
 def _short(params: dict[str, Any]) -> str:
     keep = {"radius", "census_radii", "zncc_eps", "p1", "p2", "temperature", "blockSize", "mode", "P1", "P2",
             "uniquenessRatio"}
@@ -394,8 +624,33 @@ def _short(params: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in items)
 
 
-main = Experiment("stereo_depth", __doc__, run,
-                  data_help=rendered_cache_help("stereo", "stereo_depth"),
+def add_options(p: Any) -> None:
+    from research.datasets.stereo_benchmarks import FORMATS, RESOLUTIONS
+
+    p.add_argument("--format", choices=FORMATS, default=None,
+                   help="the benchmark layout of --data (default: detected from its files)")
+    p.add_argument("--resolution", choices=tuple(RESOLUTIONS), default="full",
+                   help="Middlebury/ETH3D: evaluate at this fraction of the stored files' size (default: full)")
+    p.add_argument("--max-disp", type=_max_disp, default=None,
+                   help="benchmarks: disparity range [0, N), N a multiple of 16 (default: each pair's ndisp "
+                        "rounded up to 16; KITTI 256)")
+
+
+def _max_disp(value: str) -> int:
+    import argparse
+
+    try:
+        n = int(value)
+    except ValueError:
+        n = -1
+    if n < 16 or n % 16:
+        raise argparse.ArgumentTypeError(f"expected a positive multiple of 16, got {value!r}")
+    return n
+
+
+main = Experiment("stereo_depth", __doc__, run, add_options,
+                  data_help=rendered_cache_help("stereo", "stereo_depth") + "; or a Middlebury, KITTI or ETH3D "
+                  "stereo folder, which the run then evaluates with that benchmark's protocol",
                   seed_help="dataset seed (camera poses, render noise)",
                   sizes="Quick: 128x128 pairs, 16 spp, 3 pairs per scene (a few minutes); smoke: 64x64, 4 spp, "
                         "2 pairs per scene, two candidates per tuning grid.").script(__name__)

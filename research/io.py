@@ -247,11 +247,19 @@ def read_png_u8(path: PathLike) -> np.ndarray:
     return pixels
 
 
+def read_png_raw(path: PathLike) -> np.ndarray:
+    """Read an 8- or 16-bit PNG as uint8 or uint16 (H, W, C), exactly as stored (no colour curve)."""
+    pixels, spec = _oiio_read(path, "png", None)
+    if pixels.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"{path}: expected an 8- or 16-bit PNG, got pixel format {spec.format}")
+    return pixels
+
+
 def read_png_u16(path: PathLike) -> np.ndarray:
     """Read a 16-bit PNG as uint16 (H, W, C), exactly as stored (KITTI's flow and disparity maps)."""
-    pixels, spec = _oiio_read(path, "png", None)
+    pixels = read_png_raw(path)
     if pixels.dtype != np.uint16:
-        raise ValueError(f"{path}: expected a 16-bit PNG, got pixel format {spec.format}")
+        raise ValueError(f"{path}: expected a 16-bit PNG, got {pixels.dtype.itemsize * 8}-bit")
     return pixels
 
 

@@ -24,6 +24,9 @@ Rec. 601 luma; a float image outside [0, 1] is refused). The SGM penalties (P1 =
 default) and the ZNCC epsilon are tuned for costs of images in [0, 1]: 0-255 images would make
 every SAD cost 255 times larger against the same penalties, which is why units are normalised.
 
+Benchmark protocols (Middlebury, KITTI, ETH3D; `protocol_metrics`, `pool_protocol`) are described
+at the end of this module.
+
 Invalid estimates are first filled as KITTI's devkit does before evaluating
 (`fill_invalid`): along each row, a gap takes the smaller (background)
 disparity of its two valid ends, or the one valid end at a border. So every
@@ -243,4 +246,125 @@ def evaluate(disp: np.ndarray, valid: np.ndarray, gt: np.ndarray, masks: dict[st
         row.update(depth_abs_rel(dense, gt_depth, m, focal, baseline))
         row["density"] = float(np.mean(np.asarray(valid, bool)[m]))
         out[name] = row
+    return out
+
+
+# --------------------------------------------------------------------------- benchmark protocols
+#
+# Each benchmark's own measures, over masks at the resolution evaluated, on a dense estimate (invalid
+# pixels filled by `fill_invalid` first, as above, for every benchmark alike), e = |d - d_gt|:
+#   * Middlebury 2014/2021: bad-0.5, bad-1, bad-2, bad-4 (fraction of the mask with e > t px) and
+#     avgerr (mean e), on the "nonocc" and "all" masks;
+#   * ETH3D two-view: bad-1, bad-2 and avgerr on the same two masks;
+#   * KITTI 2012/2015: D1 (e > 3 px AND e > 5 % of d_gt) over background, foreground and all pixels,
+#     on "noc" (disp_noc) and "occ" (disp_occ); bg/fg only where an object map marks the foreground.
+# `protocol_metrics` returns, per mask, each measure and the pixel count it is a fraction or mean of,
+# so that `pool_protocol` can pool pairs exactly: over pixels for KITTI (its devkit sums error and
+# pixel counts over images), and as the mean over images for Middlebury and ETH3D (their tables
+# average per-image scores; here with equal weights). A subset with no pixel gives NaN.
+
+PROTOCOLS = {
+    "middlebury": {"masks": ("nonocc", "all"), "thresholds": (0.5, 1.0, 2.0, 4.0)},
+    "eth3d": {"masks": ("nonocc", "all"), "thresholds": (1.0, 2.0)},
+    "kitti": {"masks": ("noc", "occ"), "thresholds": ()},
+}
+
+
+def _checked_inputs(pred: np.ndarray, gt: np.ndarray, *masks: np.ndarray) -> tuple[np.ndarray, ...]:
+    pred, gt = np.asarray(pred, np.float64), np.asarray(gt, np.float64)
+    masks = tuple(np.asarray(m, bool) for m in masks)
+    if pred.ndim != 2 or any(x.shape != pred.shape for x in (gt, *masks)):
+        raise ValueError(f"pred, gt, masks: expected (H, W) arrays of one shape, got "
+                         f"{[x.shape for x in (pred, gt, *masks)]}")
+    sel = np.logical_or.reduce(masks) if masks else np.ones(pred.shape, bool)
+    if not (np.all(np.isfinite(pred[sel])) and np.all(np.isfinite(gt[sel]))):
+        raise ValueError("pred, gt: non-finite values inside the mask (fill the estimate first)")
+    return (pred, gt, *masks)
+
+
+def bad_pixel_metrics(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray,
+                      thresholds: tuple[float, ...]) -> dict[str, float]:
+    """bad-t for each t (fraction of `mask` with |pred - gt| > t px), avgerr (mean error) and the pixel count."""
+    pred, gt, mask = _checked_inputs(pred, gt, mask)
+    err = np.abs(pred[mask] - gt[mask])
+    n = int(err.size)
+    out = {f"bad{t:g}": (float(np.mean(err > t)) if n else float("nan")) for t in thresholds}
+    out["avgerr"] = float(err.mean()) if n else float("nan")
+    out["pixels"] = n
+    return out
+
+
+def d1_outliers(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """KITTI's outlier map: |pred - gt| > 3 px AND > 5 % of gt."""
+    err = np.abs(np.asarray(pred, np.float64) - np.asarray(gt, np.float64))
+    return (err > 3.0) & (err > 0.05 * np.abs(np.asarray(gt, np.float64)))
+
+
+def kitti_d1(pred: np.ndarray, gt: np.ndarray, noc: np.ndarray, occ: np.ndarray,
+             foreground: np.ndarray | None = None) -> dict[str, dict[str, float]]:
+    """D1-bg / D1-fg / D1-all on the noc and occ masks ({"noc": {...}, "occ": {...}}); bg/fg need `foreground`."""
+    pred, gt, noc, occ = _checked_inputs(pred, gt, noc, occ)
+    fg = None if foreground is None else np.asarray(foreground, bool)
+    if fg is not None and fg.shape != pred.shape:
+        raise ValueError(f"foreground: expected shape {pred.shape}, got {fg.shape}")
+    out = np.zeros(pred.shape, bool)
+    sel = noc | occ
+    out[sel] = d1_outliers(pred[sel], gt[sel])
+    res = {}
+    for name, m in (("noc", noc), ("occ", occ)):
+        parts = {"all": m} if fg is None else {"bg": m & ~fg, "fg": m & fg, "all": m}
+        row: dict[str, float] = {}
+        for part, pm in parts.items():
+            n = int(pm.sum())
+            row[f"d1_{part}"] = float(out[pm].mean()) if n else float("nan")
+            row[f"pixels_{part}"] = n
+        row["pixels"] = row["pixels_all"]
+        res[name] = row
+    return res
+
+
+def protocol_metrics(protocol: str, disp: np.ndarray, valid: np.ndarray, gt: np.ndarray, noc: np.ndarray,
+                     all_mask: np.ndarray, foreground: np.ndarray | None = None) -> dict[str, dict[str, float]]:
+    """One pair's scores under a benchmark `protocol` (block comment above), after the KITTI fill.
+
+    `noc`, `all_mask`: the non-occluded and the all-ground-truth masks (KITTI: disp_noc, disp_occ).
+    Each mask's row also has `density`, the fraction of it the method estimated itself.
+    """
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"protocol: expected one of {tuple(PROTOCOLS)}, got {protocol!r}")
+    dense = fill_invalid(disp, valid)
+    valid = np.asarray(valid, bool)
+    names = PROTOCOLS[protocol]["masks"]
+    if protocol == "kitti":
+        out = kitti_d1(dense, gt, noc, all_mask, foreground)
+    else:
+        out = {name: bad_pixel_metrics(dense, gt, m, PROTOCOLS[protocol]["thresholds"])
+               for name, m in zip(names, (noc, all_mask))}
+    for name, m in zip(names, (noc, all_mask)):
+        m = np.asarray(m, bool)
+        out[name]["density"] = float(valid[m].mean()) if m.any() else float("nan")
+    return out
+
+
+def pool_protocol(protocol: str, rows: list[dict[str, dict[str, float]]]) -> dict[str, dict[str, float]]:
+    """Pairs' `protocol_metrics` pooled as the benchmark does (block comment above); NaN rows are skipped."""
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"protocol: expected one of {tuple(PROTOCOLS)}, got {protocol!r}")
+    if not rows:
+        raise ValueError("rows: expected the scores of at least one pair")
+    out: dict[str, dict[str, float]] = {}
+    for name in PROTOCOLS[protocol]["masks"]:
+        keys = [k for k in rows[0][name] if not k.startswith("pixels")]
+        pooled: dict[str, float] = {}
+        for k in keys:
+            vals = np.array([r[name][k] for r in rows], dtype=np.float64)
+            if protocol == "kitti":
+                part = k[3:] if k.startswith("d1_") else "all"
+                w = np.array([r[name][f"pixels_{part}"] for r in rows], dtype=np.float64)
+            else:
+                w = np.array([1.0 if r[name]["pixels"] > 0 else 0.0 for r in rows])
+            ok = np.isfinite(vals) & (w > 0)
+            pooled[k] = float(np.sum(w[ok] * vals[ok]) / np.sum(w[ok])) if ok.any() else float("nan")
+        pooled["pixels"] = int(sum(r[name]["pixels"] for r in rows))
+        out[name] = pooled
     return out

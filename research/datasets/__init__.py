@@ -13,7 +13,11 @@ from research.datasets.scenes import SCENES, SceneSpec, get_scene
 from research.datasets.flow_benchmarks import (FlowBenchmark, detect_format as detect_flow_format,
                                                load_flow_benchmark, open_benchmark as open_flow_benchmark)
 from research.datasets.integrity import verify
+from research.datasets.stereo_benchmarks import (detect_format as detect_stereo_format, load_benchmark as
+                                                 load_stereo_benchmark, load_eth3d, load_kitti as load_kitti_stereo,
+                                                 load_middlebury)
 
 __all__ = ["CACHE_ROOT_HELP", "DatasetConfig", "cache_dir", "ensure", "generate", "provenance", "Dataset",
            "DatasetError", "FlowSequence", "StereoPair", "load", "load_flow", "load_stereo", "SCENES", "SceneSpec",
-           "get_scene", "verify", "FlowBenchmark", "detect_flow_format", "load_flow_benchmark", "open_flow_benchmark"]
+           "get_scene", "verify", "FlowBenchmark", "detect_flow_format", "load_flow_benchmark", "open_flow_benchmark",
+           "detect_stereo_format", "load_stereo_benchmark", "load_eth3d", "load_kitti_stereo", "load_middlebury"]

@@ -182,9 +182,21 @@ def load(path: str | Path, *, verify_hashes: bool = True) -> Dataset:
 
 @dataclass
 class StereoPair:
+    """A rectified pair with ground truth: a Mitsuba pair (`load_stereo`) or a benchmark's
+    (research.datasets.stereo_benchmarks, `benchmark` names it).
+
+    For a benchmark pair, `left`/`right` hold the stored pixels converted to linear RGBA (sRGB
+    decoded, alpha 1) so that the contract above holds, and `left_image`/`right_image` the pixels as
+    stored (uint8 or uint16, grey or RGB), which is what a matcher should see; `mask` is "ground truth
+    known" (Middlebury's finite disparities, KITTI's disp_occ), `noc` the non-occluded part of it;
+    `depth` is baseline * f / (d + doffs) where the ground truth is known (in the calibration's units,
+    millimetres for Middlebury), 0 elsewhere. A benchmark without calibration files (KITTI without
+    its calib folder) has cameras None and a NaN baseline, and its depth is all 0.
+    """
+
     name: str
-    left_camera: Camera
-    right_camera: Camera
+    left_camera: Camera | None
+    right_camera: Camera | None
     baseline: float
     left: np.ndarray  # (H, W, 4) linear premultiplied RGBA
     right: np.ndarray
@@ -192,6 +204,18 @@ class StereoPair:
     noc: np.ndarray  # (H, W) bool: surface visible in both views
     mask: np.ndarray  # (H, W) bool: surface hit in the left view
     depth: np.ndarray  # (H, W) left z-depth
+    # Optional, set by the benchmark readers (defaults describe a Mitsuba pair):
+    benchmark: str = "mitsuba"  # "middlebury", "kitti" or "eth3d" for a benchmark pair
+    resolution: str = "full"  # "full", "half" or "quarter" of the stored files (Middlebury, ETH3D)
+    left_image: np.ndarray | None = None  # the stored pixels, uint8/uint16, (H, W) or (H, W, 3)
+    right_image: np.ndarray | None = None
+    doffs: float = 0.0  # x-difference of the principal points, cx1 - cx0 (Middlebury calib.txt)
+    ndisp: int | None = None  # the benchmark's disparity-range bound (calib.txt), at this resolution
+    vmin: float | None = None  # tight bounds of the ground truth disparities (calib.txt)
+    vmax: float | None = None
+    has_noc_mask: bool = True  # False where the benchmark ships no non-occlusion mask (noc == mask then)
+    foreground: np.ndarray | None = None  # (H, W) bool, KITTI 2015's object map > 0 (D1-fg/bg)
+    source: str = ""  # the folder or file the pair was read from
 
 
 def load_stereo(path: str | Path, *, verify_hashes: bool = True) -> list[StereoPair]:
