@@ -7,11 +7,15 @@
 
 from research.datasets.generate import (CACHE_ROOT_HELP, DatasetConfig, cache_dir, ensure, generate,
                                        provenance)
-from research.datasets.loader import (Dataset, DatasetError, FlowSequence, StereoPair, load, load_flow,
+from research.datasets.loader import (Dataset, DatasetError, FlowSequence, Protocol, StereoPair, load, load_flow,
                                       load_stereo)
+from research.datasets.blender import load_blender
+from research.datasets.colmap import load_colmap
+from research.datasets.formats import FORMATS, detect_format, open_dataset
 from research.datasets.scenes import SCENES, SceneSpec, get_scene
 from research.datasets.integrity import verify
 
 __all__ = ["CACHE_ROOT_HELP", "DatasetConfig", "cache_dir", "ensure", "generate", "provenance", "Dataset",
-           "DatasetError", "FlowSequence", "StereoPair", "load", "load_flow", "load_stereo", "SCENES", "SceneSpec",
+           "DatasetError", "FlowSequence", "Protocol", "StereoPair", "load_blender", "load_colmap",
+           "FORMATS", "detect_format", "open_dataset", "load", "load_flow", "load_stereo", "SCENES", "SceneSpec",
            "get_scene", "verify"]
