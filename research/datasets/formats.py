@@ -123,19 +123,28 @@ def protocol_srgb(split: Split, protocol: Protocol | None) -> np.ndarray:
     return np.concatenate([s[..., :3] * s[..., 3:], s[..., 3:]], axis=-1).astype(np.float32)
 
 
-def protocol_target_linear(split: Split, protocol: Protocol | None) -> np.ndarray:
-    """(N, H, W, 3) linear RGB whose sRGB encoding is the evaluation target of the protocol.
+def protocol_target_srgb(split: Split, protocol: Protocol | None) -> np.ndarray:
+    """(N, H, W, 3) the evaluation target in sRGB, clipped to [0, 1].
 
-    drlab: the linear image on black. External data: the files' sRGB composited on the protocol's
-    background in sRGB (opaque images: as they are), then decoded to linear, so that research.metrics'
-    `srgb_on_black` of it gives back that composite (to float rounding).
+    drlab (no srgb in the split, or no protocol): the sRGB of the linear image on black
+    (research.metrics.srgb_on_black). External data: the files' sRGB composited on the protocol's
+    background in sRGB, `srgb * alpha + (1 - alpha) b` (opaque images: as they are).
     """
     if split.srgb is None or protocol is None:
-        return split.rgba[..., :3]
+        from research.metrics import srgb_on_black
+
+        return srgb_on_black(split.rgba.astype(np.float64)).astype(np.float32)
     p = protocol_srgb(split, protocol).astype(np.float64)
     bg = np.asarray(protocol.background if protocol.background is not None else (0.0, 0.0, 0.0), np.float64)
-    comp = np.clip(p[..., :3] + (1.0 - p[..., 3:]) * bg, 0.0, 1.0)
-    return io.srgb_to_linear(comp).astype(np.float32)
+    return np.clip(p[..., :3] + (1.0 - p[..., 3:]) * bg, 0.0, 1.0).astype(np.float32)
+
+
+def protocol_target_linear(split: Split, protocol: Protocol | None) -> np.ndarray:
+    """(N, H, W, 3) linear RGB whose sRGB encoding is `protocol_target_srgb` (drlab: the linear image on
+    black as it is), so research.metrics' `srgb_on_black` of it gives that target back (to rounding)."""
+    if split.srgb is None or protocol is None:
+        return split.rgba[..., :3]
+    return io.srgb_to_linear(protocol_target_srgb(split, protocol).astype(np.float64)).astype(np.float32)
 
 
 def content_hash(root: Path, files: Iterable[Path]) -> str:
