@@ -267,7 +267,8 @@ def run(ctx: Context) -> int:
                          "bytes_per_param": wp.types.type_size_in_bytes(field.dtype),
                          "occupied_fraction": occupancy.occupied_fraction()}
         m = ev["mean"]
-        print(f"{name}: PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, depth MAE {m.get('depth_mae', float('nan')):.3f}, "
+        depth = f", depth MAE {m['depth_mae']:.3f}" if "depth_mae" in m else ""
+        print(f"{name}: PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}{depth}, "
               f"train {log['train_s']:.0f} s, {m['seconds']:.2f} s/image", flush=True)
 
     figures(results, test_split, gt, ctx.out)
@@ -275,20 +276,22 @@ def run(ctx: Context) -> int:
     for name, r in results.items():
         m, t = r["eval"]["mean"], r["train"]
         rows.append([name, f"{r['params']:,}", sum(s["iters"] for s in t["stages"]), f"{m['psnr']:.2f}",
-                     f"{m['ssim']:.3f}", f"{m['depth_mae']:.3f}" if "depth_mae" in m else "-", f"{t['train_s']:.0f}", f"{m['seconds']:.2f}",
+                     f"{m['ssim']:.3f}", f"{m['depth_mae']:.3f}" if "depth_mae" in m else "-",
+                     f"{t['train_s']:.0f}", f"{m['seconds']:.2f}",
                      f"{np.mean(t['samples_per_ray'][-100:]):.1f}", f"{m['samples_per_ray']:.1f}"])
     headers = ["field", "parameters", "iterations", "test PSNR (dB)", "test SSIM", "depth MAE in mask",
                "train s", "s / image", "samples/ray (train, last 100 it)", "samples/ray (test)"]
     if external:
         cam0 = test_split.cameras[0]
-        table = (f"`{ds.scene}` ({ds.format} format) at {cam0.width}x{cam0.height}: {len(train_split.cameras)} training "
-                 f"and {len(test_split.cameras)} test views, device `{ctx.device}`. Evaluation: "
-                 f"{record['eval_protocol']}. Scene bound {np.round(bbox, 3).tolist()}"
-                 f"{' (from the SfM points)' if ds.points is not None else ''}; no ground-truth depth.\n\n"
-                 + markdown_table(headers, rows))
+        table = (f"`{ds.scene}` ({ds.format} format) at {cam0.width}x{cam0.height}: "
+                 f"{len(train_split.cameras)} training and {len(test_split.cameras)} test views, "
+                 f"device `{ctx.device}`. Evaluation: {record['eval_protocol']}. Scene bound "
+                 f"{np.round(bbox, 3).tolist()}{' (from the SfM points)' if ds.points is not None else ''}; "
+                 "no ground-truth depth.\n\n" + markdown_table(headers, rows))
     else:
         table = (f"`objects` from `drlab dataset` ({cfg.views} views, {cfg.res}x{cfg.res}, {cfg.spp} spp): "
-                 f"{len(train_split.cameras)} training and {len(test_split.cameras)} test views, device `{ctx.device}`, "
+                 f"{len(train_split.cameras)} training and {len(test_split.cameras)} test views, "
+                 f"device `{ctx.device}`, "
                  "2-core CPU. PSNR and SSIM in sRGB over a black background; depth MAE is |expected z-depth - "
                  "Mitsuba z-depth| inside the ground-truth mask (scene units; the cameras are ~4.2 away).\n\n"
                  + markdown_table(headers, rows)

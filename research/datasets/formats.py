@@ -69,15 +69,19 @@ def check_factor(factor: object) -> int:
 def read_srgb(path: Path) -> np.ndarray:
     """An 8- or 16-bit PNG or a JPEG as straight-alpha sRGB RGBA float32 in [0, 1] (alpha 1 if absent)."""
     suffix = path.suffix.lower()
-    if suffix == ".png":
-        x = io.read_png(path, linear=False)
-    elif suffix in (".jpg", ".jpeg"):
-        pixels, spec = io._oiio_read(path, "jpeg", None)
-        if pixels.dtype != np.uint8:
-            raise DatasetError(f"{path}: expected an 8-bit JPEG, got pixel format {spec.format}")
-        x = pixels.astype(np.float32) / np.float32(255.0)
-    else:
-        raise DatasetError(f"{path}: expected a .png, .jpg or .jpeg image")
+    try:
+        if suffix == ".png":
+            x = io.read_png(path, linear=False)
+        elif suffix in (".jpg", ".jpeg"):
+            pixels, spec = io._oiio_read(path, "jpeg", None)
+            if pixels.dtype != np.uint8:
+                raise DatasetError(f"{path}: expected an 8-bit JPEG, got pixel format {spec.format}")
+            x = pixels.astype(np.float32) / np.float32(255.0)
+        else:
+            raise DatasetError(f"{path}: expected a .png, .jpg or .jpeg image")
+    except (ValueError, OSError) as e:  # OpenImageIO's messages can span lines: one line, naming the file
+        msg = " ".join(str(e).split())
+        raise DatasetError(msg if str(path) in msg else f"{path}: {msg}") from None
     c = x.shape[2]
     if c == 1:
         x = np.repeat(x, 3, axis=2)
