@@ -241,6 +241,13 @@ def run(ctx: Context) -> int:
         ds = load(ensure(cfg, data, show_progress=ctx.progress))
     else:
         data = ds.root.absolute()
+        if ds.format == "drlab":  # a `drlab dataset` folder given by --data: its own configuration
+            from dataclasses import fields
+
+            from research.datasets import DatasetConfig
+
+            names = {f.name for f in fields(DatasetConfig)}
+            cfg = DatasetConfig(**{k: v for k, v in ds.manifest.get("config", {}).items() if k in names})
     dataset_s = time.perf_counter() - t0
     train_split, test_split = ds.load_split("train"), ds.load_split("test")
     if not train_split.cameras or not test_split.cameras:
