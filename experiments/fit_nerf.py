@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from research.datasets import CACHE_ROOT_HELP
+from experiments.fit_splats import DATA_HELP
 from research.experiment import Context, Experiment
 from research.results import markdown_table, save_figure
 
@@ -323,7 +323,7 @@ def run(ctx: Context) -> int:
     return 0
 
 
-main = Experiment("fit_nerf", __doc__, run, add_options, data_help=CACHE_ROOT_HELP,
+main = Experiment("fit_nerf", __doc__, run, add_options, data_help=DATA_HELP,
                   seed_help="seed of the fields' initialisation, ray batches and the noise-floor render",
                   sizes="Quick: 40 views at 64x64 (32 spp) and short schedules, all three fields in a few minutes; "
                         "smoke: 8 views at 32x32, 4 spp, tens of iterations.").script(__name__)

@@ -44,6 +44,8 @@ from research.experiment import Context, Experiment
 from research.results import markdown_table, save_figure
 
 REPO = registry.REPO_ROOT
+DATA_HELP = ("a NeRF-synthetic/Blender, COLMAP / Mip-NeRF 360 or `drlab dataset` folder, read with its paper's "
+             "protocol (see --format); any other folder is the " + CACHE_ROOT_HELP)
 
 
 @dataclass(frozen=True)
@@ -287,7 +289,7 @@ def run(ctx: Context) -> int:
     return 0
 
 
-main = Experiment("fit_splats", __doc__, run, add_options, data_help=CACHE_ROOT_HELP,
+main = Experiment("fit_splats", __doc__, run, add_options, data_help=DATA_HELP,
                   seed_help="seed of the dataset render, the initial points and training",
                   sizes="Quick: 40 views at 64x64, 800 iterations (a few minutes on 2 cores); smoke: 8 views at "
                         "32x32, 4 spp, 40 iterations.").script(__name__)

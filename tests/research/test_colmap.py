@@ -111,3 +111,33 @@ def test_comparison_refuses_rows_of_another_protocol(tmp_path):
     with pytest.raises(ValueError, match="dataset labels differ"):
         comparison.comparison_table([a, c])
     assert "`bonsai (colmap, mipnerf360)`" in comparison.comparison_table([a, a])
+
+
+def test_jpeg_photographs_as_in_mipnerf360(tmp_path):
+    """Mip-NeRF 360's images are JPEGs named like _DSC8679.JPG: read as opaque sRGB through OpenImageIO."""
+    import OpenImageIO as oiio
+    import pycolmap
+
+    root = tmp_path / "stump"
+    write_colmap(root, n=3, factors=(1,), width=16, height=12)
+    d = root / "sparse" / "0"
+    rec = pycolmap.Reconstruction(str(d))
+    rng = np.random.default_rng(0)
+    pixels = {}
+    for image in rec.images.values():
+        image.name = image.name.replace(".png", ".JPG")
+        yy, xx = np.mgrid[0:12, 0:16]
+        base = rng.uniform(40, 200, 3)  # a smooth ramp: JPEG keeps it (it would smear random noise)
+        img = np.clip(base + np.stack([4 * xx, 5 * yy, 2 * (xx + yy)], -1), 0, 255).astype(np.uint8)
+        spec = oiio.ImageSpec(16, 12, 3, "uint8")
+        spec.attribute("Compression", "jpeg:100")
+        out = oiio.ImageOutput.create(str(root / "images" / image.name))
+        assert out.open(str(root / "images" / image.name), spec)
+        assert out.write_image(img) and out.close()
+        pixels[image.name] = img
+    rec.write_binary(str(d))
+    ds = load_colmap(root, factor=1)
+    split = ds.load_split("test")
+    assert split.names[0].endswith("img_00.JPG") and np.all(split.srgb[..., 3] == 1)
+    # JPEG (lossy, chroma subsampled) of a smooth ramp: within a few levels of the written pixels
+    assert np.abs(split.srgb[0, ..., :3] * 255 - pixels["img_00.JPG"]).max() < 6
