@@ -60,10 +60,10 @@ class Protocol:
     `eval_protocol` of the results, so research.comparison refuses to mix rows of other protocols.
     """
 
-    name: str  # e.g. "nerf-synthetic", "mipnerf360", "colmap"
+    name: str  # "nerf-synthetic" or "mipnerf360"
     train_split: str
     test_split: str
-    resolution: str  # e.g. "800x800 / 2", "images_4"
+    resolution: str  # e.g. "400x400 (the files at 1/2)", "images_4 (1237x822)"
     background: tuple[float, float, float] | None
     description: str
 
