@@ -249,7 +249,8 @@ def run(ctx: Context) -> int:
             names = {f.name for f in fields(DatasetConfig)}
             cfg = DatasetConfig(**{k: v for k, v in ds.manifest.get("config", {}).items() if k in names})
     dataset_s = time.perf_counter() - t0
-    train_split, test_split = ds.load_split("train"), ds.load_split("test")
+    splits = (ds.protocol.train_split, ds.protocol.test_split) if ds.protocol else ("train", "test")
+    train_split, test_split = ds.load_split(splits[0]), ds.load_split(splits[1])
     if not train_split.cameras or not test_split.cameras:
         raise ValueError(f"--data: {data} has {len(train_split.cameras)} train and {len(test_split.cameras)} test "
                          "views; the fit needs both")

@@ -205,7 +205,8 @@ def run(ctx: Context) -> int:
         ds = datasets.load(path)
     else:
         path = ds.root.absolute()
-    train_split, test_split = ds.load_split("train"), ds.load_split("test")
+    splits = (ds.protocol.train_split, ds.protocol.test_split) if ds.protocol else ("train", "test")
+    train_split, test_split = ds.load_split(splits[0]), ds.load_split(splits[1])
     if not train_split.cameras or not test_split.cameras:
         raise ValueError(f"--data: {path} has {len(train_split.cameras)} train and {len(test_split.cameras)} test "
                          "views; the fit needs both")
