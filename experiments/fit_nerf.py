@@ -14,6 +14,14 @@ and compared with the ground truth over a black background: PSNR, SSIM (research
 mean absolute error of the expected z-depth against Mitsuba's z-depth inside the ground-truth mask,
 training seconds, and seconds per rendered test image.
 
+Other data (`--data PATH` with `--format`/`--resolution`, as fit_splats; research.datasets.formats): a
+NeRF-synthetic/Blender or COLMAP / Mip-NeRF 360 folder is fitted inside its scene bound (the SfM
+points' box for COLMAP, else the declared box or the cameras' bound) and scored with its paper's
+protocol: the fields train on random backgrounds against the files' sRGB composited on them
+(instant-ngp's recipe), and the test views are rendered on the protocol's background (white for
+NeRF-synthetic) and compared with the files composited on it; no depth error and no noise floor
+(there is no ground-truth depth or second render).
+
 Writes results/fit_nerf/{table.md, metrics.json, renders_<field>.png, loss.png}.
 """
 
@@ -26,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from research.datasets import CACHE_ROOT_HELP
+from experiments.fit_splats import DATA_HELP
 from research.experiment import Context, Experiment
 from research.results import markdown_table, save_figure
 
@@ -117,26 +125,28 @@ def noise_floor(ds, split, gt_srgb: np.ndarray, n_views: int, seed: int) -> dict
     return {"views": len(values), "psnr_between_two_renders": pair, "psnr_ceiling": pair + 10 * np.log10(2.0)}
 
 
-def evaluate(field, occupancy, bbox, step: float, split, gt_srgb: np.ndarray) -> dict[str, Any]:
+def evaluate(field, occupancy, bbox, step: float, split, gt_srgb: np.ndarray,
+             background=(0.0, 0.0, 0.0)) -> dict[str, Any]:
     from research.metrics import psnr, ssim
     from research.nerf.render import render_image
 
     rows, images = [], []
     for i, cam in enumerate(split.cameras):
         t0 = time.perf_counter()
-        img = render_image(cam, field, bbox, step=step, occupancy=occupancy)
+        img = render_image(cam, field, bbox, step=step, occupancy=occupancy, background=background)
         seconds = time.perf_counter() - t0
         pred = np.clip(img.rgb, 0.0, 1.0)
-        mask = split.mask[i]
-        rows.append({"psnr": psnr(pred, gt_srgb[i, ..., :3]), "ssim": ssim(pred, gt_srgb[i, ..., :3]),
-                     "depth_mae": float(np.abs(img.depth - split.depth[i])[mask].mean()),
-                     "seconds": seconds, "samples_per_ray": img.n_samples / (cam.width * cam.height)})
+        row = {"psnr": psnr(pred, gt_srgb[i, ..., :3]), "ssim": ssim(pred, gt_srgb[i, ..., :3])}
+        if split.depth is not None:
+            row["depth_mae"] = float(np.abs(img.depth - split.depth[i])[split.mask[i]].mean())
+        rows.append({**row, "seconds": seconds, "samples_per_ray": img.n_samples / (cam.width * cam.height)})
         images.append(img)
     mean = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
     return {"mean": mean, "per_view": rows, "images": images}
 
 
-def fit_one(name: str, plan: dict[str, Any], bank, bbox, quick: bool, seed: int, progress: bool):
+def fit_one(name: str, plan: dict[str, Any], bank, bbox, quick: bool, seed: int, progress: bool,
+            random_background: bool = False):
     from kernels.volume import OccupancyGrid
     from research.nerf.train import TrainConfig, train, upsample_grid
 
@@ -148,7 +158,7 @@ def fit_one(name: str, plan: dict[str, Any], bank, bbox, quick: bool, seed: int,
         if stage.resolution is not None and tuple(stage.resolution) != tuple(field.resolution):
             field = upsample_grid(field, stage.resolution)
         last = k == len(plan["stages"]) - 1
-        cfg = TrainConfig(iters=stage.iters, seed=seed * 1000 + k, random_background=False,
+        cfg = TrainConfig(iters=stage.iters, seed=seed * 1000 + k, random_background=random_background,
                           occupancy_start=plan.get("occupancy_start", 100) if k == 0 else 0,
                           lr_decay_from=0.5 if last else 1.0, **{**base, **stage.overrides})
         log = train(field, bank, bbox, cfg, occupancy, progress=progress, desc=f"{name} stage {k + 1}")
@@ -167,16 +177,19 @@ def figures(results: dict[str, Any], split, gt_srgb: np.ndarray, out: Path, n_vi
 
     for name, r in results.items():
         views = min(n_views, len(split.cameras))
-        fig, axes = plt.subplots(views, 5, figsize=(13, 2.7 * views), squeeze=False)
-        dmax = float(split.depth[:views].max())
+        has_depth = split.depth is not None
+        fig, axes = plt.subplots(views, 5 if has_depth else 3, figsize=(13 if has_depth else 8, 2.7 * views),
+                                 squeeze=False)
+        dmax = float(split.depth[:views].max()) if has_depth else 1.0
         for v in range(views):
             img = r["images"][v]
             pred = np.clip(img.rgb, 0, 1)
             psnr_v = r["eval"]["per_view"][v]["psnr"]
             panels = [(gt_srgb[v, ..., :3], "ground truth", None), (pred, f"{name} ({psnr_v:.1f} dB)", None),
-                      (np.abs(pred - gt_srgb[v, ..., :3]).mean(axis=2), "|error| (mean RGB)", (0, 0.25)),
-                      (np.ma.masked_where(~split.mask[v], split.depth[v]), "GT z-depth", (0, dmax)),
-                      (np.ma.masked_where(img.opacity < 0.5, img.depth), "expected z-depth", (0, dmax))]
+                      (np.abs(pred - gt_srgb[v, ..., :3]).mean(axis=2), "|error| (mean RGB)", (0, 0.25))]
+            if has_depth:
+                panels += [(np.ma.masked_where(~split.mask[v], split.depth[v]), "GT z-depth", (0, dmax)),
+                           (np.ma.masked_where(img.opacity < 0.5, img.depth), "expected z-depth", (0, dmax))]
             for ax, (im, title, lim) in zip(axes[v], panels):
                 h = ax.imshow(im, cmap=None if np.ndim(im) == 3 else "viridis",
                               vmin=None if lim is None else lim[0], vmax=None if lim is None else lim[1])
@@ -204,39 +217,66 @@ def figures(results: dict[str, Any], split, gt_srgb: np.ndarray, out: Path, n_vi
 
 
 def add_options(p) -> None:
+    from experiments.fit_splats import add_data_options
+
     p.add_argument("--fields", nargs="+", default=list(FIELDS), choices=FIELDS, help="fields to fit (default: all)")
+    add_data_options(p)
 
 
 def run(ctx: Context) -> int:
     import warp as wp
 
     from research.datasets import cache_dir, ensure, load
-    from research.metrics import EVAL_PROTOCOL
     from research.nerf.train import RayBank, srgb_targets
+
+    from experiments.fit_splats import data_record, open_external
+    from research.datasets import formats
 
     args = ctx.args
     cfg = dataset_config(ctx.quick, 0, ctx.smoke)
-    data = cache_dir(cfg, ctx.data)
     t0 = time.perf_counter()
-    ds = load(ensure(cfg, data, show_progress=ctx.progress))
+    ds = open_external(ctx)
+    if ds is None:
+        data = cache_dir(cfg, ctx.data)
+        ds = load(ensure(cfg, data, show_progress=ctx.progress))
+    else:
+        data = ds.root.absolute()
+        if ds.format == "drlab":  # a `drlab dataset` folder given by --data: its own configuration
+            from dataclasses import fields
+
+            from research.datasets import DatasetConfig
+
+            names = {f.name for f in fields(DatasetConfig)}
+            cfg = DatasetConfig(**{k: v for k, v in ds.manifest.get("config", {}).items() if k in names})
     dataset_s = time.perf_counter() - t0
-    train_split, test_split = ds.load_split("train"), ds.load_split("test")
+    splits = (ds.protocol.train_split, ds.protocol.test_split) if ds.protocol else ("train", "test")
+    train_split, test_split = ds.load_split(splits[0]), ds.load_split(splits[1])
+    if not train_split.cameras or not test_split.cameras:
+        raise ValueError(f"--data: {data} has {len(train_split.cameras)} train and {len(test_split.cameras)} test "
+                         "views; the fit needs both")
     bbox = ds.bbox.copy()
     bank = RayBank.from_views(train_split.cameras, train_split.rgba)
-    gt = srgb_targets(test_split.rgba)
-    floor = noise_floor(ds, test_split, gt, 3, ctx.seed)
+    external = ds.format != "drlab"
+    background = tuple(ds.protocol.background) if ds.protocol and ds.protocol.background else (0.0, 0.0, 0.0)
+    if external:  # the files' sRGB x alpha: composited on each ray's random background as the papers do
+        bank.rgba = formats.protocol_srgb(train_split, ds.protocol).reshape(-1, 4)
+    gt = formats.protocol_target_srgb(test_split, ds.protocol) if external else srgb_targets(test_split.rgba)
+    floor = None if external else noise_floor(ds, test_split, gt, 3, ctx.seed)
+    record = data_record(ds, data)
 
     results: dict[str, Any] = {}
     all_plans = plans(ctx.quick, bbox, ctx.smoke)
     for name in args.fields:
-        field, occupancy, log = fit_one(name, all_plans[name], bank, bbox, ctx.quick, ctx.seed, ctx.progress)
-        ev = evaluate(field, occupancy, bbox, all_plans[name]["config"]["step"], test_split, gt)
+        field, occupancy, log = fit_one(name, all_plans[name], bank, bbox, ctx.quick, ctx.seed, ctx.progress,
+                                        random_background=external)
+        ev = evaluate(field, occupancy, bbox, all_plans[name]["config"]["step"], test_split, gt, background)
         results[name] = {"train": log, "eval": {k: v for k, v in ev.items() if k != "images"},
                          "images": ev["images"], "params": field.n_params(),
                          "bytes_per_param": wp.types.type_size_in_bytes(field.dtype),
                          "occupied_fraction": occupancy.occupied_fraction()}
         m = ev["mean"]
-        print(f"{name}: PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, depth MAE {m['depth_mae']:.3f}, "
+        depth = f", depth MAE {m['depth_mae']:.3f}" if "depth_mae" in m else ""
+        print(f"{name}: PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}{depth}, "
               f"train {log['train_s']:.0f} s, {m['seconds']:.2f} s/image", flush=True)
 
     figures(results, test_split, gt, ctx.out)
@@ -244,21 +284,31 @@ def run(ctx: Context) -> int:
     for name, r in results.items():
         m, t = r["eval"]["mean"], r["train"]
         rows.append([name, f"{r['params']:,}", sum(s["iters"] for s in t["stages"]), f"{m['psnr']:.2f}",
-                     f"{m['ssim']:.3f}", f"{m['depth_mae']:.3f}", f"{t['train_s']:.0f}", f"{m['seconds']:.2f}",
+                     f"{m['ssim']:.3f}", f"{m['depth_mae']:.3f}" if "depth_mae" in m else "-",
+                     f"{t['train_s']:.0f}", f"{m['seconds']:.2f}",
                      f"{np.mean(t['samples_per_ray'][-100:]):.1f}", f"{m['samples_per_ray']:.1f}"])
     headers = ["field", "parameters", "iterations", "test PSNR (dB)", "test SSIM", "depth MAE in mask",
                "train s", "s / image", "samples/ray (train, last 100 it)", "samples/ray (test)"]
-    table = (f"`objects` from `drlab dataset` ({cfg.views} views, {cfg.res}x{cfg.res}, {cfg.spp} spp): "
-             f"{len(train_split.cameras)} training and {len(test_split.cameras)} test views, device `{ctx.device}`, "
-             "2-core CPU. PSNR and SSIM in sRGB over a black background; depth MAE is |expected z-depth - "
-             "Mitsuba z-depth| inside the ground-truth mask (scene units; the cameras are ~4.2 away).\n\n"
-             + markdown_table(headers, rows)
-             + f"\nGround-truth noise: two {cfg.spp}-spp Mitsuba renders of the same test views differ by "
-             f"{floor['psnr_between_two_renders']:.2f} dB PSNR, so a noise-free prediction would score about "
-             f"{floor['psnr_ceiling']:.2f} dB against this ground truth (mean of {floor['views']} views).\n")
-    metrics = {"eval_protocol": EVAL_PROTOCOL,
-               "dataset": {"path": str(data), "config": cfg.__dict__, "seconds_if_rendered": dataset_s,
-                           "content_hash": ds.manifest["content_hash"],
+    if external:
+        cam0 = test_split.cameras[0]
+        table = (f"`{ds.scene}` ({ds.format} format) at {cam0.width}x{cam0.height}: "
+                 f"{len(train_split.cameras)} training and {len(test_split.cameras)} test views, "
+                 f"device `{ctx.device}`. Evaluation: {record['eval_protocol']}. Scene bound "
+                 f"{np.round(bbox, 3).tolist()}{' (from the SfM points)' if ds.points is not None else ''}; "
+                 "no ground-truth depth.\n\n" + markdown_table(headers, rows))
+    else:
+        table = (f"`objects` from `drlab dataset` ({cfg.views} views, {cfg.res}x{cfg.res}, {cfg.spp} spp): "
+                 f"{len(train_split.cameras)} training and {len(test_split.cameras)} test views, "
+                 f"device `{ctx.device}`, "
+                 "2-core CPU. PSNR and SSIM in sRGB over a black background; depth MAE is |expected z-depth - "
+                 "Mitsuba z-depth| inside the ground-truth mask (scene units; the cameras are ~4.2 away).\n\n"
+                 + markdown_table(headers, rows)
+                 + f"\nGround-truth noise: two {cfg.spp}-spp Mitsuba renders of the same test views differ by "
+                 f"{floor['psnr_between_two_renders']:.2f} dB PSNR, so a noise-free prediction would score about "
+                 f"{floor['psnr_ceiling']:.2f} dB against this ground truth (mean of {floor['views']} views).\n")
+    metrics = {"eval_protocol": record["eval_protocol"], "data": record,
+               "dataset": {"path": str(data), "config": None if external else cfg.__dict__,
+                           "seconds_if_rendered": dataset_s, "content_hash": record["content_hash"],
                            "bbox": bbox.tolist(), "train_views": len(train_split.cameras),
                            "test_views": len(test_split.cameras)},
                "noise_floor": floor,
@@ -274,7 +324,7 @@ def run(ctx: Context) -> int:
     return 0
 
 
-main = Experiment("fit_nerf", __doc__, run, add_options, data_help=CACHE_ROOT_HELP,
+main = Experiment("fit_nerf", __doc__, run, add_options, data_help=DATA_HELP,
                   seed_help="seed of the fields' initialisation, ray batches and the noise-floor render",
                   sizes="Quick: 40 views at 64x64 (32 spp) and short schedules, all three fields in a few minutes; "
                         "smoke: 8 views at 32x32, 4 spp, tens of iterations.").script(__name__)

@@ -17,6 +17,14 @@ wall time, the forward render rate (frames per second over the test views,
 median of 3 passes after a warm-up) and the size of the PLY file (standard 3DGS
 layout, written and read back; the reloaded model must render the same image).
 
+Other data (`--data PATH`, the format detected or given by `--format`; research.datasets.formats):
+a NeRF-synthetic/Blender folder or a COLMAP / Mip-NeRF 360 folder is trained and scored with its
+paper's protocol (the dataset's Protocol: split, resolution, background; PSNR and SSIM as above, on
+the sRGB targets of that protocol): on white for NeRF-synthetic, opaque photographs at images_N for
+Mip-NeRF 360. The splats start from the SfM points with their colours when the data has them
+(COLMAP, as 3DGS does: every point, up to the splat cap), else from random points in the scene
+bound (3DGS's synthetic-scene start). `--resolution N` reads the images at 1/N.
+
 Writes results/fit_splats/{table.md, metrics.json, renders.png, training.png};
 the PLY goes to build/fit_splats/point_cloud.ply (not committed: ~7.5 MB at 30k splats).
 Outside quick mode, when results/fit_nerf/metrics.json exists too, also writes
@@ -36,6 +44,8 @@ from research.experiment import Context, Experiment
 from research.results import markdown_table, save_figure
 
 REPO = registry.REPO_ROOT
+DATA_HELP = ("a NeRF-synthetic/Blender, COLMAP / Mip-NeRF 360 or `drlab dataset` folder, read with its paper's "
+             "protocol (see --format); any other folder is the " + CACHE_ROOT_HELP)
 
 
 @dataclass(frozen=True)
@@ -56,7 +66,8 @@ def setup(quick: bool, smoke: bool = False) -> Setup:
     return Setup(views=100, res=128, spp=64, iterations=3000, init_points=8000, max_gaussians=30_000)
 
 
-def renders_figure(gt: np.ndarray, renders: np.ndarray, per_view: list[dict], path: Path, n: int = 4) -> None:
+def renders_figure(gt: np.ndarray, renders: np.ndarray, per_view: list[dict], path: Path, n: int = 4,
+                   gt_label: str = "ground truth (Mitsuba)") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -69,7 +80,7 @@ def renders_figure(gt: np.ndarray, renders: np.ndarray, per_view: list[dict], pa
     for i in range(n):
         a, b = np.clip(gt[i], 0, 1), np.clip(renders[i], 0, 1)
         err = np.abs(io.linear_to_srgb(a) - io.linear_to_srgb(b)).mean(axis=2)
-        for j, (img, title) in enumerate([(io.linear_to_srgb(a), "ground truth (Mitsuba)"),
+        for j, (img, title) in enumerate([(io.linear_to_srgb(a), gt_label),
                                           (io.linear_to_srgb(b), f"splats: {per_view[i]['psnr']:.2f} dB"),
                                           (err, "|error| (sRGB, mean over RGB)")]):
             ax = axes[i, j]
@@ -111,12 +122,66 @@ def training_figure(history: list[dict], events: list[dict], path: Path) -> None
     plt.close(fig)
 
 
+def add_data_options(p) -> None:
+    """--format and --resolution (shared with fit_nerf)."""
+    p.add_argument("--format", choices=["auto", "drlab", "blender", "colmap"], default="auto",
+                   help="format of --data: a `drlab dataset` folder, a NeRF-synthetic/Blender folder "
+                        "(transforms_*.json), a COLMAP / Mip-NeRF 360 folder (sparse/0, images*/); auto (default) "
+                        "detects it, and a folder of none of them is the cache root of the Mitsuba renders")
+    p.add_argument("--resolution", type=int, default=None,
+                   help="read the images at 1/N of their size (Blender: box-averaged; COLMAP: the images_N "
+                        "folder); default: the protocol's (Blender 1; Mip-NeRF 360: 4 outdoors, 2 indoors)")
+
+
+def open_external(ctx: Context):
+    """The dataset that --data names in another format (or --format drlab), or None for the cache root.
+
+    Raises ValueError (research.datasets.DatasetError) on a folder that is not what --format says.
+    """
+    from research.datasets import detect_format, open_dataset
+
+    args = ctx.args
+    fmt = detect_format(ctx.data) if args.format == "auto" else args.format
+    if args.resolution is not None and args.resolution < 1:
+        raise ValueError(f"--resolution: expected an integer >= 1, got {args.resolution}")
+    if fmt is None:
+        if args.resolution is not None:
+            raise ValueError(f"--resolution: applies to a --data folder in Blender or COLMAP format; {ctx.data} "
+                             "is neither (it is used as the cache root of the Mitsuba renders)")
+        return None
+    ds = open_dataset(ctx.data, fmt, args.resolution)
+    from research.metrics import SSIM_WINDOW
+
+    small = [v for v in ds.split_views("test") if min(v.camera.width, v.camera.height) < SSIM_WINDOW]
+    if small:
+        cam = small[0].camera
+        raise ValueError(f"--data: the test images of {ctx.data} are {cam.width}x{cam.height} at this resolution; "
+                         f"SSIM needs at least {SSIM_WINDOW}x{SSIM_WINDOW} (choose a smaller --resolution)")
+    return ds
+
+
+def data_record(ds, path: Path) -> dict:
+    """What metrics.json says about the data: format, scene, protocol, resolution, content hash."""
+    from research.metrics import EVAL_PROTOCOL
+
+    proto = ds.protocol
+    return {"format": ds.format, "scene": ds.scene or ds.manifest.get("config", {}).get("scene", ""),
+            "protocol": proto.name if proto else "drlab", "resolution": proto.resolution if proto else "",
+            "background": list(proto.background) if proto and proto.background else None,
+            "eval_protocol": proto.description if proto else EVAL_PROTOCOL,
+            "path": str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path),
+            "content_hash": ds.manifest.get("content_hash")}
+
+
 def add_options(p) -> None:
     p.add_argument("--ply", type=Path, default=None,
                    help="where to write the PLY (default build/fit_splats[-quick|-smoke]/point_cloud.ply, in the "
                         "checkout when run from one, else under the current directory)")
-    p.add_argument("--init", choices=["depth", "random"], default="depth",
-                   help="initial points: ground-truth depth of the train views, or random in the scene box")
+    p.add_argument("--init", choices=["depth", "random", "sfm"], default=None,
+                   help="initial points: ground-truth depth of the train views (drlab data), the SfM points (COLMAP "
+                        "data), or random in the scene box (default: depth for drlab data, sfm when the data has "
+                        "SfM points, else random)")
+    add_data_options(p)
     p.add_argument("--iterations", type=int, default=None, help="override the number of training iterations")
 
 
@@ -124,7 +189,6 @@ def run(ctx: Context) -> int:
     import warp as wp
 
     from research import datasets
-    from research.metrics import EVAL_PROTOCOL
     from research.splats import model as sm, train as st
 
     args = ctx.args
@@ -132,26 +196,52 @@ def run(ctx: Context) -> int:
     if args.iterations is not None:
         cfg = Setup(**{**asdict(cfg), "iterations": args.iterations})
     suffix = "" if ctx.mode == "full" else "-" + ctx.mode
-    dcfg = datasets.DatasetConfig("objects", views=cfg.views, res=cfg.res, spp=cfg.spp, seed=ctx.seed)
-    path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, ctx.data), show_progress=ctx.progress)
-    ds = datasets.load(path)
-    train_split, test_split = ds.load_split("train"), ds.load_split("test")
+    from research.datasets import formats
 
-    if args.init == "depth":
+    ds = open_external(ctx)
+    if ds is None:
+        dcfg = datasets.DatasetConfig("objects", views=cfg.views, res=cfg.res, spp=cfg.spp, seed=ctx.seed)
+        path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, ctx.data), show_progress=ctx.progress)
+        ds = datasets.load(path)
+    else:
+        path = ds.root.absolute()
+    splits = (ds.protocol.train_split, ds.protocol.test_split) if ds.protocol else ("train", "test")
+    train_split, test_split = ds.load_split(splits[0]), ds.load_split(splits[1])
+    if not train_split.cameras or not test_split.cameras:
+        raise ValueError(f"--data: {path} has {len(train_split.cameras)} train and {len(test_split.cameras)} test "
+                         "views; the fit needs both")
+    train_rgb = formats.protocol_target_linear(train_split, ds.protocol)
+    test_rgb = formats.protocol_target_linear(test_split, ds.protocol)
+    background = tuple(ds.protocol.background) if ds.protocol and ds.protocol.background else (0.0, 0.0, 0.0)
+    init = args.init or ("depth" if train_split.depth is not None else "sfm" if ds.points is not None else "random")
+    if init == "depth" and train_split.depth is None:
+        raise ValueError(f"--init depth: {path} has no ground-truth depth; use --init sfm or random")
+    if init == "sfm" and ds.points is None:
+        raise ValueError(f"--init sfm: {path} has no SfM points; use --init random")
+
+    if init == "depth":
         points, colors = sm.points_from_depth(train_split.cameras, train_split.rgba, train_split.depth,
                                               cfg.init_points, ctx.seed)
+    elif init == "sfm":
+        from research.io import srgb_to_linear
+
+        points, colors = ds.points, srgb_to_linear(ds.point_colors)
+        if len(points) > cfg.max_gaussians:
+            keep = np.sort(np.random.default_rng(ctx.seed).choice(len(points), cfg.max_gaussians, replace=False))
+            points, colors = points[keep], colors[keep]
     else:
         points, colors = sm.random_points(ds.bbox, cfg.init_points, ctx.seed)
     model = sm.from_points(points, colors)
     extent = sm.scene_extent(train_split.cameras)
-    tcfg = st.TrainConfig(iterations=cfg.iterations, seed=ctx.seed,
+    tcfg = st.TrainConfig(iterations=cfg.iterations, seed=ctx.seed, background=background,
                           densify=st.DensifyConfig(max_gaussians=cfg.max_gaussians))
-    result = st.train(model, train_split.cameras, train_split.rgba[..., :3], extent, tcfg, device=ctx.device,
+    result = st.train(model, train_split.cameras, train_rgb, extent, tcfg, device=ctx.device,
                       progress=ctx.progress)
     model = result.model
 
-    ev = st.evaluate(model, test_split.cameras, test_split.rgba[..., :3], result.sh_degree, device=ctx.device)
-    ev_train = st.evaluate(model, train_split.cameras[:10], train_split.rgba[:10, ..., :3], result.sh_degree,
+    ev = st.evaluate(model, test_split.cameras, test_rgb, result.sh_degree, background=background,
+                     device=ctx.device)
+    ev_train = st.evaluate(model, train_split.cameras[:10], train_rgb[:10], result.sh_degree, background=background,
                            device=ctx.device)
     fps = st.render_fps(model, test_split.cameras, result.sh_degree, device=ctx.device)
 
@@ -162,32 +252,37 @@ def run(ctx: Context) -> int:
     if not same:
         raise RuntimeError(f"{ply_path}: the reloaded model renders a different image")
 
+    data = data_record(ds, path)
+    cam0 = test_split.cameras[0]
+    scene = (f"{data['scene']} {cam0.width}x{cam0.height}" if ds.format == "drlab"
+             else f"{data['scene']} ({ds.format}, {ds.protocol.name}) {cam0.width}x{cam0.height}")
     metrics = {
         "method": "3DGS (drlab Warp kernels, CPU)" if ctx.device == "cpu" else "3DGS (drlab Warp kernels)",
-        "scene": f"objects {cfg.res}x{cfg.res}, {len(train_split.cameras)} train / {len(test_split.cameras)} test",
-        "eval_protocol": EVAL_PROTOCOL,
+        "scene": f"{scene}, {len(train_split.cameras)} train / {len(test_split.cameras)} test",
+        "eval_protocol": data["eval_protocol"], "data": data,
         "test_psnr": ev.psnr, "test_ssim": ev.ssim, "test_psnr_linear": ev.psnr_linear,
         "train_views_psnr": ev_train.psnr, "gaussians": model.n, "train_seconds": result.seconds,
         "train_iterations": cfg.iterations, "render_fps": fps, "ply_bytes": ply_bytes,
         "ply_path": str(ply_path.relative_to(REPO)) if ply_path.is_relative_to(REPO) else str(ply_path),
-        "ply_roundtrip_identical": same, "init": args.init, "init_points": len(points), "extent": extent,
+        "ply_roundtrip_identical": same, "init": init, "init_points": len(points), "extent": extent,
         "schedule": asdict(st.Schedule.scaled(cfg.iterations)), "per_view": ev.per_view,
         "history": result.history, "densify_events": result.events, "dataset": str(path.relative_to(REPO))
-        if path.is_relative_to(REPO) else str(path), "dataset_hash": ds.manifest.get("content_hash"),
+        if path.is_relative_to(REPO) else str(path), "dataset_hash": data["content_hash"],
     }
     headers = ["scene", "train / test views", "iterations", "init", "splats", "test PSNR (dB)", "test SSIM",
                "PSNR linear (dB)", "train-view PSNR", "train time", "render FPS", "PLY size"]
-    rows = [[f"objects {cfg.res}x{cfg.res}", f"{len(train_split.cameras)} / {len(test_split.cameras)}",
-             cfg.iterations, f"{args.init} ({len(points)} pts)", model.n, f"{ev.psnr:.2f}", f"{ev.ssim:.4f}",
+    rows = [[scene, f"{len(train_split.cameras)} / {len(test_split.cameras)}",
+             cfg.iterations, f"{init} ({len(points)} pts)", model.n, f"{ev.psnr:.2f}", f"{ev.ssim:.4f}",
              f"{ev.psnr_linear:.2f}", f"{ev_train.psnr:.2f}", f"{result.seconds:.0f} s", f"{fps:.1f}",
              f"{ply_bytes / 1e6:.2f} MB"]]
     table = (f"3D Gaussian splatting fitted with drlab's Warp kernels (hand-written backward) on Warp device "
              f"`{wp.get_device(ctx.device)}`: 3DGS loss, learning rates and schedule scaled to {cfg.iterations} "
              f"iterations, at most {cfg.max_gaussians} splats (a CPU-time cap on densification). Evaluation: "
-             f"{EVAL_PROTOCOL}. Render FPS: forward only (projection, binning, sorting, rasterisation) at the "
+             f"{data['eval_protocol']}. Render FPS: forward only (projection, binning, sorting, rasterisation) at the "
              "test resolution. Train-view PSNR on the first 10 train views.\n\n" + markdown_table(headers, rows)
              + "\n![renders beside the ground truth](renders.png)\n\n![training](training.png)\n")
-    renders_figure(test_split.rgba[..., :3], ev.renders, ev.per_view, ctx.out / "renders.png")
+    renders_figure(test_rgb, ev.renders, ev.per_view, ctx.out / "renders.png",
+                   gt_label="ground truth (Mitsuba)" if ds.format == "drlab" else f"ground truth ({ds.scene})")
     training_figure(result.history, result.events, ctx.out / "training.png")
     train_config = {k: (asdict(v) if hasattr(v, "__dataclass_fields__") else v) for k, v in asdict(tcfg).items()}
     ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "train": train_config},
@@ -195,7 +290,7 @@ def run(ctx: Context) -> int:
     return 0
 
 
-main = Experiment("fit_splats", __doc__, run, add_options, data_help=CACHE_ROOT_HELP,
+main = Experiment("fit_splats", __doc__, run, add_options, data_help=DATA_HELP,
                   seed_help="seed of the dataset render, the initial points and training",
                   sizes="Quick: 40 views at 64x64, 800 iterations (a few minutes on 2 cores); smoke: 8 views at "
                         "32x32, 4 spp, 40 iterations.").script(__name__)

@@ -6,8 +6,11 @@ experiments/fit_splats.py and experiments/fit_nerf.py write; each experiment's s
 its own function below (no guessing of key names), and a missing key is an error.
 
 Rows are only put in one table when they were evaluated the same way on the same data: every run
-must report the same `eval_protocol` (research.metrics.EVAL_PROTOCOL) and the same dataset content
-hash (the manifest's SHA-256 over every file, so the same scene, views, splits and render noise).
+must report the same `eval_protocol` (research.metrics.EVAL_PROTOCOL for drlab's renders, the
+dataset's Protocol description for NeRF-synthetic or Mip-NeRF 360 data, research.datasets), the
+same dataset content hash (the manifest's SHA-256 over every file, so the same scene, views, splits
+and render noise; for external data the hash over the files read) and the same dataset label
+(format, scene and protocol, from metrics["data"]; empty for runs written before it existed).
 """
 
 from __future__ import annotations
@@ -33,6 +36,12 @@ class MethodRow:
     eval_protocol: str
     dataset_hash: str
     device: str
+    dataset: str = ""  # "<scene> (<format>, <protocol>)"; "" for results written before it was recorded
+
+
+def _data_label(m: dict[str, Any]) -> str:
+    d = m.get("data")
+    return f"{d['scene']} ({d['format']}, {d['protocol']})" if isinstance(d, dict) else ""
 
 
 def _require(tree: dict[str, Any], key: str, source: str) -> Any:
@@ -48,7 +57,7 @@ def rows_fit_splats(doc: dict[str, Any], source: str) -> list[MethodRow]:
         psnr=_require(m, "test_psnr", source), train_s=_require(m, "train_seconds", source),
         fps=_require(m, "render_fps", source), size_bytes=int(_require(m, "ply_bytes", source)),
         size_note="PLY file", eval_protocol=_require(m, "eval_protocol", source),
-        dataset_hash=_require(m, "dataset_hash", source), device=doc.get("device", "?"))]
+        dataset_hash=_require(m, "dataset_hash", source), device=doc.get("device", "?"), dataset=_data_label(m))]
 
 
 NERF_METHOD_NAMES = {"grid": "Voxel grid (Plenoxels/DVGO-style, drlab)",
@@ -67,7 +76,7 @@ def rows_fit_nerf(doc: dict[str, Any], source: str) -> list[MethodRow]:
             method=NERF_METHOD_NAMES.get(name, name), ssim=mean["ssim"], psnr=mean["psnr"], train_s=f["train_s"],
             fps=1.0 / mean["seconds"], size_bytes=int(f["params"]) * int(_require(f, "bytes_per_param", source)),
             size_note="parameters", eval_protocol=protocol, dataset_hash=dataset_hash,
-            device=doc.get("device", "?")))
+            device=doc.get("device", "?"), dataset=_data_label(m)))
     return rows
 
 
@@ -96,15 +105,17 @@ def comparison_table(rows: list[MethodRow]) -> str:
     """The markdown table; raises ValueError when the rows were not evaluated alike on the same data."""
     if not rows:
         raise ValueError("rows: expected at least one method")
-    for attr, what in (("eval_protocol", "evaluation protocols"), ("dataset_hash", "datasets")):
+    for attr, what in (("eval_protocol", "evaluation protocols"), ("dataset_hash", "datasets"),
+                       ("dataset", "dataset labels")):
         values = {getattr(r, attr) for r in rows}
         if len(values) != 1:
             detail = "; ".join(f"{r.method}: {getattr(r, attr)}" for r in rows)
             raise ValueError(f"rows: the {what} differ, so the rows are not comparable ({detail})")
     body = [[r.method, f"{r.ssim:.3f}", f"{r.psnr:.2f}", _fmt_time(r.train_s), f"{r.fps:.2f}",
              f"{_fmt_size(r.size_bytes)} ({r.size_note})", r.device] for r in rows]
+    named = f"`{rows[0].dataset}`, " if rows[0].dataset else ""
     return ("In the form of Table 1 of Kerbl et al. 2023 (3DGS), without LPIPS. Every row: the same dataset "
-            f"(content hash `{rows[0].dataset_hash[:12]}`), evaluated as `{rows[0].eval_protocol}`. "
+            f"({named}content hash `{rows[0].dataset_hash[:12]}`), evaluated as `{rows[0].eval_protocol}`. "
             "Train = wall time of the fit on a 2-core CPU; FPS = forward renders per second at the test "
             "resolution; Mem = the stored model (the PLY file for splats, float32 parameters for the fields).\n\n"
             + markdown_table(["Method", "SSIM ↑", "PSNR ↑", "Train", "FPS", "Mem", "device"], body))

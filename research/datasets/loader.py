@@ -15,7 +15,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import OpenImageIO as oiio
@@ -44,9 +44,28 @@ class View:
 class Split:
     cameras: list[Camera]
     rgba: np.ndarray  # (N, H, W, 4) linear, premultiplied, float32
-    depth: np.ndarray  # (N, H, W) z-depth, 0 where no surface
-    mask: np.ndarray  # (N, H, W) bool
+    depth: np.ndarray | None  # (N, H, W) z-depth, 0 where no surface; None for photographs (no ground truth)
+    mask: np.ndarray | None  # (N, H, W) bool; None for photographs
     names: list[str] = field(default_factory=list)
+    srgb: np.ndarray | None = None  # (N, H, W, 4) straight-alpha sRGB in [0, 1] as in the files (external data)
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """How a dataset's paper evaluates novel views (external datasets; research.datasets.blender, colmap).
+
+    `background`: the RGB (sRGB, in [0, 1]) that images with alpha are composited on, in sRGB as the
+    NeRF, instant-ngp and 3DGS evaluations do, for training and scoring alike; None: opaque images.
+    `description`: one line naming the dataset, split, resolution, background and metrics; it is the
+    `eval_protocol` of the results, so research.comparison refuses to mix rows of other protocols.
+    """
+
+    name: str  # "nerf-synthetic" or "mipnerf360"
+    train_split: str
+    test_split: str
+    resolution: str  # e.g. "400x400 (the files at 1/2)", "images_4 (1237x822)"
+    background: tuple[float, float, float] | None
+    description: str
 
 
 @dataclass
@@ -56,6 +75,13 @@ class Dataset:
     views: list[View]
     bbox: np.ndarray  # (2, 3) min and max corners
     up: np.ndarray
+    # Optional, for datasets read from other formats (research.datasets.blender, colmap):
+    format: str = "drlab"  # "drlab", "blender" or "colmap"
+    scene: str = ""  # the scene's name (the folder's name for external data)
+    protocol: Protocol | None = None  # None: drlab's own (research.metrics.EVAL_PROTOCOL)
+    points: np.ndarray | None = None  # (P, 3) SfM points (COLMAP), world coordinates
+    point_colors: np.ndarray | None = None  # (P, 3) their sRGB colours in [0, 1]
+    split_loader: Callable[[list[View]], Split] | None = field(default=None, repr=False)
 
     def split_views(self, split: str) -> list[View]:
         if split not in SPLITS:
@@ -64,6 +90,8 @@ class Dataset:
 
     def load_split(self, split: str, limit: int | None = None) -> Split:
         views = self.split_views(split)[:limit]
+        if self.split_loader is not None:
+            return self.split_loader(views)
         rgba = np.stack([_checked(io.read_exr, v.path(".exr"), v.camera, 4) for v in views])
         depth = np.stack([_nonnegative(_checked(io.read_exr, v.path("_depth.exr"), v.camera, 1), v.path("_depth.exr"),
                                        "depth") for v in views])

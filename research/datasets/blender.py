@@ -1,0 +1,193 @@
+"""NeRF-synthetic ("Blender") and nerfstudio-style folders: `transforms_{train,val,test}.json` and images.
+
+Layout (the NeRF release; `drlab dataset` writes the same, so nerfstudio and instant-ngp read it):
+
+    transforms_train.json  transforms_test.json  [transforms_val.json]
+    train/r_0.png ...      (file_path "./train/r_0", with or without ".png", relative to the folder)
+
+Each transforms file holds `frames` with `file_path` and an OpenGL camera-to-world
+`transform_matrix` (+x right, +y up, +z backward; converted to drlab's OpenCV convention by
+research.cameras.Camera.from_nerf). Intrinsics: NeRF's `camera_angle_x` (horizontal field of view,
+radians; square pixels, centred principal point), or nerfstudio's `fl_x`, `fl_y`, `cx`, `cy`, `w`,
+`h`, given once at the top of the file or per frame (a frame's own values win). Without `w`/`h` the
+image's own size is used; every image of the folder must have the same size.
+
+Images: RGBA PNGs (RGB and JPEG also read, as opaque), straight alpha, sRGB. `factor` downscales by
+box averaging of the straight RGBA (OpenCV's INTER_AREA at an integer factor, as the NeRF code
+makes its half-resolution images), the intrinsics scaled alike. The protocol ("nerf-synthetic":
+NeRF, instant-ngp and 3DGS) trains on the train split and scores the test split with the images
+composited on white in sRGB: `srgb * alpha + (1 - alpha)`.
+
+Scene bound: a declared box (`"aabb": [[x, y, z], [x, y, z]]` in transforms_train.json, or the
+scene record of a drlab cameras.json beside it), else `formats.bound_from_cameras`.
+
+Errors (research.datasets.DatasetError, a ValueError; one line naming the file): a missing
+transforms_train.json or transforms_test.json, a frame without `file_path` or `transform_matrix`,
+a transform whose rotation part is not a rotation, an image listed but absent, images of different
+sizes, a size not divisible by `factor`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from research.cameras import Camera
+from research.datasets import formats
+from research.datasets.integrity import DatasetError
+from research.datasets.loader import SPLITS, Dataset, Protocol, Split, View, _image_size
+
+WHITE = (1.0, 1.0, 1.0)
+_INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x")
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise DatasetError(f"{path}: not valid JSON ({e})") from None
+
+
+def _image_path(root: Path, tpath: Path, index: int, frame: dict[str, Any]) -> Path:
+    fp = frame.get("file_path")
+    if not isinstance(fp, str) or not fp:
+        raise DatasetError(f"{tpath}: frame {index} has no file_path")
+    p = (root / fp).resolve()
+    if p.suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        p = p.with_name(p.name + ".png")
+    if not p.is_file():
+        raise DatasetError(f"{tpath}: frame {index}: image {p} is listed but missing")
+    return p
+
+
+def _number(tpath: Path, index: int, key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
+        raise DatasetError(f"{tpath}: frame {index}: {key} must be a finite number > 0, got {value!r}")
+    return float(value)
+
+
+def _camera(tpath: Path, index: int, doc: dict[str, Any], frame: dict[str, Any], size: tuple[int, int],
+            factor: int) -> Camera:
+    """The frame's camera at the file's size `size` (w, h), then downscaled by `factor`."""
+    intr = {k: frame.get(k, doc.get(k)) for k in _INTRINSICS}
+    w, h = size
+    for key, actual in (("w", w), ("h", h)):
+        if intr[key] is not None and int(intr[key]) != actual:
+            raise DatasetError(f"{tpath}: frame {index}: {key} = {intr[key]} but its image is {w}x{h}")
+    if "transform_matrix" not in frame:
+        raise DatasetError(f"{tpath}: frame {index} has no transform_matrix")
+    try:
+        if intr["fl_x"] is None and intr["camera_angle_x"] is None:
+            raise ValueError("neither camera_angle_x nor fl_x is given")
+        fl_x = None if intr["fl_x"] is None else _number(tpath, index, "fl_x", intr["fl_x"])
+        angle = None if intr["camera_angle_x"] is None else _number(tpath, index, "camera_angle_x",
+                                                                      intr["camera_angle_x"])
+        fl_y = None if intr["fl_y"] is None else _number(tpath, index, "fl_y", intr["fl_y"])
+        cam = Camera.from_nerf(frame["transform_matrix"], w, h, camera_angle_x=angle, fl_x=fl_x, fl_y=fl_y,
+                               cx=None if intr["cx"] is None else float(intr["cx"]),
+                               cy=None if intr["cy"] is None else float(intr["cy"]))
+    except (ValueError, TypeError) as e:
+        if isinstance(e, DatasetError):
+            raise
+        raise DatasetError(f"{tpath}: frame {index} ({frame.get('file_path')}): {e}") from None
+    if factor == 1:
+        return cam
+    S = np.diag([1.0 / factor, 1.0 / factor, 1.0])
+    return Camera(S @ cam.K, cam.c2w, w // factor, h // factor)
+
+
+def _declared_box(root: Path, train_doc: dict[str, Any]) -> np.ndarray | None:
+    if "aabb" in train_doc:
+        box = np.asarray(train_doc["aabb"], dtype=np.float64)
+        where = root / "transforms_train.json"
+    elif (root / "cameras.json").is_file():
+        scene = _read_json(root / "cameras.json").get("scene", {})
+        if "bbox_min" not in scene:
+            return None
+        box = np.asarray([scene["bbox_min"], scene.get("bbox_max")], dtype=np.float64)
+        where = root / "cameras.json"
+    else:
+        return None
+    if box.shape != (2, 3) or not np.all(np.isfinite(box)) or np.any(box[1] <= box[0]):
+        raise DatasetError(f"{where}: the scene box must be [[min x, y, z], [max x, y, z]] with min < max, "
+                           f"got {box.tolist()}")
+    return box
+
+
+def nerf_synthetic_protocol(width: int, height: int, factor: int) -> Protocol:
+    res = f"{width}x{height}" + (f" (the files at 1/{factor})" if factor > 1 else "")
+    return Protocol("nerf-synthetic", "train", "test", res, WHITE,
+                    f"NeRF-synthetic protocol (NeRF, instant-ngp, 3DGS): test split at {res}; RGBA composited on "
+                    "white in sRGB; PSNR and SSIM (11x11 Gaussian window, sigma 1.5) on sRGB clipped to [0,1]; "
+                    "research.metrics")
+
+
+def load_blender(path: str | Path, factor: int = 1) -> Dataset:
+    """Read a NeRF-synthetic / nerfstudio folder (module docstring) as a research.datasets Dataset.
+
+    Headers and cameras are checked here; pixels are read by `Dataset.load_split`.
+    """
+    factor = formats.check_factor(factor)
+    root = Path(path)
+    if not root.is_dir():
+        raise DatasetError(f"{root}: no such dataset folder")
+    for required in ("train", "test"):
+        if not (root / f"transforms_{required}.json").is_file():
+            raise DatasetError(f"{root / f'transforms_{required}.json'}: missing (a NeRF-synthetic folder has "
+                               "transforms_train.json and transforms_test.json)")
+    views: list[View] = []
+    files: dict[str, Path] = {}
+    read: list[Path] = []
+    ref: tuple[Path, tuple[int, int]] | None = None
+    train_doc: dict[str, Any] = {}
+    for split in SPLITS:
+        tpath = root / f"transforms_{split}.json"
+        if not tpath.is_file():
+            continue
+        doc = _read_json(tpath)
+        frames = doc.get("frames") if isinstance(doc, dict) else None
+        if not isinstance(frames, list) or not frames:
+            raise DatasetError(f"{tpath}: lists no frames")
+        if split == "train":
+            train_doc = doc
+        read.append(tpath)
+        for i, frame in enumerate(frames):
+            if not isinstance(frame, dict):
+                raise DatasetError(f"{tpath}: frame {i} is not an object")
+            img = _image_path(root, tpath, i, frame)
+            size = _image_size(img)
+            if ref is None:
+                ref = (img, size)
+            elif size != ref[1]:
+                raise DatasetError(f"{img}: image is {size[0]}x{size[1]}, but {ref[0]} is {ref[1][0]}x{ref[1][1]} "
+                                   "(every image of the folder must have one size)")
+            if size[0] % factor or size[1] % factor:
+                raise DatasetError(f"{img}: image is {size[0]}x{size[1]}, not divisible by the downscale factor "
+                                   f"{factor}")
+            cam = _camera(tpath, i, doc, frame, size, factor)
+            name = f"{split}/{i:04d}"
+            views.append(View(name, split, cam, root))
+            files[name] = img
+            read.append(img)
+    assert ref is not None
+    cams = [v.camera for v in views]
+    bbox = _declared_box(root, train_doc)
+    if bbox is None:
+        bbox = formats.bound_from_cameras([v.camera for v in views if v.split == "train"] or cams)
+    width, height = cams[0].width, cams[0].height
+
+    def load_views(selected: list[View]) -> Split:
+        images = [formats.downscale(formats.read_srgb(files[v.name]), factor, files[v.name]) for v in selected]
+        for v, im in zip(selected, images):
+            if im.shape[:2] != (v.camera.height, v.camera.width):
+                raise DatasetError(f"{files[v.name]}: image changed on disk: now {im.shape[1]}x{im.shape[0]}")
+        return formats.split_from_srgb([v.camera for v in selected], images, [str(files[v.name]) for v in selected])
+
+    manifest = {"format": "blender", "content_hash": formats.content_hash(root, read), "factor": factor,
+                "root": str(root)}
+    return Dataset(root, manifest, views, bbox, formats.up_from_cameras(cams), format="blender",
+                   scene=root.resolve().name, protocol=nerf_synthetic_protocol(width, height, factor),
+                   split_loader=load_views)

@@ -1,0 +1,132 @@
+"""NeRF-synthetic / nerfstudio folders (research.datasets.blender), and fit_splats/fit_nerf on them."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from research import io
+from research.datasets import detect_format, load_blender
+from research.datasets.formats import protocol_target_linear, protocol_target_srgb
+from research.metrics import srgb_on_black
+
+sys.path.insert(0, str(Path(__file__).parent))
+from realdata_fixtures import write_blender  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.parametrize("variant", [None, "global", "frame"], ids=["camera_angle_x", "nerfstudio-global",
+                                                                     "nerfstudio-per-frame"])
+def test_cameras_round_trip_to_1e9(tmp_path, variant):
+    cams = write_blender(tmp_path / "lego", nerfstudio=variant)
+    ds = load_blender(tmp_path / "lego")
+    assert ds.format == "blender" and ds.scene == "lego" and detect_format(tmp_path / "lego") == "blender"
+    for split, expected in cams.items():
+        views = ds.split_views(split)
+        assert len(views) == len(expected)
+        for v, c in zip(views, expected):
+            assert np.abs(v.camera.c2w - c.c2w).max() < 1e-9 and np.abs(v.camera.K - c.K).max() < 1e-9
+            assert np.abs(v.camera.to_nerf() - c.to_nerf()).max() < 1e-9  # and back to OpenGL
+
+
+def test_pixels_white_protocol_and_linear_contract(tmp_path):
+    write_blender(tmp_path / "lego")
+    ds = load_blender(tmp_path / "lego")
+    assert ds.protocol.name == "nerf-synthetic" and ds.protocol.background == (1.0, 1.0, 1.0)
+    split = ds.load_split("test")
+    raw = io.read_png_u8(tmp_path / "lego" / "test" / "r_0.png").astype(np.float64) / 255.0
+    assert np.abs(split.srgb[0] - raw).max() < 1e-7
+    # the Split contract: linear, premultiplied
+    expected = io.srgb_to_linear(raw[..., :3]) * raw[..., 3:]
+    assert np.abs(split.rgba[0, ..., :3] - expected).max() < 1e-6
+    # the NeRF/3DGS target: sRGB composited on white in sRGB
+    target = raw[..., :3] * raw[..., 3:] + (1.0 - raw[..., 3:])
+    assert np.abs(protocol_target_srgb(split, ds.protocol)[0] - target).max() < 1e-6
+    assert np.all(protocol_target_srgb(split, ds.protocol)[0, :3] == 1.0)  # the transparent band is white
+    lin = protocol_target_linear(split, ds.protocol)
+    assert np.abs(srgb_on_black(lin[0]) - target).max() < 1e-5  # what metrics compares gives the target back
+
+
+def test_downscale_is_a_box_average_with_scaled_intrinsics(tmp_path):
+    write_blender(tmp_path / "lego")
+    full, half = load_blender(tmp_path / "lego"), load_blender(tmp_path / "lego", factor=2)
+    a, b = full.split_views("train")[0].camera, half.split_views("train")[0].camera
+    assert (b.width, b.height) == (8, 8) and abs(b.fx - a.fx / 2) < 1e-12 and abs(b.cx - a.cx / 2) < 1e-12
+    big, small = full.load_split("train").srgb[0], half.load_split("train").srgb[0]
+    assert np.abs(small - big.reshape(8, 2, 8, 2, 4).mean(axis=(1, 3))).max() < 1e-6
+
+
+def test_bound_declared_or_from_the_cameras(tmp_path):
+    write_blender(tmp_path / "lego")
+    ds = load_blender(tmp_path / "lego")
+    # cameras at radius ~4.1 looking at the origin with a 50 degree field: the box is centred near it
+    assert np.abs(ds.bbox.mean(axis=0)).max() < 0.3
+    half = (ds.bbox[1] - ds.bbox[0]) / 2
+    assert np.allclose(half, half[0]) and 1.5 < half[0] < 2.2
+    doc = json.loads((tmp_path / "lego" / "transforms_train.json").read_text())
+    doc["aabb"] = [[-1, -2, -3], [1, 2, 3]]
+    (tmp_path / "lego" / "transforms_train.json").write_text(json.dumps(doc))
+    assert load_blender(tmp_path / "lego").bbox.tolist() == [[-1, -2, -3], [1, 2, 3]]
+
+
+def test_content_hash_follows_the_files(tmp_path):
+    write_blender(tmp_path / "lego")
+    h1 = load_blender(tmp_path / "lego").manifest["content_hash"]
+    assert load_blender(tmp_path / "lego").manifest["content_hash"] == h1
+    img = io.read_png_u8(tmp_path / "lego" / "test" / "r_1.png")
+    img[5, 5, 0] ^= 1
+    io.write_png_u8(tmp_path / "lego" / "test" / "r_1.png", img)
+    assert load_blender(tmp_path / "lego").manifest["content_hash"] != h1
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("experiment", ["fit_splats", "fit_nerf"])
+def test_experiment_smoke_on_a_blender_folder(tmp_path, experiment):
+    write_blender(tmp_path / "lego", views={"train": 5, "test": 2})
+    out = tmp_path / "out"
+    extra = ["--ply", str(tmp_path / "m.ply")] if experiment == "fit_splats" else ["--fields", "grid", "pe_mlp"]
+    r = subprocess.run([sys.executable, "-m", f"experiments.{experiment}", "--smoke", "--no-progress", "--data",
+                        str(tmp_path / "lego"), "--out", str(out), *extra], cwd=REPO, capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    m = json.loads((out / "metrics.json").read_text())["metrics"]
+    assert m["data"]["format"] == "blender" and m["data"]["scene"] == "lego"
+    assert m["data"]["protocol"] == "nerf-synthetic" and m["data"]["background"] == [1.0, 1.0, 1.0]
+    assert m["eval_protocol"].startswith("NeRF-synthetic protocol") and "white" in m["eval_protocol"]
+    table = (out / "table.md").read_text()
+    assert "lego" in table and "NeRF-synthetic protocol" in table
+    if experiment == "fit_splats":
+        assert m["init"] == "random" and math.isfinite(m["test_psnr"]) and m["test_psnr"] > 5
+    else:
+        assert m["noise_floor"] is None
+        assert all(math.isfinite(f["eval"]["mean"]["psnr"]) and "depth_mae" not in f["eval"]["mean"]
+                   for f in m["fields"].values())
+
+
+def test_a_drlab_dataset_read_as_blender_agrees_with_the_drlab_loader(tmp_path):
+    """`drlab dataset` writes NeRF-synthetic transforms: both readers give the same cameras and box."""
+    from research.datasets import DatasetConfig, generate, load
+
+    root = generate(DatasetConfig("spheres", views=3, res=24, spp=2, seed=1), tmp_path / "ds", show_progress=False)
+    assert detect_format(root) == "drlab"
+    ours, theirs = load(root), load_blender(root)
+    for split in ("train", "val", "test"):
+        a, b = ours.split_views(split), theirs.split_views(split)
+        assert len(a) == len(b)
+        for u, v in zip(a, b):
+            assert np.abs(u.camera.c2w - v.camera.c2w).max() < 1e-9 and np.abs(u.camera.K - v.camera.K).max() < 1e-9
+    assert np.array_equal(ours.bbox, theirs.bbox)  # the scene box declared in cameras.json
+    # pixels: the PNG (8-bit sRGB of the EXR, straight alpha, colour clipped to [0, 1]) agrees with the EXR
+    # up to 8-bit quantisation, in linear premultiplied values (the Split contract of both readers)
+    s_png, s_exr = theirs.load_split("train"), ours.load_split("train")
+    a = s_exr.rgba[..., 3:]
+    expected = np.clip(np.where(a > 0, s_exr.rgba[..., :3] / np.maximum(a, 1e-12), 0.0), 0.0, 1.0) * a
+    # bound: sRGB step 0.5/255 times the steepest slope of the decoding curve (2.27) plus alpha step 0.5/255
+    assert np.abs(s_png.rgba[..., :3] - expected).max() < 0.5 / 255 * 2.27 + 0.5 / 255 + 1e-6
+    assert np.abs(s_png.rgba[..., 3] - s_exr.rgba[..., 3]).max() <= 0.5 / 255 + 1e-6

@@ -1,0 +1,143 @@
+"""COLMAP / Mip-NeRF 360 folders (research.datasets.colmap): fixtures written by pycolmap's own writer."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from research.cameras import look_at
+from research.datasets import detect_format, load_colmap
+from research.datasets.colmap import c2w_from_colmap, colmap_from_c2w, default_factor
+
+sys.path.insert(0, str(Path(__file__).parent))
+from realdata_fixtures import COLMAP_PARAMS, write_colmap  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_pose_conversion_both_directions_to_1e9():
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        c2w = look_at(rng.normal(size=3) * 3, rng.normal(size=3) * 0.1)
+        R, t = colmap_from_c2w(c2w)
+        assert np.abs(c2w_from_colmap(R, t) - c2w).max() < 1e-9
+        # cam_from_world maps the camera centre to the origin and the look direction to +z
+        assert np.abs(R @ c2w[:3, 3] + t).max() < 1e-9 and np.abs(R @ c2w[:3, 2] - [0, 0, 1]).max() < 1e-9
+        R2, t2 = colmap_from_c2w(c2w_from_colmap(R, t))
+        assert np.abs(R2 - R).max() < 1e-9 and np.abs(t2 - t).max() < 1e-9
+
+
+@pytest.mark.parametrize("text", [False, True], ids=["binary", "text"])
+@pytest.mark.parametrize("model", list(COLMAP_PARAMS))
+def test_each_model_binary_and_text_reads_back_to_1e9(tmp_path, model, text):
+    root = tmp_path / "scene"
+    cams = write_colmap(root, model=model, text=text, factors=(1,))
+    assert detect_format(root) == "colmap"
+    ds = load_colmap(root)
+    p = COLMAP_PARAMS[model]
+    fx, fy, cx, cy = (p[0], p[0], p[1], p[2]) if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL") else p[:4]
+    assert len(ds.views) == len(cams)
+    for v, c in zip(ds.views, cams):  # names img_00 ... sort as the cameras
+        assert np.abs(v.camera.c2w - c.c2w).max() < 1e-9
+        assert np.allclose(v.camera.K, [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], atol=1e-12, rtol=0)
+    assert ds.points.shape == (50, 3) and ds.point_colors.shape == (50, 3)
+    assert ds.point_colors.min() >= 0 and ds.point_colors.max() <= 1
+
+
+def test_llffhold_split_factor_and_points_bound(tmp_path):
+    root = tmp_path / "garden"  # an outdoor Mip-NeRF 360 scene: images_4 by default
+    write_colmap(root, n=17, width=64, height=48, factors=(1, 2, 4))
+    ds = load_colmap(root)
+    assert default_factor("garden") == 4 and default_factor("room") == 2 and default_factor("mine") == 1
+    assert [v.name for v in ds.split_views("test")] == ["img_00.png", "img_08.png", "img_16.png"]
+    assert len(ds.split_views("train")) == 14 and ds.protocol.name == "mipnerf360"
+    assert "images_4" in ds.protocol.description and ds.protocol.background is None
+    cam = ds.split_views("test")[0].camera
+    assert (cam.width, cam.height) == (16, 12) and abs(cam.fx - 18.0 / 4) < 1e-12
+    full = load_colmap(root, factor=1).split_views("test")[0].camera
+    assert np.abs(full.c2w - cam.c2w).max() == 0 and (full.width, full.height) == (64, 48)
+    # bound: the 1st-99th percentile box of the points (uniform in [-1, 1]^3), padded 5 %
+    assert np.all(ds.bbox[0] > -1.2) and np.all(ds.bbox[0] < -0.8) and np.all(ds.bbox[1] > 0.8)
+    split = ds.load_split("test")
+    assert split.rgba.shape == (3, 12, 16, 4) and np.all(split.rgba[..., 3] == 1) and split.depth is None
+
+
+def test_rounded_images_n_sizes_are_accepted(tmp_path):
+    root = tmp_path / "scene"
+    write_colmap(root, width=18, height=14, factors=(1, 4))  # images_4 at ceil(18/4) x ceil(14/4) = 5 x 4
+    cam = load_colmap(root, factor=4).views[0].camera
+    assert (cam.width, cam.height) == (5, 4) and abs(cam.fx - 18.0 * 5 / 18) < 1e-12
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("experiment", ["fit_splats", "fit_nerf"])
+def test_experiment_smoke_on_a_mipnerf360_folder(tmp_path, experiment):
+    root = tmp_path / "bonsai"  # indoor: images_2
+    write_colmap(root, n=9, width=32, height=24, factors=(1, 2), text=True)
+    out = tmp_path / "out"
+    extra = ["--ply", str(tmp_path / "m.ply")] if experiment == "fit_splats" else ["--fields", "grid"]
+    r = subprocess.run([sys.executable, "-m", f"experiments.{experiment}", "--smoke", "--no-progress", "--data",
+                        str(root), "--out", str(out), *extra], cwd=REPO, capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    m = json.loads((out / "metrics.json").read_text())["metrics"]
+    assert m["data"]["format"] == "colmap" and m["data"]["scene"] == "bonsai"
+    assert m["data"]["protocol"] == "mipnerf360" and m["data"]["resolution"] == "images_2 (16x12)"
+    assert "llffhold 8" in m["eval_protocol"] and "bonsai" in (out / "table.md").read_text()
+    if experiment == "fit_splats":
+        assert m["init"] == "sfm" and m["init_points"] == 50 and math.isfinite(m["test_psnr"])
+    else:
+        assert "from the SfM points" in (out / "table.md").read_text()
+        assert m["dataset"]["bbox"] == json.loads(json.dumps(load_colmap(root).bbox.tolist()))
+
+
+def test_comparison_refuses_rows_of_another_protocol(tmp_path):
+    from research import comparison
+
+    row = dict(method="m", ssim=0.5, psnr=20.0, train_s=1.0, fps=1.0, size_bytes=1, size_note="x", device="cpu")
+    a = comparison.MethodRow(**row, eval_protocol="Mip-NeRF 360 protocol (3DGS): ...", dataset_hash="h",
+                             dataset="bonsai (colmap, mipnerf360)")
+    b = comparison.MethodRow(**row, eval_protocol="NeRF-synthetic protocol: ...", dataset_hash="h",
+                             dataset="bonsai (colmap, mipnerf360)")
+    with pytest.raises(ValueError, match="evaluation protocols differ"):
+        comparison.comparison_table([a, b])
+    c = comparison.MethodRow(**{**row, "method": "n"}, eval_protocol=a.eval_protocol, dataset_hash="h",
+                             dataset="lego (blender, nerf-synthetic)")
+    with pytest.raises(ValueError, match="dataset labels differ"):
+        comparison.comparison_table([a, c])
+    assert "`bonsai (colmap, mipnerf360)`" in comparison.comparison_table([a, a])
+
+
+def test_jpeg_photographs_as_in_mipnerf360(tmp_path):
+    """Mip-NeRF 360's images are JPEGs named like _DSC8679.JPG: read as opaque sRGB through OpenImageIO."""
+    import OpenImageIO as oiio
+    import pycolmap
+
+    root = tmp_path / "stump"
+    write_colmap(root, n=3, factors=(1,), width=16, height=12)
+    d = root / "sparse" / "0"
+    rec = pycolmap.Reconstruction(str(d))
+    rng = np.random.default_rng(0)
+    pixels = {}
+    for image in rec.images.values():
+        image.name = image.name.replace(".png", ".JPG")
+        yy, xx = np.mgrid[0:12, 0:16]
+        base = rng.uniform(40, 200, 3)  # a smooth ramp: JPEG keeps it (it would smear random noise)
+        img = np.clip(base + np.stack([4 * xx, 5 * yy, 2 * (xx + yy)], -1), 0, 255).astype(np.uint8)
+        spec = oiio.ImageSpec(16, 12, 3, "uint8")
+        spec.attribute("Compression", "jpeg:100")
+        out = oiio.ImageOutput.create(str(root / "images" / image.name))
+        assert out.open(str(root / "images" / image.name), spec)
+        assert out.write_image(img) and out.close()
+        pixels[image.name] = img
+    rec.write_binary(str(d))
+    ds = load_colmap(root, factor=1)
+    split = ds.load_split("test")
+    assert split.names[0].endswith("img_00.JPG") and np.all(split.srgb[..., 3] == 1)
+    # JPEG (lossy, chroma subsampled) of a smooth ramp: within a few levels of the written pixels
+    assert np.abs(split.srgb[0, ..., :3] * 255 - pixels["img_00.JPG"]).max() < 6
