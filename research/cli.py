@@ -2,7 +2,8 @@
 
     drlab dataset --scene NAME [--views N --res R --spp S --stereo --flow] --out DIR [--resume] [--force]
     drlab run EXPERIMENT [--quick|--smoke] [--device cpu|cuda] [--out DIR] [--seed N] [-- EXPERIMENT OPTIONS]
-    drlab reproduce [--quick]          every registered experiment, then results/README.md
+    drlab reproduce [--quick] [--ray [--ray-address A]]   every registered experiment, then results/README.md
+    drlab sweep SPEC [--jobs N] [--ray [--ray-address A]]  a grid of runs from a TOML file (research.sweep)
     drlab gradcheck [KERNEL ...]       finite-difference table; exit status 1 on any failure
     drlab bench [FAMILY ...] [--json]  timings (median of >= 3 runs after a warm-up)
     drlab list                         registered experiments, gradient checks and bench families
@@ -240,6 +241,55 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _positive_int(value: str) -> int:
+    """argparse type of --jobs: an integer >= 1."""
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value!r}")
+    return n
+
+
+def _ray_address(value: str) -> str:
+    """argparse type of --ray-address: host:port, ray://host:port or `auto`."""
+    if not value.strip() or any(c.isspace() for c in value):
+        raise argparse.ArgumentTypeError(f"expected host:port, ray://host:port or auto, got {value!r}")
+    return value
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from research import sweep
+
+    spec = sweep.load_spec(args.spec)  # ValueError naming the file: before any run
+    root = Path(args.results) if args.results is not None else registry.results_dir()
+    if (root / spec.name).exists() and not (root / spec.name).is_dir():
+        raise ValueError(f"--results: {root / spec.name} is a file, expected the sweep's folder")
+    use_ray = args.ray or args.ray_address is not None
+    if use_ray:
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ValueError("--ray: Ray is not installed; pip install 'drlab[cluster]' (or ray>=2.9)") from None
+        opts = sweep.RayOptions(address=args.ray_address, num_cpus=args.jobs)
+        executor = sweep.ray_executor(opts, spec.cpus, spec.gpus, spec.max_retries)
+        name = f"ray ({args.ray_address})" if args.ray_address else "ray (local instance)"
+    else:
+        executor, name = sweep.local_executor(args.jobs or 1), f"local (--jobs {args.jobs or 1})"
+    runs = spec.runs()
+    print(f"drlab sweep {spec.name}: {len(runs)} runs of {spec.experiment} ({len(spec.points)} configurations x "
+          f"{len(spec.seeds)} seeds), {name}, into {(root / spec.name).absolute()}", flush=True)
+    result = sweep.run_sweep(spec, root, executor, progress=not args.no_progress, executor_name=name)
+    skipped = len(runs) - len(result.executed)
+    print(f"drlab sweep {spec.name}: {len(result.executed)} ran, {skipped} already complete; wrote {result.table_md}"
+          + (f" and {result.figure.name}" if result.figure else ""), flush=True)
+    if result.failed:
+        print(f"drlab sweep: {len(result.failed)} of {len(runs)} runs failed (table.md lists them; logs in "
+              f"{result.sweep_dir / 'logs'})", file=sys.stderr, flush=True)
+    return min(len(result.failed), 100)
+
+
 def _cmd_gradcheck(args: argparse.Namespace) -> int:
     from research.gradcheck import _select, format_table, load_checks, run_checks
 
@@ -342,6 +392,24 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
     rp.set_defaults(fn=_cmd_reproduce)
 
+    sw = sub.add_parser(
+        "sweep", help="run a grid of runs of one experiment from a TOML sweep file",
+        description="Run every configuration x seed of a sweep file (research.sweep describes the format) into "
+                    "<results>/<sweep>/<run-key>/, skipping runs already complete, then write table.md, "
+                    "table.json, figure.png and runs.json there. Exit status: the number of failed runs (0: all "
+                    "succeeded).")
+    sw.add_argument("spec", help="sweep file (TOML), e.g. experiments/sweeps/raft_ablation.toml")
+    sw.add_argument("--jobs", type=_positive_int, default=None,
+                    help="runs at a time (local executor, default 1); with --ray, the CPUs of the local Ray instance")
+    sw.add_argument("--ray", action="store_true",
+                    help="run each run as a Ray task on a local Ray instance (no dashboard, loopback only)")
+    sw.add_argument("--ray-address", type=_ray_address, default=None,
+                    help="join this Ray cluster instead (`ray start --head` prints it; implies --ray)")
+    sw.add_argument("--results", type=directory_path, default=None,
+                    help="results root (default: results/ in the checkout, else ./results)")
+    sw.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    sw.set_defaults(fn=_cmd_sweep)
+
     g = sub.add_parser("gradcheck", help="finite-difference checks of every registered backward pass")
     g.add_argument("kernels", nargs="*", help="check names or prefixes (default: all)")
     g.set_defaults(fn=_cmd_gradcheck)
@@ -360,7 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _command_name(argv: list[str]) -> str:
     """`drlab <command>` for messages: the first word that is a command, else plain `drlab`."""
-    commands = {"dataset", "run", "reproduce", "gradcheck", "bench", "list"}
+    commands = {"dataset", "run", "reproduce", "sweep", "gradcheck", "bench", "list"}
     word = next((a for a in argv if a in commands), None)
     return f"drlab {word}" if word else "drlab"
 
