@@ -263,6 +263,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from research import sweep
 
     spec = sweep.load_spec(args.spec)  # ValueError naming the file: before any run
+    if args.smoke:
+        spec = spec.smoke_variant()
     root = Path(args.results) if args.results is not None else registry.results_dir()
     if (root / spec.name).exists() and not (root / spec.name).is_dir():
         raise ValueError(f"--results: {root / spec.name} is a file, expected the sweep's folder")
@@ -407,6 +409,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="join this Ray cluster instead (`ray start --head` prints it; implies --ray)")
     sw.add_argument("--results", type=directory_path, default=None,
                     help="results root (default: results/ in the checkout, else ./results)")
+    sw.add_argument("--smoke", action="store_true",
+                    help="tiny sizes: every run gets --smoke (instead of --quick); results in <sweep>-smoke")
     sw.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     sw.set_defaults(fn=_cmd_sweep)
 

@@ -31,8 +31,13 @@ values, the seeds, the resources of one run, and how to gather the table:
     figure = "filter_rmse.mean"       # the metric drawn in figure.png (default: the first)
 
 Option values: `true` is a flag, `false` leaves it out, a list is several words (`nargs="+"`),
-anything else is one word. `--out` and `--seed` belong to the sweep; `--data` works as in `drlab run`
-(a relative path is taken from the current directory, which every run keeps).
+anything else is one word; `{seed}` in a value (or in an [sweep] options word) becomes the run's seed.
+`--out`, `--seed`, `--device` and `--no-progress` belong to the sweep. `--data` works as in `drlab
+run` (a relative path is taken from the current directory, which every run keeps); an experiment that
+renders its data into --data from its seed (stereo_depth, raft_flow) should get one folder per seed,
+e.g. `options = ["--data", "data/sweeps/seed{seed}"]`, so that concurrent runs never share a cache
+that depends on the seed. On a cluster --data must be a path every node sees (README).
+`drlab sweep SPEC --smoke` runs the same sweep at smoke sizes into `<name>-smoke`.
 
 Runs. Each run is `python -m experiments.<name> --out <results>/<sweep>/<run-key> --seed S ...`, the
 experiment contract (research.experiment) with its atomic folder swap, so a half-finished run never
@@ -99,7 +104,7 @@ class Run:
         return hashlib.sha256(blob.encode()).hexdigest()[:KEY_DIGITS]
 
     def argv(self) -> list[str]:
-        """The experiment's options (without --out, --seed, --device)."""
+        """The experiment's options (without --out, --seed, --device); `{seed}` in a value is the run's seed."""
         words: list[str] = []
         for name, value in self.options:
             if value is True:
@@ -107,10 +112,13 @@ class Run:
             elif value is False:
                 continue
             elif isinstance(value, list):
-                words += [name, *(_word(v) for v in value)]
+                words += [name, *(self._word(v) for v in value)]
             else:
-                words += [name, _word(value)]
+                words += [name, self._word(value)]
         return words
+
+    def _word(self, value: Any) -> str:
+        return _word(value).replace("{seed}", str(self.seed))
 
 
 def _word(value: Any) -> str:
@@ -134,6 +142,13 @@ class Spec:
     rows: str | None = None
     metrics: list[str] = field(default_factory=list)
     figure: str | None = None
+
+    def smoke_variant(self) -> "Spec":
+        """The same sweep at smoke sizes: --smoke for every run (instead of --quick), into `<name>-smoke`."""
+        from dataclasses import replace
+
+        fixed = [w for w in self.fixed if w not in ("--quick", "--smoke")]
+        return replace(self, name=f"{self.name}-smoke", fixed=["--smoke", *fixed])
 
     def runs(self) -> list[Run]:
         fixed = tuple(_fixed_options(self.fixed))

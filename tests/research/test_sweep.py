@@ -244,3 +244,34 @@ def test_failing_run_is_reported_and_counted(tmp_path, capsys):
     assert rc == 1
     statuses = sorted(r["status"] for r in json.loads((sweep_dir / "runs.json").read_text())["runs"])
     assert statuses == ["failed", "skipped"]
+
+
+@pytest.mark.parametrize("name,experiment,rows", [("stereo_tuning", "stereo_depth", "methods"),
+                                                   ("raft_ablation", "raft_flow", "ablation")])
+def test_committed_sweep_files(name, experiment, rows):
+    spec = sweep.load_spec(REPO_ROOT / "experiments" / "sweeps" / f"{name}.toml")
+    assert (spec.name, spec.experiment, spec.rows) == (name, experiment, rows)
+    runs = spec.runs()
+    assert [r.seed for r in runs] == [0, 1, 2] and len({r.key for r in runs}) == 3
+    # each seed renders into its own data folder, so concurrent runs never share a seed-dependent cache
+    datas = [r.argv()[r.argv().index("--data") + 1] for r in runs]
+    assert datas == [f"data/sweeps/{name}/seed{s}" for s in (0, 1, 2)]
+    smoke = spec.smoke_variant()
+    assert smoke.name == f"{name}-smoke" and "--quick" not in smoke.fixed and smoke.fixed[0] == "--smoke"
+    assert {r.key for r in smoke.runs()}.isdisjoint(r.key for r in runs)
+
+
+def test_run_key_is_the_hash_of_the_full_configuration():
+    base = sweep.Run("kalman_tracking", "cpu", 0, (("--smoke", True), ("--trials", 5)))
+    assert base.key == sweep.Run("kalman_tracking", "cpu", 0, (("--smoke", True), ("--trials", 5))).key
+    assert len(base.key) == sweep.KEY_DIGITS and int(base.key, 16) >= 0
+    others = [sweep.Run("kalman_tracking", "cpu", 1, base.options),
+              sweep.Run("kalman_tracking", "cuda", 0, base.options),
+              sweep.Run("lucas_kanade", "cpu", 0, base.options),
+              sweep.Run("kalman_tracking", "cpu", 0, (("--smoke", True), ("--trials", 6))),
+              sweep.Run("kalman_tracking", "cpu", 0, (("--smoke", True), ("--trials", "5"))),
+              sweep.Run("kalman_tracking", "cpu", 0, (("--trials", 5),))]
+    assert len({base.key, *(o.key for o in others)}) == 1 + len(others)
+    assert base.argv() == ["--smoke", "--trials", "5"]
+    assert sweep.Run("x", "cpu", 7, (("--flag", False), ("--d", "s{seed}"), ("--l", [1, 2.5]))).argv() == \
+        ["--d", "s7", "--l", "1", "2.5"]
