@@ -230,9 +230,12 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         return 0
     results_dir = registry.results_dir(quick=args.quick)
     failed = []
-    for name in names:
-        if _run_one(name, args.quick, args.device, results_dir / name, None, ["--debug"] if args.debug else []) != 0:
-            failed.append(name)
+    if args.ray or args.ray_address is not None:
+        failed = _reproduce_on_ray(args, names, results_dir)
+    else:
+        for name in names:
+            if _run_one(name, args.quick, args.device, results_dir / name, None, ["--debug"] if args.debug else []) != 0:
+                failed.append(name)
     index = write_results_index(results_dir, names, args.quick)
     print(f"drlab reproduce: wrote {index}")
     if failed:
@@ -290,6 +293,36 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         print(f"drlab sweep: {len(result.failed)} of {len(runs)} runs failed (table.md lists them; logs in "
               f"{result.sweep_dir / 'logs'})", file=sys.stderr, flush=True)
     return min(len(result.failed), 100)
+
+
+def _reproduce_on_ray(args: argparse.Namespace, names: list[str], results_dir: Path) -> list[str]:
+    """Every registered experiment as a Ray task (1 CPU each, bounded retries); the names that failed.
+
+    Each task runs the same `python -m experiments.<name> --out results/<name>` as a local reproduce, so
+    the folders are the same, timings aside; each experiment's output goes to build/logs/reproduce/.
+    """
+    from research import sweep
+
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        raise ValueError("--ray: Ray is not installed; pip install 'drlab[cluster]' (or ray>=2.9)") from None
+    log_dir = registry.base_dir() / "build" / "logs" / ("reproduce-quick" if args.quick else "reproduce")
+    jobs = sweep.reproduce_jobs(names, results_dir, args.quick, args.device, log_dir,
+                                ["--debug"] if args.debug else [])
+    where = args.ray_address or "a local Ray instance"
+    print(f"drlab reproduce: {len(jobs)} experiments as Ray tasks on {where}; logs in {log_dir}", flush=True)
+    failed: list[str] = []
+
+    def done(outcome: dict) -> None:
+        status = "ok" if outcome["status"] == "ok" else f"FAILED: {outcome['error']}"
+        print(f"drlab reproduce: {outcome['key']}: {status} ({outcome['wall_s']:.1f} s on {outcome['host'] or '?'})",
+              flush=True)
+        if outcome["status"] != "ok":
+            failed.append(outcome["key"])
+
+    sweep.ray_executor(sweep.RayOptions(address=args.ray_address), cpus=1, gpus=0, max_retries=2)(jobs, done)
+    return [n for n in names if n in failed]
 
 
 def _cmd_gradcheck(args: argparse.Namespace) -> int:
@@ -392,6 +425,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="quick settings, written to build/results-quick (in the checkout, else under the current "
                          "directory)")
     rp.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
+    rp.add_argument("--ray", action="store_true",
+                    help="run the experiments as Ray tasks on a local Ray instance (no dashboard, loopback only)")
+    rp.add_argument("--ray-address", type=_ray_address, default=None,
+                    help="run them on this Ray cluster instead (implies --ray); results/ must be a path every node "
+                         "sees")
     rp.set_defaults(fn=_cmd_reproduce)
 
     sw = sub.add_parser(

@@ -334,7 +334,8 @@ def execute_run(job: dict[str, Any]) -> dict[str, Any]:
 
     Used by the local executor and, unchanged, inside each Ray task. Only the standard library is
     imported here: the worker needs the experiment's code on PYTHONPATH (job["env"]), not the driver's.
-    Returns {"key", "status": "ok"|"failed", "rc", "error", "wall_s", "host", "pid"}.
+    Returns {"key", "status": "ok"|"failed", "rc", "error", "wall_s", "host", "pid"}. job["seed"] None:
+    the experiment's own default; job["record"] False: no sweep-run.json (drlab reproduce --ray).
     """
     import subprocess
 
@@ -342,7 +343,8 @@ def execute_run(job: dict[str, Any]) -> dict[str, Any]:
     log.parent.mkdir(parents=True, exist_ok=True)
     safe_path = ["-P"] if sys.version_info >= (3, 11) else []
     cmd = [sys.executable, *safe_path, "-m", f"experiments.{job['experiment']}", "--device", job["device"],
-           "--out", str(out), "--seed", str(job["seed"]), "--no-progress", *job["argv"]]
+           "--out", str(out), *(["--seed", str(job["seed"])] if job["seed"] is not None else []),
+           "--no-progress", *job["argv"]]
     env = {**os.environ, **job["env"]}
     env.pop("DRLAB_PROG", None)
     t0 = time.perf_counter()
@@ -373,6 +375,8 @@ def execute_run(job: dict[str, Any]) -> dict[str, Any]:
     wall = time.perf_counter() - t0
     result = {"key": job["key"], "rc": rc, "wall_s": wall, "host": host, "pid": os.getpid()}
     if rc == 0 and not timed_out:
+        if not job.get("record", True):
+            return {**result, "status": "ok", "error": ""}
         record = {"key": job["key"], "config": job["config"], "status": "ok"}
         tmp = out / f".{RUN_FILE}.tmp-{os.getpid()}"
         tmp.write_text(json.dumps(record, indent=2) + "\n")
@@ -517,6 +521,20 @@ def ray_executor(opts: RayOptions, cpus: float, gpus: float, max_retries: int) -
 def _first_line(e: BaseException) -> str:
     text = str(e).strip()
     return text.splitlines()[0] if text else ""
+
+
+def reproduce_jobs(names: list[str], results_dir: Path, quick: bool, device: str, log_dir: Path,
+                   extra: list[str]) -> list[dict[str, Any]]:
+    """`drlab reproduce --ray`: one job per registered experiment, into results_dir/<name> as a local
+    reproduce writes it (no sweep-run.json), its output in log_dir/<name>.log."""
+    from research.cli import _experiment_env
+
+    env = _experiment_env()
+    keep = {k: env[k] for k in ("PYTHONPATH",) if k in env}
+    return [{"key": name, "experiment": name, "device": device, "seed": None,
+             "argv": (["--quick"] if quick else []) + list(extra), "config": {"experiment": name, "quick": quick},
+             "out": str(Path(results_dir).absolute() / name), "log": str(Path(log_dir).absolute() / f"{name}.log"),
+             "cwd": os.getcwd(), "env": keep, "timeout_s": 24 * 3600.0, "record": False} for name in names]
 
 
 # --------------------------------------------------------------------------- the sweep

@@ -184,6 +184,49 @@ def test_ray_worker_killed_mid_run_is_retried(local_sweep, ray_instance, tmp_pat
                 == json.loads((local_sweep / run.key / "metrics.json").read_text())["metrics"])
 
 
+def _strip_timings(obj):
+    """metrics without wall-clock fields (keys naming seconds), for comparing a Ray run with a local one."""
+    if isinstance(obj, dict):
+        return {k: _strip_timings(v) for k, v in obj.items() if "second" not in k and not k.endswith("_s")}
+    if isinstance(obj, list):
+        return [_strip_timings(v) for v in obj]
+    return obj
+
+
+@pytest.mark.timeout(120)
+def test_reproduce_on_ray_equals_local_reproduce(ray_instance, tmp_path, monkeypatch, capsys):
+    """`drlab reproduce --quick --ray` over two registered experiments: the same folders and README as a local
+    reproduce, timings aside."""
+    from research import registry
+
+    names = ["kalman_tracking", "lucas_kanade"]
+    monkeypatch.setattr(cli, "EXPERIMENTS", {n: cli.EXPERIMENTS[n] for n in names})
+    monkeypatch.setattr(registry, "EXPERIMENTS", cli.EXPERIMENTS)
+    out = {}
+    for mode, extra in (("local", []), ("ray", ["--ray"])):
+        base = tmp_path / mode
+        monkeypatch.setattr(registry, "base_dir", lambda base=base: base)
+        monkeypatch.setattr(registry, "results_dir", lambda quick=False, smoke=False, base=base: base / "results")
+        assert cli.main(["reproduce", "--quick", *extra]) == 0
+        out[mode] = base / "results"
+    assert "as Ray tasks on a local Ray instance" in capsys.readouterr().out
+    for name in names:
+        docs = [json.loads((out[m] / name / "metrics.json").read_text()) for m in ("local", "ray")]
+        assert _strip_timings(docs[0]["metrics"]) == _strip_timings(docs[1]["metrics"])
+        assert docs[0]["config"] == docs[1]["config"]
+        assert not (out["ray"] / name / sweep.RUN_FILE).exists()
+        assert (tmp_path / "ray" / "build" / "logs" / "reproduce-quick" / f"{name}.log").stat().st_size > 0
+
+    def sections(readme: Path) -> list[str]:  # the README without the provenance lines (wall time, host)
+        return [line for line in readme.read_text().splitlines() if not line.startswith("Run --quick at")]
+
+    local, ray = sections(out["local"] / "README.md"), sections(out["ray"] / "README.md")
+    assert len(local) == len(ray) and "## kalman_tracking" in local and "## lucas_kanade" in local
+    for a, b in zip(local, ray):
+        if a != b:  # only table rows may differ, and only in their last cell: lucas_kanade's seconds
+            assert a.startswith("| ") and a.rsplit("|", 2)[0] == b.rsplit("|", 2)[0], (a, b)
+
+
 def test_interrupted_sweep_resumes_without_redoing_complete_runs(tmp_path):
     spec_path = _spec(tmp_path)
     results = tmp_path / "results"
