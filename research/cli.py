@@ -1,6 +1,6 @@
 """The `drlab` command line.
 
-    drlab dataset --scene NAME [--views N --res R --spp S --stereo --flow] --out DIR [--resume] [--force]
+    drlab dataset --scene NAME [--views N --res R --spp S --stereo --flow] --out DIR [--resume] [--force] [--ray]
     drlab run EXPERIMENT [--quick|--smoke] [--device cpu|cuda] [--out DIR] [--seed N] [-- EXPERIMENT OPTIONS]
     drlab reproduce [--quick] [--ray [--ray-address A]]   every registered experiment, then results/README.md
     drlab sweep SPEC [--jobs N] [--ray [--ray-address A]]  a grid of runs from a TOML file (research.sweep)
@@ -104,8 +104,18 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     cfg = DatasetConfig(scene=args.scene, views=args.views, res=args.res, spp=args.spp, seed=args.seed,
                         stereo=args.stereo, stereo_pairs=args.stereo_pairs, baseline=args.baseline,
                         flow=args.flow, flow_frames=args.flow_frames)
+    ray = None
+    if args.ray or args.ray_address is not None:
+        from research.sweep import RayOptions
+
+        cfg.validate()  # its one-line errors before Ray starts
+        try:
+            import ray as _ray  # noqa: F401
+        except ImportError:
+            raise ValueError("--ray: Ray is not installed; pip install 'drlab[cluster]' (or ray>=2.9)") from None
+        ray = RayOptions(address=args.ray_address)
     t0 = time.perf_counter()
-    out = generate(cfg, args.out, resume=args.resume, force=args.force)
+    out = generate(cfg, args.out, resume=args.resume, force=args.force, ray=ray)
     manifest = json.loads((out / "manifest.json").read_text())
     print(f"wrote {out} in {time.perf_counter() - t0:.1f} s ({len(manifest['files'])} files, "
           f"variant {manifest['mitsuba_variant']}, content hash {manifest['content_hash'][:16]})")
@@ -401,6 +411,11 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", required=True, type=directory_path, help="output directory")
     d.add_argument("--resume", action="store_true", help="finish an interrupted run (<out>.partial)")
     d.add_argument("--force", action="store_true", help="replace an existing dataset")
+    d.add_argument("--ray", action="store_true",
+                   help="render the views as Ray tasks on a local Ray instance; same manifest and content hash as a "
+                        "single-process render on the same kind of machine")
+    d.add_argument("--ray-address", type=_ray_address, default=None,
+                   help="render them on this Ray cluster instead (implies --ray); --out must be a path every node sees")
     d.set_defaults(fn=_cmd_dataset)
 
     r = sub.add_parser(

@@ -1,7 +1,8 @@
 """drlab sweep: a 4-run sweep of kalman_tracking --smoke (2 seeds x 2 trial counts) through the local
 executor and a local Ray instance with 2 worker processes (identical gathered tables), a Ray worker
 killed by PID mid-run (retried, the sweep completes), a sweep interrupted by Ctrl-C and started again
-(complete runs are not redone), a failing run (reported, counted in the exit status).
+(complete runs are not redone), a failing run (reported, counted in the exit status); `drlab
+reproduce --ray` and a tiny dataset rendered as Ray tasks against their local counterparts.
 
 The Ray tests share one local instance (module fixture: 2 CPUs, no dashboard, loopback only, its
 own session folder under /tmp), stopped at the end of the module; its teardown fails if any process
@@ -225,6 +226,21 @@ def test_reproduce_on_ray_equals_local_reproduce(ray_instance, tmp_path, monkeyp
     for a, b in zip(local, ray):
         if a != b:  # only table rows may differ, and only in their last cell: lucas_kanade's seconds
             assert a.startswith("| ") and a.rsplit("|", 2)[0] == b.rsplit("|", 2)[0], (a, b)
+
+
+@pytest.mark.timeout(120)
+def test_dataset_rendered_as_ray_tasks_has_the_local_content_hash(ray_instance, tmp_path):
+    from research.datasets import DatasetConfig, generate
+
+    cfg = DatasetConfig(scene="spheres", views=4, res=24, spp=4, seed=3, stereo=True, stereo_pairs=2, flow=True,
+                        flow_frames=3)
+    local = generate(cfg, tmp_path / "local", show_progress=False)
+    on_ray = generate(cfg, tmp_path / "ray", show_progress=False, ray=sweep.RayOptions())
+    m_local, m_ray = (json.loads((p / "manifest.json").read_text()) for p in (local, on_ray))
+    assert m_ray["files"] == m_local["files"] and len(m_ray["files"]) > 40
+    assert m_ray["content_hash"] == m_local["content_hash"]
+    assert m_ray["mitsuba_variant"] == m_local["mitsuba_variant"]
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".partial")]  # both committed
 
 
 def test_interrupted_sweep_resumes_without_redoing_complete_runs(tmp_path):
