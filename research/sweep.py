@@ -318,15 +318,37 @@ def load_spec(path: str | Path) -> Spec:
 # --------------------------------------------------------------------------- one run (both executors)
 
 
-def _pdeathsig() -> None:  # pragma: no cover - runs in the child between fork and exec
-    """The experiment process gets SIGTERM when the thread that started it dies (Linux)."""
+def _pdeathsig_hook() -> Callable[[], None] | None:
+    """A preexec_fn that makes the experiment process get SIGTERM when the thread that started it dies
+    (Linux PR_SET_PDEATHSIG), so a run never outlives its Ray worker. Everything it needs is resolved
+    here, in the parent: between fork and exec the child only calls prctl (no import, no lock)."""
+    if not sys.platform.startswith("linux"):
+        return None
     import ctypes
     import signal
 
     try:
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
     except (OSError, AttributeError):
-        pass
+        return None
+    args = (ctypes.c_int(1), ctypes.c_ulong(int(signal.SIGTERM)))  # PR_SET_PDEATHSIG
+
+    def hook() -> None:  # pragma: no cover - runs in the child
+        prctl(*args)
+
+    return hook
+
+
+def _stop(proc, grace_s: float = 30.0) -> int:
+    """SIGTERM (the experiment deletes its temporary folder), then SIGKILL after `grace_s`; the exit status."""
+    import subprocess
+
+    proc.terminate()
+    try:
+        return proc.wait(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
 
 
 def execute_run(job: dict[str, Any]) -> dict[str, Any]:
@@ -354,23 +376,16 @@ def execute_run(job: dict[str, Any]) -> dict[str, Any]:
         f.write(f"== drlab sweep: run {job['key']} on {host}, worker pid {os.getpid()}, "
                 f"{time.strftime('%Y-%m-%d %H:%M:%S')}: {' '.join(cmd[1:])}\n".encode())
         f.flush()
-        preexec = _pdeathsig if sys.platform.startswith("linux") else None
         proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                cwd=job["cwd"], env=env, preexec_fn=preexec)
+                                cwd=job["cwd"], env=env, preexec_fn=_pdeathsig_hook())
         try:
             rc = proc.wait(timeout=job["timeout_s"])
             timed_out = False
         except subprocess.TimeoutExpired:
-            proc.kill()
-            rc = proc.wait()
+            rc = _stop(proc)
             timed_out = True
-        except BaseException:
-            proc.terminate()  # the experiment deletes its temporary folder on SIGTERM
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        except BaseException:  # Ctrl-C, or Ray cancelling the task
+            _stop(proc)
             raise
     wall = time.perf_counter() - t0
     result = {"key": job["key"], "rc": rc, "wall_s": wall, "host": host, "pid": os.getpid()}
@@ -383,7 +398,7 @@ def execute_run(job: dict[str, Any]) -> dict[str, Any]:
         os.replace(tmp, out / RUN_FILE)
         return {**result, "status": "ok", "error": ""}
     if timed_out:
-        error = f"timed out after {job['timeout_s']:g} s (killed)"
+        error = f"timed out after {job['timeout_s']:g} s (stopped)"
     else:
         with open(log, "rb") as f:
             f.seek(start)
@@ -392,7 +407,7 @@ def execute_run(job: dict[str, Any]) -> dict[str, Any]:
         error = (lines[-1] if lines else "") or f"exit status {rc}"
         if rc < 0:
             error = f"killed by signal {-rc}" + (f"; last line: {lines[-1]}" if lines else "")
-    return {**result, "status": "failed", "error": f"exit {rc}: {error}" if rc > 0 else error}
+    return {**result, "status": "failed", "error": f"exit {rc}: {error}" if rc > 0 and not timed_out else error}
 
 
 def is_complete(run: Run, folder: Path) -> bool:

@@ -281,6 +281,37 @@ def test_interrupted_sweep_resumes_without_redoing_complete_runs(tmp_path):
     assert sum(s == "skipped" for s in statuses.values()) == len(done_before) - 1
 
 
+@pytest.mark.timeout(120)
+def test_ray_task_whose_worker_keeps_dying_is_failed_after_its_retries(ray_instance, tmp_path):
+    text = SPEC.replace('"--trials" = [5, 8]', '"--trials" = [5]').replace("seeds = [0, 1]", "seeds = [0]")
+    spec = sweep.load_spec(_spec(tmp_path, text=text.replace("max_retries = 2", "max_retries = 0")))
+    ex = sweep.ray_executor(sweep.RayOptions(), spec.cpus, spec.gpus, spec.max_retries)
+    box = {}
+    t = threading.Thread(target=lambda: box.update(r=sweep.run_sweep(spec, tmp_path / "results", ex, progress=False)))
+    t.start()
+    log = tmp_path / "results" / "kq" / "logs" / f"{spec.runs()[0].key}.log"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not (log.exists() and "worker pid " in log.read_text()):
+        time.sleep(0.02)
+    os.kill(int(log.read_text().split("worker pid ")[1].split(",")[0]), signal.SIGKILL)
+    t.join(timeout=100)
+    result = box["r"]
+    assert result.failed == [spec.runs()[0].key]
+    assert result.outcomes[spec.runs()[0].key]["error"].startswith("Ray task failed after 0 retries: ")
+    assert "## Failed runs" in (result.sweep_dir / "table.md").read_text()
+
+
+def test_run_past_its_timeout_is_stopped_and_failed(tmp_path):
+    text = SPEC.replace('"--trials" = [5, 8]', '"--trials" = [5]').replace("seeds = [0, 1]", "seeds = [0]")
+    spec = sweep.load_spec(_spec(tmp_path, text=text.replace("timeout_s = 300", "timeout_s = 1")))
+    result = sweep.run_sweep(spec, tmp_path / "results", sweep.local_executor(1), progress=False)
+    key = spec.runs()[0].key
+    assert result.failed == [key] and result.outcomes[key]["error"] == "timed out after 1 s (stopped)"
+    # stopped with SIGTERM: the experiment deleted its temporary folder
+    assert not [p for p in result.sweep_dir.iterdir() if ".partial-" in p.name]
+    assert not (result.sweep_dir / key).exists()
+
+
 def test_failing_run_is_reported_and_counted(tmp_path, capsys):
     text = SPEC.replace('[grid]\n"--trials" = [5, 8]', '[[list]]\n"--trials" = 5\n\n[[list]]\n"--trials" = -3')
     text = text.replace("seeds = [0, 1]", "seeds = [0]")
@@ -303,6 +334,13 @@ def test_failing_run_is_reported_and_counted(tmp_path, capsys):
     assert rc == 1
     statuses = sorted(r["status"] for r in json.loads((sweep_dir / "runs.json").read_text())["runs"])
     assert statuses == ["failed", "skipped"]
+
+
+def test_every_committed_sweep_file_loads():
+    files = sorted((REPO_ROOT / "experiments" / "sweeps").glob("*.toml"))
+    assert len(files) >= 3
+    for path in files:
+        assert sweep.load_spec(path).runs()
 
 
 @pytest.mark.parametrize("name,experiment,rows", [("stereo_tuning", "stereo_depth", "methods"),
