@@ -2,7 +2,7 @@
 
 Each case is a sweep file (or command line) and the one line `drlab sweep` must print to stderr,
 with exit status 2, before any run starts and before any results folder is created. A TOML syntax
-error names the file and the line. Faults of real runs (a killed Ray worker, Ctrl-C and resume, a
+error names the file and the line. Also the --ray options of `drlab reproduce` and `drlab dataset`. Faults of real runs (a killed Ray worker, Ctrl-C and resume, a
 failing run) are in test_sweep.py.
 """
 
@@ -130,3 +130,23 @@ def test_bad_sweep_command_line_is_one_line(tmp_path, capsys, argv, expected):
     assert len(err) == 1, err
     assert expected.format(**fill) in err[0], err[0]
     assert sorted(p.name for p in (tmp_path / "res").iterdir()) == ["good"]  # nothing created
+
+
+# --ray-address of the other commands that run on Ray: (id, argv with {tmp}, expected one line)
+OTHER_RAY_CASES = [
+    ("reproduce-ray-address-blank", ["reproduce", "--ray-address", ""],
+     "drlab reproduce: --ray-address: expected host:port, ray://host:port or auto, got ''"),
+    ("dataset-ray-address-space", ["dataset", "--scene", "spheres", "--out", "{tmp}/ds", "--ray-address", "a b"],
+     "drlab dataset: --ray-address: expected host:port, ray://host:port or auto, got 'a b'"),
+    ("dataset-ray-bad-views", ["dataset", "--scene", "spheres", "--views", "0", "--out", "{tmp}/ds", "--ray"],
+     "drlab dataset: --views"),
+]
+
+
+@pytest.mark.parametrize("argv,expected", [c[1:] for c in OTHER_RAY_CASES], ids=[c[0] for c in OTHER_RAY_CASES])
+def test_bad_ray_options_of_reproduce_and_dataset(tmp_path, capsys, argv, expected):
+    rc, err = _run([a.format(tmp=tmp_path) for a in argv], capsys)
+    assert rc == cli.EXIT_USAGE
+    assert len(err) == 1, err
+    assert err[0].startswith(expected.format(tmp=tmp_path)), err[0]
+    assert list(tmp_path.iterdir()) == []  # no dataset folder, no lock, no Ray started
