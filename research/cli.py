@@ -106,13 +106,10 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
                         flow=args.flow, flow_frames=args.flow_frames)
     ray = None
     if args.ray or args.ray_address is not None:
-        from research.sweep import RayOptions
+        from research.sweep import RayOptions, require_ray
 
         cfg.validate()  # its one-line errors before Ray starts
-        try:
-            import ray as _ray  # noqa: F401
-        except ImportError:
-            raise ValueError("--ray: Ray is not installed; pip install 'drlab[cluster]' (or ray>=2.9)") from None
+        require_ray()
         ray = RayOptions(address=args.ray_address)
     t0 = time.perf_counter()
     out = generate(cfg, args.out, resume=args.resume, force=args.force, ray=ray)
@@ -283,10 +280,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise ValueError(f"--results: {root / spec.name} is a file, expected the sweep's folder")
     use_ray = args.ray or args.ray_address is not None
     if use_ray:
-        try:
-            import ray  # noqa: F401
-        except ImportError:
-            raise ValueError("--ray: Ray is not installed; pip install 'drlab[cluster]' (or ray>=2.9)") from None
+        sweep.require_ray()
         opts = sweep.RayOptions(address=args.ray_address, num_cpus=args.jobs)
         executor = sweep.ray_executor(opts, spec.cpus, spec.gpus, spec.max_retries)
         name = f"ray ({args.ray_address})" if args.ray_address else "ray (local instance)"
@@ -313,10 +307,7 @@ def _reproduce_on_ray(args: argparse.Namespace, names: list[str], results_dir: P
     """
     from research import sweep
 
-    try:
-        import ray  # noqa: F401
-    except ImportError:
-        raise ValueError("--ray: Ray is not installed; pip install 'drlab[cluster]' (or ray>=2.9)") from None
+    sweep.require_ray()
     log_dir = registry.base_dir() / "build" / "logs" / ("reproduce-quick" if args.quick else "reproduce")
     jobs = sweep.reproduce_jobs(names, results_dir, args.quick, args.device, log_dir,
                                 ["--debug"] if args.debug else [])

@@ -74,7 +74,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable
 
 RUN_FILE = "sweep-run.json"
 KEY_DIGITS = 16
@@ -453,6 +453,14 @@ def local_executor(jobs: int) -> Executor:
 
 def _ray_task(job: dict[str, Any]) -> dict[str, Any]:
     return execute_run(job)
+
+
+def require_ray() -> None:
+    """ValueError naming --ray unless Ray can be imported (checked before any work)."""
+    import importlib.util
+
+    if importlib.util.find_spec("ray") is None:
+        raise ValueError("--ray: Ray is not installed; pip install 'drlab[cluster]' (or ray>=2.9)")
 
 
 @dataclass

@@ -8,8 +8,6 @@ failing run) are in test_sweep.py.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
 from research import cli
@@ -150,3 +148,27 @@ def test_bad_ray_options_of_reproduce_and_dataset(tmp_path, capsys, argv, expect
     assert len(err) == 1, err
     assert err[0].startswith(expected.format(tmp=tmp_path)), err[0]
     assert list(tmp_path.iterdir()) == []  # no dataset folder, no lock, no Ray started
+
+
+# (id, argv with {spec} and {tmp}, the command's prefix): Ray missing is refused before any work
+NO_RAY_CASES = [
+    ("sweep-ray", ["sweep", "{spec}", "--ray", "--results", "{tmp}/res2"], "drlab sweep: "),
+    ("sweep-ray-address", ["sweep", "{spec}", "--ray-address", "10.0.0.1:6379", "--results", "{tmp}/res2"],
+     "drlab sweep: "),
+    ("reproduce-ray", ["reproduce", "--ray"], "drlab reproduce: "),
+    ("dataset-ray", ["dataset", "--scene", "spheres", "--out", "{tmp}/ds", "--ray"], "drlab dataset: "),
+]
+
+
+@pytest.mark.parametrize("argv,prefix", [c[1:] for c in NO_RAY_CASES], ids=[c[0] for c in NO_RAY_CASES])
+def test_ray_not_installed_is_one_line(tmp_path, capsys, monkeypatch, argv, prefix):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ray" else real(name, *a))
+    spec = tmp_path / "good.toml"
+    spec.write_text(GOOD)
+    rc, err = _run([a.format(spec=spec, tmp=tmp_path) for a in argv], capsys)
+    assert rc == cli.EXIT_USAGE
+    assert err == [f"{prefix}--ray: Ray is not installed; pip install 'drlab[cluster]' (or ray>=2.9)"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["good.toml"]
