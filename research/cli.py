@@ -1,8 +1,9 @@
 """The `drlab` command line.
 
-    drlab dataset --scene NAME [--views N --res R --spp S --stereo --flow] --out DIR [--resume] [--force]
+    drlab dataset --scene NAME [--views N --res R --spp S --stereo --flow] --out DIR [--resume] [--force] [--ray]
     drlab run EXPERIMENT [--quick|--smoke] [--device cpu|cuda] [--out DIR] [--seed N] [-- EXPERIMENT OPTIONS]
-    drlab reproduce [--quick]          every registered experiment, then results/README.md
+    drlab reproduce [--quick] [--ray [--ray-address A]]   every registered experiment, then results/README.md
+    drlab sweep SPEC [--jobs N] [--ray [--ray-address A]]  a grid of runs from a TOML file (research.sweep)
     drlab gradcheck [KERNEL ...]       finite-difference table; exit status 1 on any failure
     drlab bench [FAMILY ...] [--json]  timings (median of >= 3 runs after a warm-up)
     drlab list                         registered experiments, gradient checks and bench families
@@ -103,8 +104,15 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     cfg = DatasetConfig(scene=args.scene, views=args.views, res=args.res, spp=args.spp, seed=args.seed,
                         stereo=args.stereo, stereo_pairs=args.stereo_pairs, baseline=args.baseline,
                         flow=args.flow, flow_frames=args.flow_frames)
+    ray = None
+    if args.ray or args.ray_address is not None:
+        from research.sweep import RayOptions, require_ray
+
+        cfg.validate()  # its one-line errors before Ray starts
+        require_ray()
+        ray = RayOptions(address=args.ray_address)
     t0 = time.perf_counter()
-    out = generate(cfg, args.out, resume=args.resume, force=args.force)
+    out = generate(cfg, args.out, resume=args.resume, force=args.force, ray=ray)
     manifest = json.loads((out / "manifest.json").read_text())
     print(f"wrote {out} in {time.perf_counter() - t0:.1f} s ({len(manifest['files'])} files, "
           f"variant {manifest['mitsuba_variant']}, content hash {manifest['content_hash'][:16]})")
@@ -229,15 +237,93 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         return 0
     results_dir = registry.results_dir(quick=args.quick)
     failed = []
-    for name in names:
-        if _run_one(name, args.quick, args.device, results_dir / name, None, ["--debug"] if args.debug else []) != 0:
-            failed.append(name)
+    if args.ray or args.ray_address is not None:
+        failed = _reproduce_on_ray(args, names, results_dir)
+    else:
+        for name in names:
+            if _run_one(name, args.quick, args.device, results_dir / name, None, ["--debug"] if args.debug else []) != 0:
+                failed.append(name)
     index = write_results_index(results_dir, names, args.quick)
     print(f"drlab reproduce: wrote {index}")
     if failed:
         print(f"drlab reproduce: failed: {', '.join(failed)}", file=sys.stderr)
         return 1
     return 0
+
+
+def _positive_int(value: str) -> int:
+    """argparse type of --jobs: an integer >= 1."""
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value!r}")
+    return n
+
+
+def _ray_address(value: str) -> str:
+    """argparse type of --ray-address: host:port, ray://host:port or `auto`."""
+    if not value.strip() or any(c.isspace() for c in value):
+        raise argparse.ArgumentTypeError(f"expected host:port, ray://host:port or auto, got {value!r}")
+    return value
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from research import sweep
+
+    spec = sweep.load_spec(args.spec)  # ValueError naming the file: before any run
+    if args.smoke:
+        spec = spec.smoke_variant()
+    root = Path(args.results) if args.results is not None else registry.results_dir()
+    if (root / spec.name).exists() and not (root / spec.name).is_dir():
+        raise ValueError(f"--results: {root / spec.name} is a file, expected the sweep's folder")
+    use_ray = args.ray or args.ray_address is not None
+    if use_ray:
+        sweep.require_ray()
+        opts = sweep.RayOptions(address=args.ray_address, num_cpus=args.jobs)
+        executor = sweep.ray_executor(opts, spec.cpus, spec.gpus, spec.max_retries)
+        name = f"ray ({args.ray_address})" if args.ray_address else "ray (local instance)"
+    else:
+        executor, name = sweep.local_executor(args.jobs or 1), f"local (--jobs {args.jobs or 1})"
+    runs = spec.runs()
+    print(f"drlab sweep {spec.name}: {len(runs)} runs of {spec.experiment} ({len(spec.points)} configurations x "
+          f"{len(spec.seeds)} seeds), {name}, into {(root / spec.name).absolute()}", flush=True)
+    result = sweep.run_sweep(spec, root, executor, progress=not args.no_progress, executor_name=name)
+    skipped = len(runs) - len(result.executed)
+    print(f"drlab sweep {spec.name}: {len(result.executed)} ran, {skipped} already complete; wrote {result.table_md}"
+          + (f" and {result.figure.name}" if result.figure else ""), flush=True)
+    if result.failed:
+        print(f"drlab sweep: {len(result.failed)} of {len(runs)} runs failed (table.md lists them; logs in "
+              f"{result.sweep_dir / 'logs'})", file=sys.stderr, flush=True)
+    return min(len(result.failed), 100)
+
+
+def _reproduce_on_ray(args: argparse.Namespace, names: list[str], results_dir: Path) -> list[str]:
+    """Every registered experiment as a Ray task (1 CPU each, bounded retries); the names that failed.
+
+    Each task runs the same `python -m experiments.<name> --out results/<name>` as a local reproduce, so
+    the folders are the same, timings aside; each experiment's output goes to build/logs/reproduce/.
+    """
+    from research import sweep
+
+    sweep.require_ray()
+    log_dir = registry.base_dir() / "build" / "logs" / ("reproduce-quick" if args.quick else "reproduce")
+    jobs = sweep.reproduce_jobs(names, results_dir, args.quick, args.device, log_dir,
+                                ["--debug"] if args.debug else [])
+    where = args.ray_address or "a local Ray instance"
+    print(f"drlab reproduce: {len(jobs)} experiments as Ray tasks on {where}; logs in {log_dir}", flush=True)
+    failed: list[str] = []
+
+    def done(outcome: dict) -> None:
+        status = "ok" if outcome["status"] == "ok" else f"FAILED: {outcome['error']}"
+        print(f"drlab reproduce: {outcome['key']}: {status} ({outcome['wall_s']:.1f} s on {outcome['host'] or '?'})",
+              flush=True)
+        if outcome["status"] != "ok":
+            failed.append(outcome["key"])
+
+    sweep.ray_executor(sweep.RayOptions(address=args.ray_address), cpus=1, gpus=0, max_retries=2)(jobs, done)
+    return [n for n in names if n in failed]
 
 
 def _cmd_gradcheck(args: argparse.Namespace) -> int:
@@ -316,6 +402,11 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", required=True, type=directory_path, help="output directory")
     d.add_argument("--resume", action="store_true", help="finish an interrupted run (<out>.partial)")
     d.add_argument("--force", action="store_true", help="replace an existing dataset")
+    d.add_argument("--ray", action="store_true",
+                   help="render the views as Ray tasks on a local Ray instance; same manifest and content hash as a "
+                        "single-process render on the same kind of machine")
+    d.add_argument("--ray-address", type=_ray_address, default=None,
+                   help="render them on this Ray cluster instead (implies --ray); --out must be a path every node sees")
     d.set_defaults(fn=_cmd_dataset)
 
     r = sub.add_parser(
@@ -340,7 +431,32 @@ def build_parser() -> argparse.ArgumentParser:
                     help="quick settings, written to build/results-quick (in the checkout, else under the current "
                          "directory)")
     rp.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
+    rp.add_argument("--ray", action="store_true",
+                    help="run the experiments as Ray tasks on a local Ray instance (no dashboard, loopback only)")
+    rp.add_argument("--ray-address", type=_ray_address, default=None,
+                    help="run them on this Ray cluster instead (implies --ray); results/ must be a path every node "
+                         "sees")
     rp.set_defaults(fn=_cmd_reproduce)
+
+    sw = sub.add_parser(
+        "sweep", help="run a grid of runs of one experiment from a TOML sweep file",
+        description="Run every configuration x seed of a sweep file (research.sweep describes the format) into "
+                    "<results>/<sweep>/<run-key>/, skipping runs already complete, then write table.md, "
+                    "table.json, figure.png and runs.json there. Exit status: the number of failed runs (0: all "
+                    "succeeded).")
+    sw.add_argument("spec", help="sweep file (TOML), e.g. experiments/sweeps/raft_ablation.toml")
+    sw.add_argument("--jobs", type=_positive_int, default=None,
+                    help="runs at a time (local executor, default 1); with --ray, the CPUs of the local Ray instance")
+    sw.add_argument("--ray", action="store_true",
+                    help="run each run as a Ray task on a local Ray instance (no dashboard, loopback only)")
+    sw.add_argument("--ray-address", type=_ray_address, default=None,
+                    help="join this Ray cluster instead (`ray start --head` prints it; implies --ray)")
+    sw.add_argument("--results", type=directory_path, default=None,
+                    help="results root (default: results/ in the checkout, else ./results)")
+    sw.add_argument("--smoke", action="store_true",
+                    help="tiny sizes: every run gets --smoke (instead of --quick); results in <sweep>-smoke")
+    sw.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    sw.set_defaults(fn=_cmd_sweep)
 
     g = sub.add_parser("gradcheck", help="finite-difference checks of every registered backward pass")
     g.add_argument("kernels", nargs="*", help="check names or prefixes (default: all)")
@@ -360,7 +476,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _command_name(argv: list[str]) -> str:
     """`drlab <command>` for messages: the first word that is a command, else plain `drlab`."""
-    commands = {"dataset", "run", "reproduce", "gradcheck", "bench", "list"}
+    commands = {"dataset", "run", "reproduce", "sweep", "gradcheck", "bench", "list"}
     word = next((a for a in argv if a in commands), None)
     return f"drlab {word}" if word else "drlab"
 

@@ -236,11 +236,18 @@ class _Writer:
 
 
 def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force: bool = False,
-             show_progress: bool = True) -> Path:
+             show_progress: bool = True, ray: Any = None) -> Path:
     """Render the dataset described by `cfg` into `out` (see module docstring). Returns `out`.
 
     Every argument is checked before anything is created: a bad one raises ValueError naming the
     `drlab dataset` option. `force` replaces only a directory that holds a drlab dataset.
+
+    `ray` (a research.sweep.RayOptions): render the views, stereo pairs and the flow sequence as Ray
+    tasks (`drlab dataset --ray`). Each task rebuilds the plan from `cfg` (the generator is
+    deterministic) and writes its files straight into `<out>.partial`, which must be on a path every
+    node sees; no image travels through this process. This process then hashes the files and writes
+    the manifest as a single-process render does, so the manifest's files and content hash are the
+    same as a local render's on the same kind of machine (research.results.host).
     """
     cfg.validate()
     out = check_out(out, force=force)
@@ -261,19 +268,23 @@ def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force
         else:
             partial.mkdir(parents=True)
             atomic.write_json(partial / PARTIAL_CONFIG, cfg_dict)  # first, before any work
-        _render(cfg, partial, show_progress)
+        _render(cfg, partial, show_progress, ray)
         commit(out, partial)
     return out
 
 
-def _render(cfg: DatasetConfig, partial: Path, show_progress: bool) -> None:
+def _render(cfg: DatasetConfig, partial: Path, show_progress: bool, ray: Any = None) -> None:
     """Every file of the dataset, then manifest.json (and the verification cache), inside `partial`."""
     w = _Writer(cfg, partial)
     plan = w.multiview_plan()
     stereo_plan = w.stereo_plan() if cfg.stereo else []
     flow_cams = w.flow_cameras() if cfg.flow else []
     total = len(plan) + len(stereo_plan) + len(flow_cams)
-    with tqdm(total=total, desc=f"dataset {cfg.scene}", unit="view", disable=not show_progress) as bar:
+    ray_variant = None
+    if ray is not None:  # the tasks render every file; the loop below then finds them all and renders nothing
+        ray_variant = _render_on_ray(cfg, partial, len(plan), len(stereo_plan), bool(flow_cams), ray, show_progress)
+    with tqdm(total=total, desc=f"dataset {cfg.scene}", unit="view",
+              disable=not show_progress or ray is not None) as bar:
         for stem, _, cam, seed in plan:
             w.render_view(stem, cam, seed)
             bar.update()
@@ -289,7 +300,7 @@ def _render(cfg: DatasetConfig, partial: Path, show_progress: bool) -> None:
     skip = {MANIFEST, PARTIAL_CONFIG, VERIFIED}
     files = {p.relative_to(partial).as_posix(): file_sha256(p)
              for p in sorted(partial.rglob("*")) if p.is_file() and p.relative_to(partial).as_posix() not in skip}
-    variant = w._renderer.variant if w._renderer is not None else _recorded_variant(partial)
+    variant = w._renderer.variant if w._renderer is not None else ray_variant or _recorded_variant(partial)
     atomic.write_json(partial / MANIFEST, {
         "generator": GENERATOR,
         "generator_revision": GENERATOR_REVISION,
@@ -303,6 +314,60 @@ def _render(cfg: DatasetConfig, partial: Path, show_progress: bool) -> None:
         "files": files,
     })
     write_cache(partial, (partial / MANIFEST).read_bytes(), files)
+
+
+_WORKER_WRITERS: dict[tuple[str, str], _Writer] = {}
+
+
+def render_item(cfg_dict: dict[str, Any], partial: str, kind: str, index: int) -> str | None:
+    """One Ray task of `drlab dataset --ray`: multi-view view `index`, stereo pair `index` or ("flow") the
+    whole flow sequence (its frames share geometry), written into `partial`; the Mitsuba variant used.
+
+    The writer (and its Mitsuba scene) is kept per worker process, so a worker's later tasks reuse it.
+    """
+    key = (json.dumps(cfg_dict, sort_keys=True), partial)
+    w = _WORKER_WRITERS.get(key)
+    if w is None:
+        _WORKER_WRITERS.clear()
+        w = _WORKER_WRITERS[key] = _Writer(DatasetConfig(**cfg_dict), Path(partial))
+    if kind == "view":
+        stem, _, cam, seed = w.multiview_plan()[index]
+        w.render_view(stem, cam, seed)
+    elif kind == "stereo":
+        w.render_stereo_pair(*w.stereo_plan()[index])
+    elif kind == "flow":
+        w.render_flow(w.flow_cameras(), lambda: None)
+    else:
+        raise ValueError(f"unknown render task kind {kind!r}")
+    return w._renderer.variant if w._renderer is not None else None
+
+
+def _render_on_ray(cfg: DatasetConfig, partial: Path, views: int, pairs: int, flow: bool, opts: Any,
+                   show_progress: bool) -> str | None:
+    """Render every item as a Ray task (1 CPU each, worker deaths retried twice); the Mitsuba variant used."""
+    from research.sweep import ray_session
+
+    items = [("view", k) for k in range(views)] + [("stereo", k) for k in range(pairs)] + ([("flow", 0)] if flow else [])
+    cfg_dict = asdict(cfg)
+    variants = set()
+    with ray_session(opts) as ray:
+        task = ray.remote(render_item).options(num_cpus=1, max_retries=2, retry_exceptions=False)
+        pending = [task.remote(cfg_dict, str(partial.absolute()), kind, k) for kind, k in items]
+        with tqdm(total=len(items), desc=f"dataset {cfg.scene} (ray)", unit="task", disable=not show_progress) as bar:
+            try:
+                while pending:
+                    done, pending = ray.wait(pending, num_returns=1)
+                    variants.add(ray.get(done[0]))
+                    bar.update()
+            except BaseException:
+                for ref in pending:
+                    ray.cancel(ref, force=True)
+                raise
+    variants.discard(None)
+    if len(variants) > 1:
+        raise RuntimeError(f"the Ray workers rendered with different Mitsuba variants {sorted(variants)}; the "
+                           "dataset would mix them")
+    return variants.pop() if variants else None
 
 
 def _recorded_variant(root: Path) -> str:
