@@ -1,0 +1,260 @@
+"""One run of a sweep and the executors that run many: local processes (--jobs) or Ray tasks."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from research.sweep.spec import RUN_FILE, Run
+
+# --------------------------------------------------------------------------- one run (both executors)
+
+
+def _pdeathsig_hook() -> Callable[[], None] | None:
+    """A preexec_fn that makes the experiment process get SIGTERM when the thread that started it dies
+    (Linux PR_SET_PDEATHSIG), so a run never outlives its Ray worker. Everything it needs is resolved
+    here, in the parent: between fork and exec the child only calls prctl (no import, no lock)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+    import signal
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    args = (ctypes.c_int(1), ctypes.c_ulong(int(signal.SIGTERM)))  # PR_SET_PDEATHSIG
+
+    def hook() -> None:  # pragma: no cover - runs in the child
+        prctl(*args)
+
+    return hook
+
+
+def _stop(proc, grace_s: float = 30.0) -> int:
+    """SIGTERM (the experiment deletes its temporary folder), then SIGKILL after `grace_s`; the exit status."""
+    import subprocess
+
+    proc.terminate()
+    try:
+        return proc.wait(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def execute_run(job: dict[str, Any]) -> dict[str, Any]:
+    """Run one experiment process for `job` (a plain dict, so it travels to Ray workers); its outcome.
+
+    Used by the local executor and, unchanged, inside each Ray task. Only the standard library is
+    imported here: the worker needs the experiment's code on PYTHONPATH (job["env"]), not the driver's.
+    Returns {"key", "status": "ok"|"failed", "rc", "error", "wall_s", "host", "pid"}. job["seed"] None:
+    the experiment's own default; job["record"] False: no sweep-run.json (drlab reproduce --ray).
+    """
+    import subprocess
+
+    out, log = Path(job["out"]), Path(job["log"])
+    log.parent.mkdir(parents=True, exist_ok=True)
+    safe_path = ["-P"] if sys.version_info >= (3, 11) else []
+    cmd = [sys.executable, *safe_path, "-m", f"experiments.{job['experiment']}", "--device", job["device"],
+           "--out", str(out), *(["--seed", str(job["seed"])] if job["seed"] is not None else []),
+           "--no-progress", *job["argv"]]
+    env = {**os.environ, **job["env"]}
+    env.pop("DRLAB_PROG", None)
+    t0 = time.perf_counter()
+    host = socket.gethostname()
+    with open(log, "ab") as f:
+        start = f.tell()
+        f.write(f"== drlab sweep: run {job['key']} on {host}, worker pid {os.getpid()}, "
+                f"{time.strftime('%Y-%m-%d %H:%M:%S')}: {' '.join(cmd[1:])}\n".encode())
+        f.flush()
+        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                cwd=job["cwd"], env=env, preexec_fn=_pdeathsig_hook())
+        try:
+            rc = proc.wait(timeout=job["timeout_s"])
+            timed_out = False
+        except subprocess.TimeoutExpired:
+            rc = _stop(proc)
+            timed_out = True
+        except BaseException:  # Ctrl-C, or Ray cancelling the task
+            _stop(proc)
+            raise
+    wall = time.perf_counter() - t0
+    result = {"key": job["key"], "rc": rc, "wall_s": wall, "host": host, "pid": os.getpid()}
+    if rc == 0 and not timed_out:
+        if not job.get("record", True):
+            return {**result, "status": "ok", "error": ""}
+        record = {"key": job["key"], "config": job["config"], "status": "ok"}
+        tmp = out / f".{RUN_FILE}.tmp-{os.getpid()}"
+        tmp.write_text(json.dumps(record, indent=2) + "\n")
+        os.replace(tmp, out / RUN_FILE)
+        return {**result, "status": "ok", "error": ""}
+    if timed_out:
+        error = f"timed out after {job['timeout_s']:g} s (stopped)"
+    else:
+        with open(log, "rb") as f:
+            f.seek(start)
+            lines = [ln.strip() for ln in f.read().decode(errors="replace").splitlines() if ln.strip()]
+        lines = [ln for ln in lines[1:] if not ln.startswith("== drlab sweep:")]
+        error = (lines[-1] if lines else "") or f"exit status {rc}"
+        if rc < 0:
+            error = f"killed by signal {-rc}" + (f"; last line: {lines[-1]}" if lines else "")
+    return {**result, "status": "failed", "error": f"exit {rc}: {error}" if rc > 0 and not timed_out else error}
+
+
+def is_complete(run: Run, folder: Path) -> bool:
+    """Whether `folder` holds the finished results of `run` (metrics.json and sweep-run.json agree)."""
+    try:
+        doc = json.loads((folder / "metrics.json").read_text())
+        record = json.loads((folder / RUN_FILE).read_text())
+    except (OSError, ValueError):
+        return False
+    return (isinstance(doc, dict) and doc.get("experiment") == run.experiment and doc.get("seed") == run.seed
+            and isinstance(doc.get("metrics"), dict) and isinstance(record, dict)
+            and record.get("key") == run.key and record.get("status") == "ok")
+
+
+# --------------------------------------------------------------------------- executors
+
+
+Executor = Callable[[list[dict[str, Any]], Callable[[dict[str, Any]], None]], None]
+
+
+def local_executor(jobs: int) -> Executor:
+    """Runs in threads of this process, each waiting on one experiment process; `jobs` at a time."""
+
+    def execute(todo: list[dict[str, Any]], done: Callable[[dict[str, Any]], None]) -> None:
+        if jobs == 1:
+            for job in todo:
+                done(execute_run(job))
+            return
+        from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+
+        pool = ThreadPoolExecutor(max_workers=jobs)
+        try:
+            pending = {pool.submit(execute_run, job) for job in todo}
+            while pending:
+                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    done(fut.result())
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    return execute
+
+
+def _ray_task(job: dict[str, Any]) -> dict[str, Any]:
+    return execute_run(job)
+
+
+def require_ray() -> None:
+    """ValueError naming --ray unless Ray can be imported (checked before any work)."""
+    import importlib.util
+
+    if importlib.util.find_spec("ray") is None:
+        raise ValueError("--ray: Ray is not installed; pip install 'drlab[cluster]' (or ray>=2.9)")
+
+
+@dataclass
+class RayOptions:
+    address: str | None = None  # join this cluster; None: start a local instance
+    num_cpus: int | None = None  # CPUs of a local instance (None: all of this machine's)
+    temp_dir: str | None = None  # Ray's session folder of a local instance (None: Ray's default)
+
+
+def ray_session(opts: RayOptions):
+    """Context manager: connect to `opts.address` or start a bounded local Ray instance; shut down after.
+
+    A local instance has no dashboard and listens on the loopback address only. Already connected
+    (ray.is_initialized(), e.g. by a test), it is used as it is and left running.
+    """
+    import contextlib
+
+    @contextlib.contextmanager
+    def session():
+        try:
+            import ray
+        except ImportError:
+            raise ValueError("--ray: Ray is not installed; pip install 'drlab[cluster]' (or ray>=2.9)") from None
+        if ray.is_initialized():
+            yield ray
+            return
+        if opts.address:
+            ray.init(address=opts.address, log_to_driver=False, logging_level="ERROR")
+        else:
+            from research import registry
+
+            # Workers of a local instance inherit this environment: they import this checkout's code.
+            saved = os.environ.get("PYTHONPATH")
+            if registry.in_checkout():
+                os.environ["PYTHONPATH"] = os.pathsep.join([str(registry.REPO_ROOT)] + ([saved] if saved else []))
+            try:
+                ray.init(num_cpus=opts.num_cpus, include_dashboard=False, _node_ip_address="127.0.0.1",
+                         log_to_driver=False, logging_level="ERROR", _temp_dir=opts.temp_dir,
+                         configure_logging=True)
+            finally:
+                if saved is None:
+                    os.environ.pop("PYTHONPATH", None)
+                else:
+                    os.environ["PYTHONPATH"] = saved
+        try:
+            yield ray
+        finally:
+            ray.shutdown()
+
+    return session()
+
+
+def ray_executor(opts: RayOptions, cpus: float, gpus: float, max_retries: int) -> Executor:
+    """Each run is a Ray task running the same `execute_run`; a task whose worker died is retried."""
+
+    def execute(todo: list[dict[str, Any]], done: Callable[[dict[str, Any]], None]) -> None:
+        with ray_session(opts) as ray:
+            remote = ray.remote(_ray_task).options(num_cpus=cpus, num_gpus=gpus, max_retries=max_retries,
+                                                   retry_exceptions=False)
+            refs = {remote.remote(job): job for job in todo}
+            pending = list(refs)
+            try:
+                while pending:
+                    finished, pending = ray.wait(pending, num_returns=1)
+                    for ref in finished:
+                        try:
+                            done(ray.get(ref))
+                        except Exception as e:  # the worker died more than max_retries times, or Ray failed
+                            job = refs[ref]
+                            done({"key": job["key"], "status": "failed", "rc": None, "wall_s": 0.0, "host": "",
+                                  "pid": None, "error": f"Ray task failed after {max_retries} retries: "
+                                                        f"{type(e).__name__}: {_first_line(e)}"})
+            except BaseException:
+                for ref in pending:
+                    ray.cancel(ref, force=True)
+                raise
+
+    return execute
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0] if text else ""
+
+
+def reproduce_jobs(names: list[str], results_dir: Path, quick: bool, device: str, log_dir: Path,
+                   extra: list[str]) -> list[dict[str, Any]]:
+    """`drlab reproduce --ray`: one job per registered experiment, into results_dir/<name> as a local
+    reproduce writes it (no sweep-run.json), its output in log_dir/<name>.log."""
+    from research.cli import _experiment_env
+
+    env = _experiment_env()
+    keep = {k: env[k] for k in ("PYTHONPATH",) if k in env}
+    return [{"key": name, "experiment": name, "device": device, "seed": None,
+             "argv": (["--quick"] if quick else []) + list(extra), "config": {"experiment": name, "quick": quick},
+             "out": str(Path(results_dir).absolute() / name), "log": str(Path(log_dir).absolute() / f"{name}.log"),
+             "cwd": os.getcwd(), "env": keep, "timeout_s": 24 * 3600.0, "record": False} for name in names]
+
+
