@@ -36,6 +36,9 @@ skipped with a note. Sequences without gt/gt.txt (the test split) are listed, no
 tracker's output is written in the MOTChallenge result format to tracks/<tracker>/<sequence>.txt,
 ready for TrackEval. --sequences and --frames limit the sequences and frames used (smoke: 1
 sequence, 40 frames; quick: 100 frames). No figures on this path.
+
+Two runs share this module (the synthetic sequences and the MOTChallenge folders of --data); at
+about 610 lines it stays one module, as every experiment is one.
 """
 
 from __future__ import annotations

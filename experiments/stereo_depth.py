@@ -40,6 +40,9 @@ bad-0.5/1/2/4 and avgerr on nonocc and all; KITTI D1-bg/fg/all on noc and occ; E
 avgerr), at `--resolution` (full, half or quarter of the stored Middlebury/ETH3D files). Such a run
 needs its own `--out` (the default results/stereo_depth holds the Mitsuba table) and writes table.md,
 metrics.json and disparity_maps.png (the first pair); --smoke reads the first 2 pairs, --quick the first 5.
+
+Two runs share this module (the Mitsuba tuning table and the benchmark protocols of --data), and
+some of their table code; at about 650 lines it stays one module, as every experiment is one.
 """
 
 from __future__ import annotations

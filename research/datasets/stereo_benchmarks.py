@@ -173,14 +173,19 @@ def read_calib(path: str | Path) -> StereoCalib:
 # --------------------------------------------------------------------------- pixels
 
 
-def read_image(path: Path) -> np.ndarray:
-    """A stored 8- or 16-bit PNG image as uint8/uint16 (H, W) grey or (H, W, 3) colour (alpha dropped)."""
+def _png_codes(path: Path) -> np.ndarray:
+    """The stored uint8/uint16 codes (H, W, C) of a PNG; DatasetError naming the file otherwise."""
     if not path.is_file():
         raise DatasetError(f"{path}: missing")
     try:
-        pixels = io.read_png_raw(path)
+        return io.read_png_raw(path)
     except ValueError as e:
         raise DatasetError(str(e)) from None
+
+
+def read_image(path: Path) -> np.ndarray:
+    """A stored 8- or 16-bit PNG image as uint8/uint16 (H, W) grey or (H, W, 3) colour (alpha dropped)."""
+    pixels = _png_codes(path)
     c = pixels.shape[2]
     if c in (1, 2):
         return np.ascontiguousarray(pixels[..., 0])
@@ -196,12 +201,7 @@ def _linear_rgba(img: np.ndarray) -> np.ndarray:
 def read_kitti_disparity(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """A KITTI disparity PNG: (disparity = value / 256 as float32, valid = value > 0)."""
     path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing")
-    try:
-        pixels = io.read_png_raw(path)
-    except ValueError as e:
-        raise DatasetError(str(e)) from None
+    pixels = _png_codes(path)
     if pixels.dtype != np.uint16 or pixels.shape[2] != 1:
         bits = pixels.dtype.itemsize * 8
         raise DatasetError(f"{path}: expected a 16-bit grey PNG (KITTI disparity = value / 256, 0 = invalid), "
