@@ -163,17 +163,22 @@ def host_view(x: ArrayLike) -> np.ndarray | None:
     return np.asarray(x)
 
 
-def device_count(kernel: Any, dim: int, inputs: list[Any], device: wp.Device) -> int:
-    """Run a counting kernel as ONE launch and return its count.
+def device_counts(kernel: Any, dim: int, inputs: list[Any], device: wp.Device, slots: int = 1) -> tuple[int, ...]:
+    """Run a counting kernel as ONE launch and return its `slots` counts.
 
-    The kernel's last parameter is `count: wp.array(dtype=wp.int32)` of one element, into which
-    offending threads `wp.atomic_add(count, 0, 1)`. One launch keeps the atomics exact on every
-    device (on the CPU one launch is one thread; docs/warp.md). Reading the count back is the only
-    transfer: the data stays where it is.
+    The kernel's last parameter is `count: wp.array(dtype=wp.int32)` of `slots` elements, into
+    which offending threads `wp.atomic_add(count, j, 1)` for the check j they fail. One launch
+    keeps the atomics exact on every device (on the CPU one launch is one thread; docs/warp.md).
+    Reading the counts back is the only transfer: the data stays where it is.
     """
-    count = wp.zeros(1, dtype=wp.int32, device=device)
+    count = wp.zeros(slots, dtype=wp.int32, device=device)
     wp.launch(kernel, dim=dim, inputs=[*inputs, count], device=device)
-    return int(count.numpy()[0])
+    return tuple(int(c) for c in count.numpy())
+
+
+def device_count(kernel: Any, dim: int, inputs: list[Any], device: wp.Device) -> int:
+    """`device_counts` of a kernel with one count."""
+    return device_counts(kernel, dim, inputs, device)[0]
 
 
 def _device_count(kernel: Any, x: wp.array, *extra: Any) -> int:

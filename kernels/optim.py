@@ -11,8 +11,8 @@ sqrt(v) / sqrt(1 - b2^t) + eps, the same number up to rounding. One thread per e
 every thread writes only its own element, so the launch splits across CPU threads
 (kernels.launch). The hyper-parameters reach the kernel as float64 (a Python float passed to a
 Warp `float` parameter would be rounded to float32, which costs float64 groups about 1e-7 of
-relative accuracy) and are rounded once to the group's dtype. Groups are float32 or float64 arrays, NumPy (updated in place through a
-zero-copy view, CPU only) or wp.arrays on any device. Rows can be kept (`select`) or added
+relative accuracy) and are rounded once to the group's dtype. Groups are float32 or float64
+arrays, NumPy (updated in place through a zero-copy view, CPU only) or wp.arrays on any device. Rows can be kept (`select`) or added
 with zero moments (`append`) as 3DGS densification does; its optimiser keeps each group's step
 count across such edits, and so does this one. warp.optim.Adam exists but takes float32 only
 and keeps one step count for all groups.

@@ -217,8 +217,7 @@ def ssim_map_backward(state: SSIMState, grad_map: Any) -> tuple[Any, Any]:
 def ssim(x: Any, y: Any, *, data_range: float = 1.0, device: Any = None) -> tuple[float, Any]:
     """Mean SSIM of x against y, and its gradient with respect to x (in the kind of x)."""
     state = ssim_map(x, y, data_range=data_range, device=device)
-    n = int(np.prod(state.x.shape))
-    grad = state.inputs().zeros(state.x.shape)
-    grad.fill_(state.x.dtype(1.0 / n))
+    grad = state.inputs().empty(state.x.shape)
+    grad.fill_(state.x.dtype(1.0 / state.x.size))
     dx, _ = ssim_map_backward(state, grad)
     return state.mean(), dx

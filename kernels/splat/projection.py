@@ -433,10 +433,8 @@ def _check_values(quats: wp.array, log_scales: wp.array) -> None:
             raise ValueError(f"log_scales: |log-scale| up to {big:.3g}; expected values in [-80, 80] "
                              "(scales are exp(log_scales), and must stay finite and non-zero)")
         return
-    count = wp.zeros(2, dtype=wp.int32, device=quats.device)
-    wp.launch(_count_bad_kernel, dim=quats.shape[0], inputs=[quats, log_scales, LOG_SCALE_BOUND, count],
-              device=quats.device)
-    bad_q, bad_l = (int(x) for x in count.numpy())
+    bad_q, bad_l = A.device_counts(_count_bad_kernel, quats.shape[0], [quats, log_scales, LOG_SCALE_BOUND],
+                                   quats.device, slots=2)
     if bad_q:
         raise ValueError(f"quats: {bad_q} quaternions have zero norm; expected non-zero quaternions")
     if bad_l:

@@ -180,10 +180,8 @@ def _check_splats(conics: wp.array, opacities: wp.array, radii: wp.array) -> Non
         bad_q = bool(np.any(q[:, 0] <= 0) or np.any(q[:, 0] * q[:, 2] - q[:, 1] ** 2 <= 0))
         bad_o = bool(np.any(o < 0) or np.any(o > 1))
     else:
-        count = wp.zeros(2, dtype=wp.int32, device=conics.device)
-        wp.launch(_count_invalid_kernel, dim=radii.shape[0], inputs=[conics, opacities, radii, count],
-                  device=conics.device)
-        bad_q, bad_o = (bool(c) for c in count.numpy())
+        bad_q, bad_o = (bool(c) for c in A.device_counts(_count_invalid_kernel, radii.shape[0],
+                                                          [conics, opacities, radii], conics.device, slots=2))
     if bad_q:
         raise ValueError("conics: expected positive definite (Q00, Q01, Q11) for every splat with radius > 0")
     if bad_o:

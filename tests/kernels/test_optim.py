@@ -63,3 +63,22 @@ def test_bad_inputs_name_the_argument():
     with pytest.raises(ValueError, match="grads\\['x'\\]: expected dtype float64"):
         opt.step({"x": np.zeros(3, np.float32)})
     assert opt.t == {"x": 0} and not p.any()  # nothing was updated
+
+
+def test_more_bad_inputs_name_the_argument():
+    p = np.zeros(3)
+    with pytest.raises(ValueError, match="params: expected at least one parameter group"):
+        Adam({})
+    with pytest.raises(ValueError, match="eps: expected a finite non-negative number"):
+        Adam({"x": p}, eps=-1.0)
+    with pytest.raises(ValueError, match="lr: expected one rate per parameter"):
+        Adam({"x": p}, lr={"y": 1e-3})
+    with pytest.raises(ValueError, match="params\\['x'\\]: expected a C-contiguous NumPy array"):
+        Adam({"x": np.zeros((3, 2))[:, 0]})
+    opt = Adam({"x": p})
+    with pytest.raises(ValueError, match="params: expected the groups \\['x'\\]"):
+        opt.step({"x": np.zeros(3)}, params={"y": np.zeros(3)})
+    with pytest.raises(ValueError, match="n: expected an integer >= 0"):
+        opt.append(-1)
+    with pytest.raises(ValueError, match="name: expected one of \\['x'\\]"):
+        opt.reset("y")

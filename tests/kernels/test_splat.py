@@ -398,3 +398,11 @@ def test_value_checks_switch_and_device_counting_kernels():
     wp.launch(tiles._count_invalid_kernel, dim=4, inputs=[wp.array(conics), wp.array(opacities),
                                                           wp.array(radii, dtype=wp.int32), count], device="cpu")
     assert list(count.numpy()) == [2, 2]  # splat 3's conic is not checked: radius 0
+    # The same counts through the helper the CUDA branches of the checks call.
+    from kernels._arrays import device_counts
+    assert device_counts(projection._count_bad_kernel, 4, [wp.array(quats), wp.array(log_scales),
+                                                           projection.LOG_SCALE_BOUND], wp.get_device("cpu"),
+                         slots=2) == (2, 3)
+    assert device_counts(tiles._count_invalid_kernel, 4, [wp.array(conics), wp.array(opacities),
+                                                          wp.array(radii, dtype=wp.int32)], wp.get_device("cpu"),
+                         slots=2) == (2, 2)
