@@ -228,32 +228,37 @@ def _check_settings(half_window: Any, iterations: Any, min_eigenvalue: Any) -> t
 
 
 def _gradients_wp(img: wp.array, a: Inputs) -> tuple[wp.array, wp.array]:
-    ix = a.zeros(img.shape)
-    iy = a.zeros(img.shape)
+    ix = a.empty(img.shape)
+    iy = a.empty(img.shape)
     a.launch(_gradients, img.size, [img, ix, iy])
     return ix, iy
 
 
 def _downsample_wp(img: wp.array, a: Inputs) -> wp.array:
-    out = a.zeros((img.shape[0] // 2, img.shape[1] // 2))
+    out = a.empty((img.shape[0] // 2, img.shape[1] // 2))
     a.launch(_downsample, out.size, [img, out])
     return out
 
 
 def _upsample_wp(flow: wp.array, height: int, width: int, a: Inputs) -> wp.array:
-    fine = a.zeros((height, width, 2))
+    fine = a.empty((height, width, 2))
     a.launch(_upsample_flow, height * width, [flow, fine])
     return fine
 
 
 def _refine(img1: wp.array, img2: wp.array, flow: wp.array, half_window: int, iterations: int,
             min_eigenvalue: float, a: Inputs) -> tuple[wp.array, wp.array, wp.array]:
-    """`iterations` steps (2) at one level, each warping frame 2 with the current flow."""
+    """`iterations` steps (2) at one level, each warping frame 2 with the current flow.
+
+    Every kernel here writes all of its outputs, so the buffers start empty; the steps alternate
+    between two flow buffers (never writing the caller's `flow`).
+    """
     ix, iy = _gradients_wp(img1, a)
-    min_eig = a.zeros(img1.shape)
-    valid = a.zeros(img1.shape, wp.uint8)
-    for _ in range(iterations):
-        nxt = a.zeros(flow.shape)
+    min_eig = a.empty(img1.shape)
+    valid = a.empty(img1.shape, wp.uint8)
+    buffers = [a.empty(flow.shape) for _ in range(min(iterations, 2))]
+    for k in range(iterations):
+        nxt = buffers[k % 2]
         a.launch(_lk_step, img1.size, [img1, ix, iy, img2, flow, nxt, min_eig, valid, half_window,
                                        a.s(min_eigenvalue)])
         flow = nxt

@@ -270,6 +270,7 @@ def pack_samples(a: A.Inputs, origins: A.ArrayLike, dirs: A.ArrayLike, bbox: Any
                                                  s.ray_index], min_chunk=256)
     return s
 
+
 def dense_samples(
     origins: np.ndarray,
     dirs: np.ndarray,
