@@ -37,9 +37,15 @@ def check_range(dmin: Any, dmax: Any, width: int) -> tuple[int, int]:
     return dmin, dmax - dmin
 
 
-def check_dmin(dmin: Any, hypotheses: int, width: int) -> int:
-    """Validate dmin for a volume of `hypotheses` hypotheses over an image `width` pixels wide; returns it."""
-    return check_range(dmin, check_int("dmin", dmin) + hypotheses, width)[0]
+def check_dmin(dmin: Any, hypotheses: int, width: int, volume: str = "cost") -> int:
+    """Validate dmin for the argument `volume` holding `hypotheses` hypotheses over an image `width`
+    pixels wide; returns it. A volume with too many hypotheses is the volume's error, not dmax's
+    (these entry points have no dmax)."""
+    dmin = check_int("dmin", dmin)
+    if hypotheses > width:
+        raise ValueError(f"{volume}: holds {hypotheses} disparity hypotheses [dmin, dmin + D), more than the "
+                         f"image width {width}")
+    return check_range(dmin, dmin + hypotheses, width)[0]
 
 
 def image_pair(a: Inputs, left: Any, right: Any, ndim: int = 2, names: tuple[str, str] = ("left", "right")

@@ -397,7 +397,7 @@ def feature_correlation_backward(feat_left: Any, feat_right: Any, grad_corr: Any
     fl, fr = image_pair(a, feat_left, feat_right, 3, ("feat_left", "feat_right"))
     C, H, W = fl.shape
     g = a.floats("grad_corr", grad_corr, (H, W, None))
-    dmin = check_dmin(dmin, g.shape[2], W)
+    dmin = check_dmin(dmin, g.shape[2], W, "grad_corr")
     dfl = a.empty(fl.shape)
     dfr = a.empty(fr.shape)
     scale = wp.float64(1.0 / math.sqrt(C))

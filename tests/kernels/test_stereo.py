@@ -275,6 +275,8 @@ def test_bad_disparity_range(drange, match):
             fn(L, R, *drange)
     with pytest.raises(ValueError, match="dmin|dmax"):
         stereo.wta(np.zeros((3, 4, 5)), 0)  # 5 hypotheses on a 4-pixel-wide image
+    with pytest.raises(ValueError, match="^cost: holds 5 disparity hypotheses"):
+        stereo.wta(np.zeros((3, 4, 5)), 0)
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
