@@ -248,6 +248,14 @@ def _numbered(folder: Path, pattern: str) -> dict[int, Path]:
     return out
 
 
+def _subfolders(folder: Path, what: str) -> list[str]:
+    """The names of `folder`'s subfolders, sorted; a DatasetError when it has none."""
+    names = sorted(p.name for p in folder.iterdir() if p.is_dir())
+    if not names:
+        raise DatasetError(f"{folder}: holds no {what} folders")
+    return names
+
+
 def _open_sintel(root: Path, pass_: str | None) -> FlowBenchmark:
     pass_ = pass_ or "clean"
     base = _base(root, "flow")
@@ -256,9 +264,7 @@ def _open_sintel(root: Path, pass_: str | None) -> FlowBenchmark:
         raise DatasetError(f"{frames_dir}: missing (the {pass_} pass's frames)")
     if not occ_dir.is_dir():
         raise DatasetError(f"{occ_dir}: missing (the matched / unmatched regions need Sintel's occlusion masks)")
-    scenes = sorted(p.name for p in flow_dir.iterdir() if p.is_dir())
-    if not scenes:
-        raise DatasetError(f"{flow_dir}: holds no scene folders")
+    scenes = _subfolders(flow_dir, "scene")
     items = []
     for scene in scenes:
         flows = _numbered(flow_dir / scene, r"frame_(\d{4})\.flo")
@@ -307,9 +313,7 @@ def _open_middlebury(root: Path, pass_: str | None) -> FlowBenchmark:
     data_dir = next((root / d for d in ("other-data", "other-data-gray") if (root / d).is_dir()), None)
     if data_dir is None:
         raise DatasetError(f"{root / 'other-data'}: missing (the frames of the other-gt-flow sequences)")
-    scenes = sorted(p.name for p in gt_dir.iterdir() if p.is_dir())
-    if not scenes:
-        raise DatasetError(f"{gt_dir}: holds no sequence folders")
+    scenes = _subfolders(gt_dir, "sequence")
     items = []
     for scene in scenes:
         item = FlowItem(scene, (data_dir / scene / "frame10.png", data_dir / scene / "frame11.png"),
