@@ -45,7 +45,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from research import io
-from research.datasets.integrity import DatasetError
+from research.datasets.integrity import DatasetError, read_or_fail
 from research.datasets.loader import FlowSequence
 
 FORMATS = ("sintel", "kitti", "middlebury")
@@ -248,6 +248,14 @@ def _numbered(folder: Path, pattern: str) -> dict[int, Path]:
     return out
 
 
+def _subfolders(folder: Path, what: str) -> list[str]:
+    """The names of `folder`'s subfolders, sorted; a DatasetError when it has none."""
+    names = sorted(p.name for p in folder.iterdir() if p.is_dir())
+    if not names:
+        raise DatasetError(f"{folder}: holds no {what} folders")
+    return names
+
+
 def _open_sintel(root: Path, pass_: str | None) -> FlowBenchmark:
     pass_ = pass_ or "clean"
     base = _base(root, "flow")
@@ -256,9 +264,7 @@ def _open_sintel(root: Path, pass_: str | None) -> FlowBenchmark:
         raise DatasetError(f"{frames_dir}: missing (the {pass_} pass's frames)")
     if not occ_dir.is_dir():
         raise DatasetError(f"{occ_dir}: missing (the matched / unmatched regions need Sintel's occlusion masks)")
-    scenes = sorted(p.name for p in flow_dir.iterdir() if p.is_dir())
-    if not scenes:
-        raise DatasetError(f"{flow_dir}: holds no scene folders")
+    scenes = _subfolders(flow_dir, "scene")
     items = []
     for scene in scenes:
         flows = _numbered(flow_dir / scene, r"frame_(\d{4})\.flo")
@@ -307,9 +313,7 @@ def _open_middlebury(root: Path, pass_: str | None) -> FlowBenchmark:
     data_dir = next((root / d for d in ("other-data", "other-data-gray") if (root / d).is_dir()), None)
     if data_dir is None:
         raise DatasetError(f"{root / 'other-data'}: missing (the frames of the other-gt-flow sequences)")
-    scenes = sorted(p.name for p in gt_dir.iterdir() if p.is_dir())
-    if not scenes:
-        raise DatasetError(f"{gt_dir}: holds no sequence folders")
+    scenes = _subfolders(gt_dir, "sequence")
     items = []
     for scene in scenes:
         item = FlowItem(scene, (data_dir / scene / "frame10.png", data_dir / scene / "frame11.png"),
@@ -322,19 +326,9 @@ def _open_middlebury(root: Path, pass_: str | None) -> FlowBenchmark:
 # --------------------------------------------------------------------------- pixels
 
 
-def _read(reader, path: Path) -> np.ndarray:
-    try:
-        return reader(path)
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: missing") from None
-    except ValueError as e:
-        text = " ".join(str(e).split())  # one line, whatever the decoder said
-        raise DatasetError(text if text.startswith(str(path)) else f"{path}: {text}") from None
-
-
 def _frame(path: Path, size: tuple[int, int]) -> np.ndarray:
     """(H, W, 4) linear RGBA, alpha 1, from an 8-bit sRGB PNG (grey repeated, a stored alpha dropped)."""
-    rgb = _read(lambda p: io.read_png(p, linear=True), path)
+    rgb = read_or_fail(lambda p: io.read_png(p, linear=True), path)
     c = rgb.shape[2]
     rgb = np.repeat(rgb[..., :1], 3, axis=2) if c in (1, 2) else rgb[..., :3]
     if rgb.shape[:2] != (size[1], size[0]):
@@ -343,11 +337,11 @@ def _frame(path: Path, size: tuple[int, int]) -> np.ndarray:
 
 
 def _mask(path: Path) -> np.ndarray:
-    return _read(io.read_png_u8, path)[..., 0] > 127
+    return read_or_fail(io.read_png_u8, path)[..., 0] > 127
 
 
 def _flo(path: Path) -> np.ndarray:
-    flow = _read(io.read_flo, path)
+    flow = read_or_fail(io.read_flo, path)
     if np.isnan(flow).any():
         raise DatasetError(f"{path}: holds {int(np.isnan(flow).sum())} NaN flow values")
     return flow
@@ -393,8 +387,8 @@ def _load_sintel(item: FlowItem) -> FlowSequence:
 
 def _load_kitti(item: FlowItem) -> FlowSequence:
     frames = np.stack([_frame(p, item.size) for p in item.frames])
-    flow, known_all = kitti_decode(_read(io.read_png_u16, item.flows[0]), item.flows[0])
-    noc_flow, known_noc = kitti_decode(_read(io.read_png_u16, item.noc[0]), item.noc[0])
+    flow, known_all = kitti_decode(read_or_fail(io.read_png_u16, item.flows[0]), item.flows[0])
+    noc_flow, known_noc = kitti_decode(read_or_fail(io.read_png_u16, item.noc[0]), item.noc[0])
     if (known_noc & ~known_all).any():
         raise DatasetError(f"{item.noc[0]}: marks {int((known_noc & ~known_all).sum())} pixels known that "
                            f"{item.flows[0].name} in flow_occ does not")

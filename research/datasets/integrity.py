@@ -33,6 +33,17 @@ class DatasetError(ValueError):
     """A dataset on disk is missing files or holds inconsistent data."""
 
 
+def read_or_fail(reader, path: Path):
+    """`reader(path)`, with a missing file or a ValueError turned into a one-line DatasetError naming `path`."""
+    try:
+        return reader(path)
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: missing") from None
+    except ValueError as e:
+        text = " ".join(str(e).split())  # one line, whatever the decoder said
+        raise DatasetError(text if text.startswith(str(path)) else f"{path}: {text}") from None
+
+
 def file_sha256(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:

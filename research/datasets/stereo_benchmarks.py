@@ -59,7 +59,7 @@ import numpy as np
 
 from research import io
 from research.cameras import Camera
-from research.datasets.integrity import DatasetError
+from research.datasets.integrity import DatasetError, read_or_fail
 from research.datasets.loader import StereoPair
 
 FORMATS = ("middlebury", "kitti", "eth3d")
@@ -175,12 +175,7 @@ def read_calib(path: str | Path) -> StereoCalib:
 
 def _png_codes(path: Path) -> np.ndarray:
     """The stored uint8/uint16 codes (H, W, C) of a PNG; DatasetError naming the file otherwise."""
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing")
-    try:
-        return io.read_png_raw(path)
-    except ValueError as e:
-        raise DatasetError(str(e)) from None
+    return read_or_fail(io.read_png_raw, path)
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -211,12 +206,7 @@ def read_kitti_disparity(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing")
-    try:
-        m = io.read_png_u8(path)
-    except ValueError as e:
-        raise DatasetError(str(e)) from None
+    m = read_or_fail(io.read_png_u8, path)
     if m.shape[2] != 1:
         raise DatasetError(f"{path}: expected a one-channel mask, got {m.shape[2]} channels")
     m = m[..., 0]
@@ -327,10 +317,7 @@ def _middlebury_pair(folder: Path, k: int, resolution: str, benchmark: str) -> S
     if gt_path is None:
         raise DatasetError(f"{folder / 'disp0.pfm'}: missing (nor is there a disp0GT.pfm"
                            + (")" if gt_dir == folder else f", here or in {gt_dir})"))
-    try:
-        gt = io.read_pfm(gt_path)
-    except ValueError as e:
-        raise DatasetError(str(e)) from None
+    gt = read_or_fail(io.read_pfm, gt_path)
     if gt.ndim != 2:
         raise DatasetError(f"{gt_path}: expected a one-channel (Pf) disparity, got {gt.shape[2]} channels")
     _same_size(gt_path, gt, shape, "im0.png")

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from research.tracking import checks
+
 
 @dataclass(frozen=True)
 class HistogramConfig:
@@ -39,8 +41,6 @@ class HistogramConfig:
     shrink: float = 0.1  # trim this fraction of width/height on each side before counting
 
     def __post_init__(self) -> None:
-        from research.tracking import checks
-
         for name in ("hue_bins", "sat_bins", "val_bins"):
             checks.integer(name, getattr(self, name), 1)
         checks.probability("sat_min", self.sat_min)

@@ -53,10 +53,10 @@ from enum import Enum
 
 import numpy as np
 
+from research.tracking import checks
 from research.tracking.appearance import cosine_distance, ema_feature
 from research.tracking.assignment import gated_assignment
 from research.tracking.box_track import KalmanBoxTrack
-from research.tracking import checks
 from research.tracking.boxes import pairwise_iou, sanitize_detections
 from research.tracking.sort import empty_output
 

@@ -63,12 +63,13 @@ def covariance(name: str, a, size: int | None = None) -> np.ndarray:
     if not np.all(np.isfinite(m)):
         raise ValueError(f"{name}: contains NaN or infinite values")
     scale = max(1.0, float(np.abs(m).max())) if m.size else 1.0
-    if np.abs(m - m.T).max(initial=0.0) > SYMMETRY_RTOL * scale:
-        raise ValueError(f"{name}: expected a symmetric covariance matrix, largest |A - A^T| is "
-                         f"{np.abs(m - m.T).max():.3g}")
-    if m.size and np.linalg.eigvalsh(0.5 * (m + m.T)).min() < -PSD_RTOL * scale:
+    asym = np.abs(m - m.T).max(initial=0.0)
+    if asym > SYMMETRY_RTOL * scale:
+        raise ValueError(f"{name}: expected a symmetric covariance matrix, largest |A - A^T| is {asym:.3g}")
+    low = np.linalg.eigvalsh(0.5 * (m + m.T)).min() if m.size else 0.0
+    if low < -PSD_RTOL * scale:
         raise ValueError(f"{name}: expected a positive semi-definite covariance matrix, smallest eigenvalue is "
-                         f"{np.linalg.eigvalsh(0.5 * (m + m.T)).min():.3g}")
+                         f"{low:.3g}")
     return m
 
 

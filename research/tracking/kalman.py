@@ -49,6 +49,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from research.tracking import checks
 import scipy.linalg
 
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -65,8 +67,6 @@ class LinearGaussianModel:
 
     def __post_init__(self) -> None:
         """Shapes, finite F and H, and Q, R symmetric positive semi-definite (research.tracking.checks)."""
-        from research.tracking import checks
-
         if np.ndim(self.F) != 2 or np.ndim(self.H) != 2:
             raise ValueError(f"F, H: expected matrices, got shapes {np.shape(self.F)}, {np.shape(self.H)}")
         n = self.F.shape[0]
@@ -168,8 +168,6 @@ def kalman_filter(
         raise ValueError(f"zs must be (T, {model.meas_dim}) or (B, T, {model.meas_dim}); got {zs.shape}")
     B, T = zb.shape[:2]
     n = model.state_dim
-    from research.tracking import checks
-
     P = checks.covariance("P0", P0, n)
     x0 = np.asarray(x0, dtype=float)
     if x0.shape not in ((n,), (B, n)) or not np.all(np.isfinite(x0)):
@@ -253,8 +251,6 @@ def kinematic_model(order: int, ndim: int, q: float, r: float, dt: float = 1.0) 
 
     q >= 0 and r >= 0 finite (a variance; q = 0 is a noiseless motion), dt > 0 finite, ndim >= 1.
     """
-    from research.tracking import checks
-
     checks.integer("ndim", ndim, 1)
     checks.number("q", q, 0.0)
     checks.number("r", r, 0.0)
@@ -284,7 +280,6 @@ def diffuse_prior(model: LinearGaussianModel, z0: np.ndarray, var: float = 1e6) 
     about R, and the derivatives are learnt from the following measurements
     instead of being assumed zero.
     """
-    if isinstance(var, bool) or not isinstance(var, (int, float, np.number)) or not (np.isfinite(var) and var > 0):
-        raise ValueError(f"var: expected a finite number > 0, got {var!r}")
+    checks.number("var", var, 0.0, low_open=True)
     x0 = model.H.T @ np.asarray(z0, dtype=float)
     return x0, var * np.eye(model.state_dim)

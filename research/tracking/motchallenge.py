@@ -42,6 +42,7 @@ from typing import Callable, Iterable, Sequence as Seq
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from research import atomic
 from research.datasets.integrity import DatasetError
 from research.tracking.metrics import box_iou
 
@@ -375,8 +376,6 @@ def evaluation_frames(seq: MOTSequence, outputs: Seq[np.ndarray]
 def write_results(path: str | Path, outputs: Iterable[np.ndarray]) -> None:
     """Tracker rows [x1, y1, x2, y2, id] per frame (frame t + 1) -> a MOTChallenge result file
     (module docstring); values written with Python's shortest round-trip repr."""
-    from research import atomic
-
     lines = []
     for t, rows in enumerate(outputs):
         rows = np.asarray(rows, dtype=float).reshape(-1, 5)
