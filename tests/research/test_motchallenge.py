@@ -141,9 +141,9 @@ def _ours(tmp_path, names: list[str]):
 
 
 def _compare(ours: HOTACounts, theirs: dict) -> None:
-    # 1e-6 is the target the issue sets ("HOTA equal to trackeval's to 1e-6"): trackeval sums its
-    # similarity scores in a different order (and partly in float32 arrays it builds), so equality to
-    # the last bit is not expected; the counts (TP, FN, FP) below are compared exactly.
+    # 1e-6 is the agreement the tracking protocol asks for (HOTA equal to trackeval's to 1e-6): the two
+    # sum their similarity scores in different orders, so the last bits need not agree; the integer
+    # counts (TP, FN, FP) below are compared exactly.
     pairs = {"hota": "HOTA", "det_a": "DetA", "ass_a": "AssA", "loc_a": "LocA", "det_re": "DetRe",
              "det_pr": "DetPr", "ass_re": "AssRe", "ass_pr": "AssPr"}
     for mine, key in pairs.items():
