@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from research import atomic
 from research.sweep.spec import RUN_FILE, Run
 
 # --------------------------------------------------------------------------- one run (both executors)
@@ -91,9 +92,7 @@ def execute_run(job: dict[str, Any]) -> dict[str, Any]:
         if not job.get("record", True):
             return {**result, "status": "ok", "error": ""}
         record = {"key": job["key"], "config": job["config"], "status": "ok"}
-        tmp = out / f".{RUN_FILE}.tmp-{os.getpid()}"
-        tmp.write_text(json.dumps(record, indent=2) + "\n")
-        os.replace(tmp, out / RUN_FILE)
+        atomic.write_json(out / RUN_FILE, record)
         return {**result, "status": "ok", "error": ""}
     if timed_out:
         error = f"timed out after {job['timeout_s']:g} s (stopped)"
