@@ -397,9 +397,8 @@ class Experiment:
         final = Path(args.out) if args.out is not None else registry.default_out(self.name, quick=args.quick,
                                                                                    smoke=args.smoke)
         final = final.absolute()
-        check_replaceable(final)
         with _sigterm_as_exit():
-            with results_folder(final) as tmp:
+            with results_folder(final) as tmp:  # checks first that `final` may be replaced
                 ctx = Context(self.name, args, device, tmp, final)
                 # A non-zero status (a check the body reports as failed) still finishes the run: its
                 # folder, with the numbers that failed, replaces the old one.

@@ -44,13 +44,19 @@ def _pair(flow: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def endpoint_error(flow: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """(H, W) |flow - gt| in px."""
-    flow, gt = _pair(flow, gt)
+    return _epe(*_pair(flow, gt))
+
+
+def _epe(flow: np.ndarray, gt: np.ndarray) -> np.ndarray:
     return np.linalg.norm(flow - gt, axis=-1)
 
 
 def angular_error(flow: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """(H, W) angle in degrees between (u, v, 1) and (u', v', 1) (module docstring)."""
-    flow, gt = _pair(flow, gt)
+    return _ae(*_pair(flow, gt))
+
+
+def _ae(flow: np.ndarray, gt: np.ndarray) -> np.ndarray:
     num = (flow * gt).sum(-1) + 1.0
     den = np.sqrt(((flow ** 2).sum(-1) + 1.0) * ((gt ** 2).sum(-1) + 1.0))
     return np.degrees(np.arccos(np.clip(num / den, -1.0, 1.0)))
@@ -73,8 +79,9 @@ class FlowTally:
         return self.sums.setdefault(name, dict.fromkeys(self._KEYS, 0))
 
     def add(self, flow: np.ndarray, gt: np.ndarray, regions: dict[str, np.ndarray]) -> None:
-        epe = endpoint_error(flow, gt)
-        per_pixel = {"epe": epe, "ae": angular_error(flow, gt), "outliers": kitti_outliers(epe, gt),
+        flow, gt = _pair(flow, gt)  # checked once for both errors
+        epe = _epe(flow, gt)
+        per_pixel = {"epe": epe, "ae": _ae(flow, gt), "outliers": kitti_outliers(epe, gt),
                      "over_3px": epe > KITTI_ABS_PX}
         for name, mask in regions.items():
             mask = np.asarray(mask)

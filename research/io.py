@@ -210,29 +210,25 @@ def write_png_u8(path: PathLike, u8: npt.ArrayLike) -> None:
 
     Channels 2 and 4 are alpha, stored unassociated: no value is changed.
     """
-    a = np.asarray(u8)
-    if a.dtype != np.uint8:
-        raise ValueError(f"u8: expected dtype uint8, got {a.dtype}")
-    a = _check_image_shape("u8", a, (1, 2, 3, 4))
-    h, w, c = a.shape
-    spec = oiio.ImageSpec(w, h, c, "uint8")
-    if c == 2:
-        spec.channelnames = ("Y", "A")
-        spec.alpha_channel = 1
-    spec.attribute("oiio:UnassociatedAlpha", 1)
-    target = Path(path)
-    with atomic_path(target) as tmp:
-        _oiio_write(tmp, spec, a, target)
+    _write_png_exact(path, u8, "u8", "uint8", (1, 2, 3, 4))
 
 
 def write_png_u16(path: PathLike, u16: npt.ArrayLike) -> None:
     """Write uint16 (H, W) or (H, W, C), C in {1, 3, 4}, to a 16-bit PNG exactly as given (no colour curve)."""
-    a = np.asarray(u16)
-    if a.dtype != np.uint16:
-        raise ValueError(f"u16: expected dtype uint16, got {a.dtype}")
-    a = _check_image_shape("u16", a, (1, 3, 4))
+    _write_png_exact(path, u16, "u16", "uint16", (1, 3, 4))
+
+
+def _write_png_exact(path: PathLike, values: npt.ArrayLike, name: str, dtype: str, channels: tuple[int, ...]) -> None:
+    """`values` of `dtype` ("uint8" or "uint16") to a PNG as given; 2 channels are grey + unassociated alpha."""
+    a = np.asarray(values)
+    if a.dtype != np.dtype(dtype):
+        raise ValueError(f"{name}: expected dtype {dtype}, got {a.dtype}")
+    a = _check_image_shape(name, a, channels)
     h, w, c = a.shape
-    spec = oiio.ImageSpec(w, h, c, "uint16")
+    spec = oiio.ImageSpec(w, h, c, dtype)
+    if c == 2:
+        spec.channelnames = ("Y", "A")
+        spec.alpha_channel = 1
     spec.attribute("oiio:UnassociatedAlpha", 1)
     target = Path(path)
     with atomic_path(target) as tmp:

@@ -77,6 +77,11 @@ def _check_in_range(a: np.ndarray, name: str, data_range: float) -> None:
 
 def mse(pred: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> float:
     a, b = _pair(pred, target)
+    return _mse(a, b, mask)
+
+
+def _mse(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None) -> float:
+    """mse of a pair already checked by `_pair`."""
     err = (a - b) ** 2
     if mask is None:
         return float(err.mean())
@@ -94,7 +99,7 @@ def psnr(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0, mask: np
     a, b = _pair(pred, target)
     _check_in_range(a, "pred", data_range)
     _check_in_range(b, "target", data_range)
-    e = mse(a, b, mask)
+    e = _mse(a, b, mask)
     return float("inf") if e == 0 else float(10.0 * np.log10(data_range**2 / e))
 
 

@@ -51,6 +51,7 @@ import numpy as np
 import warp as wp
 from scipy import ndimage
 
+from kernels import _arrays as A
 from kernels import corr
 from research.images import to_unit, unit_grey_pair
 
@@ -122,11 +123,6 @@ def upsample_flow(flow: np.ndarray, stride: int, height: int, width: int) -> np.
 # --------------------------------------------------------------------------- the estimator
 
 
-def _check_int(name: str, value, low: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
-
-
 def _check_positive(name: str, value) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not np.isfinite(value) \
             or value <= 0:
@@ -146,13 +142,13 @@ class CorrFlowConfig:
     aggregate: int = 1
 
     def __post_init__(self) -> None:
-        _check_int("levels", self.levels, 1)
-        _check_int("radius", self.radius, 1)  # the soft-argmax reads 3 x 3 samples around the peak
-        _check_int("iterations", self.iterations, 1)
+        A.check_int("levels", self.levels, minimum=1)
+        A.check_int("radius", self.radius, minimum=1)  # the soft-argmax reads 3 x 3 samples around the peak
+        A.check_int("iterations", self.iterations, minimum=1)
         _check_positive("temperature", self.temperature)
-        _check_int("smooth_radius", self.smooth_radius, 0)
+        A.check_int("smooth_radius", self.smooth_radius, minimum=0)
         _check_positive("min_confidence", self.min_confidence)
-        _check_int("aggregate", self.aggregate, 0)
+        A.check_int("aggregate", self.aggregate, minimum=0)
 
 
 def _unit_rgb(image: np.ndarray, name: str) -> np.ndarray:
@@ -185,8 +181,8 @@ class CorrFlow:
         rgb1, rgb2 = _unit_rgb(rgb1, "rgb1"), _unit_rgb(rgb2, "rgb2")
         if rgb1.shape != rgb2.shape:
             raise ValueError(f"rgb2: expected the shape of rgb1 {rgb1.shape}, got {rgb2.shape}")
-        _check_int("stride", stride, 1)
-        _check_int("max_levels", max_levels, 1)
+        A.check_int("stride", stride, minimum=1)
+        A.check_int("max_levels", max_levels, minimum=1)
         self.stride = stride
         self.image_shape = rgb1.shape[:2]
         self.f1 = fixed_features(rgb1, stride)

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from kernels import _arrays as A
 from kernels import stereo
 from research.images import unit_grey_pair
 from research.io import linear_to_srgb
@@ -98,8 +99,7 @@ class StereoConfig:
             raise ValueError(f"p2: expected p2 >= p1 = {self.p1}, got {self.p2}")
         if self.temperature <= 0:
             raise ValueError(f"temperature: expected a finite number > 0, got {self.temperature!r}")
-        if isinstance(self.radius, bool) or not isinstance(self.radius, (int, np.integer)) or self.radius < 0:
-            raise ValueError(f"radius: expected an integer >= 0, got {self.radius!r}")
+        A.check_int("radius", self.radius, minimum=0)
 
     @property
     def label(self) -> str:

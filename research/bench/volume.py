@@ -1,6 +1,6 @@
 """Benchmark family "volume": compositing and radiance-field kernels (kernels.volume).
 
-Cases (sizes from the issue; `quick` divides them by 16; `tiny` runs every case at sizes that take
+Cases (full sizes below; `quick` divides them by 16; `tiny` runs every case at sizes that take
 about a second in all -- 512 rays x 32 samples, 4096 points, 16^3 grids, a 2^12-entry hash table --
 with the same keys, for the test suite):
   * volume.composite      rays 65536 x samples 128 in float32 (dense packing), forward (`fwd_s`) and

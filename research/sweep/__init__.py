@@ -71,21 +71,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from research.sweep.runs import (Executor, RayOptions, execute_run, is_complete, local_executor, ray_executor,
-                                 ray_session, reproduce_jobs, require_ray)
+from research import atomic
+from research.sweep.runs import (Executor, RayOptions, child_env, execute_run, is_complete, local_executor,
+                                 ray_executor, ray_session, reproduce_jobs, require_ray)
 from research.sweep.spec import KEY_DIGITS, RUN_FILE, Run, Spec, load_spec, word
 
 # --------------------------------------------------------------------------- the sweep
 
 
 def _job(spec: Spec, run: Run, sweep_dir: Path) -> dict[str, Any]:
-    from research.cli import _experiment_env
-
-    env = _experiment_env()
-    keep = {k: env[k] for k in ("PYTHONPATH",) if k in env}
     return {"key": run.key, "experiment": run.experiment, "device": run.device, "seed": run.seed,
             "argv": run.argv(), "config": run.config(), "out": str(sweep_dir / run.key),
-            "log": str(sweep_dir / "logs" / f"{run.key}.log"), "cwd": os.getcwd(), "env": keep,
+            "log": str(sweep_dir / "logs" / f"{run.key}.log"), "cwd": os.getcwd(), "env": child_env(),
             "timeout_s": float(spec.timeout_s)}
 
 
@@ -110,8 +107,6 @@ def run_sweep(spec: Spec, results_root: Path, executor: Executor, *, progress: b
               executor_name: str = "local") -> SweepResult:
     """Run every incomplete run of `spec` with `executor`, then gather the table and the figure."""
     from tqdm import tqdm
-
-    from research import atomic
 
     sweep_dir = (Path(results_root) / spec.name).absolute()
     runs = spec.runs()
@@ -143,13 +138,13 @@ def run_sweep(spec: Spec, results_root: Path, executor: Executor, *, progress: b
             executor(todo, done)
     finally:
         bar.close()
-        _write_runs(sweep_dir, spec, runs, outcomes, executor_name, atomic)
+        _write_runs(sweep_dir, spec, runs, outcomes, executor_name)
     table_md, figure = gather(spec, sweep_dir, runs, outcomes)
     return SweepResult(sweep_dir, runs, outcomes, table_md, figure)
 
 
 def _write_runs(sweep_dir: Path, spec: Spec, runs: list[Run], outcomes: dict[str, dict[str, Any]],
-                executor_name: str, atomic) -> None:
+                executor_name: str) -> None:
     rows = []
     for run in runs:
         o = outcomes.get(run.key, {"status": "not run", "error": "the sweep stopped before this run"})
@@ -180,7 +175,6 @@ def _fmt_value(v: Any) -> str:
 def gather(spec: Spec, sweep_dir: Path, runs: list[Run], outcomes: dict[str, dict[str, Any]]
            ) -> tuple[Path, Path | None]:
     """table.md, table.json and figure.png from the runs' metrics.json: mean ± std over seeds per group."""
-    from research import atomic
     from research.results import markdown_table
 
     groups: dict[tuple, dict[str, Any]] = {}

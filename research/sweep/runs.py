@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from research import atomic
 from research.sweep.spec import RUN_FILE, Run
 
 # --------------------------------------------------------------------------- one run (both executors)
@@ -91,9 +92,7 @@ def execute_run(job: dict[str, Any]) -> dict[str, Any]:
         if not job.get("record", True):
             return {**result, "status": "ok", "error": ""}
         record = {"key": job["key"], "config": job["config"], "status": "ok"}
-        tmp = out / f".{RUN_FILE}.tmp-{os.getpid()}"
-        tmp.write_text(json.dumps(record, indent=2) + "\n")
-        os.replace(tmp, out / RUN_FILE)
+        atomic.write_json(out / RUN_FILE, record)
         return {**result, "status": "ok", "error": ""}
     if timed_out:
         error = f"timed out after {job['timeout_s']:g} s (stopped)"
@@ -244,14 +243,19 @@ def _first_line(e: BaseException) -> str:
     return text.splitlines()[0] if text else ""
 
 
+def child_env() -> dict[str, str]:
+    """What a job's `env` carries: PYTHONPATH of the experiment's environment (research.cli), when set."""
+    from research.cli import _experiment_env
+
+    env = _experiment_env()
+    return {k: env[k] for k in ("PYTHONPATH",) if k in env}
+
+
 def reproduce_jobs(names: list[str], results_dir: Path, quick: bool, device: str, log_dir: Path,
                    extra: list[str]) -> list[dict[str, Any]]:
     """`drlab reproduce --ray`: one job per registered experiment, into results_dir/<name> as a local
     reproduce writes it (no sweep-run.json), its output in log_dir/<name>.log."""
-    from research.cli import _experiment_env
-
-    env = _experiment_env()
-    keep = {k: env[k] for k in ("PYTHONPATH",) if k in env}
+    keep = child_env()
     return [{"key": name, "experiment": name, "device": device, "seed": None,
              "argv": (["--quick"] if quick else []) + list(extra), "config": {"experiment": name, "quick": quick},
              "out": str(Path(results_dir).absolute() / name), "log": str(Path(log_dir).absolute() / f"{name}.log"),

@@ -199,6 +199,25 @@ def test_protocol_regions_of_read_sequences(folders):
         protocol_regions("eth3d", seq, 0)
 
 
+_Z = np.zeros((4, 5, 2))
+_NAN = np.where(np.arange(40).reshape(4, 5, 2) == 3, np.nan, 0.0)
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: endpoint_error(np.zeros((4, 5)), np.zeros((4, 5))), r"^flow: expected shape \(H, W, 2\)"),
+    (lambda: angular_error(_Z, np.zeros((4, 6, 2))), r"^gt: expected the shape of flow"),
+    (lambda: endpoint_error(_NAN, _Z), r"^flow: expected finite values, got 1 NaN or infinite"),
+    (lambda: FlowTally().add(_Z, _Z, {"all": np.ones((4, 5))}), r"^regions\['all'\]: expected a bool mask"),
+    (lambda: FlowTally().add(_Z, _Z, {"all": np.ones((4, 6), bool)}), r"^regions\['all'\]: expected a bool mask"),
+    (lambda: sintel_metrics(_Z, _Z, np.zeros((4, 6), bool)), r"^occluded: expected shape"),
+    (lambda: kitti_metrics(_Z, _Z, np.ones((4, 5), bool), np.ones((3, 5), bool)), r"^valid_occ: expected shape"),
+    (lambda: middlebury_metrics(_Z, _Z, np.ones((5, 4), bool)), r"^valid: expected shape"),
+])
+def test_flow_metrics_bad_inputs_name_the_argument(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
+
+
 # --------------------------------------------------------------------------- raft_flow --data
 
 

@@ -193,6 +193,22 @@ def test_protocol_metrics_fill_and_pooling():
         protocol_metrics("sintel", disp, valid, gt, noc, all_mask)
 
 
+_D = np.zeros((3, 4))
+_M = np.ones((3, 4), bool)
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: bad_pixel_metrics(_D, np.zeros((3, 5)), _M, (1.0,)), r"^pred, gt, masks: expected \(H, W\) arrays of one shape"),
+    (lambda: bad_pixel_metrics(np.full((3, 4), np.nan), _D, _M, (1.0,)), r"^pred, gt: non-finite values inside the mask"),
+    (lambda: kitti_d1(_D, _D, _M, _M, foreground=np.ones((2, 4), bool)), r"^foreground: expected shape \(3, 4\)"),
+    (lambda: pool_protocol("sintel", []), r"^protocol: expected one of"),
+    (lambda: pool_protocol("kitti", []), r"^rows: expected the scores of at least one pair"),
+])
+def test_protocol_bad_inputs_name_the_argument(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
+
+
 # --------------------------------------------------------------------------- stereo_depth --data
 
 
