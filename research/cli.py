@@ -2,7 +2,7 @@
 
     drlab dataset --scene NAME [--views N --res R --spp S --stereo --flow] --out DIR [--resume] [--force] [--ray]
     drlab run EXPERIMENT [--quick|--smoke] [--device cpu|cuda] [--out DIR] [--seed N] [-- EXPERIMENT OPTIONS]
-    drlab reproduce [--quick] [--ray [--ray-address A]]   every registered experiment, then results/README.md
+    drlab reproduce [EXP ...] [--quick] [--ray [--ray-address A]]   registered experiments, then results/README.md
     drlab sweep SPEC [--jobs N] [--ray [--ray-address A]]  a grid of runs from a TOML file (research.sweep)
     drlab gradcheck [KERNEL ...]       finite-difference table; exit status 1 on any failure
     drlab bench [FAMILY ...] [--json]  timings (median of >= 3 runs after a warm-up)
@@ -235,12 +235,18 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     if not names:
         print("drlab reproduce: no experiments are registered yet")
         return 0
+    unknown = [n for n in args.experiments if n not in EXPERIMENTS]
+    if unknown:
+        raise ValueError(f"experiments: unknown {', '.join(map(repr, unknown))}; registered: {', '.join(names)}")
+    # A subset reruns only those experiments; the index still gathers every registered experiment's
+    # folder, each section naming the commit that produced it.
+    selected = [n for n in names if n in args.experiments] if args.experiments else names
     results_dir = registry.results_dir(quick=args.quick)
     failed = []
     if args.ray or args.ray_address is not None:
-        failed = _reproduce_on_ray(args, names, results_dir)
+        failed = _reproduce_on_ray(args, selected, results_dir)
     else:
-        for name in names:
+        for name in selected:
             if _run_one(name, args.quick, args.device, results_dir / name, None, ["--debug"] if args.debug else []) != 0:
                 failed.append(name)
     index = write_results_index(results_dir, names, args.quick)
@@ -427,6 +433,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(fn=_cmd_run)
 
     rp = sub.add_parser("reproduce", help="run every registered experiment and write results/README.md")
+    rp.add_argument("experiments", nargs="*", metavar="EXPERIMENT",
+                    help="rerun only these registered experiments (default: all); results/README.md still "
+                         "gathers every experiment's latest folder, each with the commit that wrote it")
     rp.add_argument("--quick", action="store_true",
                     help="quick settings, written to build/results-quick (in the checkout, else under the current "
                          "directory)")

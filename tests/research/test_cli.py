@@ -128,3 +128,27 @@ def test_results_index_gathers_tables(tmp_path, monkeypatch):
 def test_missing_required_arguments_exit_2(argv):
     r = run_cli(*argv)
     assert r.returncode == 2
+
+
+def test_reproduce_subset_reruns_only_those_and_indexes_all(tmp_path, monkeypatch):
+    """`drlab reproduce NAME`: only NAME runs; results/README.md still gathers every registered experiment."""
+    from research import cli, registry
+
+    names = ["kalman_tracking", "lucas_kanade"]
+    monkeypatch.setattr(cli, "EXPERIMENTS", {n: cli.EXPERIMENTS[n] for n in names})
+    monkeypatch.setattr(registry, "EXPERIMENTS", cli.EXPERIMENTS)
+    results = tmp_path / "results"
+    monkeypatch.setattr(registry, "results_dir", lambda quick=False, smoke=False: results)
+    ran = []
+
+    def fake_run(name, quick, device, out, seed, extra):
+        ran.append(name)
+        out.mkdir(parents=True)
+        (out / "table.md").write_text(f"table of {name}\n")
+        return 0
+
+    monkeypatch.setattr(cli, "_run_one", fake_run)
+    assert cli.main(["reproduce", "--quick", "lucas_kanade"]) == 0
+    assert ran == ["lucas_kanade"]
+    readme = (results / "README.md").read_text()
+    assert "## kalman_tracking" in readme and "did not finish" in readme and "table of lucas_kanade" in readme

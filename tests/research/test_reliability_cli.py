@@ -87,6 +87,8 @@ CLI_CASES = [
     ("bench-unknown-family", ["bench", "nosuch"], "drlab bench: ", "families: unknown family ['nosuch']"),
     ("bench-unknown-families", ["bench", "a", "b"], "drlab bench: ", "families: unknown families ['a', 'b']"),
     ("bench-device-tpu", ["bench", "--device", "tpu"], "drlab bench: ", "--device: expected 'cpu', 'cuda'"),
+    ("reproduce-unknown-experiment", ["reproduce", "kalman_tracking", "nosuch"], "drlab reproduce: ",
+     "experiments: unknown 'nosuch'; registered: "),
     ("reproduce-device-gpu", ["reproduce", "--device", "gpu"], "drlab reproduce: ",
      "--device: expected 'cpu', 'cuda' or 'cuda:N', got 'gpu'"),
     ("dataset-no-out", ["dataset", "--scene", "spheres"], "drlab dataset: ", "required: --out"),
