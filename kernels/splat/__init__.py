@@ -19,10 +19,20 @@ The chain, one module per stage:
                    meets, sorted by tile then depth (two radix sorts)
     raster.py      per pixel, front to back: alpha_i = min(0.99, o_i G_i), T_{i+1} = T_i (1 - alpha_i),
                    rgb = sum_i c_i alpha_i T_i + T_final background, stopping at T < 1e-4
+                   (in the default mode; "gsplat": 0.999 and <= 1e-4)
     render.py      the whole chain for one camera and its VJP
 
+Two conventions (`mode=`, every projecting or rasterising entry point; kernels/splat/modes.py has
+the full table): "3dgs", the default, follows the original 3DGS code (graphdeco-inria's
+diff-gaussian-rasterization): Jacobian clamp |x/z| <= 1.3 W / (2 fx), radius floor 0.1, its
+getRect tile rule, alpha clamp 0.99, stop when T (1 - alpha) < 1e-4, and its `antialiasing`
+option as `antialiased=True`. "gsplat" follows gsplat: clamp x/z to [-cx/fx - 0.15 W/fx,
+(W - cx)/fx + 0.15 W/fx], radius floor 0.01, its tile rule, alpha clamp 0.999, stop when
+T (1 - alpha) <= 1e-4, and its rasterize_mode="antialiased" as `antialiased=True`. Both dilate
+Sigma2d by 0.3 I and skip alpha < 1/255.
+
 Every backward is written by hand; each module's docstring gives its math. Non-smooth points,
-where gradients are one-sided: the 1/255 skip, the 0.99 clamp, the T < 1e-4 stop, the colour
+where gradients are one-sided: the 1/255 skip, the alpha clamp, the T stop, the colour
 clamp at 0, the Jacobian's frustum clamp, the ceil of the radius and a change of tile set or depth
 order. The gradient here is the one of the smooth piece the inputs lie on.
 
@@ -36,13 +46,14 @@ argument before any launch. All kernels are generic over float32 and float64.
 from kernels.sh import SH_C0
 from kernels.splat.camera import DEFAULT_FAR, DEFAULT_NEAR, SplatCamera
 from kernels.splat.ewa import DILATION
+from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, MODES, RADIUS_FLOOR_OF
 from kernels.splat.projection import GaussianInputs, Projection, gaussian_inputs, project, project_backward
 from kernels.splat.raster import ALPHA_MAX, ALPHA_MIN, T_MIN, Raster, rasterize, rasterize_backward
 from kernels.splat.render import Render, render, render_backward
 from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles, splats_2d
 
 __all__ = [
-    "ALPHA_MAX", "ALPHA_MIN", "DEFAULT_FAR", "DEFAULT_NEAR", "DILATION", "SH_C0", "TILE", "TILE_PIXELS", "T_MIN",
+    "ALPHA_MAX", "ALPHA_MAX_OF", "ALPHA_MIN", "DEFAULT_MODE", "MODES", "RADIUS_FLOOR_OF", "DEFAULT_FAR", "DEFAULT_NEAR", "DILATION", "SH_C0", "TILE", "TILE_PIXELS", "T_MIN",
     "GaussianInputs", "Projection", "Raster", "Render", "SplatCamera", "Splats2D", "Tiles",
     "bin_tiles", "gaussian_inputs", "project", "project_backward", "rasterize", "rasterize_backward", "render",
     "render_backward", "splats_2d",
