@@ -29,6 +29,20 @@ The frustum clamp of the Jacobian depends on the mode (kernels/splat/modes.py):
 VJP for G2 = dL/dSigma2d: dL/dSigma_c = J^T G2 J, dL/dJ = 2 G2 J Sigma_c, then through J and mean2d to
 p; where the clamp is active, x' does not move with x (the gradient of the clamped piece).
 
+Intrinsics (`persp_intrinsics_vjp`), from the same G2 and dL/dmean2d = (gu, gv):
+    dL/dfx = gu x/z + dL/dJ00 / z + dL/dJ02 dJ02/dfx,   dL/dcx = gu + dL/dJ02 dJ02/dcx,
+    J02 = -fx x'/z^2 = -(fx r)/z with r = clamp(x/z): unclamped dJ02/dfx = -r/z, dJ02/dcx = 0;
+    clamped, fx r is fx times the limit: "3dgs" +-0.65 W (neither fx nor cx), "gsplat"
+    W - cx + 0.15 W or -(cx + 0.15 W), so dJ02/dfx = 0 and dJ02/dcx = 1/z in "gsplat", 0 in "3dgs"
+    (fy, cy, J11, J12 likewise).
+
+Camera pose (`pose_vjp`), for a left perturbation [W | t] <- exp(xi^) [W | t], xi = (rho, phi):
+    to first order p <- p + phi x p + rho and Sigma_c <- Sigma_c + [phi]x Sigma_c + Sigma_c [phi]x^T, so
+    dL/drho = dL/dp,  dL/dphi = p x dL/dp + (M21 - M12, M02 - M20, M10 - M01),
+    M = (G + G^T) Sigma_c for G = dL/dSigma_c (from dL = <G, A Sigma_c + Sigma_c A^T> = <M, A>, A = [phi]x);
+    the camera centre -W^T t moves by -W^T rho (and not with phi), which the caller adds for the
+    view direction (kernels/splat/projection.py).
+
 Dilation (`dilate_cov2d`): (a1, b, c1) = (a + 0.3, b, c + 0.3) and det0 = a c - b^2 for
 Sigma2d = [[a, b], [b, c]]; VJP dL/da = dL/da1 + dL/ddet0 c, dL/dc = dL/dc1 + dL/ddet0 a,
 dL/db = dL/db' - 2 b dL/ddet0, split half and half over Sigma2d's two off-diagonal entries.
@@ -216,6 +230,43 @@ def persp_proj_vjp(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width
     g_ty += gv * fy / tz
     g_tz += -gu * fx * tx / tz2 - gv * fy * ty / tz2 + g_depth
     return wp.vector(g_tx, g_ty, g_tz, length=3, dtype=type(tz)), g_cov_c
+
+
+@wp.func
+def persp_intrinsics_vjp(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int, mode: int,
+                         g_cov2d: Any, gu: Any, gv: Any):
+    """(dL/dfx, dL/dfy, dL/dcx, dL/dcy) of `persp_proj` for the cotangents of (Sigma2d, u, v) (module docstring)."""
+    tz = p[2]
+    two = type(tz)(2.0)
+    J = persp_jacobian(p, fx, fy, cx, cy, width, height, mode)
+    g_J = two * g_cov2d * J * cov_c
+    xr_raw = p[0] / tz
+    yr_raw = p[1] / tz
+    xr = frustum_ratio(xr_raw, fx, cx, width, mode)
+    yr = frustum_ratio(yr_raw, fy, cy, height, mode)
+    g_fx = gu * xr_raw + g_J[0, 0] / tz
+    g_fy = gv * yr_raw + g_J[1, 1] / tz
+    g_cx = gu
+    g_cy = gv
+    if xr_raw == xr:
+        g_fx += -xr / tz * g_J[0, 2]
+    elif mode == 1:
+        g_cx += g_J[0, 2] / tz
+    if yr_raw == yr:
+        g_fy += -yr / tz * g_J[1, 2]
+    elif mode == 1:
+        g_cy += g_J[1, 2] / tz
+    return wp.vector(g_fx, g_fy, g_cx, g_cy, length=4, dtype=type(tz))
+
+
+@wp.func
+def pose_vjp(p: Any, g_p: Any, cov_c: Any, g_cov_c: Any):
+    """(dL/drho, dL/dphi) of one splat's camera-frame mean and covariance for the left se(3)
+    perturbation of world-to-camera (module docstring); the view direction's share is the caller's."""
+    M = (g_cov_c + wp.transpose(g_cov_c)) * cov_c
+    phi = wp.cross(p, g_p) + wp.vector(M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1], length=3,
+                                       dtype=type(p[0]))
+    return g_p, phi
 
 
 @wp.func

@@ -65,7 +65,8 @@ from kernels.sh import sh_basis, sh_basis_grad
 from kernels.splat.camera import SplatCamera
 from kernels.splat.modes import DEFAULT_MODE, RADIUS_FLOOR_OF, mode_id
 from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
-                               dilate_cov2d_vjp, persp_proj, persp_proj_vjp, quat_scale_to_covar,
+                               dilate_cov2d_vjp, persp_intrinsics_vjp, persp_proj, persp_proj_vjp, pose_vjp,
+                               quat_scale_to_covar,
                                quat_scale_to_covar_vjp, sigmoid, transform_cov, transform_cov_vjp, view_direction,
                                view_direction_vjp)
 from kernels.splat.tiles import TILE
@@ -176,8 +177,9 @@ def _screen_conic(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, c
 def _projection_vjp(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int,
                     height: int, mode: int, antialiased: int, g_comp: Any, gQa: Any, gQb: Any, gQc: Any, gu: Any, gv: Any,
                     g_depth: Any):
-    """(dL/dmu, dL/dq, dL/dl, opacity factor c, det) of the projection's geometry, for the cotangents of
-    the conic, mean2d and depth and dL/dc = g_comp (c = 1 unless antialiased)."""
+    """(dL/dmu, dL/dq, dL/dl, opacity factor c, det, dL/drho, dL/dphi, dL/d(fx, fy, cx, cy)) of the
+    projection's geometry, for the cotangents of the conic, mean2d and depth and dL/dc = g_comp (c = 1
+    unless antialiased); the pose terms leave out the view direction's share."""
     zero = type(g_comp)(0.0)
     p = Wr * mu + tv
     cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _conic_chain(Wr, q, l, p, fx, fy, cx, cy, width, height,
@@ -199,7 +201,9 @@ def _projection_vjp(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any,
     g_p, g_cov_c = persp_proj_vjp(p, cov_c, fx, fy, cx, cy, width, height, mode, g_cov2d, gu, gv, g_depth)
     g_mu = wp.transpose(Wr) * g_p
     g_q, g_l = quat_scale_to_covar_vjp(q, l, transform_cov_vjp(Wr, g_cov_c))
-    return g_mu, g_q, g_l, comp, det
+    g_rho, g_phi = pose_vjp(p, g_p, cov_c, g_cov_c)
+    g_intr = persp_intrinsics_vjp(p, cov_c, fx, fy, cx, cy, width, height, mode, g_cov2d, gu, gv)
+    return g_mu, g_q, g_l, comp, det, g_rho, g_phi, g_intr
 
 
 @wp.func
@@ -317,11 +321,15 @@ def _project_backward_kernel(
     g_means2d: wp.array2d(dtype=Any), g_conics: wp.array2d(dtype=Any), g_depths: wp.array(dtype=Any),
     g_colors: wp.array2d(dtype=Any), g_opacities: wp.array(dtype=Any),
     d_means: wp.array2d(dtype=Any), d_log_scales: wp.array2d(dtype=Any), d_quats: wp.array2d(dtype=Any),
-    d_opacity_logits: wp.array(dtype=Any), d_sh: wp.array3d(dtype=Any), offset: int,
+    d_opacity_logits: wp.array(dtype=Any), d_sh: wp.array3d(dtype=Any), want_camera: int,
+    d_camera: wp.array2d(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     zero = means.dtype(0.0)
     one = means.dtype(1.0)
+    if want_camera != 0:
+        for j in range(10):
+            d_camera[i, j] = zero
     for k in range(sh.shape[1]):
         for ch in range(3):
             d_sh[i, k, ch] = zero
@@ -341,13 +349,13 @@ def _project_backward_kernel(
     mu, q, l = _load_splat(means, log_scales, quats, i)
     sig = sigmoid(opacity_logits[i])
     g_o = g_opacities[i]
-    g_mu, g_q, g_l, comp, det = _projection_vjp(mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height,
-                                                mode, antialiased, g_o * sig, g_conics[i, 0], g_conics[i, 1],
+    g_mu, g_q, g_l, comp, det, g_rho, g_phi, g_intr = _projection_vjp(
+        mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height, mode, antialiased, g_o * sig, g_conics[i, 0], g_conics[i, 1],
                                                 g_conics[i, 2], g_means2d[i, 0], g_means2d[i, 1], g_depths[i])
     if wp.isnan(det) or wp.isinf(det):
         W64, t64 = _load_view_f64(view)
         mu64, q64, l64 = _load_splat_f64(means, log_scales, quats, i)
-        g_mu64, g_q64, g_l64, comp64, det64 = _projection_vjp(
+        g_mu64, g_q64, g_l64, comp64, det64, g_rho64, g_phi64, g_intr64 = _projection_vjp(
             mu64, q64, l64, W64, t64, wp.float64(cam[0]), wp.float64(cam[1]), wp.float64(cam[2]),
             wp.float64(cam[3]), width, height, mode, antialiased, wp.float64(g_o * sig), wp.float64(g_conics[i, 0]),
             wp.float64(g_conics[i, 1]), wp.float64(g_conics[i, 2]), wp.float64(g_means2d[i, 0]),
@@ -359,6 +367,12 @@ def _project_backward_kernel(
         g_q = wp.vector(means.dtype(g_q64[0]), means.dtype(g_q64[1]), means.dtype(g_q64[2]), means.dtype(g_q64[3]),
                         length=4, dtype=means.dtype)
         comp = means.dtype(comp64)
+        g_rho = wp.vector(means.dtype(g_rho64[0]), means.dtype(g_rho64[1]), means.dtype(g_rho64[2]), length=3,
+                          dtype=means.dtype)
+        g_phi = wp.vector(means.dtype(g_phi64[0]), means.dtype(g_phi64[1]), means.dtype(g_phi64[2]), length=3,
+                          dtype=means.dtype)
+        g_intr = wp.vector(means.dtype(g_intr64[0]), means.dtype(g_intr64[1]), means.dtype(g_intr64[2]),
+                           means.dtype(g_intr64[3]), length=4, dtype=means.dtype)
     d_opacity_logits[i] = g_o * comp * sig * (one - sig)
     for j in range(3):
         d_log_scales[i, j] = g_l[j]
@@ -379,7 +393,17 @@ def _project_backward_kernel(
                 d_sh[i, k, ch] = basis[k] * gcol
                 f = sh[i, k, ch] * gcol
                 g_d = g_d + wp.vector(bdx[k] * f, bdy[k] * f, bdz[k] * f, length=3, dtype=means.dtype)
-    g_mu = g_mu + view_direction_vjp(d, dn, g_d)
+    g_view = view_direction_vjp(d, dn, g_d)
+    g_mu = g_mu + g_view
+
+    if want_camera != 0:
+        # The camera centre -W^T t moves by -W^T rho: the view direction's share of dL/drho is W g_view.
+        g_rho = g_rho + Wr * g_view
+        for j in range(3):
+            d_camera[i, j] = g_rho[j]
+            d_camera[i, 3 + j] = g_phi[j]
+        for j in range(4):
+            d_camera[i, 6 + j] = g_intr[j]
 
     d_means[i, 0] = g_mu[0]
     d_means[i, 1] = g_mu[1]
@@ -541,11 +565,17 @@ def project(g: GaussianInputs, camera: SplatCamera, *, sh_degree: int | None = N
 
 def project_backward(g: GaussianInputs, camera: SplatCamera, radii: Any, grad_means2d: Any, grad_conics: Any,
                      grad_depths: Any, grad_colors: Any, grad_opacities: Any, *, sh_degree: int | None = None,
-                     antialiased: bool = False, mode: str = DEFAULT_MODE) -> dict[str, Any]:
+                     antialiased: bool = False, mode: str = DEFAULT_MODE,
+                     want_camera: bool = False) -> dict[str, Any]:
     """Vector-Jacobian product of `project` (with the same `mode` and `antialiased`).
 
     Returns a dict with the gradients of "means", "log_scales", "quats", "opacity_logits" and
-    "sh", each shaped like the parameter, in the kind of g's inputs (NumPy or wp.array).
+    "sh", each shaped like the parameter, in the kind of g's inputs (NumPy or wp.array). With
+    `want_camera`, also "pose" (6,): dL/dxi for the left perturbation viewmat <- exp(xi^) viewmat,
+    xi = (rho, phi) translation first, and "intrinsics" (4,): dL/d(fx, fy, cx, cy)
+    (kernels/splat/ewa.py, `pose_vjp` and `persp_intrinsics_vjp`). Each splat's thread writes its
+    own row of these, and the rows are summed afterwards, so the split launch stays race-free
+    (docs/warp.md, section 2).
     """
     mid = mode_id(mode)
     deg = sh_degree_of(tuple(g.sh.shape), sh_degree)
@@ -560,8 +590,14 @@ def project_backward(g: GaussianInputs, camera: SplatCamera, radii: Any, grad_me
     view, cam = _camera_arrays(a, camera)
     out = {"means": a.zeros((n, 3)), "log_scales": a.zeros((n, 3)), "quats": a.zeros((n, 4)),
            "opacity_logits": a.zeros(n), "sh": a.zeros(tuple(g.sh.shape))}
+    rows = a.zeros((max(n, 1) if want_camera else 1, 10))
     a.launch(_project_backward_kernel, n,
              [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, camera.width, camera.height, deg,
               mid, int(bool(antialiased)), r, gm, gc, gd, gcol, go, out["means"], out["log_scales"], out["quats"],
-              out["opacity_logits"], out["sh"]], min_chunk=MIN_CHUNK)
-    return {k: a.out(v) for k, v in out.items()}
+              out["opacity_logits"], out["sh"], int(bool(want_camera)), rows], min_chunk=MIN_CHUNK)
+    result = {k: a.out(v) for k, v in out.items()}
+    if want_camera:
+        total = rows.numpy()[:n].sum(axis=0, dtype=np.float64).astype(a.np_dtype)
+        result["pose"] = a.out(wp.array(total[:6], dtype=a.scalar, device=a.device))
+        result["intrinsics"] = a.out(wp.array(total[6:], dtype=a.scalar, device=a.device))
+    return result

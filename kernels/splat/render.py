@@ -70,13 +70,15 @@ def render(g: GaussianInputs, camera: SplatCamera, background: Any = None, *, sh
 
 
 def render_backward(g: GaussianInputs, result: Render, grad_rgb: Any, grad_alpha: Any = None,
-                    grad_depth: Any = None) -> dict[str, Any]:
+                    grad_depth: Any = None, *, want_camera: bool = False) -> dict[str, Any]:
     """VJP of `render` for the cotangents of rgb (and optionally alpha and depth).
 
     Returns a dict of arrays in the kind of g's inputs: the gradients of "means", "log_scales",
     "quats", "opacity_logits", "sh" (shaped like the parameters) and "background" (3,), and
     "means2d" (N, 2), the screen-space (pixel) gradient of every splat's 2D mean, which
-    densification uses.
+    densification uses. With `want_camera`, also the camera's: "pose" (6,), dL/dxi for the
+    left perturbation viewmat <- exp(xi^) viewmat at xi = 0, xi = (rho, phi) translation first
+    (SplatCamera.perturbed), and "intrinsics" (4,), dL/d(fx, fy, cx, cy).
     """
     if not isinstance(result, Render):
         raise ValueError(f"result: expected the Render of kernels.splat.render, got {type(result).__name__}")
@@ -87,7 +89,7 @@ def render_backward(g: GaussianInputs, result: Render, grad_rgb: Any, grad_alpha
     with A.value_checks(False):  # the screen-space gradients were computed here from checked inputs
         g3 = project_backward(g, cam, proj.radii, g2["means2d"], g2["conics"], g2["depths"], g2["colors"],
                               g2["opacities"], sh_degree=result.sh_degree, antialiased=result.antialiased,
-                              mode=result.mode)
+                              mode=result.mode, want_camera=want_camera)
     g3["background"] = a.out(g2["background"])
     g3["means2d"] = a.out(g2["means2d"])
     return g3

@@ -57,14 +57,16 @@ def _rotation(rng: np.random.Generator, max_angle: float) -> np.ndarray:
 
 
 def random_scene(rng: np.random.Generator, n: int = 12, width: int = 40, height: int = 36, sh_k: int = 16,
-                 off_frustum: bool = False, big: int = 0) -> Scene:
+                 off_frustum: bool = False, big: int = 0, near_clamp: str | None = None) -> Scene:
     """Overlapping, anisotropic, rotated splats in front of a slightly rotated camera 4 units away.
 
     With `off_frustum`, splat 0 sits right of the image beyond the Jacobian clamp (x/z = 0.75
     against limits of 0.52 in "3dgs" and 0.51 in "gsplat" mode) and is large enough to reach into it. With `big`, splats 1..big get
     scales near 3 (3 sigma of 95-130 px) and opacity 0.1-0.3: each covers the whole image, and its
     radius hits the clamp of kernels/splat/projection.py (drawn after everything else, so the other
-    splats are those of the same rng without `big`).
+    splats are those of the same rng without `big`). With `near_clamp` (a mode), splat 0 sits 0.004
+    beyond the mode's Jacobian clamp on the right (x/z) and splat 1 0.004 inside it at the top (y/z),
+    both centred off the image and large enough to reach into it.
     """
     R = _rotation(rng, 0.3)
     view = np.eye(4)
@@ -86,6 +88,11 @@ def random_scene(rng: np.random.Generator, n: int = 12, width: int = 40, height:
     if off_frustum:
         pc[0] = [0.75 * 4.2, 0.1, 4.2]
         log_scales[0] = [math.log(0.9), math.log(0.5), math.log(0.7)]
+    if near_clamp is not None:
+        lxn, lxp, lyn, lyp = ref.frustum_limits(camera, near_clamp)
+        pc[0] = [(lxp + 0.004) * 4.2, 0.05 * 4.2, 4.2]
+        pc[1] = [-0.05 * 3.9, -(lyn - 0.004) * 3.9, 3.9]
+        log_scales[:2] = [[math.log(0.6), math.log(0.4), math.log(0.5)], [math.log(0.4), math.log(0.6), math.log(0.5)]]
     means = (pc - view[:3, 3]) @ R
     quats = rng.normal(size=(n, 4)) * rng.uniform(0.5, 2.0, (n, 1))
     sh = rng.normal(0.0, 0.15, (n, sh_k, 3))
@@ -353,3 +360,113 @@ def render_checks() -> list[GradcheckResult]:
     return (check_render(0, False) + check_render(1, True) + check_render(2, False) + check_render(3, False, big=2)
             + check_render(4, True, big=1) + check_render(5, False, off_frustum=True)
             + check_render(6, False, mode="gsplat", off_frustum=True) + check_render(7, True, mode="gsplat"))
+
+
+# ----------------------------------------------------------------------------- camera gradients
+
+
+def camera_render_fn(scene: Scene, mode: str, antialiased: bool):
+    """The render as a function of the splats, a pose twist xi (6,) and the intrinsics (4,):
+    camera = scene.camera with intrinsics (fx, fy, cx, cy), then viewmat <- exp(xi^) viewmat. Its
+    VJP is render_backward(want_camera=True), the gradient at xi = 0: the checks pass xi = 0, where
+    the finite differences of xi are exactly the left-perturbation derivative."""
+    base = scene.camera
+
+    def f(means, log_scales, quats, opacity_logits, sh, xi, intrinsics):
+        g = ks.gaussian_inputs(means, log_scales, quats, opacity_logits, sh)
+        r = ks.render(g, base.with_intrinsics(*intrinsics).perturbed(xi), scene.background, mode=mode,
+                      antialiased=antialiased)
+        return {"rgb": r.rgb, "alpha": r.alpha, "depth": r.depth}
+
+    def vjp(inputs, cot):
+        g = ks.gaussian_inputs(*(inputs[k] for k in PARAMS))
+        cam = base.with_intrinsics(*inputs["intrinsics"]).perturbed(inputs["xi"])
+        r = ks.render(g, cam, scene.background, mode=mode, antialiased=antialiased)
+        grads = ks.render_backward(g, r, cot["rgb"], cot["alpha"], cot["depth"], want_camera=True)
+        return {**{k: grads[k] for k in PARAMS}, "xi": grads["pose"], "intrinsics": grads["intrinsics"]}
+
+    return f, vjp
+
+
+def _camera_inputs(scene: Scene) -> dict[str, np.ndarray]:
+    return dict(scene.params, xi=np.zeros(6), intrinsics=scene.camera.params()[:4].copy())
+
+
+def check_camera(seed: int, mode: str, antialiased: bool, near_clamp: bool = True) -> list[GradcheckResult]:
+    scene = smooth_scene(seed, antialiased=antialiased, require_events=not antialiased, mode=mode,
+                         near_clamp=mode if near_clamp else None)
+    f, vjp = camera_render_fn(scene, mode, antialiased)
+    name = f"splat.camera[{_tag(mode, antialiased)},seed={seed}{',near_clamp' if near_clamp else ''}]"
+    return check_vjp(f, vjp, _camera_inputs(scene), seed=seed, name=name)
+
+
+def depth_target(scene: Scene, mode: str, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """(measured depth, mask, min_alpha) for a depth-loss check: the scene's expected depth plus noise
+    (sd 0.05), a random 70% mask, a few missing (0) measurements, and the min_alpha of 0.3-0.7 farthest
+    from every pixel's alpha; residuals and alphas at least 1e-4 from the loss's kinks."""
+    g = ks.gaussian_inputs(*(scene.params[k] for k in PARAMS))
+    r = ks.render(g, scene.camera, scene.background, mode=mode)
+    rng = np.random.default_rng(seed)
+    z_hat = r.depth / np.maximum(r.alpha, 1e-12)
+    measured = z_hat + rng.normal(0.0, 0.05, z_hat.shape)
+    while np.min(np.abs(measured - z_hat)) < 1e-4:
+        measured = z_hat + rng.normal(0.0, 0.05, z_hat.shape)
+    measured[rng.random(z_hat.shape) < 0.05] = 0.0
+    mask = rng.random(z_hat.shape) < 0.7
+    candidates = np.linspace(0.3, 0.7, 41)
+    gaps = [np.min(np.abs(r.alpha - c)) for c in candidates]
+    min_alpha = float(candidates[int(np.argmax(gaps))])
+    if max(gaps) < 1e-4:
+        raise RuntimeError(f"no min_alpha clear of the alphas (seed {seed})")
+    return measured, mask, min_alpha
+
+
+def depth_loss_fn(scene: Scene, mode: str, measured: np.ndarray, mask: np.ndarray, min_alpha: float, kind: str):
+    """research.splats.loss.depth_loss of the render, as a function of the splats, xi and the intrinsics."""
+    from research.splats.loss import depth_loss
+
+    base = scene.camera
+
+    def render(inputs):
+        g = ks.gaussian_inputs(*(inputs[k] for k in PARAMS))
+        cam = base.with_intrinsics(*inputs["intrinsics"]).perturbed(inputs["xi"])
+        return g, ks.render(g, cam, scene.background, mode=mode)
+
+    def f(**inputs):
+        _, r = render(inputs)
+        return {"loss": np.array([depth_loss(r.depth, r.alpha, measured, mask, min_alpha=min_alpha, kind=kind)[0]])}
+
+    def vjp(inputs, cot):
+        g, r = render(inputs)
+        _, g_depth, g_alpha = depth_loss(r.depth, r.alpha, measured, mask, min_alpha=min_alpha, kind=kind)
+        c = float(cot["loss"][0])
+        grads = ks.render_backward(g, r, np.zeros(r.rgb.shape), c * g_alpha, c * g_depth, want_camera=True)
+        return {**{k: grads[k] for k in PARAMS}, "xi": grads["pose"], "intrinsics": grads["intrinsics"]}
+
+    return f, vjp
+
+
+def check_depth_loss(seed: int, mode: str, kind: str) -> list[GradcheckResult]:
+    scene = smooth_scene(seed, mode=mode, near_clamp=mode)
+    measured, mask, min_alpha = depth_target(scene, mode, seed)
+    f, vjp = depth_loss_fn(scene, mode, measured, mask, min_alpha, kind)
+    # One scalar (a mean over ~1000 pixels, about 0.05) whose splat gradients are as small as 1e-7:
+    # central differences at the default step 1e-6 lost up to 9.9e-7 of them (relative) to rounding,
+    # 2.5e-7 at 1e-5, which is still 10x inside every discontinuity margin (the scene's MARGIN, and
+    # 1e-4 for the residuals' and alphas' kinks in depth_target). The pose and intrinsics keep the
+    # default step, where the larger step's truncation error grew (6e-7 against 1e-8 on xi).
+    eps = {k: 1e-5 for k in PARAMS}
+    return check_vjp(f, vjp, _camera_inputs(scene), seed=seed, eps=eps,
+                     name=f"splat.depth_loss[{mode},{kind},seed={seed}]")
+
+
+@register_check("splat.camera")
+def camera_checks() -> list[GradcheckResult]:
+    # Pose (left se(3) twist) and intrinsics gradients of rgb, alpha and depth, beside the splats'.
+    return (check_camera(0, "3dgs", False) + check_camera(1, "3dgs", True) + check_camera(2, "gsplat", False)
+            + check_camera(3, "gsplat", True, near_clamp=False))
+
+
+@register_check("splat.depth_loss")
+def depth_loss_checks() -> list[GradcheckResult]:
+    return check_depth_loss(0, "3dgs", "l1") + check_depth_loss(1, "gsplat", "l2")
