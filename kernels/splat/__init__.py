@@ -77,7 +77,8 @@ from kernels.splat.render import Render, render, render_backward
 from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles, splats_2d
 
 __all__ = [
-    "ALPHA_MAX", "ALPHA_MAX_OF", "ALPHA_MIN", "DEFAULT_MODE", "MODES", "RADIUS_FLOOR_OF", "DEFAULT_FAR", "DEFAULT_NEAR", "DILATION", "SH_C0", "TILE", "TILE_PIXELS", "T_MIN",
+    "ALPHA_MAX", "ALPHA_MAX_OF", "ALPHA_MIN", "DEFAULT_MODE", "MODES", "RADIUS_FLOOR_OF", "DEFAULT_FAR",
+    "DEFAULT_NEAR", "DILATION", "SH_C0", "TILE", "TILE_PIXELS", "T_MIN",
     "GaussianInputs", "Projection", "Raster", "Render", "SplatCamera", "Splats2D", "Tiles",
     "bin_tiles", "gaussian_inputs", "project", "project_backward", "rasterize", "rasterize_backward", "render",
     "render_backward", "se3_exp", "splats_2d",

@@ -175,7 +175,8 @@ def _screen_conic(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, c
 
 @wp.func
 def _projection_vjp(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int,
-                    height: int, mode: int, antialiased: int, g_comp: Any, gQa: Any, gQb: Any, gQc: Any, gu: Any, gv: Any,
+                    height: int, mode: int, antialiased: int, g_comp: Any, gQa: Any, gQb: Any, gQc: Any, gu: Any,
+                    gv: Any,
                     g_depth: Any):
     """(dL/dmu, dL/dq, dL/dl, opacity factor c, det, dL/drho, dL/dphi, dL/d(fx, fy, cx, cy)) of the
     projection's geometry, for the cotangents of the conic, mean2d and depth and dL/dc = g_comp (c = 1
@@ -350,7 +351,8 @@ def _project_backward_kernel(
     sig = sigmoid(opacity_logits[i])
     g_o = g_opacities[i]
     g_mu, g_q, g_l, comp, det, g_rho, g_phi, g_intr = _projection_vjp(
-        mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height, mode, antialiased, g_o * sig, g_conics[i, 0], g_conics[i, 1],
+        mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height, mode, antialiased, g_o * sig, g_conics[i, 0],
+        g_conics[i, 1],
                                                 g_conics[i, 2], g_means2d[i, 0], g_means2d[i, 1], g_depths[i])
     if wp.isnan(det) or wp.isinf(det):
         W64, t64 = _load_view_f64(view)

@@ -75,7 +75,8 @@ def _gauss_power(packed: wp.array2d(dtype=Any), g: int, pxf: Any, pyf: Any):
 def _raster_forward_kernel(
     packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
     sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
-    alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any), out_depth: wp.array2d(dtype=Any),
+    alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any),
+    out_depth: wp.array2d(dtype=Any),
     final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32), offset: int,
 ):
     t = wp.tid() + offset
@@ -129,7 +130,8 @@ def _raster_backward_tile_kernel(
     packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
     sorted_gid: wp.array(dtype=wp.int32), sorted_entry: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
     width: int, height: int, tiles_x: int, alpha_max: Any, final_T: wp.array2d(dtype=Any),
-    n_contrib: wp.array2d(dtype=wp.int32), g_rgb: wp.array3d(dtype=Any), g_alpha: wp.array2d(dtype=Any), g_depth: wp.array2d(dtype=Any),
+    n_contrib: wp.array2d(dtype=wp.int32), g_rgb: wp.array3d(dtype=Any), g_alpha: wp.array2d(dtype=Any),
+    g_depth: wp.array2d(dtype=Any),
     entry_grads: wp.array2d(dtype=Any), tile_bg_grads: wp.array2d(dtype=Any), offset: int,
 ):
     # One thread per tile: it alone writes the rows of its (tile, splat) entries and its background row.
@@ -329,7 +331,8 @@ def rasterize_backward_wp(a: A.Inputs, s: Splats2D, width: int, height: int, bg:
     tile_bg = a.zeros((n_tiles, 3))
     a.launch(_raster_backward_tile_kernel, n_tiles,
              [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.sorted_entry, tiles.ranges, width, height,
-              tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]), final_t, n_contrib, g_rgb, g_a, g_d, entry_grads, tile_bg], min_chunk=1)
+              tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]), final_t, n_contrib, g_rgb, g_a, g_d, entry_grads, tile_bg],
+             min_chunk=1)
     out = {"means2d": a.zeros((n, 2)), "conics": a.zeros((n, 3)), "opacities": a.zeros(n), "colors": a.zeros((n, 3)),
            "depths": a.zeros(n)}
     a.launch(_gather_entry_grads_kernel, n,
