@@ -5,8 +5,9 @@
 (kernels/splat/projection.py, tiles.py, raster.py), every stage following `mode`: "3dgs" (the
 default, the original 3DGS code) or "gsplat" (kernels/splat/modes.py has the table). The
 backward runs the stages' backwards in reverse: the rasteriser's gives the gradients of the
-screen-space splats, which the projection's carries to the parameters. Intermediate arrays stay wp.arrays on the device; only the results
-the caller sees follow the kind of its inputs (kernels/_arrays.py).
+screen-space splats, which the projection's carries to the parameters. Intermediate arrays stay
+wp.arrays on the device; only the results the caller sees follow the kind of its inputs
+(kernels/_arrays.py).
 """
 
 from __future__ import annotations

@@ -63,8 +63,9 @@ def random_scene(rng: np.random.Generator, n: int = 12, width: int = 40, height:
     With `off_frustum`, splat 0 sits right of the image beyond the Jacobian clamp (x/z = 0.75
     against limits of 0.52 in "3dgs" and 0.51 in "gsplat" mode) and is large enough to reach into it.
     With `big`, splats 1..big get scales near 3 (3 sigma of 95-130 px) and opacity 0.1-0.3: each
-    covers the whole image, and its radius hits the clamp of kernels/splat/projection.py (drawn after everything else, so the other
-    splats are those of the same rng without `big`). With `near_clamp` (a mode), splat 0 sits 0.004
+    covers the whole image, and its radius hits the clamp of kernels/splat/projection.py (drawn
+    after everything else, so the other splats are those of the same rng without `big`). With
+    `near_clamp` (a mode), splat 0 sits 0.004
     beyond the mode's Jacobian clamp on the right (x/z) and splat 1 0.004 inside it at the top (y/z),
     both centred off the image and large enough to reach into it.
     """
