@@ -183,6 +183,10 @@ def add_options(p) -> None:
                         "SfM points, else random)")
     add_data_options(p)
     p.add_argument("--iterations", type=int, default=None, help="override the number of training iterations")
+    p.add_argument("--mode", choices=["3dgs", "gsplat"], default="3dgs",
+                   help="projection and compositing conventions (kernels/splat/modes.py): the original 3DGS "
+                        "code's (default) or gsplat's (its frustum clamp, radius floor, 0.999 alpha clamp and "
+                        "<= stop), for comparing against gsplat-trained numbers")
 
 
 def run(ctx: Context) -> int:
@@ -234,16 +238,16 @@ def run(ctx: Context) -> int:
     model = sm.from_points(points, colors)
     extent = sm.scene_extent(train_split.cameras)
     tcfg = st.TrainConfig(iterations=cfg.iterations, seed=ctx.seed, background=background,
-                          densify=st.DensifyConfig(max_gaussians=cfg.max_gaussians))
+                          densify=st.DensifyConfig(max_gaussians=cfg.max_gaussians), mode=args.mode)
     result = st.train(model, train_split.cameras, train_rgb, extent, tcfg, device=ctx.device,
                       progress=ctx.progress)
     model = result.model
 
     ev = st.evaluate(model, test_split.cameras, test_rgb, result.sh_degree, background=background,
-                     device=ctx.device)
+                     device=ctx.device, mode=args.mode)
     ev_train = st.evaluate(model, train_split.cameras[:10], train_rgb[:10], result.sh_degree, background=background,
-                           device=ctx.device)
-    fps = st.render_fps(model, test_split.cameras, result.sh_degree, device=ctx.device)
+                           device=ctx.device, mode=args.mode)
+    fps = st.render_fps(model, test_split.cameras, result.sh_degree, device=ctx.device, mode=args.mode)
 
     ply_path = (args.ply or registry.base_dir() / "build" / f"fit_splats{suffix}" / "point_cloud.ply").absolute()
     same = st.ply_round_trip_identical(ply_path, model, test_split.cameras[0], result.sh_degree,
@@ -257,7 +261,9 @@ def run(ctx: Context) -> int:
     scene = (f"{data['scene']} {cam0.width}x{cam0.height}" if ds.format == "drlab"
              else f"{data['scene']} ({ds.format}, {ds.protocol.name}) {cam0.width}x{cam0.height}")
     metrics = {
-        "method": "3DGS (drlab Warp kernels, CPU)" if ctx.device == "cpu" else "3DGS (drlab Warp kernels)",
+        "method": ("3DGS (drlab Warp kernels, CPU)" if ctx.device == "cpu" else "3DGS (drlab Warp kernels)")
+        + ("" if args.mode == "3dgs" else f", {args.mode} conventions"),
+        "mode": args.mode,
         "scene": f"{scene}, {len(train_split.cameras)} train / {len(test_split.cameras)} test",
         "eval_protocol": data["eval_protocol"], "data": data,
         "test_psnr": ev.psnr, "test_ssim": ev.ssim, "test_psnr_linear": ev.psnr_linear,
@@ -277,7 +283,9 @@ def run(ctx: Context) -> int:
              f"{ply_bytes / 1e6:.2f} MB"]]
     table = (f"3D Gaussian splatting fitted with drlab's Warp kernels (hand-written backward) on Warp device "
              f"`{wp.get_device(ctx.device)}`: 3DGS loss, learning rates and schedule scaled to {cfg.iterations} "
-             f"iterations, at most {cfg.max_gaussians} splats (a CPU-time cap on densification). Evaluation: "
+             f"iterations, at most {cfg.max_gaussians} splats (a CPU-time cap on densification); projection and "
+             f"compositing follow {'the original 3DGS code' if args.mode == '3dgs' else 'gsplat'} "
+             f"(kernels/splat/modes.py). Evaluation: "
              f"{data['eval_protocol']}. Render FPS: forward only (projection, binning, sorting, rasterisation) at the "
              "test resolution. Train-view PSNR on the first 10 train views.\n\n" + markdown_table(headers, rows)
              + "\n![renders beside the ground truth](renders.png)\n\n![training](training.png)\n")

@@ -136,6 +136,18 @@ def test_smoke_run(name, tmp_path, data_dir):
     print(f"{name} --smoke: {seconds:.1f} s")
 
 
+@pytest.mark.timeout(240)
+def test_fit_splats_gsplat_mode_is_recorded(tmp_path, data_dir):
+    """`fit_splats --mode gsplat` trains and evaluates with gsplat's conventions and says so in the table."""
+    out = tmp_path / "out"
+    r = _run(["-m", "experiments.fit_splats", "--smoke", "--no-progress", "--out", str(out), "--data", str(data_dir),
+              "--ply", str(tmp_path / "model.ply"), "--mode", "gsplat"])
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    doc = json.loads((out / "metrics.json").read_text())
+    assert doc["metrics"]["mode"] == "gsplat" and doc["config"]["train"]["mode"] == "gsplat"
+    assert doc["metrics"]["method"].endswith("gsplat conventions") and "follow gsplat" in (out / "table.md").read_text()
+
+
 # --------------------------------------------------------------------------- options and help
 
 
