@@ -1,0 +1,61 @@
+"""The bench infrastructure: interleaved medians and `--compare` routing (research.bench)."""
+
+import sys
+import types
+
+import pytest
+
+from research.bench import accepts_compare, run_bench, time_medians
+
+
+def _install_family(monkeypatch, name: str, cases) -> None:
+    mod = types.ModuleType(f"_fake_bench_{name}")
+    mod.cases = cases
+    monkeypatch.setitem(sys.modules, mod.__name__, mod)
+    from research import registry
+
+    monkeypatch.setitem(registry.BENCH_MODULES, name, mod.__name__)
+
+
+def test_compare_is_passed_only_to_families_that_accept_it(monkeypatch):
+    seen = {}
+
+    def with_compare(device="cpu", quick=False, tiny=False, compare=False):
+        seen["with"] = compare
+        yield {"bench": "fa.x", "device": device, "threads": 1, "t_s": 1.0}
+
+    def without_compare(device="cpu", quick=False, tiny=False):
+        seen["without"] = "called"
+        yield {"bench": "fb.x", "device": device, "threads": 1, "t_s": 1.0}
+
+    _install_family(monkeypatch, "fa", with_compare)
+    _install_family(monkeypatch, "fb", without_compare)
+    rows = run_bench(["fa", "fb"], "cpu", quick=True, compare=True)
+    assert seen == {"with": True, "without": "called"}
+    assert [r["bench"] for r in rows] == ["fa.x", "fb.x"] and all("cpu" in r for r in rows)
+    seen.clear()
+    run_bench(["fa"], "cpu", quick=True)
+    assert seen == {"with": False}
+
+
+@pytest.mark.parametrize("fn, expected", [
+    (lambda device, quick, tiny=False, compare=False: None, True),
+    (lambda device, quick, tiny=False: None, False),
+    (lambda device, quick, **kw: None, True),
+], ids=["keyword", "absent", "var_keyword"])
+def test_accepts_compare(fn, expected):
+    assert accepts_compare(fn) is expected
+
+
+def test_time_medians_interleaves():
+    order = []
+    time_medians({"a": lambda: order.append("a"), "b": lambda: order.append("b")}, repeats=3, warmup=1)
+    assert order == ["a", "b"] * 4
+
+
+def test_cli_bench_help_documents_compare():
+    from research.cli import build_parser
+
+    p = build_parser()
+    sub = next(a for a in p._subparsers._group_actions if a.dest)  # the subcommand action
+    assert "--compare" in sub.choices["bench"].format_help()
