@@ -107,6 +107,47 @@ def _submit(fn: Callable[[], None], count: int) -> list[Future]:
         return [_pool.submit(fn) for _ in range(count)]
 
 
+def parallel_ranges(fn: Callable[[int, int], None], n: int, *, threads: int | None = None,
+                    min_chunk: int = 1 << 16) -> None:
+    """Call `fn(lo, hi)` over contiguous ranges covering [0, n), one per thread, concurrently.
+
+    For host-side NumPy passes over large arrays (NumPy's ufuncs release the GIL): `fn` must write
+    only inside its own range. The caller's thread runs one range itself; an exception raised by
+    any range is re-raised here after all have finished.
+    """
+    n_threads = default_threads() if threads is None else threads
+    n_parts = max(1, min(n_threads, n // max(1, min_chunk)))
+    if n_parts <= 1:
+        if n > 0:
+            fn(0, n)
+        return
+    bounds = chunk_bounds(n, n_parts)
+    it = iter(bounds[1:])
+    lock = threading.Lock()
+
+    def work() -> None:
+        while True:
+            with lock:
+                b = next(it, None)
+            if b is None:
+                return
+            fn(b[0], b[0] + b[1])
+
+    futures = _submit(work, n_parts - 1)
+    error: BaseException | None = None
+    try:
+        fn(bounds[0][0], bounds[0][1])
+    except BaseException as exc:  # wait for the others before re-raising: they use the caller's arrays
+        error = exc
+    for fut in futures:
+        try:
+            fut.result()
+        except BaseException as exc:
+            error = error or exc
+    if error is not None:
+        raise error
+
+
 def _overload_key(kernel: Any, device: Any, inputs: list[Any]) -> tuple:
     types = tuple((type(a), getattr(a, "dtype", None), getattr(a, "ndim", None)) for a in inputs)
     return (id(kernel), device.alias, types)

@@ -169,3 +169,31 @@ def test_first_launch_of_an_overload_is_split_safely(dtype):
     x = wp.zeros(10_000, dtype=dtype, device=DEVICE)
     launch_split(first_use, 10_000, [x], device=DEVICE, threads=4, min_chunk=10)
     np.testing.assert_array_equal(x.numpy(), (np.arange(10_000) * 0.5).astype(x.numpy().dtype))
+
+
+@pytest.mark.parametrize("n, threads, min_chunk", [(0, 2, 4), (5, 2, 4), (1000, 2, 16), (1001, 3, 7), (10, 1, 1)],
+                         ids=["empty", "one_range", "two_threads", "three_threads_uneven", "one_thread"])
+def test_parallel_ranges_covers_every_index_once(n, threads, min_chunk):
+    hits = np.zeros(n, dtype=np.int64)
+    calls = []
+
+    def fn(lo, hi):
+        calls.append((lo, hi))
+        hits[lo:hi] += 1
+
+    kl.parallel_ranges(fn, n, threads=threads, min_chunk=min_chunk)
+    assert np.all(hits == 1)
+    assert len(calls) == (0 if n == 0 else max(1, min(threads, n // min_chunk)))
+
+
+def test_parallel_ranges_reraises_after_all_ranges_finish():
+    done = []
+
+    def fn(lo, hi):
+        if lo == 0:
+            raise RuntimeError("range 0 failed")
+        done.append(lo)
+
+    with pytest.raises(RuntimeError, match="range 0 failed"):
+        kl.parallel_ranges(fn, 100, threads=2, min_chunk=10)
+    assert done == [50]
