@@ -59,3 +59,25 @@ def test_cli_bench_help_documents_compare():
     p = build_parser()
     sub = next(a for a in p._subparsers._group_actions if a.dest)  # the subcommand action
     assert "--compare" in sub.choices["bench"].format_help()
+
+
+def test_volume_compare_rows_carry_reference_or_ref_missing():
+    import importlib.util
+
+    from research.bench import volume
+
+    rows = {r["bench"]: r for r in volume.cases("cpu", quick=True, tiny=True, compare=True)
+            if not r["bench"].startswith("volume.field")}
+    have_torch = importlib.util.find_spec("torch") is not None
+    for name, phases in (("volume.composite", ("fwd", "fwd_bwd")), ("volume.composite_fwd", ("fwd",))):
+        row = rows[name]
+        if have_torch:
+            assert row["ref"].startswith("torch") and "ref_missing" not in row
+            for p in phases:
+                assert row[f"ref_{p}_s"] > 0 and row[f"speedup_{p}"] == row[f"ref_{p}_s"] / row[f"{p}_s"]
+        else:
+            assert "torch" in row["ref_missing"] and not any(k.startswith(("ref_", "speedup_")) and k != "ref_missing"
+                                                             for k in row)
+    assert rows["volume.composite"]["bound_s"] > 0
+    sph = rows["volume.spheres_render"]
+    assert sph["speedup_render"] == sph["ref_render_s"] / sph["render_s"]
