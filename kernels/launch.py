@@ -148,6 +148,40 @@ def parallel_ranges(fn: Callable[[int, int], None], n: int, *, threads: int | No
         raise error
 
 
+def parallel_items(fn: Callable[[int], None], n: int, *, threads: int | None = None) -> None:
+    """Call `fn(i)` for i in [0, n) on the launch threads, each pulling the next item when free.
+
+    For a few items of unequal cost (one launch per item, e.g. per hash-grid level, whose writes
+    are disjoint). `fn` must write nothing another item touches. The caller's thread is one of the
+    workers; an exception raised by any item is re-raised here after all workers have stopped.
+    """
+    n_threads = default_threads() if threads is None else threads
+    n_workers = max(1, min(n_threads, n))
+    items = iter(range(n))
+    lock = threading.Lock()
+    errors: list[BaseException] = []
+
+    def work() -> None:
+        while True:
+            with lock:
+                i = None if errors else next(items, None)
+            if i is None:
+                return
+            try:
+                fn(i)
+            except BaseException as exc:
+                with lock:
+                    errors.append(exc)
+                return
+
+    futures = _submit(work, n_workers - 1) if n_workers > 1 else []
+    work()
+    for fut in futures:
+        fut.result()
+    if errors:
+        raise errors[0]
+
+
 def _overload_key(kernel: Any, device: Any, inputs: list[Any]) -> tuple:
     types = tuple((type(a), getattr(a, "dtype", None), getattr(a, "ndim", None)) for a in inputs)
     return (id(kernel), device.alias, types)

@@ -197,3 +197,26 @@ def test_parallel_ranges_reraises_after_all_ranges_finish():
     with pytest.raises(RuntimeError, match="range 0 failed"):
         kl.parallel_ranges(fn, 100, threads=2, min_chunk=10)
     assert done == [50]
+
+
+@pytest.mark.parametrize("n, threads", [(0, 2), (1, 2), (16, 2), (5, 3), (7, 1)],
+                         ids=["empty", "one_item", "levels", "more_threads_than_needed", "one_thread"])
+def test_parallel_items_calls_every_item_once(n, threads):
+    seen = []
+    lock = threading.Lock()
+
+    def fn(i):
+        with lock:
+            seen.append(i)
+
+    kl.parallel_items(fn, n, threads=threads)
+    assert sorted(seen) == list(range(n))
+
+
+def test_parallel_items_reraises():
+    def fn(i):
+        if i == 3:
+            raise KeyError("item 3")
+
+    with pytest.raises(KeyError, match="item 3"):
+        kl.parallel_items(fn, 8, threads=2)
