@@ -89,11 +89,12 @@ def accepts_compare(cases: Callable[..., Any]) -> bool:
     return "compare" in params or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
 
 
-def run_bench(families: list[str] | None, device: str, quick: bool, compare: bool = False) -> list[dict]:
+def run_bench(families: list[str] | None, device: str, quick: bool, compare: bool = False,
+              tiny: bool = False) -> list[dict]:
     """Run the cases of the named families (all registered ones when None or empty).
 
     `compare`: also time the reference libraries, in the families whose `cases` accept `compare`
-    (the others run as without it).
+    (the others run as without it). `tiny`: every case at its test size (experiments' --smoke).
     """
     from research.registry import BENCH_MODULES
 
@@ -106,6 +107,8 @@ def run_bench(families: list[str] | None, device: str, quick: bool, compare: boo
     for family in names:
         module = importlib.import_module(BENCH_MODULES[family])
         kwargs: dict[str, Any] = {"device": device, "quick": quick}
+        if tiny:
+            kwargs["tiny"] = True
         if compare and accepts_compare(module.cases):
             kwargs["compare"] = True
         for row in module.cases(**kwargs):
