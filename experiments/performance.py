@@ -16,7 +16,9 @@ within 2x of the measured bandwidth bound (bound_s: reading sigma, rgb and delta
 textbook spheres render <= 5 ms, hash grid + MLP forward plus backward at 1M points <= 2 s,
 split launch >= 1.9x on 2 cores.
 
-Writes results/performance/{table.md, metrics.json (every bench row), figure.png}.
+Writes results/performance/{table.md, metrics.json (every bench row), figure.png}. A full run
+into the default folder of a checkout (what `make reproduce` does) then copies table.md into
+README.md between the markers README_START and README_END (the README's performance table).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import operator
 from pathlib import Path
 from typing import Any
 
+from research import registry
 from research.experiment import Context, Experiment
 from research.results import markdown_table, save_figure
 
@@ -38,6 +41,8 @@ TARGETS: dict[tuple[str, str], tuple[Any, float, str]] = {
     ("volume.field.hashgrid", "fwd_bwd_s"): (operator.le, 2.0, "fwd+bwd <= 2 s at 1M points"),
     ("launch.split", "speedup"): (operator.ge, 1.9, ">= 1.9x on 2 cores"),
 }
+README_START = "<!-- performance table: written by experiments/performance.py (make reproduce) -->"
+README_END = "<!-- end of the performance table -->"
 # Keys that describe a case's size (shown in the sizes column), in this order when present.
 _NOT_SIZES = {"bench", "device", "threads", "cpu", "ref", "ref_missing", "params"}
 
@@ -123,7 +128,22 @@ def run(ctx: Context) -> int:
                "n_with_reference": sum(ln["ref_s"] is not None for ln in lines)}
     config = {"quick": ctx.quick, "smoke": ctx.smoke, "families": families, "compare": True}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
+    if full and registry.in_checkout() and ctx.final_out.resolve() == registry.default_out("performance").resolve():
+        ctx.after_commit(lambda: refresh_readme(registry.REPO_ROOT / "README.md", table))
     return 0
+
+
+def refresh_readme(readme: Path, table_md: str) -> str:
+    """Replace the text between README_START and README_END in `readme` with `table_md`."""
+    from research import atomic
+
+    text = readme.read_text()
+    start, end = text.find(README_START), text.find(README_END)
+    if start < 0 or end < start:
+        return f"{readme}: no performance-table markers; README not changed"
+    body = text[:start + len(README_START)] + "\n" + table_md.strip() + "\n" + text[end:]
+    atomic.write_text(readme, body)
+    return f"{readme}: performance table refreshed"
 
 
 def figure(lines: list[dict], path: Path) -> None:

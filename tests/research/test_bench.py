@@ -81,3 +81,16 @@ def test_volume_compare_rows_carry_reference_or_ref_missing():
     assert rows["volume.composite"]["bound_s"] > 0
     sph = rows["volume.spheres_render"]
     assert sph["speedup_render"] == sph["ref_render_s"] / sph["render_s"]
+
+
+def test_performance_refresh_readme_replaces_only_between_markers(tmp_path):
+    from experiments.performance import README_END, README_START, refresh_readme
+
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\nbefore\n{README_START}\nold table\n{README_END}\nafter\n")
+    assert "refreshed" in refresh_readme(readme, "| a |\n|---|\n| 1 |\n")
+    assert readme.read_text() == f"# x\n\nbefore\n{README_START}\n| a |\n|---|\n| 1 |\n{README_END}\nafter\n"
+    plain = tmp_path / "PLAIN.md"
+    plain.write_text("no markers\n")
+    assert "not changed" in refresh_readme(plain, "| a |")
+    assert plain.read_text() == "no markers\n"
