@@ -46,6 +46,13 @@ equal parts waits for the slowest part; pulling smaller chunks balances
 indices of unequal cost (early ray termination, tiles holding different
 numbers of splats) and a core shared with another process. A grid too small
 for two chunks runs as one plain launch.
+
+Two host-side helpers share the same thread pool: `parallel_ranges(fn, n)`
+calls fn(lo, hi) on contiguous ranges, one per thread (NumPy passes over large
+arrays; NumPy's ufuncs release the GIL), and `parallel_items(fn, n)` calls
+fn(i) for each of a few items of unequal cost, each thread pulling the next
+(e.g. one launch per hash-grid level, whose writes are disjoint). The same
+rule holds for both: what one range or item writes, no other touches.
 """
 
 from __future__ import annotations
