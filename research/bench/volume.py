@@ -20,7 +20,8 @@ with the same keys, for the test suite):
                           per-call overhead (checks, launch set-up) shows.
   * volume.spheres_render the textbook task: 64x64 rays x 64 samples through SphereField.textbook in
                           float32, dense_samples + render_samples + the image back in NumPy (`render_s`),
-                          as experiments/volume_render_spheres times it.
+                          as experiments/volume_render_spheres times it, and the same image through the
+                          fused SphereField.render_dense (`render_fused_s`).
 Each figure is the median of 3 runs (5 for compositing) after a warm-up (research.bench.time_median).
 
 `bound_s` (volume.composite) is the memory-bandwidth bound measured here: reading sigma, rgb and
@@ -201,15 +202,23 @@ def _spheres_case(dev, threads: int, tiny: bool, sync, compare: bool) -> dict:
                           device=dev)
         return render_samples(field, s, background=(0.0, 0.0, 0.0), t_threshold=0.0).rgb.numpy()
 
-    fns = {"render": render}
+    def render_fused():  # the same image through SphereField.render_dense (one kernel per ray)
+        rgb, _, _ = field.render_dense(origins.astype(np.float32), dirs.astype(np.float32),
+                                       np.tile(t, (n_rays, 1)).astype(np.float32),
+                                       np.tile(delta, (n_rays, 1)).astype(np.float32), t_threshold=0.0)
+        return rgb
+
+    fns = {"render": render, "render_fused": render_fused}
     if compare:
         fns["ref_render"] = lambda: tb.render_image_vectorized(h, w, focal)
     times = time_medians(fns, repeats=5, sync=sync)
     row = {"bench": "volume.spheres_render", "device": str(dev), "threads": threads, "rays": n_rays,
-           "samples": tb.N_SAMPLES, "render_s": times["render"]}
-    if compare:
-        row.update(ref="numpy (research.nerf.textbook.render_image_vectorized, float64)",
-                   ref_render_s=times["ref_render"], speedup_render=times["ref_render"] / times["render"])
+           "samples": tb.N_SAMPLES, "render_s": times["render"], "render_fused_s": times["render_fused"]}
+    if compare:  # one reference, timed once per round, against both drlab paths
+        row["ref"] = "numpy (research.nerf.textbook.render_image_vectorized, float64)"
+        for phase in ("render", "render_fused"):
+            row[f"ref_{phase}_s"] = times["ref_render"]
+            row[f"speedup_{phase}"] = times["ref_render"] / times[phase]
     return row
 
 

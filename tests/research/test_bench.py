@@ -80,7 +80,8 @@ def test_volume_compare_rows_carry_reference_or_ref_missing():
                                                              for k in row)
     assert rows["volume.composite"]["bound_s"] > 0
     sph = rows["volume.spheres_render"]
-    assert sph["speedup_render"] == sph["ref_render_s"] / sph["render_s"]
+    for phase in ("render", "render_fused"):
+        assert sph[f"speedup_{phase}"] == sph[f"ref_{phase}_s"] / sph[f"{phase}_s"]
 
 
 def test_performance_refresh_readme_replaces_only_between_markers(tmp_path):
