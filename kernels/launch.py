@@ -119,8 +119,8 @@ def parallel_ranges(fn: Callable[[int, int], None], n: int, *, threads: int | No
     """Call `fn(lo, hi)` over contiguous ranges covering [0, n), one per thread, concurrently.
 
     For host-side NumPy passes over large arrays (NumPy's ufuncs release the GIL): `fn` must write
-    only inside its own range. The caller's thread runs one range itself; an exception raised by
-    any range is re-raised here after all have finished.
+    only inside its own range. The caller's thread is one of the workers; after a failure no new
+    range starts, and the first exception is re-raised here once every worker has stopped.
     """
     n_threads = default_threads() if threads is None else threads
     n_parts = max(1, min(n_threads, n // max(1, min_chunk)))
@@ -129,30 +129,31 @@ def parallel_ranges(fn: Callable[[int, int], None], n: int, *, threads: int | No
             fn(0, n)
         return
     bounds = chunk_bounds(n, n_parts)
-    it = iter(bounds[1:])
+    it = iter(bounds)
     lock = threading.Lock()
+    errors: list[BaseException] = []
 
     def work() -> None:
+        # Every thread, the caller's included, pulls the next range until none is left (so the
+        # ranges finish even while the pool's workers are busy with another caller's work).
         while True:
             with lock:
-                b = next(it, None)
+                b = None if errors else next(it, None)
             if b is None:
                 return
-            fn(b[0], b[0] + b[1])
+            try:
+                fn(b[0], b[0] + b[1])
+            except BaseException as exc:
+                with lock:
+                    errors.append(exc)
+                return
 
     futures = _submit(work, n_parts - 1)
-    error: BaseException | None = None
-    try:
-        fn(bounds[0][0], bounds[0][1])
-    except BaseException as exc:  # wait for the others before re-raising: they use the caller's arrays
-        error = exc
-    for fut in futures:
-        try:
-            fut.result()
-        except BaseException as exc:
-            error = error or exc
-    if error is not None:
-        raise error
+    work()
+    for fut in futures:  # wait for every worker, even after a failure: they use the caller's arrays
+        fut.result()
+    if errors:
+        raise errors[0]
 
 
 def parallel_items(fn: Callable[[int], None], n: int, *, threads: int | None = None) -> None:
