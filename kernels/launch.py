@@ -46,6 +46,13 @@ equal parts waits for the slowest part; pulling smaller chunks balances
 indices of unequal cost (early ray termination, tiles holding different
 numbers of splats) and a core shared with another process. A grid too small
 for two chunks runs as one plain launch.
+
+Two host-side helpers share the same thread pool: `parallel_ranges(fn, n)`
+calls fn(lo, hi) on contiguous ranges, one per thread (NumPy passes over large
+arrays; NumPy's ufuncs release the GIL), and `parallel_items(fn, n)` calls
+fn(i) for each of a few items of unequal cost, each thread pulling the next
+(e.g. one launch per hash-grid level, whose writes are disjoint). The same
+rule holds for both: what one range or item writes, no other touches.
 """
 
 from __future__ import annotations
@@ -105,6 +112,82 @@ def _submit(fn: Callable[[], None], count: int) -> list[Future]:
                 _pool.shutdown(wait=False)  # its submitted work still runs to completion
             _pool, _pool_size = ThreadPoolExecutor(max_workers=count, thread_name_prefix="drlab-launch"), count
         return [_pool.submit(fn) for _ in range(count)]
+
+
+def parallel_ranges(fn: Callable[[int, int], None], n: int, *, threads: int | None = None,
+                    min_chunk: int = 1 << 16) -> None:
+    """Call `fn(lo, hi)` over contiguous ranges covering [0, n), one per thread, concurrently.
+
+    For host-side NumPy passes over large arrays (NumPy's ufuncs release the GIL): `fn` must write
+    only inside its own range. The caller's thread is one of the workers; after a failure no new
+    range starts, and the first exception is re-raised here once every worker has stopped.
+    """
+    n_threads = default_threads() if threads is None else threads
+    n_parts = max(1, min(n_threads, n // max(1, min_chunk)))
+    if n_parts <= 1:
+        if n > 0:
+            fn(0, n)
+        return
+    bounds = chunk_bounds(n, n_parts)
+    it = iter(bounds)
+    lock = threading.Lock()
+    errors: list[BaseException] = []
+
+    def work() -> None:
+        # Every thread, the caller's included, pulls the next range until none is left (so the
+        # ranges finish even while the pool's workers are busy with another caller's work).
+        while True:
+            with lock:
+                b = None if errors else next(it, None)
+            if b is None:
+                return
+            try:
+                fn(b[0], b[0] + b[1])
+            except BaseException as exc:
+                with lock:
+                    errors.append(exc)
+                return
+
+    futures = _submit(work, n_parts - 1)
+    work()
+    for fut in futures:  # wait for every worker, even after a failure: they use the caller's arrays
+        fut.result()
+    if errors:
+        raise errors[0]
+
+
+def parallel_items(fn: Callable[[int], None], n: int, *, threads: int | None = None) -> None:
+    """Call `fn(i)` for i in [0, n) on the launch threads, each pulling the next item when free.
+
+    For a few items of unequal cost (one launch per item, e.g. per hash-grid level, whose writes
+    are disjoint). `fn` must write nothing another item touches. The caller's thread is one of the
+    workers; an exception raised by any item is re-raised here after all workers have stopped.
+    """
+    n_threads = default_threads() if threads is None else threads
+    n_workers = max(1, min(n_threads, n))
+    items = iter(range(n))
+    lock = threading.Lock()
+    errors: list[BaseException] = []
+
+    def work() -> None:
+        while True:
+            with lock:
+                i = None if errors else next(items, None)
+            if i is None:
+                return
+            try:
+                fn(i)
+            except BaseException as exc:
+                with lock:
+                    errors.append(exc)
+                return
+
+    futures = _submit(work, n_workers - 1) if n_workers > 1 else []
+    work()
+    for fut in futures:
+        fut.result()
+    if errors:
+        raise errors[0]
 
 
 def _overload_key(kernel: Any, device: Any, inputs: list[Any]) -> tuple:

@@ -5,7 +5,7 @@
     drlab reproduce [EXP ...] [--quick] [--ray [--ray-address A]]   registered experiments, then results/README.md
     drlab sweep SPEC [--jobs N] [--ray [--ray-address A]]  a grid of runs from a TOML file (research.sweep)
     drlab gradcheck [KERNEL ...]       finite-difference table; exit status 1 on any failure
-    drlab bench [FAMILY ...] [--json]  timings (median of >= 3 runs after a warm-up)
+    drlab bench [FAMILY ...] [--json] [--compare]  timings (median of >= 3 runs after a warm-up)
     drlab list                         registered experiments, gradient checks and bench families
 
 Errors: a user mistake (a bad option or value, a folder that exists or is missing, a file that
@@ -364,7 +364,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                          f"registered: {sorted(BENCH_MODULES)}")
     device = _check_device(args.device)
     _quiet_warp()
-    rows = run_bench(args.families or None, device, args.quick)
+    rows = run_bench(args.families or None, device, args.quick, compare=args.compare)
     for row in rows:
         if args.json:
             print(json.dumps(row), flush=True)
@@ -476,6 +476,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", action="store_true", help="one JSON object per line")
     b.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
     b.add_argument("--quick", action="store_true", help="smaller sizes, for smoke tests")
+    b.add_argument("--compare", action="store_true",
+                   help="also time the reference library (PyTorch, OpenCV: the [bench] extra) on the same "
+                        "inputs, interleaved; adds ref, ref_<phase>_s and speedup_<phase> (> 1: drlab faster), "
+                        "or ref_missing when the library is not installed")
     b.set_defaults(fn=_cmd_bench)
 
     ls = sub.add_parser("list", help="list registered experiments, gradient checks and bench families")

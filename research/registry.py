@@ -136,6 +136,12 @@ register_experiment(
     quick_budget_s=600,
 )
 
+register_experiment(
+    "performance",
+    "drlab's kernels vs PyTorch / OpenCV / NumPy on the same CPU (drlab bench --compare): times, ratios, targets.",
+    quick_budget_s=600,
+)
+
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",

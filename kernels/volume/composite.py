@@ -36,6 +36,14 @@ the background with zero gradient.
 One thread per ray: every thread writes only its own ray's outputs and its own samples'
 gradients, so both kernels run through kernels.launch.launch_split on the CPU.
 
+Factors on the CPU. Warp's scalar exp costs 3.7 ns a sample on one core, more than the rest of
+the forward loop (3.0 ns): on the CPU the factors exp(-sigma_k delta_k) of all N samples are
+filled in first by NumPy's vectorised exp (about 1 ns a sample), split over the launch threads,
+and the kernel reads them. NumPy's float32 exp is within 2 ulp of the exact value (Warp's within
+0.5 ulp), so float32 outputs can differ from the in-kernel exponential by a few ulp of each
+factor (relative 2.4e-7); float64 is within 1 ulp either way. Samples after early termination
+get factors too (unused). On CUDA the kernel evaluates the exponential itself.
+
 Inputs follow the array contract (kernels._arrays): NumPy in gives NumPy out, wp.arrays in give
 wp.arrays on their device; inside `value_checks(False)` only shapes and dtypes are checked.
 """
@@ -50,6 +58,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
+from kernels.launch import parallel_ranges
 from kernels.volume._checks import check_ray_offsets
 from kernels.volume.workspace import Workspace
 
@@ -65,7 +74,7 @@ def _composite_forward_kernel(
     background_per_ray: int, t_threshold: typing.Any,
     out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_opacity: wp.array(dtype=typing.Any), out_transmittance: wp.array(dtype=typing.Any),
-    out_n_used: wp.array(dtype=wp.int32), out_factor: wp.array(dtype=typing.Any), offset: int,
+    out_n_used: wp.array(dtype=wp.int32), out_factor: wp.array(dtype=typing.Any), factor_given: int, offset: int,
 ):
     r = wp.tid() + offset
     one = sigma.dtype(1.0)
@@ -78,8 +87,12 @@ def _composite_forward_kernel(
     for k in range(ray_offsets[r], ray_offsets[r + 1]):
         if T < t_threshold:
             break
-        e = wp.exp(-sigma[k] * delta[k])
-        out_factor[k] = e
+        e = sigma.dtype(0.0)
+        if factor_given != 0:
+            e = out_factor[k]  # exp(-sigma_k delta_k), filled in before the launch (_fill_factor)
+        else:
+            e = wp.exp(-sigma[k] * delta[k])
+            out_factor[k] = e
         w = T * (one - e)
         cr += w * rgb[k, 0]
         cg += w * rgb[k, 1]
@@ -180,6 +193,24 @@ def dense_offsets(n_rays: int, n_samples: int) -> np.ndarray:
     return (np.arange(n_rays + 1, dtype=np.int64) * n_samples).astype(np.int32)
 
 
+def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array) -> int:
+    """On the CPU, factor = exp(-sigma delta) for every sample with NumPy's vectorised exp, split
+    over the launch threads; returns 1 (the kernel then reads the factors), or 0 on CUDA (the
+    kernel evaluates them). See the module docstring for the rounding this changes."""
+    if not factor.device.is_cpu:
+        return 0
+    s, d, f = sigma.numpy(), delta.numpy(), factor.numpy()  # zero-copy views of host arrays
+
+    def fill(lo: int, hi: int) -> None:
+        out = f[lo:hi]
+        np.multiply(s[lo:hi], d[lo:hi], out=out)
+        np.negative(out, out=out)
+        np.exp(out, out=out)
+
+    parallel_ranges(fill, f.shape[0])
+    return 1
+
+
 def _background(a: A.Inputs, background: Any, n_rays: int) -> tuple[wp.array, int]:
     """The background as a (1, 3) or (R, 3) array of the call's dtype, and whether it is per ray.
 
@@ -242,9 +273,10 @@ def composite_forward(
     else:
         res = CompositeResult(**{k: A.check_out(f"out.{k}", getattr(out, k), shape, t, a.device)
                                  for k, (shape, t) in layout.items()})
+    factor_given = _fill_factor(args[0], args[2], res.factor)
     a.launch(_composite_forward_kernel, n_rays,
              args + [bg, per_ray, a.s(t_threshold), res.rgb, res.depth, res.opacity, res.transmittance, res.n_used,
-                     res.factor], min_chunk=256)
+                     res.factor, factor_given], min_chunk=256)
     if out is not None or not a.as_numpy:
         return res
     return CompositeResult(**{k: a.out(v) for k, v in vars(res).items()})

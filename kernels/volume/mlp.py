@@ -32,7 +32,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.launch import launch_split
+from kernels.launch import launch_split, parallel_ranges
 
 wp.set_module_options({"enable_backward": False})
 
@@ -111,12 +111,53 @@ def _grad_bias_kernel(
 # dimension (N ~ 1e5) and a 64 x 64 result ran ~100x slower than blocks of this size on the project's
 # machines (2.1 s vs 0.02 s for N = 88000), so the product is accumulated block by block.
 _BLAS_BLOCK = 8192
+# Below this many rows a product is one BLAS call; above, row blocks run on the launch threads.
+_SPLIT_ROWS = 4096
+
+_blas_controller = None
+
+
+def _one_blas_thread():
+    """A context in which BLAS runs on the calling thread alone (threadpoolctl).
+
+    The products are split over the launch threads here (kernels.launch.parallel_ranges), each a
+    single-threaded BLAS call: OpenBLAS's own threads, on a machine whose cores are also busy with
+    other work, made the hash-grid field's backward 10x slower than its kernels (profile in
+    docs/performance.md). The limit is process-wide while the block lasts.
+    """
+    global _blas_controller
+    if _blas_controller is None:
+        from threadpoolctl import ThreadpoolController
+
+        _blas_controller = ThreadpoolController()
+    return _blas_controller.limit(limits=1, user_api="blas")
+
+
+def _rows_matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """out = a b, row blocks of `a` on the launch threads (each row's product is the same BLAS call)."""
+    if a.shape[0] < _SPLIT_ROWS:
+        np.matmul(a, b, out=out)
+        return
+    with _one_blas_thread():
+        parallel_ranges(lambda lo, hi: np.matmul(a[lo:hi], b, out=out[lo:hi]), a.shape[0], min_chunk=_SPLIT_ROWS // 2)
 
 
 def _weight_grad_blas(dz: np.ndarray, a: np.ndarray, out: np.ndarray) -> None:
+    """out = dz^T a as the sum over row blocks of _BLAS_BLOCK, added in block order (the products of
+    the blocks run on the launch threads, so the sum is the same whatever the thread count)."""
+    starts = list(range(0, dz.shape[0], _BLAS_BLOCK))
+    parts = np.empty((len(starts), *out.shape), dtype=out.dtype)
+
+    def blocks(lo: int, hi: int) -> None:
+        for j in range(lo, hi):
+            s = starts[j]
+            np.matmul(dz[s:s + _BLAS_BLOCK].T, a[s:s + _BLAS_BLOCK], out=parts[j])
+
+    with _one_blas_thread():
+        parallel_ranges(blocks, len(starts), min_chunk=1)
     out[:] = 0.0
-    for s in range(0, dz.shape[0], _BLAS_BLOCK):
-        out += dz[s:s + _BLAS_BLOCK].T @ a[s:s + _BLAS_BLOCK]
+    for j in range(len(starts)):
+        out += parts[j]
 
 
 @dataclass
@@ -184,7 +225,7 @@ class MLP:
             act = self._empty((n, self.sizes[l + 1])) if relu else z
             if n:
                 if self.backend == "numpy":
-                    np.matmul(a.numpy(), W.numpy().T, out=z.numpy())
+                    _rows_matmul(a.numpy(), W.numpy().T, z.numpy())
                     launch_split(_bias_relu_kernel, n, [z, b, relu, act], device=self.device, min_chunk=256)
                 else:
                     _matmul(a, W.transpose(), z, b, act if relu else None)
@@ -214,7 +255,7 @@ class MLP:
                 _weight_grad_blas(dz_np, a.numpy(), dW.numpy())
                 db.numpy()[:] = dz_np.sum(axis=0)
                 if need_da:
-                    np.matmul(dz_np, W.numpy(), out=da.numpy())
+                    _rows_matmul(dz_np, W.numpy(), da.numpy())
             else:
                 _matmul(dz.transpose(), a, dW, min_chunk=64)
                 launch_split(_grad_bias_kernel, W.shape[0], [dz, db], device=self.device, min_chunk=16)

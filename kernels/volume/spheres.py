@@ -19,6 +19,14 @@ The forward runs one thread per point (launch_split); the backward scatters ever
 contribution into the (few) sphere parameters with atomic adds in ONE launch (no Warp atomic is
 atomic between concurrent CPU launches, docs/warp.md). Points follow the array contract of
 kernels.volume.field.
+
+`SphereField.render_dense` is the forward of kernels.volume.render_samples(field,
+dense_samples(o, d, t, delta)) fused into one kernel, one thread per ray: x_k = o + t_k d, the
+field at x_k, and the compositing of kernels.volume.composite (z_k = t_k, early termination as
+there), without the packed sample, field-output and factor arrays of the general path (their
+allocation, first-touch page faults and memory traffic were most of the textbook task's time,
+docs/performance.md). Forward only. It evaluates exp(-sigma_k delta_k) with Warp's exp, so it
+agrees with the general path on the CPU (NumPy's exp there) to float rounding.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.volume._checks import check_dtype
+from kernels.volume.composite import DEFAULT_T_THRESHOLD
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.workspace import Workspace
 
@@ -55,6 +64,34 @@ def center_offset(points: wp.array2d(dtype=typing.Any), i: int, centers: wp.arra
     return dx, dy, dz, wp.sqrt(dx * dx + dy * dy + dz * dz)
 
 
+@wp.func
+def spheres_at(px: typing.Any, py: typing.Any, pz: typing.Any, centers: wp.array2d(dtype=typing.Any),
+               radii: wp.array(dtype=typing.Any), colors: wp.array2d(dtype=typing.Any),
+               sharpness: wp.array(dtype=typing.Any)):
+    """(sigma, r, g, b) of the spheres at the point (px, py, pz) (module docstring)."""
+    zero = type(px)(0.0)
+    sig = zero
+    nr = zero
+    ng = zero
+    nb = zero
+    for k in range(radii.shape[0]):
+        dx = px - centers[k, 0]
+        dy = py - centers[k, 1]
+        dz = pz - centers[k, 2]
+        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        m = wp.max(zero, dist - radii[k])
+        d = sharpness[k] * wp.exp(-sharpness[k] * m)
+        sig += d
+        nr += d * colors[k, 0]
+        ng += d * colors[k, 1]
+        nb += d * colors[k, 2]
+    if sig > type(px)(1e-6):
+        nr = nr / sig
+        ng = ng / sig
+        nb = nb / sig
+    return sig, nr, ng, nb
+
+
 @wp.kernel
 def _spheres_forward_kernel(
     points: wp.array2d(dtype=typing.Any), centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
@@ -62,27 +99,51 @@ def _spheres_forward_kernel(
     out_sigma: wp.array(dtype=typing.Any), out_rgb: wp.array2d(dtype=typing.Any), offset: int,
 ):
     i = wp.tid() + offset
-    zero = points.dtype(0.0)
-    sig = zero
-    nr = zero
-    ng = zero
-    nb = zero
-    for k in range(radii.shape[0]):
-        dx, dy, dz, dist = center_offset(points, i, centers, k)
-        m = wp.max(zero, dist - radii[k])
-        d = sharpness[k] * wp.exp(-sharpness[k] * m)
-        sig += d
-        nr += d * colors[k, 0]
-        ng += d * colors[k, 1]
-        nb += d * colors[k, 2]
+    sig, nr, ng, nb = spheres_at(points[i, 0], points[i, 1], points[i, 2], centers, radii, colors, sharpness)
     out_sigma[i] = sig
-    if sig > points.dtype(1e-6):
-        nr = nr / sig
-        ng = ng / sig
-        nb = nb / sig
     out_rgb[i, 0] = nr
     out_rgb[i, 1] = ng
     out_rgb[i, 2] = nb
+
+
+@wp.kernel
+def _spheres_render_dense_kernel(
+    origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
+    delta: wp.array2d(dtype=typing.Any), centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
+    colors: wp.array2d(dtype=typing.Any), sharpness: wp.array(dtype=typing.Any),
+    background: wp.array(dtype=typing.Any), t_threshold: typing.Any,
+    out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
+    out_opacity: wp.array(dtype=typing.Any), offset: int,
+):
+    r = wp.tid() + offset
+    one = t.dtype(1.0)
+    T = one
+    cr = t.dtype(0.0)
+    cg = t.dtype(0.0)
+    cb = t.dtype(0.0)
+    dep = t.dtype(0.0)
+    for j in range(t.shape[1]):
+        if T < t_threshold:
+            break
+        tk = t[r, j]
+        # x = o + (t d), rounded as kernels.volume.sampling.dense_samples rounds it
+        sx = tk * dirs[r, 0]
+        sy = tk * dirs[r, 1]
+        sz = tk * dirs[r, 2]
+        sig, nr, ng, nb = spheres_at(origins[r, 0] + sx, origins[r, 1] + sy, origins[r, 2] + sz,
+                                     centers, radii, colors, sharpness)
+        e = wp.exp(-sig * delta[r, j])
+        w = T * (one - e)
+        cr += w * nr
+        cg += w * ng
+        cb += w * nb
+        dep += w * tk
+        T = T * e
+    out_rgb[r, 0] = cr + T * background[0]
+    out_rgb[r, 1] = cg + T * background[1]
+    out_rgb[r, 2] = cb + T * background[2]
+    out_depth[r] = dep
+    out_opacity[r] = one - T
 
 
 @wp.kernel
@@ -169,6 +230,36 @@ class SphereField(Field):
         a.launch(_spheres_forward_kernel, n, [p, *self._param_args(), sigma, rgb])
         return self._result(a, sigma, rgb)
 
+    def render_dense(self, origins: A.ArrayLike, dirs: A.ArrayLike, t: A.ArrayLike, delta: A.ArrayLike,
+                     background: Any = (0.0, 0.0, 0.0), t_threshold: float = DEFAULT_T_THRESHOLD
+                     ) -> tuple[A.ArrayLike, A.ArrayLike, A.ArrayLike]:
+        """(rgb (R, 3), depth (R,), opacity (R,)) of rays o + t d with explicit samples t (R, S) and
+        interval lengths delta (R, S) >= 0 (module docstring: the fused forward of render_samples on
+        dense_samples; depth is sum_k w_k t_k). Arrays in the field's dtype; outputs in the kind of
+        `origins`."""
+        a = A.Inputs(self.device, origins, dirs, t, delta)
+        o = a.floats("origins", origins, (None, 3))
+        if a.scalar != self.dtype:
+            raise ValueError(f"origins: expected dtype {A.type_name(self.dtype)} (the field's), "
+                             f"got {A.type_name(a.scalar)}")
+        n_rays = o.shape[0]
+        d = a.floats("dirs", dirs, (n_rays, 3))
+        tt = a.floats("t", t, (n_rays, None))
+        dl = a.floats("delta", delta, tuple(tt.shape), finite=False)
+        A.check_at_least("delta", dl, 0.0)
+        t_threshold = A.check_float("t_threshold", t_threshold, nonnegative=True)
+        if not t_threshold < 1.0:
+            raise ValueError(f"t_threshold: expected a value in [0, 1), got {t_threshold}")
+        bg = np.asarray(background.numpy() if isinstance(background, wp.array) else background, dtype=a.np_dtype)
+        if bg.shape != (3,):
+            raise ValueError(f"background: expected shape (3,), got {bg.shape}")
+        A.check_finite("background", bg)
+        rgb, depth, opacity = a.empty((n_rays, 3)), a.empty(n_rays), a.empty(n_rays)
+        a.launch(_spheres_render_dense_kernel, n_rays,
+                 [o, d, tt, dl, *self._param_args(), a.floats("background", bg), a.s(t_threshold), rgb, depth,
+                  opacity], min_chunk=16)
+        return a.out(rgb), a.out(depth), a.out(opacity)
+
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
                  grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
@@ -179,3 +270,4 @@ class SphereField(Field):
 
 A.declare_float_overloads(_spheres_forward_kernel)
 A.declare_float_overloads(_spheres_backward_kernel)
+A.declare_float_overloads(_spheres_render_dense_kernel)

@@ -3,7 +3,13 @@
 A family is a module named in research.registry.BENCH_MODULES exposing
 `cases(device: str, quick: bool, tiny: bool = False)`, a generator of JSON-ready dicts, one per case
 (`tiny`: every case, with the same keys and phases, at sizes that run in about a second in total,
-so the tests can run it):
+so the tests can run it). A family may also accept `compare: bool = False`: with `compare=True`
+and the reference library importable (PyTorch, OpenCV: the `[bench]` extra), each case times the
+reference on the same inputs inside the same `time_medians` call (interleaved) and adds
+`"ref": "<library and function>"`, `"ref_<phase>_s"` and `"speedup_<phase>"` (reference time /
+drlab time; > 1 means drlab is faster); without the library those keys are absent and
+`"ref_missing"` names it. `run_bench(..., compare=True)` passes `compare` only to families whose
+`cases` accept it:
 
     {"bench": "<family>.<case>", "device": "cpu", "threads": 2,
      <size keys>..., "<phase>_s": seconds, ...}
@@ -18,6 +24,7 @@ after a warm-up, so compilation (first launch) is never timed.
 from __future__ import annotations
 
 import importlib
+import inspect
 import statistics
 import time
 from typing import Any, Callable
@@ -73,8 +80,22 @@ def time_medians(
     return {name: statistics.median(ts) for name, ts in times.items()}
 
 
-def run_bench(families: list[str] | None, device: str, quick: bool) -> list[dict]:
-    """Run the cases of the named families (all registered ones when None or empty)."""
+def accepts_compare(cases: Callable[..., Any]) -> bool:
+    """Whether a family's `cases` takes a `compare` keyword (the reference-library timings)."""
+    try:
+        params = inspect.signature(cases).parameters
+    except (TypeError, ValueError):
+        return False
+    return "compare" in params or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+
+
+def run_bench(families: list[str] | None, device: str, quick: bool, compare: bool = False,
+              tiny: bool = False) -> list[dict]:
+    """Run the cases of the named families (all registered ones when None or empty).
+
+    `compare`: also time the reference libraries, in the families whose `cases` accept `compare`
+    (the others run as without it). `tiny`: every case at its test size (experiments' --smoke).
+    """
     from research.registry import BENCH_MODULES
 
     names = list(families) if families else list(BENCH_MODULES)
@@ -85,7 +106,12 @@ def run_bench(families: list[str] | None, device: str, quick: bool) -> list[dict
     cpu = host()["cpu"]  # every figure names the machine it was measured on
     for family in names:
         module = importlib.import_module(BENCH_MODULES[family])
-        for row in module.cases(device=device, quick=quick):
+        kwargs: dict[str, Any] = {"device": device, "quick": quick}
+        if tiny:
+            kwargs["tiny"] = True
+        if compare and accepts_compare(module.cases):
+            kwargs["compare"] = True
+        for row in module.cases(**kwargs):
             if not str(row.get("bench", "")).startswith(family + ".") or "device" not in row:
                 raise ValueError(f"benchmark family {family!r} yielded a malformed row: {row!r}")
             rows.append({**row, "cpu": cpu})

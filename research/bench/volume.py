@@ -16,13 +16,33 @@ with the same keys, for the test suite):
                           textbook chapter), grid (128^3 RGB), grid_sh2 (128^3, SH degree 2), hashgrid
                           (16 levels x 2^19 x 2, MLP 64-64) and pe_mlp (8 frequencies, MLP 64-64):
                           forward, and forward + backward to every parameter with random cotangents.
+  * volume.composite_fwd  rays 16384 x 128 samples, forward only (`fwd_s`, checks on): the size at which
+                          per-call overhead (checks, launch set-up) shows.
+  * volume.spheres_render the textbook task: 64x64 rays x 64 samples through SphereField.textbook in
+                          float32, dense_samples + render_samples + the image back in NumPy (`render_s`),
+                          as experiments/volume_render_spheres times it, and the same image through the
+                          fused SphereField.render_dense (`render_fused_s`).
 Each figure is the median of 3 runs (5 for compositing) after a warm-up (research.bench.time_median).
+
+`bound_s` (volume.composite) is the memory-bandwidth bound measured here: reading sigma, rgb and
+delta once (20 bytes a sample in float32) with a NumPy sum split over the same threads;
+`fwd_over_bound` = fwd_s / bound_s.
+
+With `compare=True` (drlab bench --compare), timed interleaved in the same `time_medians` call on
+the same inputs, with the same thread count (torch.set_num_threads):
+  * composite, composite_fwd: PyTorch, the cumprod form of the quadrature (what a NeRF codebase
+    writes): alpha = 1 - exp(-sigma delta), T = cumprod(1 - alpha + 1e-10) shifted, w = alpha T,
+    C = sum w c + (1 - sum w) b, D = sum w z, A = sum w; forward under no_grad (`ref_fwd_s`) and
+    forward + autograd backward of <g_C, C> + <g_D, D> + <g_A, A> to sigma and rgb (`ref_fwd_bwd_s`);
+  * spheres_render: the textbook's vectorised NumPy port (research.nerf.textbook), `ref_render_s`.
+`speedup_<phase>` = ref_<phase>_s / <phase>_s (> 1: drlab is faster). Without PyTorch the composite
+cases carry `ref_missing` instead.
 """
 
 from __future__ import annotations
 
 import os
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 import warp as wp
@@ -30,6 +50,7 @@ import warp as wp
 from research.bench import time_median, time_medians
 
 COMPOSITE_RAYS, COMPOSITE_SAMPLES = 65536, 128
+COMPOSITE_FWD_RAYS = 16384
 FIELD_POINTS = 1 << 20
 TINY_RAYS, TINY_SAMPLES, TINY_POINTS, TINY_GRID, TINY_LOG2_TABLE = 512, 32, 4096, 16, 12
 BOX = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
@@ -49,28 +70,69 @@ def _fields(device: str, tiny: bool = False) -> dict:
     }
 
 
-def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Iterator[dict]:
+def _torch_composite(arrays: dict, rays: int, samples: int, threads: int):
+    """PyTorch reference closures (module docstring) on the same data, or None without PyTorch."""
+    try:
+        import torch
+    except ImportError:
+        return None
+    torch.set_num_threads(threads)
+    t = {k: torch.from_numpy(v.numpy()) for k, v in arrays.items()}  # zero-copy views of the host arrays
+    bg = torch.zeros(3, dtype=t["sigma"].dtype)
+
+    def forward(s, c):
+        d = t["delta"].view(rays, samples)
+        alpha = 1.0 - torch.exp(-s * d)
+        ones = torch.ones(rays, 1, dtype=s.dtype)
+        trans = torch.cumprod(torch.cat([ones, 1.0 - alpha + 1e-10], 1), 1)[:, :-1]
+        w = alpha * trans
+        acc = w.sum(1)
+        rgb = (w[..., None] * c).sum(1) + (1.0 - acc)[:, None] * bg
+        return rgb, (w * t["z"].view(rays, samples)).sum(1), acc
+
+    def fwd():
+        with torch.no_grad():
+            return forward(t["sigma"].view(rays, samples), t["rgb"].view(rays, samples, 3))
+
+    def fwd_bwd():
+        s = t["sigma"].view(rays, samples).detach().requires_grad_(True)
+        c = t["rgb"].view(rays, samples, 3).detach().requires_grad_(True)
+        rgb, depth, acc = forward(s, c)
+        loss = (rgb * t["g_rgb"]).sum() + (depth * t["g_d"]).sum() + (acc * t["g_d"]).sum()
+        loss.backward()
+        return s.grad, c.grad
+
+    return {"fwd": fwd, "fwd_bwd": fwd_bwd, "name": f"torch {torch.__version__} (cumprod form, autograd)"}
+
+
+def _read_bound(arrays: list[wp.array]) -> Callable[[], None]:
+    """A NumPy pass that reads every byte of `arrays` once, split over the launch threads (bound_s)."""
+    from kernels.launch import parallel_ranges
+
+    flats = [a.numpy().reshape(-1) for a in arrays]
+
+    def read() -> None:
+        for f in flats:
+            parallel_ranges(lambda lo, hi, f=f: f[lo:hi].sum(), f.shape[0])
+
+    return read
+
+
+def _composite_case(dev, threads: int, rays: int, samples: int, rng, sync, compare: bool, full: bool) -> dict:
     from kernels._arrays import value_checks
     from kernels.volume import Workspace, composite_backward, composite_forward, dense_offsets
     from kernels.volume.composite import composite_buffers, composite_grad_buffers
 
-    wp.init()
-    dev = wp.get_device(device)
-    threads = 1 if dev.is_cuda else int(os.environ.get("DRLAB_THREADS", os.cpu_count() or 1))
-    sync = lambda: wp.synchronize_device(dev)  # noqa: E731
-    scale = 16 if quick else 1
-    rng = np.random.default_rng(0)
-
-    rays, samples = (TINY_RAYS, TINY_SAMPLES) if tiny else (COMPOSITE_RAYS // scale, COMPOSITE_SAMPLES)
     n = rays * samples
     arr = lambda a, dt=wp.float32: wp.array(a, dtype=dt, device=dev)  # noqa: E731
-    sigma = arr(rng.uniform(0.0, 0.5, n).astype(np.float32))
-    rgb = arr(rng.uniform(0.0, 1.0, (n, 3)).astype(np.float32))
-    delta = arr(np.full(n, 0.01, np.float32))
-    z = arr(np.tile(np.linspace(1.0, 2.28, samples, dtype=np.float32), rays))
+    arrays = {"sigma": arr(rng.uniform(0.0, 0.5, n).astype(np.float32)),
+              "rgb": arr(rng.uniform(0.0, 1.0, (n, 3)).astype(np.float32)),
+              "delta": arr(np.full(n, 0.01, np.float32)),
+              "z": arr(np.tile(np.linspace(1.0, 2.28, samples, dtype=np.float32), rays)),
+              "g_rgb": arr(rng.normal(size=(rays, 3)).astype(np.float32)),
+              "g_d": arr(rng.normal(size=rays).astype(np.float32))}
+    sigma, rgb, delta, z, g_rgb, g_d = (arrays[k] for k in ("sigma", "rgb", "delta", "z", "g_rgb", "g_d"))
     offsets = arr(dense_offsets(rays, samples), wp.int32)
-    g_rgb = arr(rng.normal(size=(rays, 3)).astype(np.float32))
-    g_d = arr(rng.normal(size=rays).astype(np.float32))
 
     # Output buffers allocated once, as in training (kernels.volume.workspace).
     ws = Workspace(dev)
@@ -89,15 +151,92 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Itera
         with value_checks(False):
             return fwd()
 
+    row = {"bench": "volume.composite" if full else "volume.composite_fwd", "device": str(dev), "threads": threads,
+           "rays": rays, "samples": samples}
+    fns = {"fwd": fwd}
+    if full:
+        fns.update(fwd_unchecked=fwd_unchecked, fwd_bwd=fwd_bwd)
+        if dev.is_cpu:
+            fns["bound"] = _read_bound([sigma, rgb, delta])
+    ref = _torch_composite(arrays, rays, samples, threads) if compare and dev.is_cpu else None
+    phases = ("fwd", "fwd_bwd") if full else ("fwd",)
+    if ref is not None:
+        fns.update({f"ref_{p}": ref[p] for p in phases})
     # Interleaved (research.bench.time_medians), so all see the same drift in machine speed. The
     # fresh-buffer variant runs on its own: the memory it releases slows whatever runs next.
-    times = time_medians({"fwd": fwd, "fwd_unchecked": fwd_unchecked, "fwd_bwd": fwd_bwd}, repeats=5, sync=sync)
-    t_f, t_fb = times["fwd"], times["fwd_bwd"]
-    t_fb_alloc = time_median(lambda: fwd_bwd(reuse=False), repeats=5, sync=sync)
-    yield {"bench": "volume.composite", "device": str(dev), "threads": threads, "rays": rays, "samples": samples,
-           "fwd_s": t_f, "fwd_bwd_s": t_fb, "samples_per_s": n / t_fb,
-           "fwd_bwd_fresh_buffers_s": t_fb_alloc, "fwd_no_value_checks_s": times["fwd_unchecked"]}
+    times = time_medians(fns, repeats=5, sync=sync)
+    row["fwd_s"] = times["fwd"]
+    if full:
+        row.update(fwd_bwd_s=times["fwd_bwd"], samples_per_s=n / times["fwd_bwd"],
+                   fwd_bwd_fresh_buffers_s=time_median(lambda: fwd_bwd(reuse=False), repeats=5, sync=sync),
+                   fwd_no_value_checks_s=times["fwd_unchecked"])
+        if "bound" in times:
+            row.update(bound_s=times["bound"], bound_gb_per_s=20 * n / times["bound"] / 1e9,
+                       fwd_over_bound=times["fwd"] / times["bound"])
+    if compare:
+        if ref is None:
+            row["ref_missing"] = "torch (pip install drlab[bench])" if dev.is_cpu else "torch CPU reference on a CUDA run"
+        else:
+            row["ref"] = ref["name"]
+            for p in phases:
+                row[f"ref_{p}_s"] = times[f"ref_{p}"]
+                row[f"speedup_{p}"] = times[f"ref_{p}"] / times[p]
+    return row
 
+
+def _spheres_case(dev, threads: int, tiny: bool, sync, compare: bool) -> dict:
+    from kernels.volume import SphereField, render_samples
+    from kernels.volume.sampling import dense_samples
+    from research.nerf import textbook as tb
+
+    h, w = (16, 16) if tiny else (tb.IMG_H, tb.IMG_W)
+    focal = tb.FOCAL * w / tb.IMG_W
+    origins, dirs = tb.textbook_rays(h, w, focal)
+    t, delta = tb.textbook_t_delta()
+    n_rays = origins.shape[0]
+    field = SphereField.textbook(wp.float32, device=dev)
+
+    def render():  # as experiments/volume_render_spheres times it
+        s = dense_samples(origins.astype(np.float32), dirs.astype(np.float32),
+                          np.tile(t, (n_rays, 1)).astype(np.float32), np.tile(delta, (n_rays, 1)).astype(np.float32),
+                          device=dev)
+        return render_samples(field, s, background=(0.0, 0.0, 0.0), t_threshold=0.0).rgb.numpy()
+
+    def render_fused():  # the same image through SphereField.render_dense (one kernel per ray)
+        rgb, _, _ = field.render_dense(origins.astype(np.float32), dirs.astype(np.float32),
+                                       np.tile(t, (n_rays, 1)).astype(np.float32),
+                                       np.tile(delta, (n_rays, 1)).astype(np.float32), t_threshold=0.0)
+        return rgb
+
+    fns = {"render": render, "render_fused": render_fused}
+    if compare:
+        fns["ref_render"] = lambda: tb.render_image_vectorized(h, w, focal)
+    times = time_medians(fns, repeats=5, sync=sync)
+    row = {"bench": "volume.spheres_render", "device": str(dev), "threads": threads, "rays": n_rays,
+           "samples": tb.N_SAMPLES, "render_s": times["render"], "render_fused_s": times["render_fused"]}
+    if compare:  # one reference, timed once per round, against both drlab paths
+        row["ref"] = "numpy (research.nerf.textbook.render_image_vectorized, float64)"
+        for phase in ("render", "render_fused"):
+            row[f"ref_{phase}_s"] = times["ref_render"]
+            row[f"speedup_{phase}"] = times["ref_render"] / times[phase]
+    return row
+
+
+def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare: bool = False) -> Iterator[dict]:
+    wp.init()
+    dev = wp.get_device(device)
+    threads = 1 if dev.is_cuda else int(os.environ.get("DRLAB_THREADS", os.cpu_count() or 1))
+    sync = lambda: wp.synchronize_device(dev)  # noqa: E731
+    scale = 16 if quick else 1
+    rng = np.random.default_rng(0)
+
+    rays, samples = (TINY_RAYS, TINY_SAMPLES) if tiny else (COMPOSITE_RAYS // scale, COMPOSITE_SAMPLES)
+    yield _composite_case(dev, threads, rays, samples, rng, sync, compare, full=True)
+    fwd_rays = TINY_RAYS if tiny else COMPOSITE_FWD_RAYS // scale
+    yield _composite_case(dev, threads, fwd_rays, samples, rng, sync, compare, full=False)
+    yield _spheres_case(dev, threads, tiny, sync, compare)
+
+    arr = lambda a, dt=wp.float32: wp.array(a, dtype=dt, device=dev)  # noqa: E731
     points_n = TINY_POINTS if tiny else FIELD_POINTS // scale
     pts = arr(rng.uniform(-1.0, 1.0, (points_n, 3)).astype(np.float32))
     d = rng.normal(size=(points_n, 3))

@@ -169,3 +169,58 @@ def test_first_launch_of_an_overload_is_split_safely(dtype):
     x = wp.zeros(10_000, dtype=dtype, device=DEVICE)
     launch_split(first_use, 10_000, [x], device=DEVICE, threads=4, min_chunk=10)
     np.testing.assert_array_equal(x.numpy(), (np.arange(10_000) * 0.5).astype(x.numpy().dtype))
+
+
+@pytest.mark.parametrize("n, threads, min_chunk", [(0, 2, 4), (5, 2, 4), (1000, 2, 16), (1001, 3, 7), (10, 1, 1)],
+                         ids=["empty", "one_range", "two_threads", "three_threads_uneven", "one_thread"])
+def test_parallel_ranges_covers_every_index_once(n, threads, min_chunk):
+    hits = np.zeros(n, dtype=np.int64)
+    calls = []
+
+    def fn(lo, hi):
+        calls.append((lo, hi))
+        hits[lo:hi] += 1
+
+    kl.parallel_ranges(fn, n, threads=threads, min_chunk=min_chunk)
+    assert np.all(hits == 1)
+    assert len(calls) == (0 if n == 0 else max(1, min(threads, n // min_chunk)))
+
+
+def test_parallel_ranges_reraises_and_starts_no_range_after_a_failure():
+    done = []
+
+    def fn(lo, hi):
+        if lo == 0:
+            raise RuntimeError("range 0 failed")
+        done.append(lo)
+
+    with pytest.raises(RuntimeError, match="range 0 failed"):
+        kl.parallel_ranges(fn, 100, threads=2, min_chunk=10)
+    assert done in ([], [50])  # the other range ran only if a worker took it before the failure
+    hits = np.zeros(100, dtype=int)
+    kl.parallel_ranges(lambda lo, hi: hits.__setitem__(slice(lo, hi), hits[lo:hi] + 1), 100, threads=2,
+                       min_chunk=10)
+    assert np.all(hits == 1)  # the pool still works after a failure
+
+
+@pytest.mark.parametrize("n, threads", [(0, 2), (1, 2), (16, 2), (5, 3), (7, 1)],
+                         ids=["empty", "one_item", "levels", "more_threads_than_needed", "one_thread"])
+def test_parallel_items_calls_every_item_once(n, threads):
+    seen = []
+    lock = threading.Lock()
+
+    def fn(i):
+        with lock:
+            seen.append(i)
+
+    kl.parallel_items(fn, n, threads=threads)
+    assert sorted(seen) == list(range(n))
+
+
+def test_parallel_items_reraises():
+    def fn(i):
+        if i == 3:
+            raise KeyError("item 3")
+
+    with pytest.raises(KeyError, match="item 3"):
+        kl.parallel_items(fn, 8, threads=2)

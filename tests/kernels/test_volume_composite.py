@@ -319,3 +319,21 @@ def test_value_checks_off_leaves_shape_and_dtype_checks():
     for bad in (nan_sigma, bad_order):  # and back on afterwards
         with pytest.raises(ValueError):
             composite_forward(**bad)
+
+
+@pytest.mark.parametrize("dtype, max_ulp", [(np.float32, 2.5), (np.float64, 1.0)], ids=["float32", "float64"])
+def test_cpu_factors_within_stated_rounding_of_exact_exp(dtype, max_ulp):
+    # The CPU forward fills exp(-sigma delta) with NumPy's vectorised exp (module docstring).
+    from kernels.volume import composite_forward, dense_offsets
+
+    rng = np.random.default_rng(3)
+    rays, samples = 64, 300
+    n = rays * samples
+    sigma = rng.uniform(0.0, 40.0, n).astype(dtype)
+    delta = rng.uniform(0.0, 0.05, n).astype(dtype)
+    res = composite_forward(sigma, rng.uniform(0, 1, (n, 3)).astype(dtype), delta, np.ones(n, dtype),
+                            dense_offsets(rays, samples), t_threshold=0.0)
+    x = -(sigma * delta)  # the product as the kernel forms it, rounded in `dtype`
+    exact = np.exp(x.astype(np.longdouble))
+    ulp = np.abs(res.factor.astype(np.longdouble) - exact) / np.spacing(exact.astype(dtype)).astype(np.longdouble)
+    assert float(ulp.max()) <= max_ulp

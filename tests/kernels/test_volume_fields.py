@@ -6,6 +6,8 @@ float64); backward passes through float64 finite differences (research.checks.vo
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import warp as wp
@@ -116,9 +118,10 @@ def test_grid_vertex_values_are_reproduced():
 
 # --------------------------------------------------------------------------- hash encoding
 
+@pytest.mark.parametrize("n_features", [2, 3], ids=["two_features", "three_features"])  # the kernel's two paths
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
-def test_hash_encoding_forward(np_t, wp_t, tol):
-    enc = HashEncoding(BOX, n_levels=4, n_features=3, log2_table_size=7, base_resolution=2, max_resolution=20)
+def test_hash_encoding_forward(np_t, wp_t, tol, n_features):
+    enc = HashEncoding(BOX, n_levels=4, n_features=n_features, log2_table_size=7, base_resolution=2, max_resolution=20)
     assert enc.dense.tolist()[0] == 1 and enc.dense.tolist()[-1] == 0  # both dense and hashed levels
     rng = np.random.default_rng(2)
     table = rng.normal(size=enc.table_shape).astype(np_t)
@@ -159,6 +162,42 @@ def test_mlp_forward(np_t, wp_t, tol, backend):
     y, _ = mlp.forward(wp.array(x, dtype=wp_t))
     ref = ref_volume.mlp({k: v.numpy().astype(np.float64) for k, v in params.items()}, x.astype(np.float64), 3)
     np.testing.assert_allclose(y.numpy(), ref, rtol=tol * 10, atol=tol * 10)
+
+
+@pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+def test_mlp_numpy_backend_split_products(np_t, wp_t, tol):
+    # Enough rows that the products run as row blocks on the launch threads and dW sums several
+    # blocks (kernels.volume.mlp._rows_matmul, _weight_grad_blas); the result must not depend on
+    # the thread count.
+    from kernels.volume import mlp as mlp_mod
+
+    n = 2 * mlp_mod._BLAS_BLOCK + 123
+    sizes = [7, 16, 4]
+    params = init_mlp_params(sizes, 1, wp_t, wp.get_device("cpu"))
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(n, 7)).astype(np_t)
+    g = rng.normal(size=(n, 4)).astype(np_t)
+    p64 = {k: v.numpy().astype(np.float64) for k, v in params.items()}
+    z0 = x.astype(np.float64) @ p64["W0"].T + p64["b0"]
+    a1 = np.maximum(z0, 0.0)
+    dz0 = (g.astype(np.float64) @ p64["W1"]) * (z0 > 0)
+    want = {"W1": g.astype(np.float64).T @ a1, "b1": g.sum(0), "W0": dz0.T @ x.astype(np.float64), "b0": dz0.sum(0)}
+    results = []
+    for threads in ("1", "2"):
+        os.environ["DRLAB_THREADS"] = threads
+        try:
+            mlp = MLP(sizes, params, "numpy")
+            y, cache = mlp.forward(wp.array(x, dtype=wp_t))
+            grads, gx = mlp.backward(cache, wp.array(g, dtype=wp_t), need_input_grad=True)
+        finally:
+            del os.environ["DRLAB_THREADS"]
+        np.testing.assert_allclose(y.numpy(), a1 @ p64["W1"].T + p64["b1"], rtol=tol * 10, atol=tol * 10)
+        for k, v in want.items():
+            np.testing.assert_allclose(grads[k].numpy(), v, rtol=tol * 10, atol=tol * 10 * np.abs(v).max())
+        np.testing.assert_allclose(gx.numpy(), dz0 @ p64["W0"], rtol=tol * 10, atol=tol * 10)
+        results.append([y.numpy(), gx.numpy(), *(grads[k].numpy() for k in sorted(grads))])
+    for a, b in zip(*results):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_mlp_backends_agree_on_the_backward():

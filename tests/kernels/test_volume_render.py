@@ -143,3 +143,39 @@ def test_workspace_renders_and_gradients_match_fresh_buffers():
             np.testing.assert_array_equal(g_reused[name].numpy(), g_plain[name].numpy())
     with pytest.raises(ValueError, match="workspace: expected a kernels.volume.Workspace"):
         render_rays(field, o, d, BOX, n_samples=16, workspace=object())
+
+
+@pytest.mark.parametrize("thr", [0.0, 0.3], ids=["no_termination", "early_termination"])
+@pytest.mark.parametrize("np_t, wp_t, tol", [(np.float32, wp.float32, 1e-5), (np.float64, wp.float64, 1e-12)])
+def test_sphere_render_dense_matches_reference_and_general_path(np_t, wp_t, tol, thr):
+    # SphereField.render_dense: the fused forward of render_samples on dense_samples.
+    from kernels.volume.sampling import dense_samples
+
+    rng = np.random.default_rng(4)
+    field = SphereField.textbook(wp_t)
+    n_rays, n_s = 40, 37
+    o = rng.normal(0.0, 0.2, (n_rays, 3))
+    d = rng.normal([0, 0, 1], 0.3, (n_rays, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = np.sort(rng.uniform(1.0, 6.0, (n_rays, n_s)), axis=1)
+    delta = np.diff(t, axis=1, append=t[:, -1:] + 1e-3)
+    bg = np.array([0.1, 0.2, 0.3])
+    o, d, t, delta = (x.astype(np_t) for x in (o, d, t, delta))
+    rgb, depth, opacity = field.render_dense(o, d, t, delta, background=bg, t_threshold=thr)
+    # Plain NumPy: the points as dense_samples forms them, the field and the compositing references.
+    x = (o[:, None, :] + t[:, :, None] * d[:, None, :]).reshape(-1, 3).astype(np.float64)
+    P = {k: v.astype(np.float64) for k, v in field.params_numpy().items()}
+    sigma, col = ref_volume.spheres(x, P["centers"], P["radii"], P["colors"], P["sharpness"])
+    offsets = np.arange(n_rays + 1) * n_s
+    ref_rgb, ref_depth, ref_op, _ = ref_volume.composite(sigma, col, delta.reshape(-1).astype(np.float64),
+                                                         t.reshape(-1).astype(np.float64), offsets, bg, thr)
+    np.testing.assert_allclose(rgb, ref_rgb, rtol=tol * 10, atol=tol * 10)
+    np.testing.assert_allclose(depth, ref_depth, rtol=tol * 10, atol=tol * 10 * 6)
+    np.testing.assert_allclose(opacity, ref_op, rtol=tol * 10, atol=tol * 10)
+    general = render_samples(field, dense_samples(o, d, t, delta), background=bg, t_threshold=thr)
+    np.testing.assert_allclose(rgb, general.rgb, rtol=tol, atol=tol)
+    np.testing.assert_allclose(depth, general.depth, rtol=tol, atol=tol * 6)
+    # wp.array rays give wp.array results with the same numbers.
+    rgb_wp, _, _ = field.render_dense(*(wp.array(a) for a in (o, d, t, delta)), background=bg, t_threshold=thr)
+    assert isinstance(rgb_wp, wp.array)
+    np.testing.assert_array_equal(rgb_wp.numpy(), rgb)

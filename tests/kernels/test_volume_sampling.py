@@ -207,3 +207,23 @@ def test_device_value_checks_count_like_the_host_checks():
     for dtype in (wp.float32, wp.float64):
         dirs = wp.array(np.array([[0, 0, 1.0], [0, 0, 0], [1e-30, 0, 0], [0, 0, 0]]), dtype=dtype)
         assert count(_checks._count_zero_rows, dirs) == 2
+
+
+@pytest.mark.parametrize("np_t", [np.float32, np.float64], ids=["float32", "float64"])
+def test_dense_samples_match_numpy_broadcasting_bit_for_bit(np_t):
+    # The packing kernel rounds as NumPy does: x = o + (t d), z = t z_scale.
+    rng = np.random.default_rng(7)
+    r, s = 300, 17
+    o = rng.normal(size=(r, 3)).astype(np_t)
+    d = rng.normal(size=(r, 3)).astype(np_t)
+    t = np.sort(rng.uniform(0.5, 6.0, (r, s)), axis=1).astype(np_t)
+    delta = rng.uniform(0.0, 0.3, (r, s)).astype(np_t)
+    zs = rng.uniform(0.5, 1.0, r).astype(np_t)
+    got = dense_samples(o, d, t, delta, z_scale=zs)
+    np.testing.assert_array_equal(got.points.numpy(), (o[:, None, :] + t[:, :, None] * d[:, None, :]).reshape(-1, 3))
+    np.testing.assert_array_equal(got.dirs.numpy(), np.repeat(d, s, axis=0))
+    np.testing.assert_array_equal(got.t.numpy(), t.reshape(-1))
+    np.testing.assert_array_equal(got.delta.numpy(), delta.reshape(-1))
+    np.testing.assert_array_equal(got.z.numpy(), (t * zs[:, None]).reshape(-1))
+    np.testing.assert_array_equal(got.ray_index.numpy(), np.repeat(np.arange(r), s))
+    np.testing.assert_array_equal(got.ray_offsets.numpy(), np.arange(r + 1) * s)

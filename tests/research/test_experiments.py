@@ -100,7 +100,15 @@ def _check_volume(m):
     assert m["max_abs_err"]["warp_float32"] < 1e-3
 
 
-CHECKS = {"datasets": _check_datasets, "kalman_tracking": _check_kalman, "mot_tracking": _check_mot,
+def _check_performance(m):
+    from research.registry import BENCH_MODULES
+
+    assert {r["bench"].split(".")[0] for r in m["rows"]} == set(BENCH_MODULES)
+    assert all(r["threads"] >= 1 and r["cpu"] for r in m["rows"])
+    assert m["targets"] and all(t["status"].startswith("n/a") for t in m["targets"])  # smoke sizes
+
+
+CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman, "mot_tracking": _check_mot,
           "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft, "stereo_depth": _check_stereo,
           "fit_splats": _check_splats, "fit_nerf": _check_nerf, "volume_render_spheres": _check_volume}
 

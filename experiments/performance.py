@@ -1,0 +1,176 @@
+#!/usr/bin/env python3
+"""drlab's kernels timed beside the libraries a researcher would otherwise use, on the same CPU.
+
+Runs every registered bench family (research.bench, `drlab bench --compare`) in this process and
+tabulates, for each case and phase, drlab's median time, the reference library's median time on
+the same inputs (timed interleaved with drlab's in one `time_medians` call), and the ratio
+reference / drlab (> 1: drlab is faster). The references come from the `[bench]` extra (PyTorch
+CPU, OpenCV); where one is not installed the case says so (`ref_missing`) and only drlab's time is
+shown. Cases with no reference library (a field's forward, the split launch) show drlab's times.
+Every figure names the host CPU and thread count: timings from different machines are not
+comparable.
+
+Targets (checked at full size only; quick and smoke sizes print "n/a"): compositing forward plus
+backward >= 10x PyTorch autograd at 65536 x 128, forward >= 2x PyTorch at 16384 x 128, forward
+within 2x of the measured bandwidth bound (bound_s: reading sigma, rgb and delta once), the
+textbook spheres render <= 5 ms, hash grid + MLP forward plus backward at 1M points <= 2 s,
+split launch >= 1.9x on 2 cores.
+
+Writes results/performance/{table.md, metrics.json (every bench row), figure.png}. A full run
+into the default folder of a checkout (what `make reproduce` does) then copies table.md into
+README.md between the markers README_START and README_END (the README's performance table).
+"""
+
+from __future__ import annotations
+
+import argparse
+import operator
+from pathlib import Path
+from typing import Any
+
+from research import registry
+from research.experiment import Context, Experiment
+from research.results import markdown_table, save_figure
+
+# (bench case, key) -> (comparison, bound, text). Checked only on full-size rows.
+TARGETS: dict[tuple[str, str], tuple[Any, float, str]] = {
+    ("volume.composite", "speedup_fwd_bwd"): (operator.ge, 10.0, "fwd+bwd >= 10x PyTorch"),
+    ("volume.composite_fwd", "speedup_fwd"): (operator.ge, 2.0, "fwd >= 2x PyTorch"),
+    ("volume.composite", "fwd_over_bound"): (operator.le, 2.0, "fwd <= 2x the read bound"),
+    ("volume.spheres_render", "render_s"): (operator.le, 0.005, "<= 5 ms (packed samples, as the experiment)"),
+    ("volume.spheres_render", "render_fused_s"): (operator.le, 0.005, "<= 5 ms (fused render_dense)"),
+    ("volume.field.hashgrid", "fwd_bwd_s"): (operator.le, 2.0, "fwd+bwd <= 2 s at 1M points"),
+    ("launch.split", "speedup"): (operator.ge, 1.9, ">= 1.9x on 2 cores"),
+}
+README_START = "<!-- performance table: written by experiments/performance.py (make reproduce) -->"
+README_END = "<!-- end of the performance table -->"
+# Keys that describe a case's size (shown in the sizes column), in this order when present.
+_NOT_SIZES = {"bench", "device", "threads", "cpu", "ref", "ref_missing", "params"}
+
+
+def add_options(p: argparse.ArgumentParser) -> None:
+    from research.registry import BENCH_MODULES
+
+    p.add_argument("--families", nargs="+", default=None, metavar="FAMILY",
+                   help=f"bench families to run (default: all of {', '.join(BENCH_MODULES)})")
+
+
+def _sizes(row: dict) -> str:
+    return ", ".join(f"{k}={v}" for k, v in row.items()
+                     if k not in _NOT_SIZES and isinstance(v, int) and not isinstance(v, bool))
+
+
+def _lines(row: dict) -> list[dict]:
+    """One line per timed phase (`<phase>_s`) of a bench row, with its reference where timed."""
+    out = []
+    for key, value in row.items():
+        if (not key.endswith("_s") or key.endswith("_per_s") or key.startswith("ref_")
+                or not isinstance(value, float)):
+            continue
+        phase = key[:-2]
+        ref_s = row.get(f"ref_{phase}_s")
+        if ref_s is not None:
+            reference = row.get("ref", "")
+        else:
+            reference = f"not installed: {row['ref_missing'].split()[0]}" if "ref_missing" in row else ""
+        out.append({"case": row["bench"], "phase": phase, "drlab_s": value, "reference": reference,
+                    "ref_s": ref_s, "speedup": row.get(f"speedup_{phase}")})
+    return out
+
+
+def _target_status(row: dict, full: bool) -> list[tuple[str, str, Any, str]]:
+    """(case, target text, measured value, met / NOT met / n/a) for every target of this row."""
+    found = []
+    for (case, key), (op, bound, text) in TARGETS.items():
+        if row["bench"] != case or key not in row:
+            continue
+        value = row[key]
+        status = ("met" if op(value, bound) else "NOT met") if full else "n/a (not full size)"
+        shown = f"{1e3 * value:.3g} ms" if key.endswith("_s") else f"{value:.3g}x" if "speedup" in key else f"{value:.3g}"
+        found.append((case, text, shown, status))
+    return found
+
+
+def run(ctx: Context) -> int:
+    from research.bench import run_bench
+    from research.registry import BENCH_MODULES
+    from research.results import host
+
+    families = ctx.args.families or list(BENCH_MODULES)
+    unknown = [f for f in families if f not in BENCH_MODULES]
+    if unknown:
+        raise ValueError(f"--families: unknown {unknown}; registered: {', '.join(BENCH_MODULES)}")
+    rows: list[dict] = []
+    for family in ctx.tqdm(families, desc="bench families", disable=None):
+        rows += run_bench([family], ctx.device, quick=ctx.quick, compare=True, tiny=ctx.smoke)
+
+    lines = [line for row in rows for line in _lines(row)]
+    ms = lambda s: None if s is None else 1e3 * s  # noqa: E731
+    table_rows = [[ln["case"], _sizes(next(r for r in rows if r["bench"] == ln["case"])), ln["phase"],
+                   ms(ln["drlab_s"]), ln["reference"] or "-", "-" if ln["ref_s"] is None else ms(ln["ref_s"]),
+                   "-" if ln["speedup"] is None else f"{ln['speedup']:.2f}x"] for ln in lines]
+    full = ctx.mode == "full"
+    targets = [t for row in rows for t in _target_status(row, full)]
+    cpu = host()
+    threads = sorted({r["threads"] for r in rows})
+    table = (f"Host: {cpu['cpu']}, {cpu['cpus']} logical CPUs; drlab threads {threads}; device `{ctx.device}`; "
+             f"sizes: {ctx.mode}. Times in ms, medians of 3-5 runs after a warm-up; the reference ran "
+             "interleaved with drlab on the same inputs and thread count. Ratio = reference / drlab "
+             "(> 1: drlab is faster).\n\n"
+             + markdown_table(["case", "sizes", "phase", "drlab ms", "reference", "reference ms", "ratio"],
+                              table_rows, floatfmt=".3g")
+             + "\n\nTargets:\n\n"
+             + markdown_table(["case", "target", "measured", "status"],
+                              [[c, t, v, s] for c, t, v, s in targets], floatfmt=".3g") + "\n")
+    figure(lines, ctx.out / "figure.png")
+    metrics = {"rows": rows, "targets": [{"case": c, "target": t, "measured": v, "status": s}
+                                         for c, t, v, s in targets],
+               "host": cpu,
+               "n_with_reference": sum(ln["ref_s"] is not None for ln in lines)}
+    config = {"quick": ctx.quick, "smoke": ctx.smoke, "families": families, "compare": True}
+    ctx.write_results(config=config, metrics=metrics, table_md=table)
+    if full and registry.in_checkout() and ctx.final_out.resolve() == registry.default_out("performance").resolve():
+        ctx.after_commit(lambda: refresh_readme(registry.REPO_ROOT / "README.md", table))
+    return 0
+
+
+def refresh_readme(readme: Path, table_md: str) -> str:
+    """Replace the text between README_START and README_END in `readme` with `table_md`."""
+    from research import atomic
+
+    text = readme.read_text()
+    start, end = text.find(README_START), text.find(README_END)
+    if start < 0 or end < start:
+        return f"{readme}: no performance-table markers; README not changed"
+    body = text[:start + len(README_START)] + "\n" + table_md.strip() + "\n" + text[end:]
+    atomic.write_text(readme, body)
+    return f"{readme}: performance table refreshed"
+
+
+def figure(lines: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    compared = [ln for ln in lines if ln["speedup"] is not None]
+    fig, ax = plt.subplots(figsize=(8, 0.4 * max(len(compared), 1) + 1.2))
+    if compared:
+        labels = [f"{ln['case']} {ln['phase']}" for ln in compared]
+        vals = [ln["speedup"] for ln in compared]
+        ax.barh(labels, vals, color=["tab:green" if v >= 1 else "tab:red" for v in vals])
+        ax.axvline(1.0, color="k", lw=0.8)
+        ax.set_xscale("log")
+        ax.set_xlabel("reference time / drlab time (> 1: drlab faster)")
+    else:
+        ax.text(0.5, 0.5, "no reference library installed (pip install drlab[bench])", ha="center", va="center")
+        ax.set_axis_off()
+    ax.set_title("drlab vs reference libraries, same CPU, interleaved timing", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
+
+
+main = Experiment("performance", __doc__, run, add_options, seed_help="unused: inputs use fixed seeds; recorded",
+                  sizes="Full: each family's full sizes (the targets are checked there); quick: each family's "
+                        "--quick sizes; smoke: each family's test sizes (seconds).").script(__name__)
