@@ -153,12 +153,13 @@ def check_out(out: str | Path, force: bool) -> Path:
 
 @contextlib.contextmanager
 def quiet_colmap(verbose: bool) -> Iterator[None]:
-    """COLMAP's own log (glog) at INFO when `verbose`, else errors only; restored afterwards."""
+    """COLMAP's own log (glog) at INFO when `verbose`, else silent (drlab raises its own errors); restored
+    afterwards."""
     import pycolmap
 
     log = pycolmap.logging
     previous = (log.minloglevel, log.stderrthreshold)
-    level = int(log.INFO if verbose else log.ERROR)
+    level = int(log.INFO if verbose else log.FATAL)
     log.minloglevel, log.stderrthreshold = level, level
     try:
         yield
