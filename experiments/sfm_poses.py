@@ -101,7 +101,8 @@ def render_capture(cfg: Setup, root: Path, seed: int, ctx: Context) -> list:
     (root / "images").mkdir(parents=True, exist_ok=True)
     renderer = SceneRenderer(get_scene(SCENE), spp=cfg.spp)
     for k, cam in enumerate(ctx.tqdm(cams, desc="render capture", unit="view")):
-        io.write_png(root / "images" / names[k], renderer.render_rgba(cam, seed * 100_003 + k))
+        view_seed = int(np.random.default_rng([seed, k]).integers(0, 2**31 - 1))
+        io.write_png(root / "images" / names[k], renderer.render_rgba(cam, view_seed))
     atomic.write_json(meta, {k: record[k] for k in (*keys, "cameras")})
     return cams
 
@@ -213,13 +214,14 @@ def run(ctx: Context) -> int:
         if v < (8 if k == "views" else 1):
             raise ValueError(f"--{k}: expected an integer >= {8 if k == 'views' else 1}, got {v}")
     cfg = Setup(**{**asdict(cfg), **overrides})
-    if cfg.res % (2 * cfg.fit_factor):
-        raise ValueError(f"--res: expected a multiple of {2 * cfg.fit_factor}, got {cfg.res}")
+    if cfg.res % cfg.fit_factor or cfg.res < 16 * cfg.fit_factor:  # splats fit at res / fit_factor >= 16 (SSIM)
+        raise ValueError(f"--res: expected a multiple of {cfg.fit_factor}, at least {16 * cfg.fit_factor}, got "
+                         f"{cfg.res}")
     suffix = "" if ctx.mode == "full" else "-" + ctx.mode
     root = (ctx.data / f"sfm_poses-{SCENE}{suffix}").absolute()
 
     gt_all = render_capture(cfg, root, ctx.seed, ctx)
-    opts = sfm.SfmOptions(matcher=args.matcher, shared_camera=True, camera_model="SIMPLE_PINHOLE", seed=ctx.seed,
+    opts = sfm.SfmOptions(matcher=args.matcher, shared_camera=True, camera_model="SIMPLE_PINHOLE", seed=ctx.seed % 2**31,
                           min_registered=max(8, cfg.views // 2))
     result = sfm.run_sfm(root / "images", root / "sfm", opts, force=True, progress=ctx.progress)
     ds = load_colmap(root / "sfm", factor=1)

@@ -74,3 +74,22 @@ def test_bad_input_one_line_exit_2(tmp_path, capsys, case, extra, message):
     else:
         assert not out.exists()
     assert not list(tmp_path.glob("out.partial-*"))  # no temporary folder left behind
+
+
+EXPERIMENT_CASES = [
+    (["--views", "4"], "--views: expected an integer >= 8, got 4"),
+    (["--res", "100"], "--res: expected a multiple of 8, at least 128, got 100"),
+    (["--iterations", "0"], "--iterations: expected an integer >= 1, got 0"),
+]
+
+
+@pytest.mark.parametrize("extra, message", EXPERIMENT_CASES, ids=["views", "res", "iterations"])
+def test_sfm_poses_bad_options_before_any_render(tmp_path, capsys, monkeypatch, extra, message):
+    from experiments import sfm_poses
+
+    monkeypatch.delenv("DRLAB_PROG", raising=False)
+    rc = sfm_poses.main(["--smoke", "--no-progress", "--out", str(tmp_path / "res"), "--data", str(tmp_path / "data"),
+                         *extra])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err == f"python -m experiments.sfm_poses: {message}", err
+    assert not (tmp_path / "data").exists() and not (tmp_path / "res").exists()
