@@ -40,7 +40,6 @@ viewing directions) and renders.png (a test view: target, both fits, their diffe
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -221,7 +220,8 @@ def run(ctx: Context) -> int:
     root = (ctx.data / f"sfm_poses-{SCENE}{suffix}").absolute()
 
     gt_all = render_capture(cfg, root, ctx.seed, ctx)
-    opts = sfm.SfmOptions(matcher=args.matcher, shared_camera=True, camera_model="SIMPLE_PINHOLE", seed=ctx.seed % 2**31,
+    opts = sfm.SfmOptions(matcher=args.matcher, shared_camera=True, camera_model="SIMPLE_PINHOLE",
+                          seed=ctx.seed % 2**31,
                           min_registered=max(8, cfg.views // 2))
     result = sfm.run_sfm(root / "images", root / "sfm", opts, force=True, progress=ctx.progress)
     ds = load_colmap(root / "sfm", factor=1)
@@ -256,8 +256,10 @@ def run(ctx: Context) -> int:
     s = pe.summary()
     test_names = [v.name for v in ds.split_views("test")]
     metrics = {
-        "scene": SCENE, "capture": {**asdict(cfg), "path": {"distance": DISTANCE, "elevation_deg": ELEVATION_DEG, "elevation_wobble_deg":
-                                                             ELEVATION_WOBBLE_DEG, "radius_wobble": RADIUS_WOBBLE}},
+        "scene": SCENE,
+        "capture": {**asdict(cfg), "path": {"distance": DISTANCE, "elevation_deg": ELEVATION_DEG,
+                                            "elevation_wobble_deg": ELEVATION_WOBBLE_DEG,
+                                            "radius_wobble": RADIUS_WOBBLE}},
         "registered": len(names), "total": cfg.views, "unregistered": result.unregistered,
         "sfm_points": result.points, "sfm_reprojection_error_px": result.mean_reprojection_error,
         "sfm_seconds": result.seconds, "sfm_options": asdict(opts),
@@ -283,7 +285,8 @@ def run(ctx: Context) -> int:
         ["SfM points; mean reprojection error", f"{result.points}; {result.mean_reprojection_error:.3f} px"],
         ["rotation error (deg): median / mean / max",
          f"{s['rotation_deg_median']:.3f} / {s['rotation_deg_mean']:.3f} / {s['rotation_deg_max']:.3f}"],
-        ["translation error (scene units): median / max", f"{s['translation_median']:.4f} / {s['translation_max']:.4f}"],
+        ["translation error (scene units): median / max",
+         f"{s['translation_median']:.4f} / {s['translation_max']:.4f}"],
         ["translation error (% of scene radius {:.2f}): median / max".format(radius),
          f"{metrics['translation_median_pct']:.2f}% / {metrics['translation_max_pct']:.2f}%"],
         ["focal length (px): estimated / true", f"{f_est:.2f} / {f_true:.2f} ({metrics['focal_error_pct']:+.2f}%)"],

@@ -138,9 +138,9 @@ def nerfstudio_protocol(width: int, height: int, factor: int) -> Protocol:
     res = f"{width}x{height}" + (f" (the files at 1/{factor})" if factor > 1 else "")
     return Protocol("nerfstudio-interval8", "train", "test", res, WHITE,
                     f"nerfstudio single transforms.json: frames sorted by file_path, every {EVAL_INTERVAL}th "
-                    f"(index % {EVAL_INTERVAL} == 0) is a test view, the rest train; {res}; RGBA composited on white in "
-                    "sRGB (opaque images unchanged); PSNR and SSIM (11x11 Gaussian window, sigma 1.5) on sRGB clipped "
-                    "to [0,1]; research.metrics")
+                    f"(index % {EVAL_INTERVAL} == 0) is a test view, the rest train; {res}; RGBA composited on white "
+                    "in sRGB (opaque images unchanged); PSNR and SSIM (11x11 Gaussian window, sigma 1.5) on sRGB "
+                    "clipped to [0,1]; research.metrics")
 
 
 def _frame_lists(root: Path, single: bool):

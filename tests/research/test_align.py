@@ -34,7 +34,8 @@ def test_umeyama_is_least_squares_under_noise_and_matches_evo():
     y = s * x @ R.T + t + rng.normal(scale=0.05, size=(50, 3))
     sim = umeyama(x, y)
     r_evo, t_evo, s_evo = evo_geometry.umeyama_alignment(x.T, y.T, with_scale=True)
-    assert abs(sim.scale - s_evo) < 1e-12 and np.abs(sim.R - r_evo).max() < 1e-12 and np.abs(sim.t - t_evo).max() < 1e-12
+    assert abs(sim.scale - s_evo) < 1e-12 and np.abs(sim.R - r_evo).max() < 1e-12
+    assert np.abs(sim.t - t_evo).max() < 1e-12
     # a least-squares minimum: perturbing the solution never lowers the residual
     cost = lambda sc, Rm, tv: float(((y - sc * x @ Rm.T - tv) ** 2).sum())  # noqa: E731
     best = cost(sim.scale, sim.R, sim.t)

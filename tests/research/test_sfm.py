@@ -77,7 +77,8 @@ def test_known_intrinsics_stay_fixed_and_force_replaces(capture, capsys):
     root, cams = capture
     K = cams[0].K
     args = ["sfm", str(root / "photos"), "--out", str(root / "model-k"), "--intrinsics",
-            ",".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2])), "--matcher", "sequential", "--overlap", "6",
+            ",".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2])), "--matcher", "sequential",
+            "--overlap", "6",
             "--threads", "2", "--no-progress"]
     assert cli.main(args) == 0
     assert "registered" in capsys.readouterr().out
