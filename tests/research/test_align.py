@@ -63,11 +63,14 @@ def test_pose_errors_of_a_similarity_moved_rig_are_zero_and_a_known_perturbation
         est.append(M)
     est = np.array(est)
     pe = pose_errors(est, gt)
-    assert pe.rotation_deg.max() < 1e-6 and pe.translation.max() < 1e-10 and abs(pe.sim3.scale - s) < 1e-10
+    assert pe.rotation_deg.max() < 1e-9 and pe.translation.max() < 1e-10 and abs(pe.sim3.scale - s) < 1e-10
+    for e, g in zip(est, gt):  # the aligned poses are the ground truth's
+        assert np.abs(pe.sim3.apply_c2w(e) - g).max() < 1e-10
+    assert np.abs(pe.sim3.matrix()[:3, :3] - s * R).max() < 1e-10
     tilted = est.copy()
     tilted[3, :3, :3] = tilted[3, :3, :3] @ Rotation.from_rotvec([0.0, 0.0, np.radians(2.0)]).as_matrix()
     pe = pose_errors(tilted, gt)
-    assert abs(pe.rotation_deg[3] - 2.0) < 1e-9 and np.delete(pe.rotation_deg, 3).max() < 1e-6
+    assert abs(pe.rotation_deg[3] - 2.0) < 1e-9 and np.delete(pe.rotation_deg, 3).max() < 1e-9
     assert abs(rotation_angle_deg(Rotation.from_rotvec([0.3, 0.0, 0.0]).as_matrix()) - np.degrees(0.3)) < 1e-9
 
 
