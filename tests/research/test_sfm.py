@@ -1,6 +1,6 @@
 """`drlab sfm` (research.sfm) on a small feature-rich Mitsuba render: registered images, pose error
 against the ground truth after a Sim(3) alignment, the output layout and research.datasets.colmap
-reading it. About 20 s on 2 cores (render 6 s, two SfM runs)."""
+reading it. About 30 s on 2 cores (render 6 s, three SfM runs)."""
 
 from __future__ import annotations
 
@@ -77,17 +77,27 @@ def test_known_intrinsics_stay_fixed_and_force_replaces(capture, capsys):
     root, cams = capture
     K = cams[0].K
     args = ["sfm", str(root / "photos"), "--out", str(root / "model-k"), "--intrinsics",
-            ",".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2])), "--matcher", "sequential",
-            "--overlap", "6",
-            "--threads", "2", "--no-progress"]
+            ",".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2])), "--threads", "2", "--no-progress"]
     assert cli.main(args) == 0
     assert "registered" in capsys.readouterr().out
     ds = load_colmap(root / "model-k", factor=1)
     for v in ds.views:
         assert np.abs(v.camera.K - K).max() < 1e-9  # PINHOLE, not refined in bundle adjustment
     index, pe = _errors(ds, cams)
-    assert len(index) >= VIEWS - 2 and pe.summary()["rotation_deg_median"] < 1.5
+    assert len(index) >= VIEWS - 2 and pe.summary()["rotation_deg_median"] < 1.5  # measured 0.39-0.56 deg
     assert cli.main(args) == 2  # exists
     assert "exists" in capsys.readouterr().err
     assert cli.main(args + ["--force"]) == 0
     assert not list(root.glob("model-k.*"))  # no temporary or old folder left beside it
+
+
+def test_sequential_matching_registers_the_ring(capture):
+    """Sequential matching pairs each view with the next --overlap by name only: on this closed ring the
+    loop is never closed, and in seven runs with known intrinsics (overlap 3, 6 and 10) four put one camera
+    60-70 degrees off (COLMAP's threads make runs differ), so only registration is asserted here (24 of 24 in
+    every run)."""
+    root, _ = capture
+    assert cli.main(["sfm", str(root / "photos"), "--out", str(root / "model-seq"), "--shared-camera",
+                     "--matcher", "sequential", "--overlap", "6", "--threads", "2", "--no-progress"]) == 0
+    summary = json.loads((root / "model-seq" / "sfm.json").read_text())
+    assert summary["options"]["matcher"] == "sequential" and len(summary["registered"]) >= VIEWS - 2
