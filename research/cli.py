@@ -7,6 +7,8 @@
     drlab gradcheck [KERNEL ...]       finite-difference table; exit status 1 on any failure
     drlab bench [FAMILY ...] [--json] [--compare]  timings (median of >= 3 runs after a warm-up)
     drlab list                         registered experiments, gradient checks and bench families
+    drlab sfm IMAGES_DIR --out DIR [--matcher exhaustive|sequential] [--shared-camera] [--intrinsics FX,FY,CX,CY]
+                                       photos -> a COLMAP folder (images/, sparse/0/) through pycolmap (research.sfm)
 
 Errors: a user mistake (a bad option or value, a folder that exists or is missing, a file that
 cannot be written, an unknown name) prints one line `drlab <command>: <message>` to stderr and
@@ -373,6 +375,19 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sfm(args: argparse.Namespace) -> int:
+    from research import sfm
+
+    intrinsics = sfm.parse_intrinsics(args.intrinsics) if args.intrinsics is not None else None
+    opts = sfm.SfmOptions(matcher=args.matcher, overlap=args.overlap, shared_camera=args.shared_camera,
+                          camera_model=args.camera_model, intrinsics=intrinsics, min_registered=args.min_registered,
+                          max_features=args.max_features, threads=args.threads, seed=args.seed)
+    result = sfm.run_sfm(args.images_dir, args.out, opts, force=args.force, progress=not args.no_progress,
+                         verbose=args.verbose)
+    print(f"drlab sfm: {sfm.describe(result)}")
+    return 0
+
+
 def _cmd_list(args: argparse.Namespace) -> int:
     from research.gradcheck import CHECKS, load_checks
 
@@ -482,6 +497,37 @@ def build_parser() -> argparse.ArgumentParser:
                         "or ref_missing when the library is not installed")
     b.set_defaults(fn=_cmd_bench)
 
+    sf = sub.add_parser(
+        "sfm", help="structure from motion: a folder of photos -> a COLMAP model (pycolmap, CPU)",
+        description="Run pycolmap's SIFT feature extraction, matching and incremental mapping on the images "
+                    "directly in IMAGES_DIR, then undistort them, and write a COLMAP folder that fit_splats/fit_nerf "
+                    "--data read: OUT/images/, OUT/sparse/0/ and OUT/sfm.json (research/sfm.py). OUT appears only "
+                    "when complete. Fewer registered images than --min-registered is an error (exit 2).")
+    sf.add_argument("images_dir", type=directory_path, help="folder of .png/.jpg images (sub-folders are ignored)")
+    sf.add_argument("--out", required=True, type=directory_path, help="output folder (must not exist; see --force)")
+    sf.add_argument("--matcher", choices=["exhaustive", "sequential"], default="exhaustive",
+                    help="exhaustive: every pair (unordered photos); sequential: each image with the next --overlap "
+                         "images by name (video frames, camera paths). Default exhaustive")
+    sf.add_argument("--overlap", type=int, default=10, help="sequential matching: images matched ahead (default 10)")
+    sf.add_argument("--shared-camera", action="store_true",
+                    help="one camera for every image (COLMAP's single-camera mode; the images must have one size)")
+    sf.add_argument("--camera-model", default="SIMPLE_RADIAL",
+                    choices=["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"],
+                    help="camera model to estimate (default SIMPLE_RADIAL, COLMAP's; a distorted model is "
+                         "undistorted at the end)")
+    sf.add_argument("--intrinsics", default=None, metavar="FX,FY,CX,CY",
+                    help="known intrinsics in pixels: one PINHOLE camera for every image, kept fixed in bundle "
+                         "adjustment (overrides --camera-model)")
+    sf.add_argument("--min-registered", type=int, default=None,
+                    help="fewest registered images accepted (default: half of them, at least 3)")
+    sf.add_argument("--max-features", type=int, default=8192, help="SIFT features per image (default 8192)")
+    sf.add_argument("--threads", type=int, default=-1, help="CPU threads (default -1: every core)")
+    sf.add_argument("--seed", type=seed_value, default=0, help="the mapper's random seed (default 0)")
+    sf.add_argument("--force", action="store_true", help="replace --out when it is a previous `drlab sfm` output")
+    sf.add_argument("--verbose", action="store_true", help="show COLMAP's own log (hidden by default)")
+    sf.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+    sf.set_defaults(fn=_cmd_sfm)
+
     ls = sub.add_parser("list", help="list registered experiments, gradient checks and bench families")
     ls.set_defaults(fn=_cmd_list)
     return p
@@ -489,7 +535,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _command_name(argv: list[str]) -> str:
     """`drlab <command>` for messages: the first word that is a command, else plain `drlab`."""
-    commands = {"dataset", "run", "reproduce", "sweep", "gradcheck", "bench", "list"}
+    commands = {"dataset", "run", "reproduce", "sweep", "gradcheck", "bench", "list", "sfm"}
     word = next((a for a in argv if a in commands), None)
     return f"drlab {word}" if word else "drlab"
 

@@ -135,6 +135,12 @@ register_experiment(
     "depth MAE, train and render seconds.",
     quick_budget_s=600,
 )
+register_experiment(
+    "sfm_poses",
+    "`drlab sfm` (pycolmap) on bare renders of Mitsuba `objects`: registered views, pose error after Sim(3) "
+    "alignment, and splats on SfM vs ground-truth poses.",
+    quick_budget_s=300,
+)
 
 register_experiment(
     "performance",

@@ -12,17 +12,24 @@ radians; square pixels, centred principal point), or nerfstudio's `fl_x`, `fl_y`
 `h`, given once at the top of the file or per frame (a frame's own values win). Without `w`/`h` the
 image's own size is used; every image of the folder must have the same size.
 
+nerfstudio's single `transforms.json` (no split files beside it) is read too, with the same keys; its
+split rule is nerfstudio's `interval` evaluation mode with interval 8 (the llffhold 8 of Mip-NeRF 360
+and 3DGS): the frames sorted by `file_path`, every 8th (index % 8 == 0) is a test view, the rest
+train; protocol "nerfstudio-interval8", scored as NeRF-synthetic (on white; opaque images are
+unchanged by it).
+
 Images: RGBA PNGs (RGB and JPEG also read, as opaque), straight alpha, sRGB. `factor` downscales by
 box averaging of the straight RGBA (OpenCV's INTER_AREA at an integer factor, as the NeRF code
 makes its half-resolution images), the intrinsics scaled alike. The protocol ("nerf-synthetic":
 NeRF, instant-ngp and 3DGS) trains on the train split and scores the test split with the images
 composited on white in sRGB: `srgb * alpha + (1 - alpha)`.
 
-Scene bound: a declared box (`"aabb": [[x, y, z], [x, y, z]]` in transforms_train.json, or the
+Scene bound: a declared box (`"aabb": [[x, y, z], [x, y, z]]` in transforms_train.json or transforms.json, or the
 scene record of a drlab cameras.json beside it), else `formats.bound_from_cameras`.
 
 Errors (research.datasets.DatasetError, a ValueError; one line naming the file): a missing
-transforms_train.json or transforms_test.json, a frame without `file_path` or `transform_matrix`,
+transforms_train.json or transforms_test.json (when there is no single transforms.json), a single
+transforms.json with fewer than 2 frames, a frame without `file_path` or `transform_matrix`,
 a transform whose rotation part is not a rotation, an image listed but absent, images of different
 sizes, a size not divisible by `factor`.
 """
@@ -41,6 +48,8 @@ from research.datasets.integrity import DatasetError
 from research.datasets.loader import SPLITS, Dataset, Protocol, Split, View, _image_size
 
 WHITE = (1.0, 1.0, 1.0)
+SINGLE_TRANSFORMS = "transforms.json"
+EVAL_INTERVAL = 8  # a single transforms.json: every 8th frame (by file_path) is a test view
 _INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x")
 
 
@@ -99,10 +108,10 @@ def _camera(tpath: Path, index: int, doc: dict[str, Any], frame: dict[str, Any],
     return Camera(S @ cam.K, cam.c2w, w // factor, h // factor)
 
 
-def _declared_box(root: Path, train_doc: dict[str, Any]) -> np.ndarray | None:
+def _declared_box(root: Path, train_doc: dict[str, Any], train_file: Path) -> np.ndarray | None:
     if "aabb" in train_doc:
         box = np.asarray(train_doc["aabb"], dtype=np.float64)
-        where = root / "transforms_train.json"
+        where = train_file
     elif (root / "cameras.json").is_file():
         scene = _read_json(root / "cameras.json").get("scene", {})
         if "bbox_min" not in scene:
@@ -125,6 +134,49 @@ def nerf_synthetic_protocol(width: int, height: int, factor: int) -> Protocol:
                     "research.metrics")
 
 
+def nerfstudio_protocol(width: int, height: int, factor: int) -> Protocol:
+    res = f"{width}x{height}" + (f" (the files at 1/{factor})" if factor > 1 else "")
+    return Protocol("nerfstudio-interval8", "train", "test", res, WHITE,
+                    f"nerfstudio single transforms.json: frames sorted by file_path, every {EVAL_INTERVAL}th "
+                    f"(index % {EVAL_INTERVAL} == 0) is a test view, the rest train; {res}; RGBA composited on white "
+                    "in sRGB (opaque images unchanged); PSNR and SSIM (11x11 Gaussian window, sigma 1.5) on sRGB "
+                    "clipped to [0,1]; research.metrics")
+
+
+def _frame_lists(root: Path, single: bool):
+    """(split, transforms file, its document, [(index in the file, frame)]) for every split present.
+
+    Split files: each file's frames in their order. A single transforms.json: its frames sorted by
+    file_path, every EVAL_INTERVAL-th (index % EVAL_INTERVAL == 0) in test, the rest in train.
+    """
+    paths = [root / SINGLE_TRANSFORMS] if single else [root / f"transforms_{s}.json" for s in SPLITS]
+    out = []
+    for tpath in paths:
+        if not tpath.is_file():
+            continue
+        doc = _read_json(tpath)
+        frames = doc.get("frames") if isinstance(doc, dict) else None
+        if not isinstance(frames, list) or not frames:
+            raise DatasetError(f"{tpath}: lists no frames")
+        for i, frame in enumerate(frames):
+            if not isinstance(frame, dict):
+                raise DatasetError(f"{tpath}: frame {i} is not an object")
+        indexed = list(enumerate(frames))
+        if not single:
+            out.append((tpath.stem[len("transforms_"):], tpath, doc, indexed))
+            continue
+        for i, frame in indexed:
+            _image_path(root, tpath, i, frame)  # a frame without file_path: its error before the sort
+        indexed.sort(key=lambda f: str(f[1]["file_path"]))
+        if len(indexed) < 2:
+            raise DatasetError(f"{tpath}: {len(indexed)} frame; the split (every {EVAL_INTERVAL}th frame for test) "
+                               "needs at least 2")
+        test = [f for k, f in enumerate(indexed) if k % EVAL_INTERVAL == 0]
+        train = [f for k, f in enumerate(indexed) if k % EVAL_INTERVAL != 0]
+        out += [("train", tpath, doc, train), ("test", tpath, doc, test)]
+    return out
+
+
 def load_blender(path: str | Path, factor: int = 1) -> Dataset:
     """Read a NeRF-synthetic / nerfstudio folder (module docstring) as a research.datasets Dataset.
 
@@ -134,29 +186,25 @@ def load_blender(path: str | Path, factor: int = 1) -> Dataset:
     root = Path(path)
     if not root.is_dir():
         raise DatasetError(f"{root}: no such dataset folder")
-    for required in ("train", "test"):
-        if not (root / f"transforms_{required}.json").is_file():
-            raise DatasetError(f"{root / f'transforms_{required}.json'}: missing (a NeRF-synthetic folder has "
-                               "transforms_train.json and transforms_test.json)")
+    single = not any((root / f"transforms_{s}.json").is_file() for s in SPLITS) and \
+        (root / SINGLE_TRANSFORMS).is_file()
+    if not single:
+        for required in ("train", "test"):
+            if not (root / f"transforms_{required}.json").is_file():
+                raise DatasetError(f"{root / f'transforms_{required}.json'}: missing (a NeRF-synthetic folder has "
+                                   f"transforms_train.json and transforms_test.json; a nerfstudio folder has "
+                                   f"{SINGLE_TRANSFORMS})")
     views: list[View] = []
     files: dict[str, Path] = {}
     read: list[Path] = []
     ref: tuple[Path, tuple[int, int]] | None = None
     train_doc: dict[str, Any] = {}
-    for split in SPLITS:
-        tpath = root / f"transforms_{split}.json"
-        if not tpath.is_file():
-            continue
-        doc = _read_json(tpath)
-        frames = doc.get("frames") if isinstance(doc, dict) else None
-        if not isinstance(frames, list) or not frames:
-            raise DatasetError(f"{tpath}: lists no frames")
+    for split, tpath, doc, frames in _frame_lists(root, single):
         if split == "train":
             train_doc = doc
-        read.append(tpath)
-        for i, frame in enumerate(frames):
-            if not isinstance(frame, dict):
-                raise DatasetError(f"{tpath}: frame {i} is not an object")
+        if tpath not in read:
+            read.append(tpath)
+        for i, frame in frames:
             img = _image_path(root, tpath, i, frame)
             size = _image_size(img)
             if ref is None:
@@ -174,7 +222,7 @@ def load_blender(path: str | Path, factor: int = 1) -> Dataset:
             read.append(img)
     assert ref is not None
     cams = [v.camera for v in views]
-    bbox = _declared_box(root, train_doc)
+    bbox = _declared_box(root, train_doc, root / (SINGLE_TRANSFORMS if single else "transforms_train.json"))
     if bbox is None:
         bbox = formats.bound_from_cameras([v.camera for v in views if v.split == "train"] or cams)
     width, height = cams[0].width, cams[0].height
@@ -188,6 +236,7 @@ def load_blender(path: str | Path, factor: int = 1) -> Dataset:
 
     manifest = {"format": "blender", "content_hash": formats.content_hash(root, read), "factor": factor,
                 "root": str(root)}
+    protocol = (nerfstudio_protocol if single else nerf_synthetic_protocol)(width, height, factor)
     return Dataset(root, manifest, views, bbox, formats.up_from_cameras(cams), format="blender",
-                   scene=root.resolve().name, protocol=nerf_synthetic_protocol(width, height, factor),
+                   scene=root.resolve().name, protocol=protocol,
                    split_loader=load_views)

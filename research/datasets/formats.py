@@ -1,7 +1,8 @@
 """Which reader a data folder needs, and what the readers of external formats share.
 
 `detect_format(path)`: "drlab" (a folder written by `drlab dataset`: manifest.json), "blender"
-(NeRF-synthetic / nerfstudio: transforms_train.json), "colmap" (a COLMAP layout: sparse/0 or
+(NeRF-synthetic / nerfstudio: transforms_train.json, or nerfstudio's single transforms.json),
+"colmap" (a COLMAP layout: sparse/0 or
 sparse/ holding a model), or None (not a dataset folder: the experiments then treat --data as the
 cache root of their own renders, as before). `open_dataset(path, fmt, factor)` loads it.
 
@@ -34,7 +35,7 @@ def detect_format(path: str | Path) -> str | None:
         return None
     if (root / "manifest.json").is_file() and (root / "cameras.json").is_file():
         return "drlab"
-    if (root / "transforms_train.json").is_file():
+    if (root / "transforms_train.json").is_file() or (root / "transforms.json").is_file():
         return "blender"
     if (root / "sparse").is_dir():
         return "colmap"
