@@ -83,7 +83,9 @@ def test_grid_float32_within_the_rounding_bound():
     n_max, n_coef = max(res), (deg + 1) ** 2
     e = (8 + 3 * (n_max + 3)) * U32 * np.abs(density).max()
     within("sigma", out.sigma, s, 2.5 * (e + 4 * U32 * (np.abs(density).max() + 0.7 + 1)))
-    y_sum = 3.0  # sum_j |Y_j(d)| <= 3 for degree <= 2 on the unit sphere (sum of the |constants|, rounded up)
+    # sum_j |Y_j(d)| for degree <= 2 on the unit sphere: C0 + sqrt(3) C1 + 1.0925 (|xy| + |yz| + |zx| <= 1)
+    # + 0.3154 |2z^2 - x^2 - y^2| (<= 2) + 0.5463 |x^2 - y^2| (<= 1) = 3.39 at most.
+    y_sum = 3.4
     e_rgb = (8 + 3 * (n_max + 3) + n_coef) * U32 * y_sum * np.abs(color).max()
     within("rgb", out.rgb, c, e_rgb / 4 + 4 * U32)
     m = _points_per_vertex(pts, res)
