@@ -25,10 +25,12 @@ Per pixel, over its tile's splats sorted by depth z, front to back, T = 1:
     C += c alpha T,  D += z alpha T,  T *= 1 - alpha
     rgb = C + T background,  alpha_out = 1 - T,  depth = D
 
-(depth is drlab's extra output: the alpha-weighted z, background 0). The discrete choices (tile
+(depth is drlab's extra output: the alpha-weighted z, background 0). As drlab, the oracle divides by
+z exactly where 3DGS's projection matrix divides by w + 1e-7, and culls outside [near, far] where
+3DGS hard-codes z <= 0.2 (kernels/splat/modes.py states both). The discrete choices (tile
 lists, depth order) are computed from the oracle's own values, detached; every continuous value
-stays in Dr.Jit's AD graph. `tile_rule="square"` replaces getRect by the continuous rule of
-kernels/splat/tiles.py (the tiles the square mean2d +- radius meets); the two differ where a
+stays in Dr.Jit's AD graph. `tile_rule="square"` replaces getRect by the tiles the square
+mean2d +- radius meets (gsplat's rule, and drlab's before it followed 3DGS); the two differ where a
 splat's square ends inside a tile's first pixel column or row: getRect's int((m + r + 15) / 16)
 is ceil(m + r) / 16 rounded down, so it leaves out a tile whose first pixel centre lies within
 the radius but beyond floor(m + r), where alpha can still exceed 1/255. The per-pixel loop is unrolled over the slots of the longest tile
@@ -120,8 +122,7 @@ def _tile_rects(u: np.ndarray, v: np.ndarray, r: np.ndarray, tiles_x: int, tiles
                 rule: str = "3dgs") -> np.ndarray:
     """Tile rectangles (x0, x1, y0, y1) of the splats: rule "3dgs" is 3DGS's getRect on the screen
     point m = mean2d - 1/2 with C integer truncation; rule "square" lists the tiles that the square
-    mean2d +- r meets, [floor((u - r) / 16), ceil((u + r) / 16)) clamped to the image's tiles (the rule
-    kernels/splat/tiles.py states)."""
+    mean2d +- r meets, [floor((u - r) / 16), ceil((u + r) / 16)) clamped to the image's tiles."""
     if rule == "square":
         with np.errstate(invalid="ignore"):
             x0 = np.clip(np.floor((u - r) / TILE), 0, tiles_x)

@@ -1,12 +1,12 @@
-"""kernels/splat against its Dr.Jit oracle of the original 3DGS equations (research/oracles/splat.py):
-projection, SH colour, rasterisation and depth, forward and VJPs, float64 and float32.
+"""kernels/splat (default mode "3dgs") against its Dr.Jit oracle of the original 3DGS equations
+(research/oracles/splat.py): projection, SH colour, rasterisation and depth, forward and VJPs,
+float64 and float32, with splats inside the image and splats centred just outside it, beyond and
+just inside the Jacobian's frustum clamp.
 
-drlab's tile binning (kernels/splat/tiles.py) lists a splat in the tiles its square mean2d +- radius
-meets; 3DGS's getRect truncates int((m + r + 15) / 16) and so leaves out a tile whose first pixel
-lies within the radius but past floor(m + r): the two images differ there by the splat's blend
-(`test_tile_rules_differ_only_in_getrects_gap_tiles` pins it). The chain is compared with the
-oracle under drlab's own rule, DRLAB_TILE_RULE; everything else is the 3DGS code's. Splats stay well
-inside the frustum here (|x/z| below both drlab's and 3DGS's Jacobian clamps).
+The oracle's alternative tile rule, "square" (the tiles the square mean2d +- radius meets, as
+gsplat bins), differs from 3DGS's getRect, which truncates int((m + r + 15) / 16) and so leaves out
+a tile whose first pixel lies within the radius but past floor(m + r):
+`test_tile_rules_differ_only_in_getrects_gap_tiles` pins where the two images differ.
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from kernels import splat as ks
-from research.checks.splat import smooth_scene
+from research.checks.splat import random_scene, smooth_scene
 from research.oracles.splat import TILE, _tile_rects, project_oracle, render_oracle
 from tests.oracles.conftest import U32, close64, within
 
-DRLAB_TILE_RULE = "square"  # "3dgs" once kernels/splat/tiles.py bins by getRect
+DRLAB_TILE_RULE = "3dgs"  # drlab's default mode bins by getRect (kernels/splat/modes.py)
 PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh")
 
 
@@ -134,3 +134,32 @@ def test_render_float32_within_the_rounding_bound():
         + (4 * (k_max + 1) + cam.width * cam.height) * U32
     for k in (*PARAMS, "background"):
         within(f"d{k}", grads[k], ograds[k], rel_g * float(np.abs(mgrads[k]).max()))
+
+
+@pytest.mark.parametrize("case", ["near_clamp", "off_frustum"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_render_float64_splats_centred_outside_the_image(case, seed):
+    """Splat 0 centred right of the image 0.004 beyond the 1.3 tan(fov/2) clamp and splat 1 above it
+    0.004 inside it (`near_clamp`), or splat 0 far beyond the clamp reaching into the image
+    (`off_frustum`): the clamped Jacobian enters the image and every gradient."""
+    rng = np.random.default_rng(seed)
+    sc = random_scene(rng, **({"near_clamp": "3dgs"} if case == "near_clamp" else {"off_frustum": True}))
+    p, cam, bg = sc.params, sc.camera, sc.background
+    H, W = cam.height, cam.width
+    cot = (rng.normal(size=(H, W, 3)), rng.normal(size=(H, W)), rng.normal(size=(H, W)))
+    x_over_z = _camera_x_over_z(p["means"][0], cam)
+    assert abs(x_over_z) > 1.3 * W / (2 * cam.K[0, 0]) and not (0 <= cam.K[0, 0] * x_over_z + cam.K[0, 2] < W)
+    res, grads = _drlab(p, cam, bg, cot)
+    (rgb, alpha, depth), ograds, _ = _oracle(p, cam, bg, cot)
+    proj, _ = project_oracle(*(p[k] for k in PARAMS), cam.viewmat, cam.K, W, H, cam.near, cam.far)
+    assert proj["radii"][0] > 0  # the splat outside the image reaches into it
+    close64("rgb", res.rgb, rgb)
+    close64("alpha", res.alpha, alpha)
+    close64("depth", res.depth, depth)
+    for k in (*PARAMS, "background"):
+        close64(f"d{k}", grads[k], ograds[k])
+
+
+def _camera_x_over_z(mean: np.ndarray, cam) -> float:
+    pc = cam.viewmat[:3, :3] @ mean + cam.viewmat[:3, 3]
+    return float(pc[0] / pc[2])
