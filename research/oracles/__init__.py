@@ -91,14 +91,3 @@ def backend(dtype: Any) -> Backend:
         raise OracleUnavailable(f"Dr.Jit's LLVM backend is unavailable: {exc}") from None
     F = ad.Float64 if dtype == np.float64 else ad.Float
     return Backend(dr, F, ad.UInt32, ad.Int32, ad.Bool, dtype.type)
-
-
-def max_diffs(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """(max |a - b|, max |a - b| / max |b|): the relative figure is against the oracle's largest value."""
-    a = np.asarray(a, np.float64)
-    b = np.asarray(b, np.float64)
-    if a.size == 0:
-        return 0.0, 0.0
-    d = float(np.max(np.abs(a - b)))
-    scale = float(np.max(np.abs(b)))
-    return d, (d / scale if scale > 0 else d)
