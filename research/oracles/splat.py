@@ -61,9 +61,31 @@ def _rows(be: Backend, leaf, n: int, k: int) -> list:
     return [be.dr.gather(be.Float, leaf, be.arange(n) * k + j) for j in range(k)]
 
 
+def _camera(be: Backend, viewmat: np.ndarray, K: np.ndarray, camera: dict | None):
+    """([W], [t], (fx, fy, cx, cy)) as Python floats, or, with `camera` (the leaves "pose" (6,) and
+    "intrinsics" (4,)), as Dr.Jit values: the intrinsics themselves, and [W | t] moved by the left
+    perturbation exp(xi^) of xi = (rho, phi) = pose at 0, to first order (I + phi^) [W | t] + [0 | rho],
+    whose derivative at xi = 0 is exp's (kernels/splat/camera.py's convention)."""
+    view = np.asarray(viewmat, np.float64)
+    if camera is None:
+        Wr = [[float(view[i, j]) for j in range(3)] for i in range(3)]
+        return Wr, [float(view[i, 3]) for i in range(3)], (float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
+                                                            float(K[1, 2]))
+    dr = be.dr
+    xi = [dr.gather(be.Float, camera["pose"], be.UInt(j)) for j in range(6)]
+    rho, (a, b, c) = xi[:3], xi[3:]
+    hat = [[0.0, -c, b], [c, 0.0, -a], [-b, a, 0.0]]
+    Wr = [[float(view[i, j]) + sum(hat[i][k] * float(view[k, j]) for k in range(3)) for j in range(3)]
+          for i in range(3)]
+    tv = [float(view[i, 3]) + sum(hat[i][k] * float(view[k, 3]) for k in range(3)) + rho[i] for i in range(3)]
+    intr = tuple(dr.gather(be.Float, camera["intrinsics"], be.UInt(j)) for j in range(4))
+    return Wr, tv, intr
+
+
 def _project(be: Backend, leaves: dict, n: int, n_coeffs: int, viewmat: np.ndarray, K: np.ndarray,
-             width: int, height: int, near: float, far: float) -> dict:
-    """Per-splat screen-space values (Dr.Jit arrays) of the module docstring's projection."""
+             width: int, height: int, near: float, far: float, camera: dict | None = None) -> dict:
+    """Per-splat screen-space values (Dr.Jit arrays) of the module docstring's projection; `camera`:
+    the pose and intrinsics leaves (`_camera`) when their gradients are wanted."""
     dr = be.dr
     mx, my, mz = _rows(be, leaves["means"], n, 3)
     l0, l1, l2 = _rows(be, leaves["log_scales"], n, 3)
@@ -76,13 +98,11 @@ def _project(be: Backend, leaves: dict, n: int, n_coeffs: int, viewmat: np.ndarr
     s = [dr.exp(l0), dr.exp(l1), dr.exp(l2)]
     M = [[R[i][j] * s[j] for j in range(3)] for i in range(3)]
     Sig = [[sum(M[i][k] * M[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
-    Wr = np.asarray(viewmat, np.float64)[:3, :3]
-    tv = np.asarray(viewmat, np.float64)[:3, 3]
+    Wr, tv, (fx, fy, cx, cy) = _camera(be, viewmat, K, camera)
     mu = (mx, my, mz)
-    p = [sum(float(Wr[i, j]) * mu[j] for j in range(3)) + float(tv[i]) for i in range(3)]
-    WS = [[sum(float(Wr[i, k]) * Sig[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
-    Sc = [[sum(WS[i][k] * float(Wr[j, k]) for k in range(3)) for j in range(3)] for i in range(3)]
-    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    p = [sum(Wr[i][j] * mu[j] for j in range(3)) + tv[i] for i in range(3)]
+    WS = [[sum(Wr[i][k] * Sig[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+    Sc = [[sum(WS[i][k] * Wr[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
     tz = p[2]
     lim_x = FRUSTUM * width / (2.0 * fx)
     lim_y = FRUSTUM * height / (2.0 * fy)
@@ -100,8 +120,8 @@ def _project(be: Backend, leaves: dict, n: int, n_coeffs: int, viewmat: np.ndarr
     lam = mid + dr.sqrt(dr.maximum(EIG_FLOOR, mid * mid - det))
     radius = dr.ceil(3.0 * dr.sqrt(lam))
     # Colour from SH in the direction from the camera centre -W^T t.
-    centre = -Wr.T @ tv
-    dv = [mu[i] - float(centre[i]) for i in range(3)]
+    centre = [-sum(Wr[k][i] * tv[k] for k in range(3)) for i in range(3)]
+    dv = [mu[i] - centre[i] for i in range(3)]
     dn = dr.sqrt(dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2])
     Y = sh_basis(dv[0] / dn, dv[1] / dn, dv[2] / dn, n_coeffs)
     sh = leaves["sh"]
@@ -191,9 +211,11 @@ def _visible(be: Backend, P: dict, n: int, tiles_x: int, tiles_y: int, rule: str
 
 def render_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K, width: int, height: int,
                   near: float, far: float, background, grad_rgb, grad_alpha=None, grad_depth=None,
-                  tile_rule: str = "3dgs") -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
+                  tile_rule: str = "3dgs", want_camera: bool = False) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
     """((rgb (H, W, 3), alpha (H, W), depth (H, W)), VJPs {"means", "log_scales", "quats",
-    "opacity_logits", "sh", "background"}, info {"max_list": longest tile list}) of the whole chain."""
+    "opacity_logits", "sh", "background"} (with `want_camera` also "pose" (6,), d/dxi at xi = 0 of the
+    left perturbation exp(xi^) [W | t], xi = (rho, phi), and "intrinsics" (4,), d/d(fx, fy, cx, cy)),
+    info {"max_list": longest tile list, "visible": visible splats}) of the whole chain."""
     be = backend(np.asarray(means).dtype)
     dr = be.dr
     n = means.shape[0]
@@ -201,7 +223,11 @@ def render_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K, widt
     names = ("means", "log_scales", "quats", "opacity_logits", "sh")
     leaves = {k: be.leaf(x) for k, x in zip(names, (means, log_scales, quats, opacity_logits, sh))}
     bg = be.leaf(np.asarray(background))
-    P = _project(be, leaves, n, n_coeffs, viewmat, K, width, height, near, far)
+    camera = None
+    if want_camera:
+        Kn = np.asarray(K, np.float64)
+        camera = {"pose": be.leaf(np.zeros(6)), "intrinsics": be.leaf([Kn[0, 0], Kn[1, 1], Kn[0, 2], Kn[1, 2]])}
+    P = _project(be, leaves, n, n_coeffs, viewmat, K, width, height, near, far, camera)
     tx, ty = (width + TILE - 1) // TILE, (height + TILE - 1) // TILE
     vis = _visible(be, P, n, tx, ty, tile_rule)
     # Tile lists: every visible splat in every tile of its rectangle, front to back (depth order).
@@ -261,6 +287,9 @@ def render_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K, widt
     dr.backward(be.dot(outs, cots))
     grads = {k: be.grad(leaves[k], np.shape(x)) for k, x in zip(names, (means, log_scales, quats, opacity_logits, sh))}
     grads["background"] = be.grad(bg, (3,))
+    if camera is not None:
+        grads["pose"] = be.grad(camera["pose"], (6,))
+        grads["intrinsics"] = be.grad(camera["intrinsics"], (4,))
     image = (np.stack([be.numpy(c, (height, width)) for c in rgb], axis=-1), be.numpy(alpha_out, (height, width)),
              be.numpy(D, (height, width)))
     return image, grads, {"max_list": kmax, "visible": int(vis.sum())}
