@@ -91,3 +91,18 @@ def backend(dtype: Any) -> Backend:
         raise OracleUnavailable(f"Dr.Jit's LLVM backend is unavailable: {exc}") from None
     F = ad.Float64 if dtype == np.float64 else ad.Float
     return Backend(dr, F, ad.UInt32, ad.Int32, ad.Bool, dtype.type)
+
+
+def check_array(name: str, x: Any, shape: tuple) -> np.ndarray:
+    """x as a finite float32/float64 NumPy array of `shape` (None matches any length); else ValueError
+    naming the argument, before any Dr.Jit work."""
+    if not isinstance(x, np.ndarray):
+        raise ValueError(f"{name}: expected a NumPy array, got {type(x).__name__}")
+    if x.dtype not in (np.float32, np.float64):
+        raise ValueError(f"{name}: expected dtype float32 or float64, got {x.dtype}")
+    if x.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, x.shape)):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+        raise ValueError(f"{name}: expected shape {want}, got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{name}: expected finite values, found NaN or infinite")
+    return x

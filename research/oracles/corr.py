@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from research.oracles import backend
+from research.oracles import backend, check_array
 
 
 def _level_shapes(H: int, W: int, levels: int) -> list[tuple[int, int]]:
@@ -30,6 +30,15 @@ def _level_shapes(H: int, W: int, levels: int) -> list[tuple[int, int]]:
 def lookup_oracle(f1: np.ndarray, f2: np.ndarray, coords: np.ndarray, levels: int, radius: int,
                   grad: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """(lookup output (L (2r+1)^2, H, W), {"f1", "f2", "coords": VJPs}) for L = sum(grad * out)."""
+    check_array("f1", f1, (None, None, None))
+    check_array("f2", f2, f1.shape)
+    check_array("coords", coords, (2, f1.shape[1], f1.shape[2]))
+    if not (isinstance(levels, int) and levels >= 1 and f1.shape[1] >> (levels - 1) >= 1
+            and f1.shape[2] >> (levels - 1) >= 1):
+        raise ValueError(f"levels: expected 1 to the number of 2x2 poolings frame 2 allows, got {levels!r}")
+    if not (isinstance(radius, int) and radius >= 0):
+        raise ValueError(f"radius: expected an integer >= 0, got {radius!r}")
+    check_array("grad", grad, (levels * (2 * radius + 1) ** 2, f1.shape[1], f1.shape[2]))
     be = backend(f1.dtype)
     dr = be.dr
     C, H, W = f1.shape

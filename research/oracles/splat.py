@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from research.oracles import Backend, backend
+from research.oracles import Backend, backend, check_array
 from research.oracles.volume import sh_basis
 
 TILE = 16
@@ -55,6 +55,22 @@ T_MIN = 1e-4
 DILATION = 0.3
 FRUSTUM = 1.3
 EIG_FLOOR = 0.1
+
+
+def _check_splats(means, log_scales, quats, opacity_logits, sh, viewmat, K, tile_rule: str) -> None:
+    """ValueError naming the first bad argument (shapes, finite floats, the camera, the tile rule)."""
+    check_array("means", means, (None, 3))
+    n = means.shape[0]
+    check_array("log_scales", log_scales, (n, 3))
+    check_array("quats", quats, (n, 4))
+    check_array("opacity_logits", opacity_logits, (n,))
+    check_array("sh", sh, (n, None, 3))
+    if sh.shape[1] not in (1, 4, 9, 16):
+        raise ValueError(f"sh: expected (L+1)^2 <= 16 coefficients per channel, got {sh.shape[1]}")
+    check_array("viewmat", np.asarray(viewmat, np.float64), (4, 4))
+    check_array("K", np.asarray(K, np.float64), (3, 3))
+    if tile_rule not in ("3dgs", "square"):
+        raise ValueError(f"tile_rule: expected '3dgs' or 'square', got {tile_rule!r}")
 
 
 def _rows(be: Backend, leaf, n: int, k: int) -> list:
@@ -167,6 +183,7 @@ def project_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K, wid
     """Per-splat projection: ({"means2d", "conics", "depths", "radii", "colors", "opacities"} with
     culled splats' entries 0, as drlab stores them), and the VJPs for cotangents of
     means2d (N, 2), conics (N, 3), depths (N,), colors (N, 3), opacities (N,) (culled splats: none)."""
+    _check_splats(means, log_scales, quats, opacity_logits, sh, viewmat, K, tile_rule)
     be = backend(np.asarray(means).dtype)
     dr = be.dr
     n = means.shape[0]
@@ -216,6 +233,12 @@ def render_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K, widt
     "opacity_logits", "sh", "background"} (with `want_camera` also "pose" (6,), d/dxi at xi = 0 of the
     left perturbation exp(xi^) [W | t], xi = (rho, phi), and "intrinsics" (4,), d/d(fx, fy, cx, cy)),
     info {"max_list": longest tile list, "visible": visible splats}) of the whole chain."""
+    _check_splats(means, log_scales, quats, opacity_logits, sh, viewmat, K, tile_rule)
+    check_array("background", np.asarray(background, dtype=means.dtype), (3,))
+    for name, c, shape in (("grad_rgb", grad_rgb, (height, width, 3)), ("grad_alpha", grad_alpha, (height, width)),
+                           ("grad_depth", grad_depth, (height, width))):
+        if c is not None:
+            check_array(name, c, shape)
     be = backend(np.asarray(means).dtype)
     dr = be.dr
     n = means.shape[0]

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from research.oracles import backend
+from research.oracles import backend, check_array
 
 WINDOW = 11
 SIGMA = 1.5
@@ -31,6 +31,9 @@ def _taps() -> np.ndarray:
 def ssim_oracle(x: np.ndarray, y: np.ndarray, grad_map: np.ndarray, data_range: float = 1.0
                 ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """(SSIM map (H, W, C), (dL/dx, dL/dy)) for L = sum(grad_map * map), in x's dtype."""
+    check_array("x", x, (None, None, None))
+    check_array("y", y, x.shape)
+    check_array("grad_map", grad_map, x.shape)
     be = backend(x.dtype)
     dr = be.dr
     H, W, C = x.shape

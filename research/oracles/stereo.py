@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from research.oracles import backend
+from research.oracles import backend, check_array
 
 
 def _cells(be, H: int, W: int, D: int, dmin: int):
@@ -51,6 +51,12 @@ def _window(be, L, R, H, W, x, y, d, r):
 def window_cost_oracle(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, radius: int, kind: str,
                        eps: float = 1e-5) -> np.ndarray:
     """The SAD (kind 'sad') or ZNCC (kind 'zncc') volume (H, W, dmax - dmin) in left's dtype."""
+    check_array("left", left, (None, None))
+    check_array("right", right, left.shape)
+    if kind not in ("sad", "zncc"):
+        raise ValueError(f"kind: expected 'sad' or 'zncc', got {kind!r}")
+    if not dmax > dmin:
+        raise ValueError(f"dmax: expected > dmin ({dmin}), got {dmax}")
     be = backend(left.dtype)
     dr = be.dr
     H, W = left.shape
@@ -90,6 +96,9 @@ def window_cost_oracle(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int
 def feature_correlation_oracle(fl: np.ndarray, fr: np.ndarray, dmin: int, dmax: int, grad: np.ndarray
                                ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """(corr (H, W, D), (dL/dF_L, dL/dF_R)) for features (C, H, W) and L = sum(grad * corr)."""
+    check_array("fl", fl, (None, None, None))
+    check_array("fr", fr, fl.shape)
+    check_array("grad", grad, (fl.shape[1], fl.shape[2], dmax - dmin))
     be = backend(fl.dtype)
     dr = be.dr
     C, H, W = fl.shape
@@ -112,6 +121,10 @@ def feature_correlation_oracle(fl: np.ndarray, fr: np.ndarray, dmin: int, dmax: 
 def soft_argmin_oracle(cost: np.ndarray, dmin: int, grad: np.ndarray, temperature: float = 1.0
                        ) -> tuple[np.ndarray, np.ndarray]:
     """(disparity (H, W), dL/dcost (H, W, D)) for L = sum(grad * disparity)."""
+    check_array("cost", cost, (None, None, None))
+    check_array("grad", grad, cost.shape[:2])
+    if not temperature > 0:
+        raise ValueError(f"temperature: expected > 0, got {temperature}")
     be = backend(cost.dtype)
     dr = be.dr
     H, W, D = cost.shape

@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from research.oracles import Backend, backend
+from research.oracles import Backend, backend, check_array
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
@@ -73,6 +73,14 @@ def grid_field_oracle(points: np.ndarray, dirs: np.ndarray | None, density: np.n
                       density_scale: float, activation: str, grad_sigma: np.ndarray, grad_rgb: np.ndarray
                       ) -> tuple[tuple[np.ndarray, np.ndarray], dict[str, np.ndarray]]:
     """((sigma (N,), rgb (N, 3)), {"density", "color": VJPs}) of the dense grid field."""
+    check_array("points", points, (None, 3))
+    n_coef = 1 if sh_degree is None else (sh_degree + 1) ** 2
+    if sh_degree is not None:
+        check_array("dirs", dirs, points.shape)
+    check_array("density", density, (int(np.prod(resolution)),))
+    check_array("color", color, (int(np.prod(resolution)), 3 * n_coef))
+    check_array("grad_sigma", grad_sigma, (points.shape[0],))
+    check_array("grad_rgb", grad_rgb, (points.shape[0], 3))
     be = backend(points.dtype)
     dr = be.dr
     n = points.shape[0]
@@ -150,6 +158,9 @@ def _hash_encode(be: Backend, pts: list, table, bbox, resolutions, table_size: i
 def hash_encoding_oracle(points: np.ndarray, table: np.ndarray, bbox: np.ndarray, resolutions: Sequence[int],
                          table_size: int, grad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(enc (N, L F), dL/dtable (L T, F)) for L = sum(grad * enc)."""
+    check_array("points", points, (None, 3))
+    check_array("table", table, (len(resolutions) * table_size, None))
+    check_array("grad", grad, (points.shape[0], len(resolutions) * table.shape[1]))
     be = backend(points.dtype)
     dr = be.dr
     n, F = points.shape[0], table.shape[1]
@@ -186,6 +197,11 @@ def _mlp(be: Backend, a, n: int, leaves: dict, sizes: Sequence[int]):
 def mlp_oracle(x: np.ndarray, params: dict[str, np.ndarray], sizes: Sequence[int], grad: np.ndarray
                ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """(y (N, n_out), {"x", "W0", "b0", ...: VJPs}) of the ReLU MLP for L = sum(grad * y)."""
+    check_array("x", x, (None, sizes[0]))
+    for l in range(len(sizes) - 1):
+        check_array(f"W{l}", params.get(f"W{l}"), (sizes[l + 1], sizes[l]))
+        check_array(f"b{l}", params.get(f"b{l}"), (sizes[l + 1],))
+    check_array("grad", grad, (x.shape[0], sizes[-1]))
     be = backend(x.dtype)
     dr = be.dr
     n = x.shape[0]
