@@ -148,6 +148,13 @@ register_experiment(
     quick_budget_s=600,
 )
 
+register_experiment(
+    "oracle_conformance",
+    "Every kernel family against its Dr.Jit AD oracle (research/oracles) at full size: max abs/rel difference, "
+    "forward and VJP, float32 and float64, with timings.",
+    quick_budget_s=300,
+)
+
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",

@@ -115,11 +115,16 @@ def _check_sfm_poses(m):
     assert _finite(m["splats"]["sfm_poses"]["psnr"]) and _finite(m["splats"]["gt_poses"]["psnr"])
 
 
+def _check_oracle(m):
+    assert m["worst_float64_rel"] <= 1e-10  # drlab conforms to its Dr.Jit oracle in float64
+    for case in m["cases"].values():
+        assert case["float32"]["fwd_rel"] < 1e-3  # float32 rounding, not a different formula
+
+
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
-          "mot_tracking": _check_mot,
-          "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft, "stereo_depth": _check_stereo,
-          "fit_splats": _check_splats, "fit_nerf": _check_nerf, "volume_render_spheres": _check_volume,
-          "sfm_poses": _check_sfm_poses}
+          "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
+          "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
+          "volume_render_spheres": _check_volume, "sfm_poses": _check_sfm_poses, "oracle_conformance": _check_oracle}
 
 
 def test_every_registered_experiment_has_a_smoke_check():

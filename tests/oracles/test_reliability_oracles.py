@@ -1,0 +1,51 @@
+"""Bad input to the Dr.Jit oracles (research/oracles) raises one ValueError naming the argument."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from research.oracles import backend
+from research.oracles.corr import lookup_oracle
+from research.oracles.splat import render_oracle
+from research.oracles.ssim import ssim_oracle
+from research.oracles.stereo import soft_argmin_oracle, window_cost_oracle
+from research.oracles.volume import mlp_oracle
+
+Z = np.zeros
+IMG = Z((6, 5, 3))
+
+
+def _splat(**change):
+    args = dict(means=Z((2, 3)), log_scales=Z((2, 3)), quats=np.ones((2, 4)), opacity_logits=Z(2), sh=Z((2, 4, 3)),
+                viewmat=np.eye(4), K=np.eye(3), width=4, height=4, near=0.01, far=100.0, background=Z(3),
+                grad_rgb=Z((4, 4, 3)))
+    args.update(change)
+    return lambda: render_oracle(**args)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: backend(np.int32), "dtype: expected float32 or float64, got int32"),
+    (lambda: ssim_oracle(IMG, Z((6, 5, 1)), IMG), r"y: expected shape \(6, 5, 3\), got \(6, 5, 1\)"),
+    (lambda: ssim_oracle(IMG.tolist(), IMG, IMG), "x: expected a NumPy array, got list"),
+    (lambda: ssim_oracle(np.full((6, 5, 3), np.nan), IMG, IMG), "x: expected finite values"),
+    (lambda: ssim_oracle(IMG.astype(np.int64), IMG, IMG), "x: expected dtype float32 or float64, got int64"),
+    (lambda: window_cost_oracle(Z((4, 5)), Z((4, 5)), 0, 3, 1, "census"), "kind: expected 'sad' or 'zncc'"),
+    (lambda: window_cost_oracle(Z((4, 5)), Z((4, 5)), 3, 3, 1, "sad"), r"dmax: expected > dmin \(3\), got 3"),
+    (lambda: soft_argmin_oracle(Z((4, 5, 3)), 0, Z((4, 5)), 0.0), "temperature: expected > 0, got 0.0"),
+    (lambda: soft_argmin_oracle(Z((4, 5, 3)), 0, Z((5, 4))), r"grad: expected shape \(4, 5\)"),
+    (lambda: lookup_oracle(Z((2, 4, 4)), Z((2, 4, 4)), Z((2, 4, 4)), 4, 1, Z((36, 4, 4))), "levels: expected"),
+    (lambda: lookup_oracle(Z((2, 4, 4)), Z((2, 4, 4)), Z((2, 4, 4)), 1, -1, Z((9, 4, 4))), "radius: expected"),
+    (lambda: lookup_oracle(Z((2, 4, 4)), Z((2, 4, 4)), Z((2, 4, 3)), 1, 1, Z((9, 4, 4))), "coords: expected shape"),
+    (lambda: mlp_oracle(Z((3, 2)), {"W0": Z((4, 2))}, (2, 4), Z((3, 4))), "b0: expected a NumPy array, got NoneType"),
+    (_splat(quats=Z((2, 3))), r"quats: expected shape \(2, 4\), got \(2, 3\)"),
+    (_splat(sh=Z((2, 5, 3))), "sh: expected \\(L\\+1\\)\\^2 <= 16 coefficients per channel, got 5"),
+    (_splat(tile_rule="tiles"), "tile_rule: expected '3dgs' or 'square', got 'tiles'"),
+    (_splat(grad_rgb=Z((4, 4))), r"grad_rgb: expected shape \(4, 4, 3\), got \(4, 4\)"),
+], ids=["dtype", "ssim-y-shape", "ssim-x-list", "ssim-x-nan", "ssim-x-int", "cost-kind", "cost-dmax",
+        "softargmin-temperature", "softargmin-grad-shape", "corr-levels", "corr-radius", "corr-coords",
+        "mlp-missing-bias", "splat-quats", "splat-sh", "splat-tile-rule", "splat-grad-rgb"])
+def test_bad_input_raises_one_line_naming_the_argument(call, match):
+    with pytest.raises(ValueError, match=match) as info:
+        call()
+    assert "\n" not in str(info.value)
