@@ -16,7 +16,8 @@ Reported:
   * EPE (px) and F1-all (KITTI: % of pixels with EPE > 3 px and > 5% of |gt|)
     for the coarse-to-fine correlation flow (research.corrflow, "C2F": normalised-patch
     lookups with warping between image-pyramid levels and a TV-L1 step, its defaults
-    chosen on the photograph's tuning split), the RAFT-style CorrFlow (levels 4,
+    chosen on held-out data: the photograph's tuning split and Mitsuba pairs rendered
+    with seed 7), the RAFT-style CorrFlow (levels 4,
     radius 4), pyramidal Lucas-Kanade (kernels.lucas_kanade), OpenCV's Farneback and
     DIS (medium preset) and zero flow;
   * the same methods on clean and radiometrically stressed versions of every pair
@@ -556,7 +557,8 @@ def run_rendered(ctx: Context) -> int:
         f"pairs per scene: {n_pairs}. Metrics over non-occluded surface pixels: EPE in px, F1-all = % of "
         "pixels with EPE > 3 px and > 5% of |gt| (KITTI). "
         + ("" if cell_mode else f"{C2F_NAME}: research/corrflow.py (coarse-to-fine normalised-patch lookups with "
-           "warping and a TV-L1 step; defaults chosen on the photograph's tuning split, not on these pairs). ")
+           "warping and a TV-L1 step; defaults chosen on held-out data: the photograph's tuning split and "
+           "Mitsuba pairs rendered with seed 7, not on these pairs). ")
         + f"CorrFlow: kernels.corr lookups driving the RAFT-style weight-free update (research/opticalflow.py), "
         f"features at stride {STRIDE}, 12 lookups. 's / pair' includes building the correlation pyramid "
         "and runs on a shared 2-core CPU.\n\n"
@@ -592,7 +594,7 @@ def run_rendered(ctx: Context) -> int:
             f"{photo_info['size'][0]}x{photo_info['size'][1]}) warped by smooth random flows (seeds "
             f"{photo_info['flow_seeds']}, median motion {photo_info['median_motion_px']:.1f} px; "
             "research/texture_flow.py). C2F's defaults were chosen on the other half of the photograph with "
-            "other flow seeds.\n\n"
+            "other flow seeds (and on Mitsuba pairs of seed 7).\n\n"
             + markdown_table(photo_headers, photo_rows, floatfmt=".3f")
             + f"\nDense pyramid vs on-the-fly lookup (RAFT-style CorrFlow L={HEADLINE[0]}, r={HEADLINE[1]}, float32, "
             "first pair): 'setup' builds the volume and pyramid (dense) or pools f2 (on the fly); MiB is what each "
