@@ -134,9 +134,10 @@ def patch_features(img: np.ndarray, patch: int, texture_floor: float) -> tuple[n
     """(ch P^2, H, W) float32 zero-mean unit-norm patches and the (H, W) texture weight in [0, 1]."""
     h, w, ch = img.shape
     half = patch // 2
-    padded = np.pad(img, ((half, half), (half, half), (0, 0)), mode="edge")
-    taps = [padded[dy:dy + h, dx:dx + w, c] for c in range(ch) for dy in range(patch) for dx in range(patch)]
-    f = np.stack(taps).astype(np.float32)
+    padded = np.pad(img.astype(np.float32), ((half, half), (half, half), (0, 0)), mode="edge")
+    # (H, W, ch, P, P) windows as one copy, ordered channel, then row dy, then column dx.
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (patch, patch), axis=(0, 1))
+    f = np.ascontiguousarray(windows.transpose(2, 3, 4, 0, 1)).reshape(ch * patch * patch, h, w)
     f -= f.mean(axis=0, keepdims=True)
     spread = np.sqrt((f ** 2).mean(axis=0))  # RMS about the patch mean, in image units
     texture = np.clip(spread / texture_floor, 0.0, 1.0)
