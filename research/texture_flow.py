@@ -34,10 +34,10 @@ EVAL_SEEDS = (0, 1, 2, 3)
 def photograph() -> np.ndarray:
     """grace_hopper.jpg from matplotlib's sample data, (600, 512, 3) uint8."""
     import matplotlib.cbook as cbook
-    from PIL import Image
+    import matplotlib.image as mpimg
 
-    with Image.open(Path(cbook.get_sample_data(PHOTO, asfileobj=False))) as im:
-        return np.asarray(im.convert("RGB")).copy()
+    img = mpimg.imread(Path(cbook.get_sample_data(PHOTO, asfileobj=False)))  # a JPEG reads as uint8 RGB
+    return np.ascontiguousarray(img[..., :3], dtype=np.uint8)
 
 
 def split(name: str, image: np.ndarray | None = None) -> np.ndarray:
