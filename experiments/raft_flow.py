@@ -14,9 +14,24 @@ k -> k+1, evaluated on non-occluded surface pixels (the datasets' `valid`).
 
 Reported:
   * EPE (px) and F1-all (KITTI: % of pixels with EPE > 3 px and > 5% of |gt|)
-    for CorrFlow (levels 4, radius 4) against pyramidal Lucas-Kanade
-    (kernels.lucas_kanade), OpenCV's Farneback and DIS (medium preset) and zero flow;
-  * the ablation levels {1,2,3,4} x radius {1,2,3,4}, as in RAFT's ablations;
+    for the coarse-to-fine correlation flow (research.corrflow, "C2F": normalised-patch
+    lookups with warping between image-pyramid levels and a TV-L1 step, its defaults
+    chosen on held-out data: the photograph's tuning split and Mitsuba pairs rendered
+    with seed 7), the RAFT-style CorrFlow (levels 4,
+    radius 4), pyramidal Lucas-Kanade (kernels.lucas_kanade), OpenCV's Farneback and
+    DIS (medium preset) and zero flow;
+  * the same methods on clean and radiometrically stressed versions of every pair
+    (research.radiometry: per-frame exposure/gain, black level, vignetting, blur,
+    noise, 8-bit sRGB; the stress seed is 1000 seed + pair index; the clean pair is
+    the same 8-bit sRGB encoding without the stress);
+  * the same methods on a real photograph warped by known smooth flows
+    (research.texture_flow: matplotlib's grace_hopper.jpg, evaluation split, median
+    motion 4 px; smoke: a 96x128 crop, one flow);
+  * the RAFT-style CorrFlow ablation levels {1,2,3,4} x radius {1,2,3,4}, as in
+    RAFT's ablations (`--levels L` and/or `--radius R` evaluate only those cells:
+    one cell per run lets a sweep spread the grid over tasks,
+    experiments/sweeps/raft_ablation.toml; metrics.json's "cell" holds the
+    headline cell's pooled EPE and F1-all);
   * memory and time of the dense pyramid lookup against the on-the-fly one
     (which never stores the volume), and the largest difference between the
     flows they produce.
@@ -57,7 +72,27 @@ FORMATS = ("sintel", "kitti", "middlebury")
 PASSES = ("clean", "final")
 
 
+def _cell_value(name: str, allowed: tuple[int, ...]):
+    def parse(text: str) -> int:
+        import argparse
+
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected one of {', '.join(map(str, allowed))}, got {text!r}")
+        if value not in allowed:
+            raise argparse.ArgumentTypeError(f"expected one of {', '.join(map(str, allowed))}, got {value}")
+        return value
+
+    parse.__name__ = name
+    return parse
+
+
 def add_options(p) -> None:
+    p.add_argument("--levels", type=_cell_value("levels", LEVELS), default=None,
+                   help="evaluate only this pyramid depth L of the RAFT-style ablation (one of 1-4; default: all)")
+    p.add_argument("--radius", type=_cell_value("radius", RADII), default=None,
+                   help="evaluate only this lookup radius r of the RAFT-style ablation (one of 1-4; default: all)")
     p.add_argument("--format", choices=FORMATS, default=None,
                    help="the benchmark layout --data holds (default: detected from the folder; without one, --data "
                         "is the cache root of the rendered datasets)")
@@ -80,14 +115,47 @@ def datasets(quick: bool, seed: int, data: Path, smoke: bool = False) -> dict[st
     return out
 
 
+def _unit(rgb: np.ndarray) -> np.ndarray:
+    """Colour in [0, 1] as float64 (research.images' unit rule: uint8 / 255, floats kept)."""
+    from research.images import to_unit
+
+    return np.asarray(to_unit(rgb, "rgb"), dtype=np.float64)
+
+
+C2F_NAME = "C2F correlation flow (default)"
+RAFT_NAME = "CorrFlow (L={}, r={})"
+
+
+def c2f(rgb1: np.ndarray, rgb2: np.ndarray, device: str) -> tuple[np.ndarray, float]:
+    """research.corrflow's coarse-to-fine flow at its defaults, and its seconds."""
+    from research.corrflow import coarse_to_fine_flow
+
+    t0 = time.perf_counter()
+    flow = coarse_to_fine_flow(rgb1, rgb2, device=device)
+    return flow, time.perf_counter() - t0
+
+
+def every_method(rgb1: np.ndarray, rgb2: np.ndarray, device: str) -> dict[str, tuple[np.ndarray, float]]:
+    """C2F, the RAFT-style CorrFlow at the headline setting and the baselines: flow and seconds each."""
+    from research.opticalflow import CorrFlow, CorrFlowConfig
+
+    out = {C2F_NAME: c2f(rgb1, rgb2, device)}
+    t0 = time.perf_counter()
+    cf = CorrFlow(rgb1, rgb2, stride=STRIDE, max_levels=HEADLINE[0], device=device)
+    flow = cf.estimate(CorrFlowConfig(levels=HEADLINE[0], radius=HEADLINE[1]))
+    out[RAFT_NAME.format(*HEADLINE)] = (flow, time.perf_counter() - t0)
+    out.update(baselines(rgb1, rgb2, device))
+    return out
+
+
 def baselines(rgb1: np.ndarray, rgb2: np.ndarray, device: str) -> dict[str, tuple[np.ndarray, float]]:
-    """Flow (H, W, 2) and seconds of each baseline."""
+    """Flow (H, W, 2) and seconds of each baseline (colour images, uint8 or float in [0, 1])."""
     import cv2
 
     from kernels import lucas_kanade as lk
     from research.opticalflow import grey
 
-    g1, g2 = grey(rgb1), grey(rgb2)
+    g1, g2 = grey(_unit(rgb1)), grey(_unit(rgb2))
     u1, u2 = (np.clip(g * 255.0 + 0.5, 0, 255).astype(np.uint8) for g in (g1, g2))
     out = {}
     t0 = time.perf_counter()
@@ -185,7 +253,7 @@ def flow_figure(scene: str, rgb1: np.ndarray, gt: np.ndarray, mask: np.ndarray,
     plt.close(fig)
 
 
-def ablation_figure(grid: np.ndarray, path: Path) -> None:
+def ablation_figure(grid: np.ndarray, levels: tuple[int, ...], radii: tuple[int, ...], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -196,8 +264,8 @@ def ablation_figure(grid: np.ndarray, path: Path) -> None:
     for i in range(grid.shape[0]):
         for j in range(grid.shape[1]):
             ax.text(j, i, f"{grid[i, j]:.2f}", ha="center", va="center", color="w", fontsize=9)
-    ax.set_xticks(range(len(RADII)), [str(r) for r in RADII])
-    ax.set_yticks(range(len(LEVELS)), [str(lv) for lv in LEVELS])
+    ax.set_xticks(range(len(radii)), [str(r) for r in radii])
+    ax.set_yticks(range(len(levels)), [str(lv) for lv in levels])
     ax.set_xlabel("radius r")
     ax.set_ylabel("pyramid levels L")
     ax.set_title("EPE (px), all pairs")
@@ -270,6 +338,7 @@ def run_benchmark(ctx: Context, bench) -> int:
             cf = CorrFlow(rgb1, rgb2, stride=STRIDE, max_levels=HEADLINE[0], onthefly=onthefly, device=ctx.device)
             flows = {ours_name: (cf.estimate(CorrFlowConfig(levels=HEADLINE[0], radius=HEADLINE[1])),
                                  time.perf_counter() - t0)}
+            flows[C2F_NAME] = c2f(rgb1, rgb2, ctx.device)
             flows.update(baselines(rgb1, rgb2, ctx.device))
             for name, (fl, sec) in flows.items():
                 tallies.setdefault(name, FlowTally()).add(fl, gt, regions)
@@ -335,11 +404,78 @@ def run_benchmark(ctx: Context, bench) -> int:
 def run(ctx: Context) -> int:
     bench = benchmark_of(ctx)
     if bench is not None:
+        for flag in ("levels", "radius"):
+            if getattr(ctx.args, flag) is not None:
+                raise ValueError(f"--{flag}: selects a cell of the rendered pairs' ablation; a benchmark folder "
+                                 "(--data) runs the headline setting only")
         return run_benchmark(ctx, bench)
     return run_rendered(ctx)
 
 
+class _Table:
+    """Pooled metrics per (group, method), e.g. per scene or per radiometric condition."""
+
+    def __init__(self) -> None:
+        self.pooled: dict[str, dict[str, Pooled]] = {}
+
+    def add(self, group: str, name: str, metrics: dict, seconds: float) -> None:
+        self.pooled.setdefault(group, {}).setdefault(name, Pooled()).add(metrics, seconds)
+
+    def methods(self) -> list[str]:
+        return list(next(iter(self.pooled.values())).keys())
+
+    def overall(self, name: str) -> dict:
+        allp = Pooled()
+        for group in self.pooled.values():
+            p = group[name]
+            allp.epe_sum += p.epe_sum
+            allp.outliers += p.outliers
+            allp.pixels += p.pixels
+            allp.seconds += p.seconds
+        return allp.summary()
+
+    def rows(self, with_all: bool = True) -> tuple[list[str], list[list]]:
+        headers = ["method"] + [f"{g} {m}" for g in self.pooled for m in ("EPE", "F1-all %")]
+        headers += (["all EPE", "all F1-all %"] if with_all else []) + ["s / pair"]
+        rows = []
+        for name in self.methods():
+            cells: list = [name]
+            for group in self.pooled.values():
+                sm = group[name].summary()
+                cells += [sm["epe"], sm["f1_all"]]
+            sm = self.overall(name)
+            rows.append(cells + ([sm["epe"], sm["f1_all"]] if with_all else []) + [sm["seconds_per_pair"]])
+        return headers, rows
+
+    def metrics(self) -> dict:
+        return {g: {m: p.summary() for m, p in d.items()} for g, d in self.pooled.items()}
+
+
+def real_texture(ctx: Context) -> tuple[_Table, dict]:
+    """Every method on the photograph's evaluation split (research.texture_flow), pooled over its flows."""
+    from research import texture_flow as tf
+    from research.opticalflow import flow_metrics
+
+    src = tf.split("eval")
+    seeds = tf.EVAL_SEEDS[:1] if ctx.smoke else tf.EVAL_SEEDS[:2] if ctx.quick else tf.EVAL_SEEDS
+    if ctx.smoke:
+        src = src[60:156, 192:320]
+    table = _Table()
+    motion = []
+    for seed in seeds:
+        flow = tf.smooth_flow(src.shape[:2], 4.0, seed)
+        f1, f2, valid = tf.warped_pair(src, flow)
+        gt = np.moveaxis(flow, 0, -1)
+        motion.append(np.linalg.norm(gt[valid], axis=-1))
+        for name, (fl, sec) in every_method(f1, f2, ctx.device).items():
+            table.add("photograph", name, flow_metrics(fl, gt, valid), sec)
+    info = {"image": tf.PHOTO, "split": "eval (upper half)", "size": list(src.shape[:2]), "flow_seeds": list(seeds),
+            "median_motion_px": float(np.median(np.concatenate(motion)))}
+    return table, info
+
+
 def run_rendered(ctx: Context) -> int:
+    from research import radiometry
     from research.datasets import load_flow, provenance
     from research.opticalflow import CorrFlow, CorrFlowConfig, flow_metrics, srgb
 
@@ -348,107 +484,132 @@ def run_rendered(ctx: Context) -> int:
     t_data = time.perf_counter() - t0
     res, spp = (SMOKE_RES, SMOKE_SPP) if ctx.smoke else (RES, SPP)
     pairs = [(scene, k) for scene, p in paths.items() for k in range(len(load_flow(p).flow))]
-    ours_name = f"CorrFlow (L={HEADLINE[0]}, r={HEADLINE[1]})"
-    per_scene: dict[str, dict[str, Pooled]] = {}
-    ablation = {(lv, r): Pooled() for lv in LEVELS for r in RADII}
+    levels = LEVELS if ctx.args.levels is None else (ctx.args.levels,)
+    radii = RADII if ctx.args.radius is None else (ctx.args.radius,)
+    cell_mode = ctx.args.levels is not None or ctx.args.radius is not None
+    headline = HEADLINE if HEADLINE[0] in levels and HEADLINE[1] in radii else (max(levels), max(radii))
+    ours_name = RAFT_NAME.format(*headline)
+    per_scene = _Table()
+    conditions = _Table()
+    ablation = {(lv, r): Pooled() for lv in levels for r in radii}
     per_pair = []
     memtime = None
     seqs = {scene: load_flow(p) for scene, p in paths.items()}
     gt_mag = np.concatenate([np.linalg.norm(seqs[sc].flow[k], axis=-1)[seqs[sc].valid[k]] for sc, k in pairs])
     motion = {"median_px": float(np.median(gt_mag)), "p90_px": float(np.percentile(gt_mag, 90)),
               "max_px": float(gt_mag.max())}
-    bar = ctx.tqdm(total=len(pairs) * (len(LEVELS) * len(RADII) + 1), desc="raft_flow", unit="run")
-    for scene, k in pairs:
+    bar = ctx.tqdm(total=len(pairs) * (len(levels) * len(radii) + 1), desc="raft_flow", unit="run")
+    for index, (scene, k) in enumerate(pairs):
         seq = seqs[scene]
         rgb1, rgb2 = srgb(seq.frames[k]), srgb(seq.frames[k + 1])
         gt, mask = seq.flow[k].astype(np.float64), seq.valid[k]
         t0 = time.perf_counter()
-        cf = CorrFlow(rgb1, rgb2, stride=STRIDE, max_levels=max(LEVELS), device=ctx.device)
+        cf = CorrFlow(rgb1, rgb2, stride=STRIDE, max_levels=max(levels), device=ctx.device)
         build_s = time.perf_counter() - t0
         flows = {}
         row = {"scene": scene, "pair": k, "build_s": build_s, "ablation": {}}
-        for lv in LEVELS:
-            for r in RADII:
+        if not cell_mode:
+            fl, seconds = c2f(rgb1, rgb2, ctx.device)
+            per_scene.add(scene, C2F_NAME, flow_metrics(fl, gt, mask), seconds)
+            flows[C2F_NAME] = fl
+        for lv in levels:
+            for r in radii:
                 t0 = time.perf_counter()
                 fl = cf.estimate(CorrFlowConfig(levels=lv, radius=r))
                 seconds = time.perf_counter() - t0 + build_s
                 m = flow_metrics(fl, gt, mask)
                 ablation[(lv, r)].add(m, seconds)
                 row["ablation"][f"L{lv}_r{r}"] = m
-                if (lv, r) == HEADLINE:
+                if (lv, r) == headline:
                     flows[ours_name] = fl
-                    per_scene.setdefault(scene, {}).setdefault(ours_name, Pooled()).add(m, seconds)
+                    per_scene.add(scene, ours_name, m, seconds)
                 bar.update()
         for name, (fl, seconds) in baselines(rgb1, rgb2, ctx.device).items():
             m = flow_metrics(fl, gt, mask)
-            per_scene[scene].setdefault(name, Pooled()).add(m, seconds)
+            per_scene.add(scene, name, m, seconds)
             row[name] = m
             if name != "zero flow":
                 flows[name] = fl
+        if not cell_mode:
+            # Clean and radiometrically stressed 8-bit versions of the pair (research.radiometry).
+            clean = (radiometry.clean(seq.frames[k]), radiometry.clean(seq.frames[k + 1]))
+            stressed = radiometry.stress_pair(seq.frames[k], seq.frames[k + 1], seed=1000 * ctx.seed + index)
+            for condition, (a, b) in (("clean", clean), ("stressed", stressed)):
+                for name, (fl, seconds) in every_method(a, b, ctx.device).items():
+                    conditions.add(condition, name, flow_metrics(fl, gt, mask), seconds)
         bar.update()
         per_pair.append(row)
         if k == 0:
             flow_figure(scene, rgb1, gt, mask, flows, ctx.out / f"flow_{scene}.png")
-        if memtime is None:
+        if memtime is None and not cell_mode:
             memtime = memory_time(rgb1, rgb2, gt, mask, ctx.device)
     bar.close()
 
     # ------------------------------------------------------------------ tables
-    methods = list(next(iter(per_scene.values())).keys())
-    main_rows = []
-    for name in methods:
-        cells = [name]
-        for scene in per_scene:
-            s = per_scene[scene][name].summary()
-            cells += [s["epe"], s["f1_all"]]
-        allp = Pooled()
-        for scene in per_scene:
-            for p in [per_scene[scene][name]]:
-                allp.epe_sum += p.epe_sum
-                allp.outliers += p.outliers
-                allp.pixels += p.pixels
-                allp.seconds += p.seconds
-        s = allp.summary()
-        main_rows.append(cells + [s["epe"], s["f1_all"], s["seconds_per_pair"]])
-    main_headers = ["method"] + [f"{sc} {m}" for sc in per_scene for m in ("EPE", "F1-all %")] + [
-        "all EPE", "all F1-all %", "s / pair"]
-    grid = np.array([[ablation[(lv, r)].summary()["epe"] for r in RADII] for lv in LEVELS])
-    f1_grid = np.array([[ablation[(lv, r)].summary()["f1_all"] for r in RADII] for lv in LEVELS])
-    abl_rows = [[f"L={lv}"] + [f"{grid[i, j]:.3f} ({f1_grid[i, j]:.1f}%)" for j in range(len(RADII))]
-                for i, lv in enumerate(LEVELS)]
-    mt_rows = [[name, "x".join(map(str, v["features"])), f"{v['bytes'] / 2**20:.1f}", f"{v['setup_s']:.3f}",
-                f"{v['lookup_s'] * 1e3:.1f}", f"{v['estimate_s']:.2f}", f"{v['epe']:.4f}"]
-               for name, v in memtime.items() if isinstance(v, dict)]
+    main_headers, main_rows = per_scene.rows()
+    grid = np.array([[ablation[(lv, r)].summary()["epe"] for r in radii] for lv in levels])
+    f1_grid = np.array([[ablation[(lv, r)].summary()["f1_all"] for r in radii] for lv in levels])
+    abl_rows = [[f"L={lv}"] + [f"{grid[i, j]:.3f} ({f1_grid[i, j]:.1f}%)" for j in range(len(radii))]
+                for i, lv in enumerate(levels)]
     n_pairs = {scene: sum(1 for s, _ in pairs if s == scene) for scene in paths}
     table = (
         f"Mitsuba flow pairs at {res}x{res} ({spp} spp, camera azimuth step {STEP_DEG} deg), frame k -> k+1; "
         f"pairs per scene: {n_pairs}. Metrics over non-occluded surface pixels: EPE in px, F1-all = % of "
-        "pixels with EPE > 3 px and > 5% of |gt| (KITTI). CorrFlow: kernels.corr lookups driving a "
-        f"weight-free update (research/opticalflow.py), features at stride {STRIDE}, 12 lookups. "
-        "'s / pair' includes building the correlation pyramid (CorrFlow) and runs on a shared 2-core CPU.\n\n"
+        "pixels with EPE > 3 px and > 5% of |gt| (KITTI). "
+        + ("" if cell_mode else f"{C2F_NAME}: research/corrflow.py (coarse-to-fine normalised-patch lookups with "
+           "warping and a TV-L1 step; defaults chosen on held-out data: the photograph's tuning split and "
+           "Mitsuba pairs rendered with seed 7, not on these pairs). ")
+        + f"CorrFlow: kernels.corr lookups driving the RAFT-style weight-free update (research/opticalflow.py), "
+        f"features at stride {STRIDE}, 12 lookups. 's / pair' includes building the correlation pyramid "
+        "and runs on a shared 2-core CPU.\n\n"
         + markdown_table(main_headers, main_rows, floatfmt=".3f")
-        + "\nAblation (CorrFlow, all pairs pooled): EPE in px (F1-all %), pyramid levels L x lookup radius r. "
+        + f"\nAblation (RAFT-style CorrFlow, all pairs pooled): EPE in px (F1-all %), pyramid levels L x lookup "
+        f"radius r{' (only the cells asked for by --levels/--radius)' if cell_mode else ''}. "
         f"Ground-truth motion: median {motion['median_px']:.1f} px ({motion['median_px'] / STRIDE:.1f} feature "
         f"px), 90th percentile {motion['p90_px']:.1f} px, max {motion['max_px']:.1f} px: the iterated level-0 "
         "lookups reach most matches on their own, and with fixed (unlearned) features the pooled coarse levels add "
         "matching noise rather than reach, unlike RAFT's learned features and update.\n\n"
-        + markdown_table(["levels \\ radius"] + [f"r={r}" for r in RADII], abl_rows)
-        + f"\nDense pyramid vs on-the-fly lookup (L={HEADLINE[0]}, r={HEADLINE[1]}, float32, first pair): "
-        "'setup' builds the volume and pyramid (dense) or pools f2 (on the fly); MiB is what each keeps "
-        "between lookups (the on-the-fly path holds f1, the pooled f2 pyramid and one patch buffer); "
-        f"largest difference between their flows: {memtime['max_flow_diff_px']:.2e} px.\n\n"
-        + markdown_table(["path", "features C x h x w", "MiB", "setup s", "lookup ms", "estimate s (12 lookups)",
-                          "EPE"], mt_rows))
-    ablation_figure(grid, ctx.out / "ablation.png")
-    metrics = {
-        "per_scene": {sc: {m: p.summary() for m, p in d.items()} for sc, d in per_scene.items()},
-        "ablation": {f"L{lv}_r{r}": ablation[(lv, r)].summary() for lv in LEVELS for r in RADII},
-        "memory_time": memtime, "per_pair": per_pair, "dataset_seconds": t_data, "gt_motion": motion,
+        + markdown_table(["levels \\ radius"] + [f"r={r}" for r in radii], abl_rows))
+    metrics: dict = {
+        "per_scene": per_scene.metrics(),
+        "ablation": {f"L{lv}_r{r}": ablation[(lv, r)].summary() for lv in levels for r in radii},
+        "cell": ablation[headline].summary() | {"levels": headline[0], "radius": headline[1]},
+        "per_pair": per_pair, "dataset_seconds": t_data, "gt_motion": motion,
         "datasets": {scene: provenance(p) for scene, p in paths.items()},
     }
+    if not cell_mode:
+        cond_headers, cond_rows = conditions.rows()
+        photo, photo_info = real_texture(ctx)
+        photo_headers, photo_rows = photo.rows(with_all=False)
+        mt_rows = [[name, "x".join(map(str, v["features"])), f"{v['bytes'] / 2**20:.1f}", f"{v['setup_s']:.3f}",
+                    f"{v['lookup_s'] * 1e3:.1f}", f"{v['estimate_s']:.2f}", f"{v['epe']:.4f}"]
+                   for name, v in memtime.items() if isinstance(v, dict)]
+        table += (
+            "\nClean and radiometrically stressed pairs (the same pairs, all scenes pooled; research/radiometry.py: "
+            "per-frame exposure +-0.3 stops, black level, vignetting up to 25 %, blur up to 0.8 px, "
+            "Poisson-Gaussian noise, 8-bit sRGB; 'clean' is the same 8-bit sRGB encoding without the stress; the "
+            f"stress seed of pair i is 1000 x seed + i; seed {ctx.seed}).\n\n"
+            + markdown_table(cond_headers, cond_rows, floatfmt=".3f")
+            + f"\nReal photograph ({photo_info['image']} from matplotlib's sample data, {photo_info['split']}, "
+            f"{photo_info['size'][0]}x{photo_info['size'][1]}) warped by smooth random flows (seeds "
+            f"{photo_info['flow_seeds']}, median motion {photo_info['median_motion_px']:.1f} px; "
+            "research/texture_flow.py). C2F's defaults were chosen on the other half of the photograph with "
+            "other flow seeds (and on Mitsuba pairs of seed 7).\n\n"
+            + markdown_table(photo_headers, photo_rows, floatfmt=".3f")
+            + f"\nDense pyramid vs on-the-fly lookup (RAFT-style CorrFlow L={HEADLINE[0]}, r={HEADLINE[1]}, float32, "
+            "first pair): 'setup' builds the volume and pyramid (dense) or pools f2 (on the fly); MiB is what each "
+            "keeps between lookups (the on-the-fly path holds f1, the pooled f2 pyramid and one patch buffer); "
+            f"largest difference between their flows: {memtime['max_flow_diff_px']:.2e} px.\n\n"
+            + markdown_table(["path", "features C x h x w", "MiB", "setup s", "lookup ms", "estimate s (12 lookups)",
+                              "EPE"], mt_rows))
+        metrics.update(radiometric=conditions.metrics(), real_texture={"methods": photo.metrics()["photograph"],
+                                                                       **photo_info}, memory_time=memtime)
+    ablation_figure(grid, levels, radii, ctx.out / "ablation.png")
+    from research.corrflow import C2FConfig
+
     config = {"quick": ctx.quick, "scenes": list(paths), "res": res, "spp": spp, "flow_step_deg": STEP_DEG,
-              "stride": STRIDE, "headline": HEADLINE, "corrflow": CorrFlowConfig().__dict__,
-              "levels": LEVELS, "radii": RADII}
+              "stride": STRIDE, "headline": headline, "corrflow": CorrFlowConfig().__dict__,
+              "c2f": C2FConfig().__dict__, "levels": levels, "radii": radii, "cell_mode": cell_mode}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
     return 0
 

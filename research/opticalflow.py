@@ -28,6 +28,10 @@ replaced by fixed ones:
   are averaged over a (2^(l+1) + 1)^2 box weighted by confidence and scaled down
   where the box's mean confidence is below `min_confidence`, then flow += 2^l step.
   The flow at feature resolution is finally upsampled bilinearly by s.
+* Memory: the dense pyramid takes 4 H W sum_l H_l W_l bytes at feature resolution
+  (2.7 GB for a 741x500 frame at stride 4), so by default `CorrFlow` keeps it only
+  below MEMORY_BUDGET_MIB = 1024 MiB and otherwise uses the on-the-fly lookup
+  (the same flow to float rounding, without the volume).
 
 Metrics (`flow_metrics`): EPE = mean |flow - gt| over a mask, and F1-all, the
 KITTI 2015 outlier rate: the percentage of pixels with EPE > 3 px AND
@@ -57,6 +61,7 @@ from research.images import to_unit, unit_grey_pair
 
 PATCH = 5
 SCALES = 4
+MEMORY_BUDGET_MIB = 1024  # CorrFlow keeps the dense pyramid below this, else looks up on the fly
 
 
 # --------------------------------------------------------------------------- images and features
@@ -177,16 +182,24 @@ class CorrFlow:
     """Correlation state for one frame pair; `estimate` runs the iterative update for any levels <= max_levels."""
 
     def __init__(self, rgb1: np.ndarray, rgb2: np.ndarray, *, stride: int = 4, max_levels: int = 4,
-                 onthefly: bool = False, device: str = "cpu"):
+                 onthefly: bool | None = None, device: str = "cpu", memory_budget_mib: float = MEMORY_BUDGET_MIB):
+        """`onthefly`: True for the on-the-fly lookup, False for the dense pyramid, None (default) for the
+        dense pyramid only while it fits `memory_budget_mib` (MEMORY_BUDGET_MIB, 1 GiB), else on the fly."""
         rgb1, rgb2 = _unit_rgb(rgb1, "rgb1"), _unit_rgb(rgb2, "rgb2")
         if rgb1.shape != rgb2.shape:
             raise ValueError(f"rgb2: expected the shape of rgb1 {rgb1.shape}, got {rgb2.shape}")
         A.check_int("stride", stride, minimum=1)
         A.check_int("max_levels", max_levels, minimum=1)
+        if not (onthefly is None or isinstance(onthefly, bool)):
+            raise ValueError(f"onthefly: expected True, False or None (by the memory budget), got {onthefly!r}")
+        _check_positive("memory_budget_mib", memory_budget_mib)
         self.stride = stride
         self.image_shape = rgb1.shape[:2]
         self.f1 = fixed_features(rgb1, stride)
         self.f2 = fixed_features(rgb2, stride)
+        if onthefly is None:
+            fh, fw = self.f1.shape[1:]
+            onthefly = corr.dense_bytes(fh, fw, max_levels) > memory_budget_mib * 2 ** 20
         self.onthefly = onthefly
         self.device = device
         self.channels, self.h, self.w = self.f1.shape

@@ -43,7 +43,9 @@ This is RAFT's channel order: levels outermost, and within a level the x offset
 varies slowest (RAFT stacks meshgrid(dy, dx) and adds its first component to x).
 
 Stages, one module each (each opens with its own math, adjoints and layout):
-  * `volume`: the all-pairs product (1) and the pyramid (2), with adjoints;
+  * `volume`: the all-pairs product (1) and the pyramid (2), with adjoints; the
+    product is a GEMM, by BLAS on the CPU (`backend="numpy"`, the default there)
+    or by a blocked Warp kernel (`backend="warp"`, the default on CUDA);
   * `dense`: the lookup (4) in a stored pyramid, with its adjoint;
   * `onthefly`: the same lookup from f1 and the pooled features P^l(f2) without
     storing V, with its adjoint;

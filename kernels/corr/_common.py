@@ -4,8 +4,8 @@ Lookup window. For a pixel p = (h, w) of frame 1 at level l with radius r, the
 (2r + 1)^2 samples of (4) share one fraction: with u0 = x_p / 2^l - 1/2 - r,
 the window's taps start at column i0 = floor(u0) with fraction fx = u0 - i0
 (and j0, fy from y_p the same way) (`pixel_window`). A map S = s[p] is sampled
-by (3) one window column a at a time (`sample_windows`: sample b's lower taps are
-sample b + 1's upper taps), taps outside s[p] reading 0. The dense lookup samples
+by (3) one window column a at a time (`sample_windows`, one thread per pixel: sample
+b's lower taps are sample b + 1's upper taps), taps outside s[p] reading 0. The dense lookup samples
 V^l[p] from (j0, i0); the on-the-fly lookup samples its tap patch from (0, 0).
 
 Adjoint of a window (`sample_windows_adjoint`), with g = d loss / d out:
@@ -97,29 +97,43 @@ def _scatter_tap(g: wp.array3d(dtype=typing.Any), p: int, row: int, col: int, va
 def sample_windows(s: wp.array3d(dtype=typing.Any), coords: wp.array3d(dtype=typing.Any),
                    out: wp.array3d(dtype=typing.Any),
                    scale: typing.Any, radius: int, channel0: int, from_patch: int, offset: int):
-    """Equation (4) for one level and one window column a, sampling S = s[p] by (3); thread = pixel * (2r+1) + a.
+    """Equation (4) for one level, sampling S = s[p] by (3); thread = pixel.
 
     Dense: s is V^l (H W, H_l, W_l), read from the window's origin (j0, i0). On the fly
-    (`from_patch` = 1): s is the tap patch (H W, 2r+2, 2r+2), read from (0, 0).
+    (`from_patch` = 1): s is the tap patch (H W, 2r+2, 2r+2), read from (0, 0). A window whose
+    taps all lie inside s[p] (every patch, and most level-0 windows) reads them without the
+    per-tap bounds test; both branches compute the same expression.
     """
-    t = wp.tid() + offset
+    p = wp.tid() + offset
     side = 2 * radius + 1
-    p = t // side
-    a = t % side
     h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
     row0 = j0
-    col = i0 + a
+    col0 = i0
     if from_patch != 0:
         row0 = 0
-        col = a
+        col0 = 0
     one = s.dtype(1.0)
-    # Sample b's lower taps are sample b + 1's upper taps: each row of taps is read once.
-    top = (one - fx) * _tap(s, p, row0, col) + fx * _tap(s, p, row0, col + 1)
-    for b in range(side):
-        row = row0 + b + 1
-        bottom = (one - fx) * _tap(s, p, row, col) + fx * _tap(s, p, row, col + 1)
-        out[channel0 + a * side + b, h, w] = (one - fy) * top + fy * bottom
-        top = bottom
+    gx = one - fx
+    gy = one - fy
+    inside = row0 >= 0 and col0 >= 0 and row0 + side < s.shape[1] and col0 + side < s.shape[2]
+    for a in range(side):
+        col = col0 + a
+        ch = channel0 + a * side
+        # Sample b's lower taps are sample b + 1's upper taps: each row of taps is read once.
+        if inside:
+            top = gx * s[p, row0, col] + fx * s[p, row0, col + 1]
+            for b in range(side):
+                row = row0 + b + 1
+                bottom = gx * s[p, row, col] + fx * s[p, row, col + 1]
+                out[ch + b, h, w] = gy * top + fy * bottom
+                top = bottom
+        else:
+            top = gx * _tap(s, p, row0, col) + fx * _tap(s, p, row0, col + 1)
+            for b in range(side):
+                row = row0 + b + 1
+                bottom = gx * _tap(s, p, row, col) + fx * _tap(s, p, row, col + 1)
+                out[ch + b, h, w] = gy * top + fy * bottom
+                top = bottom
 
 
 @wp.kernel
@@ -208,10 +222,18 @@ def _nhw(t: int, height: int, width: int):
 
 @wp.kernel
 def _pool2x2(x: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any), offset: int):
-    """out[n, h, w] = mean of x[n, 2h : 2h + 2, 2w : 2w + 2]  (equation (2))."""
-    n, h, w = _nhw(wp.tid() + offset, out.shape[1], out.shape[2])
-    s = x[n, 2 * h, 2 * w] + x[n, 2 * h, 2 * w + 1] + x[n, 2 * h + 1, 2 * w] + x[n, 2 * h + 1, 2 * w + 1]
-    out[n, h, w] = s * x.dtype(0.25)
+    """out[n, h, :] = means of x[n, 2h : 2h + 2, 2w : 2w + 2] for every w (equation (2)); thread = (n, h).
+
+    A thread per coarse row, not per coarse pixel: the row's loop reads two contiguous fine rows
+    (the pooling is memory-bound, and a thread per pixel spent more on indexing than on reading).
+    """
+    t = wp.tid() + offset
+    n = t // out.shape[1]
+    h = t % out.shape[1]
+    quarter = x.dtype(0.25)
+    for w in range(out.shape[2]):
+        s = x[n, 2 * h, 2 * w] + x[n, 2 * h, 2 * w + 1] + x[n, 2 * h + 1, 2 * w] + x[n, 2 * h + 1, 2 * w + 1]
+        out[n, h, w] = s * quarter
 
 
 @wp.kernel
@@ -234,7 +256,7 @@ def pool_levels(x: wp.array, levels: int, a: Inputs) -> list[wp.array]:
     for _ in range(1, levels):
         n, h, w = out[-1].shape
         coarse = a.empty((n, h // 2, w // 2))
-        a.launch(_pool2x2, coarse.size, [out[-1], coarse])
+        a.launch(_pool2x2, n * (h // 2), [out[-1], coarse], min_chunk=64)
         out.append(coarse)
     return out
 

@@ -7,7 +7,7 @@ For each pixel p of frame 1, level l and window offsets a, b in {0, ..., 2r},
 with V^l[p] the level's (H_l, W_l) slice for p sampled by (3), taps outside the
 slice counting as 0. All samples of a level share the fractions (fx, fy), so
 they read the (2r + 2) x (2r + 2) tap patch of V^l[p] from (j0, i0). The forward
-runs one thread per pixel and window column a; the adjoint one thread per pixel,
+and the adjoint each run one thread per pixel, the adjoint
 adding into row p of the level's gradient and pixel p of the coordinates' only.
 The kernels are `_common.sample_windows` and `_common.sample_windows_adjoint`
 (shared with the on-the-fly lookup), where the adjoint's formulas are written out.
@@ -46,7 +46,7 @@ def lookup(pyramid: Sequence[Array], coords: Array, radius: int, *, device: str 
     n = height * width
     out = a.zeros((len(levels) * side * side, height, width))
     for lvl, v in enumerate(levels):
-        a.launch(sample_windows, n * side, [v, xy, out, a.s(0.5 ** lvl), radius, lvl * side * side, 0])
+        a.launch(sample_windows, n, [v, xy, out, a.s(0.5 ** lvl), radius, lvl * side * side, 0], min_chunk=256)
     return a.out(out)
 
 

@@ -58,6 +58,7 @@ def _unpack_channels_last_v(x_v: wp.array2d(dtype=typing.Any), out: wp.array2d(d
 
 @wp.func
 def _dot_v(a_v: wp.array2d(dtype=typing.Any), i: int, b_v: wp.array2d(dtype=typing.Any), j: int):
+    """a[i] . b[j] over the packed channels (8 partial sums, added at the end)."""
     acc = wp.cw_mul(a_v[i, 0], b_v[j, 0])
     for k in range(1, a_v.shape[1]):
         acc += wp.cw_mul(a_v[i, k], b_v[j, k])
@@ -67,23 +68,101 @@ def _dot_v(a_v: wp.array2d(dtype=typing.Any), i: int, b_v: wp.array2d(dtype=typi
     return s
 
 
+@wp.func
+def _dot_v2(a_v: wp.array2d(dtype=typing.Any), i: int, b_v: wp.array2d(dtype=typing.Any), j: int):
+    """(a[i] . b[j], a[i] . b[j + 1]): a[i]'s vectors loaded once for two taps, each sum in `_dot_v`'s order."""
+    x = a_v[i, 0]
+    acc0 = wp.cw_mul(x, b_v[j, 0])
+    acc1 = wp.cw_mul(x, b_v[j + 1, 0])
+    for k in range(1, a_v.shape[1]):
+        x = a_v[i, k]
+        acc0 += wp.cw_mul(x, b_v[j, k])
+        acc1 += wp.cw_mul(x, b_v[j + 1, k])
+    s0 = acc0[0]
+    s1 = acc1[0]
+    for q in range(1, VEC):
+        s0 += acc0[q]
+        s1 += acc1[q]
+    return s0, s1
+
+
+@wp.func
+def _dot_v4(a_v: wp.array2d(dtype=typing.Any), i: int, b_v: wp.array2d(dtype=typing.Any), j: int):
+    """a[i] . b[j + t] for t = 0..3: a[i]'s vectors loaded once for four taps, each sum in `_dot_v`'s order."""
+    x = a_v[i, 0]
+    acc0 = wp.cw_mul(x, b_v[j, 0])
+    acc1 = wp.cw_mul(x, b_v[j + 1, 0])
+    acc2 = wp.cw_mul(x, b_v[j + 2, 0])
+    acc3 = wp.cw_mul(x, b_v[j + 3, 0])
+    for k in range(1, a_v.shape[1]):
+        x = a_v[i, k]
+        acc0 += wp.cw_mul(x, b_v[j, k])
+        acc1 += wp.cw_mul(x, b_v[j + 1, k])
+        acc2 += wp.cw_mul(x, b_v[j + 2, k])
+        acc3 += wp.cw_mul(x, b_v[j + 3, k])
+    s0 = acc0[0]
+    s1 = acc1[0]
+    s2 = acc2[0]
+    s3 = acc3[0]
+    for q in range(1, VEC):
+        s0 += acc0[q]
+        s1 += acc1[q]
+        s2 += acc2[q]
+        s3 += acc3[q]
+    return s0, s1, s2, s3
+
+
+@wp.func
+def _tap_or_zero(f1_v: wp.array2d(dtype=typing.Any), p: int, f2l_v: wp.array2d(dtype=typing.Any), row: int,
+                 col: int, width_l: int, inv_sqrt_c: typing.Any):
+    """f1[:, p] . P^l(f2)[:, (row, col)] / sqrt(C) for a tap in the level's row, 0 past its ends."""
+    if col >= 0 and col < width_l:
+        return _dot_v(f1_v, p, f2l_v, row * width_l + col) * inv_sqrt_c
+    return inv_sqrt_c * inv_sqrt_c.dtype(0.0)
+
+
 @wp.kernel
 def _patch_level(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typing.Any),
                  coords: wp.array3d(dtype=typing.Any), patch: wp.array3d(dtype=typing.Any),
                  height_l: int, width_l: int, scale: typing.Any, radius: int, inv_sqrt_c: typing.Any, offset: int):
-    """patch[p, ty, tx] = f1[:, p] . P^l(f2)[:, tap] / sqrt(C), 0 outside; thread = pixel * (2r+2) + ty."""
+    """patch[p, ty, tx] = f1[:, p] . P^l(f2)[:, tap] / sqrt(C), 0 outside; thread = pixel * (2r+2) + ty.
+
+    The taps of a row are contiguous in P^l(f2) and share f1[:, p], so they go four at a time
+    (`_dot_v4`), then two at a time (2r + 2 is even), loading f1[:, p] once per group: the dot
+    products are bound by loads, and this halves them. Each tap's sum is formed in one order
+    whatever its group, so the patch is bit-identical to one tap at a time.
+    """
     t = wp.tid() + offset
     side = 2 * radius + 2
     p = t // side
     ty = t % side
     h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
     row = j0 + ty
-    for tx in range(side):
+    zero = coords.dtype(0.0)
+    if row < 0 or row >= height_l:
+        for tx in range(side):
+            patch[p, ty, tx] = zero
+        return
+    base = row * width_l
+    tx = int(0)
+    while tx < side:
         col = i0 + tx
-        v = coords.dtype(0.0)
-        if row >= 0 and col >= 0 and row < height_l and col < width_l:
-            v = _dot_v(f1_v, p, f2l_v, row * width_l + col) * inv_sqrt_c
-        patch[p, ty, tx] = v
+        if tx + 4 <= side and col >= 0 and col + 3 < width_l:
+            s0, s1, s2, s3 = _dot_v4(f1_v, p, f2l_v, base + col)
+            patch[p, ty, tx] = s0 * inv_sqrt_c
+            patch[p, ty, tx + 1] = s1 * inv_sqrt_c
+            patch[p, ty, tx + 2] = s2 * inv_sqrt_c
+            patch[p, ty, tx + 3] = s3 * inv_sqrt_c
+            tx += 4
+        elif col >= 0 and col + 1 < width_l:
+            s0, s1 = _dot_v2(f1_v, p, f2l_v, base + col)
+            patch[p, ty, tx] = s0 * inv_sqrt_c
+            patch[p, ty, tx + 1] = s1 * inv_sqrt_c
+            tx += 2
+        else:
+            patch[p, ty, tx] = _tap_or_zero(f1_v, p, f2l_v, row, col, width_l, inv_sqrt_c)
+            patch[p, ty, tx + 1] = _tap_or_zero(f1_v, p, f2l_v, row, col + 1, width_l, inv_sqrt_c)
+            tx += 2
 
 
 @wp.kernel
@@ -227,7 +306,7 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
         f2l_v = _channels_last_v(levels[lvl], a)
         scale = a.s(0.5 ** lvl)
         a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
-        a.launch(sample_windows, n * side, [patch, xy, out, scale, radius, lvl * side * side, 1])
+        a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1], min_chunk=256)
     return a.out(out)
 
 

@@ -8,11 +8,20 @@ and its adjoint for a cotangent dV = d loss / d V:
 
     d f1 = f2 dV^T / sqrt(C),    d f2 = f1 dV / sqrt(C).
 
-All three are one product out = scale * a^T b, computed blocked: each thread
-forms 4 rows x 16 columns of out, the columns as two 8-wide vectors (b packed
-into vectors and zero-padded to a multiple of 16 columns; a's columns padded to a
-multiple of 4), which the CPU compiler turns into SIMD. The adjoint products
-transpose their operands first: d f1 = (f2^T)^T (dV^T), d f2 = (f1^T)^T dV.
+All three are one product out = scale * a^T b, a GEMM. Two backends compute it:
+  * "numpy" (the default on the CPU): BLAS (`np.matmul`) writing straight into
+    the output wp.array's memory (a zero-copy NumPy view of a CPU array), with
+    the scale applied to the smaller operand first, (scale a)^T b. A Warp CPU
+    launch runs each thread's loop as scalar C++ on one core per launch
+    (docs/warp.md); a tuned, cache-blocked, multi-threaded BLAS is several times
+    faster on the same cores. Still pure compute: no file I/O, no other library.
+  * "warp" (the default on CUDA, and selectable on the CPU): a blocked Warp
+    kernel where each thread forms 4 rows x 16 columns of out, the columns as two
+    8-wide vectors (b packed into vectors and zero-padded to a multiple of 16
+    columns; a's columns padded to a multiple of 4). Its adjoint products
+    transpose their operands first: d f1 = (f2^T)^T (dV^T), d f2 = (f1^T)^T dV.
+The backends agree to float rounding (BLAS sums the C terms in its own order;
+scaling an operand first is exact when sqrt(C) is a power of two, as for C = 256).
 
 Pyramid. V^l pools V^{l-1} 2x2 over frame 2's two dimensions (2); its adjoint
 is `_common.pool_levels_adjoint`.
@@ -24,6 +33,7 @@ import math
 import typing
 from typing import Sequence
 
+import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
@@ -127,6 +137,32 @@ def _gemm_tn_wp(x: wp.array, y: wp.array, scale: float, a: Inputs) -> wp.array:
     return out
 
 
+BACKENDS = ("numpy", "warp")
+
+
+def _backend(a: Inputs, backend: str | None) -> str:
+    """The product's backend: the argument, else "numpy" on the CPU and "warp" on CUDA."""
+    if backend is None:
+        return "numpy" if a.device.is_cpu else "warp"
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {', '.join(BACKENDS)} or None, got {backend!r}")
+    if backend == "numpy" and not a.device.is_cpu:
+        raise ValueError(f"backend: 'numpy' runs on the CPU only, got device {a.device}")
+    return backend
+
+
+def _gemm_blas(x: np.ndarray, y: np.ndarray, scale: float, a: Inputs, scale_x: bool = True) -> wp.array:
+    """(scale x)^T y (or x^T (scale y) when not `scale_x`) by BLAS into a new CPU wp.array."""
+    out = a.empty((x.shape[1], y.shape[1]))
+    s = a.np_dtype.type(scale)
+    if scale_x:
+        x = x * s
+    else:
+        y = y * s
+    np.matmul(x.T, y, out=out.numpy())
+    return out
+
+
 def _transpose_wp(x: wp.array, a: Inputs) -> wp.array:
     out = a.empty((x.shape[1], x.shape[0]))
     a.launch(_copy_cols, out.size, [x.transpose(), out])
@@ -145,27 +181,39 @@ def _feature_pair(a: Inputs, f1: Array, f2: Array) -> tuple[wp.array, wp.array, 
 # --------------------------------------------------------------------------- entry points
 
 
-def correlation_volume(f1: Array, f2: Array, *, device: str | None = None) -> Array:
-    """All-pairs volume (H, W, H, W) of (1): V[p, q] = f1[:, p] . f2[:, q] / sqrt(C)."""
+def correlation_volume(f1: Array, f2: Array, *, device: str | None = None, backend: str | None = None) -> Array:
+    """All-pairs volume (H, W, H, W) of (1): V[p, q] = f1[:, p] . f2[:, q] / sqrt(C).
+
+    `backend`: "numpy" (BLAS, CPU only) or "warp"; None picks "numpy" on the CPU (module docstring)."""
     a = Inputs(device, f1, f2)
     x1, x2, (channels, height, width) = _feature_pair(a, f1, f2)
-    vol = _gemm_tn_wp(x1, x2, 1.0 / math.sqrt(channels), a)
+    inv = 1.0 / math.sqrt(channels)
+    if _backend(a, backend) == "numpy":
+        vol = _gemm_blas(x1.numpy(), x2.numpy(), inv, a)
+    else:
+        vol = _gemm_tn_wp(x1, x2, inv, a)
     return a.out(vol.reshape((height, width, height, width)))
 
 
-def correlation_volume_backward(f1: Array, f2: Array, grad_volume: Array, *,
-                                device: str | None = None) -> dict[str, Array]:
+def correlation_volume_backward(f1: Array, f2: Array, grad_volume: Array, *, device: str | None = None,
+                                backend: str | None = None) -> dict[str, Array]:
     """Adjoint of (1). Returns a dict {"f1": d f1, "f2": d f2}, each (C, H, W), in f1's kind:
-    d f1 = f2 dV^T / sqrt(C), d f2 = f1 dV / sqrt(C)."""
+    d f1 = f2 dV^T / sqrt(C), d f2 = f1 dV / sqrt(C). `backend` as in `correlation_volume`."""
     a = Inputs(device, f1, f2, grad_volume)
     x1, x2, shape = _feature_pair(a, f1, f2)
     channels, height, width = shape
     n = height * width
     g = a.floats("grad_volume", grad_volume, (height, width, height, width)).reshape((n, n))
     inv = 1.0 / math.sqrt(channels)
-    # d f1 (C, N1) = f2 g^T = (f2^T)^T g^T;  d f2 (C, N2) = f1 g = (f1^T)^T g.
-    grad_f1 = _gemm_tn_wp(_transpose_wp(x2, a), _transpose_wp(g, a), inv, a)
-    grad_f2 = _gemm_tn_wp(_transpose_wp(x1, a), g, inv, a)
+    if _backend(a, backend) == "numpy":
+        # d f1 (C, N1) = (inv f2^T)^T g^T;  d f2 (C, N2) = (inv f1^T)^T g: the scale on the small operand.
+        g_np = g.numpy()
+        grad_f1 = _gemm_blas(x2.numpy().T, g_np.T, inv, a)
+        grad_f2 = _gemm_blas(x1.numpy().T, g_np, inv, a)
+    else:
+        # d f1 (C, N1) = f2 g^T = (f2^T)^T g^T;  d f2 (C, N2) = f1 g = (f1^T)^T g.
+        grad_f1 = _gemm_tn_wp(_transpose_wp(x2, a), _transpose_wp(g, a), inv, a)
+        grad_f2 = _gemm_tn_wp(_transpose_wp(x1, a), g, inv, a)
     return {"f1": a.out(grad_f1.reshape(shape)), "f2": a.out(grad_f2.reshape(shape))}
 
 

@@ -9,30 +9,92 @@ coordinates within +-8 px of each pixel's centre.
   adjoint to every pyramid level and to the coordinates; `bytes`, the stored pyramid;
 * `corr.lookup_onthefly`: `fwd_s` and `fwd_bwd_s` of the on-the-fly lookup (the
   backward reaching f1, every pooled f2 level and the coordinates); `bytes`, what it
-  holds instead of the pyramid (f1, the pooled f2 pyramid, one patch buffer), and
-  `max_abs_diff`, its largest deviation from the dense lookup.
+  holds instead of the pyramid (f1, the pooled f2 pyramid, one patch buffer);
+  `max_abs_diff`, its largest deviation from the dense lookup; `ratio_to_dense_fwd`,
+  its forward time over the dense lookup's (timed interleaved with it), and
+  `memory_ratio`, the dense pyramid's bytes over its own. The dense pyramid grows as
+  (H W)^2 and the on-the-fly buffers as C H W, so the ratio grows with the frame:
+  `memory_ratio_sintel` is the same ratio at RAFT's 1/8 resolution of a 1024x436
+  MPI-Sintel frame (54 x 128 features), from the same byte counts.
 
-Targets on 2 cores: one dense lookup within 0.05 s, the build within 0.4 s.
+Memory (`bytes`, `peak_mb`) is the nbytes of the arrays each path keeps between
+lookups, computed from their shapes (Warp's allocations are invisible to tracemalloc).
+
+`compare=True` (research.bench's convention) times PyTorch on the same inputs, interleaved with
+drlab in one `time_medians` call, with torch.set_num_threads set to drlab's thread count:
+  * build: RAFT's CorrBlock, `torch.matmul` of the flattened features / sqrt(C), then
+    `F.avg_pool2d(2, stride=2)` three times (`ref_build_s`, `speedup_build`);
+  * lookup: RAFT's CorrBlock.__call__, one `F.grid_sample` (bilinear, zero padding,
+    align_corners=True) per level over the (2r+1)^2 window, at drlab's sample positions
+    (x / 2^l - 1/2 in RAFT's integer-centred level pixels), so both compute the same
+    values (`ref_max_abs_diff`) (`ref_fwd_s`, `speedup_fwd`). The on-the-fly case is
+    compared with the same grid_sample lookup (which needs the dense pyramid).
+Without torch those keys are absent and `ref_missing` names it.
+
+Targets on 2 cores: the build no slower than PyTorch's, the dense lookup at least 2x grid_sample,
+the on-the-fly lookup within 3x of the dense one while holding at least 10x less memory.
 `tiny=True` runs every case at 12 x 16 features, 16 channels, 3 levels, radius 2
 (same keys and phases, about a second in all) for the test suite.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
-from typing import Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import warp as wp
 
 from kernels import corr
-from research.bench import time_median
+from research.bench import time_medians
 
 FULL = dict(height=46, width=62, channels=256, levels=4, radius=4)
 TINY = dict(height=12, width=16, channels=16, levels=3, radius=2)
+SINTEL_FEATURES = (54, 128)  # RAFT's 1/8-resolution features of a 1024x436 MPI-Sintel frame
+REF_BUILD = "torch.matmul + torch.nn.functional.avg_pool2d (RAFT CorrBlock)"
+REF_LOOKUP = "torch.nn.functional.grid_sample (RAFT CorrBlock.__call__)"
 
 
-def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Iterator[dict]:
+def _torch_reference(f1: np.ndarray, f2: np.ndarray, coords: np.ndarray, levels: int, radius: int,
+                     threads: int) -> tuple[Callable[[], list], Callable[[list], Any]]:
+    """PyTorch's build (returns the pyramid) and lookup (of a built pyramid), as RAFT's CorrBlock does them."""
+    import torch
+    import torch.nn.functional as F
+
+    torch.set_num_threads(threads)
+    channels, height, width = f1.shape
+    t1 = torch.from_numpy(f1).reshape(channels, height * width)
+    t2 = torch.from_numpy(f2).reshape(channels, height * width)
+    side = 2 * radius + 1
+    d = torch.linspace(-radius, radius, side)
+    # RAFT's delta: stack(meshgrid(dy, dx)) added to (x, y), so the slow window index moves x.
+    delta = torch.stack(torch.meshgrid(d, d, indexing="ij"), dim=-1).view(1, side, side, 2)
+    xy = torch.from_numpy(np.ascontiguousarray(coords)).permute(1, 2, 0).reshape(height * width, 1, 1, 2)
+
+    def build() -> list:
+        vol = torch.matmul(t1.t(), t2).view(height * width, 1, height, width) / channels ** 0.5
+        pyramid = [vol]
+        for _ in range(1, levels):
+            pyramid.append(F.avg_pool2d(pyramid[-1], 2, stride=2))
+        return pyramid
+
+    def lookup(pyramid: list) -> Any:
+        out = []
+        for lvl, v in enumerate(pyramid):
+            hl, wl = v.shape[-2:]
+            # drlab's level-l position (x / 2^l in centre-at-+0.5 coordinates) in RAFT's integer-centred pixels.
+            pos = xy / 2 ** lvl - 0.5 + delta
+            gx = 2 * pos[..., :1] / max(wl - 1, 1) - 1
+            gy = 2 * pos[..., 1:] / max(hl - 1, 1) - 1
+            s = F.grid_sample(v, torch.cat([gx, gy], dim=-1), align_corners=True)
+            out.append(s.view(height, width, side * side))
+        return torch.cat(out, dim=-1).permute(2, 0, 1)
+
+    return build, lookup
+
+
+def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare: bool = False) -> Iterator[dict]:
     dev = wp.get_device(device)
     threads = 1 if dev.is_cuda else (os.cpu_count() or 1)
     repeats = 3 if quick or tiny else 5
@@ -41,29 +103,43 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Itera
     height, width, levels, radius = sizes["height"], sizes["width"], sizes["levels"], sizes["radius"]
     rng = np.random.default_rng(0)
     shape = (sizes["channels"], height, width)
-    f1 = wp.array(rng.standard_normal(shape).astype(np.float32), device=dev)
-    f2 = wp.array(rng.standard_normal(shape).astype(np.float32), device=dev)
+    f1_np = rng.standard_normal(shape).astype(np.float32)
+    f2_np = rng.standard_normal(shape).astype(np.float32)
+    f1 = wp.array(f1_np, device=dev)
+    f2 = wp.array(f2_np, device=dev)
     centres = np.stack(np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5))
-    coords = wp.array((centres + rng.uniform(-8, 8, (2, height, width))).astype(np.float32), device=dev)
+    coords_np = (centres + rng.uniform(-8, 8, (2, height, width))).astype(np.float32)
+    coords = wp.array(coords_np, device=dev)
     grad_out = wp.array(rng.standard_normal((levels * (2 * radius + 1) ** 2, height, width)).astype(np.float32),
                         device=dev)
     head = {"device": str(dev), "threads": threads, **sizes}
+    ref = None
+    missing: dict[str, str] = {}
+    if compare:
+        if dev.is_cuda or importlib.util.find_spec("torch") is None:
+            missing = {"ref_missing": "torch (CPU)" if not dev.is_cuda else "torch reference runs on the CPU only"}
+        else:
+            ref = _torch_reference(f1_np, f2_np, coords_np, levels, radius, threads)
 
     def build() -> list:
         return corr.correlation_pyramid(corr.correlation_volume(f1, f2), levels)
 
-    yield {"bench": "corr.build", **head, "build_s": time_median(build, repeats=repeats, sync=sync)}
+    fns = {"drlab": build}
+    if ref is not None:
+        fns["ref"] = ref[0]
+    t = time_medians(fns, repeats=repeats, sync=sync)
+    row = {"bench": "corr.build", **head, "build_s": t["drlab"], **missing}
+    if ref is not None:
+        row.update(ref=REF_BUILD, ref_build_s=t["ref"], speedup_build=t["ref"] / t["drlab"])
+    yield row
 
     pyramid = build()
+    dense_bytes = corr.dense_bytes(height, width, levels)
     dense_fwd = lambda: corr.lookup(pyramid, coords, radius)  # noqa: E731
 
     def dense_fwd_bwd() -> None:
         corr.lookup(pyramid, coords, radius)
         corr.lookup_backward(pyramid, coords, radius, grad_out)
-
-    yield {"bench": "corr.lookup", **head, "fwd_s": time_median(dense_fwd, repeats=repeats, sync=sync),
-           "fwd_bwd_s": time_median(dense_fwd_bwd, repeats=repeats, sync=sync),
-           "bytes": corr.dense_bytes(height, width, levels)}
 
     f2_pyramid = corr.pool_features(f2, levels)
     otf_fwd = lambda: corr.lookup_onthefly(f1, f2_pyramid, coords, radius)  # noqa: E731
@@ -72,7 +148,25 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Itera
         corr.lookup_onthefly(f1, f2_pyramid, coords, radius)
         corr.lookup_onthefly_backward(f1, f2_pyramid, coords, radius, grad_out)
 
-    diff = float(np.abs(otf_fwd().numpy() - dense_fwd().numpy()).max())
-    yield {"bench": "corr.lookup_onthefly", **head, "fwd_s": time_median(otf_fwd, repeats=repeats, sync=sync),
-           "fwd_bwd_s": time_median(otf_fwd_bwd, repeats=repeats, sync=sync),
-           "bytes": corr.onthefly_bytes(height, width, sizes["channels"], levels, radius), "max_abs_diff": diff}
+    fns = {"dense": dense_fwd, "otf": otf_fwd}
+    ref_row: dict[str, Any] = {}
+    if ref is not None:
+        t_pyramid = ref[0]()
+        fns["ref"] = lambda: ref[1](t_pyramid)
+        ref_row = {"ref": REF_LOOKUP, "ref_max_abs_diff": float(np.abs(ref[1](t_pyramid).numpy()
+                                                                          - dense_fwd().numpy()).max())}
+    t = time_medians(fns, repeats=repeats, sync=sync)
+    t_bwd = time_medians({"dense": dense_fwd_bwd, "otf": otf_fwd_bwd}, repeats=repeats, sync=sync)
+    for name, key, nbytes in (("corr.lookup", "dense", dense_bytes),
+                              ("corr.lookup_onthefly", "otf",
+                               corr.onthefly_bytes(height, width, sizes["channels"], levels, radius))):
+        row = {"bench": name, **head, "fwd_s": t[key], "fwd_bwd_s": t_bwd[key], "bytes": nbytes,
+               "peak_mb": nbytes / 2 ** 20, **missing}
+        if key == "otf":
+            row.update(max_abs_diff=float(np.abs(otf_fwd().numpy() - dense_fwd().numpy()).max()),
+                       ratio_to_dense_fwd=t["otf"] / t["dense"], memory_ratio=dense_bytes / nbytes,
+                       memory_ratio_sintel=corr.dense_bytes(*SINTEL_FEATURES, levels)
+                       / corr.onthefly_bytes(*SINTEL_FEATURES, sizes["channels"], levels, radius))
+        if ref is not None:
+            row.update(ref_row, ref_fwd_s=t["ref"], speedup_fwd=t["ref"] / t[key])
+        yield row

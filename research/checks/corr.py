@@ -42,15 +42,24 @@ def _random_levels(rng: np.random.Generator, prefix: str, lead: tuple[int, ...],
             for lvl, (hl, wl) in enumerate(corr.level_shapes(height, width, levels))}
 
 
-def check_volume(seed: int, shape: tuple[int, int, int] = SHAPE) -> list[GradcheckResult]:
-    """V = f1 . f2 / sqrt(C), against f1 and f2."""
+def check_volume(seed: int, shape: tuple[int, int, int] = SHAPE, backend: str | None = None) -> list[GradcheckResult]:
+    """V = f1 . f2 / sqrt(C), against f1 and f2, with the product's `backend` (None: the device's default)."""
     rng = np.random.default_rng(seed)
     inputs = {"f1": rng.standard_normal(shape), "f2": rng.standard_normal(shape)}
 
-    def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
-        return corr.correlation_volume_backward(x["f1"], x["f2"], cot)
+    def forward(f1: np.ndarray, f2: np.ndarray) -> np.ndarray:
+        return corr.correlation_volume(f1, f2, backend=backend)
 
-    return check_vjp(corr.correlation_volume, vjp, inputs, seed=seed, name="corr.volume")
+    def vjp(x: dict[str, np.ndarray], cot: np.ndarray) -> dict[str, np.ndarray]:
+        return corr.correlation_volume_backward(x["f1"], x["f2"], cot, backend=backend)
+
+    name = "corr.volume" if backend is None else f"corr.volume_{backend}"
+    return check_vjp(forward, vjp, inputs, seed=seed, name=name)
+
+
+def check_volume_warp(seed: int) -> list[GradcheckResult]:
+    """`check_volume` with the blocked Warp product (the CPU's default is BLAS)."""
+    return check_volume(seed, backend="warp")
 
 
 def _check_pooling(seed: int, name: str, arg: str, shape: tuple[int, ...], forward: Callable[..., list],
@@ -175,7 +184,8 @@ def _over_seeds(check: Callable[..., list[GradcheckResult]], vary_radius: bool) 
     return run
 
 
-for _name, _check, _vary in [("corr.volume", check_volume, False), ("corr.pyramid", check_pyramid, False),
+for _name, _check, _vary in [("corr.volume", check_volume, False), ("corr.volume_warp", check_volume_warp, False),
+                             ("corr.pyramid", check_pyramid, False),
                              ("corr.lookup", check_lookup, True), ("corr.dense_chain", check_dense_chain, False),
                              ("corr.pool_features", check_pool_features, False),
                              ("corr.lookup_onthefly", check_lookup_onthefly, True),

@@ -43,6 +43,30 @@ def test_volume_and_pyramid_match_reference(dtype):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+def test_volume_backends_agree(dtype):
+    """BLAS ("numpy", the CPU default) and the blocked Warp product give the volume and its adjoint to rounding."""
+    f1, f2, _ = random_case(np.random.default_rng(5), dtype, shape=(37, 9, 13))  # odd sizes: every padding path
+    g = np.random.default_rng(6).standard_normal((9, 13, 9, 13)).astype(dtype)
+    tol = TOL[dtype]
+    np.testing.assert_allclose(corr.correlation_volume(f1, f2, backend="numpy"),
+                               corr.correlation_volume(f1, f2, backend="warp"), **tol)
+    np.testing.assert_array_equal(corr.correlation_volume(f1, f2), corr.correlation_volume(f1, f2, backend="numpy"))
+    got = corr.correlation_volume_backward(f1, f2, g, backend="numpy")
+    want = corr.correlation_volume_backward(f1, f2, g, backend="warp")
+    for key in ("f1", "f2"):
+        assert got[key].dtype == dtype and got[key].shape == f1.shape
+        np.testing.assert_allclose(got[key], want[key], rtol=tol["rtol"], atol=10 * tol["atol"])  # sums of 117 terms
+
+
+def test_volume_backend_warp_arrays():
+    """The BLAS backend writes into wp.arrays and returns wp.arrays for wp.array inputs."""
+    f1, f2, _ = random_case(np.random.default_rng(7), np.float32)
+    vol = corr.correlation_volume(wp.array(f1), wp.array(f2))
+    assert isinstance(vol, wp.array) and vol.shape == (9, 11, 9, 11)
+    np.testing.assert_allclose(vol.numpy(), corr.correlation_volume(f1, f2, backend="warp"), **TOL[np.float32])
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("radius", [0, 2])
 def test_lookup_matches_reference(dtype, radius):
     f1, f2, coords = random_case(np.random.default_rng(2 + radius), dtype)
@@ -124,6 +148,11 @@ def test_memory_accounting():
 @pytest.mark.parametrize("seed", checks.SEEDS)
 def test_gradcheck_volume_pyramid_pool(seed):
     assert_gradcheck(checks.check_volume(seed) + checks.check_pyramid(seed) + checks.check_pool_features(seed))
+
+
+@pytest.mark.parametrize("seed", checks.SEEDS)
+def test_gradcheck_volume_warp_backend(seed):
+    assert_gradcheck(checks.check_volume_warp(seed))
 
 
 @pytest.mark.parametrize("seed", checks.SEEDS)
@@ -225,6 +254,10 @@ def test_other_bad_input():
         corr.lookup([], coords, 1)
     with pytest.raises(ValueError, match=r"grad_out: expected shape \(18, 8, 8\)"):
         corr.lookup_backward(pyramid, coords, 1, np.zeros((9, 8, 8)))
+    with pytest.raises(ValueError, match="backend: expected one of numpy, warp or None, got 'blas'"):
+        corr.correlation_volume(f1, f2, backend="blas")
+    with pytest.raises(ValueError, match="backend: expected one of numpy, warp or None"):
+        corr.correlation_volume_backward(f1, f2, np.zeros((8, 8, 8, 8)), backend="torch")
     with pytest.raises(ValueError, match="grad_volume: expected shape"):
         corr.correlation_volume_backward(f1, f2, np.zeros((8, 8, 8)))
     with pytest.raises(ValueError, match=r"volume: expected shape \(H, W, H, W\), got \(8, 8, 4, 4\)"):

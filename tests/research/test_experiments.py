@@ -75,6 +75,13 @@ def _check_raft(m):
     scene = m["per_scene"]["objects"]
     assert all(_finite(v["epe"]) and v["epe"] >= 0 for v in scene.values())
     assert scene["CorrFlow (L=4, r=4)"]["epe"] < scene["zero flow"]["epe"]
+    c2f = "C2F correlation flow (default)"
+    assert scene[c2f]["epe"] < scene["zero flow"]["epe"]
+    for condition in ("clean", "stressed"):
+        assert m["radiometric"][condition][c2f]["epe"] < m["radiometric"][condition]["zero flow"]["epe"]
+    photo = m["real_texture"]["methods"]
+    assert photo[c2f]["epe"] < photo["zero flow"]["epe"] and photo[c2f]["epe"] < photo["OpenCV Farneback"]["epe"]
+    assert m["cell"]["levels"] == 4 and m["cell"]["radius"] == 4 and len(m["ablation"]) == 16
 
 
 def _check_stereo(m):

@@ -242,8 +242,8 @@ def test_raft_flow_on_benchmark_folders(folders, tmp_path, key, extra, dataset, 
     assert bench["format"] == key.removesuffix("2012") and bench["dataset"] == dataset
     assert bench["pairs_evaluated"] == len(written)  # quick: the first pair of each sequence
     methods = metrics["methods"]
-    assert set(methods) == {"CorrFlow (L=4, r=4)", "pyramidal LK (4 levels, 9x9)", "OpenCV Farneback",
-                            "OpenCV DIS (medium)", "zero flow"}
+    assert set(methods) == {"CorrFlow (L=4, r=4)", "C2F correlation flow (default)", "pyramidal LK (4 levels, 9x9)",
+                            "OpenCV Farneback", "OpenCV DIS (medium)", "zero flow"}
     # Zero flow's error is |gt| over each region: computed here from what the fixture wrote.
     zero = methods["zero flow"]
     if key == "sintel":

@@ -66,6 +66,18 @@ def test_corrflow_recovers_translation_dense_and_onthefly_agree():
     assert of.flow_metrics(dense, gt, mask)["epe"] < 0.1 * of.flow_metrics(zero, gt, mask)["epe"]
 
 
+def test_corrflow_picks_the_lookup_by_the_memory_budget():
+    img = np.random.default_rng(2).uniform(0, 1, (64, 64, 3))
+    assert of.CorrFlow(img, img, stride=4, max_levels=2).onthefly is False  # 16x16 features: 0.3 MiB
+    small = of.CorrFlow(img, img, stride=4, max_levels=2, memory_budget_mib=0.1)
+    assert small.onthefly is True
+    assert of.CorrFlow(img, img, stride=4, max_levels=2, onthefly=False, memory_budget_mib=0.1).onthefly is False
+    with pytest.raises(ValueError, match="onthefly: expected True, False or None"):
+        of.CorrFlow(img, img, onthefly=1)
+    with pytest.raises(ValueError, match="memory_budget_mib: expected a finite number > 0"):
+        of.CorrFlow(img, img, memory_budget_mib=0)
+
+
 def test_upsample_flow_scales_displacements():
     flow = np.stack([np.full((4, 5), 1.5), np.full((4, 5), -0.5)])
     up = of.upsample_flow(flow, 4, 16, 20)

@@ -343,8 +343,22 @@ def test_every_committed_sweep_file_loads():
         assert sweep.load_spec(path).runs()
 
 
-@pytest.mark.parametrize("name,experiment,rows", [("stereo_tuning", "stereo_depth", "methods"),
-                                                   ("raft_ablation", "raft_flow", "ablation")])
+def test_raft_ablation_spreads_the_grid_over_runs():
+    """One (levels, radius) cell per run (raft_flow --levels --radius), 16 cells x 3 seeds; a seed's runs
+    share that seed's data folder (research.datasets renders it once, under a lock)."""
+    spec = sweep.load_spec(REPO_ROOT / "experiments" / "sweeps" / "raft_ablation.toml")
+    assert (spec.name, spec.experiment, spec.rows) == ("raft_ablation", "raft_flow", None)
+    runs = spec.runs()
+    assert len(runs) == 48 and len({r.key for r in runs}) == 48
+    cells = {(dict(r.options)["--levels"], dict(r.options)["--radius"]) for r in runs}
+    assert cells == {(lv, rad) for lv in (1, 2, 3, 4) for rad in (1, 2, 3, 4)}
+    for r in runs:
+        argv = r.argv()
+        assert argv[argv.index("--data") + 1] == f"data/sweeps/raft_ablation/seed{r.seed}"
+    assert spec.group_by == ["--levels", "--radius"] and spec.metrics == ["cell.epe", "cell.f1_all"]
+
+
+@pytest.mark.parametrize("name,experiment,rows", [("stereo_tuning", "stereo_depth", "methods")])
 def test_committed_sweep_files(name, experiment, rows):
     spec = sweep.load_spec(REPO_ROOT / "experiments" / "sweeps" / f"{name}.toml")
     assert (spec.name, spec.experiment, spec.rows) == (name, experiment, rows)
