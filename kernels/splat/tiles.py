@@ -7,12 +7,15 @@ floor((u - r)/16) <= tx < ceil((u + r)/16) (rows likewise, both clamped to the i
 Of these it is listed only in those that also meet the bounding box of the ellipse
 d^T Q d <= 2 ln(255 o) (half-sizes sqrt(2 ln(255 o) Q11 / det Q) and sqrt(2 ln(255 o) Q00 / det Q)),
 outside which alpha < 1/255 and the rasteriser skips it anyway: the image is the same, and splats
-with 255 o < 1 are never listed. Splats are ranked by depth (a stable radix sort, culled splats
-last), and each (tile, splat) pair gets the key tile * 2^b + rank with 2^b > N; one radix sort of
-these keys (wp.utils.radix_sort_pairs) lists every tile's splats front to back, and per-tile
-ranges [start, end) index the sorted list. Every kernel writes only its own slots (the emit
-kernel the disjoint slice [starts[i], starts[i] + counts[i]) of splat i), so all run split over
-CPU threads.
+with 255 o < 1 are never listed. The (tile, splat) pairs are listed sorted by (tile, depth rank):
+the splats are ordered by depth (a stable radix sort, culled splats last), each splat's pairs are
+emitted as one slice [starts[i], starts[i] + counts[i]) (its tiles in row-major order), the slices
+laid out in depth order, and one stable radix sort (wp.utils.radix_sort_pairs) on the tile index
+alone (ceil(log2 tiles) bits: one 16-bit pass up to 65536 tiles) then lists every tile's splats
+front to back; per-tile ranges [start, end) index the sorted list. The sorted value carries both
+the emitted index (the backward's gradient row) and the splat, so nothing is gathered through the
+emitted order. Every kernel writes only its own slots (the emit kernel splat i's slice), so all
+run split over CPU threads.
 """
 
 from __future__ import annotations
@@ -108,16 +111,23 @@ def _depth_keys_kernel(
 
 
 @wp.kernel
-def _rank_kernel(order: wp.array(dtype=wp.int32), rank: wp.array(dtype=wp.int32), offset: int):
+def _ranked_counts_kernel(order: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
+                          ranked_counts: wp.array(dtype=wp.int32), offset: int):
     j = wp.tid() + offset
-    rank[order[j]] = j
+    ranked_counts[j] = counts[order[j]]
+
+
+@wp.kernel
+def _starts_kernel(order: wp.array(dtype=wp.int32), ranked_starts: wp.array(dtype=wp.int32),
+                   starts: wp.array(dtype=wp.int32), offset: int):
+    j = wp.tid() + offset
+    starts[order[j]] = ranked_starts[j]
 
 
 @wp.kernel
 def _emit_kernel(
     rects: wp.array2d(dtype=wp.int32), starts: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
-    rank: wp.array(dtype=wp.int32), tiles_x: int, rank_stride: wp.int64,
-    keys: wp.array(dtype=wp.int64), values: wp.array(dtype=wp.int32), entry_gid: wp.array(dtype=wp.int32), offset: int,
+    tiles_x: int, keys: wp.array(dtype=wp.int32), values: wp.array(dtype=wp.int64), offset: int,
 ):
     i = wp.tid() + offset
     if counts[i] == 0:
@@ -125,28 +135,31 @@ def _emit_kernel(
     e = starts[i]
     for ty in range(rects[i, 2], rects[i, 3]):
         for tx in range(rects[i, 0], rects[i, 1]):
-            keys[e] = wp.int64(ty * tiles_x + tx) * rank_stride + wp.int64(rank[i])
-            values[e] = e
-            entry_gid[e] = i
+            keys[e] = ty * tiles_x + tx
+            # The value carries both the emitted index (high 32 bits) and the splat (low 32 bits), so the
+            # sorted entries need no gather through the emitted order afterwards.
+            values[e] = (wp.int64(e) << wp.int64(32)) | wp.int64(i)
             e += 1
 
 
 @wp.kernel
 def _ranges_kernel(
-    keys: wp.array(dtype=wp.int64), values: wp.array(dtype=wp.int32), entry_gid: wp.array(dtype=wp.int32),
-    n: int, rank_stride: wp.int64,
-    sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), offset: int,
+    keys: wp.array(dtype=wp.int32), values: wp.array(dtype=wp.int64), n: int,
+    sorted_gid: wp.array(dtype=wp.int32), sorted_entry: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
+    offset: int,
 ):
     s = wp.tid() + offset
-    sorted_gid[s] = entry_gid[values[s]]
-    tile = int(keys[s] / rank_stride)
+    v = values[s]
+    sorted_gid[s] = int(v & wp.int64(0xFFFFFFFF))
+    sorted_entry[s] = int(v >> wp.int64(32))
+    tile = keys[s]
     if s == 0:
         ranges[tile, 0] = s
-    elif int(keys[s - 1] / rank_stride) != tile:
+    elif keys[s - 1] != tile:
         ranges[tile, 0] = s
     if s == n - 1:
         ranges[tile, 1] = s + 1
-    elif int(keys[s + 1] / rank_stride) != tile:
+    elif keys[s + 1] != tile:
         ranges[tile, 1] = s + 1
 
 
@@ -261,37 +274,41 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     packed = wp.zeros((n, 8), dtype=s.scalar, device=dev)
     a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.opacities, s.depths, s.radii, tiles_x, tiles_y, mid, rects,
                                      counts, packed], min_chunk=MIN_CHUNK)
-    starts = wp.zeros(n, dtype=wp.int32, device=dev)
-    n_entries = 0
-    if n:
-        wp.utils.array_scan(counts, starts, inclusive=False)
-        n_entries = int(starts[n - 1:n].numpy()[0]) + int(counts[n - 1:n].numpy()[0])
-    ranges = wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev)
-    sorted_gid = wp.zeros(max(n_entries, 1), dtype=wp.int32, device=dev)
-    sorted_entry = wp.zeros(max(n_entries, 1), dtype=wp.int32, device=dev)
-    if n_entries == 0:
-        return Tiles(tiles_x, tiles_y, 0, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)
+    if n == 0:
+        return Tiles(tiles_x, tiles_y, 0, counts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
+                     wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
+                     packed, mode)
     means2d, radii, depths = s.means2d, s.radii, s.depths
 
-    # Depth ranks by a stable sort of the depths (culled splats last).
-    dkeys = wp.zeros(2 * n, dtype=means2d.dtype, device=dev)
-    order = wp.zeros(2 * n, dtype=wp.int32, device=dev)
+    # Depth order by a stable sort of the depths (culled splats last).
+    dkeys = wp.empty(2 * n, dtype=means2d.dtype, device=dev)
+    order = wp.empty(2 * n, dtype=wp.int32, device=dev)
     a.launch(_depth_keys_kernel, n, [depths, radii, dkeys, order], min_chunk=MIN_CHUNK)
     wp.utils.radix_sort_pairs(dkeys, order, n)
-    rank = wp.zeros(n, dtype=wp.int32, device=dev)
-    a.launch(_rank_kernel, n, [order, rank], min_chunk=MIN_CHUNK)
+    # Each splat's entries are the slice [starts[i], starts[i] + counts[i)), its tiles in row-major
+    # order; the slices follow one another in depth order, so that the entries come out depth-ordered.
+    ranked_counts = wp.empty(n, dtype=wp.int32, device=dev)
+    a.launch(_ranked_counts_kernel, n, [order, counts, ranked_counts], min_chunk=MIN_CHUNK)
+    ranked_starts = wp.empty(n, dtype=wp.int32, device=dev)
+    wp.utils.array_scan(ranked_counts, ranked_starts, inclusive=False)
+    n_entries = int(ranked_starts[n - 1:n].numpy()[0]) + int(ranked_counts[n - 1:n].numpy()[0])
+    starts = wp.empty(n, dtype=wp.int32, device=dev)
+    a.launch(_starts_kernel, n, [order, ranked_starts, starts], min_chunk=MIN_CHUNK)
+    ranges = wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev)
+    if n_entries == 0:
+        return Tiles(tiles_x, tiles_y, 0, starts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
+                     wp.zeros(1, dtype=wp.int32, device=dev), ranges, packed, mode)
 
-    rank_bits = max(1, (n - 1).bit_length())
+    # Keys are the tiles; values the emitted indices. The radix sort is stable, so a tile's entries keep
+    # the depth order they were emitted in: the result is the order of the keys (tile, depth rank).
     tile_bits = max(1, (n_tiles - 1).bit_length())
-    stride = 1 << rank_bits
-    keys = wp.zeros(2 * n_entries, dtype=wp.int64, device=dev)
-    values = wp.zeros(2 * n_entries, dtype=wp.int32, device=dev)
-    entry_gid = wp.zeros(n_entries, dtype=wp.int32, device=dev)
+    keys = wp.empty(2 * n_entries, dtype=wp.int32, device=dev)
+    values = wp.empty(2 * n_entries, dtype=wp.int64, device=dev)
     # The emit kernel writes the disjoint slice [starts[i], starts[i] + counts[i]) of splat i.
-    a.launch(_emit_kernel, n, [rects, starts, counts, rank, tiles_x, wp.int64(stride), keys, values, entry_gid],
+    a.launch(_emit_kernel, n, [rects, starts, counts, tiles_x, keys, values], min_chunk=MIN_CHUNK)
+    wp.utils.radix_sort_pairs(keys, values, n_entries, 0, tile_bits)
+    sorted_gid = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    sorted_entry = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    a.launch(_ranges_kernel, n_entries, [keys, values, n_entries, sorted_gid, sorted_entry, ranges],
              min_chunk=MIN_CHUNK)
-    wp.utils.radix_sort_pairs(keys, values, n_entries, 0, rank_bits + tile_bits)
-    a.launch(_ranges_kernel, n_entries, [keys, values, entry_gid, n_entries, wp.int64(stride), sorted_gid, ranges],
-             min_chunk=MIN_CHUNK)
-    wp.copy(sorted_entry, values, count=n_entries)
     return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)

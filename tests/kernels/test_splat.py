@@ -70,6 +70,11 @@ def test_tile_binning_matches_reference(mode):
     assert sum(len(v) > 1 for v in want.values()) >= 4  # splats overlap on several tiles
     for t, members in want.items():
         assert list(gid[ranges[t, 0]:ranges[t, 1]]) == members, f"tile {t}"
+    # Each sorted entry's gradient row lies in its splat's slice, and every row is used once.
+    entry, starts, counts = tiles.sorted_entry.numpy()[:tiles.n_entries], tiles.starts.numpy(), tiles.counts.numpy()
+    gid = gid[:tiles.n_entries]
+    assert np.all((starts[gid] <= entry) & (entry < starts[gid] + counts[gid]))
+    assert sorted(entry) == list(range(tiles.n_entries))
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
