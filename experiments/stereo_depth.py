@@ -5,7 +5,7 @@ For the scenes `objects` and `cornell` this renders rectified pairs with exact
 disparity (`drlab dataset --stereo`, into data/stereo_depth-<scene>), converts
 them to 8-bit grayscale as a camera would store them, and runs
 
-  * drlab: every cost (SAD, ZNCC, census, feature correlation on patch
+  * drlab: every cost (SAD, ZNCC, census, Birchfield-Tomasi, feature correlation on patch
     features) x every aggregation (none = plain winner-take-all, SGM over 4
     paths, SGM over 8 paths), each followed by WTA with the sub-pixel
     parabola and the left-right check; plus soft-argmin in place of WTA on the
@@ -132,10 +132,11 @@ def drlab_grid(cost: str, aggregation: str) -> list[dict[str, Any]]:
     windows = {"sad": [{"radius": r} for r in (1, 2, 3, 4)],
                "zncc": [{"radius": r, "zncc_eps": e} for r in (2, 3, 4, 5) for e in (1e-4, 1e-3)],
                "census": [{"census_radii": rr} for rr in ((2, 3), (3, 4))],
+               "bt": [{"radius": r} for r in (1, 2, 3)],
                "corr": [{"radius": r} for r in (2, 3)]}[cost]
     if aggregation == "none":
         return windows
-    p1_base = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "corr": 0.01}[cost]  # about one cost unit of each
+    p1_base = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "bt": 0.01, "corr": 0.01}[cost]  # about one cost unit of each
     return [{**w, "p1": p1_base * f, "p2": p1_base * f * ratio}
             for w in windows for f in (0.5, 1.0, 2.0, 4.0) for ratio in (4.0, 8.0, 16.0)]
 

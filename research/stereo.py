@@ -3,7 +3,8 @@
 Pipeline (`match`): cost volume -> aggregation -> winner-take-all with the
 sub-pixel parabola (or soft-argmin) -> optional left-right check, where the
 right view's disparity comes from the same volume (kernels.stereo.wta_right).
-Costs: "sad", "zncc", "census", and "corr", the feature correlation on
+Costs: "sad", "zncc", "census", "bt" (Birchfield-Tomasi, kernels.stereo.bt: sampling-insensitive,
+with a colour term: colour images keep their channels), and "corr", the feature correlation on
 hand-made features (below), whose similarity is negated into a cost.
 Aggregations: "none", "sgm4", "sgm8".
 
@@ -20,9 +21,20 @@ Menze & Geiger; Middlebury, Scharstein & Szeliski), with e = |d - d_gt|:
     estimate gives a valid depth (Z = f b / d, kernels.stereo.depth_from_disparity).
 Images: `match` and `cost_volume` take uint8, uint16 or float images in [0, 1], grey (H, W) or
 colour (H, W, 3), through research.images.to_unit_grey (uint8 / 255, uint16 / 65535, colour by
-Rec. 601 luma; a float image outside [0, 1] is refused). The SGM penalties (P1 = 8, P2 = 64 by
-default) and the ZNCC epsilon are tuned for costs of images in [0, 1]: 0-255 images would make
-every SAD cost 255 times larger against the same penalties, which is why units are normalised.
+Rec. 601 luma, except "bt", which keeps colour; a float image outside [0, 1] is refused).
+
+Units of the penalties and thresholds, none of which depends on the stored image range (8 or 16
+bits, or float), because every image is first normalised to [0, 1]:
+  * SAD and BT costs are mean absolute intensity differences on that [0, 1] scale, so their P1, P2
+    (and a soft-argmin temperature) are in [0, 1] intensity units: P1 = 0.02 is a mean difference
+    of about 5 grey levels of 255;
+  * census costs are Hamming distances (counts of differing bits, 0 to the window's bit count),
+    so P1 = 8 means 8 differing comparisons, whatever the image range (census is also invariant to
+    any monotonic change of intensity: gain, offset, gamma);
+  * ZNCC costs are 1 - correlation in [0, 2] (unitless; invariant to gain and offset per window),
+    and the ZNCC epsilon is a variance floor in [0, 1]-intensity^2 units;
+  * "corr" costs are negated correlations of unit-norm patch features, in [-1, 1] (unitless).
+StereoConfig's defaults (P1 = 8, P2 = 64) are census units.
 
 Benchmark protocols (Middlebury, KITTI, ETH3D; `protocol_metrics`, `pool_protocol`) are described
 at the end of this module.
@@ -45,10 +57,10 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from kernels import _arrays as A
 from kernels import stereo
-from research.images import unit_grey_pair
+from research.images import unit_grey_pair, unit_pair
 from research.io import linear_to_srgb
 
-COSTS = ("sad", "zncc", "census", "corr")
+COSTS = ("sad", "zncc", "census", "bt", "corr")
 AGGREGATIONS = ("none", "sgm4", "sgm8")
 DISPARITY_METHODS = ("wta", "soft_argmin")
 BAD_THRESHOLDS = (1.0, 2.0, 3.0)
@@ -77,7 +89,7 @@ class StereoConfig:
     aggregation: str = "sgm8"
     p1: float = 8.0
     p2: float = 64.0
-    radius: int = 2  # window radius of SAD / ZNCC / patch features
+    radius: int = 2  # window radius of SAD / ZNCC / BT / patch features
     census_radii: tuple[int, int] = (3, 4)  # (ry, rx): a 7x9 window, 62 bits
     zncc_eps: float = 1e-4
     disparity: str = "wta"
@@ -104,7 +116,7 @@ class StereoConfig:
     @property
     def label(self) -> str:
         agg = {"none": "WTA", "sgm4": "SGM-4", "sgm8": "SGM-8"}[self.aggregation]
-        cost = {"sad": "SAD", "zncc": "ZNCC", "census": "census", "corr": "corr (patch feat.)"}[self.cost]
+        cost = {"sad": "SAD", "zncc": "ZNCC", "census": "census", "bt": "BT", "corr": "corr (patch feat.)"}[self.cost]
         tail = " soft-argmin" if self.disparity == "soft_argmin" else ""
         return f"{cost} + {agg}{tail}"
 
@@ -127,12 +139,12 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
     """
     import warp as wp
 
+    if cfg.cost == "bt":
+        _check_range_args(dmin, dmax)
+        l_img, r_img = (wp.array(x, device=device) for x in unit_pair(left, right))
+        return stereo.bt_cost(l_img, r_img, dmin, dmax, cfg.radius, device=device)
     left, right = unit_grey_pair(left, right)
-    if isinstance(dmin, bool) or isinstance(dmax, bool) or not all(isinstance(d, (int, np.integer))
-                                                                   for d in (dmin, dmax)):
-        raise ValueError(f"dmin, dmax: expected integers, got {dmin!r} and {dmax!r}")
-    if not dmin <= dmax:
-        raise ValueError(f"dmax: expected dmax >= dmin = {dmin}, got {dmax}")
+    _check_range_args(dmin, dmax)
     if cfg.cost == "corr":
         fl, fr = (wp.array(patch_features(x, cfg.radius), device=device) for x in (left, right))
         corr = stereo.feature_correlation(fl, fr, dmin, dmax, device=device)
@@ -143,6 +155,14 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
     if cfg.cost == "zncc":
         return stereo.zncc_cost(l_img, r_img, dmin, dmax, cfg.radius, eps=cfg.zncc_eps, device=device)
     return stereo.census_cost(l_img, r_img, dmin, dmax, *cfg.census_radii, device=device)
+
+
+def _check_range_args(dmin: Any, dmax: Any) -> None:
+    if isinstance(dmin, bool) or isinstance(dmax, bool) or not all(isinstance(d, (int, np.integer))
+                                                                   for d in (dmin, dmax)):
+        raise ValueError(f"dmin, dmax: expected integers, got {dmin!r} and {dmax!r}")
+    if not dmin <= dmax:
+        raise ValueError(f"dmax: expected dmax >= dmin = {dmin}, got {dmax}")
 
 
 def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "cpu") -> StereoResult:

@@ -50,7 +50,30 @@ def test_zncc_matches_reference(dtype, seed, drange, radius):
     np.testing.assert_allclose(got, ref.zncc_cost(L, R, *drange, radius, 1e-4), rtol=RTOL[dtype], atol=1e-6)
 
 
-@pytest.mark.parametrize("cost", ["sad", "zncc", "census"])
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("seed,drange,radius,channels", [(0, (0, 5), 2, 0), (1, (-2, 4), 1, 3), (2, (3, 9), 0, 3)])
+def test_bt_matches_reference(dtype, seed, drange, radius, channels):
+    rng = np.random.default_rng(seed)
+    shape = (7, 11, channels) if channels else (7, 11)
+    L = rng.uniform(0.0, 1.0, shape)
+    R = np.clip(np.roll(L, -2, axis=1) + 0.05 * rng.standard_normal(shape), 0, 1)
+    L, R = L.astype(dtype), R.astype(dtype)
+    got = stereo.bt_cost(L, R, *drange, radius)
+    assert got.dtype == dtype and got.shape == (7, 11, drange[1] - drange[0])
+    np.testing.assert_allclose(got, ref.bt_cost(L, R, *drange, radius), rtol=RTOL[dtype], atol=1e-7)
+
+
+def test_bt_is_insensitive_to_half_pixel_sampling():
+    # A linear ramp and its copy shifted by half a pixel: BT costs 0 at the nearest integer shifts (SAD does not).
+    x = np.arange(16, dtype=np.float64)
+    L = np.tile(x / 32.0, (4, 1))
+    R = np.tile((x + 0.5) / 32.0, (4, 1))  # I_R(u) = I_L(u + 0.5): true disparity 0.5
+    bt, sad = stereo.bt_cost(L, R, 0, 2, 0), stereo.sad_cost(L, R, 0, 2, 0)
+    assert np.abs(bt[:, 1:-1, :]).max() < 1e-12
+    assert sad[:, 1:-1, :].min() > 0.01
+
+
+@pytest.mark.parametrize("cost", ["sad", "zncc", "census", "bt"])
 def test_out_of_range_cells_cost_at_least_any_match(cost):
     # Images with disjoint value ranges: the out-of-range fill must still bound every real cost from above.
     rng = np.random.default_rng(12)
@@ -302,6 +325,17 @@ def test_value_checks_off_skips_the_finiteness_check_only():
         assert bits[3, 4] == 0
         with pytest.raises(ValueError, match="right: expected shape"):
             stereo.census_cost(L, R[:, :-1], 0, 4)
+
+
+@pytest.mark.parametrize("left, right, match", [
+    (np.zeros((4, 6, 3)), np.zeros((4, 6)), "right"),
+    (np.zeros((4, 6, 3, 1)), np.zeros((4, 6, 3, 1)), "left"),
+    (np.zeros(6), np.zeros(6), "left"),
+    (np.full((4, 6), np.nan), np.zeros((4, 6)), "left"),
+], ids=["colour-and-grey", "four-dimensions", "one-dimension", "nan-left"])
+def test_bt_bad_images(left, right, match):
+    with pytest.raises(ValueError, match=match):
+        stereo.bt_cost(left, right, 0, 3, 1)
 
 
 def test_bad_dtypes_devices_and_parameters():

@@ -60,6 +60,7 @@ def test_to_gray_u8():
 @pytest.mark.parametrize("cfg", [StereoConfig("sad", "sgm8", p1=0.02, p2=0.2, radius=2),
                                  StereoConfig("census", "sgm4", p1=8.0, p2=64.0, census_radii=(2, 3)),
                                  StereoConfig("zncc", "none", radius=2),
+                                 StereoConfig("bt", "sgm8", p1=0.02, p2=0.16, radius=1),
                                  StereoConfig("corr", "sgm8", p1=0.01, p2=0.1, radius=2),
                                  StereoConfig("sad", "sgm8", p1=0.02, p2=0.2, disparity="soft_argmin",
                                               temperature=0.02)])
@@ -74,6 +75,22 @@ def test_match_recovers_a_constant_disparity(cfg):
     inner = (slice(3, -3), slice(10, -3))
     np.testing.assert_allclose(r.disparity[inner], 4.0, atol=0.5)  # the sub-pixel fit stays within half a pixel
     assert r.valid[inner].mean() > 0.95
+
+
+@pytest.mark.parametrize("dtype", ["uint8", "uint16", "float"])
+def test_bt_takes_colour_in_any_unit(dtype):
+    # One colour pair stored three ways gives one BT volume (up to the 8-bit rounding of the float copy).
+    from research.stereo import cost_volume
+
+    rng = np.random.default_rng(2)
+    base = rng.integers(0, 256, (12, 30, 3)).astype(np.uint8)
+    left, right = base[:, 3:27], base[:, 0:24]
+    conv = {"uint8": lambda x: x, "uint16": lambda x: x.astype(np.uint16) * 257, "float": lambda x: x / 255.0}[dtype]
+    cfg = StereoConfig("bt", "sgm8", p1=0.02, p2=0.16, radius=1)
+    got = cost_volume(conv(left), conv(right), 0, 6, cfg).numpy()
+    want = cost_volume(left, right, 0, 6, cfg).numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+    assert got.shape == (12, 24, 6)
 
 
 def test_config_rejects_unknown_names():
