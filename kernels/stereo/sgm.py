@@ -16,8 +16,10 @@ lies on exactly one scanline of an axis, so the writes of S are disjoint and the
 across CPU threads (kernels.launch: a CPU launch runs on one thread and releases the GIL,
 docs/warp.md); axes run one after another.
 
-The hypotheses are processed as 8-wide vectors (SIMD on the CPU): the k - 1 and k + 1 candidates
-are the previous L_r shifted by one lane. D is padded to a multiple of 8 with hypotheses costing
+The hypotheses are processed as 8-wide vectors (SIMD on the CPU). Each scanline keeps L_r(p - r) in a
+row buffer between +inf sentinels, and reads the k - 1 and k + 1 candidates as the vectors that
+start one scalar before and after (unaligned vector views of the buffer), so no lane is shuffled;
+L_r(p) goes to a second row buffer and the two swap every step. D is padded to a multiple of 8 with hypotheses costing
 max C + 2 P2 + |max C| + 1, which no L_r(p, k) <= C(p, k) + P2 of a real hypothesis can reach, so
 the padding changes neither the real L_r nor their minimum.
 """
@@ -46,65 +48,60 @@ SGM_VEC = {wp.float32: wp.types.vector(length=SGM_LANES, dtype=wp.float32),
 
 
 @wp.func
-def _record(buf_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), b: int, i: int, lr: typing.Any,
-            lanes_min: typing.Any, write: int):
-    """buf_v[b] = lr and agg_v[i] = lr (assigned when `write`, else added); returns min(lanes_min, lr)."""
-    buf_v[b] = lr
-    if write != 0:
-        agg_v[i] = lr
-    else:
-        agg_v[i] = agg_v[i] + lr
-    return wp.min(lanes_min, lr)
-
-
-@wp.func
-def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), buf_v: wp.array(dtype=typing.Any),
-              nb: int, bb: int, base: int, step: int, n: int, p1: typing.Any, p2: typing.Any, write: int):
+def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), win_v: wp.array(dtype=typing.Any),
+              nb: int, b0: int, b1: int, base: int, step: int, n: int, p1: typing.Any, p2: typing.Any, write: int):
     """L_r along one scanline of n + 1 pixels starting at flat vector index `base`, moving by `step`.
 
-    Each pixel holds nb vectors; buf_v[bb:bb + nb] carries L_r(p - r) and is updated in place.
-    agg_v receives L_r (assigned when `write`, else added).
+    Each pixel holds nb vectors. win_v views a scalar buffer as vectors starting at any scalar
+    offset; b0 and b1 are the offsets of two rows of nb * 8 scalars (each with a +inf sentinel
+    before and after) that hold L_r(p - r) and receive L_r(p), swapped every step. agg_v receives
+    L_r (assigned when `write`, else added).
     """
     p1_v = cost_v.dtype(p1)
-    p2_v = cost_v.dtype(p2)
     lanes_min = cost_v[base]
     for j in range(nb):
-        lanes_min = _record(buf_v, agg_v, bb + j, base + j, cost_v[base + j], lanes_min, write)
+        c = cost_v[base + j]
+        win_v[b0 + 8 * j] = c
+        if write != 0:
+            agg_v[base + j] = c
+        else:
+            agg_v[base + j] = agg_v[base + j] + c
+        lanes_min = wp.min(lanes_min, c)
     prev_min = wp.min(lanes_min)
+    src = b0
+    dst = b1
     for _s in range(n):
         base += step
-        jump = prev_min + p2
-        jump_v = cost_v.dtype(jump)
+        jump_v = cost_v.dtype(prev_min + p2)
         prev_v = cost_v.dtype(prev_min)
-        # L_r(p - r, k - 1) and (k + 1) are the previous vector shifted by one lane; past either end
-        # of the range the candidate is `jump`, which never undercuts the P2 candidate.
-        below = jump
-        cur = buf_v[bb]
-        lanes_min = jump_v + p2_v
+        lanes_min = jump_v + jump_v
         for j in range(nb):
-            nxt = cur
-            above = jump
-            if j + 1 < nb:
-                nxt = buf_v[bb + j + 1]
-                above = nxt[0]
-            down = cost_v.dtype(below, cur[0], cur[1], cur[2], cur[3], cur[4], cur[5], cur[6])
-            up = cost_v.dtype(cur[1], cur[2], cur[3], cur[4], cur[5], cur[6], cur[7], above)
-            best = wp.min(wp.min(cur, jump_v), wp.min(down, up) + p1_v)
-            lanes_min = _record(buf_v, agg_v, bb + j, base + j, cost_v[base + j] + best - prev_v, lanes_min, write)
-            below = cur[7]
-            cur = nxt
+            # L_r(p - r, k - 1) and (k + 1) are the vectors one scalar before and after; past either end of
+            # the range the sentinel is +inf, which never undercuts the P2 candidate `jump`.
+            o = src + 8 * j
+            best = wp.min(wp.min(win_v[o], jump_v), wp.min(win_v[o - 1], win_v[o + 1]) + p1_v)
+            lr = cost_v[base + j] + best - prev_v
+            win_v[dst + 8 * j] = lr
+            if write != 0:
+                agg_v[base + j] = lr
+            else:
+                agg_v[base + j] = agg_v[base + j] + lr
+            lanes_min = wp.min(lanes_min, lr)
         prev_min = wp.min(lanes_min)
+        t = src
+        src = dst
+        dst = t
     return 0
 
 
 @wp.kernel
-def _sgm_axis(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), buf_v: wp.array(dtype=typing.Any),
+def _sgm_axis(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), win_v: wp.array(dtype=typing.Any),
               H: int, W: int, dy: int, dx: int, p1: typing.Any, p2: typing.Any, first: int, offset: int):
     # One thread per scanline along axis (dy, dx), dy >= 0: it runs the path r = (dy, dx), then the
     # opposite path -r back along the same pixels, which are still in cache. Volumes are flat arrays
-    # of 8-wide vectors, nb per pixel.
+    # of 8-wide vectors, nb per pixel; scanline i owns 2 (nb * 8 + 2) scalars of the row buffers.
     i = wp.tid() + offset
-    nb = buf_v.shape[0] / (W + H - 1)
+    nb = agg_v.shape[0] / (H * W)
     y = int(0)
     x = int(0)
     if dy == 0:
@@ -121,8 +118,10 @@ def _sgm_axis(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.A
     n = wp.min(wp.where(dy > 0, H - 1 - y, big), wp.where(dx > 0, W - 1 - x, wp.where(dx < 0, x, big)))
     step = (dy * W + dx) * nb
     base = (y * W + x) * nb
-    _sgm_walk(cost_v, agg_v, buf_v, nb, i * nb, base, step, n, p1, p2, first)
-    _sgm_walk(cost_v, agg_v, buf_v, nb, i * nb, base + n * step, -step, n, p1, p2, 0)
+    row = nb * SGM_LANES + 2
+    b0 = i * 2 * row + 1
+    _sgm_walk(cost_v, agg_v, win_v, nb, b0, b0 + row, base, step, n, p1, p2, first)
+    _sgm_walk(cost_v, agg_v, win_v, nb, b0, b0 + row, base + n * step, -step, n, p1, p2, 0)
 
 
 @wp.kernel
@@ -165,10 +164,15 @@ def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) 
     cost_v = wp.array(ptr=padded.ptr, dtype=vec, shape=(H * W * nb,), device=a.device)
     agg = a.empty((H, W, nb * SGM_LANES))
     agg_v = wp.array(ptr=agg.ptr, dtype=vec, shape=(H * W * nb,), device=a.device)
-    buf_v = a.empty(((W + H - 1) * nb,), vec)
+    # Two rows of nb * 8 scalars per scanline, each between +inf sentinels, viewed as vectors that may
+    # start at any scalar (stride: one scalar).
+    row = nb * SGM_LANES + 2
+    buf = wp.full(((W + H - 1) * 2 * row,), float("inf"), dtype=a.scalar, device=a.device)
+    item = 4 if a.scalar == wp.float32 else 8
+    win_v = wp.array(ptr=buf.ptr, dtype=vec, shape=(buf.shape[0] - SGM_LANES + 1,), strides=(item,), device=a.device)
     for j, (dy, dx) in enumerate(SGM_AXES[: paths // 2]):
         lines = H if dy == 0 else (W if dx == 0 else W + H - 1)
-        a.launch(_sgm_axis, lines, [cost_v, agg_v, buf_v, H, W, dy, dx, a.s(p1), a.s(p2), int(j == 0)],
+        a.launch(_sgm_axis, lines, [cost_v, agg_v, win_v, H, W, dy, dx, a.s(p1), a.s(p2), int(j == 0)],
                  min_chunk=8)
     if nb * SGM_LANES != D:
         out = a.empty((H, W, D))
