@@ -177,10 +177,13 @@ def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "
     if cfg.disparity == "soft_argmin":
         disp = stereo.soft_argmin(cost, dmin, cfg.temperature, device=device)
         valid = wp.ones(disp.shape, dtype=wp.uint8, device=device)
+        if cfg.lr_check:
+            disp_r, valid_r = stereo.wta_right(cost, dmin, device=device)
+    elif cfg.lr_check:  # both views' winners in one pass over the volume
+        disp, valid, disp_r, valid_r = stereo.wta_left_right(cost, dmin, uniqueness=cfg.uniqueness, device=device)
     else:
         disp, valid = stereo.wta(cost, dmin, uniqueness=cfg.uniqueness, device=device)
     if cfg.lr_check:
-        disp_r, valid_r = stereo.wta_right(cost, dmin, device=device)
         valid = stereo.left_right_check(disp, disp_r, cfg.lr_max_diff, valid_left=valid, valid_right=valid_r,
                                         device=device)
     disp_np, valid_np = disp.numpy().astype(np.float32), valid.numpy().astype(bool)

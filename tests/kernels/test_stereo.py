@@ -94,7 +94,7 @@ def test_zncc_flat_window_is_finite():
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
-@pytest.mark.parametrize("seed,drange,radii", [(0, (0, 5), (1, 2)), (1, (-2, 6), (3, 4))])
+@pytest.mark.parametrize("seed,drange,radii", [(0, (0, 5), (1, 2)), (1, (-2, 6), (3, 4)), (2, (-4, 12), (2, 2))])
 def test_census_matches_reference(dtype, seed, drange, radii):
     L, R = _images(seed, dtype=dtype)
     np.testing.assert_array_equal(stereo.census_transform(L, *radii), ref.census_transform(L, *radii))
@@ -160,6 +160,20 @@ def test_wta_right_matches_reference(dtype, dmin):
     rdisp, rvalid = ref.wta_right(C, dmin)
     np.testing.assert_array_equal(valid, rvalid)
     np.testing.assert_allclose(disp[valid], rdisp[rvalid], rtol=RTOL[dtype], atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("dmin,uniqueness,subpixel", [(0, 0.0, True), (-3, 0.2, True), (2, 0.0, False)])
+def test_wta_left_right_equals_the_two_passes(dtype, dmin, uniqueness, subpixel):
+    rng = np.random.default_rng(4)
+    C = rng.uniform(0.0, 1.0, (5, 17, 7)).astype(dtype)
+    C[0, :, 2] = C[0, :, 3]  # ties: the first minimum wins in both views
+    dl, vl, dr, vr = stereo.wta_left_right(C, dmin, uniqueness=uniqueness, subpixel=subpixel)
+    dl0, vl0 = stereo.wta(C, dmin, uniqueness=uniqueness, subpixel=subpixel)
+    dr0, vr0 = stereo.wta_right(C, dmin, subpixel=subpixel)
+    for got, want in ((dl, dl0), (vl, vl0), (dr, dr0), (vr, vr0)):
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
 
 
 def test_wta_left_and_right_agree_on_a_shifted_pair():
