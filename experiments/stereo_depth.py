@@ -26,6 +26,11 @@ CPU threads (kernels.launch), OpenCV with cv2.getNumThreads() threads.
 
 Writes results/stereo_depth/{table.md, metrics.json, disparity_maps.png, d1_by_method.png}.
 
+One configuration (`--cost C [--aggregation A] [--radius R] [--p1 X] [--p2 Y] [--zncc-eps E]`): instead
+of tuning the grid, scores that one drlab configuration (no OpenCV) on the tuning pairs (its
+`tuning_d1`, which a sweep chooses by) and on the evaluation pairs, with the same metrics.json layout
+("methods" holds one row). experiments/sweeps/stereo_tuning.toml spreads the grid over such runs.
+
 Benchmarks (`--data PATH` of a Middlebury 2014/2021, KITTI 2012/2015 or ETH3D two-view folder, its
 format detected or given with `--format`; research.datasets.stereo_benchmarks reads it): runs the
 two drlab configurations the default run chose on its Mitsuba tuning pairs (SAD + SGM-4 soft-argmin
@@ -127,6 +132,10 @@ class Method:
     run: Callable[[Pair], tuple[np.ndarray, np.ndarray, float]]  # -> disparity, valid, seconds
 
 
+# P1 of the tuning grid's middle, about one cost unit of each cost (research.stereo: units).
+P1_BASE = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "bt": 0.01, "corr": 0.01}
+
+
 def drlab_grid(cost: str, aggregation: str) -> list[dict[str, Any]]:
     """Candidate parameters of one drlab cost x aggregation (research.stereo.StereoConfig fields)."""
     windows = {"sad": [{"radius": r} for r in (1, 2, 3, 4)],
@@ -136,7 +145,7 @@ def drlab_grid(cost: str, aggregation: str) -> list[dict[str, Any]]:
                "corr": [{"radius": r} for r in (2, 3)]}[cost]
     if aggregation == "none":
         return windows
-    p1_base = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "bt": 0.01, "corr": 0.01}[cost]  # about one cost unit of each
+    p1_base = P1_BASE[cost]
     return [{**w, "p1": p1_base * f, "p2": p1_base * f * ratio}
             for w in windows for f in (0.5, 1.0, 2.0, 4.0) for ratio in (4.0, 8.0, 16.0)]
 
@@ -308,12 +317,15 @@ def run(ctx: Context) -> int:
     fmt = benchmark_format(ctx)
     if fmt is not None:
         return run_benchmark(ctx, fmt)
+    single = single_config(ctx.args)
     load_start = os.getloadavg()[0]
     st = setup(ctx.quick, ctx.smoke)
     datasets: dict[str, Any] = {}
     pairs = load_pairs(ctx, st, datasets)
     tuning = [p for p in pairs if p.name == "p_000"]
     evaluation = [p for p in pairs if p.name != "p_000"]
+    if single is not None:
+        return run_single(ctx, single, st, tuning, evaluation, datasets)
 
     # ---- tuning: one configuration per drlab cost x aggregation, one per OpenCV matcher
     chosen: dict[str, Method] = {}
@@ -404,6 +416,81 @@ def run(ctx: Context) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- one configuration
+
+_SINGLE_OPTIONS = ("aggregation", "radius", "p1", "p2", "zncc_eps")
+
+
+def single_config(args: Any) -> Any:
+    """The one StereoConfig that --cost (and its companions) name, or None for the tuning run."""
+    from research.stereo import StereoConfig
+
+    given = [name for name in _SINGLE_OPTIONS if getattr(args, name) is not None]
+    if args.cost is None:
+        if given:
+            raise ValueError(f"--{given[0].replace('_', '-')}: applies with --cost only (one configuration)")
+        return None
+    agg = args.aggregation or "sgm8"
+    radius = 2 if args.radius is None else args.radius
+    params: dict[str, Any] = {"cost": args.cost, "aggregation": agg}
+    if args.cost == "census":
+        from kernels.stereo import CENSUS_MAX_BITS
+
+        bits = (2 * radius + 1) * (2 * radius + 3) - 1
+        if bits > CENSUS_MAX_BITS:
+            raise ValueError(f"--radius: --cost census --radius {radius} is a {2 * radius + 1}x{2 * radius + 3} window "
+                             f"of {bits} bits; expected at most {CENSUS_MAX_BITS} (radius <= 3)")
+        params["census_radii"] = (radius, radius + 1)
+    else:
+        params["radius"] = radius
+    if args.zncc_eps is not None:
+        if args.cost != "zncc":
+            raise ValueError(f"--zncc-eps: applies to --cost zncc only, got --cost {args.cost}")
+        params["zncc_eps"] = args.zncc_eps
+    if agg == "none" and (args.p1 is not None or args.p2 is not None):
+        raise ValueError("--p1, --p2: apply to an SGM aggregation, got --aggregation none")
+    p1 = P1_BASE[args.cost] if args.p1 is None else args.p1
+    p2 = 8.0 * p1 if args.p2 is None else args.p2
+    if p2 < p1:
+        raise ValueError(f"--p2: expected P2 >= P1 = {p1:g}, got {p2:g}")
+    if agg != "none":
+        params.update(p1=p1, p2=p2)
+    try:
+        return StereoConfig(**params)
+    except ValueError as e:  # e.g. a census window over 64 bits
+        raise ValueError(f"--cost {args.cost} --radius {radius}: {e}") from None
+
+
+def run_single(ctx: Context, cfg: Any, st: Setup, tuning: list[Pair], evaluation: list[Pair],
+               datasets: dict[str, Any]) -> int:
+    """Score one configuration on the tuning pairs (tuning_d1, what a sweep picks by) and the evaluation pairs."""
+    m = drlab_method(cfg, st.dmax, ctx.device)
+    tuning_d1 = float(np.mean([score(*m.run(p)[:2], p)["noc"]["d1"] for p in tuning]))
+    per_pair, seconds = [], []
+    for p in ctx.tqdm(evaluation, desc=m.name):
+        d, v, s = m.run(p)
+        per_pair.append(score(d, v, p))
+        seconds.append(s)
+    r = {"family": "drlab", "params": m.params, "tuning_d1": tuning_d1, "pooled": pooled(per_pair),
+         "time_s_mean": float(np.mean(seconds)),
+         "scenes": {s: pooled([x for x, p in zip(per_pair, evaluation) if p.scene == s]) for s in SCENES},
+         "pairs": {f"{p.scene}/{p.name}": {**x, "seconds": t} for x, p, t in zip(per_pair, evaluation, seconds)}}
+    q = r["pooled"]
+    table = (f"One configuration (no tuning): **{m.name}** ({_short(m.params)}), scenes {', '.join(SCENES)} at "
+             f"{st.res}x{st.res}, {st.spp} spp, disparities [0, {st.dmax}). Tuning D1 on the pairs p_000 of each "
+             f"scene (what a sweep over configurations chooses by); the rest on the {len(evaluation)} evaluation "
+             "pairs, noc after KITTI fill, pooled over pairs.\n\n"
+             + markdown_table(["method", "tuning D1", "EPE px", "bad-2", "D1 noc", "D1 all", "time ms"],
+                              [[m.name, f"{tuning_d1:.4f}", f"{q['epe']:.3f}", f"{q['bad2']:.4f}", f"{q['d1']:.4f}",
+                                f"{q['d1_all']:.4f}", f"{1000 * r['time_s_mean']:.1f}"]]))
+    config = {"quick": ctx.quick, "scenes": list(SCENES), **asdict(st), "single": cfg.to_dict(),
+              "tuning_pairs": [f"{p.scene}/{p.name}" for p in tuning],
+              "evaluation_pairs": [f"{p.scene}/{p.name}" for p in evaluation]}
+    ctx.write_results(config=config, table_md=table,
+                      metrics={"best_drlab": m.name, "methods": {m.name: r}, "datasets": datasets})
+    return 0
+
+
 # --------------------------------------------------------------------------- benchmarks
 
 # The configurations the default run chose on its Mitsuba tuning pairs (results/stereo_depth/metrics.json):
@@ -432,6 +519,10 @@ def benchmark_format(ctx: Context) -> str | None:
             raise ValueError("--resolution, --max-disp: apply to a benchmark --data folder only, and "
                              f"{ctx.data} is not one")
         return None
+    given = [name for name in ("cost", *_SINGLE_OPTIONS) if getattr(args, name) is not None]
+    if given:
+        raise ValueError(f"--{given[0].replace('_', '-')}: applies to the Mitsuba run only, not to a benchmark "
+                         f"--data folder")
     if ctx.final_out == registry.default_out(ctx.name).absolute():
         raise ValueError(f"--out: a benchmark run needs its own results folder; the default {ctx.final_out} "
                          "holds the Mitsuba table")
@@ -630,6 +721,25 @@ def _short(params: dict[str, Any]) -> str:
 
 def add_options(p: Any) -> None:
     from research.datasets.stereo_benchmarks import FORMATS, RESOLUTIONS
+    from research.stereo import AGGREGATIONS, COSTS
+
+    p.add_argument("--cost", choices=COSTS, default=None,
+                   help="evaluate ONE drlab configuration instead of tuning the grid (a sweep spreads the grid "
+                        "over tasks with this and the options below): this cost, scored on the tuning and the "
+                        "evaluation pairs, without OpenCV")
+    p.add_argument("--aggregation", choices=AGGREGATIONS, default=None,
+                   help="with --cost: the aggregation (default sgm8)")
+    p.add_argument("--radius", type=_nonnegative_int, default=None,
+                   help="with --cost: the window radius R of sad/zncc/bt/corr; census uses radii (R, R + 1), a "
+                        "(2R+1) x (2R+3) window, as the tuning grid (default 2)")
+    p.add_argument("--p1", type=_nonnegative_float, default=None,
+                   help="with --cost and SGM: P1 in the cost's units (research.stereo: [0, 1] intensity for "
+                        "sad/bt/corr, bits for census, 1 - correlation for zncc); default: the grid's base "
+                        f"({', '.join(f'{k} {v:g}' for k, v in P1_BASE.items())})")
+    p.add_argument("--p2", type=_nonnegative_float, default=None,
+                   help="with --cost and SGM: P2 >= P1 (default 8 P1)")
+    p.add_argument("--zncc-eps", type=_nonnegative_float, default=None,
+                   help="with --cost zncc: the variance floor (default 1e-4)")
 
     p.add_argument("--format", choices=FORMATS, default=None,
                    help="the benchmark layout of --data (default: detected from its files)")
@@ -638,6 +748,30 @@ def add_options(p: Any) -> None:
     p.add_argument("--max-disp", type=_max_disp, default=None,
                    help="benchmarks: disparity range [0, N), N a multiple of 16 (default: each pair's ndisp "
                         "rounded up to 16; KITTI 256)")
+
+
+def _nonnegative_int(value: str) -> int:
+    import argparse
+
+    try:
+        n = int(value)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value!r}")
+    return n
+
+
+def _nonnegative_float(value: str) -> float:
+    import argparse
+
+    try:
+        x = float(value)
+    except ValueError:
+        x = float("nan")
+    if not (np.isfinite(x) and x >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {value!r}")
+    return x
 
 
 def _max_disp(value: str) -> int:
