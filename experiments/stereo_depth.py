@@ -18,6 +18,13 @@ argmin temperature; OpenCV: block size, mode, P2, uniqueness) are chosen from
 a small grid by mean D1 on the tuning pairs, and "the best drlab configuration"
 is chosen the same way, so nothing is selected on the pairs it is scored on.
 
+Clean and stressed pairs. Each pair is scored twice: clean (the render's luminance, sRGB-encoded
+to 8 bits) and stressed, the same luminance through research.radiometry's radiometric stress set
+(per-camera exposure/gain and black level, vignetting, slight blur, Poisson-Gaussian noise, 8-bit
+sRGB quantisation; its default ranges, seeded by the run's seed, the scene and the pair). Every
+method, OpenCV's included, is tuned on the clean tuning pairs only and reported on both: the
+stressed pairs choose nothing, so they test whether the chosen defaults hold.
+
 Scoring (research.stereo): invalid pixels are filled as KITTI's devkit does,
 then EPE, bad-1/2/3, D1 and depth abs-rel over the non-occluded ground truth
 (noc) and D1 over every pixel with ground truth (all); pooled over pairs
@@ -55,7 +62,7 @@ from __future__ import annotations
 import itertools
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -65,6 +72,16 @@ from research.experiment import Context, Experiment, rendered_cache_help
 from research.results import markdown_table, save_figure
 
 SCENES = ("objects", "cornell")
+LUMA_709 = np.array([0.2126, 0.7152, 0.0722])  # research.stereo.to_gray_u8's weights
+
+
+def _stress_params() -> Any:
+    from research.radiometry import Stress
+
+    return Stress()  # research.radiometry's defaults: a consumer camera pair, chosen before any result
+
+
+STRESS = _stress_params()
 METRIC_KEYS = ("epe", "bad1", "bad2", "bad3", "d1", "abs_rel", "density")
 
 
@@ -98,12 +115,22 @@ class Pair:
     focal: float
     baseline: float
     left_rgb: np.ndarray
+    condition: str = "clean"  # or "stressed" (research.radiometry)
+
+
+CONDITIONS = ("clean", "stressed")
+
+
+def stress_seed(seed: int, scene: str, pair: str) -> int:
+    """The radiometric stress seed of one pair: fixed by the run's seed, the scene and the pair name."""
+    return int(np.random.SeedSequence([seed, SCENES.index(scene), int(pair.split("_")[-1])]).generate_state(1)[0])
 
 
 def load_pairs(ctx: Context, st: Setup, used: dict[str, Any]) -> list[Pair]:
     """Every stereo pair of every scene; `used` receives each dataset's provenance."""
     from research.datasets import DatasetConfig, ensure, load_stereo, provenance
     from research.io import linear_to_srgb
+    from research.radiometry import stress_pair
     from research.stereo import to_gray_u8
 
     pairs = []
@@ -115,9 +142,14 @@ def load_pairs(ctx: Context, st: Setup, used: dict[str, Any]) -> list[Pair]:
         used[scene] = provenance(path)
         for p in load_stereo(path):
             has_gt = p.disparity > 0
-            pairs.append(Pair(scene, p.name, to_gray_u8(p.left), to_gray_u8(p.right), p.disparity,
-                              {"noc": p.noc & has_gt, "all": p.mask & has_gt}, p.depth, p.left_camera.fx,
-                              p.baseline, np.clip(linear_to_srgb(p.left[..., :3]), 0, 1)))
+            clean = Pair(scene, p.name, to_gray_u8(p.left), to_gray_u8(p.right), p.disparity,
+                         {"noc": p.noc & has_gt, "all": p.mask & has_gt}, p.depth, p.left_camera.fx,
+                         p.baseline, np.clip(linear_to_srgb(p.left[..., :3]), 0, 1))
+            # The same luminance through two stressed cameras (research.radiometry): to_gray_u8 is its clean
+            # encoding, so the two conditions differ only by the stress.
+            lum_l, lum_r = (np.maximum(np.asarray(x, np.float64)[..., :3] @ LUMA_709, 0.0) for x in (p.left, p.right))
+            left_s, right_s = stress_pair(lum_l, lum_r, stress_seed(ctx.seed, scene, p.name), STRESS)
+            pairs += [clean, replace(clean, left=left_s, right=right_s, condition="stressed")]
     return pairs
 
 
@@ -230,7 +262,7 @@ def drlab_candidates(cost: str, aggregation: str, dmax: int, device: str, cache:
         cfg = StereoConfig(cost=cost, aggregation=aggregation, **params)
 
         def run_tuning(p: Pair, cfg: StereoConfig = cfg) -> tuple[np.ndarray, np.ndarray, float]:
-            key = (p.scene, p.name, cfg.cost, cfg.radius, cfg.census_radii, cfg.zncc_eps)
+            key = (p.scene, p.name, p.condition, cfg.cost, cfg.radius, cfg.census_radii, cfg.zncc_eps)
             if key not in cache:
                 cache[key] = cost_volume(p.left / 255.0, p.right / 255.0, 0, dmax, cfg, device)
             r = disparity_from_cost(cache[key], 0, cfg, device)
@@ -305,6 +337,42 @@ def figures(best: dict[str, Method], pairs: list[Pair], results: dict, out: Path
     plt.close(fig)
 
 
+# --------------------------------------------------------------------------- evaluation
+
+POOLED = {"clean": "pooled", "stressed": "pooled_stressed"}
+SCENES_KEY = {"clean": "scenes", "stressed": "scenes_stressed"}
+HEADERS = ["method", "EPE px", "bad-1", "bad-2", "bad-3", "D1 noc", "D1 all", "depth abs-rel", "density", "time ms"]
+STRESS_NOTE = (f"each camera of a pair draws its own exposure (+-{STRESS.exposure_stops:g} stops), black level "
+               f"(+-{STRESS.offset:g}), vignetting (corner falloff up to {STRESS.vignetting:g}), blur (sigma up to "
+               f"{STRESS.blur_sigma:g} px) and Poisson-Gaussian noise (shot {STRESS.shot_noise:g}, read "
+               f"{STRESS.read_noise:g}) before sRGB {STRESS.bits}-bit quantisation (research.radiometry, seeded by "
+               "the run's seed, scene and pair)")
+
+
+def evaluate_method(m: Method, evaluation: list[Pair], tuning_d1: float, ctx: Context) -> dict[str, Any]:
+    """One method on every evaluation pair: pooled scores per condition ("pooled" is clean), per scene, per pair."""
+    rows, seconds = [], []
+    for p in ctx.tqdm(evaluation, desc=f"evaluate {m.name}", leave=False):
+        d, v, s = m.run(p)
+        rows.append(score(d, v, p))
+        seconds.append(s)
+    out: dict[str, Any] = {"family": m.family, "params": m.params, "tuning_d1": tuning_d1}
+    for c in CONDITIONS:
+        sel = [(r, p) for r, p in zip(rows, evaluation) if p.condition == c]
+        out[POOLED[c]] = pooled([r for r, _ in sel])
+        out[SCENES_KEY[c]] = {s: pooled([r for r, p in sel if p.scene == s]) for s in SCENES}
+    out["time_s_mean"] = float(np.mean([t for t, p in zip(seconds, evaluation) if p.condition == "clean"]))
+    out["pairs"] = {f"{p.condition}/{p.scene}/{p.name}": {**r, "seconds": t}
+                    for r, p, t in zip(rows, evaluation, seconds)}
+    return out
+
+
+def _row(name: str, r: dict[str, Any], key: str) -> list[Any]:
+    q = r[key]
+    return [name, f"{q['epe']:.3f}", f"{q['bad1']:.4f}", f"{q['bad2']:.4f}", f"{q['bad3']:.4f}", f"{q['d1']:.4f}",
+            f"{q['d1_all']:.4f}", f"{q['abs_rel']:.4f}", f"{q['density']:.3f}", f"{1000 * r['time_s_mean']:.1f}"]
+
+
 # --------------------------------------------------------------------------- main
 
 
@@ -322,7 +390,8 @@ def run(ctx: Context) -> int:
     st = setup(ctx.quick, ctx.smoke)
     datasets: dict[str, Any] = {}
     pairs = load_pairs(ctx, st, datasets)
-    tuning = [p for p in pairs if p.name == "p_000"]
+    # Every choice is made on the clean tuning pairs; the stressed pairs are never used to choose anything.
+    tuning = [p for p in pairs if p.name == "p_000" and p.condition == "clean"]
     evaluation = [p for p in pairs if p.name != "p_000"]
     if single is not None:
         return run_single(ctx, single, st, tuning, evaluation, datasets)
@@ -352,66 +421,53 @@ def run(ctx: Context) -> int:
         keep(*tune([c for c in opencv_methods(st.dmax) if c.name == name], tuning, f"tune {name}", ctx))
     best_drlab = min((k for k in chosen if chosen[k].family == "drlab"), key=lambda k: tuning_d1[k])
 
-    # ---- evaluation
-    results: dict[str, Any] = {}
-    for name, m in ctx.tqdm(chosen.items(), desc="evaluate"):
-        per_pair, seconds = [], []
-        for p in evaluation:
-            d, v, s = m.run(p)
-            per_pair.append(score(d, v, p))
-            seconds.append(s)
-        results[name] = {
-            "family": m.family, "params": m.params, "tuning_d1": tuning_d1[name],
-            "pooled": pooled(per_pair), "time_s_mean": float(np.mean(seconds)),
-            "scenes": {s: pooled([r for r, p in zip(per_pair, evaluation) if p.scene == s]) for s in SCENES},
-            "pairs": {f"{p.scene}/{p.name}": {**r, "seconds": t} for r, p, t in zip(per_pair, evaluation, seconds)},
-        }
-
+    # ---- evaluation, clean and stressed
+    results = {name: evaluate_method(m, evaluation, tuning_d1[name], ctx) for name, m in chosen.items()}
     sgbm = results["OpenCV StereoSGBM"]
     best = results[best_drlab]
-    headers = ["method", "EPE px", "bad-1", "bad-2", "bad-3", "D1 noc", "D1 all", "depth abs-rel", "density",
-               "time ms"]
-
-    def row(name: str) -> list[Any]:
-        r = results[name]["pooled"]
-        return [name, f"{r['epe']:.3f}", f"{r['bad1']:.4f}", f"{r['bad2']:.4f}", f"{r['bad3']:.4f}",
-                f"{r['d1']:.4f}", f"{r['d1_all']:.4f}", f"{r['abs_rel']:.4f}", f"{r['density']:.3f}",
-                f"{1000 * results[name]['time_s_mean']:.1f}"]
-
-    verdict = "beats" if best["pooled"]["d1"] < sgbm["pooled"]["d1"] else "does NOT beat"
     threads = default_threads()
     load_end = os.getloadavg()[0]
-    gt_max = max(float(p.gt[p.masks["all"]].max()) for p in evaluation)
+    clean_eval = [p for p in evaluation if p.condition == "clean"]
+    gt_max = max(float(p.gt[p.masks["all"]].max()) for p in clean_eval)
     d1_note = (f" Ground-truth disparities reach at most {gt_max:.1f} px; below 60 px, 5 % of d_gt is under 3 px, "
                "so D1 equals bad-3 here." if gt_max < 60.0 else "")
+    verdicts = {c: "beats" if best[POOLED[c]]["d1"] < sgbm[POOLED[c]]["d1"] else "does NOT beat" for c in CONDITIONS}
     table = (
         f"Scenes {', '.join(SCENES)} at {st.res}x{st.res}, {st.spp} spp, disparities [0, {st.dmax}); "
-        f"{len(evaluation)} evaluation pairs (p_000 of each scene tunes every method's parameters). "
-        f"Metrics over non-occluded ground truth (noc) after KITTI fill, pooled over pairs; D1 all counts "
-        f"occluded pixels too. Time: wall per pair on this machine, drlab with {threads} CPU threads "
+        f"{len(clean_eval)} evaluation pairs, each clean and stressed. **Which data chose the parameters**: every "
+        f"method's parameters (and the best drlab configuration) by mean D1 noc on the clean tuning pairs, p_000 "
+        f"of each scene, which are never scored; the stressed pairs choose nothing. Stressed: "
+        f"{STRESS_NOTE}. Metrics over non-occluded ground truth (noc) after KITTI fill, pooled over pairs; D1 all "
+        f"counts occluded pixels too. Time: wall per clean pair on this machine, drlab with {threads} CPU threads "
         f"(device {ctx.device}), OpenCV with {cv2.getNumThreads()} threads; the machine is shared, 1-minute "
         f"load average {load_start:.1f} at the start and {load_end:.1f} at the end.{d1_note}\n\n"
         f"**Goal**: the best drlab configuration chosen on the tuning pairs, **{best_drlab}**, has D1 noc "
-        f"{best['pooled']['d1']:.4f} against OpenCV SGBM's {sgbm['pooled']['d1']:.4f}: it {verdict} SGBM "
-        f"(D1 all {best['pooled']['d1_all']:.4f} vs {sgbm['pooled']['d1_all']:.4f}), at "
-        f"{1000 * best['time_s_mean']:.1f} ms per pair against SGBM's {1000 * sgbm['time_s_mean']:.1f} ms.\n\n"
-        + markdown_table(headers, [row(n) for n in results])
-        + "\nPer scene (evaluation pairs), D1 noc / EPE:\n\n"
-        + markdown_table(["method"] + list(SCENES),
-                         [[n] + [f"{results[n]['scenes'][s]['d1']:.4f} / {results[n]['scenes'][s]['epe']:.2f}"
-                                 for s in SCENES] for n in results])
-        + "\nChosen parameters (by D1 on the tuning pairs):\n\n"
+        f"{best['pooled']['d1']:.4f} against OpenCV SGBM's {sgbm['pooled']['d1']:.4f} on clean pairs: it "
+        f"{verdicts['clean']} SGBM (D1 all {best['pooled']['d1_all']:.4f} vs {sgbm['pooled']['d1_all']:.4f}); on "
+        f"stressed pairs {best['pooled_stressed']['d1']:.4f} against {sgbm['pooled_stressed']['d1']:.4f}: it "
+        f"{verdicts['stressed']} SGBM; at {1000 * best['time_s_mean']:.1f} ms per pair against SGBM's "
+        f"{1000 * sgbm['time_s_mean']:.1f} ms.\n\n"
+        + "Clean pairs:\n\n" + markdown_table(HEADERS, [_row(n, results[n], "pooled") for n in results])
+        + "\nStressed pairs (the same pairs through research.radiometry):\n\n"
+        + markdown_table(HEADERS, [_row(n, results[n], "pooled_stressed") for n in results])
+        + "\nPer scene (evaluation pairs), D1 noc / EPE, clean | stressed:\n\n"
+        + markdown_table(["method"] + [f"{s} {c}" for c in CONDITIONS for s in SCENES],
+                         [[n] + [f"{results[n][SCENES_KEY[c]][s]['d1']:.4f} / {results[n][SCENES_KEY[c]][s]['epe']:.2f}"
+                                 for c in CONDITIONS for s in SCENES] for n in results])
+        + "\nChosen parameters (by D1 noc on the clean tuning pairs):\n\n"
         + markdown_table(["method", "tuning D1", "parameters"],
                          [[n, f"{tuning_d1[n]:.4f}", _short(results[n]["params"])] for n in results])
     )
-    figures({best_drlab: chosen[best_drlab], "OpenCV StereoSGBM": chosen["OpenCV StereoSGBM"]}, evaluation, results,
+    figures({best_drlab: chosen[best_drlab], "OpenCV StereoSGBM": chosen["OpenCV StereoSGBM"]}, clean_eval, results,
             ctx.out)
     config = {"quick": ctx.quick, "scenes": list(SCENES), **asdict(st), "tuning_pairs": [f"{p.scene}/{p.name}"
-              for p in tuning], "evaluation_pairs": [f"{p.scene}/{p.name}" for p in evaluation],
+              for p in tuning], "evaluation_pairs": [f"{p.scene}/{p.name}" for p in clean_eval],
+              "conditions": list(CONDITIONS), "stress": STRESS.to_dict(),
               "drlab_threads": threads, "opencv_threads": cv2.getNumThreads(), "opencv": cv2.__version__,
               "load_average_1min": [load_start, load_end]}
     ctx.write_results(config=config, table_md=table,
                       metrics={"best_drlab": best_drlab, "goal_met": bool(best["pooled"]["d1"] < sgbm["pooled"]["d1"]),
+                               "goal_met_stressed": bool(best["pooled_stressed"]["d1"] < sgbm["pooled_stressed"]["d1"]),
                                "methods": results, "tuning": tuning_log, "datasets": datasets})
     return 0
 
@@ -466,26 +522,19 @@ def run_single(ctx: Context, cfg: Any, st: Setup, tuning: list[Pair], evaluation
     """Score one configuration on the tuning pairs (tuning_d1, what a sweep picks by) and the evaluation pairs."""
     m = drlab_method(cfg, st.dmax, ctx.device)
     tuning_d1 = float(np.mean([score(*m.run(p)[:2], p)["noc"]["d1"] for p in tuning]))
-    per_pair, seconds = [], []
-    for p in ctx.tqdm(evaluation, desc=m.name):
-        d, v, s = m.run(p)
-        per_pair.append(score(d, v, p))
-        seconds.append(s)
-    r = {"family": "drlab", "params": m.params, "tuning_d1": tuning_d1, "pooled": pooled(per_pair),
-         "time_s_mean": float(np.mean(seconds)),
-         "scenes": {s: pooled([x for x, p in zip(per_pair, evaluation) if p.scene == s]) for s in SCENES},
-         "pairs": {f"{p.scene}/{p.name}": {**x, "seconds": t} for x, p, t in zip(per_pair, evaluation, seconds)}}
-    q = r["pooled"]
+    r = evaluate_method(m, evaluation, tuning_d1, ctx)
     table = (f"One configuration (no tuning): **{m.name}** ({_short(m.params)}), scenes {', '.join(SCENES)} at "
-             f"{st.res}x{st.res}, {st.spp} spp, disparities [0, {st.dmax}). Tuning D1 on the pairs p_000 of each "
-             f"scene (what a sweep over configurations chooses by); the rest on the {len(evaluation)} evaluation "
-             "pairs, noc after KITTI fill, pooled over pairs.\n\n"
-             + markdown_table(["method", "tuning D1", "EPE px", "bad-2", "D1 noc", "D1 all", "time ms"],
-                              [[m.name, f"{tuning_d1:.4f}", f"{q['epe']:.3f}", f"{q['bad2']:.4f}", f"{q['d1']:.4f}",
-                                f"{q['d1_all']:.4f}", f"{1000 * r['time_s_mean']:.1f}"]]))
+             f"{st.res}x{st.res}, {st.spp} spp, disparities [0, {st.dmax}). Tuning D1: on the clean pairs p_000 of "
+             "each scene (what a sweep over configurations chooses by); the rest on the evaluation pairs, noc "
+             f"after KITTI fill, pooled over pairs, clean and stressed ({STRESS_NOTE}).\n\n"
+             + markdown_table(["method", "condition", "tuning D1", "EPE px", "bad-2", "D1 noc", "D1 all", "time ms"],
+                              [[m.name, c, f"{tuning_d1:.4f}", f"{r[POOLED[c]]['epe']:.3f}",
+                                f"{r[POOLED[c]]['bad2']:.4f}", f"{r[POOLED[c]]['d1']:.4f}",
+                                f"{r[POOLED[c]]['d1_all']:.4f}", f"{1000 * r['time_s_mean']:.1f}"]
+                               for c in CONDITIONS]))
     config = {"quick": ctx.quick, "scenes": list(SCENES), **asdict(st), "single": cfg.to_dict(),
-              "tuning_pairs": [f"{p.scene}/{p.name}" for p in tuning],
-              "evaluation_pairs": [f"{p.scene}/{p.name}" for p in evaluation]}
+              "tuning_pairs": [f"{p.scene}/{p.name}" for p in tuning], "stress": STRESS.to_dict(),
+              "evaluation_pairs": [f"{p.scene}/{p.name}" for p in evaluation if p.condition == "clean"]}
     ctx.write_results(config=config, table_md=table,
                       metrics={"best_drlab": m.name, "methods": {m.name: r}, "datasets": datasets})
     return 0
