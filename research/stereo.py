@@ -36,6 +36,11 @@ bits, or float), because every image is first normalised to [0, 1]:
   * "corr" costs are negated correlations of unit-norm patch features, in [-1, 1] (unitless).
 StereoConfig's defaults (P1 = 8, P2 = 64) are census units.
 
+Memory: every configuration holds float32 volumes (`peak_volume_bytes`: the cost and SGM's
+aggregate, 8 bytes per cell), except census + SGM + winner-take-all with integer penalties once
+those would exceed FLOAT_VOLUME_BUDGET (1 GiB): that runs in compact mode (`uses_compact`: uint8
+costs, a uint16 aggregate, 3 bytes per cell, the same results).
+
 Benchmark protocols (Middlebury, KITTI, ETH3D; `protocol_metrics`, `pool_protocol`) are described
 at the end of this module.
 
@@ -154,7 +159,43 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
         return stereo.sad_cost(l_img, r_img, dmin, dmax, cfg.radius, device=device)
     if cfg.cost == "zncc":
         return stereo.zncc_cost(l_img, r_img, dmin, dmax, cfg.radius, eps=cfg.zncc_eps, device=device)
-    return stereo.census_cost(l_img, r_img, dmin, dmax, *cfg.census_radii, device=device)
+    compact = uses_compact(cfg, *left.shape, dmax - dmin)
+    return stereo.census_cost(l_img, r_img, dmin, dmax, *cfg.census_radii, compact=compact, device=device)
+
+
+# Above this many bytes of float32 volumes, census + SGM runs in compact mode (`uses_compact`).
+FLOAT_VOLUME_BUDGET = 2**30
+
+
+def uses_compact(cfg: StereoConfig, height: int, width: int, disparities: int) -> bool:
+    """Whether `match` runs `cfg` in kernels.stereo's compact mode: uint8 census costs and a uint16 SGM
+    aggregate (3 bytes per cell instead of float32's 8), whose results equal the float32 pipeline's
+    exactly. It applies to census + SGM + winner-take-all with integer P1 and P2, D a multiple of 8 and
+    paths x (census bits + P2) within uint16, when the float32 volumes would exceed FLOAT_VOLUME_BUDGET
+    (1 GiB): compact SGM converts every vector to float32 and back, which made it 1.8x slower than
+    float32 SGM at 256x256x64 (70 against 39 ms of CPU time, one thread), so it is kept for sizes
+    where memory, not time, is what runs out (Middlebury at half resolution, 1482x994x256: 3.0 GB of
+    float32 volumes, 1.1 GB compact)."""
+    if cfg.cost != "census" or cfg.aggregation == "none" or cfg.disparity != "wta" or disparities % 8:
+        return False
+    if cfg.p1 != int(cfg.p1) or cfg.p2 != int(cfg.p2):
+        return False
+    bits = (2 * cfg.census_radii[0] + 1) * (2 * cfg.census_radii[1] + 1) - 1
+    if int(cfg.aggregation[3:]) * (bits + int(cfg.p2)) > 65535:
+        return False
+    return 8 * int(height) * int(width) * int(disparities) > FLOAT_VOLUME_BUDGET
+
+
+def peak_volume_bytes(cfg: StereoConfig, height: int, width: int, disparities: int) -> int:
+    """The bytes of the (H, W, D) volumes `match` holds at once for `cfg`: the cost volume and SGM's
+    aggregate (plus SGM's padded copies when D is not a multiple of 8), in float32 or compact mode."""
+    cells = int(height) * int(width) * int(disparities)
+    if cfg.aggregation == "none":
+        return 4 * cells
+    if uses_compact(cfg, height, width, disparities):
+        return 3 * cells  # uint8 costs + uint16 aggregate
+    padded = int(height) * int(width) * (-(-int(disparities) // 8) * 8)
+    return 4 * (2 * cells + (2 * padded if padded != cells else 0))
 
 
 def _check_range_args(dmin: Any, dmax: Any) -> None:

@@ -302,6 +302,9 @@ def _corr_backward_right(grad: wp.array3d(dtype=typing.Any), fl: wp.array3d(dtyp
 
 
 declare_float_overloads(_census_cost_v, vector_types=CENSUS_VEC)
+CENSUS_U8_VEC = wp.types.vector(length=8, dtype=wp.uint8)
+wp.overload(_census_cost_v, {"out_v": wp.array(dtype=CENSUS_U8_VEC)})
+wp.overload(_census_cost, {"out": wp.array3d(dtype=wp.uint8)})
 for _kernel in (_integral_rows, _window_cost, _census_transform, _census_cost, _channels_last, _corr_forward,
                 _corr_backward_left, _corr_backward_right):
     declare_float_overloads(_kernel)
@@ -380,8 +383,9 @@ def census_transform(image: Any, radius_y: int = 3, radius_x: int = 4, *, device
 
 
 def census_cost(left: Any, right: Any, dmin: int, dmax: int, radius_y: int = 3, radius_x: int = 4, *,
-                device: Any = None) -> Any:
-    """Hamming distance between census bit strings: volume (H, W, D) in the images' dtype."""
+                compact: bool = False, device: Any = None) -> Any:
+    """Hamming distance between census bit strings: volume (H, W, D) in the images' dtype, or in uint8 with
+    `compact` (a quarter of float32's memory; the distances are integers <= 64, stored exactly)."""
     a = Inputs(device, left, right)
     l_img, r_img = image_pair(a, left, right)
     H, W = l_img.shape
@@ -391,9 +395,10 @@ def census_cost(left: Any, right: Any, dmin: int, dmax: int, radius_y: int = 3, 
     cr = a.empty((H, W), wp.uint64)
     a.launch(_census_transform, H * W, [l_img, cl, ry, rx])
     a.launch(_census_transform, H * W, [r_img, cr, ry, rx])
-    out = a.empty((H, W, D))
+    out = a.empty((H, W, D), wp.uint8 if compact else None)
     if D % 8 == 0:
-        out_v = wp.array(ptr=out.ptr, dtype=CENSUS_VEC[a.scalar], shape=(H * W * D // 8,), device=a.device)
+        vec = CENSUS_U8_VEC if compact else CENSUS_VEC[a.scalar]
+        out_v = wp.array(ptr=out.ptr, dtype=vec, shape=(H * W * D // 8,), device=a.device)
         a.launch(_census_cost_v, H * W, [cl, cr, out_v, dmin, bits])
     else:
         a.launch(_census_cost, H * W, [cl, cr, out, dmin, bits])

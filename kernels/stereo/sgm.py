@@ -29,10 +29,11 @@ from __future__ import annotations
 import typing
 from typing import Any
 
+import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
-from kernels.stereo._common import pixel
+from kernels.stereo._common import compact_volume, pixel
 
 wp.set_module_options({"enable_backward": False})
 
@@ -57,35 +58,37 @@ def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.A
     before and after) that hold L_r(p - r) and receive L_r(p), swapped every step. agg_v receives
     L_r (assigned when `write`, else added).
     """
-    p1_v = cost_v.dtype(p1)
-    lanes_min = cost_v[base]
+    # Arithmetic in win_v's float vectors; the volumes may hold integers (compact mode), converted on
+    # load and store (exact: compact mode runs on integer costs and penalties, module docstring).
+    p1_v = win_v.dtype(p1)
+    lanes_min = win_v.dtype(cost_v[base])
     for j in range(nb):
-        c = cost_v[base + j]
+        c = win_v.dtype(cost_v[base + j])
         win_v[b0 + 8 * j] = c
         if write != 0:
-            agg_v[base + j] = c
+            agg_v[base + j] = agg_v.dtype(c)
         else:
-            agg_v[base + j] = agg_v[base + j] + c
+            agg_v[base + j] = agg_v.dtype(win_v.dtype(agg_v[base + j]) + c)
         lanes_min = wp.min(lanes_min, c)
     prev_min = wp.min(lanes_min)
     src = b0
     dst = b1
     for _s in range(n):
         base += step
-        jump_v = cost_v.dtype(prev_min + p2)
-        prev_v = cost_v.dtype(prev_min)
+        jump_v = win_v.dtype(prev_min + p2)
+        prev_v = win_v.dtype(prev_min)
         lanes_min = jump_v + jump_v
         for j in range(nb):
             # L_r(p - r, k - 1) and (k + 1) are the vectors one scalar before and after; past either end of
             # the range the sentinel is +inf, which never undercuts the P2 candidate `jump`.
             o = src + 8 * j
             best = wp.min(wp.min(win_v[o], jump_v), wp.min(win_v[o - 1], win_v[o + 1]) + p1_v)
-            lr = cost_v[base + j] + best - prev_v
+            lr = win_v.dtype(cost_v[base + j]) + best - prev_v
             win_v[dst + 8 * j] = lr
             if write != 0:
-                agg_v[base + j] = lr
+                agg_v[base + j] = agg_v.dtype(lr)
             else:
-                agg_v[base + j] = agg_v[base + j] + lr
+                agg_v[base + j] = agg_v.dtype(win_v.dtype(agg_v[base + j]) + lr)
             lanes_min = wp.min(lanes_min, lr)
         prev_min = wp.min(lanes_min)
         t = src
@@ -137,13 +140,26 @@ def _copy_hypotheses(src: wp.array3d(dtype=typing.Any), dst: wp.array3d(dtype=ty
 
 
 declare_float_overloads(_sgm_axis, vector_types=SGM_VEC)
+# Compact mode: uint8 costs in, uint16 aggregate out, float32 arithmetic.
+COMPACT_COST_VEC = wp.types.vector(length=SGM_LANES, dtype=wp.uint8)
+COMPACT_AGG_VEC = wp.types.vector(length=SGM_LANES, dtype=wp.uint16)
+wp.overload(_sgm_axis, {"cost_v": wp.array(dtype=COMPACT_COST_VEC), "agg_v": wp.array(dtype=COMPACT_AGG_VEC),
+                        "win_v": wp.array(dtype=SGM_VEC[wp.float32]), "p1": wp.float32, "p2": wp.float32})
 declare_float_overloads(_copy_hypotheses)
 
 
 def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) -> Any:
-    """Semi-global matching: S = sum over `paths` (4 or 8) directions of L_r; volume like `cost`."""
+    """Semi-global matching: S = sum over `paths` (4 or 8) directions of L_r.
+
+    A float volume gives a volume like `cost`. A uint8 volume (compact mode, module docstring) gives
+    a uint16 one; it needs D a multiple of 8, integer P1 and P2, and paths * (max C + P2) <= 65535.
+    """
     a = Inputs(device, cost)
-    c = a.floats("cost", cost, ndim=3, nonempty=True)
+    compact = _is_uint8(cost)
+    if compact:
+        c = compact_volume(a, "cost", cost, wp.uint8)
+    else:
+        c = a.floats("cost", cost, ndim=3, nonempty=True)
     if check_int("paths", paths) not in (4, 8):
         raise ValueError(f"paths: expected 4 or 8, got {paths!r}")
     p1 = check_float("p1", p1, nonnegative=True)
@@ -152,6 +168,22 @@ def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) 
         raise ValueError(f"p2: expected p2 >= p1 = {p1}, got {p2}")
     H, W, D = c.shape
     nb = -(-D // SGM_LANES)
+    if compact:
+        if D % SGM_LANES:
+            raise ValueError(f"cost: a uint8 volume needs a multiple of {SGM_LANES} hypotheses, got {D}")
+        for name, value in (("p1", p1), ("p2", p2)):
+            if value != int(value):
+                raise ValueError(f"{name}: a uint8 volume needs integer penalties, got {value}")
+        bound = paths * (int(c.numpy().max()) + int(p2))
+        if bound > 65535:
+            raise ValueError(f"p2: {paths} paths x (max cost + P2) = {bound} exceeds the uint16 aggregate "
+                             "(65535); use a float volume")
+        a.scalar = wp.float32
+        cost_v = wp.array(ptr=c.ptr, dtype=COMPACT_COST_VEC, shape=(H * W * nb,), device=a.device)
+        agg = a.empty((H, W, D), wp.uint16)
+        agg_v = wp.array(ptr=agg.ptr, dtype=COMPACT_AGG_VEC, shape=(H * W * nb,), device=a.device)
+        _aggregate(a, cost_v, agg_v, H, W, nb, p1, p2, paths)
+        return a.out(agg)
     padded = c
     if nb * SGM_LANES != D:
         # Padding hypotheses cost more than any real L_r can reach (every L_r(p, k) <= C(p, k) + P2), so
@@ -164,6 +196,22 @@ def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) 
     cost_v = wp.array(ptr=padded.ptr, dtype=vec, shape=(H * W * nb,), device=a.device)
     agg = a.empty((H, W, nb * SGM_LANES))
     agg_v = wp.array(ptr=agg.ptr, dtype=vec, shape=(H * W * nb,), device=a.device)
+    _aggregate(a, cost_v, agg_v, H, W, nb, p1, p2, paths)
+    if nb * SGM_LANES != D:
+        out = a.empty((H, W, D))
+        a.launch(_copy_hypotheses, H * W, [agg, out, wp.float64(0.0)])
+        agg = out
+    return a.out(agg)
+
+
+def _is_uint8(x: Any) -> bool:
+    return getattr(x, "dtype", None) in (wp.uint8, np.uint8)
+
+
+def _aggregate(a: Inputs, cost_v: wp.array, agg_v: wp.array, H: int, W: int, nb: int, p1: float, p2: float,
+               paths: int) -> None:
+    """The axis launches of `sgm` over flat vector views of the cost and the aggregate."""
+    vec = SGM_VEC[a.scalar]
     # Two rows of nb * 8 scalars per scanline, each between +inf sentinels, viewed as vectors that may
     # start at any scalar (stride: one scalar).
     row = nb * SGM_LANES + 2
@@ -174,8 +222,3 @@ def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) 
         lines = H if dy == 0 else (W if dx == 0 else W + H - 1)
         a.launch(_sgm_axis, lines, [cost_v, agg_v, win_v, H, W, dy, dx, a.s(p1), a.s(p2), int(j == 0)],
                  min_chunk=8)
-    if nb * SGM_LANES != D:
-        out = a.empty((H, W, D))
-        a.launch(_copy_hypotheses, H * W, [agg, out, wp.float64(0.0)])
-        agg = out
-    return a.out(agg)

@@ -176,6 +176,50 @@ def test_wta_left_right_equals_the_two_passes(dtype, dmin, uniqueness, subpixel)
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("drange", [(0, 16), (-3, 13), (0, 13)])
+def test_compact_census_sgm_and_winners_equal_the_float_pipeline(drange):
+    # uint8 census costs, a uint16 aggregate: every value is an integer, so each stage equals float32's exactly.
+    L, R = _images(5, shape=(11, 23), dtype=np.float32)
+    c8 = stereo.census_cost(L, R, *drange, 2, 3, compact=True)
+    c32 = stereo.census_cost(L, R, *drange, 2, 3)
+    assert c8.dtype == np.uint8
+    np.testing.assert_array_equal(c8.astype(np.float32), c32)
+    if (drange[1] - drange[0]) % 8:
+        with pytest.raises(ValueError, match="cost: a uint8 volume needs a multiple of 8"):
+            stereo.sgm(c8, 8, 64, 8)
+        return
+    for paths in (4, 8):
+        s16, s32 = stereo.sgm(c8, 8, 64, paths), stereo.sgm(c32, 8.0, 64.0, paths)
+        assert s16.dtype == np.uint16
+        np.testing.assert_array_equal(s16.astype(np.float32), s32)
+    dmin = drange[0]
+    for got, want in ((stereo.wta(s16, dmin, uniqueness=0.1), stereo.wta(s32, dmin, uniqueness=0.1)),
+                      (stereo.wta_right(s16, dmin), stereo.wta_right(s32, dmin)),
+                      (stereo.wta_left_right(s16, dmin), stereo.wta_left_right(s32, dmin))):
+        for g, w in zip(got, want):
+            assert g.dtype == w.dtype
+            np.testing.assert_array_equal(g, w)
+
+
+@pytest.mark.parametrize("p1, p2, match", [(8.5, 64, "p1: a uint8 volume needs integer penalties"),
+                                           (8, 64.5, "p2: a uint8 volume needs integer penalties"),
+                                           (8, 9000, "p2: 8 paths x")],
+                         ids=["fractional-p1", "fractional-p2", "uint16-overflow"])
+def test_compact_sgm_bad_penalties(p1, p2, match):
+    c8 = np.full((4, 9, 8), 62, dtype=np.uint8)
+    with pytest.raises(ValueError, match=match):
+        stereo.sgm(c8, p1, p2, 8)
+
+
+def test_integer_volumes_other_than_compact_ones_are_refused():
+    with pytest.raises(ValueError, match="cost: expected dtype float32 or float64, got int8"):
+        stereo.sgm(np.zeros((4, 9, 8), np.uint8).view(np.int8), 8, 64)
+    with pytest.raises(ValueError, match="cost"):
+        stereo.wta(np.zeros((4, 9, 8), np.uint8), 0)  # winners take float or uint16 volumes
+    with pytest.raises(ValueError, match="cost"):
+        stereo.soft_argmin(np.zeros((4, 9, 8), np.uint16), 0)
+
+
 def test_wta_left_and_right_agree_on_a_shifted_pair():
     # A textured pair with a constant disparity 3: both views find it, and the LR check keeps those pixels.
     L, R = _images(7, shape=(12, 24))

@@ -4,6 +4,7 @@ disparity and depth metrics, patch features, and the pipeline end to end."""
 from __future__ import annotations
 
 import numpy as np
+import warp as wp
 import pytest
 
 from research.stereo import (StereoConfig, depth_abs_rel, disparity_metrics, fill_invalid, match, patch_features,
@@ -91,6 +92,26 @@ def test_bt_takes_colour_in_any_unit(dtype):
     want = cost_volume(left, right, 0, 6, cfg).numpy()
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
     assert got.shape == (12, 24, 6)
+
+
+def test_compact_mode_gives_the_float32_result(monkeypatch):
+    # Above the float32 budget, census + SGM runs on uint8 costs and a uint16 aggregate: the same numbers.
+    import research.stereo as rs
+
+    rng = np.random.default_rng(3)
+    left = rng.uniform(0.0, 1.0, (20, 48))
+    right = np.roll(left, -3, axis=1)
+    cfg = StereoConfig("census", "sgm8", p1=8.0, p2=64.0, census_radii=(2, 3), uniqueness=0.1)
+    assert not rs.uses_compact(cfg, 20, 48, 16)
+    want = match(left, right, 0, 16, cfg)
+    monkeypatch.setattr(rs, "FLOAT_VOLUME_BUDGET", 0)
+    assert rs.uses_compact(cfg, 20, 48, 16) and not rs.uses_compact(cfg, 20, 48, 12)
+    assert not rs.uses_compact(StereoConfig("census", "sgm8", p1=8.5, p2=64.0), 20, 48, 16)
+    assert rs.cost_volume(left, right, 0, 16, cfg).dtype == wp.uint8
+    got = match(left, right, 0, 16, cfg)
+    np.testing.assert_array_equal(got.disparity, want.disparity)
+    np.testing.assert_array_equal(got.valid, want.valid)
+    assert rs.peak_volume_bytes(cfg, 20, 48, 16) == 3 * 20 * 48 * 16
 
 
 def test_config_rejects_unknown_names():
