@@ -26,7 +26,8 @@ cells out of range hold a fixed cost no real match can beat (each cost below nam
 * Census (Zabih & Woodfill, ECCV 1994): a (2 ry + 1) x (2 rx + 1) window (at most 64 bits, the
   centre excluded) becomes a bit string with bit [I(q) < I(p)] per neighbour q (raster order,
   coordinates clamped to the image); the cost is the Hamming distance
-  popcount(c_L(x, y) xor c_R(x - d, y)). Out of range: the number of bits.
+  popcount(c_L(x, y) xor c_R(x - d, y)). Out of range: the number of bits. With `compact` the
+  volume is uint8 (every distance is an integer <= 64), for kernels.stereo.sgm's compact mode.
 * Feature correlation, RAFT-Stereo's 1D correlation (Lipson, Teed & Deng, 3DV 2021) restricted to
   the disparity range, for learned features F (C, H, W) (PyTorch's layout, as kernels/corr.py):
 

@@ -22,6 +22,14 @@ start one scalar before and after (unaligned vector views of the buffer), so no 
 L_r(p) goes to a second row buffer and the two swap every step. D is padded to a multiple of 8 with hypotheses costing
 max C + 2 P2 + |max C| + 1, which no L_r(p, k) <= C(p, k) + P2 of a real hypothesis can reach, so
 the padding changes neither the real L_r nor their minimum.
+
+Compact mode (a uint8 cost volume, for instance census Hamming distances): the aggregate S is
+uint16, 3 bytes per cell in all instead of float32's 8. The recurrence still runs in float32
+vectors, converting each cost vector on load and each aggregate vector on load and store. With
+integer costs and integer P1, P2 every L_r and S is an integer below 2^24, so float32 holds them
+exactly and S equals the float32 pipeline's bit for bit, provided S fits: every L_r(p, k) <= C(p, k)
++ P2, so S <= paths (max C + P2), which must be <= 65535 (checked). D must be a multiple of 8 (no
+padding in this mode).
 """
 
 from __future__ import annotations

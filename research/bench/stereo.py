@@ -11,14 +11,35 @@ copy shifted by 5 pixels plus noise (timings do not depend on the content), floa
     SGM-8 + winner-take-all with the sub-pixel parabola + the right view's winner + the left-right
     check), from the images to the disparity and validity maps on the host;
   * peak_mb: drlab's largest live arrays during total_s, from their nbytes (not RSS; tracemalloc
-    does not see Warp's allocations): the cost volume and SGM's aggregate (plus its padded copies
-    when D is not a multiple of 8), each H x W x D float32.
+    does not see Warp's allocations; research.stereo.peak_volume_bytes): the cost volume and SGM's
+    aggregate (plus its padded copies when D is not a multiple of 8), each H x W x D float32.
 
 With `compare=True` and OpenCV importable, each case also times cv2.StereoSGBM 3-way on the same
 texture as 8-bit grey (blockSize 3, P1 = 8*3*3^2, P2 = 32*3*3^2, uniquenessRatio 10, speckle window
 100 and range 32, disp12MaxDiff 1, preFilterCap 63), interleaved with drlab's phases in one
 `time_medians` call: keys `ref`, `ref_total_s` and `speedup_total` (OpenCV's time / drlab's,
 > 1 means drlab is faster); without OpenCV the case has `ref_missing` instead.
+
+Case `stereo.memory` (full mode only; tiny mode runs it at the tiny size): the default pipeline once
+at Middlebury 2014's half size, 1482x994 with 256 disparities, where float32 volumes would take
+3.0 GiB and research.stereo switches census + SGM to compact mode (uint8 costs, uint16 aggregate):
+`peak_mb` (the volumes' nbytes), `rss_peak_mb` (the process's peak resident set after the run,
+ru_maxrss, which includes everything the process held before), `compact` and `total_once_s` (one
+run, not a median: it takes tens of seconds).
+
+Profile (where the time goes), CPU time of one thread (DRLAB_THREADS=1, cv2.setNumThreads(1),
+time.process_time, median of 5; the shared host's wall times were too noisy to compare), at
+256x256x64 before this session's changes / after them: census transform 9.0 ms per image (two per
+pair), census cost 15 / 9 ms, SGM-8 47 / 40 ms, WTA 7.6 ms + right-view WTA 17.5 ms / both in one row
+pass 19-22 ms, LR check 1 ms; the whole default pipeline 113 / 98 ms against OpenCV StereoSGBM 3-way's
+5.9-6.5 ms (15-17x; at 741x500x64, 664 / 546 ms against 39-41 ms, 14x). Per-call Python overhead
+and input checks are below 1 ms. What stops the 5x target: SGM-8 alone is 6x SGBM's whole run.
+It makes 8 passes of float32 8-lane vectors over the volume (four axes, each reading the cost and
+reading and writing the aggregate), where SGBM's 3-way mode runs 16-lane int16 arithmetic in fewer
+passes. Warp's CPU code turns 8-wide float32 vectors into SIMD instructions, but not uint16 ones: an
+8 x uint16 SGM was 2x slower than float32, and the compact mode's conversions make SGM 1.8x slower, so
+compact mode is kept for memory. Closing the gap needs SGBM's single-pass scanline scheme with
+16-bit lanes, which Warp's CPU code generation does not give today.
 
 Each figure is the median of 3 interleaved runs after a warm-up (research.bench). Every call
 allocates its output volume, as the entry points do, so page-fault time for fresh memory is part
@@ -62,15 +83,8 @@ def _sgbm(disparities: int) -> Any:
                                  speckleWindowSize=100, speckleRange=32, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
 
 
-def peak_bytes(height: int, width: int, disparities: int) -> int:
-    """The largest live drlab arrays of the default pipeline (module docstring: peak_mb)."""
-    padded = -(-disparities // stereo.SGM_LANES) * stereo.SGM_LANES
-    volumes = 2 if padded == disparities else 4  # cost + aggregate, or + the padded copies
-    return 4 * height * width * max(padded, disparities) * volumes
-
-
 def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare: bool = False) -> Iterator[dict]:
-    from research.stereo import StereoConfig, match
+    from research.stereo import StereoConfig, match, peak_volume_bytes
 
     dev = wp.get_device(device)
     threads = 1 if dev.is_cuda else default_threads()
@@ -119,9 +133,40 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
             "cost_s": t["cost"],
             "aggregate_s": t["aggregate"],
             "total_s": t["total"],
-            "peak_mb": peak_bytes(height, width, disparities) / 2**20,
+            "peak_mb": peak_volume_bytes(cfg, height, width, disparities) / 2**20,
             **row,
             **({"ref_total_s": t["ref_total"], "speedup_total": t["ref_total"] / t["total"]}
                if "ref_total" in t else {}),
         }
         del volume
+    if quick and not tiny:
+        return
+    yield _memory_case(device, threads, *(TINY_SIZES[0] if tiny else MEMORY_SIZE))
+
+
+MEMORY_SIZE = (994, 1482, 256)  # Middlebury 2014 at half resolution
+
+
+def _memory_case(device: str, threads: int, height: int, width: int, disparities: int) -> dict:
+    import resource
+    import time
+
+    from research.stereo import StereoConfig, match, peak_volume_bytes, uses_compact
+
+    left, right = _pair(height, width)
+    cfg = StereoConfig()
+    t0 = time.perf_counter()
+    match(left, right, 0, disparities, cfg, device)
+    seconds = time.perf_counter() - t0
+    return {
+        "bench": "stereo.memory",
+        "device": str(wp.get_device(device)),
+        "threads": threads,
+        "height": height,
+        "width": width,
+        "disparities": disparities,
+        "compact": uses_compact(cfg, height, width, disparities),
+        "peak_mb": peak_volume_bytes(cfg, height, width, disparities) / 2**20,
+        "rss_peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,  # KiB on Linux
+        "total_once_s": seconds,
+    }
