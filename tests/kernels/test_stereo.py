@@ -201,25 +201,6 @@ def test_compact_census_sgm_and_winners_equal_the_float_pipeline(drange):
             np.testing.assert_array_equal(g, w)
 
 
-@pytest.mark.parametrize("p1, p2, match", [(8.5, 64, "p1: a uint8 volume needs integer penalties"),
-                                           (8, 64.5, "p2: a uint8 volume needs integer penalties"),
-                                           (8, 9000, "p2: 8 paths x")],
-                         ids=["fractional-p1", "fractional-p2", "uint16-overflow"])
-def test_compact_sgm_bad_penalties(p1, p2, match):
-    c8 = np.full((4, 9, 8), 62, dtype=np.uint8)
-    with pytest.raises(ValueError, match=match):
-        stereo.sgm(c8, p1, p2, 8)
-
-
-def test_integer_volumes_other_than_compact_ones_are_refused():
-    with pytest.raises(ValueError, match="cost: expected dtype float32 or float64, got int8"):
-        stereo.sgm(np.zeros((4, 9, 8), np.uint8).view(np.int8), 8, 64)
-    with pytest.raises(ValueError, match="cost"):
-        stereo.wta(np.zeros((4, 9, 8), np.uint8), 0)  # winners take float or uint16 volumes
-    with pytest.raises(ValueError, match="cost"):
-        stereo.soft_argmin(np.zeros((4, 9, 8), np.uint16), 0)
-
-
 def test_wta_left_and_right_agree_on_a_shifted_pair():
     # A textured pair with a constant disparity 3: both views find it, and the LR check keeps those pixels.
     L, R = _images(7, shape=(12, 24))
@@ -383,17 +364,6 @@ def test_value_checks_off_skips_the_finiteness_check_only():
         assert bits[3, 4] == 0
         with pytest.raises(ValueError, match="right: expected shape"):
             stereo.census_cost(L, R[:, :-1], 0, 4)
-
-
-@pytest.mark.parametrize("left, right, match", [
-    (np.zeros((4, 6, 3)), np.zeros((4, 6)), "right"),
-    (np.zeros((4, 6, 3, 1)), np.zeros((4, 6, 3, 1)), "left"),
-    (np.zeros(6), np.zeros(6), "left"),
-    (np.full((4, 6), np.nan), np.zeros((4, 6)), "left"),
-], ids=["colour-and-grey", "four-dimensions", "one-dimension", "nan-left"])
-def test_bt_bad_images(left, right, match):
-    with pytest.raises(ValueError, match=match):
-        stereo.bt_cost(left, right, 0, 3, 1)
 
 
 def test_bad_dtypes_devices_and_parameters():
