@@ -3,9 +3,10 @@
 Conventions
 -----------
 Images are single-channel (H, W) float32 or float64 arrays (convert colour first; `bt_cost`
-alone also takes colour (H, W, C)); row 0 is the top. The pair is rectified: the left pixel (x, y) with disparity d matches the right pixel
-(x - d, y). A disparity range [dmin, dmax) gives D = dmax - dmin hypotheses d_k = dmin + k, and
-every cost volume is (H, W, D) with the hypotheses contiguous:
+alone also takes colour (H, W, C)); row 0 is the top. The pair is rectified: the left pixel (x, y)
+with disparity d matches the right pixel (x - d, y). A disparity range [dmin, dmax) gives
+D = dmax - dmin hypotheses d_k = dmin + k, and every cost volume is (H, W, D) with the hypotheses
+contiguous:
 
     C(x, y, k) = cost of matching I_L(x, y) with I_R(x - d_k, y),   lower = better,
 
@@ -20,6 +21,8 @@ Stages, one module each
   window-averaged like SAD.
 * `sgm`: semi-global matching (Hirschmueller, PAMI 2008), S(p, k) = sum_r L_r(p, k) over 4 or 8
   path directions r, L_r penalising disparity steps by P1 (one step) and P2 (more).
+* compact mode: census costs as uint8 and the SGM aggregate as uint16 (3 bytes per cell instead
+  of float32's 8, the same values), for sizes where float32 volumes do not fit (kernels.stereo.sgm).
 * `disparity`: winner-take-all with a sub-pixel parabola and a uniqueness test, the right view's
   winner from the same volume, soft-argmin d = sum_k d_k softmax_k(-C / T) with its backward, the
   left-right consistency check, and depth Z = f b / d.
@@ -46,7 +49,9 @@ from kernels.stereo.sgm import SGM_AXES, SGM_DIRECTIONS, SGM_LANES, sgm
 
 __all__ = [
     "CENSUS_MAX_BITS", "SGM_AXES", "SGM_DIRECTIONS", "SGM_LANES",
-    "sad_cost", "zncc_cost", "bt_cost", "census_transform", "census_cost", "feature_correlation", "feature_correlation_backward",
+    "sad_cost", "zncc_cost", "bt_cost", "census_transform", "census_cost", "feature_correlation",
+    "feature_correlation_backward",
     "sgm",
-    "wta", "wta_right", "wta_left_right", "soft_argmin", "soft_argmin_backward", "left_right_check", "depth_from_disparity",
+    "wta", "wta_right", "wta_left_right", "soft_argmin", "soft_argmin_backward", "left_right_check",
+    "depth_from_disparity",
 ]
