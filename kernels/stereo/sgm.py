@@ -85,7 +85,9 @@ def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.A
         base += step
         jump_v = win_v.dtype(prev_min + p2)
         prev_v = win_v.dtype(prev_min)
-        lanes_min = jump_v + jump_v
+        # min_k L_r(p, k), from +inf: any finite start could undercut it (costs may rise by more than
+        # P2 from one pixel to the next, or be negative), and a wrong minimum changes the P2 candidate.
+        lanes_min = win_v.dtype(wp.inf)
         for j in range(nb):
             # L_r(p - r, k - 1) and (k + 1) are the vectors one scalar before and after; past either end of
             # the range the sentinel is +inf, which never undercuts the P2 candidate `jump`.

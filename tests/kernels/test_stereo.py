@@ -122,6 +122,21 @@ def test_sgm_matches_reference(dtype, paths, seed):
     np.testing.assert_allclose(got, ref.sgm(C, 0.5, 2.0, paths), rtol=SGM_RTOL[dtype])
 
 
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("paths", [4, 8])
+def test_sgm_running_minimum_when_costs_jump_or_are_negative(dtype, paths):
+    # Costs that rise by far more than 2 P2 between neighbours, and negative costs (a negated correlation):
+    # the running minimum must be the true one (an earlier kernel started it at min + 2 P2 and drifted).
+    rng = np.random.default_rng(9)
+    C = rng.uniform(0.0, 0.2, (5, 14, 8))
+    C[:, 6:, :] += 5.0
+    C[2:, :, :] -= 3.0
+    C[:, 10:, :] = -rng.uniform(0.0, 1.0, (5, 4, 8))
+    got = stereo.sgm(C.astype(dtype), 0.1, 0.5, paths)
+    assert np.all(np.isfinite(got))
+    np.testing.assert_allclose(got, ref.sgm(C.astype(dtype), 0.1, 0.5, paths), rtol=SGM_RTOL[dtype], atol=1e-5)
+
+
 def test_sgm_single_path_edge_cases():
     # P1 = P2 = 0: every L_r(p, k) = C(p, k) + min over the predecessor's hypotheses, relative to it: = C.
     C = np.random.default_rng(3).uniform(0.0, 1.0, (4, 5, 3))
