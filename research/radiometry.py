@@ -34,8 +34,8 @@ frames of one camera whose auto-exposure moved, as in video. `Stress.none()` dis
 
 Defaults (`Stress()`): up to +-0.3 stops per camera (0.6 between two), black level +-0.01, corner
 falloff up to 25 %, blur up to 0.8 px, shot noise 0.01 and read noise 0.003 (standard deviation
-0.0052 at 18 % grey, linear 0.18: 1.6 codes of 255 after encoding, measured), 8 bits. They describe a consumer camera pair; no
-method's result chose them.
+0.0052 at 18 % grey, linear 0.18: 1.6 codes of 255 after encoding, measured), 8 bits. They
+describe a consumer camera pair; no method's result chose them.
 """
 
 from __future__ import annotations
