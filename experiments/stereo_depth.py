@@ -5,7 +5,7 @@ For the scenes `objects` and `cornell` this renders rectified pairs with exact
 disparity (`drlab dataset --stereo`, into data/stereo_depth-<scene>), converts
 them to 8-bit grayscale as a camera would store them, and runs
 
-  * drlab: every cost (SAD, ZNCC, census, feature correlation on patch
+  * drlab: every cost (SAD, ZNCC, census, Birchfield-Tomasi, feature correlation on patch
     features) x every aggregation (none = plain winner-take-all, SGM over 4
     paths, SGM over 8 paths), each followed by WTA with the sub-pixel
     parabola and the left-right check; plus soft-argmin in place of WTA on the
@@ -18,6 +18,15 @@ argmin temperature; OpenCV: block size, mode, P2, uniqueness) are chosen from
 a small grid by mean D1 on the tuning pairs, and "the best drlab configuration"
 is chosen the same way, so nothing is selected on the pairs it is scored on.
 
+Clean and stressed pairs. Each pair is scored twice: clean (the render's luminance, sRGB-encoded
+to 8 bits) and stressed, the same luminance through research.radiometry's radiometric stress set
+(per-camera exposure/gain and black level, vignetting, slight blur, Poisson-Gaussian noise, 8-bit
+sRGB quantisation; its default ranges, seeded by the run's seed, the scene and the pair). Every
+method, OpenCV's included, is tuned on the clean tuning pairs only and reported on both, so the
+stressed evaluation pairs test whether the chosen defaults hold. "The robust choice" is the drlab
+configuration, among those chosen, with the lowest mean of its clean and its stressed tuning D1
+(p_000 stressed: held out from the evaluation like p_000 clean).
+
 Scoring (research.stereo): invalid pixels are filled as KITTI's devkit does,
 then EPE, bad-1/2/3, D1 and depth abs-rel over the non-occluded ground truth
 (noc) and D1 over every pixel with ground truth (all); pooled over pairs
@@ -26,10 +35,16 @@ CPU threads (kernels.launch), OpenCV with cv2.getNumThreads() threads.
 
 Writes results/stereo_depth/{table.md, metrics.json, disparity_maps.png, d1_by_method.png}.
 
+One configuration (`--cost C [--aggregation A] [--radius R] [--p1 X] [--p2 Y] [--zncc-eps E]`): instead
+of tuning the grid, scores that one drlab configuration (no OpenCV) on the tuning pairs (its
+`tuning_d1`, which a sweep chooses by) and on the evaluation pairs, with the same metrics.json layout
+("methods" holds one row). experiments/sweeps/stereo_tuning.toml spreads the grid over such runs.
+
 Benchmarks (`--data PATH` of a Middlebury 2014/2021, KITTI 2012/2015 or ETH3D two-view folder, its
 format detected or given with `--format`; research.datasets.stereo_benchmarks reads it): runs the
-two drlab configurations the default run chose on its Mitsuba tuning pairs (SAD + SGM-4 soft-argmin
-and census + SGM-8; nothing is tuned on the benchmark) and OpenCV StereoSGBM with standard
+drlab configurations the default run chose on its Mitsuba tuning pairs (BENCHMARK_DRLAB: BT + SGM-4
+soft-argmin, its best; ZNCC + SGM-4, its robust choice; SAD + SGM-4 soft-argmin, the best before BT;
+census + SGM-8; nothing is tuned on the benchmark) and OpenCV StereoSGBM with standard
 parameters (blockSize 3, P1 = 8 * cn * 3^2, P2 = 32 * cn * 3^2 for cn image channels, 3-way, uniqueness
 10, speckle window 100 and range 32, disp12MaxDiff 1, preFilterCap 63) on every pair, over
 disparities [0, D) with D the pair's ndisp (calib.txt) rounded up to a multiple of 16, or
@@ -41,8 +56,10 @@ avgerr), at `--resolution` (full, half or quarter of the stored Middlebury/ETH3D
 needs its own `--out` (the default results/stereo_depth holds the Mitsuba table) and writes table.md,
 metrics.json and disparity_maps.png (the first pair); --smoke reads the first 2 pairs, --quick the first 5.
 
-Two runs share this module (the Mitsuba tuning table and the benchmark protocols of --data), and
-some of their table code; at about 650 lines it stays one module, as every experiment is one.
+Three runs share this module (the Mitsuba tuning table, one configuration, and the benchmark
+protocols of --data), and some of their table code; at about 880 lines it is over the ~600-line
+guideline: the benchmark run (from BENCHMARK_DRLAB down) is the part to move into a module of
+its own.
 """
 
 from __future__ import annotations
@@ -50,7 +67,7 @@ from __future__ import annotations
 import itertools
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -60,6 +77,16 @@ from research.experiment import Context, Experiment, rendered_cache_help
 from research.results import markdown_table, save_figure
 
 SCENES = ("objects", "cornell")
+LUMA_709 = np.array([0.2126, 0.7152, 0.0722])  # research.stereo.to_gray_u8's weights
+
+
+def _stress_params() -> Any:
+    from research.radiometry import Stress
+
+    return Stress()  # research.radiometry's defaults: a consumer camera pair, chosen before any result
+
+
+STRESS = _stress_params()
 METRIC_KEYS = ("epe", "bad1", "bad2", "bad3", "d1", "abs_rel", "density")
 
 
@@ -93,12 +120,22 @@ class Pair:
     focal: float
     baseline: float
     left_rgb: np.ndarray
+    condition: str = "clean"  # or "stressed" (research.radiometry)
+
+
+CONDITIONS = ("clean", "stressed")
+
+
+def stress_seed(seed: int, scene: str, pair: str) -> int:
+    """The radiometric stress seed of one pair: fixed by the run's seed, the scene and the pair name."""
+    return int(np.random.SeedSequence([seed, SCENES.index(scene), int(pair.split("_")[-1])]).generate_state(1)[0])
 
 
 def load_pairs(ctx: Context, st: Setup, used: dict[str, Any]) -> list[Pair]:
     """Every stereo pair of every scene; `used` receives each dataset's provenance."""
     from research.datasets import DatasetConfig, ensure, load_stereo, provenance
     from research.io import linear_to_srgb
+    from research.radiometry import stress_pair
     from research.stereo import to_gray_u8
 
     pairs = []
@@ -110,9 +147,14 @@ def load_pairs(ctx: Context, st: Setup, used: dict[str, Any]) -> list[Pair]:
         used[scene] = provenance(path)
         for p in load_stereo(path):
             has_gt = p.disparity > 0
-            pairs.append(Pair(scene, p.name, to_gray_u8(p.left), to_gray_u8(p.right), p.disparity,
-                              {"noc": p.noc & has_gt, "all": p.mask & has_gt}, p.depth, p.left_camera.fx,
-                              p.baseline, np.clip(linear_to_srgb(p.left[..., :3]), 0, 1)))
+            clean = Pair(scene, p.name, to_gray_u8(p.left), to_gray_u8(p.right), p.disparity,
+                         {"noc": p.noc & has_gt, "all": p.mask & has_gt}, p.depth, p.left_camera.fx,
+                         p.baseline, np.clip(linear_to_srgb(p.left[..., :3]), 0, 1))
+            # The same luminance through two stressed cameras (research.radiometry): to_gray_u8 is its clean
+            # encoding, so the two conditions differ only by the stress.
+            lum_l, lum_r = (np.maximum(np.asarray(x, np.float64)[..., :3] @ LUMA_709, 0.0) for x in (p.left, p.right))
+            left_s, right_s = stress_pair(lum_l, lum_r, stress_seed(ctx.seed, scene, p.name), STRESS)
+            pairs += [clean, replace(clean, left=left_s, right=right_s, condition="stressed")]
     return pairs
 
 
@@ -127,15 +169,20 @@ class Method:
     run: Callable[[Pair], tuple[np.ndarray, np.ndarray, float]]  # -> disparity, valid, seconds
 
 
+# P1 of the tuning grid's middle, about one cost unit of each cost (research.stereo: units).
+P1_BASE = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "bt": 0.01, "corr": 0.01}
+
+
 def drlab_grid(cost: str, aggregation: str) -> list[dict[str, Any]]:
     """Candidate parameters of one drlab cost x aggregation (research.stereo.StereoConfig fields)."""
     windows = {"sad": [{"radius": r} for r in (1, 2, 3, 4)],
                "zncc": [{"radius": r, "zncc_eps": e} for r in (2, 3, 4, 5) for e in (1e-4, 1e-3)],
                "census": [{"census_radii": rr} for rr in ((2, 3), (3, 4))],
+               "bt": [{"radius": r} for r in (1, 2, 3)],
                "corr": [{"radius": r} for r in (2, 3)]}[cost]
     if aggregation == "none":
         return windows
-    p1_base = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "corr": 0.01}[cost]  # about one cost unit of each
+    p1_base = P1_BASE[cost]
     return [{**w, "p1": p1_base * f, "p2": p1_base * f * ratio}
             for w in windows for f in (0.5, 1.0, 2.0, 4.0) for ratio in (4.0, 8.0, 16.0)]
 
@@ -213,14 +260,15 @@ def tune(candidates: list[Method], tuning: list[Pair], desc: str, ctx: Context) 
 
 def drlab_candidates(cost: str, aggregation: str, dmax: int, device: str, cache: dict) -> list[Method]:
     """drlab methods for one cost x aggregation; the cost volume of each pair is computed once and shared."""
-    from research.stereo import StereoConfig, cost_volume, disparity_from_cost
+    from research.stereo import StereoConfig, cost_volume, disparity_from_cost, uses_compact
 
     out = []
     for params in drlab_grid(cost, aggregation):
         cfg = StereoConfig(cost=cost, aggregation=aggregation, **params)
 
         def run_tuning(p: Pair, cfg: StereoConfig = cfg) -> tuple[np.ndarray, np.ndarray, float]:
-            key = (p.scene, p.name, cfg.cost, cfg.radius, cfg.census_radii, cfg.zncc_eps)
+            key = (p.scene, p.name, p.condition, cfg.cost, cfg.radius, cfg.census_radii, cfg.zncc_eps,
+                   uses_compact(cfg, *p.left.shape, dmax))
             if key not in cache:
                 cache[key] = cost_volume(p.left / 255.0, p.right / 255.0, 0, dmax, cfg, device)
             r = disparity_from_cost(cache[key], 0, cfg, device)
@@ -295,6 +343,42 @@ def figures(best: dict[str, Method], pairs: list[Pair], results: dict, out: Path
     plt.close(fig)
 
 
+# --------------------------------------------------------------------------- evaluation
+
+POOLED = {"clean": "pooled", "stressed": "pooled_stressed"}
+SCENES_KEY = {"clean": "scenes", "stressed": "scenes_stressed"}
+HEADERS = ["method", "EPE px", "bad-1", "bad-2", "bad-3", "D1 noc", "D1 all", "depth abs-rel", "density", "time ms"]
+STRESS_NOTE = (f"each camera of a pair draws its own exposure (+-{STRESS.exposure_stops:g} stops), black level "
+               f"(+-{STRESS.offset:g}), vignetting (corner falloff up to {STRESS.vignetting:g}), blur (sigma up to "
+               f"{STRESS.blur_sigma:g} px) and Poisson-Gaussian noise (shot {STRESS.shot_noise:g}, read "
+               f"{STRESS.read_noise:g}) before sRGB {STRESS.bits}-bit quantisation (research.radiometry, seeded by "
+               "the run's seed, scene and pair)")
+
+
+def evaluate_method(m: Method, evaluation: list[Pair], tuning_d1: float, ctx: Context) -> dict[str, Any]:
+    """One method on every evaluation pair: pooled scores per condition ("pooled" is clean), per scene, per pair."""
+    rows, seconds = [], []
+    for p in ctx.tqdm(evaluation, desc=f"evaluate {m.name}", leave=False):
+        d, v, s = m.run(p)
+        rows.append(score(d, v, p))
+        seconds.append(s)
+    out: dict[str, Any] = {"family": m.family, "params": m.params, "tuning_d1": tuning_d1}
+    for c in CONDITIONS:
+        sel = [(r, p) for r, p in zip(rows, evaluation) if p.condition == c]
+        out[POOLED[c]] = pooled([r for r, _ in sel])
+        out[SCENES_KEY[c]] = {s: pooled([r for r, p in sel if p.scene == s]) for s in SCENES}
+    out["time_s_mean"] = float(np.mean([t for t, p in zip(seconds, evaluation) if p.condition == "clean"]))
+    out["pairs"] = {f"{p.condition}/{p.scene}/{p.name}": {**r, "seconds": t}
+                    for r, p, t in zip(rows, evaluation, seconds)}
+    return out
+
+
+def _row(name: str, r: dict[str, Any], key: str) -> list[Any]:
+    q = r[key]
+    return [name, f"{q['epe']:.3f}", f"{q['bad1']:.4f}", f"{q['bad2']:.4f}", f"{q['bad3']:.4f}", f"{q['d1']:.4f}",
+            f"{q['d1_all']:.4f}", f"{q['abs_rel']:.4f}", f"{q['density']:.3f}", f"{1000 * r['time_s_mean']:.1f}"]
+
+
 # --------------------------------------------------------------------------- main
 
 
@@ -307,12 +391,16 @@ def run(ctx: Context) -> int:
     fmt = benchmark_format(ctx)
     if fmt is not None:
         return run_benchmark(ctx, fmt)
+    single = single_config(ctx.args)
     load_start = os.getloadavg()[0]
     st = setup(ctx.quick, ctx.smoke)
     datasets: dict[str, Any] = {}
     pairs = load_pairs(ctx, st, datasets)
-    tuning = [p for p in pairs if p.name == "p_000"]
+    # Every choice is made on the clean tuning pairs; the stressed pairs are never used to choose anything.
+    tuning = [p for p in pairs if p.name == "p_000" and p.condition == "clean"]
     evaluation = [p for p in pairs if p.name != "p_000"]
+    if single is not None:
+        return run_single(ctx, single, st, tuning, evaluation, datasets)
 
     # ---- tuning: one configuration per drlab cost x aggregation, one per OpenCV matcher
     chosen: dict[str, Method] = {}
@@ -338,76 +426,156 @@ def run(ctx: Context) -> int:
     for name in ("OpenCV StereoSGBM", "OpenCV StereoBM"):
         keep(*tune([c for c in opencv_methods(st.dmax) if c.name == name], tuning, f"tune {name}", ctx))
     best_drlab = min((k for k in chosen if chosen[k].family == "drlab"), key=lambda k: tuning_d1[k])
+    # The robust choice: among the chosen configurations, the lowest mean of the clean tuning D1 and the
+    # D1 on the stressed tuning pairs (the same held-out p_000 pairs, stressed; never scored below).
+    stressed_tuning = [p for p in pairs if p.name == "p_000" and p.condition == "stressed"]
+    tuning_d1_stressed = {name: float(np.mean([score(*m.run(p)[:2], p)["noc"]["d1"] for p in stressed_tuning]))
+                          for name, m in chosen.items()}
+    robust_drlab = min((k for k in chosen if chosen[k].family == "drlab"),
+                       key=lambda k: 0.5 * (tuning_d1[k] + tuning_d1_stressed[k]))
 
-    # ---- evaluation
-    results: dict[str, Any] = {}
-    for name, m in ctx.tqdm(chosen.items(), desc="evaluate"):
-        per_pair, seconds = [], []
-        for p in evaluation:
-            d, v, s = m.run(p)
-            per_pair.append(score(d, v, p))
-            seconds.append(s)
-        results[name] = {
-            "family": m.family, "params": m.params, "tuning_d1": tuning_d1[name],
-            "pooled": pooled(per_pair), "time_s_mean": float(np.mean(seconds)),
-            "scenes": {s: pooled([r for r, p in zip(per_pair, evaluation) if p.scene == s]) for s in SCENES},
-            "pairs": {f"{p.scene}/{p.name}": {**r, "seconds": t} for r, p, t in zip(per_pair, evaluation, seconds)},
-        }
-
+    # ---- evaluation, clean and stressed
+    results = {name: evaluate_method(m, evaluation, tuning_d1[name], ctx) for name, m in chosen.items()}
+    for name in results:
+        results[name]["tuning_d1_stressed"] = tuning_d1_stressed[name]
     sgbm = results["OpenCV StereoSGBM"]
     best = results[best_drlab]
-    headers = ["method", "EPE px", "bad-1", "bad-2", "bad-3", "D1 noc", "D1 all", "depth abs-rel", "density",
-               "time ms"]
-
-    def row(name: str) -> list[Any]:
-        r = results[name]["pooled"]
-        return [name, f"{r['epe']:.3f}", f"{r['bad1']:.4f}", f"{r['bad2']:.4f}", f"{r['bad3']:.4f}",
-                f"{r['d1']:.4f}", f"{r['d1_all']:.4f}", f"{r['abs_rel']:.4f}", f"{r['density']:.3f}",
-                f"{1000 * results[name]['time_s_mean']:.1f}"]
-
-    verdict = "beats" if best["pooled"]["d1"] < sgbm["pooled"]["d1"] else "does NOT beat"
+    robust = results[robust_drlab]
     threads = default_threads()
     load_end = os.getloadavg()[0]
-    gt_max = max(float(p.gt[p.masks["all"]].max()) for p in evaluation)
+    clean_eval = [p for p in evaluation if p.condition == "clean"]
+    gt_max = max(float(p.gt[p.masks["all"]].max()) for p in clean_eval)
     d1_note = (f" Ground-truth disparities reach at most {gt_max:.1f} px; below 60 px, 5 % of d_gt is under 3 px, "
                "so D1 equals bad-3 here." if gt_max < 60.0 else "")
+    verdicts = {c: "beats" if best[POOLED[c]]["d1"] < sgbm[POOLED[c]]["d1"] else "does NOT beat" for c in CONDITIONS}
     table = (
         f"Scenes {', '.join(SCENES)} at {st.res}x{st.res}, {st.spp} spp, disparities [0, {st.dmax}); "
-        f"{len(evaluation)} evaluation pairs (p_000 of each scene tunes every method's parameters). "
-        f"Metrics over non-occluded ground truth (noc) after KITTI fill, pooled over pairs; D1 all counts "
-        f"occluded pixels too. Time: wall per pair on this machine, drlab with {threads} CPU threads "
+        f"{len(clean_eval)} evaluation pairs, each clean and stressed. **Which data chose the parameters**: every "
+        f"method's parameters (and the best drlab configuration) by mean D1 noc on the clean tuning pairs, p_000 "
+        f"of each scene, which are never scored; the robust choice below also by those pairs stressed; no "
+        f"stressed evaluation pair chooses anything. Stressed: "
+        f"{STRESS_NOTE}. Metrics over non-occluded ground truth (noc) after KITTI fill, pooled over pairs; D1 all "
+        f"counts occluded pixels too. Time: wall per clean pair on this machine, drlab with {threads} CPU threads "
         f"(device {ctx.device}), OpenCV with {cv2.getNumThreads()} threads; the machine is shared, 1-minute "
         f"load average {load_start:.1f} at the start and {load_end:.1f} at the end.{d1_note}\n\n"
         f"**Goal**: the best drlab configuration chosen on the tuning pairs, **{best_drlab}**, has D1 noc "
-        f"{best['pooled']['d1']:.4f} against OpenCV SGBM's {sgbm['pooled']['d1']:.4f}: it {verdict} SGBM "
-        f"(D1 all {best['pooled']['d1_all']:.4f} vs {sgbm['pooled']['d1_all']:.4f}), at "
-        f"{1000 * best['time_s_mean']:.1f} ms per pair against SGBM's {1000 * sgbm['time_s_mean']:.1f} ms.\n\n"
-        + markdown_table(headers, [row(n) for n in results])
-        + "\nPer scene (evaluation pairs), D1 noc / EPE:\n\n"
-        + markdown_table(["method"] + list(SCENES),
-                         [[n] + [f"{results[n]['scenes'][s]['d1']:.4f} / {results[n]['scenes'][s]['epe']:.2f}"
-                                 for s in SCENES] for n in results])
-        + "\nChosen parameters (by D1 on the tuning pairs):\n\n"
-        + markdown_table(["method", "tuning D1", "parameters"],
-                         [[n, f"{tuning_d1[n]:.4f}", _short(results[n]["params"])] for n in results])
+        f"{best['pooled']['d1']:.4f} against OpenCV SGBM's {sgbm['pooled']['d1']:.4f} on clean pairs: it "
+        f"{verdicts['clean']} SGBM (D1 all {best['pooled']['d1_all']:.4f} vs {sgbm['pooled']['d1_all']:.4f}); on "
+        f"stressed pairs {best['pooled_stressed']['d1']:.4f} against {sgbm['pooled_stressed']['d1']:.4f}: it "
+        f"{verdicts['stressed']} SGBM; at {1000 * best['time_s_mean']:.1f} ms per pair against SGBM's "
+        f"{1000 * sgbm['time_s_mean']:.1f} ms.\n\n"
+        f"**Robust choice**: chosen by the mean of the clean and the stressed tuning D1 (p_000 of each scene, "
+        f"clean and stressed; no evaluation pair), **{robust_drlab}** has D1 noc {robust['pooled']['d1']:.4f} "
+        f"clean and {robust['pooled_stressed']['d1']:.4f} stressed, against SGBM's {sgbm['pooled']['d1']:.4f} and "
+        f"{sgbm['pooled_stressed']['d1']:.4f}.\n\n"
+        + "Clean pairs:\n\n" + markdown_table(HEADERS, [_row(n, results[n], "pooled") for n in results])
+        + "\nStressed pairs (the same pairs through research.radiometry):\n\n"
+        + markdown_table(HEADERS, [_row(n, results[n], "pooled_stressed") for n in results])
+        + "\nPer scene (evaluation pairs), D1 noc / EPE, clean | stressed:\n\n"
+        + markdown_table(["method"] + [f"{s} {c}" for c in CONDITIONS for s in SCENES],
+                         [[n] + [f"{results[n][SCENES_KEY[c]][s]['d1']:.4f} / {results[n][SCENES_KEY[c]][s]['epe']:.2f}"
+                                 for c in CONDITIONS for s in SCENES] for n in results])
+        + "\nChosen parameters (by D1 noc on the clean tuning pairs), and the D1 of that choice on the stressed "
+          "tuning pairs:\n\n"
+        + markdown_table(["method", "tuning D1", "stressed tuning D1", "parameters"],
+                         [[n, f"{tuning_d1[n]:.4f}", f"{tuning_d1_stressed[n]:.4f}", _short(results[n]["params"])]
+                          for n in results])
     )
-    figures({best_drlab: chosen[best_drlab], "OpenCV StereoSGBM": chosen["OpenCV StereoSGBM"]}, evaluation, results,
+    figures({best_drlab: chosen[best_drlab], "OpenCV StereoSGBM": chosen["OpenCV StereoSGBM"]}, clean_eval, results,
             ctx.out)
     config = {"quick": ctx.quick, "scenes": list(SCENES), **asdict(st), "tuning_pairs": [f"{p.scene}/{p.name}"
-              for p in tuning], "evaluation_pairs": [f"{p.scene}/{p.name}" for p in evaluation],
+              for p in tuning], "stressed_tuning_pairs": [f"{p.scene}/{p.name}" for p in stressed_tuning],
+              "evaluation_pairs": [f"{p.scene}/{p.name}" for p in clean_eval],
+              "conditions": list(CONDITIONS), "stress": STRESS.to_dict(),
               "drlab_threads": threads, "opencv_threads": cv2.getNumThreads(), "opencv": cv2.__version__,
               "load_average_1min": [load_start, load_end]}
     ctx.write_results(config=config, table_md=table,
                       metrics={"best_drlab": best_drlab, "goal_met": bool(best["pooled"]["d1"] < sgbm["pooled"]["d1"]),
+                               "goal_met_stressed": bool(best["pooled_stressed"]["d1"] < sgbm["pooled_stressed"]["d1"]),
+                               "robust_drlab": robust_drlab,
                                "methods": results, "tuning": tuning_log, "datasets": datasets})
+    return 0
+
+
+# --------------------------------------------------------------------------- one configuration
+
+_SINGLE_OPTIONS = ("aggregation", "radius", "p1", "p2", "zncc_eps")
+
+
+def single_config(args: Any) -> Any:
+    """The one StereoConfig that --cost (and its companions) name, or None for the tuning run."""
+    from research.stereo import StereoConfig
+
+    given = [name for name in _SINGLE_OPTIONS if getattr(args, name) is not None]
+    if args.cost is None:
+        if given:
+            raise ValueError(f"--{given[0].replace('_', '-')}: applies with --cost only (one configuration)")
+        return None
+    agg = args.aggregation or "sgm8"
+    radius = 2 if args.radius is None else args.radius
+    params: dict[str, Any] = {"cost": args.cost, "aggregation": agg}
+    if args.cost == "census":
+        from kernels.stereo import CENSUS_MAX_BITS
+
+        bits = (2 * radius + 1) * (2 * radius + 3) - 1
+        if bits > CENSUS_MAX_BITS:
+            raise ValueError(f"--radius: --cost census --radius {radius} is a {2 * radius + 1}x{2 * radius + 3} window "
+                             f"of {bits} bits; expected at most {CENSUS_MAX_BITS} (radius <= 3)")
+        params["census_radii"] = (radius, radius + 1)
+    else:
+        params["radius"] = radius
+    if args.zncc_eps is not None:
+        if args.cost != "zncc":
+            raise ValueError(f"--zncc-eps: applies to --cost zncc only, got --cost {args.cost}")
+        params["zncc_eps"] = args.zncc_eps
+    if agg == "none" and (args.p1 is not None or args.p2 is not None):
+        raise ValueError("--p1, --p2: apply to an SGM aggregation, got --aggregation none")
+    p1 = P1_BASE[args.cost] if args.p1 is None else args.p1
+    p2 = 8.0 * p1 if args.p2 is None else args.p2
+    if p2 < p1:
+        raise ValueError(f"--p2: expected P2 >= P1 = {p1:g}, got {p2:g}")
+    if agg != "none":
+        params.update(p1=p1, p2=p2)
+    try:
+        return StereoConfig(**params)
+    except ValueError as e:  # e.g. a census window over 64 bits
+        raise ValueError(f"--cost {args.cost} --radius {radius}: {e}") from None
+
+
+def run_single(ctx: Context, cfg: Any, st: Setup, tuning: list[Pair], evaluation: list[Pair],
+               datasets: dict[str, Any]) -> int:
+    """Score one configuration on the tuning pairs (tuning_d1, what a sweep picks by) and the evaluation pairs."""
+    m = drlab_method(cfg, st.dmax, ctx.device)
+    tuning_d1 = float(np.mean([score(*m.run(p)[:2], p)["noc"]["d1"] for p in tuning]))
+    r = evaluate_method(m, evaluation, tuning_d1, ctx)
+    table = (f"One configuration (no tuning): **{m.name}** ({_short(m.params)}), scenes {', '.join(SCENES)} at "
+             f"{st.res}x{st.res}, {st.spp} spp, disparities [0, {st.dmax}). Tuning D1: on the clean pairs p_000 of "
+             "each scene (what a sweep over configurations chooses by); the rest on the evaluation pairs, noc "
+             f"after KITTI fill, pooled over pairs, clean and stressed ({STRESS_NOTE}).\n\n"
+             + markdown_table(["method", "condition", "tuning D1", "EPE px", "bad-2", "D1 noc", "D1 all", "time ms"],
+                              [[m.name, c, f"{tuning_d1:.4f}", f"{r[POOLED[c]]['epe']:.3f}",
+                                f"{r[POOLED[c]]['bad2']:.4f}", f"{r[POOLED[c]]['d1']:.4f}",
+                                f"{r[POOLED[c]]['d1_all']:.4f}", f"{1000 * r['time_s_mean']:.1f}"]
+                               for c in CONDITIONS]))
+    config = {"quick": ctx.quick, "scenes": list(SCENES), **asdict(st), "single": cfg.to_dict(),
+              "tuning_pairs": [f"{p.scene}/{p.name}" for p in tuning], "stress": STRESS.to_dict(),
+              "evaluation_pairs": [f"{p.scene}/{p.name}" for p in evaluation if p.condition == "clean"]}
+    ctx.write_results(config=config, table_md=table,
+                      metrics={"best_drlab": m.name, "methods": {m.name: r}, "datasets": datasets})
     return 0
 
 
 # --------------------------------------------------------------------------- benchmarks
 
-# The configurations the default run chose on its Mitsuba tuning pairs (results/stereo_depth/metrics.json):
-# the best drlab configuration there, and census + SGM-8 (census is robust to gain and offset between cameras).
+# Configurations the default run chose on its Mitsuba tuning pairs (results/stereo_depth/metrics.json), none
+# on benchmark data: the best drlab configuration there (BT + SGM-4 soft-argmin since BT joined the grid; SAD +
+# SGM-4 soft-argmin before, kept for comparison), its robust choice (ZNCC + SGM-4: lowest mean of the clean and
+# the stressed tuning D1), and census + SGM-8 (census is robust to gain and offset between cameras). BT matches
+# colour images with its colour term.
 BENCHMARK_DRLAB = {
+    "BT + SGM-4 soft-argmin": {"cost": "bt", "aggregation": "sgm4", "p1": 0.02, "p2": 0.08, "radius": 3,
+                               "disparity": "soft_argmin", "temperature": 0.02},
+    "ZNCC + SGM-4": {"cost": "zncc", "aggregation": "sgm4", "p1": 0.4, "p2": 3.2, "radius": 5, "zncc_eps": 1e-3},
     "SAD + SGM-4 soft-argmin": {"cost": "sad", "aggregation": "sgm4", "p1": 0.02, "p2": 0.08, "radius": 4,
                                 "disparity": "soft_argmin", "temperature": 0.02},
     "census + SGM-8": {"cost": "census", "aggregation": "sgm8", "p1": 16.0, "p2": 128.0, "census_radii": (3, 4)},
@@ -431,6 +599,10 @@ def benchmark_format(ctx: Context) -> str | None:
             raise ValueError("--resolution, --max-disp: apply to a benchmark --data folder only, and "
                              f"{ctx.data} is not one")
         return None
+    given = [name for name in ("cost", *_SINGLE_OPTIONS) if getattr(args, name, None) is not None]
+    if given:
+        raise ValueError(f"--{given[0].replace('_', '-')}: applies to the Mitsuba run only, not to a benchmark "
+                         f"--data folder")
     if ctx.final_out == registry.default_out(ctx.name).absolute():
         raise ValueError(f"--out: a benchmark run needs its own results folder; the default {ctx.final_out} "
                          "holds the Mitsuba table")
@@ -485,9 +657,12 @@ def benchmark_figure(p: Any, runs: dict[str, tuple[np.ndarray, np.ndarray, float
 
 
 def _volume_bytes(shape: tuple[int, int], dmax: int) -> int:
-    """drlab's peak for one pair: four float32 (H, W, D) volumes (the cost, SGM's padded copy of it, its
-    aggregate and its output; kernels.stereo.sgm)."""
-    return 4 * 4 * int(shape[0]) * int(shape[1]) * int(dmax)
+    """drlab's peak for one pair: the largest over the benchmark configurations of the volumes `match`
+    holds at once (research.stereo.peak_volume_bytes: float32, or compact uint8/uint16 for census + SGM)."""
+    from research.stereo import StereoConfig, peak_volume_bytes
+
+    return max(peak_volume_bytes(StereoConfig(**cfg), int(shape[0]), int(shape[1]), int(dmax))
+               for cfg in BENCHMARK_DRLAB.values())
 
 
 def _free_memory() -> int | None:
@@ -535,7 +710,7 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
                              f"({p.disparity.shape[1]} px wide)")
         need = _volume_bytes(p.disparity.shape, drange(p))
         if free is not None and need > free:
-            raise ValueError(f"{p.source}: drlab's float32 volumes for {p.disparity.shape[1]}x{p.disparity.shape[0]}"
+            raise ValueError(f"{p.source}: drlab's volumes for {p.disparity.shape[1]}x{p.disparity.shape[0]}"
                              f" x {drange(p)} disparities need about {need / 2**30:.1f} GiB, more than the "
                              f"{free / 2**30:.1f} GiB available; use --resolution half or quarter, or --max-disp")
     peak = max(_volume_bytes(p.disparity.shape, drange(p)) for p in pairs)
@@ -604,7 +779,8 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
         f"{pooling}.{noc_note}{fg_note} drlab configurations chosen on the Mitsuba tuning pairs of the default "
         f"run, not on this data; OpenCV StereoSGBM with standard parameters. Time: wall per pair, drlab with "
         f"{default_threads()} CPU threads (device {ctx.device}), OpenCV with {cv2.getNumThreads()} threads; "
-        f"drlab's cost volumes take up to {peak / 2**20:.1f} MiB per pair (four float32 H x W x D volumes).\n\n"
+        f"drlab's cost volumes take up to {peak / 2**20:.1f} MiB per pair (research.stereo.peak_volume_bytes: "
+        f"float32 cost and aggregate; census + SGM in compact mode, uint8 costs and a uint16 aggregate).\n\n"
         + markdown_table(headers, rows))
     config = {"benchmark": fmt, "data": str(ctx.data), "resolution": args.resolution, "pairs": [p.name for p in pairs],
               "drlab_volume_peak_bytes": peak,
@@ -629,6 +805,25 @@ def _short(params: dict[str, Any]) -> str:
 
 def add_options(p: Any) -> None:
     from research.datasets.stereo_benchmarks import FORMATS, RESOLUTIONS
+    from research.stereo import AGGREGATIONS, COSTS
+
+    p.add_argument("--cost", choices=COSTS, default=None,
+                   help="evaluate ONE drlab configuration instead of tuning the grid (a sweep spreads the grid "
+                        "over tasks with this and the options below): this cost, scored on the tuning and the "
+                        "evaluation pairs, without OpenCV")
+    p.add_argument("--aggregation", choices=AGGREGATIONS, default=None,
+                   help="with --cost: the aggregation (default sgm8)")
+    p.add_argument("--radius", type=_nonnegative_int, default=None,
+                   help="with --cost: the window radius R of sad/zncc/bt/corr; census uses radii (R, R + 1), a "
+                        "(2R+1) x (2R+3) window, as the tuning grid (default 2)")
+    p.add_argument("--p1", type=_nonnegative_float, default=None,
+                   help="with --cost and SGM: P1 in the cost's units (research.stereo: [0, 1] intensity for "
+                        "sad/bt/corr, bits for census, 1 - correlation for zncc); default: the grid's base "
+                        f"({', '.join(f'{k} {v:g}' for k, v in P1_BASE.items())})")
+    p.add_argument("--p2", type=_nonnegative_float, default=None,
+                   help="with --cost and SGM: P2 >= P1 (default 8 P1)")
+    p.add_argument("--zncc-eps", type=_nonnegative_float, default=None,
+                   help="with --cost zncc: the variance floor (default 1e-4)")
 
     p.add_argument("--format", choices=FORMATS, default=None,
                    help="the benchmark layout of --data (default: detected from its files)")
@@ -637,6 +832,30 @@ def add_options(p: Any) -> None:
     p.add_argument("--max-disp", type=_max_disp, default=None,
                    help="benchmarks: disparity range [0, N), N a multiple of 16 (default: each pair's ndisp "
                         "rounded up to 16; KITTI 256)")
+
+
+def _nonnegative_int(value: str) -> int:
+    import argparse
+
+    try:
+        n = int(value)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value!r}")
+    return n
+
+
+def _nonnegative_float(value: str) -> float:
+    import argparse
+
+    try:
+        x = float(value)
+    except ValueError:
+        x = float("nan")
+    if not (np.isfinite(x) and x >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {value!r}")
+    return x
 
 
 def _max_disp(value: str) -> int:

@@ -13,7 +13,8 @@ A float32 grey image in [0, 1] comes back bit-identical, and a float64 one comes
 float32 rounding (what the stereo kernels always did with it), so callers that already passed such
 images get exactly the results they had. `to_unit_grey(..., dtype=None)` keeps a float64 input
 float64 (the Lucas-Kanade kernels run in the input's precision), and `to_unit` applies the unit
-rule only, keeping colour (the correlation-flow features are colour patches). Every check raises
+rule only, keeping colour (the correlation-flow features are colour patches; the Birchfield-Tomasi
+stereo cost has a colour term), and `unit_pair` does so for both images of a pair, as float32. Every check raises
 ValueError naming the argument.
 """
 
@@ -72,3 +73,13 @@ def unit_grey_pair(first: np.ndarray, second: np.ndarray, names: tuple[str, str]
     if a.shape != b.shape:
         raise ValueError(f"{names[0]}, {names[1]}: expected images of one size, got {a.shape} and {b.shape}")
     return a, b
+
+
+def unit_pair(first: np.ndarray, second: np.ndarray, names: tuple[str, str] = ("left", "right")
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Both images of a pair through `to_unit` (colour kept), as C-contiguous float32 of one shape."""
+    a, b = to_unit(first, names[0]), to_unit(second, names[1])
+    if a.shape != b.shape:
+        raise ValueError(f"{names[0]}, {names[1]}: expected images of one size and channel count, got "
+                         f"{a.shape} and {b.shape}")
+    return np.ascontiguousarray(a, dtype=np.float32), np.ascontiguousarray(b, dtype=np.float32)

@@ -3,7 +3,8 @@
 Pipeline (`match`): cost volume -> aggregation -> winner-take-all with the
 sub-pixel parabola (or soft-argmin) -> optional left-right check, where the
 right view's disparity comes from the same volume (kernels.stereo.wta_right).
-Costs: "sad", "zncc", "census", and "corr", the feature correlation on
+Costs: "sad", "zncc", "census", "bt" (Birchfield-Tomasi, kernels.stereo.bt: sampling-insensitive,
+with a colour term: colour images keep their channels), and "corr", the feature correlation on
 hand-made features (below), whose similarity is negated into a cost.
 Aggregations: "none", "sgm4", "sgm8".
 
@@ -20,9 +21,25 @@ Menze & Geiger; Middlebury, Scharstein & Szeliski), with e = |d - d_gt|:
     estimate gives a valid depth (Z = f b / d, kernels.stereo.depth_from_disparity).
 Images: `match` and `cost_volume` take uint8, uint16 or float images in [0, 1], grey (H, W) or
 colour (H, W, 3), through research.images.to_unit_grey (uint8 / 255, uint16 / 65535, colour by
-Rec. 601 luma; a float image outside [0, 1] is refused). The SGM penalties (P1 = 8, P2 = 64 by
-default) and the ZNCC epsilon are tuned for costs of images in [0, 1]: 0-255 images would make
-every SAD cost 255 times larger against the same penalties, which is why units are normalised.
+Rec. 601 luma, except "bt", which keeps colour; a float image outside [0, 1] is refused).
+
+Units of the penalties and thresholds, none of which depends on the stored image range (8 or 16
+bits, or float), because every image is first normalised to [0, 1]:
+  * SAD and BT costs are mean absolute intensity differences on that [0, 1] scale, so their P1, P2
+    (and a soft-argmin temperature) are in [0, 1] intensity units: P1 = 0.02 is a mean difference
+    of about 5 grey levels of 255;
+  * census costs are Hamming distances (counts of differing bits, 0 to the window's bit count),
+    so P1 = 8 means 8 differing comparisons, whatever the image range (census is also invariant to
+    any monotonic change of intensity: gain, offset, gamma);
+  * ZNCC costs are 1 - correlation in [0, 2] (unitless; invariant to gain and offset per window),
+    and the ZNCC epsilon is a variance floor in [0, 1]-intensity^2 units;
+  * "corr" costs are negated correlations of unit-norm patch features, in [-1, 1] (unitless).
+StereoConfig's defaults (P1 = 8, P2 = 64) are census units.
+
+Memory: every configuration holds float32 volumes (`peak_volume_bytes`: the cost and SGM's
+aggregate, 8 bytes per cell), except census + SGM + winner-take-all with integer penalties once
+those would exceed FLOAT_VOLUME_BUDGET (1 GiB): that runs in compact mode (`uses_compact`: uint8
+costs, a uint16 aggregate, 3 bytes per cell, the same results).
 
 Benchmark protocols (Middlebury, KITTI, ETH3D; `protocol_metrics`, `pool_protocol`) are described
 at the end of this module.
@@ -45,10 +62,10 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from kernels import _arrays as A
 from kernels import stereo
-from research.images import unit_grey_pair
+from research.images import unit_grey_pair, unit_pair
 from research.io import linear_to_srgb
 
-COSTS = ("sad", "zncc", "census", "corr")
+COSTS = ("sad", "zncc", "census", "bt", "corr")
 AGGREGATIONS = ("none", "sgm4", "sgm8")
 DISPARITY_METHODS = ("wta", "soft_argmin")
 BAD_THRESHOLDS = (1.0, 2.0, 3.0)
@@ -77,7 +94,7 @@ class StereoConfig:
     aggregation: str = "sgm8"
     p1: float = 8.0
     p2: float = 64.0
-    radius: int = 2  # window radius of SAD / ZNCC / patch features
+    radius: int = 2  # window radius of SAD / ZNCC / BT / patch features
     census_radii: tuple[int, int] = (3, 4)  # (ry, rx): a 7x9 window, 62 bits
     zncc_eps: float = 1e-4
     disparity: str = "wta"
@@ -104,7 +121,7 @@ class StereoConfig:
     @property
     def label(self) -> str:
         agg = {"none": "WTA", "sgm4": "SGM-4", "sgm8": "SGM-8"}[self.aggregation]
-        cost = {"sad": "SAD", "zncc": "ZNCC", "census": "census", "corr": "corr (patch feat.)"}[self.cost]
+        cost = {"sad": "SAD", "zncc": "ZNCC", "census": "census", "bt": "BT", "corr": "corr (patch feat.)"}[self.cost]
         tail = " soft-argmin" if self.disparity == "soft_argmin" else ""
         return f"{cost} + {agg}{tail}"
 
@@ -127,12 +144,12 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
     """
     import warp as wp
 
+    if cfg.cost == "bt":
+        _check_range_args(dmin, dmax)
+        l_img, r_img = (wp.array(x, device=device) for x in unit_pair(left, right))
+        return stereo.bt_cost(l_img, r_img, dmin, dmax, cfg.radius, device=device)
     left, right = unit_grey_pair(left, right)
-    if isinstance(dmin, bool) or isinstance(dmax, bool) or not all(isinstance(d, (int, np.integer))
-                                                                   for d in (dmin, dmax)):
-        raise ValueError(f"dmin, dmax: expected integers, got {dmin!r} and {dmax!r}")
-    if not dmin <= dmax:
-        raise ValueError(f"dmax: expected dmax >= dmin = {dmin}, got {dmax}")
+    _check_range_args(dmin, dmax)
     if cfg.cost == "corr":
         fl, fr = (wp.array(patch_features(x, cfg.radius), device=device) for x in (left, right))
         corr = stereo.feature_correlation(fl, fr, dmin, dmax, device=device)
@@ -142,7 +159,51 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
         return stereo.sad_cost(l_img, r_img, dmin, dmax, cfg.radius, device=device)
     if cfg.cost == "zncc":
         return stereo.zncc_cost(l_img, r_img, dmin, dmax, cfg.radius, eps=cfg.zncc_eps, device=device)
-    return stereo.census_cost(l_img, r_img, dmin, dmax, *cfg.census_radii, device=device)
+    compact = uses_compact(cfg, *left.shape, dmax - dmin)
+    return stereo.census_cost(l_img, r_img, dmin, dmax, *cfg.census_radii, compact=compact, device=device)
+
+
+# Above this many bytes of float32 volumes, census + SGM runs in compact mode (`uses_compact`).
+FLOAT_VOLUME_BUDGET = 2**30
+
+
+def uses_compact(cfg: StereoConfig, height: int, width: int, disparities: int) -> bool:
+    """Whether `match` runs `cfg` in kernels.stereo's compact mode: uint8 census costs and a uint16 SGM
+    aggregate (3 bytes per cell instead of float32's 8), whose results equal the float32 pipeline's
+    exactly. It applies to census + SGM + winner-take-all with integer P1 and P2, D a multiple of 8 and
+    paths x (census bits + P2) within uint16, when the float32 volumes would exceed FLOAT_VOLUME_BUDGET
+    (1 GiB): compact SGM converts every vector to float32 and back, which made it 1.8x slower than
+    float32 SGM at 256x256x64 (70 against 39 ms of CPU time, one thread), so it is kept for sizes
+    where memory, not time, is what runs out (Middlebury at half resolution, 1482x994x256: 3.0 GB of
+    float32 volumes, 1.1 GB compact)."""
+    if cfg.cost != "census" or cfg.aggregation == "none" or cfg.disparity != "wta" or disparities % 8:
+        return False
+    if cfg.p1 != int(cfg.p1) or cfg.p2 != int(cfg.p2):
+        return False
+    bits = (2 * cfg.census_radii[0] + 1) * (2 * cfg.census_radii[1] + 1) - 1
+    if int(cfg.aggregation[3:]) * (bits + int(cfg.p2)) > 65535:
+        return False
+    return 8 * int(height) * int(width) * int(disparities) > FLOAT_VOLUME_BUDGET
+
+
+def peak_volume_bytes(cfg: StereoConfig, height: int, width: int, disparities: int) -> int:
+    """The bytes of the (H, W, D) volumes `match` holds at once for `cfg`: the cost volume and SGM's
+    aggregate (plus SGM's padded copies when D is not a multiple of 8), in float32 or compact mode."""
+    cells = int(height) * int(width) * int(disparities)
+    if cfg.aggregation == "none":
+        return 4 * cells
+    if uses_compact(cfg, height, width, disparities):
+        return 3 * cells  # uint8 costs + uint16 aggregate
+    padded = int(height) * int(width) * (-(-int(disparities) // 8) * 8)
+    return 4 * (2 * cells + (2 * padded if padded != cells else 0))
+
+
+def _check_range_args(dmin: Any, dmax: Any) -> None:
+    if isinstance(dmin, bool) or isinstance(dmax, bool) or not all(isinstance(d, (int, np.integer))
+                                                                   for d in (dmin, dmax)):
+        raise ValueError(f"dmin, dmax: expected integers, got {dmin!r} and {dmax!r}")
+    if not dmin <= dmax:
+        raise ValueError(f"dmax: expected dmax >= dmin = {dmin}, got {dmax}")
 
 
 def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "cpu") -> StereoResult:
@@ -157,10 +218,13 @@ def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "
     if cfg.disparity == "soft_argmin":
         disp = stereo.soft_argmin(cost, dmin, cfg.temperature, device=device)
         valid = wp.ones(disp.shape, dtype=wp.uint8, device=device)
+        if cfg.lr_check:
+            disp_r, valid_r = stereo.wta_right(cost, dmin, device=device)
+    elif cfg.lr_check:  # both views' winners in one pass over the volume
+        disp, valid, disp_r, valid_r = stereo.wta_left_right(cost, dmin, uniqueness=cfg.uniqueness, device=device)
     else:
         disp, valid = stereo.wta(cost, dmin, uniqueness=cfg.uniqueness, device=device)
     if cfg.lr_check:
-        disp_r, valid_r = stereo.wta_right(cost, dmin, device=device)
         valid = stereo.left_right_check(disp, disp_r, cfg.lr_max_diff, valid_left=valid, valid_right=valid_r,
                                         device=device)
     disp_np, valid_np = disp.numpy().astype(np.float32), valid.numpy().astype(bool)

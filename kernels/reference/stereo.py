@@ -82,6 +82,39 @@ def census_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, ry: int, rx:
     return out
 
 
+def bt_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, r: int) -> np.ndarray:
+    """Window mean of the Birchfield-Tomasi dissimilarity (channel mean for colour (H, W, C) images);
+    out of range: the range of all pixel values."""
+    L, R = np.asarray(L, np.float64), np.asarray(R, np.float64)
+    if L.ndim == 2:
+        L, R = L[..., None], R[..., None]
+    H, W, C = L.shape
+
+    def half_range(img, y, x, c):
+        v = img[y, x, c]
+        vm, vp = 0.5 * (v + img[y, max(x - 1, 0), c]), 0.5 * (v + img[y, min(x + 1, W - 1), c])
+        return min(vm, vp, v), max(vm, vp, v)
+
+    def bt(y, x, u):
+        total = 0.0
+        for c in range(C):
+            lmin, lmax = half_range(L, y, x, c)
+            rmin, rmax = half_range(R, y, u, c)
+            e_lr = max(0.0, L[y, x, c] - rmax, rmin - L[y, x, c])
+            e_rl = max(0.0, R[y, u, c] - lmax, lmin - R[y, u, c])
+            total += min(e_lr, e_rl)
+        return total / C
+
+    invalid = max(L.max(), R.max()) - min(L.min(), R.min())
+    out = np.full((H, W, dmax - dmin), invalid, dtype=np.float64)
+    for y in range(H):
+        for x in range(W):
+            for k, d in enumerate(range(dmin, dmax)):
+                if 0 <= x - d < W:
+                    out[y, x, k] = np.mean([bt(v, u, u - d) for u, v in _window_cells(H, W, x, y, d, r)])
+    return out
+
+
 def feature_correlation(FL: np.ndarray, FR: np.ndarray, dmin: int, dmax: int) -> np.ndarray:
     """<F_L(x, y), F_R(x - d_k, y)> / sqrt(C); 0 out of range."""
     C, H, W = FL.shape

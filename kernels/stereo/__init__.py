@@ -2,10 +2,11 @@
 
 Conventions
 -----------
-Images are single-channel (H, W) float32 or float64 arrays (convert colour first); row 0 is the
-top. The pair is rectified: the left pixel (x, y) with disparity d matches the right pixel
-(x - d, y). A disparity range [dmin, dmax) gives D = dmax - dmin hypotheses d_k = dmin + k, and
-every cost volume is (H, W, D) with the hypotheses contiguous:
+Images are single-channel (H, W) float32 or float64 arrays (convert colour first; `bt_cost`
+alone also takes colour (H, W, C)); row 0 is the top. The pair is rectified: the left pixel (x, y)
+with disparity d matches the right pixel (x - d, y). A disparity range [dmin, dmax) gives
+D = dmax - dmin hypotheses d_k = dmin + k, and every cost volume is (H, W, D) with the hypotheses
+contiguous:
 
     C(x, y, k) = cost of matching I_L(x, y) with I_R(x - d_k, y),   lower = better,
 
@@ -16,8 +17,12 @@ Stages, one module each
 -----------------------
 * `costs`: SAD and ZNCC over a window (O(1) per cell from running sums), census + Hamming
   distance, and the feature correlation <F_L(x, y), F_R(x - d_k, y)> / sqrt(C) with its backward.
+* `bt`: the Birchfield-Tomasi sampling-insensitive dissimilarity (grey or colour, channel mean),
+  window-averaged like SAD.
 * `sgm`: semi-global matching (Hirschmueller, PAMI 2008), S(p, k) = sum_r L_r(p, k) over 4 or 8
   path directions r, L_r penalising disparity steps by P1 (one step) and P2 (more).
+* compact mode: census costs as uint8 and the SGM aggregate as uint16 (3 bytes per cell instead
+  of float32's 8, the same values), for sizes where float32 volumes do not fit (kernels.stereo.sgm).
 * `disparity`: winner-take-all with a sub-pixel parabola and a uniqueness test, the right view's
   winner from the same volume, soft-argmin d = sum_k d_k softmax_k(-C / T) with its backward, the
   left-right consistency check, and depth Z = f b / d.
@@ -35,15 +40,18 @@ ValueError naming it before any kernel runs. The backward entry points return a 
 forward's argument name to its gradient.
 """
 
+from kernels.stereo.bt import bt_cost
 from kernels.stereo.costs import (CENSUS_MAX_BITS, census_cost, census_transform, feature_correlation,
                                   feature_correlation_backward, sad_cost, zncc_cost)
 from kernels.stereo.disparity import (depth_from_disparity, left_right_check, soft_argmin, soft_argmin_backward,
-                                      wta, wta_right)
+                                      wta, wta_left_right, wta_right)
 from kernels.stereo.sgm import SGM_AXES, SGM_DIRECTIONS, SGM_LANES, sgm
 
 __all__ = [
     "CENSUS_MAX_BITS", "SGM_AXES", "SGM_DIRECTIONS", "SGM_LANES",
-    "sad_cost", "zncc_cost", "census_transform", "census_cost", "feature_correlation", "feature_correlation_backward",
+    "sad_cost", "zncc_cost", "bt_cost", "census_transform", "census_cost", "feature_correlation",
+    "feature_correlation_backward",
     "sgm",
-    "wta", "wta_right", "soft_argmin", "soft_argmin_backward", "left_right_check", "depth_from_disparity",
+    "wta", "wta_right", "wta_left_right", "soft_argmin", "soft_argmin_backward", "left_right_check",
+    "depth_from_disparity",
 ]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, check_int
@@ -53,3 +54,19 @@ def image_pair(a: Inputs, left: Any, right: Any, ndim: int = 2, names: tuple[str
     """Two non-empty, finite float arrays of one shape (`ndim` dimensions) and dtype, as wp.arrays."""
     first = a.floats(names[0], left, ndim=ndim, nonempty=True)
     return first, a.floats(names[1], right, first.shape)
+
+
+def compact_volume(a: Inputs, name: str, x: Any, dtype: Any) -> wp.array:
+    """An integer volume (H, W, D) of `dtype` (wp.uint8 or wp.uint16; compact mode) as a wp.array on the call's
+    device; its results are float32 (a.scalar)."""
+    a._array(name, x)
+    np_dtype = {wp.uint8: np.uint8, wp.uint16: np.uint16}[dtype]
+    if getattr(x, "dtype", None) not in (dtype, np_dtype):
+        raise ValueError(f"{name}: expected a float or a {np.dtype(np_dtype).name} volume, got dtype {x.dtype}")
+    if len(x.shape) != 3 or min(x.shape) == 0:
+        raise ValueError(f"{name}: expected a non-empty (H, W, D) volume, got shape {tuple(x.shape)}")
+    if a.scalar is None:
+        a.scalar = wp.float32
+    if isinstance(x, wp.array):
+        return x
+    return wp.array(np.ascontiguousarray(x), dtype=dtype, device=a.device)

@@ -26,7 +26,8 @@ cells out of range hold a fixed cost no real match can beat (each cost below nam
 * Census (Zabih & Woodfill, ECCV 1994): a (2 ry + 1) x (2 rx + 1) window (at most 64 bits, the
   centre excluded) becomes a bit string with bit [I(q) < I(p)] per neighbour q (raster order,
   coordinates clamped to the image); the cost is the Hamming distance
-  popcount(c_L(x, y) xor c_R(x - d, y)). Out of range: the number of bits.
+  popcount(c_L(x, y) xor c_R(x - d, y)). Out of range: the number of bits. With `compact` the
+  volume is uint8 (every distance is an integer <= 64), for kernels.stereo.sgm's compact mode.
 * Feature correlation, RAFT-Stereo's 1D correlation (Lipson, Teed & Deng, 3DV 2021) restricted to
   the disparity range, for learned features F (C, H, W) (PyTorch's layout, as kernels/corr.py):
 
@@ -56,6 +57,9 @@ from kernels.stereo._common import check_dmin, check_range, image_pair, pixel
 wp.set_module_options({"enable_backward": False})
 
 CENSUS_MAX_BITS = 64
+# The census cost is written as 8-wide vectors of hypotheses (SIMD stores on the CPU).
+CENSUS_VEC = {wp.float32: wp.types.vector(length=8, dtype=wp.float32),
+              wp.float64: wp.types.vector(length=8, dtype=wp.float64)}
 COST_SAD = 0
 COST_ZNCC = 1
 
@@ -198,12 +202,12 @@ def _census_transform(img: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=w
     c = img[y, x]
     bits = wp.uint64(0)
     for dy in range(-ry, ry + 1):
+        yy = wp.clamp(y + dy, 0, H - 1)
         for dx in range(-rx, rx + 1):
             if dy != 0 or dx != 0:
-                q = img[wp.clamp(y + dy, 0, H - 1), wp.clamp(x + dx, 0, W - 1)]
-                bits = bits << wp.uint64(1)
-                if q < c:
-                    bits = bits | wp.uint64(1)
+                q = img[yy, wp.clamp(x + dx, 0, W - 1)]
+                # Branch-free: on texture the comparison is a coin toss that a branch would mispredict.
+                bits = (bits << wp.uint64(1)) | wp.uint64(wp.where(q < c, 1, 0))
     out[y, x] = bits
 
 
@@ -219,6 +223,27 @@ def _census_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64
         if u >= 0 and u < W:
             h = int(wp.bit_count(a ^ cr[y, u]))
         out[y, x, k] = out.dtype(h)
+
+
+@wp.kernel
+def _census_cost_v(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64), out_v: wp.array(dtype=typing.Any),
+                   dmin: int, invalid: int, offset: int):
+    # _census_cost for D a multiple of 8: the volume as a flat array of 8-wide vectors, nb = D / 8 per
+    # pixel, each built in registers and stored whole.
+    W = cl.shape[1]
+    y, x = pixel(wp.tid() + offset, W)
+    nb = out_v.shape[0] / (cl.shape[0] * W)
+    a = cl[y, x]
+    base = (y * W + x) * nb
+    for j in range(nb):
+        v = out_v.dtype()
+        for lane in range(8):
+            u = x - (dmin + j * 8 + lane)
+            h = invalid
+            if u >= 0 and u < W:
+                h = int(wp.bit_count(a ^ cr[y, u]))
+            v[lane] = type(v[0])(h)
+        out_v[base + j] = v
 
 
 # =========================================================================== feature correlation
@@ -277,6 +302,10 @@ def _corr_backward_right(grad: wp.array3d(dtype=typing.Any), fl: wp.array3d(dtyp
         dfr[c, y, u] = acc * dfr.dtype(scale)
 
 
+declare_float_overloads(_census_cost_v, vector_types=CENSUS_VEC)
+CENSUS_U8_VEC = wp.types.vector(length=8, dtype=wp.uint8)
+wp.overload(_census_cost_v, {"out_v": wp.array(dtype=CENSUS_U8_VEC)})
+wp.overload(_census_cost, {"out": wp.array3d(dtype=wp.uint8)})
 for _kernel in (_integral_rows, _window_cost, _census_transform, _census_cost, _channels_last, _corr_forward,
                 _corr_backward_left, _corr_backward_right):
     declare_float_overloads(_kernel)
@@ -355,8 +384,9 @@ def census_transform(image: Any, radius_y: int = 3, radius_x: int = 4, *, device
 
 
 def census_cost(left: Any, right: Any, dmin: int, dmax: int, radius_y: int = 3, radius_x: int = 4, *,
-                device: Any = None) -> Any:
-    """Hamming distance between census bit strings: volume (H, W, D) in the images' dtype."""
+                compact: bool = False, device: Any = None) -> Any:
+    """Hamming distance between census bit strings: volume (H, W, D) in the images' dtype, or in uint8 with
+    `compact` (a quarter of float32's memory; the distances are integers <= 64, stored exactly)."""
     a = Inputs(device, left, right)
     l_img, r_img = image_pair(a, left, right)
     H, W = l_img.shape
@@ -366,8 +396,13 @@ def census_cost(left: Any, right: Any, dmin: int, dmax: int, radius_y: int = 3, 
     cr = a.empty((H, W), wp.uint64)
     a.launch(_census_transform, H * W, [l_img, cl, ry, rx])
     a.launch(_census_transform, H * W, [r_img, cr, ry, rx])
-    out = a.empty((H, W, D))
-    a.launch(_census_cost, H * W, [cl, cr, out, dmin, bits])
+    out = a.empty((H, W, D), wp.uint8 if compact else None)
+    if D % 8 == 0:
+        vec = CENSUS_U8_VEC if compact else CENSUS_VEC[a.scalar]
+        out_v = wp.array(ptr=out.ptr, dtype=vec, shape=(H * W * D // 8,), device=a.device)
+        a.launch(_census_cost_v, H * W, [cl, cr, out_v, dmin, bits])
+    else:
+        a.launch(_census_cost, H * W, [cl, cr, out, dmin, bits])
     return a.out(out)
 
 

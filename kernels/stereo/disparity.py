@@ -7,6 +7,10 @@
   u > 0, when some k with |k - k*| > 1 has C(p, k) (1 - u) < C(p, k*) (as OpenCV's
   uniquenessRatio). The right view's disparity comes from the same volume (Hirschmueller, PAMI
   2008, sec. 3.4): d_R(x_r) = argmin_k C(x_r + d_k, y, k), with the same refinement.
+  These three also take the uint16 aggregate of kernels.stereo.sgm's compact mode (its integer
+  costs are converted to float32 exactly, so the result equals that of the same volume in float32).
+  `wta_left_right` returns both from one sequential pass over each row of the volume (one thread
+  per row), the same values as `wta` and `wta_right`, without `wta_right`'s diagonal reads.
 * Soft-argmin (Kendall et al., GC-Net, ICCV 2017) with temperature T:
 
       sigma_k = softmax_k(-C(p, k) / T),   d = sum_k d_k sigma_k,
@@ -27,10 +31,11 @@ from __future__ import annotations
 import typing
 from typing import Any
 
+import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, check_float, declare_float_overloads
-from kernels.stereo._common import check_dmin, pixel
+from kernels.stereo._common import check_dmin, compact_volume, pixel
 
 wp.set_module_options({"enable_backward": False})
 
@@ -47,16 +52,17 @@ def _parabola(cm: typing.Any, c0: typing.Any, cp: typing.Any):
     return off
 
 
-@wp.kernel
-def _wta(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing.Any), valid: wp.array2d(dtype=wp.uint8),
-         dmin: int, subpixel: int, uniqueness: wp.float64, offset: int):
+@wp.func
+def _wta_pixel(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing.Any), y: int, x: int, dmin: int,
+               subpixel: int, uniqueness: wp.float64):
+    """(disparity, valid) of the left pixel (x, y): the first minimum, its checks and its parabola, in
+    `disp`'s float type (a uint16 volume's costs are converted exactly)."""
     W = cost.shape[1]
     D = cost.shape[2]
-    y, x = pixel(wp.tid() + offset, W)
     best = int(0)
-    cbest = cost[y, x, 0]
+    cbest = disp.dtype(cost[y, x, 0])
     for k in range(1, D):
-        c = cost[y, x, k]
+        c = disp.dtype(cost[y, x, k])
         if c < cbest:
             cbest = c
             best = k
@@ -65,14 +71,40 @@ def _wta(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing.Any),
     if x - d < 0 or x - d >= W:
         ok = 0
     if uniqueness > wp.float64(0.0):
-        keep = cost.dtype(wp.float64(1.0) - uniqueness)
+        keep = disp.dtype(wp.float64(1.0) - uniqueness)
         for k in range(D):
-            if (k < best - 1 or k > best + 1) and cost[y, x, k] * keep < cbest:
+            if (k < best - 1 or k > best + 1) and disp.dtype(cost[y, x, k]) * keep < cbest:
                 ok = 0
     out = disp.dtype(d)
     if subpixel != 0 and best > 0 and best + 1 < D:
-        out = out + disp.dtype(_parabola(cost[y, x, best - 1], cbest, cost[y, x, best + 1]))
-    disp[y, x] = out
+        out = out + _parabola(disp.dtype(cost[y, x, best - 1]), cbest, disp.dtype(cost[y, x, best + 1]))
+    return out, ok
+
+
+@wp.func
+def _right_pixel(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing.Any), y: int, xr: int, best: int,
+                 cbest: typing.Any, dmin: int, subpixel: int):
+    """(disparity, valid) of the right pixel xr whose first minimum is hypothesis `best` (-1: none in range)."""
+    W = cost.shape[1]
+    D = cost.shape[2]
+    out = disp.dtype(0.0)
+    ok = int(0)
+    if best >= 0:
+        ok = 1
+        out = disp.dtype(dmin + best)
+        xm = xr + dmin + best - 1
+        xp = xr + dmin + best + 1
+        if subpixel != 0 and best > 0 and best + 1 < D and xm >= 0 and xp < W:
+            out = out + _parabola(disp.dtype(cost[y, xm, best - 1]), cbest, disp.dtype(cost[y, xp, best + 1]))
+    return out, ok
+
+
+@wp.kernel
+def _wta(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing.Any), valid: wp.array2d(dtype=wp.uint8),
+         dmin: int, subpixel: int, uniqueness: wp.float64, offset: int):
+    y, x = pixel(wp.tid() + offset, cost.shape[1])
+    d, ok = _wta_pixel(cost, disp, y, x, dmin, subpixel, uniqueness)
+    disp[y, x] = d
     valid[y, x] = wp.uint8(ok)
 
 
@@ -84,25 +116,48 @@ def _wta_right(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing
     D = cost.shape[2]
     y, xr = pixel(wp.tid() + offset, W)
     best = int(-1)
-    cbest = cost.dtype(0.0)
+    cbest = disp.dtype(0.0)
     for k in range(D):
         x = xr + dmin + k
         if x >= 0 and x < W:
-            c = cost[y, x, k]
+            c = disp.dtype(cost[y, x, k])
             if best < 0 or c < cbest:
                 cbest = c
                 best = k
-    out = disp.dtype(0.0)
-    ok = int(0)
-    if best >= 0:
-        ok = 1
-        out = disp.dtype(dmin + best)
-        xm = xr + dmin + best - 1
-        xp = xr + dmin + best + 1
-        if subpixel != 0 and best > 0 and best + 1 < D and xm >= 0 and xp < W:
-            out = out + disp.dtype(_parabola(cost[y, xm, best - 1], cbest, cost[y, xp, best + 1]))
-    disp[y, xr] = out
+    d, ok = _right_pixel(cost, disp, y, xr, best, cbest, dmin, subpixel)
+    disp[y, xr] = d
     valid[y, xr] = wp.uint8(ok)
+
+
+@wp.kernel
+def _wta_rows(cost: wp.array3d(dtype=typing.Any), disp_l: wp.array2d(dtype=typing.Any),
+              valid_l: wp.array2d(dtype=wp.uint8), disp_r: wp.array2d(dtype=typing.Any),
+              valid_r: wp.array2d(dtype=wp.uint8), best_r: wp.array2d(dtype=wp.int32), dmin: int, subpixel: int,
+              uniqueness: wp.float64, offset: int):
+    # One thread per row: both views' winners from one sequential pass over the row's cells. The
+    # right pixel xr = x - d_k meets its hypotheses k in increasing order as x increases, so keeping
+    # the first strict minimum gives _wta_right's first minimum. disp_r holds the running minimum
+    # cost until the last loop turns it into the disparity.
+    y = wp.tid() + offset
+    W = cost.shape[1]
+    D = cost.shape[2]
+    for xr in range(W):
+        best_r[y, xr] = -1
+    for x in range(W):
+        for k in range(D):
+            xr = x - dmin - k
+            if xr >= 0 and xr < W:
+                c = disp_r.dtype(cost[y, x, k])
+                if best_r[y, xr] < 0 or c < disp_r[y, xr]:
+                    disp_r[y, xr] = c
+                    best_r[y, xr] = k
+        d, ok = _wta_pixel(cost, disp_l, y, x, dmin, subpixel, uniqueness)
+        disp_l[y, x] = d
+        valid_l[y, x] = wp.uint8(ok)
+    for xr in range(W):
+        d, ok = _right_pixel(cost, disp_r, y, xr, best_r[y, xr], disp_r[y, xr], dmin, subpixel)
+        disp_r[y, xr] = d
+        valid_r[y, xr] = wp.uint8(ok)
 
 
 @wp.func
@@ -175,16 +230,23 @@ def _depth(disp: wp.array2d(dtype=typing.Any), valid: wp.array2d(dtype=wp.uint8)
     valid_out[y, x] = wp.uint8(ok)
 
 
-for _kernel in (_wta, _wta_right, _soft_argmin_forward, _soft_argmin_backward, _left_right_check, _depth):
+for _kernel in (_wta, _wta_right, _wta_rows, _soft_argmin_forward, _soft_argmin_backward, _left_right_check, _depth):
     declare_float_overloads(_kernel)
+# Winners of a compact (uint16) aggregate, as float32 disparities.
+for _kernel, _disp in ((_wta, ("disp",)), (_wta_right, ("disp",)), (_wta_rows, ("disp_l", "disp_r"))):
+    wp.overload(_kernel, {"cost": wp.array3d(dtype=wp.uint16), **{n: wp.array2d(dtype=wp.float32) for n in _disp}})
 
 
 # =========================================================================== entry points
 
 
-def _volume(a: Inputs, cost: Any, dmin: Any) -> tuple[wp.array, int]:
-    """The cost volume (H, W, D) and dmin, checked against each other."""
-    c = a.floats("cost", cost, ndim=3, nonempty=True)
+def _volume(a: Inputs, cost: Any, dmin: Any, compact: bool = False) -> tuple[wp.array, int]:
+    """The cost volume (H, W, D) and dmin, checked against each other; with `compact`, a uint16 volume
+    (kernels.stereo.sgm's compact aggregate) is taken too, with float32 results."""
+    if compact and getattr(cost, "dtype", None) in (wp.uint16, np.uint16):
+        c = compact_volume(a, "cost", cost, wp.uint16)
+    else:
+        c = a.floats("cost", cost, ndim=3, nonempty=True)
     return c, check_dmin(dmin, c.shape[2], c.shape[1])
 
 
@@ -197,7 +259,7 @@ def wta(cost: Any, dmin: int, *, subpixel: bool = True, uniqueness: float = 0.0,
         device: Any = None) -> tuple[Any, Any]:
     """Winner-take-all left disparity (H, W) and its validity mask (see the module docstring)."""
     a = Inputs(device, cost)
-    c, dmin = _volume(a, cost, dmin)
+    c, dmin = _volume(a, cost, dmin, compact=True)
     u = check_float("uniqueness", uniqueness, nonnegative=True)
     if u >= 1.0:
         raise ValueError(f"uniqueness: expected a ratio in [0, 1), got {uniqueness!r}")
@@ -211,12 +273,30 @@ def wta(cost: Any, dmin: int, *, subpixel: bool = True, uniqueness: float = 0.0,
 def wta_right(cost: Any, dmin: int, *, subpixel: bool = True, device: Any = None) -> tuple[Any, Any]:
     """The right view's winner-take-all disparity (H, W) from the left volume, and its validity mask."""
     a = Inputs(device, cost)
-    c, dmin = _volume(a, cost, dmin)
+    c, dmin = _volume(a, cost, dmin, compact=True)
     H, W, _ = c.shape
     disp = a.empty((H, W))
     valid = a.empty((H, W), wp.uint8)
     a.launch(_wta_right, H * W, [c, disp, valid, dmin, int(bool(subpixel))], min_chunk=256)
     return a.out(disp), a.out_mask(valid)
+
+
+def wta_left_right(cost: Any, dmin: int, *, subpixel: bool = True, uniqueness: float = 0.0,
+                   device: Any = None) -> tuple[Any, Any, Any, Any]:
+    """`wta` and `wta_right` of one volume in one pass over it: (disp_left, valid_left, disp_right, valid_right),
+    each equal to what the two entry points return."""
+    a = Inputs(device, cost)
+    c, dmin = _volume(a, cost, dmin, compact=True)
+    u = check_float("uniqueness", uniqueness, nonnegative=True)
+    if u >= 1.0:
+        raise ValueError(f"uniqueness: expected a ratio in [0, 1), got {uniqueness!r}")
+    H, W, _ = c.shape
+    disp_l, disp_r = a.empty((H, W)), a.empty((H, W))
+    valid_l, valid_r = a.empty((H, W), wp.uint8), a.empty((H, W), wp.uint8)
+    best_r = a.empty((H, W), wp.int32)
+    a.launch(_wta_rows, H, [c, disp_l, valid_l, disp_r, valid_r, best_r, dmin, int(bool(subpixel)), wp.float64(u)],
+             min_chunk=4)
+    return a.out(disp_l), a.out_mask(valid_l), a.out(disp_r), a.out_mask(valid_r)
 
 
 def soft_argmin(cost: Any, dmin: int, temperature: float = 1.0, *, device: Any = None) -> Any:

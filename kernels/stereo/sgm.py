@@ -16,10 +16,20 @@ lies on exactly one scanline of an axis, so the writes of S are disjoint and the
 across CPU threads (kernels.launch: a CPU launch runs on one thread and releases the GIL,
 docs/warp.md); axes run one after another.
 
-The hypotheses are processed as 8-wide vectors (SIMD on the CPU): the k - 1 and k + 1 candidates
-are the previous L_r shifted by one lane. D is padded to a multiple of 8 with hypotheses costing
+The hypotheses are processed as 8-wide vectors (SIMD on the CPU). Each scanline keeps L_r(p - r) in a
+row buffer between +inf sentinels, and reads the k - 1 and k + 1 candidates as the vectors that
+start one scalar before and after (unaligned vector views of the buffer), so no lane is shuffled;
+L_r(p) goes to a second row buffer and the two swap every step. D is padded to a multiple of 8 with hypotheses costing
 max C + 2 P2 + |max C| + 1, which no L_r(p, k) <= C(p, k) + P2 of a real hypothesis can reach, so
 the padding changes neither the real L_r nor their minimum.
+
+Compact mode (a uint8 cost volume, for instance census Hamming distances): the aggregate S is
+uint16, 3 bytes per cell in all instead of float32's 8. The recurrence still runs in float32
+vectors, converting each cost vector on load and each aggregate vector on load and store. With
+integer costs and integer P1, P2 every L_r and S is an integer below 2^24, so float32 holds them
+exactly and S equals the float32 pipeline's bit for bit, provided S fits: every L_r(p, k) <= C(p, k)
++ P2, so S <= paths (max C + P2), which must be <= 65535 (checked). D must be a multiple of 8 (no
+padding in this mode).
 """
 
 from __future__ import annotations
@@ -27,10 +37,11 @@ from __future__ import annotations
 import typing
 from typing import Any
 
+import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
-from kernels.stereo._common import pixel
+from kernels.stereo._common import compact_volume, pixel
 
 wp.set_module_options({"enable_backward": False})
 
@@ -46,65 +57,64 @@ SGM_VEC = {wp.float32: wp.types.vector(length=SGM_LANES, dtype=wp.float32),
 
 
 @wp.func
-def _record(buf_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), b: int, i: int, lr: typing.Any,
-            lanes_min: typing.Any, write: int):
-    """buf_v[b] = lr and agg_v[i] = lr (assigned when `write`, else added); returns min(lanes_min, lr)."""
-    buf_v[b] = lr
-    if write != 0:
-        agg_v[i] = lr
-    else:
-        agg_v[i] = agg_v[i] + lr
-    return wp.min(lanes_min, lr)
-
-
-@wp.func
-def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), buf_v: wp.array(dtype=typing.Any),
-              nb: int, bb: int, base: int, step: int, n: int, p1: typing.Any, p2: typing.Any, write: int):
+def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), win_v: wp.array(dtype=typing.Any),
+              nb: int, b0: int, b1: int, base: int, step: int, n: int, p1: typing.Any, p2: typing.Any, write: int):
     """L_r along one scanline of n + 1 pixels starting at flat vector index `base`, moving by `step`.
 
-    Each pixel holds nb vectors; buf_v[bb:bb + nb] carries L_r(p - r) and is updated in place.
-    agg_v receives L_r (assigned when `write`, else added).
+    Each pixel holds nb vectors. win_v views a scalar buffer as vectors starting at any scalar
+    offset; b0 and b1 are the offsets of two rows of nb * 8 scalars (each with a +inf sentinel
+    before and after) that hold L_r(p - r) and receive L_r(p), swapped every step. agg_v receives
+    L_r (assigned when `write`, else added).
     """
-    p1_v = cost_v.dtype(p1)
-    p2_v = cost_v.dtype(p2)
-    lanes_min = cost_v[base]
+    # Arithmetic in win_v's float vectors; the volumes may hold integers (compact mode), converted on
+    # load and store (exact: compact mode runs on integer costs and penalties, module docstring).
+    p1_v = win_v.dtype(p1)
+    lanes_min = win_v.dtype(cost_v[base])
     for j in range(nb):
-        lanes_min = _record(buf_v, agg_v, bb + j, base + j, cost_v[base + j], lanes_min, write)
+        c = win_v.dtype(cost_v[base + j])
+        win_v[b0 + 8 * j] = c
+        if write != 0:
+            agg_v[base + j] = agg_v.dtype(c)
+        else:
+            agg_v[base + j] = agg_v.dtype(win_v.dtype(agg_v[base + j]) + c)
+        lanes_min = wp.min(lanes_min, c)
     prev_min = wp.min(lanes_min)
+    src = b0
+    dst = b1
     for _s in range(n):
         base += step
-        jump = prev_min + p2
-        jump_v = cost_v.dtype(jump)
-        prev_v = cost_v.dtype(prev_min)
-        # L_r(p - r, k - 1) and (k + 1) are the previous vector shifted by one lane; past either end
-        # of the range the candidate is `jump`, which never undercuts the P2 candidate.
-        below = jump
-        cur = buf_v[bb]
-        lanes_min = jump_v + p2_v
+        jump_v = win_v.dtype(prev_min + p2)
+        prev_v = win_v.dtype(prev_min)
+        # min_k L_r(p, k), from +inf: any finite start could undercut it (costs may rise by more than
+        # P2 from one pixel to the next, or be negative), and a wrong minimum changes the P2 candidate.
+        lanes_min = win_v.dtype(wp.inf)
         for j in range(nb):
-            nxt = cur
-            above = jump
-            if j + 1 < nb:
-                nxt = buf_v[bb + j + 1]
-                above = nxt[0]
-            down = cost_v.dtype(below, cur[0], cur[1], cur[2], cur[3], cur[4], cur[5], cur[6])
-            up = cost_v.dtype(cur[1], cur[2], cur[3], cur[4], cur[5], cur[6], cur[7], above)
-            best = wp.min(wp.min(cur, jump_v), wp.min(down, up) + p1_v)
-            lanes_min = _record(buf_v, agg_v, bb + j, base + j, cost_v[base + j] + best - prev_v, lanes_min, write)
-            below = cur[7]
-            cur = nxt
+            # L_r(p - r, k - 1) and (k + 1) are the vectors one scalar before and after; past either end of
+            # the range the sentinel is +inf, which never undercuts the P2 candidate `jump`.
+            o = src + 8 * j
+            best = wp.min(wp.min(win_v[o], jump_v), wp.min(win_v[o - 1], win_v[o + 1]) + p1_v)
+            lr = win_v.dtype(cost_v[base + j]) + best - prev_v
+            win_v[dst + 8 * j] = lr
+            if write != 0:
+                agg_v[base + j] = agg_v.dtype(lr)
+            else:
+                agg_v[base + j] = agg_v.dtype(win_v.dtype(agg_v[base + j]) + lr)
+            lanes_min = wp.min(lanes_min, lr)
         prev_min = wp.min(lanes_min)
+        t = src
+        src = dst
+        dst = t
     return 0
 
 
 @wp.kernel
-def _sgm_axis(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), buf_v: wp.array(dtype=typing.Any),
+def _sgm_axis(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), win_v: wp.array(dtype=typing.Any),
               H: int, W: int, dy: int, dx: int, p1: typing.Any, p2: typing.Any, first: int, offset: int):
     # One thread per scanline along axis (dy, dx), dy >= 0: it runs the path r = (dy, dx), then the
     # opposite path -r back along the same pixels, which are still in cache. Volumes are flat arrays
-    # of 8-wide vectors, nb per pixel.
+    # of 8-wide vectors, nb per pixel; scanline i owns 2 (nb * 8 + 2) scalars of the row buffers.
     i = wp.tid() + offset
-    nb = buf_v.shape[0] / (W + H - 1)
+    nb = agg_v.shape[0] / (H * W)
     y = int(0)
     x = int(0)
     if dy == 0:
@@ -121,8 +131,10 @@ def _sgm_axis(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.A
     n = wp.min(wp.where(dy > 0, H - 1 - y, big), wp.where(dx > 0, W - 1 - x, wp.where(dx < 0, x, big)))
     step = (dy * W + dx) * nb
     base = (y * W + x) * nb
-    _sgm_walk(cost_v, agg_v, buf_v, nb, i * nb, base, step, n, p1, p2, first)
-    _sgm_walk(cost_v, agg_v, buf_v, nb, i * nb, base + n * step, -step, n, p1, p2, 0)
+    row = nb * SGM_LANES + 2
+    b0 = i * 2 * row + 1
+    _sgm_walk(cost_v, agg_v, win_v, nb, b0, b0 + row, base, step, n, p1, p2, first)
+    _sgm_walk(cost_v, agg_v, win_v, nb, b0, b0 + row, base + n * step, -step, n, p1, p2, 0)
 
 
 @wp.kernel
@@ -138,13 +150,26 @@ def _copy_hypotheses(src: wp.array3d(dtype=typing.Any), dst: wp.array3d(dtype=ty
 
 
 declare_float_overloads(_sgm_axis, vector_types=SGM_VEC)
+# Compact mode: uint8 costs in, uint16 aggregate out, float32 arithmetic.
+COMPACT_COST_VEC = wp.types.vector(length=SGM_LANES, dtype=wp.uint8)
+COMPACT_AGG_VEC = wp.types.vector(length=SGM_LANES, dtype=wp.uint16)
+wp.overload(_sgm_axis, {"cost_v": wp.array(dtype=COMPACT_COST_VEC), "agg_v": wp.array(dtype=COMPACT_AGG_VEC),
+                        "win_v": wp.array(dtype=SGM_VEC[wp.float32]), "p1": wp.float32, "p2": wp.float32})
 declare_float_overloads(_copy_hypotheses)
 
 
 def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) -> Any:
-    """Semi-global matching: S = sum over `paths` (4 or 8) directions of L_r; volume like `cost`."""
+    """Semi-global matching: S = sum over `paths` (4 or 8) directions of L_r.
+
+    A float volume gives a volume like `cost`. A uint8 volume (compact mode, module docstring) gives
+    a uint16 one; it needs D a multiple of 8, integer P1 and P2, and paths * (max C + P2) <= 65535.
+    """
     a = Inputs(device, cost)
-    c = a.floats("cost", cost, ndim=3, nonempty=True)
+    compact = _is_uint8(cost)
+    if compact:
+        c = compact_volume(a, "cost", cost, wp.uint8)
+    else:
+        c = a.floats("cost", cost, ndim=3, nonempty=True)
     if check_int("paths", paths) not in (4, 8):
         raise ValueError(f"paths: expected 4 or 8, got {paths!r}")
     p1 = check_float("p1", p1, nonnegative=True)
@@ -153,6 +178,22 @@ def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) 
         raise ValueError(f"p2: expected p2 >= p1 = {p1}, got {p2}")
     H, W, D = c.shape
     nb = -(-D // SGM_LANES)
+    if compact:
+        if D % SGM_LANES:
+            raise ValueError(f"cost: a uint8 volume needs a multiple of {SGM_LANES} hypotheses, got {D}")
+        for name, value in (("p1", p1), ("p2", p2)):
+            if value != int(value):
+                raise ValueError(f"{name}: a uint8 volume needs integer penalties, got {value}")
+        bound = paths * (int(c.numpy().max()) + int(p2))
+        if bound > 65535:
+            raise ValueError(f"p2: {paths} paths x (max cost + P2) = {bound} exceeds the uint16 aggregate "
+                             "(65535); use a float volume")
+        a.scalar = wp.float32
+        cost_v = wp.array(ptr=c.ptr, dtype=COMPACT_COST_VEC, shape=(H * W * nb,), device=a.device)
+        agg = a.empty((H, W, D), wp.uint16)
+        agg_v = wp.array(ptr=agg.ptr, dtype=COMPACT_AGG_VEC, shape=(H * W * nb,), device=a.device)
+        _aggregate(a, cost_v, agg_v, H, W, nb, p1, p2, paths)
+        return a.out(agg)
     padded = c
     if nb * SGM_LANES != D:
         # Padding hypotheses cost more than any real L_r can reach (every L_r(p, k) <= C(p, k) + P2), so
@@ -165,13 +206,29 @@ def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) 
     cost_v = wp.array(ptr=padded.ptr, dtype=vec, shape=(H * W * nb,), device=a.device)
     agg = a.empty((H, W, nb * SGM_LANES))
     agg_v = wp.array(ptr=agg.ptr, dtype=vec, shape=(H * W * nb,), device=a.device)
-    buf_v = a.empty(((W + H - 1) * nb,), vec)
-    for j, (dy, dx) in enumerate(SGM_AXES[: paths // 2]):
-        lines = H if dy == 0 else (W if dx == 0 else W + H - 1)
-        a.launch(_sgm_axis, lines, [cost_v, agg_v, buf_v, H, W, dy, dx, a.s(p1), a.s(p2), int(j == 0)],
-                 min_chunk=8)
+    _aggregate(a, cost_v, agg_v, H, W, nb, p1, p2, paths)
     if nb * SGM_LANES != D:
         out = a.empty((H, W, D))
         a.launch(_copy_hypotheses, H * W, [agg, out, wp.float64(0.0)])
         agg = out
     return a.out(agg)
+
+
+def _is_uint8(x: Any) -> bool:
+    return getattr(x, "dtype", None) in (wp.uint8, np.uint8)
+
+
+def _aggregate(a: Inputs, cost_v: wp.array, agg_v: wp.array, H: int, W: int, nb: int, p1: float, p2: float,
+               paths: int) -> None:
+    """The axis launches of `sgm` over flat vector views of the cost and the aggregate."""
+    vec = SGM_VEC[a.scalar]
+    # Two rows of nb * 8 scalars per scanline, each between +inf sentinels, viewed as vectors that may
+    # start at any scalar (stride: one scalar).
+    row = nb * SGM_LANES + 2
+    buf = wp.full(((W + H - 1) * 2 * row,), float("inf"), dtype=a.scalar, device=a.device)
+    item = 4 if a.scalar == wp.float32 else 8
+    win_v = wp.array(ptr=buf.ptr, dtype=vec, shape=(buf.shape[0] - SGM_LANES + 1,), strides=(item,), device=a.device)
+    for j, (dy, dx) in enumerate(SGM_AXES[: paths // 2]):
+        lines = H if dy == 0 else (W if dx == 0 else W + H - 1)
+        a.launch(_sgm_axis, lines, [cost_v, agg_v, win_v, H, W, dy, dx, a.s(p1), a.s(p2), int(j == 0)],
+                 min_chunk=8)

@@ -50,7 +50,30 @@ def test_zncc_matches_reference(dtype, seed, drange, radius):
     np.testing.assert_allclose(got, ref.zncc_cost(L, R, *drange, radius, 1e-4), rtol=RTOL[dtype], atol=1e-6)
 
 
-@pytest.mark.parametrize("cost", ["sad", "zncc", "census"])
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("seed,drange,radius,channels", [(0, (0, 5), 2, 0), (1, (-2, 4), 1, 3), (2, (3, 9), 0, 3)])
+def test_bt_matches_reference(dtype, seed, drange, radius, channels):
+    rng = np.random.default_rng(seed)
+    shape = (7, 11, channels) if channels else (7, 11)
+    L = rng.uniform(0.0, 1.0, shape)
+    R = np.clip(np.roll(L, -2, axis=1) + 0.05 * rng.standard_normal(shape), 0, 1)
+    L, R = L.astype(dtype), R.astype(dtype)
+    got = stereo.bt_cost(L, R, *drange, radius)
+    assert got.dtype == dtype and got.shape == (7, 11, drange[1] - drange[0])
+    np.testing.assert_allclose(got, ref.bt_cost(L, R, *drange, radius), rtol=RTOL[dtype], atol=1e-7)
+
+
+def test_bt_is_insensitive_to_half_pixel_sampling():
+    # A linear ramp and its copy shifted by half a pixel: BT costs 0 at the nearest integer shifts (SAD does not).
+    x = np.arange(16, dtype=np.float64)
+    L = np.tile(x / 32.0, (4, 1))
+    R = np.tile((x + 0.5) / 32.0, (4, 1))  # I_R(u) = I_L(u + 0.5): true disparity 0.5
+    bt, sad = stereo.bt_cost(L, R, 0, 2, 0), stereo.sad_cost(L, R, 0, 2, 0)
+    assert np.abs(bt[:, 1:-1, :]).max() < 1e-12
+    assert sad[:, 1:-1, :].min() > 0.01
+
+
+@pytest.mark.parametrize("cost", ["sad", "zncc", "census", "bt"])
 def test_out_of_range_cells_cost_at_least_any_match(cost):
     # Images with disjoint value ranges: the out-of-range fill must still bound every real cost from above.
     rng = np.random.default_rng(12)
@@ -71,9 +94,9 @@ def test_zncc_flat_window_is_finite():
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
-@pytest.mark.parametrize("seed,drange,radii", [(0, (0, 5), (1, 2)), (1, (-2, 6), (3, 4))])
+@pytest.mark.parametrize("seed,drange,radii", [(0, (0, 5), (1, 2)), (1, (-2, 6), (3, 4)), (2, (-3, 13), (2, 2))])
 def test_census_matches_reference(dtype, seed, drange, radii):
-    L, R = _images(seed, dtype=dtype)
+    L, R = _images(seed, shape=(9, 21), dtype=dtype)  # D = 16: the 8-wide vector path; 5: the scalar one
     np.testing.assert_array_equal(stereo.census_transform(L, *radii), ref.census_transform(L, *radii))
     got = stereo.census_cost(L, R, *drange, *radii)
     assert got.dtype == dtype
@@ -97,6 +120,21 @@ def test_sgm_matches_reference(dtype, paths, seed):
     C = rng.uniform(0.0, 4.0, (6, 8, 5)).astype(dtype)
     got = stereo.sgm(C, 0.5, 2.0, paths)
     np.testing.assert_allclose(got, ref.sgm(C, 0.5, 2.0, paths), rtol=SGM_RTOL[dtype])
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("paths", [4, 8])
+def test_sgm_running_minimum_when_costs_jump_or_are_negative(dtype, paths):
+    # Costs that rise by far more than 2 P2 between neighbours, and negative costs (a negated correlation):
+    # the running minimum must be the true one (an earlier kernel started it at min + 2 P2 and drifted).
+    rng = np.random.default_rng(9)
+    C = rng.uniform(0.0, 0.2, (5, 14, 8))
+    C[:, 6:, :] += 5.0
+    C[2:, :, :] -= 3.0
+    C[:, 10:, :] = -rng.uniform(0.0, 1.0, (5, 4, 8))
+    got = stereo.sgm(C.astype(dtype), 0.1, 0.5, paths)
+    assert np.all(np.isfinite(got))
+    np.testing.assert_allclose(got, ref.sgm(C.astype(dtype), 0.1, 0.5, paths), rtol=SGM_RTOL[dtype], atol=1e-5)
 
 
 def test_sgm_single_path_edge_cases():
@@ -137,6 +175,45 @@ def test_wta_right_matches_reference(dtype, dmin):
     rdisp, rvalid = ref.wta_right(C, dmin)
     np.testing.assert_array_equal(valid, rvalid)
     np.testing.assert_allclose(disp[valid], rdisp[rvalid], rtol=RTOL[dtype], atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("dmin,uniqueness,subpixel", [(0, 0.0, True), (-3, 0.2, True), (2, 0.0, False)])
+def test_wta_left_right_equals_the_two_passes(dtype, dmin, uniqueness, subpixel):
+    rng = np.random.default_rng(4)
+    C = rng.uniform(0.0, 1.0, (5, 17, 7)).astype(dtype)
+    C[0, :, 2] = C[0, :, 3]  # ties: the first minimum wins in both views
+    dl, vl, dr, vr = stereo.wta_left_right(C, dmin, uniqueness=uniqueness, subpixel=subpixel)
+    dl0, vl0 = stereo.wta(C, dmin, uniqueness=uniqueness, subpixel=subpixel)
+    dr0, vr0 = stereo.wta_right(C, dmin, subpixel=subpixel)
+    for got, want in ((dl, dl0), (vl, vl0), (dr, dr0), (vr, vr0)):
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("drange", [(0, 16), (-3, 13), (0, 13)])
+def test_compact_census_sgm_and_winners_equal_the_float_pipeline(drange):
+    # uint8 census costs, a uint16 aggregate: every value is an integer, so each stage equals float32's exactly.
+    L, R = _images(5, shape=(11, 23), dtype=np.float32)
+    c8 = stereo.census_cost(L, R, *drange, 2, 3, compact=True)
+    c32 = stereo.census_cost(L, R, *drange, 2, 3)
+    assert c8.dtype == np.uint8
+    np.testing.assert_array_equal(c8.astype(np.float32), c32)
+    if (drange[1] - drange[0]) % 8:
+        with pytest.raises(ValueError, match="cost: a uint8 volume needs a multiple of 8"):
+            stereo.sgm(c8, 8, 64, 8)
+        return
+    for paths in (4, 8):
+        s16, s32 = stereo.sgm(c8, 8, 64, paths), stereo.sgm(c32, 8.0, 64.0, paths)
+        assert s16.dtype == np.uint16
+        np.testing.assert_array_equal(s16.astype(np.float32), s32)
+    dmin = drange[0]
+    for got, want in ((stereo.wta(s16, dmin, uniqueness=0.1), stereo.wta(s32, dmin, uniqueness=0.1)),
+                      (stereo.wta_right(s16, dmin), stereo.wta_right(s32, dmin)),
+                      (stereo.wta_left_right(s16, dmin), stereo.wta_left_right(s32, dmin))):
+        for g, w in zip(got, want):
+            assert g.dtype == w.dtype
+            np.testing.assert_array_equal(g, w)
 
 
 def test_wta_left_and_right_agree_on_a_shifted_pair():

@@ -87,7 +87,9 @@ def _check_raft(m):
 def _check_stereo(m):
     for r in m["methods"].values():
         assert 0.0 <= r["pooled"]["d1"] <= 1.0 and 0.0 < r["pooled"]["density"] <= 1.0
-    assert m["best_drlab"] in m["methods"]
+        assert 0.0 <= r["pooled_stressed"]["d1"] <= 1.0 and 0.0 <= r["tuning_d1_stressed"] <= 1.0
+    assert m["best_drlab"] in m["methods"] and m["robust_drlab"] in m["methods"]
+    assert "OpenCV StereoSGBM" in m["methods"]
 
 
 def _check_splats(m):

@@ -13,7 +13,7 @@ import pytest
 
 from research import opticalflow as of
 from research import stereo
-from research.images import LUMA_601, to_unit, to_unit_grey, unit_grey_pair
+from research.images import LUMA_601, to_unit, to_unit_grey, unit_grey_pair, unit_pair
 
 rng = np.random.default_rng(0)
 GREY = rng.uniform(0, 1, (24, 32))
@@ -40,6 +40,12 @@ CASES = [
     ("empty", lambda: to_unit_grey(np.zeros((0, 5)), "left"), r"left: expected a non-empty image, got shape \(0, 5\)"),
     ("pair-sizes-differ", lambda: unit_grey_pair(GREY, GREY[:, :30]),
      r"left, right: expected images of one size, got \(24, 32\) and \(24, 30\)"),
+    ("colour-pair-channels-differ", lambda: unit_pair(RGB, GREY),
+     r"left, right: expected images of one size and channel count, got \(24, 32, 3\) and \(24, 32\)"),
+    ("bt-left-0-255", lambda: stereo.match(RGB * 255, RGB, 0, 4, stereo.StereoConfig(cost="bt", aggregation="none")),
+     r"left: a float image must lie in \[0, 1\]"),
+    ("bt-colour-and-grey", lambda: stereo.match(RGB, GREY, 0, 4, stereo.StereoConfig(cost="bt", aggregation="none")),
+     r"left, right: expected images of one size and channel count"),
     ("stereo-left-0-255", lambda: stereo.match(GREY * 255, GREY, 0, 4, CFG), r"left: a float image must lie in \[0, 1\]"),
     ("stereo-right-nan", lambda: stereo.match(GREY, NAN, 0, 4, CFG), r"right: contains NaN or infinite values"),
     ("stereo-sizes-differ", lambda: stereo.match(U8, U8[:20], 0, 4, CFG), r"left, right: expected images of one size"),

@@ -222,7 +222,7 @@ CLI_CASES = [
     ("format-on-a-cache-root", ["--format", "eth3d", "--out", "{out}", "@nodata"],
      r": holds no eth3d pair"),
     ("volume-exceeds-free-memory", ["--out", "{out}", "@lowmem"],
-     r"p: drlab's float32 volumes for 48x24 x 16 disparities need about 0\.0 GiB, more than the 0\.0 GiB "
+     r"p: drlab's volumes for 48x24 x 16 disparities need about 0\.0 GiB, more than the 0\.0 GiB "
      r"available; use --resolution half or quarter, or --max-disp"),
     ("kitti-at-half-resolution", ["--resolution", "half", "--out", "{out}", "@kitti"],
      r"--resolution: KITTI's sparse ground truth is evaluated at full resolution only, got 'half'"),

@@ -237,7 +237,8 @@ def test_stereo_depth_on_a_benchmark_folder(tmp_path, fmt):
     bench = fmt[:5] if fmt.startswith("kitti") else fmt
     assert doc["config"]["benchmark"] == bench and doc["metrics"]["benchmark"] == bench
     methods = doc["metrics"]["methods"]
-    assert set(methods) == {"SAD + SGM-4 soft-argmin", "census + SGM-8", "OpenCV StereoSGBM"}
+    assert set(methods) == {"BT + SGM-4 soft-argmin", "ZNCC + SGM-4", "SAD + SGM-4 soft-argmin", "census + SGM-8",
+                            "OpenCV StereoSGBM"}
     table = (out / "table.md").read_text()
     assert (out / "disparity_maps.png").stat().st_size > 1000
     assert f"Dataset: {bench}" in table and "Protocol:" in table and "resolution full" in table

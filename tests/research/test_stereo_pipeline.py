@@ -4,6 +4,7 @@ disparity and depth metrics, patch features, and the pipeline end to end."""
 from __future__ import annotations
 
 import numpy as np
+import warp as wp
 import pytest
 
 from research.stereo import (StereoConfig, depth_abs_rel, disparity_metrics, fill_invalid, match, patch_features,
@@ -60,6 +61,7 @@ def test_to_gray_u8():
 @pytest.mark.parametrize("cfg", [StereoConfig("sad", "sgm8", p1=0.02, p2=0.2, radius=2),
                                  StereoConfig("census", "sgm4", p1=8.0, p2=64.0, census_radii=(2, 3)),
                                  StereoConfig("zncc", "none", radius=2),
+                                 StereoConfig("bt", "sgm8", p1=0.02, p2=0.16, radius=1),
                                  StereoConfig("corr", "sgm8", p1=0.01, p2=0.1, radius=2),
                                  StereoConfig("sad", "sgm8", p1=0.02, p2=0.2, disparity="soft_argmin",
                                               temperature=0.02)])
@@ -74,6 +76,42 @@ def test_match_recovers_a_constant_disparity(cfg):
     inner = (slice(3, -3), slice(10, -3))
     np.testing.assert_allclose(r.disparity[inner], 4.0, atol=0.5)  # the sub-pixel fit stays within half a pixel
     assert r.valid[inner].mean() > 0.95
+
+
+@pytest.mark.parametrize("dtype", ["uint8", "uint16", "float"])
+def test_bt_takes_colour_in_any_unit(dtype):
+    # One colour pair stored three ways gives one BT volume (up to the 8-bit rounding of the float copy).
+    from research.stereo import cost_volume
+
+    rng = np.random.default_rng(2)
+    base = rng.integers(0, 256, (12, 30, 3)).astype(np.uint8)
+    left, right = base[:, 3:27], base[:, 0:24]
+    conv = {"uint8": lambda x: x, "uint16": lambda x: x.astype(np.uint16) * 257, "float": lambda x: x / 255.0}[dtype]
+    cfg = StereoConfig("bt", "sgm8", p1=0.02, p2=0.16, radius=1)
+    got = cost_volume(conv(left), conv(right), 0, 6, cfg).numpy()
+    want = cost_volume(left, right, 0, 6, cfg).numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+    assert got.shape == (12, 24, 6)
+
+
+def test_compact_mode_gives_the_float32_result(monkeypatch):
+    # Above the float32 budget, census + SGM runs on uint8 costs and a uint16 aggregate: the same numbers.
+    import research.stereo as rs
+
+    rng = np.random.default_rng(3)
+    left = rng.uniform(0.0, 1.0, (20, 48))
+    right = np.roll(left, -3, axis=1)
+    cfg = StereoConfig("census", "sgm8", p1=8.0, p2=64.0, census_radii=(2, 3), uniqueness=0.1)
+    assert not rs.uses_compact(cfg, 20, 48, 16)
+    want = match(left, right, 0, 16, cfg)
+    monkeypatch.setattr(rs, "FLOAT_VOLUME_BUDGET", 0)
+    assert rs.uses_compact(cfg, 20, 48, 16) and not rs.uses_compact(cfg, 20, 48, 12)
+    assert not rs.uses_compact(StereoConfig("census", "sgm8", p1=8.5, p2=64.0), 20, 48, 16)
+    assert rs.cost_volume(left, right, 0, 16, cfg).dtype == wp.uint8
+    got = match(left, right, 0, 16, cfg)
+    np.testing.assert_array_equal(got.disparity, want.disparity)
+    np.testing.assert_array_equal(got.valid, want.valid)
+    assert rs.peak_volume_bytes(cfg, 20, 48, 16) == 3 * 20 * 48 * 16
 
 
 def test_config_rejects_unknown_names():

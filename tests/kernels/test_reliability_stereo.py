@@ -1,0 +1,48 @@
+"""kernels.stereo's newer entry points (Birchfield-Tomasi cost, compact mode): each bad input raises one
+ValueError naming the argument, before any kernel runs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kernels import stereo
+
+
+@pytest.mark.parametrize("left, right, match", [
+    (np.zeros((4, 6, 3)), np.zeros((4, 6)), "right"),
+    (np.zeros((4, 6, 3, 1)), np.zeros((4, 6, 3, 1)), "left"),
+    (np.zeros(6), np.zeros(6), "left"),
+    (np.full((4, 6), np.nan), np.zeros((4, 6)), "left"),
+], ids=["colour-and-grey", "four-dimensions", "one-dimension", "nan-left"])
+def test_bt_bad_images(left, right, match):
+    with pytest.raises(ValueError, match=match) as e:
+        stereo.bt_cost(left, right, 0, 3, 1)
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("p1, p2, match", [(8.5, 64, "p1: a uint8 volume needs integer penalties"),
+                                           (8, 64.5, "p2: a uint8 volume needs integer penalties"),
+                                           (8, 9000, "p2: 8 paths x")],
+                         ids=["fractional-p1", "fractional-p2", "uint16-overflow"])
+def test_compact_sgm_bad_penalties(p1, p2, match):
+    c8 = np.full((4, 9, 8), 62, dtype=np.uint8)
+    with pytest.raises(ValueError, match=match) as e:
+        stereo.sgm(c8, p1, p2, 8)
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: stereo.sgm(np.zeros((4, 9, 8), np.int8), 8, 64), "cost: expected dtype float32 or float64, got int8"),
+    (lambda: stereo.sgm(np.zeros((4, 9, 12), np.uint8), 8, 64), "cost: a uint8 volume needs a multiple of 8"),
+    (lambda: stereo.sgm(np.zeros((4, 9), np.uint8), 8, 64), "cost: expected a non-empty"),
+    (lambda: stereo.wta(np.zeros((4, 9, 8), np.uint8), 0), "cost: expected dtype float32 or float64, got uint8"),
+    (lambda: stereo.wta_left_right(np.zeros((4, 9, 8), np.uint32), 0), "cost: expected dtype float32"),
+    (lambda: stereo.soft_argmin(np.zeros((4, 9, 8), np.uint16), 0), "cost: expected dtype float32"),
+    (lambda: stereo.wta_left_right(np.zeros((4, 9, 8)), 0, uniqueness=1.0), "uniqueness"),
+], ids=["int8-volume", "uint8-d12", "uint8-2d", "wta-of-uint8", "winners-of-uint32", "soft-argmin-of-uint16",
+        "uniqueness-1"])
+def test_integer_volumes_other_than_compact_ones_are_refused(call, match):
+    with pytest.raises(ValueError, match=match) as e:
+        call()
+    assert "\n" not in str(e.value)
