@@ -351,6 +351,40 @@ def rpe(c2w_est: Any, c2w_ref: Any, delta: int = 1, align: str = "none") -> RPE:
                ErrorStats.of(np.array([rotation_angle_deg(e[:3, :3]) for e in E])))
 
 
+def loop_path(n_frames: int, radius: float, center: Any = (0.0, 0.0, 0.0), up: Any = (0.0, 0.0, 1.0),
+              start_azimuth_deg: float = 0.0, elevation_deg: float = 25.0, elevation_wobble_deg: float = 5.0,
+              radius_wobble: float = 0.05) -> list[np.ndarray]:
+    """A closed camera path (c2w list) that returns to its start: one full orbit around `center`, looking at it.
+
+    Frame k sits at s = k / n_frames of the loop (frame n_frames would be frame 0 again, so the last
+    frame is one step before the first): azimuth start + 360 s degrees, elevation
+    elevation_deg + elevation_wobble_deg sin(4 pi s), distance radius (1 + radius_wobble sin(2 pi s)).
+    Every term is periodic in s, so the motion from the last frame back to the first is as small and
+    smooth as every other step (a loop closure for SLAM).
+    """
+    from research.cameras import look_at
+
+    if int(n_frames) != n_frames or n_frames < 3:
+        raise ValueError(f"n_frames: expected an integer >= 3 for a loop, got {n_frames}")
+    if not (math.isfinite(radius) and radius > 0):
+        raise ValueError(f"radius: expected a positive value, got {radius}")
+    upv = _vec("up", up, 3)
+    upv = upv / np.linalg.norm(upv)
+    a = np.cross(upv, [1.0, 0.0, 0.0] if abs(upv[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(upv, a)
+    centre = _vec("center", center, 3)
+    poses = []
+    for k in range(int(n_frames)):
+        s = k / n_frames
+        az = math.radians(start_azimuth_deg + 360.0 * s)
+        el = math.radians(elevation_deg + elevation_wobble_deg * math.sin(4.0 * math.pi * s))
+        r = radius * (1.0 + radius_wobble * math.sin(2.0 * math.pi * s))
+        d = math.cos(el) * (math.cos(az) * a + math.sin(az) * b) + math.sin(el) * upv
+        poses.append(look_at(centre + r * d, centre, upv))
+    return poses
+
+
 def path_length(c2w: Any) -> float:
     """Sum of the distances between consecutive camera centres."""
     p = check_trajectory("c2w", c2w)[:, :3, 3]
@@ -359,4 +393,4 @@ def path_length(c2w: Any) -> float:
 
 __all__ = ["hat", "so3_exp", "so3_log", "se3_exp", "se3_log", "perturb_w2c", "perturb_c2w", "rotation_angle_deg",
            "pose_errors", "random_perturbations", "check_trajectory", "quat_to_matrix", "matrix_to_quat", "read_tum",
-           "write_tum", "umeyama", "align_trajectory", "ErrorStats", "ate", "RPE", "rpe", "path_length"]
+           "write_tum", "umeyama", "align_trajectory", "ErrorStats", "ate", "RPE", "rpe", "loop_path", "path_length"]
