@@ -9,9 +9,10 @@ fits of the same dense voxel grid (coarse to fine, research/pose_refine.py) on t
 
   * gt        ground-truth poses (the upper bound);
   * noisy     the perturbed poses held fixed (what the field learns from wrong poses);
-  * refined   the perturbed poses refined jointly with the field, from the camera gradients of the
-              volume renderer (kernels/volume/rays.py: left se(3) perturbation, sample distances held
-              fixed).
+  * refined   the perturbed poses refined jointly with the field from the second stage on, by
+              damped Gauss-Newton steps built from the camera gradients of the volume renderer
+              (kernels/volume/rays.py: left se(3) perturbation, sample distances held fixed;
+              research/pose_refine.py).
 
 Reported: rotation and camera-centre errors of the training poses before and after refinement, after
 the rigid alignment that removes the joint solution's gauge (Umeyama over the camera centres, as
@@ -25,7 +26,6 @@ Writes results/pose_refinement/{table.md, metrics.json, trajectories.png, loss.p
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Any
 
@@ -65,7 +65,9 @@ def stages(quick: bool, smoke: bool, bbox: np.ndarray) -> tuple[list[tuple[int, 
 
 
 def fit(run: str, views, xi: np.ndarray, bbox: np.ndarray, plan, common: dict, seed: int, depth_weight: float,
-        progress: bool) -> tuple[Any, Any, dict[str, Any]]:
+        progress: bool, pose_from_stage: int = 1) -> tuple[Any, Any, dict[str, Any]]:
+    """Fit a grid through the stages; the run "refined" also refines `xi` (in place) from stage
+    `pose_from_stage` on (the coarsest stage first forms a field from the poses as given)."""
     from kernels.volume import GridField, OccupancyGrid
     from research.nerf.train import upsample_grid
     from research.pose_refine import JointConfig, train_joint
@@ -77,7 +79,7 @@ def fit(run: str, views, xi: np.ndarray, bbox: np.ndarray, plan, common: dict, s
         if tuple(res) != tuple(field.resolution):
             field = upsample_grid(field, res)
         last = k == len(plan) - 1
-        cfg = JointConfig(iters=iters, seed=seed * 1000 + k, refine_poses=run == "refined",
+        cfg = JointConfig(iters=iters, seed=seed * 1000 + k, refine_poses=run == "refined" and k >= pose_from_stage,
                           occupancy_start=100 if k == 0 else 0, lr_decay_from=0.5 if last else 1.0,
                           depth_weight=depth_weight, **common)
         log = train_joint(field, views, xi, bbox, cfg, occupancy, progress=progress, desc=f"{run} stage {k + 1}")

@@ -209,7 +209,7 @@ def camera_rays(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, device: str | wp
 @dataclass
 class CameraGrad:
     """d L / d camera: `xi` (6,) the left se(3) perturbation of world-to-camera at 0 (rho, phi), and
-    `intrinsics` (4,) = d L / d (fx, fy, cx, cy). NumPy float64."""
+    `intrinsics` (4,) = d L / d (fx, fy, cx, cy). NumPy float64 (one row per pixel with `per_pixel`)."""
 
     xi: np.ndarray
     intrinsics: np.ndarray
@@ -217,9 +217,13 @@ class CameraGrad:
 
 def camera_rays_backward(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, grad_origins: A.ArrayLike | None = None,
                          grad_dirs: A.ArrayLike | None = None, grad_z_scale: A.ArrayLike | None = None,
-                         device: str | wp.Device | None = None) -> CameraGrad:
+                         device: str | wp.Device | None = None, per_pixel: bool = False) -> CameraGrad:
     """Gradient of <g_o, origins> + <g_d, dirs> + <g_z, z_scale> of camera_rays (module docstring)
-    with respect to the pose perturbation xi and the intrinsics; missing cotangents count as zero."""
+    with respect to the pose perturbation xi and the intrinsics; missing cotangents count as zero.
+
+    `per_pixel`: return each pixel's term instead of the sum (xi (P, 6), intrinsics (P, 4)). Pixel p's
+    ray depends only on p, so with the cotangent of one residual per pixel these rows are the rows of
+    the residuals' Jacobian (what a Gauss-Newton step needs)."""
     M, K = check_camera(w2c, intrinsics)
     a = A.Inputs(device, pixels, grad_origins, grad_dirs, grad_z_scale)
     px = a.floats("pixels", pixels, (None, 2))
@@ -230,7 +234,10 @@ def camera_rays_backward(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, grad_or
     rot, _, intr = _camera_arrays(a, M, K)
     rows = a.empty((n, 10))
     a.launch(_rays_backward_kernel, n, [px, rot, intr, go, gd, gz, rows])
-    total = rows.numpy().astype(np.float64).sum(axis=0)
+    rows_np = rows.numpy().astype(np.float64)
+    if per_pixel:
+        return CameraGrad(np.concatenate([-rows_np[:, :3], rows_np[:, 3:6]], axis=1), rows_np[:, 6:10])
+    total = rows_np.sum(axis=0)
     return CameraGrad(np.concatenate([-total[:3], total[3:6]]), total[6:10])
 
 

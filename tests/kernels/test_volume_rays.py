@@ -131,3 +131,28 @@ def test_grid_field_camera_gradient_runs_on_float32():
     r = render_rays(field, o, d, BOX, n_samples=8, z_scale=z)
     g = render_backward_camera(field, r, w2c, intrinsics, pixels.astype(np.float32), grad_rgb=np.ones((8, 3), np.float32))
     assert np.all(np.isfinite(g.xi))
+
+
+def test_per_pixel_rows_sum_to_the_gradient_and_are_jacobian_rows():
+    """Rows of per_pixel sum to the total; with a one-hot cotangent each row is that pixel's Jacobian row
+    (compared with a central difference of the pixel's own output)."""
+    from research.poses import se3_exp
+
+    w2c, intrinsics, pixels = camera_setup(5)
+    rng = np.random.default_rng(0)
+    g = rng.normal(size=(len(pixels), 3))
+    total = camera_rays_backward(w2c, intrinsics, pixels, g, g, g[:, 0])
+    rows = camera_rays_backward(w2c, intrinsics, pixels, g, g, g[:, 0], per_pixel=True)
+    assert rows.xi.shape == (len(pixels), 6) and rows.intrinsics.shape == (len(pixels), 4)
+    np.testing.assert_allclose(rows.xi.sum(0), total.xi, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(rows.intrinsics.sum(0), total.intrinsics, rtol=1e-12, atol=1e-12)
+    # d dirs[p, 0] / d xi_4 for every p at once: cotangent e_0 on every pixel's direction.
+    e0 = np.zeros((len(pixels), 3))
+    e0[:, 0] = 1.0
+    J = camera_rays_backward(w2c, intrinsics, pixels, None, e0, None, per_pixel=True).xi[:, 4]
+    h = 1e-6
+    step = np.zeros(6)
+    step[4] = h
+    fd = (camera_rays(se3_exp(step) @ w2c, intrinsics, pixels)[1][:, 0]
+          - camera_rays(se3_exp(-step) @ w2c, intrinsics, pixels)[1][:, 0]) / (2 * h)
+    np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-9)

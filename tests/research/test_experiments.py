@@ -100,9 +100,18 @@ def _check_volume(m):
     assert m["max_abs_err"]["warp_float32"] < 1e-3
 
 
+def _check_pose_refinement(m):
+    assert set(m["runs"]) == {"gt", "noisy", "refined"}
+    for r in m["runs"].values():
+        assert _finite(r["test_psnr"]) and r["test_psnr"] > 3
+    assert m["runs"]["gt"]["errors"]["rot_max_deg"] < 1e-6  # ground-truth poses are never moved
+    assert abs(m["errors_before_unaligned"]["rot_mean_deg"] - m["perturbation"]["rot_deg"]) < 1e-6
+
+
 CHECKS = {"datasets": _check_datasets, "kalman_tracking": _check_kalman, "mot_tracking": _check_mot,
           "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft, "stereo_depth": _check_stereo,
-          "fit_splats": _check_splats, "fit_nerf": _check_nerf, "volume_render_spheres": _check_volume}
+          "fit_splats": _check_splats, "fit_nerf": _check_nerf, "volume_render_spheres": _check_volume,
+          "pose_refinement": _check_pose_refinement}
 
 
 def test_every_registered_experiment_has_a_smoke_check():
