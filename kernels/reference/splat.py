@@ -1,9 +1,12 @@
 """NumPy reference of kernels/splat: projection, SH colour, tile lists and rasterisation.
 
 Float64 loops written from the module docstrings of kernels/splat (the 3DGS forward of Kerbl et
-al. 2023, with EWA splatting and the optional Mip-Splatting compensation). `rasterize` blends the
-splats of 3DGS's square tile sets; the kernels bin by a smaller box that only leaves out pixels
-with alpha < 1/255, so both give the same image. `render` is the whole chain.
+al. 2023, with EWA splatting and the optional Mip-Splatting compensation), in both modes of
+kernels/splat/modes.py: "3dgs" writes the equations of the original 3DGS code (computeCov2D,
+preprocessCUDA with getRect, renderCUDA), "gsplat" those of gsplat (persp_proj,
+fully_fused_projection, isect_tiles, rasterize_to_pixels). `rasterize` blends the splats of the
+mode's square tile sets; the kernels bin by a smaller box that only leaves out pixels with
+alpha < 1/255, so both give the same image. `render` is the whole chain.
 """
 
 from __future__ import annotations
@@ -25,8 +28,48 @@ def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
     ])
 
 
-def project(params: dict, cam, sh_degree: int | None = None, antialiased: bool = False) -> dict:
-    """Per-splat projection (kernels/splat/projection.py) of float64 parameters; radius 0 = culled."""
+MODES = ("3dgs", "gsplat")
+ALPHA_MAX = {"3dgs": 0.99, "gsplat": 0.999}
+RADIUS_FLOOR = {"3dgs": 0.1, "gsplat": 0.01}
+AA_FLOOR = {"3dgs": 2.5e-5, "gsplat": 0.0}
+
+
+def frustum_limits(cam, mode: str) -> tuple[float, float, float, float]:
+    """(lim_x-, lim_x+, lim_y-, lim_y+): the Jacobian clamps x/z to [-lim_x-, lim_x+] (y/z likewise)."""
+    fx, fy, cx, cy = cam.params()[:4]
+    tan_fovx, tan_fovy = 0.5 * cam.width / fx, 0.5 * cam.height / fy
+    if mode == "3dgs":  # computeCov2D: limx = 1.3 tan_fovx, symmetric about the optical axis
+        return 1.3 * tan_fovx, 1.3 * tan_fovx, 1.3 * tan_fovy, 1.3 * tan_fovy
+    # gsplat's persp_proj
+    return (cx / fx + 0.3 * tan_fovx, (cam.width - cx) / fx + 0.3 * tan_fovx,
+            cy / fy + 0.3 * tan_fovy, (cam.height - cy) / fy + 0.3 * tan_fovy)
+
+
+def square_tiles(u: float, r: float, n_tiles: int, mode: str) -> tuple[int, int]:
+    """[t0, t1): the tiles along one axis that the square u +- r lists, by the mode's rule:
+    3DGS's getRect (its pixel centres are at integers, drlab's at i + 1/2, hence u - 1/2) or
+    gsplat's isect_tiles."""
+    if mode == "3dgs":
+        t0, t1 = math.floor((u - 0.5 - r) / 16), math.floor((u - 0.5 + r + 15) / 16)
+    else:
+        t0, t1 = math.floor((u - r) / 16), math.ceil((u + r) / 16)
+    return min(max(t0, 0), n_tiles), min(max(t1, 0), n_tiles)
+
+
+def culled(u: float, v: float, r: float, width: int, height: int, mode: str) -> bool:
+    """3DGS: its getRect rectangle is empty; gsplat: the square misses the image."""
+    if mode == "3dgs":
+        x0, x1 = square_tiles(u, r, (width + 15) // 16, mode)
+        y0, y1 = square_tiles(v, r, (height + 15) // 16, mode)
+        return (x1 - x0) * (y1 - y0) == 0
+    return u + r <= 0 or u - r >= width or v + r <= 0 or v - r >= height
+
+
+def project(params: dict, cam, sh_degree: int | None = None, antialiased: bool = False, mode: str = "3dgs",
+            radius_floor: float | None = None) -> dict:
+    """Per-splat projection (kernels/splat/projection.py) of float64 parameters; radius 0 = culled.
+    `radius_floor` overrides the mode's floor of the radius's eigenvalue term (for tests)."""
+    floor = RADIUS_FLOOR[mode] if radius_floor is None else radius_floor
     means, log_scales, quats = params["means"], params["log_scales"], params["quats"]
     logits, sh = params["opacity_logits"], params["sh"]
     n = len(means)
@@ -43,10 +86,9 @@ def project(params: dict, cam, sh_degree: int | None = None, antialiased: bool =
         R = quat_to_rotmat(quats[i])
         S = np.diag(np.exp(log_scales[i]))
         sigma_cam = Rw @ (R @ S @ S.T @ R.T) @ Rw.T
-        lim_x = (cx / fx + 0.3 * cam.width / fx, (cam.width - cx) / fx + 0.3 * cam.width / fx)
-        lim_y = (cy / fy + 0.3 * cam.height / fy, (cam.height - cy) / fy + 0.3 * cam.height / fy)
-        xc = z * np.clip(x / z, -lim_x[0], lim_x[1])
-        yc = z * np.clip(y / z, -lim_y[0], lim_y[1])
+        lxn, lxp, lyn, lyp = frustum_limits(cam, mode)
+        xc = z * min(max(x / z, -lxn), lxp)
+        yc = z * min(max(y / z, -lyn), lyp)
         J = np.array([[fx / z, 0.0, -fx * xc / z**2], [0.0, fy / z, -fy * yc / z**2]])
         cov = J @ sigma_cam @ J.T
         cov_dilated = cov + 0.3 * np.eye(2)
@@ -54,17 +96,17 @@ def project(params: dict, cam, sh_degree: int | None = None, antialiased: bool =
         if det <= 0:
             continue
         half_trace = 0.5 * np.trace(cov_dilated)
-        lam_max = half_trace + math.sqrt(max(0.01, half_trace**2 - det))
+        lam_max = half_trace + math.sqrt(max(floor, half_trace**2 - det))
         radius = math.ceil(3.0 * math.sqrt(lam_max))
         u, v = fx * x / z + cx, fy * y / z + cy
-        if u + radius <= 0 or u - radius >= cam.width or v + radius <= 0 or v - radius >= cam.height:
+        if culled(u, v, radius, cam.width, cam.height, mode):
             continue
         conic = np.linalg.inv(cov_dilated)
         direction = (means[i] - centre) / np.linalg.norm(means[i] - centre)
         basis = sh_basis(direction, deg)
         opacity = 1.0 / (1.0 + math.exp(-logits[i]))
         if antialiased:
-            opacity *= math.sqrt(max(0.0, np.linalg.det(cov) / det))
+            opacity *= math.sqrt(max(AA_FLOOR[mode], np.linalg.det(cov) / det))
         out["means2d"][i] = u, v
         out["conics"][i] = conic[0, 0], conic[0, 1], conic[1, 1]
         out["depths"][i] = z
@@ -74,41 +116,46 @@ def project(params: dict, cam, sh_degree: int | None = None, antialiased: bool =
     return out
 
 
-def binned_tiles(m2, conic, opacity, radius, tiles_x, tiles_y, square: bool = False) -> list[int]:
-    """Tiles met by the square mean2d +- radius and (unless `square`) by the bounding box of
-    the ellipse d^T Q d <= 2 ln(255 o), outside which alpha < 1/255."""
+def binned_tiles(m2, conic, opacity, radius, tiles_x, tiles_y, square: bool = False, mode: str = "3dgs") -> list[int]:
+    """Tiles the square mean2d +- radius lists by the mode's rule (`square_tiles`), cut (unless
+    `square`) to those met by the bounding box of the ellipse d^T Q d <= 2 ln(255 o), outside which
+    alpha < 1/255."""
     if radius <= 0:
         return []
-    ex = ey = radius
+    x0, x1 = square_tiles(m2[0], radius, tiles_x, mode)
+    y0, y1 = square_tiles(m2[1], radius, tiles_y, mode)
     if not square:
         if 255 * opacity < 1:
             return []
         cov = np.linalg.inv([[conic[0], conic[1]], [conic[1], conic[2]]])
         k2 = 2 * math.log(255 * opacity)
         ex, ey = min(radius, math.sqrt(k2 * cov[0, 0])), min(radius, math.sqrt(k2 * cov[1, 1]))
-    x0 = min(max(math.floor((m2[0] - ex) / 16), 0), tiles_x)
-    x1 = min(max(math.ceil((m2[0] + ex) / 16), 0), tiles_x)
-    y0 = min(max(math.floor((m2[1] - ey) / 16), 0), tiles_y)
-    y1 = min(max(math.ceil((m2[1] + ey) / 16), 0), tiles_y)
+        x0 = max(x0, min(max(math.floor((m2[0] - ex) / 16), 0), tiles_x))
+        x1 = min(x1, min(max(math.ceil((m2[0] + ex) / 16), 0), tiles_x))
+        y0 = max(y0, min(max(math.floor((m2[1] - ey) / 16), 0), tiles_y))
+        y1 = min(y1, min(max(math.ceil((m2[1] + ey) / 16), 0), tiles_y))
     return [ty * tiles_x + tx for ty in range(y0, y1) for tx in range(x0, x1)]
 
 
-def tile_lists(m2, conics, opacities, radii, depths, width, height, square=False) -> dict[int, list[int]]:
+def tile_lists(m2, conics, opacities, radii, depths, width, height, square=False,
+               mode: str = "3dgs") -> dict[int, list[int]]:
     """Splats of every tile, front to back (stable in the splat index)."""
     tiles_x, tiles_y = (width + 15) // 16, (height + 15) // 16
     lists: dict[int, list[int]] = {t: [] for t in range(tiles_x * tiles_y)}
     for i in np.argsort(depths, kind="stable"):
-        for t in binned_tiles(m2[i], conics[i], opacities[i], radii[i], tiles_x, tiles_y, square):
+        for t in binned_tiles(m2[i], conics[i], opacities[i], radii[i], tiles_x, tiles_y, square, mode):
             lists[t].append(int(i))
     return lists
 
 
-def rasterize(m2, conics, colors, opacities, depths, radii, width, height, background):
-    """3DGS's rasteriser: each pixel blends the splats whose square mean2d +- radius meets its tile.
+def rasterize(m2, conics, colors, opacities, depths, radii, width, height, background, mode: str = "3dgs"):
+    """The mode's rasteriser (3DGS's renderCUDA or gsplat's rasterize_to_pixels): each pixel blends
+    the splats whose square mean2d +- radius lists its tile, front to back.
 
     (The kernel bins by a smaller box that only leaves out pixels with alpha < 1/255,
     so it must give the same image.)"""
-    lists = tile_lists(m2, conics, opacities, radii, depths, width, height, square=True)
+    a_max = ALPHA_MAX[mode]
+    lists = tile_lists(m2, conics, opacities, radii, depths, width, height, square=True, mode=mode)
     tiles_x = (width + 15) // 16
     rgb, alpha, depth = np.zeros((height, width, 3)), np.zeros((height, width)), np.zeros((height, width))
     for py in range(height):
@@ -120,10 +167,11 @@ def rasterize(m2, conics, colors, opacities, depths, radii, width, height, backg
                 power = -0.5 * d @ Q @ d
                 if power > 0:
                     continue
-                a = min(0.99, opacities[i] * math.exp(power))
+                a = min(a_max, opacities[i] * math.exp(power))
                 if a < 1.0 / 255.0:
                     continue
-                if T * (1 - a) < 1e-4:
+                test_T = T * (1 - a)
+                if test_T < 1e-4 or (mode == "gsplat" and test_T <= 1e-4):
                     break
                 C += colors[i] * a * T
                 D += depths[i] * a * T
@@ -135,8 +183,9 @@ def rasterize(m2, conics, colors, opacities, depths, radii, width, height, backg
 
 
 def render(params: dict, cam, background: np.ndarray, sh_degree: int | None = None,
-           antialiased: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           antialiased: bool = False, mode: str = "3dgs",
+           radius_floor: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rgb, alpha, depth) of the whole chain for float64 parameters and a SplatCamera."""
-    p = project(params, cam, sh_degree, antialiased)
+    p = project(params, cam, sh_degree, antialiased, mode, radius_floor)
     return rasterize(p["means2d"], p["conics"], p["colors"], p["opacities"], p["depths"], p["radii"], cam.width,
-                     cam.height, background)
+                     cam.height, background, mode)

@@ -3,6 +3,14 @@
 A world point X maps to p = W X + t in the camera frame (viewmat = [[W, t], [0, 0, 0, 1]], W a
 rotation), and to the pixel (fx p_x / p_z + cx, fy p_y / p_z + cy); pixel (i, j) has its centre
 at (i + 0.5, j + 0.5). Splats with z-depth outside [near, far] are culled. Host code only.
+
+Pose perturbations (the convention of the camera gradients, render_backward(want_camera=True)):
+a twist xi = (rho, phi), translation first, acts on the LEFT of world-to-camera,
+
+    viewmat <- exp(xi^) viewmat,  exp(xi^) = [[R, V rho], [0, 1]],  R = exp([phi]x) (Rodrigues),
+    V = I + (1 - cos a)/a^2 [phi]x + (a - sin a)/a^3 [phi]x^2,  a = |phi|,
+
+so rho is a translation and phi a rotation in the camera frame (`se3_exp`, `SplatCamera.perturbed`).
 """
 
 from __future__ import annotations
@@ -55,6 +63,15 @@ class SplatCamera:
         object.__setattr__(self, "width", width)
         object.__setattr__(self, "height", height)
 
+    def perturbed(self, xi: np.ndarray) -> "SplatCamera":
+        """This camera with viewmat <- se3_exp(xi) viewmat (module docstring)."""
+        return SplatCamera(se3_exp(xi) @ self.viewmat, self.K, self.width, self.height, self.near, self.far)
+
+    def with_intrinsics(self, fx: float, fy: float, cx: float, cy: float) -> "SplatCamera":
+        """This camera with other intrinsics."""
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        return SplatCamera(self.viewmat, K, self.width, self.height, self.near, self.far)
+
     def params(self) -> np.ndarray:
         """(fx, fy, cx, cy, near, far)."""
         K = self.K
@@ -63,3 +80,27 @@ class SplatCamera:
     @property
     def tiles(self) -> tuple[int, int]:
         return (self.width + TILE - 1) // TILE, (self.height + TILE - 1) // TILE
+
+
+def _hat(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """The 4x4 rigid transform exp(xi^) of a twist xi = (rho, phi), translation first (module docstring)."""
+    xi = np.asarray(xi, dtype=np.float64)
+    if xi.shape != (6,) or not np.all(np.isfinite(xi)):
+        raise ValueError(f"xi: expected a finite 6-vector (rho, phi), got shape {xi.shape}")
+    rho, phi = xi[:3], xi[3:]
+    a = float(np.linalg.norm(phi))
+    P = _hat(phi)
+    if a < 1e-8:  # series to second order: the terms dropped are below 1e-16
+        R = np.eye(3) + P + 0.5 * P @ P
+        V = np.eye(3) + 0.5 * P + P @ P / 6.0
+    else:
+        R = np.eye(3) + np.sin(a) / a * P + (1.0 - np.cos(a)) / a**2 * P @ P
+        V = np.eye(3) + (1.0 - np.cos(a)) / a**2 * P + (a - np.sin(a)) / a**3 * P @ P
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = V @ rho
+    return T

@@ -16,11 +16,32 @@ World to camera (`transform_cov`):  Sigma_c = W Sigma W^T;  VJP dL/dSigma = W^T 
 Perspective EWA projection of Zwicker et al., "EWA Splatting" (2002) (`persp_proj`), for the
 camera-space mean p = (x, y, z), intrinsics fx, fy, cx, cy and image size W_img x H_img:
     mean2d = (fx x/z + cx, fy y/z + cy),  depth = z,  Sigma2d = J Sigma_c J^T,
-    J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]],  x' = z clamp(x/z, -lx-, lx+),
-    lx- = cx/fx + 0.3 W_img/fx,  lx+ = (W_img - cx)/fx + 0.3 W_img/fx  (y' likewise),
-    the frustum clamp of the 3DGS/gsplat code. VJP for G2 = dL/dSigma2d: dL/dSigma_c = J^T G2 J,
-    dL/dJ = 2 G2 J Sigma_c, then through J and mean2d to p; where the clamp is active, x' does
-    not move with x (the gradient of the clamped piece).
+    J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]],  x' = z clamp(x/z, -lx-, lx+)  (y' likewise).
+The frustum clamp of the Jacobian depends on the mode (kernels/splat/modes.py):
+    "3dgs"    lx- = lx+ = 1.3 tan_fovx,  tan_fovx = W_img / (2 fx): the original 3DGS code
+              (computeCov2D clamps t.x / t.z to [-limx, limx], limx = 1.3 tan_fovx, and 3DGS's
+              cameras have tan_fovx = tan(FoVx / 2) = W / (2 fx)). The window is symmetric about the
+              optical axis, i.e. about the principal point cx: for cx = W/2 it reaches 0.15 W past each
+              image edge; for cx != W/2 it is NOT centred on the image (3DGS itself only has cx = W/2;
+              its limit sees only tan_fovx, so this is what its formula gives for any cx).
+    "gsplat"  lx+ = (W_img - cx)/fx + 0.3 tan_fovx,  lx- = cx/fx + 0.3 tan_fovx (gsplat's persp_proj):
+              0.15 W past each image edge whatever cx; equal to "3dgs" when cx = W/2.
+VJP for G2 = dL/dSigma2d: dL/dSigma_c = J^T G2 J, dL/dJ = 2 G2 J Sigma_c, then through J and mean2d to
+p; where the clamp is active, x' does not move with x (the gradient of the clamped piece).
+
+Intrinsics (`persp_intrinsics_vjp`), from the same G2 and dL/dmean2d = (gu, gv):
+    dL/dfx = gu x/z + dL/dJ00 / z + dL/dJ02 dJ02/dfx,   dL/dcx = gu + dL/dJ02 dJ02/dcx,
+    J02 = -fx x'/z^2 = -(fx r)/z with r = clamp(x/z): unclamped dJ02/dfx = -r/z, dJ02/dcx = 0;
+    clamped, fx r is fx times the limit: "3dgs" +-0.65 W (neither fx nor cx), "gsplat"
+    W - cx + 0.15 W or -(cx + 0.15 W), so dJ02/dfx = 0 and dJ02/dcx = 1/z in "gsplat", 0 in "3dgs"
+    (fy, cy, J11, J12 likewise).
+
+Camera pose (`pose_vjp`), for a left perturbation [W | t] <- exp(xi^) [W | t], xi = (rho, phi):
+    to first order p <- p + phi x p + rho and Sigma_c <- Sigma_c + [phi]x Sigma_c + Sigma_c [phi]x^T, so
+    dL/drho = dL/dp,  dL/dphi = p x dL/dp + (M21 - M12, M02 - M20, M10 - M01),
+    M = (G + G^T) Sigma_c for G = dL/dSigma_c (from dL = <G, A Sigma_c + Sigma_c A^T> = <M, A>, A = [phi]x);
+    the camera centre -W^T t moves by -W^T rho (and not with phi), which the caller adds for the
+    view direction (kernels/splat/projection.py).
 
 Dilation (`dilate_cov2d`): (a1, b, c1) = (a + 0.3, b, c + 0.3) and det0 = a c - b^2 for
 Sigma2d = [[a, b], [b, c]]; VJP dL/da = dL/da1 + dL/ddet0 c, dL/dc = dL/dc1 + dL/ddet0 a,
@@ -33,8 +54,10 @@ Conic (`conic_inverse`): the dilated covariance (a1, b, c1) = Sigma2d + 0.3 I ha
     dL/da1 = gC / det + g_det' c1,  dL/dc1 = gA / det + g_det' a1,  dL/db = -gB / det - 2 b g_det'.
 
 Antialiasing compensation of Yu et al., "Mip-Splatting" (2024) (`aa_compensation`):
-    c = sqrt(max(0, det0 / det)) with det0 = a c - b^2 undilated;
-    VJP dL/ddet0 = dL/dc c / (2 det0), dL/ddet = -dL/dc c / (2 det) (zero where det0 / det <= 0).
+    c = sqrt(max(f, det0 / det)) with det0 = a c - b^2 undilated and the floor f of the mode:
+    f = 0 in "gsplat" (rasterize_mode="antialiased"), f = 2.5e-5 in "3dgs" (the 3DGS code's
+    `antialiasing` option, "max for numerical stability");
+    VJP dL/ddet0 = dL/dc c / (2 det0), dL/ddet = -dL/dc c / (2 det) (zero where det0 / det <= f).
 
 View direction (`view_direction`): d = v / |v|, v = mu - camera centre; VJP (g - d (d . g)) / |v|.
 
@@ -48,6 +71,8 @@ from typing import Any
 import warp as wp
 
 DILATION = 0.3
+# The floor of the antialiasing compensation's ratio in the 3DGS code (module docstring).
+AA_FLOOR_3DGS = 2.5e-5
 
 
 @wp.func
@@ -138,29 +163,33 @@ def transform_cov_vjp(Wr: Any, g_cov: Any):
 
 
 @wp.func
-def frustum_ratio(r: Any, focal: Any, centre: Any, size: int):
-    """(clamp(r, -lim-, lim+), r) for the ratio r = x/z along one image axis of `size` pixels."""
-    s = type(r)(float(size))
-    lim_pos = (s - centre) / focal + type(r)(DILATION) * s / focal
-    lim_neg = centre / focal + type(r)(DILATION) * s / focal
+def frustum_ratio(r: Any, focal: Any, centre: Any, size: int, mode: int):
+    """clamp(r, -lim-, lim+) for the ratio r = x/z along one image axis of `size` pixels, with the
+    limits of `mode` (0 = "3dgs", 1 = "gsplat"; module docstring)."""
+    tan_fov = type(r)(0.5) * type(r)(float(size)) / focal
+    if mode == 0:
+        lim = type(r)(1.3) * tan_fov
+        return clamp_ratio(r, -lim, lim)
+    lim_pos = (type(r)(float(size)) - centre) / focal + type(r)(0.3) * tan_fov
+    lim_neg = centre / focal + type(r)(0.3) * tan_fov
     return clamp_ratio(r, -lim_neg, lim_pos)
 
 
 @wp.func
-def persp_jacobian(p: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int):
-    """The EWA Jacobian J at the camera-space mean p, with the frustum clamp."""
+def persp_jacobian(p: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int, mode: int):
+    """The EWA Jacobian J at the camera-space mean p, with the frustum clamp of `mode`."""
     tz = p[2]
     zero = type(tz)(0.0)
-    xr = frustum_ratio(p[0] / tz, fx, cx, width)
-    yr = frustum_ratio(p[1] / tz, fy, cy, height)
+    xr = frustum_ratio(p[0] / tz, fx, cx, width, mode)
+    yr = frustum_ratio(p[1] / tz, fy, cy, height, mode)
     return wp.matrix(fx / tz, zero, -fx * xr / tz, zero, fy / tz, -fy * yr / tz, shape=(2, 3), dtype=type(tz))
 
 
 @wp.func
-def persp_proj(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int):
+def persp_proj(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int, mode: int):
     """(u, v, Sigma2d): the pixel position of the camera-space mean p and its 2D covariance J Sigma_c J^T."""
     tz = p[2]
-    J = persp_jacobian(p, fx, fy, cx, cy, width, height)
+    J = persp_jacobian(p, fx, fy, cx, cy, width, height, mode)
     cov2d = J * cov_c * wp.transpose(J)
     u = fx * p[0] / tz + cx
     v = fy * p[1] / tz + cy
@@ -168,7 +197,7 @@ def persp_proj(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: in
 
 
 @wp.func
-def persp_proj_vjp(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int,
+def persp_proj_vjp(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int, mode: int,
                    g_cov2d: Any, gu: Any, gv: Any, g_depth: Any):
     """(dL/dp, dL/dSigma_c) for the cotangents of (Sigma2d, u, v) and of the depth z (module docstring)."""
     tx = p[0]
@@ -178,9 +207,9 @@ def persp_proj_vjp(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width
     two = type(tz)(2.0)
     xr_raw = tx / tz
     yr_raw = ty / tz
-    xr = frustum_ratio(xr_raw, fx, cx, width)
-    yr = frustum_ratio(yr_raw, fy, cy, height)
-    J = persp_jacobian(p, fx, fy, cx, cy, width, height)
+    xr = frustum_ratio(xr_raw, fx, cx, width, mode)
+    yr = frustum_ratio(yr_raw, fy, cy, height, mode)
+    J = persp_jacobian(p, fx, fy, cx, cy, width, height, mode)
     g_cov_c = wp.transpose(J) * g_cov2d * J
     g_J = two * g_cov2d * J * cov_c
     tz2 = tz * tz
@@ -201,6 +230,43 @@ def persp_proj_vjp(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width
     g_ty += gv * fy / tz
     g_tz += -gu * fx * tx / tz2 - gv * fy * ty / tz2 + g_depth
     return wp.vector(g_tx, g_ty, g_tz, length=3, dtype=type(tz)), g_cov_c
+
+
+@wp.func
+def persp_intrinsics_vjp(p: Any, cov_c: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int, mode: int,
+                         g_cov2d: Any, gu: Any, gv: Any):
+    """(dL/dfx, dL/dfy, dL/dcx, dL/dcy) of `persp_proj` for the cotangents of (Sigma2d, u, v) (module docstring)."""
+    tz = p[2]
+    two = type(tz)(2.0)
+    J = persp_jacobian(p, fx, fy, cx, cy, width, height, mode)
+    g_J = two * g_cov2d * J * cov_c
+    xr_raw = p[0] / tz
+    yr_raw = p[1] / tz
+    xr = frustum_ratio(xr_raw, fx, cx, width, mode)
+    yr = frustum_ratio(yr_raw, fy, cy, height, mode)
+    g_fx = gu * xr_raw + g_J[0, 0] / tz
+    g_fy = gv * yr_raw + g_J[1, 1] / tz
+    g_cx = gu
+    g_cy = gv
+    if xr_raw == xr:
+        g_fx += -xr / tz * g_J[0, 2]
+    elif mode == 1:
+        g_cx += g_J[0, 2] / tz
+    if yr_raw == yr:
+        g_fy += -yr / tz * g_J[1, 2]
+    elif mode == 1:
+        g_cy += g_J[1, 2] / tz
+    return wp.vector(g_fx, g_fy, g_cx, g_cy, length=4, dtype=type(tz))
+
+
+@wp.func
+def pose_vjp(p: Any, g_p: Any, cov_c: Any, g_cov_c: Any):
+    """(dL/drho, dL/dphi) of one splat's camera-frame mean and covariance for the left se(3)
+    perturbation of world-to-camera (module docstring); the view direction's share is the caller's."""
+    M = (g_cov_c + wp.transpose(g_cov_c)) * cov_c
+    phi = wp.cross(p, g_p) + wp.vector(M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1], length=3,
+                                       dtype=type(p[0]))
+    return g_p, phi
 
 
 @wp.func
@@ -242,18 +308,26 @@ def conic_inverse_vjp(a1: Any, b: Any, c1: Any, gA: Any, gB: Any, gC: Any, g_det
 
 
 @wp.func
-def aa_compensation(det0: Any, det: Any):
-    """Mip-Splatting's opacity factor sqrt(max(0, det0 / det))."""
-    return wp.sqrt(wp.max(type(det)(0.0), det0 / det))
+def aa_floor(mode: int, det: Any):
+    """The floor f of the compensation's ratio: 2.5e-5 in "3dgs" (mode 0), 0 in "gsplat"."""
+    if mode == 0:
+        return type(det)(AA_FLOOR_3DGS)
+    return type(det)(0.0)
 
 
 @wp.func
-def aa_compensation_vjp(det0: Any, det: Any, g_comp: Any):
-    """(dL/ddet0, dL/ddet) for dL/dc = g_comp; zero where det0 / det <= 0 (c = 0 there)."""
+def aa_compensation(det0: Any, det: Any, mode: int):
+    """Mip-Splatting's opacity factor sqrt(max(f, det0 / det)), f = aa_floor(mode)."""
+    return wp.sqrt(wp.max(aa_floor(mode, det), det0 / det))
+
+
+@wp.func
+def aa_compensation_vjp(det0: Any, det: Any, g_comp: Any, mode: int):
+    """(dL/ddet0, dL/ddet) for dL/dc = g_comp; zero where det0 / det <= f (the floor is active)."""
     zero = type(det)(0.0)
     two = type(det)(2.0)
     ratio = det0 / det
-    if ratio > zero:
+    if ratio > aa_floor(mode, det):
         comp = wp.sqrt(ratio)
         return g_comp * comp / (two * det0), -g_comp * comp / (two * det)
     return zero, zero

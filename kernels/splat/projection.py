@@ -8,11 +8,16 @@ coefficients f (K = (L+1)^2, 3), for the world-to-camera [W | t] and intrinsics 
     mean2d, Sigma2d = EWA projection of (p, W Sigma W^T)               (ewa.persp_proj)
     (a1, b, c1) = Sigma2d + 0.3 I  (a 0.3 px^2 low-pass dilation); culled if det <= 0
     conic Q = (a1, b, c1)^-1 stored as (Q00, Q01, Q11)                 (ewa.conic_inverse)
-    radius = ceil(3 sqrt(lambda_max)),  lambda_max = h + sqrt(max(0.01, h^2 - det)), h = (a1 + c1)/2;
-        culled if the square mean2d +- radius misses the image (radius 0 marks a culled splat,
-        whose other outputs are 0)
+    radius = ceil(3 sqrt(lambda_max)),  lambda_max = h + sqrt(max(f, h^2 - det)), h = (a1 + c1)/2,
+        f = 0.1 ("3dgs") or 0.01 ("gsplat"); culled when the mode's tile rectangle of the square
+        mean2d +- radius is empty ("3dgs") or the square misses the image ("gsplat") (radius 0
+        marks a culled splat, whose other outputs are 0)
     stored radius = min(radius, reach),  reach = 2 max(|u|, |u - W|, |v|, |v - H|) + 16 for
         mean2d = (u, v) and a W x H image                                (clamp_radius)
+
+`mode` ("3dgs", the default, or "gsplat") selects the reference code followed: the Jacobian's
+frustum clamp, the radius floor f, the culling rule and the antialiasing floor
+(kernels/splat/modes.py has the table, kernels/splat/ewa.py the clamp's formulas).
 
 The radius clamp. The radius is only a culling flag (> 0) and the half-size of the square a splat
 is binned with (kernels/splat/tiles.py clamps that square to the image's tiles); the rasteriser
@@ -58,8 +63,10 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.sh import sh_basis, sh_basis_grad
 from kernels.splat.camera import SplatCamera
+from kernels.splat.modes import DEFAULT_MODE, RADIUS_FLOOR_OF, mode_id
 from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
-                               dilate_cov2d_vjp, persp_proj, persp_proj_vjp, quat_scale_to_covar,
+                               dilate_cov2d_vjp, persp_intrinsics_vjp, persp_proj, persp_proj_vjp, pose_vjp,
+                               quat_scale_to_covar,
                                quat_scale_to_covar_vjp, sigmoid, transform_cov, transform_cov_vjp, view_direction,
                                view_direction_vjp)
 from kernels.splat.tiles import TILE
@@ -67,6 +74,8 @@ from kernels.splat.tiles import TILE
 wp.set_module_options({"enable_backward": False})
 
 MIN_CHUNK = 1024
+RADIUS_FLOOR_3DGS = RADIUS_FLOOR_OF["3dgs"]
+RADIUS_FLOOR_GSPLAT = RADIUS_FLOOR_OF["gsplat"]
 # Largest radius stored (2^30: exact in float32, and u +- radius stays inside int32 in the tile binning).
 RADIUS_CAP = float(2**30)
 
@@ -100,11 +109,12 @@ def _camera_frame(view: wp.array2d(dtype=Any), means: wp.array2d(dtype=Any), log
 
 
 @wp.func
-def _conic_chain(Wr: Any, q: Any, l: Any, p: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int):
+def _conic_chain(Wr: Any, q: Any, l: Any, p: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int,
+                 mode: int):
     """The forward from the camera-frame mean p to the conic (module docstring): (cov_c, u, v, the
     undilated a, b, c and det0, the dilated a1, c1, and det, qa, qb, qc of the conic inverse)."""
     cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
-    u, v, cov2d = persp_proj(p, cov_c, fx, fy, cx, cy, width, height)
+    u, v, cov2d = persp_proj(p, cov_c, fx, fy, cx, cy, width, height, mode)
     a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
     det, qa, qb, qc = conic_inverse(a1, b, c1)
     return cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc
@@ -149,44 +159,52 @@ def _load_splat_f64(means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=A
 
 @wp.func
 def _screen_conic(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int,
-                  height: int):
+                  height: int, mode: int):
     """(u, v, det0, det, Q00, Q01, Q11, unclamped radius) of one splat (module docstring)."""
     cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _conic_chain(Wr, q, l, Wr * mu + tv, fx, fy, cx, cy,
-                                                                       width, height)
+                                                                       width, height, mode)
     half = type(det)(0.5)
     bb = half * (a1 + c1)
-    lam = bb + wp.sqrt(wp.max(type(det)(0.01), bb * bb - det))
+    floor = type(det)(RADIUS_FLOOR_GSPLAT)
+    if mode == 0:
+        floor = type(det)(RADIUS_FLOOR_3DGS)
+    lam = bb + wp.sqrt(wp.max(floor, bb * bb - det))
     r = wp.ceil(type(det)(3.0) * wp.sqrt(lam))
     return u, v, det0, det, qa, qb, qc, r
 
 
 @wp.func
 def _projection_vjp(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int,
-                    height: int, antialiased: int, g_comp: Any, gQa: Any, gQb: Any, gQc: Any, gu: Any, gv: Any,
+                    height: int, mode: int, antialiased: int, g_comp: Any, gQa: Any, gQb: Any, gQc: Any, gu: Any,
+                    gv: Any,
                     g_depth: Any):
-    """(dL/dmu, dL/dq, dL/dl, opacity factor c, det) of the projection's geometry, for the cotangents of
-    the conic, mean2d and depth and dL/dc = g_comp (c = 1 unless antialiased)."""
+    """(dL/dmu, dL/dq, dL/dl, opacity factor c, det, dL/drho, dL/dphi, dL/d(fx, fy, cx, cy)) of the
+    projection's geometry, for the cotangents of the conic, mean2d and depth and dL/dc = g_comp (c = 1
+    unless antialiased); the pose terms leave out the view direction's share."""
     zero = type(g_comp)(0.0)
     p = Wr * mu + tv
-    cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _conic_chain(Wr, q, l, p, fx, fy, cx, cy, width, height)
+    cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _conic_chain(Wr, q, l, p, fx, fy, cx, cy, width, height,
+                                                                       mode)
 
     # Opacity o = sigmoid(a) comp.
     g_det0 = zero
     g_det = zero
     comp = type(g_comp)(1.0)
     if antialiased != 0:
-        comp = aa_compensation(det0, det)
-        g_det0, g_det = aa_compensation_vjp(det0, det, g_comp)
+        comp = aa_compensation(det0, det, mode)
+        g_det0, g_det = aa_compensation_vjp(det0, det, g_comp, mode)
 
     # Conic and dilation (det0 = a c - b^2 adds its share).
     g_a1, g_b1, g_c1 = conic_inverse_vjp(a1, b, c1, gQa, gQb, gQc, g_det)
     g_cov2d = dilate_cov2d_vjp(a, b, c, g_a1, g_b1, g_c1, g_det0)
 
     # EWA projection, then the world-to-camera transforms of the mean and the covariance.
-    g_p, g_cov_c = persp_proj_vjp(p, cov_c, fx, fy, cx, cy, width, height, g_cov2d, gu, gv, g_depth)
+    g_p, g_cov_c = persp_proj_vjp(p, cov_c, fx, fy, cx, cy, width, height, mode, g_cov2d, gu, gv, g_depth)
     g_mu = wp.transpose(Wr) * g_p
     g_q, g_l = quat_scale_to_covar_vjp(q, l, transform_cov_vjp(Wr, g_cov_c))
-    return g_mu, g_q, g_l, comp, det
+    g_rho, g_phi = pose_vjp(p, g_p, cov_c, g_cov_c)
+    g_intr = persp_intrinsics_vjp(p, cov_c, fx, fy, cx, cy, width, height, mode, g_cov2d, gu, gv)
+    return g_mu, g_q, g_l, comp, det, g_rho, g_phi, g_intr
 
 
 @wp.func
@@ -196,6 +214,23 @@ def sh_color(sh: wp.array3d(dtype=Any), i: int, ch: int, basis: Any, n_coeffs: i
     for k in range(n_coeffs):
         acc += basis[k] * sh[i, k, ch]
     return acc
+
+
+@wp.func
+def culled(u: Any, v: Any, r: Any, width: int, height: int, mode: int):
+    """Whether the square (u, v) +- r lists no tile: "3dgs" (mode 0) 3DGS's getRect rectangle is empty
+    (kernels/splat/modes.py), "gsplat" the square misses the image."""
+    zero = type(r)(0.0)
+    w = type(r)(float(width))
+    h = type(r)(float(height))
+    if mode == 0:
+        half = type(r)(0.5)
+        t = type(r)(float(TILE))
+        reach = type(r)(float(TILE - 1)) - half
+        tw = type(r)(float(((width + TILE - 1) // TILE) * TILE))
+        th = type(r)(float(((height + TILE - 1) // TILE) * TILE))
+        return u + r + reach < t or u - half - r >= tw or v + r + reach < t or v - half - r >= th
+    return u + r <= zero or u - r >= w or v + r <= zero or v - r >= h
 
 
 @wp.func
@@ -216,7 +251,7 @@ def clamp_radius(r: Any, u: Any, v: Any, width: int, height: int):
 def _project_kernel(
     means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
     opacity_logits: wp.array(dtype=Any), sh: wp.array3d(dtype=Any), view: wp.array2d(dtype=Any),
-    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, antialiased: int,
+    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, mode: int, antialiased: int,
     means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), depths: wp.array(dtype=Any),
     radii: wp.array(dtype=wp.int32), colors: wp.array2d(dtype=Any), opacities: wp.array(dtype=Any), offset: int,
 ):
@@ -233,7 +268,8 @@ def _project_kernel(
     tz = p[2]
     if tz < cam[4] or tz > cam[5]:
         return
-    u, v, det0, det, qa, qb, qc, r = _screen_conic(mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height)
+    u, v, det0, det, qa, qb, qc, r = _screen_conic(mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height,
+                                                   mode)
     comp = means.dtype(1.0)
     if wp.isnan(det) or wp.isinf(det):
         # Past float32's range (module docstring): the conic, radius and compensation in float64.
@@ -241,7 +277,7 @@ def _project_kernel(
         mu64, q64, l64 = _load_splat_f64(means, log_scales, quats, i)
         u64, v64, det0_64, det64, qa64, qb64, qc64, r64 = _screen_conic(
             mu64, q64, l64, W64, t64, wp.float64(cam[0]), wp.float64(cam[1]), wp.float64(cam[2]),
-            wp.float64(cam[3]), width, height)
+            wp.float64(cam[3]), width, height, mode)
         if det64 <= wp.float64(0.0) or wp.isnan(det64) or wp.isinf(det64):
             return
         qa = means.dtype(qa64)
@@ -250,12 +286,12 @@ def _project_kernel(
         r = means.dtype(r64)
         det = means.dtype(1.0)  # only its sign is read below
         if antialiased != 0:
-            comp = means.dtype(aa_compensation(det0_64, det64))
+            comp = means.dtype(aa_compensation(det0_64, det64, mode))
     elif antialiased != 0:
-        comp = aa_compensation(det0, det)
+        comp = aa_compensation(det0, det, mode)
     if det <= zero:
         return
-    if u + r <= zero or u - r >= means.dtype(float(width)) or v + r <= zero or v - r >= means.dtype(float(height)):
+    if culled(u, v, r, width, height, mode):
         return
 
     rc = clamp_radius(r, u, v, width, height)
@@ -281,16 +317,20 @@ def _project_kernel(
 def _project_backward_kernel(
     means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
     opacity_logits: wp.array(dtype=Any), sh: wp.array3d(dtype=Any), view: wp.array2d(dtype=Any),
-    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, antialiased: int,
+    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, mode: int, antialiased: int,
     radii: wp.array(dtype=wp.int32),
     g_means2d: wp.array2d(dtype=Any), g_conics: wp.array2d(dtype=Any), g_depths: wp.array(dtype=Any),
     g_colors: wp.array2d(dtype=Any), g_opacities: wp.array(dtype=Any),
     d_means: wp.array2d(dtype=Any), d_log_scales: wp.array2d(dtype=Any), d_quats: wp.array2d(dtype=Any),
-    d_opacity_logits: wp.array(dtype=Any), d_sh: wp.array3d(dtype=Any), offset: int,
+    d_opacity_logits: wp.array(dtype=Any), d_sh: wp.array3d(dtype=Any), want_camera: int,
+    d_camera: wp.array2d(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     zero = means.dtype(0.0)
     one = means.dtype(1.0)
+    if want_camera != 0:
+        for j in range(10):
+            d_camera[i, j] = zero
     for k in range(sh.shape[1]):
         for ch in range(3):
             d_sh[i, k, ch] = zero
@@ -310,15 +350,16 @@ def _project_backward_kernel(
     mu, q, l = _load_splat(means, log_scales, quats, i)
     sig = sigmoid(opacity_logits[i])
     g_o = g_opacities[i]
-    g_mu, g_q, g_l, comp, det = _projection_vjp(mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height,
-                                                antialiased, g_o * sig, g_conics[i, 0], g_conics[i, 1],
+    g_mu, g_q, g_l, comp, det, g_rho, g_phi, g_intr = _projection_vjp(
+        mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height, mode, antialiased, g_o * sig, g_conics[i, 0],
+        g_conics[i, 1],
                                                 g_conics[i, 2], g_means2d[i, 0], g_means2d[i, 1], g_depths[i])
     if wp.isnan(det) or wp.isinf(det):
         W64, t64 = _load_view_f64(view)
         mu64, q64, l64 = _load_splat_f64(means, log_scales, quats, i)
-        g_mu64, g_q64, g_l64, comp64, det64 = _projection_vjp(
+        g_mu64, g_q64, g_l64, comp64, det64, g_rho64, g_phi64, g_intr64 = _projection_vjp(
             mu64, q64, l64, W64, t64, wp.float64(cam[0]), wp.float64(cam[1]), wp.float64(cam[2]),
-            wp.float64(cam[3]), width, height, antialiased, wp.float64(g_o * sig), wp.float64(g_conics[i, 0]),
+            wp.float64(cam[3]), width, height, mode, antialiased, wp.float64(g_o * sig), wp.float64(g_conics[i, 0]),
             wp.float64(g_conics[i, 1]), wp.float64(g_conics[i, 2]), wp.float64(g_means2d[i, 0]),
             wp.float64(g_means2d[i, 1]), wp.float64(g_depths[i]))
         g_mu = wp.vector(means.dtype(g_mu64[0]), means.dtype(g_mu64[1]), means.dtype(g_mu64[2]), length=3,
@@ -328,6 +369,12 @@ def _project_backward_kernel(
         g_q = wp.vector(means.dtype(g_q64[0]), means.dtype(g_q64[1]), means.dtype(g_q64[2]), means.dtype(g_q64[3]),
                         length=4, dtype=means.dtype)
         comp = means.dtype(comp64)
+        g_rho = wp.vector(means.dtype(g_rho64[0]), means.dtype(g_rho64[1]), means.dtype(g_rho64[2]), length=3,
+                          dtype=means.dtype)
+        g_phi = wp.vector(means.dtype(g_phi64[0]), means.dtype(g_phi64[1]), means.dtype(g_phi64[2]), length=3,
+                          dtype=means.dtype)
+        g_intr = wp.vector(means.dtype(g_intr64[0]), means.dtype(g_intr64[1]), means.dtype(g_intr64[2]),
+                           means.dtype(g_intr64[3]), length=4, dtype=means.dtype)
     d_opacity_logits[i] = g_o * comp * sig * (one - sig)
     for j in range(3):
         d_log_scales[i, j] = g_l[j]
@@ -348,7 +395,17 @@ def _project_backward_kernel(
                 d_sh[i, k, ch] = basis[k] * gcol
                 f = sh[i, k, ch] * gcol
                 g_d = g_d + wp.vector(bdx[k] * f, bdy[k] * f, bdz[k] * f, length=3, dtype=means.dtype)
-    g_mu = g_mu + view_direction_vjp(d, dn, g_d)
+    g_view = view_direction_vjp(d, dn, g_d)
+    g_mu = g_mu + g_view
+
+    if want_camera != 0:
+        # The camera centre -W^T t moves by -W^T rho: the view direction's share of dL/drho is W g_view.
+        g_rho = g_rho + Wr * g_view
+        for j in range(3):
+            d_camera[i, j] = g_rho[j]
+            d_camera[i, 3 + j] = g_phi[j]
+        for j in range(4):
+            d_camera[i, 6 + j] = g_intr[j]
 
     d_means[i, 0] = g_mu[0]
     d_means[i, 1] = g_mu[1]
@@ -483,8 +540,10 @@ def _camera_arrays(a: A.Inputs, camera: SplatCamera) -> tuple[wp.array, wp.array
     return view, cam
 
 
-def project_wp(g: GaussianInputs, camera: SplatCamera, sh_degree: int, antialiased: bool) -> Projection:
+def project_wp(g: GaussianInputs, camera: SplatCamera, sh_degree: int, antialiased: bool,
+               mode: str = DEFAULT_MODE) -> Projection:
     """`project` with wp.array results on g's device (the render chain's first stage)."""
+    mid = mode_id(mode)
     a = g.inputs()
     view, cam = _camera_arrays(a, camera)
     n = g.n
@@ -492,26 +551,35 @@ def project_wp(g: GaussianInputs, camera: SplatCamera, sh_degree: int, antialias
                      a.zeros(n))
     a.launch(_project_kernel, n,
              [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, camera.width, camera.height,
-              sh_degree, int(bool(antialiased)), out.means2d, out.conics, out.depths, out.radii, out.colors,
+              sh_degree, mid, int(bool(antialiased)), out.means2d, out.conics, out.depths, out.radii, out.colors,
               out.opacities], min_chunk=MIN_CHUNK)
     return out
 
 
 def project(g: GaussianInputs, camera: SplatCamera, *, sh_degree: int | None = None,
-            antialiased: bool = False) -> Projection:
-    """Project every splat into `camera` (module docstring); arrays in the kind of g's inputs."""
+            antialiased: bool = False, mode: str = DEFAULT_MODE) -> Projection:
+    """Project every splat into `camera` (module docstring) following `mode` ("3dgs" or "gsplat",
+    kernels/splat/modes.py); arrays in the kind of g's inputs."""
+    mode_id(mode)
     deg = sh_degree_of(tuple(g.sh.shape), sh_degree)
-    return project_wp(g, camera, deg, antialiased).out(g.inputs())
+    return project_wp(g, camera, deg, antialiased, mode).out(g.inputs())
 
 
 def project_backward(g: GaussianInputs, camera: SplatCamera, radii: Any, grad_means2d: Any, grad_conics: Any,
                      grad_depths: Any, grad_colors: Any, grad_opacities: Any, *, sh_degree: int | None = None,
-                     antialiased: bool = False) -> dict[str, Any]:
-    """Vector-Jacobian product of `project`.
+                     antialiased: bool = False, mode: str = DEFAULT_MODE,
+                     want_camera: bool = False) -> dict[str, Any]:
+    """Vector-Jacobian product of `project` (with the same `mode` and `antialiased`).
 
     Returns a dict with the gradients of "means", "log_scales", "quats", "opacity_logits" and
-    "sh", each shaped like the parameter, in the kind of g's inputs (NumPy or wp.array).
+    "sh", each shaped like the parameter, in the kind of g's inputs (NumPy or wp.array). With
+    `want_camera`, also "pose" (6,): dL/dxi for the left perturbation viewmat <- exp(xi^) viewmat,
+    xi = (rho, phi) translation first, and "intrinsics" (4,): dL/d(fx, fy, cx, cy)
+    (kernels/splat/ewa.py, `pose_vjp` and `persp_intrinsics_vjp`). Each splat's thread writes its
+    own row of these, and the rows are summed afterwards, so the split launch stays race-free
+    (docs/warp.md, section 2).
     """
+    mid = mode_id(mode)
     deg = sh_degree_of(tuple(g.sh.shape), sh_degree)
     n = g.n
     a = g.inputs()
@@ -524,8 +592,14 @@ def project_backward(g: GaussianInputs, camera: SplatCamera, radii: Any, grad_me
     view, cam = _camera_arrays(a, camera)
     out = {"means": a.zeros((n, 3)), "log_scales": a.zeros((n, 3)), "quats": a.zeros((n, 4)),
            "opacity_logits": a.zeros(n), "sh": a.zeros(tuple(g.sh.shape))}
+    rows = a.zeros((max(n, 1) if want_camera else 1, 10))
     a.launch(_project_backward_kernel, n,
              [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, camera.width, camera.height, deg,
-              int(bool(antialiased)), r, gm, gc, gd, gcol, go, out["means"], out["log_scales"], out["quats"],
-              out["opacity_logits"], out["sh"]], min_chunk=MIN_CHUNK)
-    return {k: a.out(v) for k, v in out.items()}
+              mid, int(bool(antialiased)), r, gm, gc, gd, gcol, go, out["means"], out["log_scales"], out["quats"],
+              out["opacity_logits"], out["sh"], int(bool(want_camera)), rows], min_chunk=MIN_CHUNK)
+    result = {k: a.out(v) for k, v in out.items()}
+    if want_camera:
+        total = rows.numpy()[:n].sum(axis=0, dtype=np.float64).astype(a.np_dtype)
+        result["pose"] = a.out(wp.array(total[:6], dtype=a.scalar, device=a.device))
+        result["intrinsics"] = a.out(wp.array(total[6:], dtype=a.scalar, device=a.device))
+    return result

@@ -3,9 +3,11 @@
 Per pixel p (centre (i + 0.5, j + 0.5)), front to back over its tile's list (kernels/splat/tiles.py):
 
     G_i = exp(-1/2 d^T Q_i d),  d = mean2d_i - p
-    alpha_i = min(0.99, o_i G_i); a splat with alpha_i < 1/255 is skipped;
-    T_1 = 1,  T_{i+1} = T_i (1 - alpha_i); the loop stops before the splat that
-        would bring T below 1e-4 (that splat is not blended)
+    alpha_i = min(a_max, o_i G_i); a splat with alpha_i < 1/255 (or d^T Q d < 0) is skipped;
+    T_1 = 1,  T_{i+1} = T_i (1 - alpha_i); the loop stops before the splat that would bring
+        T below 1e-4 (that splat is not blended)
+    "3dgs" mode (3DGS's renderCUDA): a_max = 0.99, stop when T_i (1 - alpha_i) < 1e-4;
+    "gsplat" mode (gsplat's rasterize_to_pixels): a_max = 0.999, stop when T_i (1 - alpha_i) <= 1e-4
     rgb = sum_i colour_i alpha_i T_i + T_final * background
     alpha = 1 - T_final
     depth = sum_i z_i alpha_i T_i   (background depth 0: the expected z-depth is depth / alpha)
@@ -17,7 +19,7 @@ and with S_i the colour composited behind splat i (S <- alpha_j c_j + (1 - alpha
     drgb/dalpha_i = T_i (c_i - S_i) - T_final background / (1 - alpha_i),
     dalpha_out/dalpha_i = T_final / (1 - alpha_i),
 
-depth like a colour channel with background 0. Through alpha = o G (zero where the 0.99 clamp is
+depth like a colour channel with background 0. Through alpha = o G (zero where the a_max clamp is
 active) the gradients reach o, Q and mean2d:
     dalpha/do = G,  dalpha/dQ = -alpha/2 (dx^2, 2 dx dy, dy^2),  dalpha/dmean2d = -alpha Q d.
 Every tile's backward runs on one thread and writes one gradient row per (tile, splat) pair,
@@ -34,12 +36,13 @@ from typing import Any
 import warp as wp
 
 from kernels import _arrays as A
+from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
 from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles
 
 wp.set_module_options({"enable_backward": False})
 
 ALPHA_MIN = 1.0 / 255.0
-ALPHA_MAX = 0.99
+ALPHA_MAX = ALPHA_MAX_OF["3dgs"]  # the default mode's clamp; "gsplat" clamps at ALPHA_MAX_OF["gsplat"]
 T_MIN = 1e-4
 MIN_CHUNK = 1024
 # Columns of the per-(tile, splat) gradient rows: mean2d (2), conic (3), opacity, colour (3), depth.
@@ -72,7 +75,8 @@ def _gauss_power(packed: wp.array2d(dtype=Any), g: int, pxf: Any, pyf: Any):
 def _raster_forward_kernel(
     packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
     sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
-    out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any), out_depth: wp.array2d(dtype=Any),
+    alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any),
+    out_depth: wp.array2d(dtype=Any),
     final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32), offset: int,
 ):
     t = wp.tid() + offset
@@ -97,11 +101,13 @@ def _raster_forward_kernel(
         # packed[g, 6] = -ln(255 o): below it alpha < 1/255, so exp() is skipped.
         if power > zero or power < packed[g, 6]:
             continue
-        alpha = wp.min(packed.dtype(ALPHA_MAX), packed[g, 5] * wp.exp(power))
+        alpha = wp.min(alpha_max, packed[g, 5] * wp.exp(power))
         if alpha < packed.dtype(ALPHA_MIN):
             continue
         next_t = tr * (one - alpha)
         if next_t < packed.dtype(T_MIN):
+            break
+        if stop_inclusive != 0 and next_t == packed.dtype(T_MIN):
             break
         wgt = alpha * tr
         cr += wgt * colors[g, 0]
@@ -123,8 +129,9 @@ def _raster_forward_kernel(
 def _raster_backward_tile_kernel(
     packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
     sorted_gid: wp.array(dtype=wp.int32), sorted_entry: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
-    width: int, height: int, tiles_x: int, final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32),
-    g_rgb: wp.array3d(dtype=Any), g_alpha: wp.array2d(dtype=Any), g_depth: wp.array2d(dtype=Any),
+    width: int, height: int, tiles_x: int, alpha_max: Any, final_T: wp.array2d(dtype=Any),
+    n_contrib: wp.array2d(dtype=wp.int32), g_rgb: wp.array3d(dtype=Any), g_alpha: wp.array2d(dtype=Any),
+    g_depth: wp.array2d(dtype=Any),
     entry_grads: wp.array2d(dtype=Any), tile_bg_grads: wp.array2d(dtype=Any), offset: int,
 ):
     # One thread per tile: it alone writes the rows of its (tile, splat) entries and its background row.
@@ -169,7 +176,7 @@ def _raster_backward_tile_kernel(
             if power <= zero and power >= packed[g, 6]:
                 gauss = wp.exp(power)
                 raw = packed[g, 5] * gauss
-                alpha = wp.min(packed.dtype(ALPHA_MAX), raw)
+                alpha = wp.min(alpha_max, raw)
                 if alpha >= packed.dtype(ALPHA_MIN):
                     tr = tr / (one - alpha)
                     wgt = alpha * tr
@@ -188,7 +195,7 @@ def _raster_backward_tile_kernel(
                     sg = alpha * c1 + (one - alpha) * sg
                     sb = alpha * c2 + (one - alpha) * sb
                     sd = alpha * z + (one - alpha) * sd
-                    if raw <= packed.dtype(ALPHA_MAX):
+                    if raw <= alpha_max:
                         entry_grads[row, 5] += gauss * g_a
                         g_p = alpha * g_a
                         entry_grads[row, 0] += -(qa * dx + qb * dy) * g_p
@@ -252,53 +259,67 @@ def background_array(a: A.Inputs, background: Any) -> wp.array:
     return a.floats("background", background, (3,))
 
 
+def _check_tiles_mode(tiles: Tiles, mode: str) -> None:
+    if tiles.mode != mode:
+        raise ValueError(f"tiles: binned with mode={tiles.mode!r}, expected mode={mode!r}")
+
+
 def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
-                 tiles: Tiles | None = None) -> tuple[Raster, Tiles]:
+                 tiles: Tiles | None = None, mode: str = DEFAULT_MODE) -> tuple[Raster, Tiles]:
     """`rasterize` with wp.array results (the render chain's last stage); `bg` a wp.array."""
+    mid = mode_id(mode)
     a = s.inputs()
     if tiles is None:
-        tiles = bin_tiles(s, width, height)
+        tiles = bin_tiles(s, width, height, mode)
+    _check_tiles_mode(tiles, mode)
     out = Raster(a.zeros((height, width, 3)), a.zeros((height, width)), a.zeros((height, width)),
                  a.zeros((height, width)), a.zeros((height, width), wp.int32))
     n_tiles = tiles.tiles_x * tiles.tiles_y
     a.launch(_raster_forward_kernel, n_tiles * TILE_PIXELS,
-             [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x, out.rgb,
+             [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x,
+              a.s(ALPHA_MAX_OF[mode]), mid, out.rgb,
               out.alpha, out.depth, out.final_T, out.n_contrib], min_chunk=TILE_PIXELS)
     return out, tiles
 
 
 def rasterize(s: Splats2D, width: int, height: int, background: Any = None,
-              tiles: Tiles | None = None) -> tuple[Raster, Tiles]:
-    """Bin (unless `tiles` is given) and alpha-composite the splats front to back (module docstring).
+              tiles: Tiles | None = None, *, mode: str = DEFAULT_MODE) -> tuple[Raster, Tiles]:
+    """Bin (unless `tiles` is given) and alpha-composite the splats front to back (module docstring),
+    following `mode` ("3dgs" or "gsplat", kernels/splat/modes.py).
 
     The Raster's arrays are in the kind of the splats' inputs; the Tiles stay wp.arrays (state).
     """
+    mode_id(mode)
     width = A.check_int("width", width, minimum=1)
     height = A.check_int("height", height, minimum=1)
     a = s.inputs()
-    raster, tiles = rasterize_wp(s, width, height, background_array(a, background), tiles)
+    raster, tiles = rasterize_wp(s, width, height, background_array(a, background), tiles, mode)
     return Raster(*(a.out(x) for x in (raster.rgb, raster.alpha, raster.depth, raster.final_T,
                                         raster.n_contrib))), tiles
 
 
 def rasterize_backward(s: Splats2D, width: int, height: int, background: Any, tiles: Tiles, raster: Raster,
-                       grad_rgb: Any, grad_alpha: Any = None, grad_depth: Any = None) -> dict[str, Any]:
-    """VJP of `rasterize`.
+                       grad_rgb: Any, grad_alpha: Any = None, grad_depth: Any = None, *,
+                       mode: str = DEFAULT_MODE) -> dict[str, Any]:
+    """VJP of `rasterize` (with the same `mode`).
 
     Returns a dict with the gradients of "means2d", "conics", "colors", "opacities", "depths"
     (shaped like the splats' arrays) and "background" (3,), in the kind of the splats' inputs.
     """
+    mode_id(mode)
     width = A.check_int("width", width, minimum=1)
     height = A.check_int("height", height, minimum=1)
     a = s.inputs()
     return {k: a.out(v) for k, v in rasterize_backward_wp(
         a, s, width, height, background_array(a, background), tiles, raster, grad_rgb, grad_alpha,
-        grad_depth).items()}
+        grad_depth, mode).items()}
 
 
 def rasterize_backward_wp(a: A.Inputs, s: Splats2D, width: int, height: int, bg: wp.array, tiles: Tiles,
-                          raster: Raster, grad_rgb: Any, grad_alpha: Any, grad_depth: Any) -> dict[str, wp.array]:
+                          raster: Raster, grad_rgb: Any, grad_alpha: Any, grad_depth: Any,
+                          mode: str = DEFAULT_MODE) -> dict[str, wp.array]:
     """`rasterize_backward` with wp.array results."""
+    _check_tiles_mode(tiles, mode)
     n = s.n
     final_t = a.floats("raster.final_T", raster.final_T, (height, width))
     n_contrib = a.ints("raster.n_contrib", raster.n_contrib, (height, width))
@@ -310,7 +331,8 @@ def rasterize_backward_wp(a: A.Inputs, s: Splats2D, width: int, height: int, bg:
     tile_bg = a.zeros((n_tiles, 3))
     a.launch(_raster_backward_tile_kernel, n_tiles,
              [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.sorted_entry, tiles.ranges, width, height,
-              tiles.tiles_x, final_t, n_contrib, g_rgb, g_a, g_d, entry_grads, tile_bg], min_chunk=1)
+              tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]), final_t, n_contrib, g_rgb, g_a, g_d, entry_grads, tile_bg],
+             min_chunk=1)
     out = {"means2d": a.zeros((n, 2)), "conics": a.zeros((n, 3)), "opacities": a.zeros(n), "colors": a.zeros((n, 3)),
            "depths": a.zeros(n)}
     a.launch(_gather_entry_grads_kernel, n,

@@ -1,7 +1,10 @@
 """Tile binning: which splats each 16 x 16 pixel tile blends, front to back.
 
 As in 3DGS (Kerbl et al. 2023), a visible splat belongs to the tiles its square mean2d +- radius
-meets; of these it is listed only in those that also meet the bounding box of the ellipse
+meets, by the tile rule of the mode (kernels/splat/modes.py): "3dgs" 3DGS's getRect,
+floor((u - 1/2 - r)/16) <= tx < floor((u - 1/2 + r + 15)/16), "gsplat" gsplat's
+floor((u - r)/16) <= tx < ceil((u + r)/16) (rows likewise, both clamped to the image's tiles).
+Of these it is listed only in those that also meet the bounding box of the ellipse
 d^T Q d <= 2 ln(255 o) (half-sizes sqrt(2 ln(255 o) Q11 / det Q) and sqrt(2 ln(255 o) Q00 / det Q)),
 outside which alpha < 1/255 and the rasteriser skips it anyway: the image is the same, and splats
 with 255 o < 1 are never listed. Splats are ranked by depth (a stable radix sort, culled splats
@@ -21,6 +24,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
+from kernels.splat.modes import DEFAULT_MODE, mode_id
 
 wp.set_module_options({"enable_backward": False})
 
@@ -32,7 +36,7 @@ MIN_CHUNK = 1024
 @wp.kernel
 def _tile_counts_kernel(
     means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), opacities: wp.array(dtype=Any),
-    depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), tiles_x: int, tiles_y: int,
+    depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), tiles_x: int, tiles_y: int, mode: int,
     rects: wp.array2d(dtype=wp.int32), counts: wp.array(dtype=wp.int32), packed: wp.array2d(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
@@ -50,18 +54,31 @@ def _tile_counts_kernel(
     k2 = means2d.dtype(2.0) * wp.log(o * means2d.dtype(255.0))
     det = qa * qc - qb * qb
     rf = means2d.dtype(float(r))
-    ext_x = rf
-    ext_y = rf
-    if det > means2d.dtype(0.0):  # else a conic rounded to 0 (float32, huge splat): the radius alone
-        ext_x = wp.min(rf, wp.sqrt(k2 * qc / det))
-        ext_y = wp.min(rf, wp.sqrt(k2 * qa / det))
     t = means2d.dtype(float(TILE))
+    # The ellipse's box, capped where it can no longer cut the mode's square: at r ("gsplat", whose
+    # square rule is the same floor / ceil) or r + 16 ("3dgs", whose getRect reaches 15 px further).
+    cap = rf
+    if mode == 0:
+        cap = rf + t
+    ext_x = cap
+    ext_y = cap
+    if det > means2d.dtype(0.0):  # else a conic rounded to 0 (float32, huge splat): the radius alone
+        ext_x = wp.min(cap, wp.sqrt(k2 * qc / det))
+        ext_y = wp.min(cap, wp.sqrt(k2 * qa / det))
     u = means2d[i, 0]
     v = means2d[i, 1]
     x0 = wp.clamp(int(wp.floor((u - ext_x) / t)), 0, tiles_x)
     x1 = wp.clamp(int(wp.ceil((u + ext_x) / t)), 0, tiles_x)
     y0 = wp.clamp(int(wp.floor((v - ext_y) / t)), 0, tiles_y)
     y1 = wp.clamp(int(wp.ceil((v + ext_y) / t)), 0, tiles_y)
+    if mode == 0:
+        # 3DGS's getRect of the square (pixel centres at integers there: u - 1/2), cut as above.
+        half = means2d.dtype(0.5)
+        reach = means2d.dtype(float(TILE - 1)) - half
+        x0 = wp.max(x0, wp.clamp(int(wp.floor((u - half - rf) / t)), 0, tiles_x))
+        x1 = wp.max(x0, wp.min(x1, wp.clamp(int(wp.floor((u + rf + reach) / t)), 0, tiles_x)))
+        y0 = wp.max(y0, wp.clamp(int(wp.floor((v - half - rf) / t)), 0, tiles_y))
+        y1 = wp.max(y0, wp.min(y1, wp.clamp(int(wp.floor((v + rf + reach) / t)), 0, tiles_y)))
     rects[i, 0] = x0
     rects[i, 1] = x1
     rects[i, 2] = y0
@@ -220,15 +237,18 @@ class Tiles:
     sorted_entry: wp.array  # (E,) emitted index of each sorted entry
     ranges: wp.array  # (n_tiles, 2)
     packed: wp.array  # (N, 8): u, v, Q00, Q01, Q11, opacity, -ln(255 opacity), depth (rows of binned splats)
+    mode: str = DEFAULT_MODE  # the tile rule they were binned with (kernels/splat/modes.py)
 
 
-def bin_tiles(s: Splats2D, width: int, height: int) -> Tiles:
+def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) -> Tiles:
     """Sort (tile, splat) pairs by tile, then depth; per-tile ranges (see the module docstring).
 
-    A splat is listed in the tiles that meet the square mean2d +- radius AND the
-    bounding box of its ellipse d^T Q d <= 2 ln(255 o), outside which its alpha is
-    below 1/255: the second bound only drops pixels the rasteriser would skip.
+    A splat is listed in the tiles that meet the square mean2d +- radius (by the tile rule of
+    `mode`, "3dgs" or "gsplat") AND the bounding box of its ellipse d^T Q d <= 2 ln(255 o),
+    outside which its alpha is below 1/255: the second bound only drops pixels the rasteriser
+    would skip.
     """
+    mid = mode_id(mode)
     width = A.check_int("width", width, minimum=1)
     height = A.check_int("height", height, minimum=1)
     a = s.inputs()
@@ -239,7 +259,7 @@ def bin_tiles(s: Splats2D, width: int, height: int) -> Tiles:
     rects = wp.zeros((n, 4), dtype=wp.int32, device=dev)
     counts = wp.zeros(n, dtype=wp.int32, device=dev)
     packed = wp.zeros((n, 8), dtype=s.scalar, device=dev)
-    a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.opacities, s.depths, s.radii, tiles_x, tiles_y, rects,
+    a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.opacities, s.depths, s.radii, tiles_x, tiles_y, mid, rects,
                                      counts, packed], min_chunk=MIN_CHUNK)
     starts = wp.zeros(n, dtype=wp.int32, device=dev)
     n_entries = 0
@@ -250,7 +270,7 @@ def bin_tiles(s: Splats2D, width: int, height: int) -> Tiles:
     sorted_gid = wp.zeros(max(n_entries, 1), dtype=wp.int32, device=dev)
     sorted_entry = wp.zeros(max(n_entries, 1), dtype=wp.int32, device=dev)
     if n_entries == 0:
-        return Tiles(tiles_x, tiles_y, 0, starts, counts, sorted_gid, sorted_entry, ranges, packed)
+        return Tiles(tiles_x, tiles_y, 0, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)
     means2d, radii, depths = s.means2d, s.radii, s.depths
 
     # Depth ranks by a stable sort of the depths (culled splats last).
@@ -274,4 +294,4 @@ def bin_tiles(s: Splats2D, width: int, height: int) -> Tiles:
     a.launch(_ranges_kernel, n_entries, [keys, values, entry_gid, n_entries, wp.int64(stride), sorted_gid, ranges],
              min_chunk=MIN_CHUNK)
     wp.copy(sorted_entry, values, count=n_entries)
-    return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed)
+    return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)

@@ -16,7 +16,8 @@ where the T < 1e-4 stop ends most pixels early.
 Phases (medians of REPEATS runs after a warm-up, kernels.splat; the parameters are
 wp.arrays on the device, so every result stays there):
   fwd_s      render(): projection, tile binning, both radix sorts, rasterisation;
-  fwd_bwd_s  render() then render_backward() for a random image cotangent.
+  fwd_bwd_s  render() then render_backward() for a random image cotangent;
+  fwd_bwd_camera_s  the same with want_camera=True (the pose and intrinsics gradients too).
 Extra keys: visible splats, (tile, splat) entries, mean alpha.
 """
 
@@ -71,9 +72,14 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Itera
         def fwd_bwd():
             ks.render_backward(g, ks.render(g, camera), cot)
 
-        t = time_medians({"fwd": fwd, "fwd_bwd": fwd_bwd}, repeats=REPEATS, sync=sync)
+        def fwd_bwd_camera():
+            ks.render_backward(g, ks.render(g, camera), cot, want_camera=True)
+
+        t = time_medians({"fwd": fwd, "fwd_bwd": fwd_bwd, "fwd_bwd_camera": fwd_bwd_camera}, repeats=REPEATS,
+                         sync=sync)
         r = fwd()
         yield {"bench": "splat.render", "device": str(dev), "threads": threads, "gaussians": n, "height": h,
                "width": w, "fwd_s": t["fwd"], "fwd_bwd_s": t["fwd_bwd"],
+               "fwd_bwd_camera_s": t["fwd_bwd_camera"],
                "visible": int((r.projection.radii.numpy() > 0).sum()), "tile_entries": r.tiles.n_entries,
                "mean_alpha": float(r.alpha.numpy().mean())}

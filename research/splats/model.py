@@ -150,10 +150,11 @@ def splat_camera(camera: Camera, near: float = ks.DEFAULT_NEAR) -> ks.SplatCamer
 
 
 def render(model: GaussianModel, camera: Camera, *, sh_degree: int = 3, background=(0.0, 0.0, 0.0),
-           antialiased: bool = False, device: Any = None) -> ks.Render:
-    """Render `model` from a research Camera (float32) on `device` (None: the CPU); wp.array results."""
+           antialiased: bool = False, mode: str = ks.DEFAULT_MODE, device: Any = None) -> ks.Render:
+    """Render `model` from a research Camera (float32) on `device` (None: the CPU); wp.array results.
+    `mode` picks the reference conventions ("3dgs", the default, or "gsplat"; kernels/splat/modes.py)."""
     return ks.render(model.inputs(device), splat_camera(camera), np.asarray(background, dtype=np.float32),
-                     sh_degree=sh_degree, antialiased=antialiased)
+                     sh_degree=sh_degree, antialiased=antialiased, mode=mode)
 
 
 def scene_extent(cameras: list[Camera]) -> float:

@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 from kernels import _arrays as A
 from kernels import splat as ks
+from kernels.splat.modes import mode_id
 from research import metrics
 from research.cameras import Camera
 from research.splats import ply
@@ -47,8 +48,12 @@ class TrainConfig:
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     antialiased: bool = False
+    mode: str = ks.DEFAULT_MODE  # "3dgs" (the original code's conventions) or "gsplat" (kernels/splat/modes.py)
     seed: int = 0
     log_every: int = 50
+
+    def __post_init__(self) -> None:
+        mode_id(self.mode)  # ValueError naming `mode` before any work
 
 
 @dataclass
@@ -102,7 +107,8 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
                 order = list(rng.permutation(len(cameras)))
             v = order.pop()
             inputs = model.inputs(device)
-            result = ks.render(inputs, splat_cams[v], background, sh_degree=degree, antialiased=cfg.antialiased)
+            result = ks.render(inputs, splat_cams[v], background, sh_degree=degree, antialiased=cfg.antialiased,
+                               mode=cfg.mode)
             loss, grad_img, parts = l1_dssim(result.rgb.numpy(), images[v], cfg.lambda_dssim, device=device)
             if not np.isfinite(loss):
                 raise RuntimeError(f"iteration {it}: the loss is {loss}")
@@ -145,7 +151,8 @@ class Evaluation:
 
 
 def evaluate(model: GaussianModel, cameras: list[Camera], images: np.ndarray, sh_degree: int,
-             background=(0.0, 0.0, 0.0), antialiased: bool = False, device: Any = None) -> Evaluation:
+             background=(0.0, 0.0, 0.0), antialiased: bool = False, device: Any = None,
+             mode: str = ks.DEFAULT_MODE) -> Evaluation:
     """PSNR and SSIM (research.metrics) of renders against `images` (linear RGB, premultiplied on black).
 
     Both images are compared as research.metrics.EVAL_PROTOCOL says (clipped to [0, 1], then
@@ -155,7 +162,7 @@ def evaluate(model: GaussianModel, cameras: list[Camera], images: np.ndarray, sh
     renders, per_view = [], []
     for cam, gt in zip(cameras, images):
         img = render(model, cam, sh_degree=sh_degree, background=background, antialiased=antialiased,
-                     device=device).rgb.numpy()
+                     mode=mode, device=device).rgb.numpy()
         a, b = metrics.srgb_on_black(img), metrics.srgb_on_black(gt)
         per_view.append({"psnr": metrics.psnr(a, b), "ssim": metrics.ssim(a, b),
                          "psnr_linear": metrics.psnr(np.clip(img, 0, 1), np.clip(gt, 0, 1))})
@@ -165,7 +172,7 @@ def evaluate(model: GaussianModel, cameras: list[Camera], images: np.ndarray, sh
 
 
 def render_fps(model: GaussianModel, cameras: list[Camera], sh_degree: int, repeats: int = 3,
-               antialiased: bool = False, device: Any = None) -> float:
+               antialiased: bool = False, device: Any = None, mode: str = ks.DEFAULT_MODE) -> float:
     """Frames per second of the forward render (projection, binning, sorting, rasterisation) on
     `device`, from the median time per view over `repeats` passes after a warm-up pass."""
     from research.bench import time_median
@@ -176,7 +183,7 @@ def render_fps(model: GaussianModel, cameras: list[Camera], sh_degree: int, repe
 
     def one_pass() -> None:
         for cam in cams:
-            ks.render(inputs, cam, sh_degree=sh_degree, antialiased=antialiased)
+            ks.render(inputs, cam, sh_degree=sh_degree, antialiased=antialiased, mode=mode)
 
     return len(cams) / time_median(one_pass, repeats=repeats, sync=lambda: wp.synchronize_device(device))
 

@@ -57,13 +57,14 @@ def test_project_sh_degree_and_culling():
         np.testing.assert_array_equal(p.conics[:3], 0.0)
 
 
-def test_tile_binning_matches_reference():
-    scene = cs.smooth_scene(6)
+@pytest.mark.parametrize("mode", ks.MODES)
+def test_tile_binning_matches_reference(mode):
+    scene = cs.smooth_scene(6, mode=mode)
     g = ks.gaussian_inputs(*(scene.params[k] for k in PARAMS))
-    p = ks.project(g, scene.camera)
+    p = ks.project(g, scene.camera, mode=mode)
     W, H = scene.camera.width, scene.camera.height
-    tiles = ks.bin_tiles(ks.splats_2d(p.means2d, p.conics, p.colors, p.opacities, p.depths, p.radii), W, H)
-    want = ref.tile_lists(p.means2d, p.conics, p.opacities, p.radii, p.depths, W, H)
+    tiles = ks.bin_tiles(ks.splats_2d(p.means2d, p.conics, p.colors, p.opacities, p.depths, p.radii), W, H, mode)
+    want = ref.tile_lists(p.means2d, p.conics, p.opacities, p.radii, p.depths, W, H, mode=mode)
     ranges, gid = tiles.ranges.numpy(), tiles.sorted_gid.numpy()
     assert tiles.n_entries == sum(len(v) for v in want.values())
     assert sum(len(v) > 1 for v in want.values()) >= 4  # splats overlap on several tiles
