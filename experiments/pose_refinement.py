@@ -21,15 +21,18 @@ ground-truth poses mapped through the same alignment; for gt and noisy it is com
 `--depth-weight` adds the RGB-D depth loss (rendered expected depth against Mitsuba's z-depth).
 The ground-truth, noisy and refined trajectories are written as TUM files (research.poses.write_tum).
 
-Status (quick mode, seed 0): refinement lowers the mean rotation error from 4.9 to 2.9 degrees and
-raises test PSNR from 15.9 to 17.8 dB (ground-truth poses: 24.4 dB), but some views end worse than
-they started (max 6.7 degrees): the 0.5-degree target is not met. A diagnostic on the same data:
-with the field fitted at the ground-truth poses and held fixed, the same pose updates bring every
-view to 1.2 degrees mean (2.4 max) in 150 iterations and then drift along the rotation-translation
-trade-off (7 degrees max after 450); halving the ray-marching step 4 times changes nothing, so it is
-not quadrature aliasing. The likely cause, not verified, is the grid's shape-radiance ambiguity on
-the textured ground (README: texture at the wrong depth), which makes the field's renders from
-nearby poses inconsistent; splats (exact pose gradients, branch p4-splat) are the next thing to try.
+Status (quick mode, seed 0, 236 s on a shared 2-core CPU): refinement lowers the mean rotation error
+from 4.9 to 2.2 degrees and raises test PSNR from 15.9 to 19.2 dB (ground-truth poses: 24.4 dB), but
+the worst view stays at 5.4 degrees: the 0.5-degree target is not met. The pose trust region
+(0.1 degree per update) was chosen on the perturbations of --seed 1 (0.5: 2.4 mean / 5.3 max;
+0.1: 1.9 / 4.2; 0.05: 1.9 / 3.8; all 32 views per batch instead of 8: 3.9 / 9.3), not on seed 0.
+A diagnostic on the same data: with the field fitted at the ground-truth poses and held fixed, the
+pose updates bring every view to 1.2 degrees mean (2.4 max) in 150 iterations and then drift along
+the rotation-translation trade-off (7 degrees max after 450); a 4x finer ray-marching step changes
+nothing, so it is not quadrature aliasing. The likely cause, not verified, is the grid's
+shape-radiance ambiguity on the textured ground (README: texture at the wrong depth), which makes
+the field's renders from nearby poses inconsistent; splats (exact pose gradients, branch p4-splat)
+are the next thing to try.
 
 Writes results/pose_refinement/{table.md, metrics.json, trajectories.png, loss.png, *.tum}.
 """

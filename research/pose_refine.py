@@ -63,7 +63,7 @@ class JointConfig:
     refine_poses: bool = True
     pose_step: float = 0.5  # fraction of the Gauss-Newton step taken per iteration
     pose_damping: float = 1.0  # Levenberg-Marquardt damping, relative to diag(J^T J)
-    max_rot_step_deg: float = 0.5  # trust region of one pose update
+    max_rot_step_deg: float = 0.1  # trust region of one pose update (0.5 and 0.05 tried: see pose_refinement)
     max_trans_step: float = 0.02  # scene units
     pose_start: int = 0  # first iteration that updates the poses
     step: float = 0.04  # ray-marching stratum length
