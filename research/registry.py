@@ -170,6 +170,7 @@ GRADCHECK_MODULES: list[str] = [
     "research.checks.splat",
     "research.checks.ssim",
     "research.checks.volume",
+    "research.checks.ba",
 ]
 
 # Benchmark families.
