@@ -7,8 +7,10 @@ world frame, as in splat SLAM). Pipeline, per frame k (research/vo/features.py f
    (cv2.findEssentialMat) and cv2.recoverPose give R and a unit translation; the inlier matches are
    triangulated (cv2.triangulatePoints). Scale from depth: s = median(measured z / triangulated z)
    over keyframe 0's inlier keypoints with a valid depth; t and the points are multiplied by s.
-2. Tracking: the frame's descriptors are matched with the landmarks of the last `window` keyframes;
-   cv2.solvePnPRansac (reprojection threshold `pnp_px`) gives the pose. Fewer than `min_inliers`
+2. Tracking: the frame's descriptors are matched with the landmarks of the last `window` keyframes
+   that project within `search_px` of a keypoint under the constant-velocity prediction (guided
+   matching); cv2.solvePnPRansac (reprojection threshold `pnp_px`) gives the pose. When that fails,
+   the match is repeated without the prediction (relocalisation against the local map). Fewer than `min_inliers`
    inliers is a tracking failure: it is recorded, the frame keeps the constant-velocity prediction,
    and `max_failures` failures in a row raise TrackingError (never a silent trajectory of guesses).
 3. Keyframes: every `keyframe_every` frames, or when the inliers drop below `keyframe_inlier_frac` of
@@ -254,16 +256,14 @@ def run_vo(rgba: Any, depth: Any, K: Any, c2w0: Any, cfg: VOConfig | None = None
                 allowed = (d2 < cfg.search_px ** 2) & (zp > 0)[:, None]
                 m = match(np.stack([world.desc[i] for i in ids]), f.desc, cfg.ratio, allowed)
             rec["matches"] = len(m)
-            inliers = np.zeros(0, dtype=int)
-            if len(m) >= max(6, cfg.min_inliers):
-                obj = np.stack([world.xyz[i] for i in ids[m[:, 0]]])
-                rvec0 = cv2.Rodrigues(T_pred[:3, :3])[0]
-                ok, rvec, tvec, inl = cv2.solvePnPRansac(obj, f.uv[m[:, 1]], K, None, rvec0.copy(),
-                                                         T_pred[:3, 3].reshape(3, 1).copy(), useExtrinsicGuess=True,
-                                                         iterationsCount=200, reprojectionError=cfg.pnp_px,
-                                                         confidence=0.999, flags=cv2.SOLVEPNP_ITERATIVE)
-                if ok and inl is not None:
-                    inliers = inl.ravel()
+            inliers, rvec, tvec = _pnp(world, ids, m, f, K, T_pred, cfg)
+            if len(inliers) < cfg.min_inliers and len(ids):
+                # relocalisation: the prediction may be off (after a failure); match without it
+                m2 = match(np.stack([world.desc[i] for i in ids]), f.desc, cfg.ratio)
+                inl2, rv2, tv2 = _pnp(world, ids, m2, f, K, T_pred, cfg)
+                if len(inl2) > len(inliers):
+                    m, inliers, rvec, tvec = m2, inl2, rv2, tv2
+                    rec.update(matches=len(m), relocalised=True)
             rec["inliers"] = len(inliers)
             if len(inliers) >= cfg.min_inliers:
                 T = _pose_from_rt(rvec, tvec)
@@ -327,6 +327,21 @@ def run_vo(rgba: Any, depth: Any, K: Any, c2w0: Any, cfg: VOConfig | None = None
                    records, ba_records, time.perf_counter() - t0, init_scale)
     res.c2w = res.trajectory()
     return res
+
+
+def _pnp(world: _Map, ids: np.ndarray, m: np.ndarray, f: Features, K: np.ndarray, T_pred: np.ndarray,
+         cfg: VOConfig) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(inlier indices into m, rvec, tvec) of PnP RANSAC from the prediction; no inliers when it fails."""
+    if len(m) < max(6, cfg.min_inliers):
+        return np.zeros(0, dtype=int), None, None
+    obj = np.stack([world.xyz[i] for i in ids[m[:, 0]]])
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(obj, f.uv[m[:, 1]], K, None, cv2.Rodrigues(T_pred[:3, :3])[0],
+                                             T_pred[:3, 3].reshape(3, 1).copy(), useExtrinsicGuess=True,
+                                             iterationsCount=200, reprojectionError=cfg.pnp_px, confidence=0.999,
+                                             flags=cv2.SOLVEPNP_ITERATIVE)
+    if not ok or inl is None:
+        return np.zeros(0, dtype=int), None, None
+    return inl.ravel(), rvec, tvec
 
 
 def _add_depth_landmarks(kf: Keyframe, world: _Map, K: np.ndarray) -> int:
