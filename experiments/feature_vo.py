@@ -13,8 +13,9 @@ RANSAC, its scale from the measured depth of the matched keypoints; then every f
 RANSAC against the local map's landmarks (guided matching around the constant-velocity prediction);
 a keyframe every `--keyframe-every` frames, whose new landmarks are triangulated from the previous
 keyframe or back-projected from depth; a local bundle adjustment over the last `--window` keyframes
-after each keyframe, with residuals and Jacobians from the Warp kernel kernels.ba, solved by scipy's
-sparse least squares with a Huber loss. Frame 0's pose is the ground truth's (it fixes the world
+after each keyframe, with residuals and Jacobians from the Warp kernel kernels.ba (pixel residuals,
+plus a relative depth residual where a keypoint has a measured depth), solved by scipy's sparse least
+squares with a Huber loss. Frame 0's pose is the ground truth's (it fixes the world
 frame, as in splat_slam).
 
 Loop closure (research/vo/loop.py): late keyframes matched by descriptor with the first keyframes,
@@ -61,6 +62,9 @@ def add_options(p) -> None:
     p.add_argument("--ba-loss", default="huber", choices=["linear", "huber", "soft_l1", "cauchy", "arctan"],
                    help="robust loss of the bundle adjustment (scipy's; default huber, 2 px scale)")
     p.add_argument("--no-ba", action="store_true", help="skip the local bundle adjustment (an ablation)")
+    p.add_argument("--ba-depth-weight", type=float, default=30.0,
+                   help="weight of the bundle adjustment's relative depth residuals, pixels per unit relative depth "
+                        "error; 0 uses the pixel residuals only (default 30, chosen on the smoke sequence)")
 
 
 def _check_args(args) -> None:
@@ -114,8 +118,13 @@ def run(ctx: Context) -> int:
     args = ctx.args
     _check_args(args)
     size = setup(ctx.quick, ctx.smoke)
-    cfg = VOConfig(n_features=args.features, keyframe_every=args.keyframe_every, window=args.window,
-                   ba=not args.no_ba, ba_loss=args.ba_loss, ba_max_nfev=size["ba_max_nfev"]).validate()
+    try:
+        cfg = VOConfig(n_features=args.features, keyframe_every=args.keyframe_every, window=args.window,
+                       ba=not args.no_ba, ba_loss=args.ba_loss, ba_max_nfev=size["ba_max_nfev"],
+                       ba_depth_weight=args.ba_depth_weight).validate()
+    except ValueError as e:
+        name, _, rest = str(e).partition(":")
+        raise ValueError(f"--{name.replace('_', '-')}:{rest}") from None
     loop_cfg = LoopConfig().validate()
     dcfg = datasets.DatasetConfig("objects", views=size["views"], res=size["res"], spp=size["spp"], seed=ctx.seed,
                                   flow=True, flow_frames=LOOP_FRAMES, flow_path="loop")
@@ -164,7 +173,8 @@ def run(ctx: Context) -> int:
     headers = ["method", "ATE RMSE", "ATE % of path", "RPE trans RMSE", "RPE trans % of step", "RPE rot RMSE (deg)"]
     ba_before = [b["rms_before_px"] for b in vo.ba]
     ba_after = [b["rms_after_px"] for b in vo.ba]
-    ba_text = (f"{len(vo.ba)} local bundle adjustments (Warp Jacobians, {cfg.ba_loss} loss): mean RMS reprojection "
+    ba_text = (f"{len(vo.ba)} local bundle adjustments (Warp Jacobians, {cfg.ba_loss} loss, depth residual weight "
+               f"{cfg.ba_depth_weight:g} px per unit relative depth error): mean RMS reprojection "
                f"error {np.mean(ba_before):.3f} -> {np.mean(ba_after):.3f} px" if vo.ba else "no bundle adjustment")
     table = (f"`objects` loop sequence from `drlab dataset --flow --flow-path loop` ({n} frames at "
              f"{size['res']}x{size['res']}, {size['spp']} spp; path length {length:.3f}, mean step {step:.4f}), "

@@ -18,7 +18,11 @@ translation first. To first order at xi = 0, exp(xi^) X = X + rho + phi x X, so 
 the Jacobians written per observation are
 
     d r / d xi  = d pi/dX [ I | -X^ ]      (2 x 6, at xi = 0; X^ the skew matrix of X)
-    d r / d p_j = d pi/dX R                 (2 x 3).
+    d r / d p_j = d pi/dX R                 (2 x 3),
+
+and, for RGB-D residuals on the point's depth Z in its camera,
+
+    d Z / d xi = (0, 0, 1, Y, -X, 0),       d Z / d p_j = (row 3 of R).
 
 A solver that keeps xi as a free parameter with T = exp(xi^) T_0 chains the first with the SE(3)
 left Jacobian of xi (research/vo/ba.py does). Non-smooth points: none for Z > 0; the projection is
@@ -48,7 +52,8 @@ def _reproject_kernel(
     poses: wp.array3d(dtype=typing.Any), points: wp.array2d(dtype=typing.Any), obs: wp.array2d(dtype=typing.Any),
     cam_idx: wp.array(dtype=wp.int32), pt_idx: wp.array(dtype=wp.int32), intr: wp.array(dtype=typing.Any),
     out_r: wp.array2d(dtype=typing.Any), out_jpose: wp.array3d(dtype=typing.Any),
-    out_jpoint: wp.array3d(dtype=typing.Any), out_z: wp.array(dtype=typing.Any), want_jac: int, offset: int,
+    out_jpoint: wp.array3d(dtype=typing.Any), out_z: wp.array(dtype=typing.Any), out_jz: wp.array2d(dtype=typing.Any),
+    want_jac: int, offset: int,
 ):
     k = wp.tid() + offset
     c = cam_idx[k]
@@ -87,6 +92,15 @@ def _reproject_kernel(
         for m in range(3):
             out_jpoint[k, 0, m] = a0 * poses[c, 0, m] + a2 * poses[c, 2, m]
             out_jpoint[k, 1, m] = b1 * poses[c, 1, m] + b2 * poses[c, 2, m]
+        # depth Z: d Z/d xi = (0, 0, 1, Y, -X, 0), d Z/d p = R row 2
+        out_jz[k, 0] = zero
+        out_jz[k, 1] = zero
+        out_jz[k, 2] = points.dtype(1.0)
+        out_jz[k, 3] = Y
+        out_jz[k, 4] = -X
+        out_jz[k, 5] = zero
+        for m in range(3):
+            out_jz[k, 6 + m] = poses[c, 2, m]
 
 
 A.declare_float_overloads(_reproject_kernel)
@@ -97,14 +111,16 @@ class Reprojection:
     """What `reproject` returns, in the kind of `poses` (NumPy in, NumPy out; wp.array in, wp.array out).
 
     residuals (M, 2): pi(R p + t) - observed pixel; depth (M,): Z of each observation's point in its
-    camera; jac_pose (M, 2, 6): d r / d xi at xi = 0 (left perturbation, rho first) and jac_point
-    (M, 2, 3): d r / d p, both None when `jacobians=False`.
+    camera; jac_pose (M, 2, 6): d r / d xi at xi = 0 (left perturbation, rho first), jac_point
+    (M, 2, 3): d r / d p, and jac_depth (M, 9): (d Z / d xi, d Z / d p); all None when
+    `jacobians=False`.
     """
 
     residuals: Any
     depth: Any
     jac_pose: Any = None
     jac_point: Any = None
+    jac_depth: Any = None
 
 
 def reproject(poses: Any, points: Any, observations: Any, cam_idx: Any, pt_idx: Any, intrinsics: Any, *,
@@ -140,13 +156,13 @@ def reproject(poses: Any, points: Any, observations: Any, cam_idx: Any, pt_idx: 
     r = a.empty((m, 2))
     z = a.empty((m,))
     if jacobians:
-        jp, jx = a.empty((m, 2, 6)), a.empty((m, 2, 3))
+        jp, jx, jz = a.empty((m, 2, 6)), a.empty((m, 2, 3)), a.empty((m, 9))
     else:
-        jp, jx = a.empty((1, 2, 6)), a.empty((1, 2, 3))
-    a.launch(_reproject_kernel, m, [pw, xw, ow, cw, jw, iw, r, jp, jx, z, int(bool(jacobians))])
+        jp, jx, jz = a.empty((1, 2, 6)), a.empty((1, 2, 3)), a.empty((1, 9))
+    a.launch(_reproject_kernel, m, [pw, xw, ow, cw, jw, iw, r, jp, jx, z, jz, int(bool(jacobians))])
     if not jacobians:
         return Reprojection(a.out(r), a.out(z))
-    return Reprojection(a.out(r), a.out(z), a.out(jp), a.out(jx))
+    return Reprojection(a.out(r), a.out(z), a.out(jp), a.out(jx), a.out(jz))
 
 
 __all__ = ["Reprojection", "reproject"]

@@ -1,7 +1,7 @@
 """Gradient checks of the bundle-adjustment Jacobians (kernels/ba.py chained in research/vo/ba.py), float64.
 
-f(xi, points, observations) = reprojection residuals of T_c = exp(xi_c^) T_c0 (research.vo.ba);
-its VJP is J^T c with the Warp kernel's Jacobians chained with the SE(3) left Jacobian. The inputs
+f(xi, points, observations) = (reprojection residuals, point depths Z) of T_c = exp(xi_c^) T_c0
+(research.vo.ba); its VJP is J^T c with the Warp kernel's Jacobians chained with the SE(3) left Jacobian. The inputs
 are random non-degenerate: poses looking at a point cloud in front of every camera (depths 2..5),
 non-zero pose vectors xi (so the left Jacobian is exercised away from identity, with |phi| up to
 about 0.3 rad), several observations per point and per camera, and one camera whose phi is below the
@@ -42,16 +42,17 @@ def check_ba(seed: int) -> list[GradcheckResult]:
     inputs, (cam_idx, pt_idx, poses0, K) = ba_problem(seed)
 
     def f(xi, points, observations):
-        return residuals_and_jacobian(xi, points, observations, cam_idx, pt_idx, poses0, K, jacobians=False)[0]
+        lin = residuals_and_jacobian(xi, points, observations, cam_idx, pt_idx, poses0, K, jacobians=False)
+        return lin.r, lin.z
 
     def vjp(inp, cot):
-        _, jp, jx = residuals_and_jacobian(inp["xi"], inp["points"], inp["observations"], cam_idx, pt_idx,
-                                           poses0, K)
+        lin = residuals_and_jacobian(inp["xi"], inp["points"], inp["observations"], cam_idx, pt_idx, poses0, K)
+        c_r, c_z = cot
         gxi = np.zeros_like(inp["xi"])
-        np.add.at(gxi, cam_idx, np.einsum("ka,kab->kb", cot, jp))
+        np.add.at(gxi, cam_idx, np.einsum("ka,kab->kb", c_r, lin.jr_pose) + c_z[:, None] * lin.jz_pose)
         gp = np.zeros_like(inp["points"])
-        np.add.at(gp, pt_idx, np.einsum("ka,kab->kb", cot, jx))
-        return {"xi": gxi, "points": gp, "observations": -cot}
+        np.add.at(gp, pt_idx, np.einsum("ka,kab->kb", c_r, lin.jr_point) + c_z[:, None] * lin.jz_point)
+        return {"xi": gxi, "points": gp, "observations": -c_r}
 
     return check_vjp(f, vjp, inputs, seed=seed, name=f"ba.reprojection[seed={seed}]")
 

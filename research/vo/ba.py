@@ -19,7 +19,9 @@ exp((xi + d xi)^) = exp((J_l(xi) d xi)^) exp(xi^) to first order, with J_l the S
 the exact Jacobian with respect to xi_c is d r/d delta J_l(xi_c). scipy.optimize.least_squares (trust
 region reflective) takes it as a scipy.sparse matrix (one 2 x 6 block per observation and free
 camera, one 2 x 3 block per observation and point) and applies an optional robust loss (`loss`,
-`f_scale` in pixels).
+`f_scale` in pixels). RGB-D: an observation with a measured depth z adds the residual
+w (Z - z) / z, Z = (T_c p_j)_z, with d Z/d xi and d Z/d p from the same kernel (w = `depth_weight`
+pixels per unit relative depth error).
 """
 
 from __future__ import annotations
@@ -71,20 +73,32 @@ def perturbed_poses(xi: np.ndarray, poses0: np.ndarray) -> np.ndarray:
     return np.stack([se3_exp(x) @ T for x, T in zip(xi, poses0)])
 
 
+@dataclass
+class Linearisation:
+    """Residuals and Jacobians at T_c = exp(xi_c^) T_c0: r (M, 2) with d r/d xi_c (M, 2, 6) and d r/d p_j
+    (M, 2, 3); the depth Z (M,) of each observation's point with d Z/d xi_c (M, 6) and d Z/d p_j (M, 3).
+    Jacobians are None when not asked for."""
+
+    r: np.ndarray
+    z: np.ndarray
+    jr_pose: np.ndarray | None = None
+    jr_point: np.ndarray | None = None
+    jz_pose: np.ndarray | None = None
+    jz_point: np.ndarray | None = None
+
+
 def residuals_and_jacobian(xi: np.ndarray, points: np.ndarray, observations: np.ndarray, cam_idx: np.ndarray,
                            pt_idx: np.ndarray, poses0: np.ndarray, intrinsics: Any, *, device: Any = None,
-                           jacobians: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """(r (M, 2), d r/d xi_c (M, 2, 6), d r/d p_j (M, 2, 3)) at T_c = exp(xi_c^) T_c0 (module docstring).
-
-    float64 throughout (the Warp kernel runs in the dtype of `points`).
-    """
+                           jacobians: bool = True) -> Linearisation:
+    """The reprojection residuals and point depths with their Jacobians wrt xi (chained with J_l(xi_c)) and
+    the points (module docstring); the Warp kernel runs in the dtype of `points`."""
     T = perturbed_poses(xi, poses0).astype(points.dtype)
     rep = reproject(T, points, observations, cam_idx, pt_idx, intrinsics, jacobians=jacobians, device=device)
     if not jacobians:
-        return rep.residuals, None, None
-    Jl = np.stack([se3_left_jacobian(x) for x in xi])
-    jpose = np.einsum("kab,kbc->kac", rep.jac_pose, Jl[cam_idx])
-    return rep.residuals, jpose, rep.jac_point
+        return Linearisation(rep.residuals, rep.depth)
+    Jl = np.stack([se3_left_jacobian(x) for x in xi])[cam_idx]
+    return Linearisation(rep.residuals, rep.depth, np.einsum("kab,kbc->kac", rep.jac_pose, Jl), rep.jac_point,
+                         np.einsum("kb,kbc->kc", rep.jac_depth[:, :6], Jl), rep.jac_depth[:, 6:])
 
 
 @dataclass
@@ -99,13 +113,16 @@ class BAResult:
 
 
 def bundle_adjust(poses0: Any, points0: Any, observations: Any, cam_idx: Any, pt_idx: Any, intrinsics: Any, *,
-                  fixed: Any = (0,), loss: str = "huber", f_scale: float = 2.0, max_nfev: int = 30,
-                  device: Any = None) -> BAResult:
+                  depths: Any = None, depth_weight: float = 100.0, fixed: Any = (0,), loss: str = "huber",
+                  f_scale: float = 2.0, max_nfev: int = 30, device: Any = None) -> BAResult:
     """Adjust the free cameras' poses and every point (module docstring) with scipy's sparse least squares.
 
     poses0: (C, 4, 4) world-to-camera; points0: (N, 3); observations (M, 2) with camera and point
-    indices (M,); `fixed`: indices of cameras held at poses0 (at least one, to fix the gauge); `loss`:
-    one of LOSSES (scipy's robust losses), `f_scale` its inlier scale in pixels.
+    indices (M,); `depths` (M,): measured z-depth of each observation (RGB-D; 0 = none), which adds the
+    residual depth_weight (Z - z) / z (so 1% of depth weighs as much as depth_weight / 100 pixels);
+    `fixed`: indices of cameras held at poses0 (at least one, to fix the gauge); `loss`: one of LOSSES
+    (scipy's robust losses), `f_scale` its inlier scale in pixels. The RMS figures are of the pixel
+    residuals alone.
     """
     poses0 = np.asarray(poses0, dtype=np.float64)
     points0 = np.asarray(points0, dtype=np.float64)
@@ -116,7 +133,12 @@ def bundle_adjust(poses0: Any, points0: Any, observations: Any, cam_idx: Any, pt
         raise ValueError(f"loss: expected one of {list(LOSSES)}, got {loss!r}")
     if not (math.isfinite(f_scale) and f_scale > 0):
         raise ValueError(f"f_scale: expected a positive number of pixels, got {f_scale}")
+    if not (math.isfinite(depth_weight) and depth_weight >= 0):
+        raise ValueError(f"depth_weight: expected a finite value >= 0, got {depth_weight}")
     C, N, M = poses0.shape[0], points0.shape[0], obs.shape[0]
+    zobs = np.zeros(M) if depths is None else np.asarray(depths, dtype=np.float64)
+    if zobs.shape != (M,) or not np.all(np.isfinite(zobs)) or np.any(zobs < 0):
+        raise ValueError(f"depths: expected ({M},) finite values >= 0 (0 = no depth), got shape {zobs.shape}")
     fixed_set = sorted({int(c) for c in fixed})
     if not fixed_set or min(fixed_set) < 0 or max(fixed_set) >= C:
         raise ValueError(f"fixed: expected at least one camera index in [0, {C - 1}] held fixed, got {list(fixed)}")
@@ -124,45 +146,50 @@ def bundle_adjust(poses0: Any, points0: Any, observations: Any, cam_idx: Any, pt
     slot = -np.ones(C, dtype=np.int64)
     slot[free] = np.arange(len(free))
     n_pose = 6 * len(free)
+    kd = np.nonzero(zobs > 0)[0] if depth_weight > 0 else np.zeros(0, dtype=int)
+    wd = depth_weight / zobs[kd]
 
     def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         xi = np.zeros((C, 6))
         xi[free] = x[:n_pose].reshape(-1, 6)
         return xi, x[n_pose:].reshape(N, 3)
 
+    def residuals(lin: Linearisation) -> np.ndarray:
+        return np.concatenate([lin.r.ravel(), wd * (lin.z[kd] - zobs[kd])])
+
     def fun(x: np.ndarray) -> np.ndarray:
         xi, pts = unpack(x)
-        r, _, _ = residuals_and_jacobian(xi, pts, obs, ci, pi, poses0, intrinsics, device=device, jacobians=False)
-        return r.ravel()
+        return residuals(residuals_and_jacobian(xi, pts, obs, ci, pi, poses0, intrinsics, device=device,
+                                                jacobians=False))
 
-    # Sparsity pattern: residual rows 2k, 2k+1; pose columns of the free camera, point columns.
-    rows_pose, cols_pose, sel_pose = [], [], slot[ci] >= 0
-    k_pose = np.nonzero(sel_pose)[0]
-    for a in range(2):
-        for b in range(6):
-            rows_pose.append(2 * k_pose + a)
-            cols_pose.append(6 * slot[ci[k_pose]] + b)
-    rows_pt, cols_pt = [], []
-    for a in range(2):
-        for b in range(3):
-            rows_pt.append(2 * np.arange(M) + a)
-            cols_pt.append(n_pose + 3 * pi + b)
-    rows = np.concatenate(rows_pose + rows_pt)
-    cols = np.concatenate(cols_pose + cols_pt)
+    # Sparsity pattern: pixel rows 2k, 2k+1, then one depth row per observation with a depth; pose
+    # columns of the observation's camera when it is free, then the point's columns.
+    k_pose = np.nonzero(slot[ci] >= 0)[0]
+    kd_pose = kd[slot[ci[kd]] >= 0]
+    row_d = 2 * M + np.searchsorted(kd, kd_pose)
+    rows = ([2 * k_pose + a for a in range(2) for b in range(6)] + [2 * np.arange(M) + a for a in range(2) for b in range(3)]
+            + [row_d for b in range(6)] + [2 * M + np.arange(len(kd)) for b in range(3)])
+    cols = ([6 * slot[ci[k_pose]] + b for a in range(2) for b in range(6)]
+            + [n_pose + 3 * pi + b for a in range(2) for b in range(3)]
+            + [6 * slot[ci[kd_pose]] + b for b in range(6)] + [n_pose + 3 * pi[kd] + b for b in range(3)])
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    wd_pose = wd[np.searchsorted(kd, kd_pose)]
 
     def jac(x: np.ndarray) -> sp.csr_matrix:
         xi, pts = unpack(x)
-        _, jp, jx = residuals_and_jacobian(xi, pts, obs, ci, pi, poses0, intrinsics, device=device)
-        vals = [jp[k_pose, a, b] for a in range(2) for b in range(6)] + [jx[:, a, b] for a in range(2) for b in range(3)]
-        return sp.csr_matrix((np.concatenate(vals), (rows, cols)), shape=(2 * M, n_pose + 3 * N))
+        lin = residuals_and_jacobian(xi, pts, obs, ci, pi, poses0, intrinsics, device=device)
+        vals = ([lin.jr_pose[k_pose, a, b] for a in range(2) for b in range(6)]
+                + [lin.jr_point[:, a, b] for a in range(2) for b in range(3)]
+                + [wd_pose * lin.jz_pose[kd_pose, b] for b in range(6)] + [wd * lin.jz_point[kd, b] for b in range(3)])
+        return sp.csr_matrix((np.concatenate(vals), (rows, cols)), shape=(2 * M + len(kd), n_pose + 3 * N))
 
     x0 = np.concatenate([np.zeros(n_pose), points0.ravel()])
-    r0 = fun(x0)
+    r0 = fun(x0)[:2 * M]
     sol = least_squares(fun, x0, jac=jac, method="trf", loss=loss, f_scale=f_scale, max_nfev=max_nfev,
                         x_scale="jac", tr_solver="lsmr")
     xi, pts = unpack(sol.x)
     return BAResult(perturbed_poses(xi, poses0), pts, float(np.sqrt(np.mean(r0 ** 2) * 2)),
-                    float(np.sqrt(np.mean(sol.fun ** 2) * 2)), int(sol.nfev), int(sol.status), str(sol.message))
+                    float(np.sqrt(np.mean(sol.fun[:2 * M] ** 2) * 2)), int(sol.nfev), int(sol.status), str(sol.message))
 
 
-__all__ = ["LOSSES", "se3_left_jacobian", "perturbed_poses", "residuals_and_jacobian", "BAResult", "bundle_adjust"]
+__all__ = ["LOSSES", "se3_left_jacobian", "perturbed_poses", "residuals_and_jacobian", "Linearisation", "BAResult", "bundle_adjust"]

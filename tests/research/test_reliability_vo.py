@@ -87,3 +87,16 @@ def test_bundle_adjust_bad_options(override, message):
     with pytest.raises(ValueError, match=message):
         vba.bundle_adjust(BA_P, np.zeros((2, 3)), np.zeros((2, 2)), [0, 1], [0, 1], (40.0, 40.0, 16.0, 16.0),
                           **override)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--ba-depth-weight", "-1"], "--ba-depth-weight: expected a value >= 0"),
+    (["--window", "1"], "--window: expected an integer >= 2"),
+    (["--features", "0"], "--features: expected an integer >= 1"),
+], ids=["ba_depth_weight_negative", "window_1", "features_0"])
+def test_feature_vo_bad_options_exit_2_before_any_work(argv, message, tmp_path, capsys):
+    from experiments import feature_vo
+
+    rc = feature_vo.main([*argv, "--out", str(tmp_path / "out"), "--data", str(tmp_path / "data"), "--no-progress"])
+    assert rc == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "data").exists()

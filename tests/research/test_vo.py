@@ -146,3 +146,19 @@ def test_run_vo_tracks_and_records_failures(loop_sequence):
     blank[5:] = 0.0
     with pytest.raises(TrackingError, match=r"tracking lost for 3 frames in a row, frames 5\.\.7"):
         run_vo(blank, depth, K, gt[0], VOConfig(max_failures=3))
+
+
+def test_depth_residuals_fix_the_scale():
+    """With one fixed camera the pixel residuals leave the scale free; measured depths pin it."""
+    poses, pts, obs, ci, pi, K = _ba_scene(5)
+    z = np.einsum("kab,kb->ka", poses[ci, :3, :3], pts[pi])[:, 2] + poses[ci, 2, 3]
+    rng = np.random.default_rng(6)
+    start = poses.copy()
+    for c in (1, 2, 3):
+        start[c] = se3_exp(np.concatenate([rng.normal(0, 0.05, 3), rng.normal(0, 0.02, 3)])) @ poses[c]
+    c0 = -poses[0, :3, :3].T @ poses[0, :3, 3]
+    scaled = c0 + 1.1 * (pts - c0)  # the map 10% too large about camera 0
+    res = vba.bundle_adjust(start, scaled, obs, ci, pi, K, depths=z, fixed=(0,), loss="linear", max_nfev=100)
+    assert res.rms_after < 1e-6
+    np.testing.assert_allclose(res.points, pts, atol=1e-6)
+    np.testing.assert_allclose(res.poses, poses, atol=1e-6)
