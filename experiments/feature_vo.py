@@ -170,6 +170,7 @@ def run(ctx: Context) -> int:
     trajectory_figure(gt, al0, al1, [(frame_of[lp.i], frame_of[lp.j]) for lp in loops], a0.errors, a1.errors,
                       ctx.out / "trajectory.png")
 
+    loop_text = ", ".join(f"frame {frame_of[lp.j]} -> {frame_of[lp.i]}: {lp.inliers} PnP inliers" for lp in loops)
     headers = ["method", "ATE RMSE", "ATE % of path", "RPE trans RMSE", "RPE trans % of step", "RPE rot RMSE (deg)"]
     ba_before = [b["rms_before_px"] for b in vo.ba]
     ba_after = [b["rms_after_px"] for b in vo.ba]
@@ -185,7 +186,7 @@ def run(ctx: Context) -> int:
                f"{fps_all:.2f} with loop detection and the pose graph ({loop_s:.1f} s). Keyframes: "
                f"{len(vo.keyframes)}; landmarks: {len(vo.points)}; tracking failures: {len(vo.failures)}. "
                f"Loops verified: {len(loops)} of {len(tried)} candidate keyframe pairs "
-               f"({', '.join(f'frame {frame_of[lp.j]} -> {frame_of[lp.i]}: {lp.inliers} PnP inliers' for lp in loops) or 'none'}). "
+               f"({loop_text or 'none'}). "
                f"{ba_text}.\n")
     if vo.failures:
         table += "\nTracking failures: " + "; ".join(f"frame {f['frame']}: {f['reason']}" for f in vo.failures) + "\n"
@@ -193,7 +194,8 @@ def run(ctx: Context) -> int:
     def stat_dict(label: str) -> dict:
         a, r, _ = stats[label]
         return {"ate_rmse": a.rmse, "ate_mean": a.mean, "ate_max": a.max, "ate_pct_of_path": 100 * a.rmse / length,
-                "rpe_translation_rmse": r.translation.rmse, "rpe_translation_pct_of_step": 100 * r.translation.rmse / step,
+                "rpe_translation_rmse": r.translation.rmse,
+                "rpe_translation_pct_of_step": 100 * r.translation.rmse / step,
                 "rpe_rotation_rmse_deg": r.rotation_deg.rmse}
 
     record = datasets.provenance(data)

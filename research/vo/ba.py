@@ -167,7 +167,8 @@ def bundle_adjust(poses0: Any, points0: Any, observations: Any, cam_idx: Any, pt
     k_pose = np.nonzero(slot[ci] >= 0)[0]
     kd_pose = kd[slot[ci[kd]] >= 0]
     row_d = 2 * M + np.searchsorted(kd, kd_pose)
-    rows = ([2 * k_pose + a for a in range(2) for b in range(6)] + [2 * np.arange(M) + a for a in range(2) for b in range(3)]
+    rows = ([2 * k_pose + a for a in range(2) for b in range(6)]
+            + [2 * np.arange(M) + a for a in range(2) for b in range(3)]
             + [row_d for b in range(6)] + [2 * M + np.arange(len(kd)) for b in range(3)])
     cols = ([6 * slot[ci[k_pose]] + b for a in range(2) for b in range(6)]
             + [n_pose + 3 * pi + b for a in range(2) for b in range(3)]
@@ -192,4 +193,5 @@ def bundle_adjust(poses0: Any, points0: Any, observations: Any, cam_idx: Any, pt
                     float(np.sqrt(np.mean(sol.fun[:2 * M] ** 2) * 2)), int(sol.nfev), int(sol.status), str(sol.message))
 
 
-__all__ = ["LOSSES", "se3_left_jacobian", "perturbed_poses", "residuals_and_jacobian", "Linearisation", "BAResult", "bundle_adjust"]
+__all__ = ["LOSSES", "se3_left_jacobian", "perturbed_poses", "residuals_and_jacobian", "Linearisation", "BAResult",
+           "bundle_adjust"]
