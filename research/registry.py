@@ -162,6 +162,13 @@ register_experiment(
     quick_budget_s=600,
 )
 
+register_experiment(
+    "feature_vo",
+    "Classical RGB-D feature VO on the Mitsuba `objects` loop (splat_slam's sequence): ORB, essential matrix, "
+    "PnP RANSAC, local BA with Warp Jacobians, loop closure by pose graph: ATE/RPE before and after, FPS.",
+    quick_budget_s=300,
+)
+
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",
@@ -170,6 +177,7 @@ GRADCHECK_MODULES: list[str] = [
     "research.checks.splat",
     "research.checks.ssim",
     "research.checks.volume",
+    "research.checks.ba",
 ]
 
 # Benchmark families.
