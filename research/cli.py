@@ -103,7 +103,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
 
     cfg = DatasetConfig(scene=args.scene, views=args.views, res=args.res, spp=args.spp, seed=args.seed,
                         stereo=args.stereo, stereo_pairs=args.stereo_pairs, baseline=args.baseline,
-                        flow=args.flow, flow_frames=args.flow_frames)
+                        flow=args.flow, flow_frames=args.flow_frames, flow_path=args.flow_path)
     ray = None
     if args.ray or args.ray_address is not None:
         from research.sweep import RayOptions, require_ray
@@ -405,6 +405,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--baseline", type=float, default=None, help="stereo baseline (default 8%% of camera distance)")
     d.add_argument("--flow", action="store_true", help="add a camera-path sequence with forward flow")
     d.add_argument("--flow-frames", type=int, default=12, help="frames in the flow sequence")
+    d.add_argument("--flow-path", default="arc", help="camera path of the flow sequence: arc (an open arc of "
+                   "1.5-degree steps) or loop (one orbit that returns to its start, for SLAM loop closure)")
     d.add_argument("--out", required=True, type=directory_path, help="output directory")
     d.add_argument("--resume", action="store_true", help="finish an interrupted run (<out>.partial)")
     d.add_argument("--force", action="store_true", help="replace an existing dataset")

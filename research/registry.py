@@ -136,6 +136,13 @@ register_experiment(
     quick_budget_s=600,
 )
 
+register_experiment(
+    "pose_refinement",
+    "BARF-style pose refinement: a voxel grid and the training poses (perturbed 5 degrees, 5% of the radius) "
+    "fitted jointly from the volume renderer's camera gradients: pose errors before/after, test PSNR vs fixed poses.",
+    quick_budget_s=600,
+)
+
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",

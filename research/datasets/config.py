@@ -7,7 +7,7 @@ those without one) before any file or folder is created.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -29,7 +29,8 @@ class DatasetConfig:
     baseline: float | None = None  # default: 8% of the scene's camera distance
     flow: bool = False
     flow_frames: int = 12
-    flow_step_deg: float = 1.5  # camera azimuth step between consecutive flow frames
+    flow_step_deg: float = 1.5  # camera azimuth step between consecutive flow frames (the "arc" path)
+    flow_path: str = "arc"  # "arc": an open arc of flow_step_deg steps; "loop": a closed orbit back to its start
 
     def validate(self) -> None:
         """Raise ValueError naming the `drlab dataset` option (or the field, for those without one)."""
@@ -52,6 +53,10 @@ class DatasetConfig:
                 raise ValueError(f"{_OPTION[name]}: expected True or False, got {getattr(self, name)!r}")
         if self.flow and self.flow_frames < 2:
             raise ValueError(f"--flow-frames: expected at least 2, got {self.flow_frames}")
+        if self.flow_path not in FLOW_PATHS:
+            raise ValueError(f"--flow-path: expected one of {', '.join(FLOW_PATHS)}, got {self.flow_path!r}")
+        if self.flow_path == "loop" and self.flow_frames < MIN_LOOP_FRAMES:
+            raise ValueError(f"--flow-frames: a loop path needs at least {MIN_LOOP_FRAMES} frames, got {self.flow_frames}")
         for name in ("val_fraction", "test_fraction"):
             v = getattr(self, name)
             if not _is_real(v) or not 0.0 < v < 0.5:
@@ -69,9 +74,27 @@ class DatasetConfig:
 
 
 # `drlab dataset` options of the DatasetConfig fields that have one.
+FLOW_PATHS = ("arc", "loop")
+MIN_LOOP_FRAMES = 4
 _OPTION = {"views": "--views", "res": "--res", "spp": "--spp", "stereo_pairs": "--stereo-pairs",
            "flow_frames": "--flow-frames", "stereo": "--stereo", "flow": "--flow"}
 MAX_RES = 8192
+
+
+def config_record(cfg: DatasetConfig) -> dict[str, Any]:
+    """The configuration as manifest.json and a `.partial` folder record it: the dataclass fields, without
+    `flow_path` when it is "arc" (the only path before the option existed), so datasets recorded then
+    still match their configuration and are reused, not rendered again."""
+    record = asdict(cfg)
+    if record["flow_path"] == "arc":
+        del record["flow_path"]
+    return record
+
+
+def is_config_record(doc: Any) -> bool:
+    """Whether `doc` has the keys of a `config_record` (with or without `flow_path`)."""
+    keys = set(asdict(DatasetConfig("spheres")))
+    return isinstance(doc, dict) and set(doc) in (keys, keys - {"flow_path"})
 
 
 def _is_int(v: Any) -> bool:

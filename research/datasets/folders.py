@@ -15,11 +15,10 @@ import os
 import shutil
 import sys
 import threading
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from research.datasets.config import DatasetConfig
+from research.datasets.config import is_config_record
 from research.datasets.integrity import GENERATOR, MANIFEST
 
 PARTIAL_CONFIG = ".drlab-partial.json"
@@ -98,7 +97,7 @@ def partial_config(partial: Path) -> dict[str, Any] | None:
         except (OSError, ValueError):
             continue
         doc = doc.get(key) if key and isinstance(doc, dict) else doc
-        if isinstance(doc, dict) and set(doc) == set(asdict(DatasetConfig("spheres"))):
+        if is_config_record(doc):
             return doc
     return None
 

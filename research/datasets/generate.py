@@ -12,7 +12,8 @@ Layout of `<out>/`:
     stereo/ (with --stereo)            p_NNN_{left,right}.{png,exr}, p_NNN_left_depth.exr,
                                        p_NNN_disp.pfm, p_NNN_noc.png, p_NNN_mask.png, stereo.json
     flow/   (with --flow)              f_NNN.{png,exr}, f_NNN_depth.exr, f_NNN_mask.png,
-                                       f_NNN_flow.flo and f_NNN_valid.png (frame NNN -> NNN+1), flow.json
+                                       f_NNN_flow.flo and f_NNN_valid.png (frame NNN -> NNN+1), flow.json;
+                                       with flow_path "loop" the frames orbit once and return to the start
     manifest.json                      config, Mitsuba variant, versions, seed, SHA-256 of every file
     .drlab-verified.json               research.datasets.integrity's cache (sizes and times); not content
 
@@ -49,7 +50,8 @@ from tqdm import tqdm
 
 from research import atomic, io
 from research.cameras import Camera, smooth_path
-from research.datasets.config import DatasetConfig
+from research.poses import loop_path
+from research.datasets.config import DatasetConfig, config_record
 from research.datasets.folders import (PARTIAL_CONFIG, check_out, commit, config_diff, dataset_lock, notice,
                                       partial_config, partial_dir, partial_state, recover_swap)
 from research.datasets.groundtruth import forward_flow, stereo_disparity, stereo_right_camera
@@ -200,9 +202,13 @@ class _Writer:
     def flow_cameras(self) -> list[Camera]:
         s, cfg = self.spec, self.cfg
         start = float(np.random.default_rng([cfg.seed, 3]).uniform(0.0, 360.0))
-        poses = smooth_path(cfg.flow_frames, s.radius, s.target, s.up, start_azimuth_deg=start,
-                            sweep_deg=cfg.flow_step_deg * (cfg.flow_frames - 1),
-                            elevation_deg=max(25.0, s.min_elevation_deg + 10.0) if s.hemisphere else 20.0)
+        elevation = max(25.0, s.min_elevation_deg + 10.0) if s.hemisphere else 20.0
+        if cfg.flow_path == "loop":
+            poses = loop_path(cfg.flow_frames, s.radius, s.target, s.up, start_azimuth_deg=start,
+                              elevation_deg=elevation)
+        else:
+            poses = smooth_path(cfg.flow_frames, s.radius, s.target, s.up, start_azimuth_deg=start,
+                                sweep_deg=cfg.flow_step_deg * (cfg.flow_frames - 1), elevation_deg=elevation)
         return [self.camera(p) for p in poses]
 
     def render_flow(self, cams: list[Camera], progress: Callable[[], None]) -> None:
@@ -228,11 +234,14 @@ class _Writer:
                 self.write_color(stem, self.renderer.render_rgba(cam, _view_seed(self.cfg.seed, 3, k)))
             geometry.pop(k - 1, None)
             progress()
-        atomic.write_json(self.root / "flow" / "flow.json", {
+        doc = {
             "convention": "f_NNN_flow.flo maps frame NNN to NNN+1: (u, v) = (x right, y down) in pixels; "
                           "valid = surface visible in both frames (1% z-test)",
             "frames": [{"name": f"f_{k:03d}", **c.to_dict()} for k, c in enumerate(cams)],
-        })
+        }
+        if self.cfg.flow_path != "arc":  # the arc's flow.json stays as it was before paths had names
+            doc["path"] = self.cfg.flow_path
+        atomic.write_json(self.root / "flow" / "flow.json", doc)
 
 
 def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force: bool = False,
@@ -252,7 +261,7 @@ def generate(cfg: DatasetConfig, out: str | Path, *, resume: bool = False, force
     cfg.validate()
     out = check_out(out, force=force)
     partial = partial_dir(out)
-    cfg_dict = asdict(cfg)
+    cfg_dict = config_record(cfg)
     partial_state(partial, cfg_dict, resume, force)  # its errors too come before the lock file is created
     with dataset_lock(out):
         recover_swap(out)
@@ -304,7 +313,7 @@ def _render(cfg: DatasetConfig, partial: Path, show_progress: bool, ray: Any = N
     atomic.write_json(partial / MANIFEST, {
         "generator": GENERATOR,
         "generator_revision": GENERATOR_REVISION,
-        "config": asdict(cfg),
+        "config": config_record(cfg),
         "seed": cfg.seed,
         "scene": w.scene_info(),
         "mitsuba_variant": variant,
@@ -348,7 +357,7 @@ def _render_on_ray(cfg: DatasetConfig, partial: Path, views: int, pairs: int, fl
     from research.sweep import ray_session
 
     items = [("view", k) for k in range(views)] + [("stereo", k) for k in range(pairs)] + ([("flow", 0)] if flow else [])
-    cfg_dict = asdict(cfg)
+    cfg_dict = config_record(cfg)
     variants = set()
     with ray_session(opts) as ray:
         task = ray.remote(render_item).options(num_cpus=1, max_retries=2, retry_exceptions=False)
@@ -412,7 +421,7 @@ def _matches(out: Path, cfg: DatasetConfig) -> bool:
         recorded = json.loads((out / MANIFEST).read_text())
     except (OSError, ValueError):
         return False
-    return (isinstance(recorded, dict) and recorded.get("config") == asdict(cfg)
+    return (isinstance(recorded, dict) and recorded.get("config") == config_record(cfg)
             and recorded.get("generator_revision") == GENERATOR_REVISION)
 
 
@@ -435,10 +444,10 @@ def ensure(cfg: DatasetConfig, out: str | Path, show_progress: bool = True) -> P
             return out
         partial = partial_dir(out)
         recorded = partial_config(partial) if partial.is_dir() else None
-        resume = recorded == asdict(cfg)
+        resume = recorded == config_record(cfg)
         if partial.exists() and not resume:
             why = "its configuration record is missing or unreadable" if recorded is None else \
-                f"it was started with a different configuration ({config_diff(recorded, asdict(cfg))})"
+                f"it was started with a different configuration ({config_diff(recorded, config_record(cfg))})"
             notice(f"note: replacing {partial}: {why}")
             shutil.rmtree(partial)
         return generate(cfg, out, resume=resume, force=out.exists(), show_progress=show_progress)
