@@ -143,6 +143,13 @@ register_experiment(
     quick_budget_s=600,
 )
 
+register_experiment(
+    "splat_slam",
+    "RGB-D SLAM with a Gaussian-splat map (SplaTAM-style) on a Mitsuba loop sequence: ATE/RPE (% of path), "
+    "frames/s, tracking failures, held-out PSNR of the map.",
+    quick_budget_s=600,
+)
+
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",

@@ -50,7 +50,7 @@ class SlamConfig:
     window: int = 5
     init_iters: int = 60  # mapping steps on frame 0 alone
     fail_loss_ratio: float = 4.0
-    max_jump_trans: float = 0.5
+    max_jump_trans: float = 1.0
     max_jump_deg: float = 10.0
     max_failures: int = 3
     seed: int = 0
