@@ -194,7 +194,8 @@ def run(ctx: Context) -> int:
                "frames/s", "tracking failures", "held-out PSNR (dB)", "held-out SSIM", "splats"]
     target = "met" if pct < TARGET_ATE_PCT and not failed else "NOT met"
     table = (f"`objects` loop sequence from `drlab dataset --flow --flow-path loop` ({frames} frames at "
-             f"{size['res']}x{size['res']}, {size['spp']} spp; path length {length:.3f}{closing}), device `{ctx.device}`. Tracking {track_iters} Adam iterations per frame (3x for frame 1), "
+             f"{size['res']}x{size['res']}, {size['spp']} spp; path length {length:.3f}{closing}), "
+             f"device `{ctx.device}`. Tracking {track_iters} Adam iterations per frame (3x for frame 1), "
              f"mapping {map_iters} iterations per keyframe (every {slam_cfg.keyframe_every} frames, window "
              f"{slam_cfg.window}). ATE after SE(3) Umeyama alignment; RPE frame to frame (TUM definitions, "
              f"research.poses). Held-out PSNR/SSIM (sRGB on black) on the dataset's {len(cams)} test and val views at "
@@ -227,5 +228,6 @@ def run(ctx: Context) -> int:
 main = Experiment("splat_slam", __doc__, run, add_options,
                   seed_help="seed of the dataset's camera path start and of the mapping window's keyframe draws",
                   sizes="Full: 60 loop frames at 128x128, 64 spp, 80 tracking / 40 mapping iterations; quick: the "
-                        "same 60 frames at 16 spp, 40 / 20 iterations; smoke: the first 8 frames of the 60-frame loop at 32x32, 10 / 5.",
+                        "same 60 frames at 16 spp, 40 / 20 iterations; smoke: the first 8 frames of the 60-frame "
+                        "loop at 32x32, 10 / 5.",
                   data_help=CACHE_ROOT_HELP).script(__name__)

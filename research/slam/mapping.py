@@ -3,8 +3,9 @@
 New splats (SplaTAM): every `stride`-th pixel u with measured depth z > 0 in a frame whose
 world-to-camera pose is T gives one isotropic splat at the back-projected point
 mu = T^-1 (z K^-1 (u + 1/2, 1)), radius r = stride z / f (f = (fx + fy) / 2: the footprint of a
-stride x stride block of pixels at that depth), opacity `init_opacity` (0.95; SplaTAM starts at 1/2), identity rotation and the
-pixel's colour as its SH DC term (c - 1/2) / C0 (the map is rendered at SH degree 0).
+stride x stride block of pixels at that depth), opacity `init_opacity` (0.95; SplaTAM starts at 1/2),
+identity rotation and the pixel's colour as its SH DC term (c - 1/2) / C0 (the map is rendered at SH
+degree 0).
 
 Densification (SplaTAM's "non-presence" mask): with the map rendered at the frame's tracked pose,
 expected depth z_hat = D / A and alpha A,
@@ -97,7 +98,8 @@ def new_splats(rgb: np.ndarray, alpha: np.ndarray, depth: np.ndarray, K: np.ndar
     quats = np.zeros((n, 4))
     quats[:, 0] = 1.0
     return GaussianModel(means=means, log_scales=np.repeat(np.log(radius)[:, None], 3, axis=1), quats=quats,
-                         opacity_logits=np.full(n, np.log(opacity / (1.0 - opacity))), sh_dc=((colors - 0.5) / SH_C0)[:, None, :],
+                         opacity_logits=np.full(n, np.log(opacity / (1.0 - opacity))),
+                         sh_dc=((colors - 0.5) / SH_C0)[:, None, :],
                          sh_rest=np.zeros((n, SH_COEFFS - 1, 3)))
 
 
