@@ -158,6 +158,7 @@ GRADCHECK_MODULES: list[str] = [
     "research.checks.splat",
     "research.checks.ssim",
     "research.checks.volume",
+    "research.checks.slam",
 ]
 
 # Benchmark families.

@@ -18,7 +18,7 @@ z > 0; a_min = 0.5, k = 50 as SplaTAM).
 Optimisation (the window): `iters` Adam steps (research.splats.optim's groups, kernels.optim.Adam), each
 on one keyframe of the window drawn at random (the newest keyframe every other step), of
 
-    L = w_c mean |C - I|  +  w_d (1/|V|) sum_V |D/A - z|,   V = {z > 0, A > 0.01},
+    L = w_c mean |C - I|  +  w_d (1/|V|) sum_V |D/A - z|,   V = {z > 0, A > a_d = 0.01},
 
 the colour term over every pixel (premultiplied on a black background, so empty pixels pull alpha
 down) and the depth term over measured pixels; the gradients are the renderer's hand-written
@@ -39,6 +39,7 @@ from kernels.sh import SH_C0
 from kernels.optim import Adam
 from research.splats.loss import depth_loss
 from research.splats.model import SH_COEFFS, GaussianModel
+from research.slam.tracking import host
 from research.splats.optim import make_adam
 
 
@@ -57,6 +58,7 @@ class MapConfig:
     lr_opacity: float = 0.05
     lr_color: float = 0.0025
     prune_opacity: float = 0.005
+    depth_min_alpha: float = 0.01  # the depth term counts pixels whose rendered alpha exceeds this
     init_opacity: float = 0.95  # opacity of new splats (SplaTAM: 0.5; opaque from the start suits the CPU budget)
 
     def __post_init__(self) -> None:
@@ -66,6 +68,8 @@ class MapConfig:
                 raise ValueError(f"{name}: expected an integer >= {0 if name == 'iters' else 1}, got {v!r}")
         if not 0.0 < self.init_opacity < 1.0:
             raise ValueError(f"init_opacity: expected a value in (0, 1), got {self.init_opacity!r}")
+        if not 0.0 <= self.depth_min_alpha < 1.0:
+            raise ValueError(f"depth_min_alpha: expected a value in [0, 1), got {self.depth_min_alpha!r}")
         if not 0.0 < self.min_alpha < 1.0:
             raise ValueError(f"min_alpha: expected a value in (0, 1), got {self.min_alpha!r}")
         for name in ("depth_factor", "lr_means", "lr_log_scales", "lr_opacity", "lr_color"):
@@ -140,11 +144,13 @@ def make_map_adam(model: GaussianModel, cfg: MapConfig) -> Adam:
 
 
 def mapping_loss(res: ks.Render, kf: Keyframe, cfg: MapConfig) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-    col = res.rgb.numpy()
+    """(L, dL/dC, dL/dA, dL/dD) of the window loss (module docstring) for a render at keyframe `kf`."""
+    col = host(res.rgb)
     diff = col - kf.rgb
     lc = float(np.abs(diff).mean(dtype=np.float64))
     g_rgb = (cfg.color_weight * np.sign(diff) / diff.size).astype(col.dtype)
-    ld, g_depth, g_alpha = depth_loss(res.depth.numpy(), res.alpha.numpy(), kf.depth, min_alpha=0.01, kind="l1")
+    ld, g_depth, g_alpha = depth_loss(host(res.depth), host(res.alpha), kf.depth, min_alpha=cfg.depth_min_alpha,
+                                      kind="l1")
     return (cfg.color_weight * lc + cfg.depth_weight * ld, g_rgb, cfg.depth_weight * g_alpha,
             cfg.depth_weight * g_depth)
 

@@ -73,12 +73,15 @@ class TrackResult:
     pixels: int = 0  # silhouette pixels at the best iterate
 
 
+def host(x: Any) -> np.ndarray:
+    """A render output as a NumPy array (renders of NumPy inputs already are; wp.arrays are copied)."""
+    return x if isinstance(x, np.ndarray) else x.numpy()
+
+
 def tracking_loss(result: ks.Render, rgb: np.ndarray, depth: np.ndarray, cfg: TrackConfig
                   ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, int]:
     """(L, dL/dC, dL/dA, dL/dD, |S|) of the module docstring's loss for a render of the map."""
-    alpha = result.alpha.numpy()
-    dep = result.depth.numpy()
-    col = result.rgb.numpy()
+    alpha, dep, col = host(result.alpha), host(result.depth), host(result.rgb)
     sil = (alpha > cfg.min_silhouette) & (depth > 0)
     m = int(sil.sum())
     g_rgb = np.zeros_like(col)

@@ -126,3 +126,12 @@ def test_a_frame_that_does_not_fit_is_a_recorded_failure_or_an_error(world):
     with pytest.raises(TrackingLost, match="tracking lost at frame 3"):
         run_slam(rgba, depth, K, gt[0], SlamConfig(track=cfg.track, map=cfg.map, window=3, init_iters=10,
                                                     fail_loss_ratio=3.0, max_failures=1))
+
+
+def test_loss_gradients_match_float64_finite_differences():
+    """The tracking and mapping losses through the renderer's backward, splats, pose and intrinsics
+    (research/checks/slam.py; all seeds run under `drlab gradcheck slam`)."""
+    from research.checks.slam import check_mapping_loss, check_tracking_loss
+    from research.gradcheck import assert_gradcheck
+
+    assert_gradcheck(check_tracking_loss(0) + check_mapping_loss(1))
