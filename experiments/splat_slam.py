@@ -20,10 +20,13 @@ Reported: ATE RMSE (after SE(3) Umeyama alignment of the camera centres) and RPE
 translation and rotation; TUM definitions, research.poses) also as % of the ground-truth path length,
 frames per second of the whole loop (tracking + mapping), tracking failures, the map's PSNR/SSIM on
 the held-out views (rendered at their ground-truth poses: frame 0 anchors the map in the ground-truth
-world frame) and its size. The classical feature-VO baseline (helper branch p4-pose) has a row reserved
-in the table until it lands.
+world frame) and its size. Beside it, on the same frames: the classical feature-VO baseline
+(research.vo.odometry.run_vo with its defaults: ORB, essential matrix / PnP with RANSAC, local bundle
+adjustment, before any loop closure) when that module is installed (another branch adds it; until then
+its row says so). A VO run that loses track or rejects the sequence is reported with its message.
 
-Writes results/splat_slam/{table.md, metrics.json, trajectory.png, map.png, estimate.tum, groundtruth.tum}.
+Writes results/splat_slam/{table.md, metrics.json, trajectory.png, map.png, estimate.tum, groundtruth.tum}
+(and vo_estimate.tum when the baseline ran).
 """
 
 from __future__ import annotations
@@ -73,7 +76,7 @@ def _check_args(args) -> None:
 
 
 def trajectory_figure(gt: np.ndarray, est_aligned: np.ndarray, errors: np.ndarray, failures: list[int],
-                      path: Path) -> None:
+                      path: Path, vo_aligned: np.ndarray | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -84,6 +87,9 @@ def trajectory_figure(gt: np.ndarray, est_aligned: np.ndarray, errors: np.ndarra
     ax.plot(gt[:, 0, 3], gt[:, 1, 3], "k.-", lw=1, ms=4, label="ground truth")
     ax.plot(est_aligned[:, 0, 3], est_aligned[:, 1, 3], ".-", c="tab:blue", lw=1, ms=4,
             label="splat SLAM (SE(3)-aligned)")
+    if vo_aligned is not None:
+        ax.plot(vo_aligned[:, 0, 3], vo_aligned[:, 1, 3], ".-", c="tab:orange", lw=1, ms=3,
+                label="feature VO (SE(3)-aligned)")
     if failures:
         ax.scatter(est_aligned[failures, 0, 3], est_aligned[failures, 1, 3], c="tab:red", marker="x", s=40,
                    label="tracking failure", zorder=4)
@@ -94,7 +100,10 @@ def trajectory_figure(gt: np.ndarray, est_aligned: np.ndarray, errors: np.ndarra
     ax.set_title("camera centres, top view", fontsize=10)
     ax.legend(fontsize=8)
     ax = axes[1]
-    ax.plot(errors, c="tab:blue")
+    ax.plot(errors, c="tab:blue", label="splat SLAM")
+    if vo_aligned is not None:
+        ax.plot(np.linalg.norm(vo_aligned[:, :3, 3] - gt[:, :3, 3], axis=1), c="tab:orange", label="feature VO")
+    ax.legend(fontsize=8)
     ax.set_xlabel("frame")
     ax.set_ylabel("position error after alignment")
     ax.set_title("absolute trajectory error per frame", fontsize=10)
@@ -123,6 +132,29 @@ def map_figure(gt_imgs: np.ndarray, renders: np.ndarray, psnrs: list[float], tit
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
+
+
+def feature_vo(rgba: np.ndarray, depth: np.ndarray, K: np.ndarray, gt: np.ndarray) -> dict:
+    """The feature-VO baseline on the same frames: its ATE/RPE/fps, or why there is none (the module is
+    not installed, or the odometry stopped: its own one-line error)."""
+    from research import poses as P
+
+    try:
+        from research.vo.odometry import run_vo
+    except ImportError:
+        return {"status": "research.vo (the feature-VO baseline) is not installed in this checkout"}
+    import time
+
+    t0 = time.perf_counter()
+    try:
+        res = run_vo(rgba, depth, K, gt[0])
+    except (RuntimeError, ValueError) as e:
+        return {"status": f"stopped: {e}"}
+    seconds = time.perf_counter() - t0
+    ate, rpe = P.ate(res.c2w, gt, align="se3"), P.rpe(res.c2w, gt, delta=1)
+    return {"status": "ran", "c2w": res.c2w, "ate_rmse": ate.rmse, "rpe_trans_rmse": rpe.translation.rmse,
+            "rpe_rot_rmse_deg": rpe.rotation_deg.rmse, "fps": len(gt) / seconds, "seconds": seconds,
+            "failures": len(res.failures)}
 
 
 def run(ctx: Context) -> int:
@@ -162,6 +194,7 @@ def run(ctx: Context) -> int:
     result = run_slam(rgba, depth, cam0.K, gt[0], slam_cfg, device=ctx.device, progress=progress)
     bar.close()
     fps = frames / result.seconds
+    vo = feature_vo(rgba, depth, cam0.K, gt)
 
     length = P.path_length(gt)
     closing = (f", {P.path_length(np.concatenate([gt, gt[:1]])):.3f} with the step back to frame 0"
@@ -172,8 +205,9 @@ def run(ctx: Context) -> int:
     stamps = np.arange(frames, dtype=float)
     P.write_tum(ctx.out / "estimate.tum", stamps, result.c2w)
     P.write_tum(ctx.out / "groundtruth.tum", stamps, gt)
+    if vo["status"] == "ran":
+        P.write_tum(ctx.out / "vo_estimate.tum", stamps, vo["c2w"])
     failed = [f["frame"] for f in result.failures]
-    trajectory_figure(gt, aligned, ate.errors, failed, ctx.out / "trajectory.png")
 
     ds = datasets.load(data)
     held = [ds.load_split(s) for s in ("test", "val")]
@@ -185,11 +219,19 @@ def run(ctx: Context) -> int:
                [f"held-out view {i}" for i in range(show)], ctx.out / "map.png")
 
     pct = 100.0 * ate.rmse / length
+    vo_aligned = P.align_trajectory(vo["c2w"], gt, "se3") if vo["status"] == "ran" else None
+    trajectory_figure(gt, aligned, ate.errors, failed, ctx.out / "trajectory.png", vo_aligned)
+    step = length / (frames - 1)
     rows = [["splat SLAM (drlab, Warp CPU kernels)", f"{ate.rmse:.4f}", f"{pct:.2f}", f"{rpe.translation.rmse:.4f}",
-             f"{100 * rpe.translation.rmse / (length / (frames - 1)):.1f}", f"{rpe.rotation_deg.rmse:.3f}",
+             f"{100 * rpe.translation.rmse / step:.1f}", f"{rpe.rotation_deg.rmse:.3f}",
              f"{fps:.3f}", str(len(failed)), f"{ev.psnr:.2f}", f"{ev.ssim:.3f}", str(result.model.n)],
-            ["feature VO (OpenCV, before loop closure; helper branch p4-pose)", "not merged yet", "", "", "", "", "",
-             "", "", "", ""]]
+            ["feature VO (OpenCV ORB + PnP + local BA, before loop closure)"]]
+    if vo["status"] == "ran":
+        rows[1] += [f"{vo['ate_rmse']:.4f}", f"{100 * vo['ate_rmse'] / length:.2f}", f"{vo['rpe_trans_rmse']:.4f}",
+                    f"{100 * vo['rpe_trans_rmse'] / step:.1f}", f"{vo['rpe_rot_rmse_deg']:.3f}", f"{vo['fps']:.3f}",
+                    str(vo["failures"]), "", "", ""]
+    else:
+        rows[1] += [vo["status"]] + [""] * 9
     headers = ["method", "ATE RMSE", "ATE % of path", "RPE trans RMSE", "RPE trans % of step", "RPE rot RMSE (deg)",
                "frames/s", "tracking failures", "held-out PSNR (dB)", "held-out SSIM", "splats"]
     target = "met" if pct < TARGET_ATE_PCT and not failed else "NOT met"
@@ -202,7 +244,11 @@ def run(ctx: Context) -> int:
              f"their ground-truth poses. Frames/s: the whole loop (tracking + mapping), {result.seconds:.1f} s.\n\n"
              + markdown_table(headers, rows)
              + f"\nTarget (ATE RMSE < {TARGET_ATE_PCT:g}% of the path length, no tracking failure): {target} "
-               f"({pct:.2f}%).\n")
+               f"({pct:.2f}%)")
+    if vo["status"] == "ran":
+        table += (f"; ATE below the feature VO's ({100 * vo['ate_rmse'] / length:.2f}%): "
+                  f"{'yes' if ate.rmse < vo['ate_rmse'] else 'NO'}")
+    table += ".\n"
     if result.failures:
         table += "\nTracking failures: " + "; ".join(f"frame {f['frame']}: {f['reason']}" for f in result.failures)
         table += "\n"
@@ -216,7 +262,8 @@ def run(ctx: Context) -> int:
         "keyframes": result.keyframes, "splats": result.model.n,
         "held_out": {"psnr": ev.psnr, "ssim": ev.ssim, "psnr_linear": ev.psnr_linear, "views": len(cams),
                      "per_view": ev.per_view},
-        "per_frame": result.frames, "vo_baseline": None,
+        "per_frame": result.frames,
+        "vo_baseline": {k: v for k, v in vo.items() if k != "c2w"},
         "target_ate_pct": TARGET_ATE_PCT, "target_met": bool(pct < TARGET_ATE_PCT and not failed),
     }
     config = {"quick": ctx.quick, **size, "frames": frames, "track": asdict(slam_cfg.track),
