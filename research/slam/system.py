@@ -7,7 +7,8 @@ Frame 0 fixes the world frame: its pose is given (`first_c2w`), and the map star
 2. track: research/slam/tracking.py from the guess, a fixed iteration budget (three times it for
    frame 1, which has no velocity to predict from);
 3. check: the frame is a tracking failure when its best loss exceeds `fail_loss_ratio` x the median
-   best loss of the frames tracked so far, when the map covers no pixel of it, or when the tracked pose
+   best loss of the frames tracked so far, when the optimisation diverged (its last iterate's loss above
+   `fail_loss_ratio` x the loss at the guess), when the map covers no pixel of it, or when the tracked pose
    leaves the guess by more than `max_jump_trans` (scene units) or `max_jump_deg`; a failed frame keeps
    the constant-velocity guess, is recorded (frame, reason, numbers) and is neither mapped nor used as a
    keyframe; `max_failures` failures in a row raise TrackingLost instead of returning a trajectory
@@ -149,6 +150,8 @@ def run_slam(rgba: Any, depth: Any, K: Any, first_c2w: Any, cfg: SlamConfig, *, 
             reason = "the map covers no pixel of the frame"
         elif jump_t > cfg.max_jump_trans or jump_r > cfg.max_jump_deg:
             reason = f"pose jump {jump_t:.3g} / {jump_r:.3g} deg from the guess beyond the bound"
+        elif tr.losses[-1] > cfg.fail_loss_ratio * tr.losses[0]:
+            reason = f"loss rising: {tr.losses[0]:.4g} at the guess, {tr.losses[-1]:.4g} at the last iteration"
         elif good_losses and tr.loss > cfg.fail_loss_ratio * float(np.median(good_losses)):
             reason = f"loss {tr.loss:.4g} above {cfg.fail_loss_ratio:g} x the median {np.median(good_losses):.4g}"
         record = {"frame": k, "loss": tr.loss, "initial_loss": tr.losses[0] if tr.losses else float("nan"),

@@ -135,3 +135,14 @@ def test_loss_gradients_match_float64_finite_differences():
     from research.gradcheck import assert_gradcheck
 
     assert_gradcheck(check_tracking_loss(0) + check_mapping_loss(1))
+
+
+def test_diverging_tracking_is_never_a_silent_trajectory(world):
+    """Step sizes far too large send the pose away: every frame is a recorded failure (the guess kept),
+    and the run stops with TrackingLost after max_failures of them."""
+    rgba, depth, gt = _sequence(world, 4, STEP)
+    wild = TrackConfig(iters=8, lr_trans=3.0, lr_rot=1.0)
+    cfg = SlamConfig(track=wild, map=MapConfig(iters=3), window=2, init_iters=5, max_failures=3)
+    lost = r"tracking lost at frame 3: 3 failures in a row \(last: (loss rising|pose jump)"
+    with pytest.raises(TrackingLost, match=lost):
+        run_slam(rgba, depth, K, gt[0], cfg)
