@@ -278,5 +278,6 @@ main = Experiment("splat_slam", __doc__, run, add_options,
                   seed_help="seed of the dataset's camera path start and of the mapping window's keyframe draws",
                   sizes="Full: 60 loop frames at 128x128, 64 spp, 80 tracking / 40 mapping iterations; quick: the "
                         "same 60 frames at 16 spp, 40 / 20 iterations; smoke: the first 8 frames of the 60-frame "
-                        "loop at 32x32, 10 / 5.",
+                        "loop at 32x32, 10 / 5. Measured on 2 shared, loaded CPU cores: quick 5-7 min, full 10.5 min "
+                        "(dataset rendering included), smoke under a minute.",
                   data_help=CACHE_ROOT_HELP).script(__name__)
