@@ -169,6 +169,13 @@ register_experiment(
     quick_budget_s=300,
 )
 
+register_experiment(
+    "splat_slam",
+    "RGB-D SLAM with a Gaussian-splat map (SplaTAM-style) on a Mitsuba loop sequence: ATE/RPE (% of path), "
+    "frames/s, tracking failures, held-out PSNR of the map.",
+    quick_budget_s=600,
+)
+
 # Modules that register gradient checks when imported.
 GRADCHECK_MODULES: list[str] = [
     "research.checks.selftest",
@@ -178,6 +185,7 @@ GRADCHECK_MODULES: list[str] = [
     "research.checks.ssim",
     "research.checks.volume",
     "research.checks.ba",
+    "research.checks.slam",
 ]
 
 # Benchmark families.

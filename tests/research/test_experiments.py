@@ -149,11 +149,19 @@ def _check_feature_vo(m):
     assert ba and np.mean([b["rms_after_px"] for b in ba]) < np.mean([b["rms_before_px"] for b in ba])
 
 
+def _check_slam(m):
+    assert m["frames"] == 8 and m["path_length"] > 0 and m["fps"] > 0 and m["splats"] > 0
+    assert _finite(m["ate"]["rmse"])
+    assert m["ate"]["pct_of_path"] == pytest.approx(100 * m["ate"]["rmse"] / m["path_length"])
+    assert _finite(m["held_out"]["psnr"]) and m["held_out"]["psnr"] > 5 and len(m["per_frame"]) == 8
+
+
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
           "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
           "volume_render_spheres": _check_volume, "sfm_poses": _check_sfm_poses, "oracle_conformance": _check_oracle,
-          "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo}
+          "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo,
+          "splat_slam": _check_slam}
 
 
 def test_every_registered_experiment_has_a_smoke_check():
