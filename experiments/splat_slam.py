@@ -137,15 +137,12 @@ def map_figure(gt_imgs: np.ndarray, renders: np.ndarray, psnrs: list[float], tit
 
 
 def feature_vo(rgba: np.ndarray, depth: np.ndarray, K: np.ndarray, gt: np.ndarray) -> dict:
-    """The feature-VO baseline on the same frames: its ATE/RPE/fps, or why there is none (the module is
-    not installed, or the odometry stopped: its own one-line error)."""
-    from research import poses as P
-
-    try:
-        from research.vo.odometry import run_vo
-    except ImportError:
-        return {"status": "research.vo (the feature-VO baseline) is not installed in this checkout"}
+    """The feature-VO baseline (research.vo, experiments/feature_vo.py) on the same frames, before loop closure:
+    its ATE/RPE/fps, or why there is none (the odometry stopped: its own one-line error)."""
     import time
+
+    from research import poses as P
+    from research.vo.odometry import run_vo
 
     t0 = time.perf_counter()
     try:
