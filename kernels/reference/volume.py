@@ -15,6 +15,7 @@ one ray or one point at a time where that reads more clearly; no Warp.
     mlp                ReLU MLP (kernels.volume.mlp)
     neural_head        the neural fields' output head (kernels.volume.neural)
     render_spheres     slab test + midpoint strata + soft spheres + compositing, end to end
+    camera_rays        pinhole rays of pixels from world-to-camera and (fx, fy, cx, cy) (kernels.volume.rays)
 """
 
 from __future__ import annotations
@@ -219,3 +220,19 @@ def render_spheres(o, d, box, n_samples, centers, radii, colors, sharpness, bg):
         out[r] = C + T * bg
     return out
 
+
+
+def camera_rays(w2c, intrinsics, pixels):
+    """Origins, unit world directions and z_scale = cos(angle to the optical axis) of pixel coordinates
+    (u, v), for world-to-camera [[R, t], [0, 1]] and intrinsics (fx, fy, cx, cy), OpenCV axes."""
+    w2c = np.asarray(w2c, dtype=np.float64)
+    fx, fy, cx, cy = np.asarray(intrinsics, dtype=np.float64)
+    R, t = w2c[:3, :3], w2c[:3, 3]
+    centre = -R.T @ t
+    origins, dirs, z_scale = [], [], []
+    for u, v in np.asarray(pixels, dtype=np.float64):
+        c = np.array([(u - cx) / fx, (v - cy) / fy, 1.0])  # the camera-frame ray through (u, v) at z = 1
+        origins.append(centre)
+        dirs.append(R.T @ (c / np.linalg.norm(c)))
+        z_scale.append(1.0 / np.linalg.norm(c))  # z-depth per unit of distance along the ray
+    return np.array(origins).reshape(-1, 3), np.array(dirs).reshape(-1, 3), np.array(z_scale)

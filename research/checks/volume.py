@@ -9,7 +9,8 @@ over more seeds. Inputs are random and kept away from the kinks of the functions
   * grids / hash grids: gradients with respect to the values, which enter linearly (the cell
     boundaries are kinks only in the points, which are constants here);
   * MLPs: every ReLU pre-activation at least RELU_MARGIN away from 0 (inputs are redrawn until so).
-Sample positions and view directions are constants (no gradient flows to them by design).
+Sample positions and view directions are constants in the parameter checks; the camera checks at the end
+differentiate them (kernels.volume.field_points, kernels.volume.rays) with the sample distances held fixed.
 """
 
 from __future__ import annotations
@@ -286,4 +287,164 @@ for _name, _check, _kwargs in [
         ("volume.render.grid", check_render, {"kind": "grid"}),
         ("volume.render.hashgrid", check_render, {"kind": "hashgrid"}),
         ("volume.render.pe_mlp", check_render, {"kind": "pe_mlp"})]:
+    register_check(_name)(_with(_check, **_kwargs))
+
+
+# --------------------------------------------------------------------------- camera gradients
+
+def camera_setup(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(w2c (4, 4), intrinsics (4,), pixels (P, 2)): a random camera about 3 units in front of BOX
+    looking at it, with fx != fy and an off-centre principal point, and random pixels of a 24x20 image."""
+    from research.cameras import look_at
+
+    rng = np.random.default_rng(seed)
+    eye = rng.normal(0.0, 0.3, 3) + np.array([0.2, -0.3, -3.0])
+    c2w = look_at(eye, rng.normal(0.0, 0.1, 3), up=(0.0, -1.0, 0.0))
+    intrinsics = np.array([rng.uniform(40.0, 48.0), rng.uniform(38.0, 46.0), rng.uniform(10.0, 14.0),
+                           rng.uniform(8.0, 12.0)])
+    pixels = rng.uniform([2.0, 2.0], [22.0, 18.0], (8, 2))
+    return np.linalg.inv(c2w), intrinsics, pixels
+
+
+def check_camera_rays(seeds=(0, 1)) -> list[GradcheckResult]:
+    """Origins, directions and z_scale of kernels.volume.camera_rays with respect to the left se(3)
+    perturbation xi of world-to-camera (checked at xi = 0 of a random pose) and (fx, fy, cx, cy)."""
+    from kernels.volume.rays import camera_rays, camera_rays_backward
+    from research.poses import se3_exp
+
+    results = []
+    for seed in seeds:
+        w2c, intrinsics, pixels = camera_setup(seed)
+
+        def f(xi, intrinsics, w2c=w2c, pixels=pixels):
+            o, d, z = camera_rays(se3_exp(xi) @ w2c, intrinsics, pixels)
+            return {"origins": o, "dirs": d, "z_scale": z}
+
+        def vjp(inp, cot, w2c=w2c, pixels=pixels):
+            g = camera_rays_backward(se3_exp(inp["xi"]) @ w2c, inp["intrinsics"], pixels, cot["origins"],
+                                     cot["dirs"], cot["z_scale"])
+            return {"xi": g.xi, "intrinsics": g.intrinsics}
+
+        results += check_vjp(f, vjp, {"xi": np.zeros(6), "intrinsics": intrinsics}, seed=seed,
+                             name="volume.camera_rays")
+    return results
+
+
+def camera_field(kind: str, seed: int) -> Field:
+    """A float64 field filling BOX: soft spheres, or a grid with RGB or degree-2 SH colour."""
+    rng = np.random.default_rng(seed)
+    if kind == "spheres":
+        return SphereField(rng.uniform(BOX[0] * 0.6, BOX[1] * 0.6, (3, 3)), rng.uniform(0.2, 0.4, 3),
+                           rng.uniform(0.1, 0.9, (3, 3)), rng.uniform(2.0, 4.0, 3), dtype=wp.float64)
+    field = GridField(BOX, (4, 5, 4), sh_degree=None if kind == "grid_rgb" else 2, density_bias=0.0,
+                      dtype=wp.float64)
+    field.set_params({"density": rng.normal(0.3, 1.0, field.params["density"].shape),
+                      "color": rng.normal(0.0, 1.0, field.params["color"].shape)})
+    return field
+
+
+def check_field_points(kind: str, seeds=(0, 1)) -> list[GradcheckResult]:
+    """sigma and rgb of a field with respect to its points (and view directions for SH colour):
+    kernels.volume.field_points.field_point_backward, points away from the kinks."""
+    from kernels.volume.field_points import field_point_backward
+
+    results = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        field = camera_field(kind, seed)
+        for _ in range(50):
+            points = rng.uniform(BOX[0] * 0.95, BOX[1] * 0.95, (24, 3))
+            if _away_from_kinks(field, points):
+                break
+        else:
+            raise RuntimeError(f"volume.field_points.{kind}: no points away from the kinks")
+        dirs = rng.normal(size=(24, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+
+        def f(points, dirs, field=field):
+            out = field.forward(points, dirs)
+            return {"sigma": out.sigma, "rgb": out.rgb}
+
+        def vjp(inp, cot, field=field):
+            out = field.forward(inp["points"], inp["dirs"])
+            g_p, g_d = field_point_backward(field, inp["points"], inp["dirs"], out, cot["sigma"], cot["rgb"])
+            return {"points": g_p, "dirs": g_d}
+
+        results += check_vjp(f, vjp, {"points": points, "dirs": dirs}, seed=seed,
+                             name=f"volume.field_points.{kind}")
+    return results
+
+
+def check_render_camera(kind: str, seeds=(0, 1)) -> list[GradcheckResult]:
+    """Rendered colour, expected depth and opacity of pixel rays through `kind` with respect to the pose
+    perturbation xi (at 0) and the intrinsics: kernels.volume.rays.render_backward_camera.
+
+    The sample distances t and intervals are held fixed (the module's convention): they are drawn
+    once, jittered, from the unperturbed rays, and the function renders o + t d at those t. Sample
+    points are kept at least 1e-3 (in cells) from the grid's cell faces and 1e-3 from the sphere
+    surfaces (the kinks); a seed that puts one closer is replaced by seed + 100 (then + 200, ...).
+    """
+    from kernels.volume.rays import camera_rays, render_backward_camera
+    from kernels.volume.sampling import dense_samples, sample_rays
+    from kernels.volume import render_samples
+    from research.poses import se3_exp
+
+    results = []
+    for seed in seeds:
+        for attempt in range(10):
+            s = seed + 100 * attempt
+            field = camera_field(kind, s)
+            w2c, intrinsics, pixels = camera_setup(s)
+            o, d, zs = camera_rays(w2c, intrinsics, pixels)
+            smp = sample_rays(o, d, BOX, n_samples=10, jitter=True, seed=s)
+            counts = np.diff(smp.ray_offsets)
+            if counts.min() != counts.max() or counts[0] == 0:
+                continue  # every ray crosses the box: a dense (R, S) layout
+            t = smp.t.reshape(len(o), -1)
+            delta = smp.delta.reshape(len(o), -1)
+            if _away_from_kinks(field, smp.points):
+                break
+        else:
+            raise RuntimeError(f"volume.render.camera_{kind}: no seed away from the kinks")
+
+        def render(xi, intr, field=field, w2c=w2c, pixels=pixels, t=t, delta=delta):
+            W = se3_exp(xi) @ w2c
+            o, d, zs = camera_rays(W, intr, pixels)
+            return W, render_samples(field, dense_samples(o, d, t, delta, zs), background=(0.3, 0.2, 0.1),
+                                     t_threshold=0.0)
+
+        def f(xi, intrinsics, render=render):
+            r = render(xi, intrinsics)[1]
+            return {"rgb": r.rgb.numpy(), "depth": r.depth.numpy(), "opacity": r.opacity.numpy()}
+
+        def vjp(inp, cot, render=render, field=field, pixels=pixels):
+            W, r = render(inp["xi"], inp["intrinsics"])
+            g = render_backward_camera(field, r, W, inp["intrinsics"], pixels, cot["rgb"], cot["depth"],
+                                       cot["opacity"])
+            return {"xi": g.xi, "intrinsics": g.intrinsics}
+
+        results += check_vjp(f, vjp, {"xi": np.zeros(6), "intrinsics": intrinsics}, seed=s,
+                             name=f"volume.render.camera_{kind}")
+    return results
+
+
+def _away_from_kinks(field: Field, points: np.ndarray) -> bool:
+    """Whether no point is within 1e-3 cells of a grid cell face or 1e-3 of a sphere surface."""
+    if isinstance(field, SphereField):
+        P = field.params_numpy()
+        dist = np.linalg.norm(points[:, None, :] - P["centers"][None], axis=2)
+        return bool(np.all(np.abs(dist - P["radii"][None]) > 1e-3))
+    res = np.array(field.resolution)
+    u = (points - field.bbox[0]) / (field.bbox[1] - field.bbox[0]) * (res - 1)
+    return bool(np.all(np.abs(u - np.round(u)) > 1e-3))
+
+
+for _name, _check, _kwargs in [
+        ("volume.camera_rays", check_camera_rays, {}),
+        ("volume.field_points.spheres", check_field_points, {"kind": "spheres"}),
+        ("volume.field_points.grid_rgb", check_field_points, {"kind": "grid_rgb"}),
+        ("volume.field_points.grid_sh2", check_field_points, {"kind": "grid_sh2"}),
+        ("volume.render.camera_spheres", check_render_camera, {"kind": "spheres"}),
+        ("volume.render.camera_grid_rgb", check_render_camera, {"kind": "grid_rgb"}),
+        ("volume.render.camera_grid_sh2", check_render_camera, {"kind": "grid_sh2"})]:
     register_check(_name)(_with(_check, **_kwargs))

@@ -1,0 +1,279 @@
+"""Pinhole camera rays and the volume renderer's gradients with respect to the camera.
+
+Camera (OpenCV axes, research/cameras.py): world-to-camera T_cw = [[R, t], [0, 1]], intrinsics
+(fx, fy, cx, cy); pixel coordinates (u, v) are continuous (the centre of pixel (i, j) is
+(i + 1/2, j + 1/2)). Ray generation, per pixel:
+
+    c = ((u - cx)/fx, (v - cy)/fy, 1),   n = |c|,   e = c / n          (camera frame)
+    o = -R^T t   (camera centre),   d = R^T e   (unit, world),   z_scale = 1/n
+
+so that the sample o + s d has z-depth s z_scale (the renderer's depth z_k = s_k z_scale).
+
+Pose convention (shared with kernels/splat and research/poses.py): a LEFT-multiplied se(3)
+perturbation of world-to-camera, T_cw <- exp(xi^) T_cw, xi = (rho, phi) translation first. Then
+camera-to-world becomes T_wc exp(-xi^), and to first order at xi = 0
+
+    o(xi) = o - R^T rho,        d(xi) = R^T (e + e x phi),
+
+so for cotangents (g_o, g_d, g_z) of (o, d, z_scale), with g_e = R g_d (the camera frame):
+
+    dL/drho = -R sum_pixels g_o,        dL/dphi = sum_pixels g_e x e,
+    dL/dc   = (g_e - e (e . g_e))/n - g_z e / n^2,
+    dL/dfx  = -dL/dc_x c_x / fx,  dL/dcx = -dL/dc_x / fx,  dL/dfy = -dL/dc_y c_y / fy,  dL/dcy = -dL/dc_y / fy.
+
+The gradients are with respect to xi at xi = 0: an optimiser steps xi and folds it into the pose
+(T_cw <- exp(xi^) T_cw), which is the standard re-linearisation of pose refinement.
+
+Renderer (kernels.volume.render). Samples x_k = o + s_k d, z_k = s_k z_scale, colour c(x_k, d). The
+sample distances s_k and interval lengths delta_k are HELD FIXED: in render_rays they come from the
+ray-box intersection, near/far and the occupancy grid, all of which depend on o and d, but they
+move the quadrature nodes, not the integrand (the standard choice of BARF-style pose refinement).
+With the compositing backward's dL/dsigma_k, dL/dc_k (kernels.volume.composite), the weights
+w_k = T_k (1 - exp(-sigma_k delta_k)), and the field's point gradient (kernels.volume.field_points):
+
+    dL/dz_k = g_D w_k,     dL/do = sum_k dL/dx_k,
+    dL/dd   = sum_k (s_k dL/dx_k + dL/ddir_k),     dL/dz_scale = sum_k s_k dL/dz_k,
+
+summed over ray r's samples, k < n_used (samples after early termination have zero gradient).
+
+Kernels: one thread per pixel or ray, each writing its own rows (launch_split); the per-pixel
+pose and intrinsics terms are summed on the host. Inputs follow the array contract
+(kernels._arrays): origins, dirs, z_scale come back in the kind of `pixels`; the per-ray
+gradients in the kind of the RenderResult's arrays (wp.arrays); the camera gradients are NumPy.
+"""
+
+from __future__ import annotations
+
+import typing
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from kernels import _arrays as A
+from kernels.volume.composite import composite_backward
+from kernels.volume.field import Field
+from kernels.volume.field_points import check_point_field, field_point_backward
+from kernels.volume.render import RenderResult
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def _rays_kernel(
+    pixels: wp.array2d(dtype=typing.Any), rot: wp.array2d(dtype=typing.Any), trans: wp.array(dtype=typing.Any),
+    intr: wp.array(dtype=typing.Any), out_o: wp.array2d(dtype=typing.Any), out_d: wp.array2d(dtype=typing.Any),
+    out_z: wp.array(dtype=typing.Any), offset: int,
+):
+    i = wp.tid() + offset
+    one = pixels.dtype(1.0)
+    cx_ = (pixels[i, 0] - intr[2]) / intr[0]
+    cy_ = (pixels[i, 1] - intr[3]) / intr[1]
+    n = wp.sqrt(cx_ * cx_ + cy_ * cy_ + one)
+    ex = cx_ / n
+    ey = cy_ / n
+    ez = one / n
+    for a in range(3):
+        out_o[i, a] = -(rot[0, a] * trans[0] + rot[1, a] * trans[1] + rot[2, a] * trans[2])
+        out_d[i, a] = rot[0, a] * ex + rot[1, a] * ey + rot[2, a] * ez
+    out_z[i] = one / n
+
+
+@wp.kernel
+def _rays_backward_kernel(
+    pixels: wp.array2d(dtype=typing.Any), rot: wp.array2d(dtype=typing.Any), intr: wp.array(dtype=typing.Any),
+    g_o: wp.array2d(dtype=typing.Any), g_d: wp.array2d(dtype=typing.Any), g_z: wp.array(dtype=typing.Any),
+    out: wp.array2d(dtype=typing.Any), offset: int,
+):
+    # Row i of `out`: (g_o in the camera frame R g_o (3), dL/dphi (3), dL/d(fx, fy, cx, cy) (4)).
+    i = wp.tid() + offset
+    one = pixels.dtype(1.0)
+    cx_ = (pixels[i, 0] - intr[2]) / intr[0]
+    cy_ = (pixels[i, 1] - intr[3]) / intr[1]
+    n = wp.sqrt(cx_ * cx_ + cy_ * cy_ + one)
+    e = wp.vector(cx_ / n, cy_ / n, one / n, length=3, dtype=pixels.dtype)
+    go = wp.vector(pixels.dtype(0.0), pixels.dtype(0.0), pixels.dtype(0.0), length=3, dtype=pixels.dtype)
+    ge = wp.vector(pixels.dtype(0.0), pixels.dtype(0.0), pixels.dtype(0.0), length=3, dtype=pixels.dtype)
+    for a in range(3):
+        go[a] = rot[a, 0] * g_o[i, 0] + rot[a, 1] * g_o[i, 1] + rot[a, 2] * g_o[i, 2]
+        ge[a] = rot[a, 0] * g_d[i, 0] + rot[a, 1] * g_d[i, 1] + rot[a, 2] * g_d[i, 2]
+    gphi = wp.cross(ge, e)
+    ee = wp.dot(e, ge)
+    gcx = (ge[0] - e[0] * ee) / n - g_z[i] * e[0] / (n * n)
+    gcy = (ge[1] - e[1] * ee) / n - g_z[i] * e[1] / (n * n)
+    for a in range(3):
+        out[i, a] = go[a]
+        out[i, 3 + a] = gphi[a]
+    out[i, 6] = -gcx * cx_ / intr[0]
+    out[i, 7] = -gcy * cy_ / intr[1]
+    out[i, 8] = -gcx / intr[0]
+    out[i, 9] = -gcy / intr[1]
+
+
+@wp.kernel
+def _depth_grad_kernel(
+    factor: wp.array(dtype=typing.Any), ray_offsets: wp.array(dtype=wp.int32), n_used: wp.array(dtype=wp.int32),
+    grad_depth: wp.array(dtype=typing.Any), out: wp.array(dtype=typing.Any), offset: int,
+):
+    # dL/dz_k = g_D w_k, w_k = T_k (1 - factor_k) rebuilt front to back as the compositing does.
+    r = wp.tid() + offset
+    start = ray_offsets[r]
+    end = ray_offsets[r + 1]
+    T = factor.dtype(1.0)
+    g = grad_depth[r]
+    for k in range(start, end):
+        if k - start < n_used[r]:
+            out[k] = g * T * (factor.dtype(1.0) - factor[k])
+            T = T * factor[k]
+        else:
+            out[k] = factor.dtype(0.0)
+
+
+@wp.kernel
+def _gather_rays_kernel(
+    ray_offsets: wp.array(dtype=wp.int32), t: wp.array(dtype=typing.Any), g_points: wp.array2d(dtype=typing.Any),
+    g_dirs: wp.array2d(dtype=typing.Any), g_z: wp.array(dtype=typing.Any),
+    out_o: wp.array2d(dtype=typing.Any), out_d: wp.array2d(dtype=typing.Any), out_zs: wp.array(dtype=typing.Any),
+    offset: int,
+):
+    r = wp.tid() + offset
+    zero = t.dtype(0.0)
+    for a in range(3):
+        out_o[r, a] = zero
+        out_d[r, a] = zero
+    zs = zero
+    for k in range(ray_offsets[r], ray_offsets[r + 1]):
+        s = t[k]
+        for a in range(3):
+            out_o[r, a] = out_o[r, a] + g_points[k, a]
+            out_d[r, a] = out_d[r, a] + s * g_points[k, a] + g_dirs[k, a]
+        zs += s * g_z[k]
+    out_zs[r] = zs
+
+
+# =========================================================================== camera
+
+
+def check_camera(w2c: Any, intrinsics: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(w2c (4, 4), intrinsics (4,)) as float64 NumPy; ValueError naming the argument for a matrix that is
+    not a rigid transform (rotation part orthonormal to 1e-6, det +1, last row 0 0 0 1) or
+    intrinsics that are not (fx > 0, fy > 0, cx, cy)."""
+    M = np.asarray(w2c.numpy() if isinstance(w2c, wp.array) else w2c, dtype=np.float64)
+    if M.shape != (4, 4):
+        raise ValueError(f"w2c: expected a 4x4 world-to-camera matrix, got shape {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise ValueError("w2c: contains non-finite values")
+    if np.abs(M[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-12:
+        raise ValueError(f"w2c: last row must be [0, 0, 0, 1], got {M[3].tolist()}")
+    R = M[:3, :3]
+    ortho = float(np.abs(R.T @ R - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    if ortho > 1e-6 or abs(det - 1.0) > 1e-6:
+        raise ValueError(f"w2c: rotation part is not a rotation (max |R^T R - I| = {ortho:.3g}, det = {det:.6g})")
+    K = np.asarray(intrinsics.numpy() if isinstance(intrinsics, wp.array) else intrinsics, dtype=np.float64)
+    if K.shape != (4,):
+        raise ValueError(f"intrinsics: expected (fx, fy, cx, cy), got shape {K.shape}")
+    if not np.all(np.isfinite(K)) or K[0] <= 0 or K[1] <= 0:
+        raise ValueError(f"intrinsics: expected finite (fx, fy, cx, cy) with fx, fy > 0, got {K.tolist()}")
+    return M, K
+
+
+def _camera_arrays(a: A.Inputs, M: np.ndarray, K: np.ndarray) -> tuple[wp.array, wp.array, wp.array]:
+    arr = lambda x: wp.array(np.ascontiguousarray(x, dtype=a.np_dtype), dtype=a.scalar, device=a.device)  # noqa: E731
+    return arr(M[:3, :3]), arr(M[:3, 3]), arr(K)
+
+
+def pixel_centers(width: int, height: int, dtype: Any = np.float64) -> np.ndarray:
+    """(H*W, 2) continuous coordinates (i + 1/2, j + 1/2) of every pixel, row by row."""
+    width = A.check_int("width", width, minimum=1)
+    height = A.check_int("height", height, minimum=1)
+    j, i = np.mgrid[0:height, 0:width]
+    return np.stack([i.ravel() + 0.5, j.ravel() + 0.5], axis=1).astype(dtype)
+
+
+def camera_rays(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, device: str | wp.Device | None = None
+                ) -> tuple[A.ArrayLike, A.ArrayLike, A.ArrayLike]:
+    """(origins (P, 3), unit dirs (P, 3), z_scale (P,)) of pixels (P, 2) (module docstring), in the
+    kind and dtype of `pixels`. w2c is the 4x4 world-to-camera matrix, intrinsics (fx, fy, cx, cy)."""
+    M, K = check_camera(w2c, intrinsics)
+    a = A.Inputs(device, pixels)
+    px = a.floats("pixels", pixels, (None, 2))
+    n = px.shape[0]
+    o, d, z = a.empty((n, 3)), a.empty((n, 3)), a.empty(n)
+    rot, trans, intr = _camera_arrays(a, M, K)
+    a.launch(_rays_kernel, n, [px, rot, trans, intr, o, d, z])
+    return a.out(o), a.out(d), a.out(z)
+
+
+@dataclass
+class CameraGrad:
+    """d L / d camera: `xi` (6,) the left se(3) perturbation of world-to-camera at 0 (rho, phi), and
+    `intrinsics` (4,) = d L / d (fx, fy, cx, cy). NumPy float64."""
+
+    xi: np.ndarray
+    intrinsics: np.ndarray
+
+
+def camera_rays_backward(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, grad_origins: A.ArrayLike | None = None,
+                         grad_dirs: A.ArrayLike | None = None, grad_z_scale: A.ArrayLike | None = None,
+                         device: str | wp.Device | None = None) -> CameraGrad:
+    """Gradient of <g_o, origins> + <g_d, dirs> + <g_z, z_scale> of camera_rays (module docstring)
+    with respect to the pose perturbation xi and the intrinsics; missing cotangents count as zero."""
+    M, K = check_camera(w2c, intrinsics)
+    a = A.Inputs(device, pixels, grad_origins, grad_dirs, grad_z_scale)
+    px = a.floats("pixels", pixels, (None, 2))
+    n = px.shape[0]
+    go, gd = (a.zeros((n, 3)) if g is None else a.floats(name, g, (n, 3))
+              for name, g in (("grad_origins", grad_origins), ("grad_dirs", grad_dirs)))
+    gz = a.zeros(n) if grad_z_scale is None else a.floats("grad_z_scale", grad_z_scale, (n,))
+    rot, _, intr = _camera_arrays(a, M, K)
+    rows = a.empty((n, 10))
+    a.launch(_rays_backward_kernel, n, [px, rot, intr, go, gd, gz, rows])
+    total = rows.numpy().astype(np.float64).sum(axis=0)
+    return CameraGrad(np.concatenate([-total[:3], total[3:6]]), total[6:10])
+
+
+# =========================================================================== renderer
+
+
+def render_backward_rays(field: Field, result: RenderResult, grad_rgb: A.ArrayLike | None = None,
+                         grad_depth: A.ArrayLike | None = None, grad_opacity: A.ArrayLike | None = None
+                         ) -> tuple[wp.array, wp.array, wp.array]:
+    """(dL/dorigins (R, 3), dL/ddirs (R, 3), dL/dz_scale (R,)) as wp.arrays on the field's device, for
+    L = <grad_rgb, C> + <grad_depth, D> + <grad_opacity, A> of a render (kernels.volume.render_rays or
+    render_samples), with the sample distances and intervals held fixed (module docstring).
+
+    Needs a field with a point gradient (kernels.volume.field_points: spheres, grid).
+    """
+    check_point_field(field)
+    if not isinstance(result, RenderResult):
+        raise ValueError(f"result: expected the RenderResult of render_rays, got {type(result).__name__}")
+    s, out, comp = result.samples, result.field_out, result.composite
+    a = A.Inputs(field.device, s.points)
+    a.scalar = field.dtype
+    n_rays, n = s.n_rays, s.n_samples
+    g_sigma, g_rgb = composite_backward(out.sigma, out.rgb, s.delta, s.z, s.ray_offsets, comp, grad_rgb, grad_depth,
+                                        grad_opacity, result.background, field.device)
+    gdep = a.zeros(n_rays) if grad_depth is None else a.floats("grad_depth", grad_depth, (n_rays,))
+    g_z = a.empty(n)
+    o, d, zs = a.empty((n_rays, 3)), a.empty((n_rays, 3)), a.empty(n_rays)
+    if n_rays:
+        a.launch(_depth_grad_kernel, n_rays, [comp.factor, s.ray_offsets, comp.n_used, gdep, g_z])
+    g_p, g_d = field_point_backward(field, s.points, s.dirs, out, g_sigma, g_rgb)
+    if n_rays:
+        a.launch(_gather_rays_kernel, n_rays, [s.ray_offsets, s.t, g_p, g_d, g_z, o, d, zs])
+    return o, d, zs
+
+
+def render_backward_camera(field: Field, result: RenderResult, w2c: Any, intrinsics: Any, pixels: A.ArrayLike,
+                           grad_rgb: A.ArrayLike | None = None, grad_depth: A.ArrayLike | None = None,
+                           grad_opacity: A.ArrayLike | None = None) -> CameraGrad:
+    """d L / d (xi, fx, fy, cx, cy) of a render of `camera_rays(w2c, intrinsics, pixels)`: the chain of
+    render_backward_rays and camera_rays_backward (module docstring)."""
+    go, gd, gz = render_backward_rays(field, result, grad_rgb, grad_depth, grad_opacity)
+    return camera_rays_backward(w2c, intrinsics, pixels, go, gd, gz, device=field.device)
+
+
+for _k in (_rays_kernel, _rays_backward_kernel, _depth_grad_kernel, _gather_rays_kernel):
+    A.declare_float_overloads(_k)
