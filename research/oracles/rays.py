@@ -27,7 +27,9 @@ view direction d).
 VJPs by `drjit.backward` of <g_C, C> + <g_D, D> + <g_A, A>: with respect to (xi, fx, fy, cx, cy)
 through the whole chain (`render_camera_oracle`), with respect to the rays (o, d, z_scale) alone
 (`render_rays_oracle`), and of the ray generation alone (`camera_rays_oracle`). The sample loop is
-a Python loop (unrolled, research/oracles/__init__.py).
+a Python loop (unrolled, research/oracles/__init__.py); the render's reverse pass is staged at the
+per-sample field outputs and at the rays (`_render_vjp`: the chain rule between stages, Dr.Jit's
+AD within each), because one backward over every sample's field compiles for hours.
 """
 
 from __future__ import annotations
