@@ -15,7 +15,10 @@ oracle float32, and against the oracle float64), at the sizes the kernels run at
                   dense (volume, pyramid, lookup) and on-the-fly paths (lookup, d f1, d f2, d coords);
   * volume        a dense grid of 64^3 vertices with SH degree 2 colour at 65,536 points (sigma,
                   rgb, d density, d colour); a hash-grid field (16 levels, 2^19 entries, finest level
-                  128^3, MLP 32-64-64-4) at 65,536 points (sigma, rgb, d of every parameter);
+                  128^3, MLP 32-64-64-4) at 65,536 points (sigma, rgb, d of every parameter); the
+                  renderer's camera gradients: 128x128 pixel rays x 64 fixed samples through a 32^3
+                  grid with SH degree 2 colour, early termination at T < 0.01 (rgb, depth, opacity,
+                  d pose xi (6) and d intrinsics (4), kernels/volume/rays.py);
   * splat         3,000 Gaussians (SH degree 3) rendered at 256x256 in the default ("3dgs") mode
                   (rgb, alpha, depth, d means, log-scales, quaternions, opacity logits, SH, background,
                   and the camera's pose (6) and intrinsics (4)).
@@ -42,11 +45,11 @@ from research.results import markdown_table, save_figure
 # Sizes per mode: full (the default), quick and smoke.
 SIZES = {
     "full": dict(img=256, disp=64, feat=32, corr=(64, 46, 62, 4, 4), grid=64, points=65536, hash_log2=19,
-                 hash_max=128, splats=3000, splat_px=256),
+                 hash_max=128, splats=3000, splat_px=256, ray_px=128, ray_samples=64, ray_grid=32),
     "quick": dict(img=128, disp=32, feat=16, corr=(32, 23, 31, 3, 3), grid=32, points=8192, hash_log2=16,
-                  hash_max=64, splats=600, splat_px=128),
+                  hash_max=64, splats=600, splat_px=128, ray_px=64, ray_samples=32, ray_grid=16),
     "smoke": dict(img=24, disp=8, feat=4, corr=(4, 8, 10, 2, 1), grid=6, points=200, hash_log2=10, hash_max=16,
-                  splats=30, splat_px=32),
+                  splats=30, splat_px=32, ray_px=8, ray_samples=8, ray_grid=4),
 }
 
 
@@ -266,6 +269,49 @@ def case_hashgrid(dt, S, seed):
             f" {N} points"), drlab, oracle
 
 
+def case_volume_camera(dt, S, seed):
+    import warp as wp
+
+    from kernels.volume import GridField, render_samples
+    from kernels.volume.rays import camera_rays, pixel_centers, render_backward_camera
+    from kernels.volume.sampling import dense_samples
+    from research.cameras import look_at
+    from research.oracles.rays import render_camera_oracle
+
+    rng = _Rounded(seed)
+    px, n_s, res = S["ray_px"], S["ray_samples"], (S["ray_grid"],) * 3
+    nv, P = S["ray_grid"] ** 3, S["ray_px"] ** 2
+    w2c = np.linalg.inv(look_at(np.array([0.3, -0.4, -4.0]) + rng.normal(0.0, 0.2, 3), rng.normal(0.0, 0.1, 3),
+                                up=(0.0, -1.0, 0.0)))
+    K = np.array([2.2 * px, 2.1 * px, px / 2 + 0.7, px / 2 - 0.4])
+    density, color = rng.normal(0.3, 1.0, nv), rng.normal(size=(nv, 27))
+    # Fixed samples from 2.5 to 5.5 (the box [-1, 1]^3 lies within) jittered per ray; outside it the field is 0.
+    t = 2.5 + 3.0 * (np.arange(n_s) + rng.uniform(0.0, 1.0, (P, n_s))) / n_s
+    delta = np.full((P, n_s), 3.0 / n_s)
+    cot = (rng.normal(size=(P, 3)), rng.normal(size=P), rng.normal(size=P))
+    pixels = pixel_centers(px, px)
+    bg, thr = (0.3, 0.5, 0.7), 0.01
+
+    def drlab(t_):
+        f = GridField(BBOX, res, sh_degree=2, density_bias=0.0, density_scale=2.0,
+                      dtype=wp.float32 if t_ == np.float32 else wp.float64)
+        f.set_params({"density": density.astype(t_), "color": color.astype(t_)})
+        o, d, z = camera_rays(w2c, K, pixels.astype(t_))
+        r = render_samples(f, dense_samples(o, d, t.astype(t_), delta.astype(t_), z), background=bg, t_threshold=thr)
+        g = render_backward_camera(f, r, w2c, K, pixels.astype(t_), *(c.astype(t_) for c in cot))
+        return [r.rgb.numpy(), r.depth.numpy(), r.opacity.numpy()], [g.xi, g.intrinsics]
+
+    def oracle(t_):
+        c = lambda v: v.astype(dt).astype(t_)  # noqa: E731
+        field = dict(kind="grid", bbox=BBOX, resolution=res, sh_degree=2, density=c(density), color=c(color),
+                     density_bias=0.0, density_scale=2.0, activation="softplus")
+        (rgb, depth, opacity), g = render_camera_oracle(field, w2c, K, c(pixels), c(t), c(delta), bg, thr,
+                                                        *(c(v) for v in cot))
+        return [rgb, depth, opacity], [g["xi"], g["intrinsics"]]
+
+    return f"{px}x{px} rays x {n_s} samples, {S['ray_grid']}^3 grid SH 2", drlab, oracle
+
+
 def case_splat(dt, S, seed):
     from kernels import splat as ks
     from research.oracles.splat import render_oracle
@@ -312,6 +358,7 @@ CASES = [
     ("corr", "RAFT lookup, on the fly", case_corr("onthefly")),
     ("volume", "dense grid field", case_grid),
     ("volume", "hash grid + MLP field", case_hashgrid),
+    ("volume", "volume render camera gradients (pose, intrinsics)", case_volume_camera),
     ("splat", "3DGS render (projection, SH, raster, depth, camera)", case_splat),
 ]
 

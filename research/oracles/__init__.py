@@ -19,7 +19,8 @@ a symbolic loop needs loop-specific handling of the carried state, while an unro
 plain graph of element-wise operations, gathers and scatters, whose adjoints are Dr.Jit's basic
 rules. `drjit.eval` between iterations keeps the kernels small (one compile, reused).
 
-Modules: `ssim`, `stereo`, `corr`, `volume` (dense grid, hash grid, MLP) and `splat`.
+Modules: `ssim`, `stereo`, `corr`, `volume` (dense grid, hash grid, MLP), `rays` (the volume renderer's
+camera gradients) and `splat`.
 """
 
 from __future__ import annotations

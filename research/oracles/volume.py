@@ -68,6 +68,44 @@ def _corners():
     return [(c & 1, (c >> 1) & 1, (c >> 2) & 1) for c in range(8)]
 
 
+def grid_eval(be: Backend, pts: list, dirs: list | None, Dn, K, bbox: np.ndarray, resolution: Sequence[int],
+              sh_degree: int | None, density_bias: float, density_scale: float, activation: str) -> tuple:
+    """(sigma, [r, g, b]) of the dense grid field (module docstring) at points pts = [x, y, z] and view
+    directions dirs (Dr.Jit arrays, differentiable or not), for the flat vertex arrays Dn (V,) and K
+    (V, 3 n_coef). The cell index floor(u) is piecewise constant; the weights carry the points' gradient."""
+    dr = be.dr
+    n = dr.width(pts[0])
+    nx, ny, nz = resolution
+    n_coef = 1 if sh_degree is None else (sh_degree + 1) ** 2
+    cells, fracs, inside = [], [], be.Bool(True)
+    for a, na in enumerate(resolution):
+        lo, hi = float(bbox[0][a]), float(bbox[1][a])
+        u = (pts[a] - lo) / (hi - lo) * float(na - 1)
+        inside = inside & (u >= 0.0) & (u <= float(na - 1))
+        i = dr.clip(be.Int(dr.floor(dr.detach(u))), 0, na - 2)
+        cells.append(i)
+        fracs.append(u - be.Float(i))
+    raw_d = dr.zeros(be.Float, n)
+    coef = [[dr.zeros(be.Float, n) for _ in range(n_coef)] for _ in range(3)]
+    for bx, by, bz in _corners():
+        w = ((fracs[0] if bx else 1.0 - fracs[0]) * (fracs[1] if by else 1.0 - fracs[1])
+             * (fracs[2] if bz else 1.0 - fracs[2]))
+        v = be.UInt((cells[0] + bx) + nx * ((cells[1] + by) + ny * (cells[2] + bz)))
+        raw_d = raw_d + w * dr.gather(be.Float, Dn, v, inside)
+        for c in range(3):
+            for j in range(n_coef):
+                coef[c][j] = coef[c][j] + w * dr.gather(be.Float, K, v * (3 * n_coef) + c * n_coef + j, inside)
+    sigma = dr.select(inside, density_scale * _act(be, raw_d + density_bias, activation), 0.0)
+    Y = [be.Float(1.0)] if sh_degree is None else sh_basis(dirs[0], dirs[1], dirs[2], n_coef)
+    rgb = []
+    for c in range(3):
+        s = dr.zeros(be.Float, n)
+        for j in range(n_coef):
+            s = s + Y[j] * coef[c][j]
+        rgb.append(dr.select(inside, _sigmoid(be, s), 0.0))
+    return sigma, rgb
+
+
 def grid_field_oracle(points: np.ndarray, dirs: np.ndarray | None, density: np.ndarray, color: np.ndarray,
                       bbox: np.ndarray, resolution: Sequence[int], sh_degree: int | None, density_bias: float,
                       density_scale: float, activation: str, grad_sigma: np.ndarray, grad_rgb: np.ndarray
@@ -84,38 +122,10 @@ def grid_field_oracle(points: np.ndarray, dirs: np.ndarray | None, density: np.n
     be = backend(points.dtype)
     dr = be.dr
     n = points.shape[0]
-    nx, ny, nz = resolution
     Dn, K = be.leaf(density), be.leaf(color)
-    n_coef = 1 if sh_degree is None else (sh_degree + 1) ** 2
-    cells, fracs, inside = [], [], be.Bool(True)
-    for a, na in enumerate(resolution):
-        lo, hi = float(bbox[0][a]), float(bbox[1][a])
-        u = (be.const(points[:, a]) - lo) / (hi - lo) * float(na - 1)
-        inside = inside & (u >= 0.0) & (u <= float(na - 1))
-        i = dr.clip(be.Int(dr.floor(u)), 0, na - 2)
-        cells.append(i)
-        fracs.append(u - be.Float(i))
-    raw_d = dr.zeros(be.Float, n)
-    coef = [[dr.zeros(be.Float, n) for _ in range(n_coef)] for _ in range(3)]
-    for bx, by, bz in _corners():
-        w = ((fracs[0] if bx else 1.0 - fracs[0]) * (fracs[1] if by else 1.0 - fracs[1])
-             * (fracs[2] if bz else 1.0 - fracs[2]))
-        v = be.UInt((cells[0] + bx) + nx * ((cells[1] + by) + ny * (cells[2] + bz)))
-        raw_d = raw_d + w * dr.gather(be.Float, Dn, v, inside)
-        for c in range(3):
-            for j in range(n_coef):
-                coef[c][j] = coef[c][j] + w * dr.gather(be.Float, K, v * (3 * n_coef) + c * n_coef + j, inside)
-    sigma = dr.select(inside, density_scale * _act(be, raw_d + density_bias, activation), 0.0)
-    if sh_degree is None:
-        Y = [be.Float(1.0)]
-    else:
-        Y = sh_basis(be.const(dirs[:, 0]), be.const(dirs[:, 1]), be.const(dirs[:, 2]), n_coef)
-    rgb = []
-    for c in range(3):
-        s = dr.zeros(be.Float, n)
-        for j in range(n_coef):
-            s = s + Y[j] * coef[c][j]
-        rgb.append(dr.select(inside, _sigmoid(be, s), 0.0))
+    pts = [be.const(points[:, a]) for a in range(3)]
+    dvs = None if sh_degree is None else [be.const(dirs[:, a]) for a in range(3)]
+    sigma, rgb = grid_eval(be, pts, dvs, Dn, K, bbox, resolution, sh_degree, density_bias, density_scale, activation)
     dr.eval(sigma, *rgb)
     dr.backward(be.dot([sigma, *rgb], [grad_sigma, *(grad_rgb[:, c] for c in range(3))]))
     out = (be.numpy(sigma, (n,)), np.stack([be.numpy(r, (n,)) for r in rgb], axis=1))

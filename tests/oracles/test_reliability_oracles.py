@@ -7,6 +7,7 @@ import pytest
 
 from research.oracles import backend
 from research.oracles.corr import lookup_oracle
+from research.oracles.rays import camera_rays_oracle, render_camera_oracle
 from research.oracles.splat import render_oracle
 from research.oracles.ssim import ssim_oracle
 from research.oracles.stereo import soft_argmin_oracle, window_cost_oracle
@@ -22,6 +23,22 @@ def _splat(**change):
                 grad_rgb=Z((4, 4, 3)))
     args.update(change)
     return lambda: render_oracle(**args)
+
+
+def _rays(**change):
+    args = dict(w2c=np.eye(4), intrinsics=np.array([10.0, 10.0, 2.0, 2.0]), pixels=Z((3, 2)), grad_origins=Z((3, 3)),
+                grad_dirs=Z((3, 3)), grad_z_scale=Z(3))
+    args.update(change)
+    return lambda: camera_rays_oracle(**args)
+
+
+def _render(**change):
+    args = dict(field={"kind": "spheres", "centers": Z((1, 3)), "radii": np.ones(1), "colors": Z((1, 3)),
+                       "sharpness": np.ones(1)}, w2c=np.eye(4), intrinsics=np.array([10.0, 10.0, 2.0, 2.0]),
+                pixels=Z((3, 2)), t=np.ones((3, 4)), delta=np.ones((3, 4)), background=Z(3), t_threshold=0.0,
+                grad_rgb=Z((3, 3)), grad_depth=Z(3), grad_opacity=Z(3))
+    args.update(change)
+    return lambda: render_camera_oracle(**args)
 
 
 @pytest.mark.parametrize("call, match", [
@@ -42,9 +59,16 @@ def _splat(**change):
     (_splat(sh=Z((2, 5, 3))), "sh: expected \\(L\\+1\\)\\^2 <= 16 coefficients per channel, got 5"),
     (_splat(tile_rule="tiles"), "tile_rule: expected '3dgs' or 'square', got 'tiles'"),
     (_splat(grad_rgb=Z((4, 4))), r"grad_rgb: expected shape \(4, 4, 3\), got \(4, 4\)"),
+    (_rays(intrinsics=np.array([0.0, 10.0, 2.0, 2.0])), "intrinsics: expected fx, fy > 0"),
+    (_rays(w2c=np.eye(3)), r"w2c: expected shape \(4, 4\), got \(3, 3\)"),
+    (_rays(grad_dirs=Z((2, 3))), r"grad_dirs: expected shape \(3, 3\), got \(2, 3\)"),
+    (_render(field={"kind": "hash"}), "field: expected a dict with kind 'spheres' or 'grid'"),
+    (_render(delta=-np.ones((3, 4))), "delta: expected interval lengths >= 0"),
+    (_render(t_threshold=1.0), r"t_threshold: expected a value in \[0, 1\), got 1.0"),
 ], ids=["dtype", "ssim-y-shape", "ssim-x-list", "ssim-x-nan", "ssim-x-int", "cost-kind", "cost-dmax",
         "softargmin-temperature", "softargmin-grad-shape", "corr-levels", "corr-radius", "corr-coords",
-        "mlp-missing-bias", "splat-quats", "splat-sh", "splat-tile-rule", "splat-grad-rgb"])
+        "mlp-missing-bias", "splat-quats", "splat-sh", "splat-tile-rule", "splat-grad-rgb",
+        "rays-fx", "rays-w2c-shape", "rays-grad-dirs", "render-field-kind", "render-delta", "render-t-threshold"])
 def test_bad_input_raises_one_line_naming_the_argument(call, match):
     with pytest.raises(ValueError, match=match) as info:
         call()
