@@ -102,6 +102,62 @@ def fit(run: str, views, xi: np.ndarray, bbox: np.ndarray, plan, common: dict, s
     return field, occupancy, {"losses": losses, "rot_step_deg": rot_steps, "train_s": seconds}
 
 
+def splat_setup(quick: bool, smoke: bool) -> dict[str, int]:
+    """Sizes of the splat fits: iterations per fit and back-projected starting points."""
+    if smoke:
+        return {"iterations": 40, "init_points": 300}
+    if quick:
+        return {"iterations": 3000, "init_points": 6000}
+    return {"iterations": 8000, "init_points": 20000}
+
+
+def splat_config(run: str, iterations: int, seed: int) -> Any:
+    """The joint fit's schedule (research/pose_refine_splats.py); rates chosen on --seed 1 (module docstring)."""
+    from research.pose_refine_splats import SplatJointConfig
+
+    return SplatJointConfig(iterations=iterations, refine_poses=run == "refined", pose_start=max(1, iterations // 10),
+                            sh_interval=max(1, iterations // 20), seed=seed)
+
+
+def fit_splats(run: str, cameras, c2w_start: np.ndarray, rgba: np.ndarray, depth: np.ndarray, sizes: dict, seed: int,
+               progress: bool) -> tuple[Any, np.ndarray, int, dict[str, Any]]:
+    """Splats initialised from the depth back-projected at the STARTING poses (for noisy and refined: the
+    perturbed ones), fitted jointly with the poses when run == "refined". Returns (model, final c2w, SH
+    degree, log)."""
+    from research.cameras import Camera
+    from research.pose_refine_splats import train_joint_splats
+    from research.splats import model as sm
+
+    start_cams = [Camera(c.K, T, c.width, c.height) for c, T in zip(cameras, c2w_start)]
+    points, colors = sm.points_from_depth(start_cams, rgba, depth, sizes["init_points"], seed)
+    model = sm.from_points(points, colors)
+    extent = sm.scene_extent(start_cams)
+    w2c = np.array([np.linalg.inv(T) for T in c2w_start])
+    cfg = splat_config(run, sizes["iterations"], seed)
+    model, w2c_final, log = train_joint_splats(model, w2c, cameras[0].K, rgba[..., :3], extent, cfg,
+                                               progress=progress, desc=f"{run} splats")
+    c2w_final = np.array([np.linalg.inv(T) for T in w2c_final])
+    return model, c2w_final, log.sh_degree, {"losses": log.losses, "rot_step_deg": log.rot_step_deg,
+                                             "train_s": log.seconds}
+
+
+def evaluate_splats(model, sh_degree: int, test_split, G: np.ndarray) -> dict[str, Any]:
+    """Test PSNR/SSIM (research.splats.train.evaluate: sRGB on black) with every test camera's ground-truth
+    pose mapped into the model's frame by G^-1."""
+    from research.cameras import Camera
+    from research.splats.train import evaluate as splat_evaluate
+
+    Gi = np.linalg.inv(G)
+    cams = []
+    for cam in test_split.cameras:
+        c2w = Gi @ cam.c2w
+        U, _, Vt = np.linalg.svd(c2w[:3, :3])
+        c2w[:3, :3] = U @ Vt  # re-orthonormalise rounding
+        cams.append(Camera(cam.K, c2w, cam.width, cam.height))
+    ev = splat_evaluate(model, cams, test_split.rgba[..., :3], sh_degree)
+    return {"psnr": ev.psnr, "ssim": ev.ssim, "per_view": ev.per_view}
+
+
 def evaluate(field, occupancy, bbox, step: float, test_split, gt_srgb: np.ndarray, G: np.ndarray) -> dict[str, Any]:
     """Test PSNR/SSIM with every test camera's ground-truth pose mapped into the field's frame by G^-1."""
     from research.cameras import Camera
@@ -177,6 +233,9 @@ def add_options(p) -> None:
                    "degrees (default 5)")
     p.add_argument("--trans-frac", type=float, default=0.05, help="translation of every perturbation as a fraction "
                    "of the scene radius (the cameras' distance to the scene centre; default 0.05)")
+    p.add_argument("--model", choices=("splats", "grid"), default="splats", help="the scene model fitted with the "
+                   "poses: Gaussian splats (default; research/pose_refine_splats.py) or the dense voxel grid "
+                   "(research/pose_refine.py)")
     p.add_argument("--depth-weight", type=float, default=0.0, help="weight of the depth loss (rendered expected "
                    "z-depth against the dataset's depth; RGB-D); 0 (default) fits colour only, as BARF")
 
@@ -190,6 +249,9 @@ def _check_args(args) -> None:
         raise ValueError(f"--trans-frac: expected a value in [0, 0.5], got {args.trans_frac}")
     if not (math.isfinite(args.depth_weight) and args.depth_weight >= 0.0):
         raise ValueError(f"--depth-weight: expected a finite value >= 0, got {args.depth_weight}")
+    if args.model == "splats" and args.depth_weight:
+        raise ValueError("--depth-weight: the splat fit is colour only (the depth loss is --model grid's); "
+                         "expected 0 with --model splats")
 
 
 def run(ctx: Context) -> int:
@@ -215,15 +277,23 @@ def run(ctx: Context) -> int:
     gt_test = srgb_targets(test_split.rgba)
     plan, common = stages(ctx.quick, ctx.smoke, bbox)
 
+    sizes = splat_setup(ctx.quick, ctx.smoke)
     results, logs, finals = {}, {}, {}
     for name in RUNS:
         start = c2w_gt if name == "gt" else c2w_noisy
-        views = TrainingViews.from_cameras(train_split.cameras, start, srgb, depth)
-        xi = np.zeros((len(start), 6))
-        field, occupancy, log = fit(name, views, xi, bbox, plan, common, ctx.seed, args.depth_weight, ctx.progress)
-        final = np.array([P.perturb_c2w(T, x) for T, x in zip(start, xi)])  # c2w of exp(xi) w2c
-        G = align_to_reference(final, c2w_gt)
-        ev = evaluate(field, occupancy, bbox, common["step"], test_split, gt_test, G)
+        if args.model == "splats":
+            model, final, degree, log = fit_splats(name, train_split.cameras, start, train_split.rgba,
+                                                   train_split.depth, sizes, ctx.seed, ctx.progress)
+            G = align_to_reference(final, c2w_gt)
+            ev = evaluate_splats(model, degree, test_split, G)
+        else:
+            views = TrainingViews.from_cameras(train_split.cameras, start, srgb, depth)
+            xi = np.zeros((len(start), 6))
+            field, occupancy, log = fit(name, views, xi, bbox, plan, common, ctx.seed, args.depth_weight,
+                                        ctx.progress)
+            final = np.array([P.perturb_c2w(T, x) for T, x in zip(start, xi)])  # c2w of exp(xi) w2c
+            G = align_to_reference(final, c2w_gt)
+            ev = evaluate(field, occupancy, bbox, common["step"], test_split, gt_test, G)
         results[name] = {"eval": ev, "train_s": log["train_s"], "errors": pose_error_summary(final, c2w_gt),
                          "final_loss": float(np.mean(log["losses"][-50:]))}
         logs[name], finals[name] = log, final
@@ -247,6 +317,14 @@ def run(ctx: Context) -> int:
         rows.append([name, f"{e['rot_mean_deg']:.3f}", f"{e['rot_max_deg']:.3f}", f"{e['trans_mean']:.4f}",
                      f"{100 * e['trans_mean'] / radius:.2f}", f"{results[name]['eval']['psnr']:.2f}",
                      f"{results[name]['eval']['ssim']:.3f}", f"{results[name]['train_s']:.0f}"])
+    if args.model == "splats":
+        model_text = (f"Gaussian splats, {sizes['iterations']} iterations per fit, initialised from "
+                      f"{sizes['init_points']} depth pixels back-projected at each run's STARTING poses (perturbed "
+                      "for noisy and refined); blurred images and SH degree 0 early (coarse to fine), per-view Adam "
+                      "on the poses (research/pose_refine_splats.py).")
+    else:
+        model_text = (f"Dense voxel grid fitted coarse to fine ({' -> '.join(str(r[1]) for r in plan)}), depth weight "
+                      f"{args.depth_weight:g}.")
     headers = ["poses", "rotation error mean (deg)", "max (deg)", "centre error mean", "% of radius",
                "test PSNR (dB)", "test SSIM", "train s"]
     target = "met" if after["rot_max_deg"] < 0.5 else "NOT met"
@@ -255,12 +333,15 @@ def run(ctx: Context) -> int:
              f"poses perturbed by {args.rot_deg:g} degrees and {args.trans_frac:g} x the scene radius "
              f"({radius:.2f}) each (seed {ctx.seed}; raw mean rotation error {before_raw['rot_mean_deg']:.2f} deg). "
              "Pose errors after the rigid alignment of the camera centres to the ground truth (Umeyama); test "
-             "cameras at their ground-truth poses mapped through the same alignment. Dense voxel grid fitted "
-             f"coarse to fine ({' -> '.join(str(r[1]) for r in plan)}), depth weight {args.depth_weight:g}.\n\n"
+             "cameras at their ground-truth poses mapped through the same alignment (SE(3), as BARF). "
+             + model_text + "\n\n"
              + markdown_table(headers, rows)
              + f"\nTarget (every refined rotation error < 0.5 deg): {target} "
                f"(max {after['rot_max_deg']:.3f} deg, from {before['rot_max_deg']:.2f} deg).\n")
     record = provenance(data)
+    model_record = ({"model": "splats", **sizes, "joint": splat_config("refined", sizes["iterations"], ctx.seed).to_dict()}
+                    if args.model == "splats" else
+                    {"model": "grid", "stages": [{"iters": i, "resolution": list(r)} for i, r in plan], "config": common})
     metrics = {"dataset": {"path": str(data), "config": cfg.__dict__, "content_hash": record["content_hash"],
                            "train_views": len(c2w_gt), "test_views": len(test_split.cameras)},
                "perturbation": {"rot_deg": args.rot_deg, "trans": args.trans_frac * radius, "radius": radius,
@@ -269,9 +350,9 @@ def run(ctx: Context) -> int:
                "runs": {k: {"test_psnr": v["eval"]["psnr"], "test_ssim": v["eval"]["ssim"],
                             "per_view": v["eval"]["per_view"], "train_s": v["train_s"], "errors": v["errors"],
                             "final_loss": v["final_loss"]} for k, v in results.items()},
-               "stages": [{"iters": i, "resolution": list(r)} for i, r in plan], "config": common,
+               **model_record,
                "target_rot_max_deg": 0.5, "target_met": bool(after["rot_max_deg"] < 0.5)}
-    ctx.write_results(config={"quick": ctx.quick, "rot_deg": args.rot_deg, "trans_frac": args.trans_frac,
+    ctx.write_results(config={"quick": ctx.quick, "model": args.model, "rot_deg": args.rot_deg, "trans_frac": args.trans_frac,
                               "depth_weight": args.depth_weight}, metrics=metrics, table_md=table)
     return 0
 
