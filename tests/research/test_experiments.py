@@ -136,6 +136,8 @@ def _check_pose_refinement(m):
         assert _finite(r["test_psnr"]) and r["test_psnr"] > 3
     assert m["runs"]["gt"]["errors"]["rot_max_deg"] < 1e-6  # ground-truth poses are never moved
     assert abs(m["errors_before_unaligned"]["rot_mean_deg"] - m["perturbation"]["rot_deg"]) < 1e-6
+    assert m["model"] == "splats" and m["joint"]["refine_poses"]  # the default model
+    assert m["runs"]["refined"]["errors"]["rot_max_deg"] != m["errors_before"]["rot_max_deg"]  # the poses moved
 
 
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,

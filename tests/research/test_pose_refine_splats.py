@@ -80,3 +80,21 @@ def test_bad_inputs_one_line(kw, message):
 def test_bad_config_one_line(kw, message):
     with pytest.raises(ValueError, match=message):
         SplatJointConfig(**kw)
+
+
+def test_experiment_smoke_splats(tmp_path):
+    """`python -m experiments.pose_refinement --smoke` (the splat model by default) writes its results."""
+    import json
+
+    from experiments import pose_refinement
+
+    out = tmp_path / "out"
+    assert pose_refinement.main(["--smoke", "--no-progress", "--out", str(out), "--data", str(tmp_path / "data")]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    m = m["metrics"]  # the checks of tests/research/test_experiments.py's _check_pose_refinement
+    assert set(m["runs"]) == {"gt", "noisy", "refined"}
+    assert all(np.isfinite(r["test_psnr"]) and r["test_psnr"] > 3 for r in m["runs"].values())
+    assert m["runs"]["gt"]["errors"]["rot_max_deg"] < 1e-6  # ground-truth poses are never moved
+    assert m["model"] == "splats" and m["joint"]["refine_poses"]  # the default model
+    assert m["runs"]["refined"]["errors"]["rot_max_deg"] != m["errors_before"]["rot_max_deg"]  # the poses moved
+    assert {"table.md", "trajectories.png", "train_poses_refined.tum"} <= {p.name for p in out.iterdir()}
