@@ -98,3 +98,14 @@ def test_experiment_smoke_splats(tmp_path):
     assert m["model"] == "splats" and m["joint"]["refine_poses"]  # the default model
     assert m["runs"]["refined"]["errors"]["rot_max_deg"] != m["errors_before"]["rot_max_deg"]  # the poses moved
     assert {"table.md", "trajectories.png", "train_poses_refined.tum"} <= {p.name for p in out.iterdir()}
+
+
+@pytest.mark.parametrize("sigma", [0.7, 2.0])
+def test_blur_is_self_adjoint(sigma):
+    """The coarse-to-fine blur's backward is the blur itself: <b x, y> = <x, b y> (zero padding)."""
+    from research.pose_refine_splats import _blur
+
+    rng = np.random.default_rng(0)
+    x, y = rng.normal(size=(2, 13, 17, 3))
+    assert np.isclose(np.sum(_blur(x, sigma) * y), np.sum(x * _blur(y, sigma)), rtol=1e-12, atol=0)
+    assert not np.allclose(_blur(x, sigma), x)
