@@ -350,9 +350,12 @@ def run(ctx: Context) -> int:
              + f"\nTarget (every refined rotation error < 0.5 deg): {target} "
                f"(max {after['rot_max_deg']:.3f} deg, from {before['rot_max_deg']:.2f} deg).\n")
     record = provenance(data)
-    model_record = ({"model": "splats", **sizes, "joint": splat_config("refined", sizes["iterations"], ctx.seed).to_dict()}
-                    if args.model == "splats" else
-                    {"model": "grid", "stages": [{"iters": i, "resolution": list(r)} for i, r in plan], "config": common})
+    if args.model == "splats":
+        model_record = {"model": "splats", **sizes,
+                        "joint": splat_config("refined", sizes["iterations"], ctx.seed).to_dict()}
+    else:
+        model_record = {"model": "grid", "stages": [{"iters": i, "resolution": list(r)} for i, r in plan],
+                        "config": common}
     metrics = {"dataset": {"path": str(data), "config": cfg.__dict__, "content_hash": record["content_hash"],
                            "train_views": len(c2w_gt), "test_views": len(test_split.cameras)},
                "perturbation": {"rot_deg": args.rot_deg, "trans": args.trans_frac * radius, "radius": radius,
@@ -363,8 +366,9 @@ def run(ctx: Context) -> int:
                             "final_loss": v["final_loss"]} for k, v in results.items()},
                **model_record,
                "target_rot_max_deg": 0.5, "target_met": bool(after["rot_max_deg"] < 0.5)}
-    ctx.write_results(config={"quick": ctx.quick, "model": args.model, "rot_deg": args.rot_deg, "trans_frac": args.trans_frac,
-                              "depth_weight": args.depth_weight}, metrics=metrics, table_md=table)
+    ctx.write_results(config={"quick": ctx.quick, "model": args.model, "rot_deg": args.rot_deg,
+                              "trans_frac": args.trans_frac, "depth_weight": args.depth_weight},
+                      metrics=metrics, table_md=table)
     return 0
 
 
