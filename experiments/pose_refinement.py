@@ -275,7 +275,7 @@ def run(ctx: Context) -> int:
     from research import poses as P
     from research.datasets import cache_dir, ensure, get_scene, load, provenance
     from research.nerf.train import srgb_targets
-    from research.pose_refine import TrainingViews, align_to_reference, pose_error_summary
+    from research.pose_refine import TrainingViews, align_to_reference, apply_alignment, pose_error_summary
 
     args = ctx.args
     _check_args(args)
@@ -294,13 +294,14 @@ def run(ctx: Context) -> int:
     plan, common = stages(ctx.quick, ctx.smoke, bbox)
 
     sizes = splat_setup(ctx.quick, ctx.smoke)
+    sim = {"with_scale": args.model == "splats"}  # splats: Sim(3) alignment (BARF); grid: SE(3), as before
     results, logs, finals = {}, {}, {}
     for name in RUNS:
         start = c2w_gt if name == "gt" else c2w_noisy
         if args.model == "splats":
             model, final, degree, log = fit_splats(name, train_split.cameras, start, train_split.rgba,
                                                    train_split.depth, sizes, ctx.seed, ctx.progress)
-            G = align_to_reference(final, c2w_gt)
+            G = align_to_reference(final, c2w_gt, with_scale=True)  # Sim(3), as BARF
             ev = evaluate_splats(model, degree, test_split, G)
         else:
             views = TrainingViews.from_cameras(train_split.cameras, start, srgb, depth)
@@ -310,17 +311,17 @@ def run(ctx: Context) -> int:
             final = np.array([P.perturb_c2w(T, x) for T, x in zip(start, xi)])  # c2w of exp(xi) w2c
             G = align_to_reference(final, c2w_gt)
             ev = evaluate(field, occupancy, bbox, common["step"], test_split, gt_test, G)
-        results[name] = {"eval": ev, "train_s": log["train_s"], "errors": pose_error_summary(final, c2w_gt),
+        results[name] = {"eval": ev, "train_s": log["train_s"], "errors": pose_error_summary(final, c2w_gt, **sim),
                          "final_loss": float(np.mean(log["losses"][-50:]))}
         logs[name], finals[name] = log, final
         print(f"{name}: test PSNR {ev['psnr']:.2f} dB, rotation error {results[name]['errors']['rot_mean_deg']:.3f} "
               f"deg (max {results[name]['errors']['rot_max_deg']:.3f}), train {log['train_s']:.0f} s", flush=True)
 
-    before = pose_error_summary(c2w_noisy, c2w_gt)
+    before = pose_error_summary(c2w_noisy, c2w_gt, **sim)
     before_raw = pose_error_summary(c2w_noisy, c2w_gt, align=False)
     after = results["refined"]["errors"]
     G = np.array(after["alignment"])
-    figure(c2w_gt, c2w_noisy, np.array([G @ T for T in finals["refined"]]), {"noisy": before, "refined": after},
+    figure(c2w_gt, c2w_noisy, apply_alignment(G, finals["refined"]), {"noisy": before, "refined": after},
            ctx.out)
     loss_figure(logs, ctx.out)
     stamps = np.arange(len(c2w_gt), dtype=float)
@@ -348,8 +349,9 @@ def run(ctx: Context) -> int:
              f"{len(c2w_gt)} training and {len(test_split.cameras)} test views, device `{ctx.device}`. Training "
              f"poses perturbed by {args.rot_deg:g} degrees and {args.trans_frac:g} x the scene radius "
              f"({radius:.2f}) each (seed {ctx.seed}; raw mean rotation error {before_raw['rot_mean_deg']:.2f} deg). "
-             "Pose errors after the rigid alignment of the camera centres to the ground truth (Umeyama); test "
-             "cameras at their ground-truth poses mapped through the same alignment (SE(3), as BARF). "
+             "Pose errors after the alignment of the camera centres to the ground truth (Umeyama); test "
+             "cameras at their ground-truth poses mapped through the same alignment ("
+             + ("Sim(3), as BARF). " if sim["with_scale"] else "SE(3)). ")
              + model_text + "\n\n"
              + markdown_table(headers, rows)
              + f"\nTarget (every refined rotation error < 0.5 deg): {target} "

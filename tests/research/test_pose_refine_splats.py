@@ -94,7 +94,9 @@ def test_experiment_smoke_splats(tmp_path):
     m = m["metrics"]  # the checks of tests/research/test_experiments.py's _check_pose_refinement
     assert set(m["runs"]) == {"gt", "noisy", "refined"}
     assert all(np.isfinite(r["test_psnr"]) and r["test_psnr"] > 3 for r in m["runs"].values())
-    assert m["runs"]["gt"]["errors"]["rot_max_deg"] < 1e-6  # ground-truth poses are never moved
+    # ground-truth poses are never moved; 1e-5 deg, not 1e-6: arccos of a rotation trace 1 ulp below 3
+    # is already 1.2e-6 deg, and the Sim(3) alignment's SVD rounds at that level
+    assert m["runs"]["gt"]["errors"]["rot_max_deg"] < 1e-5
     assert m["model"] == "splats" and m["joint"]["refine_poses"]  # the default model
     assert m["runs"]["refined"]["errors"]["rot_max_deg"] != m["errors_before"]["rot_max_deg"]  # the poses moved
     assert {"table.md", "trajectories.png", "train_poses_refined.tum"} <= {p.name for p in out.iterdir()}
