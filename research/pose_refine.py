@@ -272,18 +272,31 @@ def _rigid(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def align_to_reference(c2w: np.ndarray, c2w_ref: np.ndarray) -> np.ndarray:
-    """G (4x4, rigid) with G c2w_v ~ c2w_ref_v: Umeyama over the camera centres (research.poses.umeyama)."""
-    R, t, _ = P.umeyama(np.asarray(c2w)[:, :3, 3], np.asarray(c2w_ref)[:, :3, 3])
+def align_to_reference(c2w: np.ndarray, c2w_ref: np.ndarray, with_scale: bool = False) -> np.ndarray:
+    """G (4x4, [[s R, t], [0, 1]]; s = 1 unless `with_scale`, Sim(3)) with G c2w_v ~ c2w_ref_v: Umeyama over the
+    camera centres (research.poses.umeyama)."""
+    R, t, s = P.umeyama(np.asarray(c2w)[:, :3, 3], np.asarray(c2w_ref)[:, :3, 3], with_scale=with_scale)
     G = np.eye(4)
-    G[:3, :3], G[:3, 3] = R, t
+    G[:3, :3], G[:3, 3] = (s if with_scale else 1.0) * R, t
     return G
 
 
-def pose_error_summary(c2w: np.ndarray, c2w_ref: np.ndarray, align: bool = True) -> dict[str, Any]:
-    """Rotation (degrees) and camera-centre errors, after the rigid alignment of `align_to_reference`."""
-    G = align_to_reference(c2w, c2w_ref) if align else np.eye(4)
-    rot, trans = P.pose_errors(np.array([G @ T for T in c2w]), c2w_ref)
+def apply_alignment(G: np.ndarray, c2w: np.ndarray) -> np.ndarray:
+    """G c2w_v with the rotation block divided by G's scale s = det(G_3x3)^(1/3) (1 for a rigid G): the camera
+    centres move by the similarity, the orientations by its rotation."""
+    G = np.asarray(G, dtype=np.float64)
+    scale = float(np.cbrt(np.linalg.det(G[:3, :3])))
+    out = np.array([G @ T for T in np.asarray(c2w)])
+    if scale != 1.0:
+        out[:, :3, :3] /= scale
+    return out
+
+
+def pose_error_summary(c2w: np.ndarray, c2w_ref: np.ndarray, align: bool = True,
+                       with_scale: bool = False) -> dict[str, Any]:
+    """Rotation (degrees) and camera-centre errors, after the alignment of `align_to_reference`."""
+    G = align_to_reference(c2w, c2w_ref, with_scale) if align else np.eye(4)
+    rot, trans = P.pose_errors(apply_alignment(G, c2w), c2w_ref)
     return {"rot_mean_deg": float(rot.mean()), "rot_median_deg": float(np.median(rot)), "rot_max_deg": float(rot.max()),
             "trans_mean": float(trans.mean()), "trans_max": float(trans.max()), "rot_deg": rot.tolist(),
             "trans": trans.tolist(), "alignment": G.tolist()}

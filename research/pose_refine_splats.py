@@ -1,0 +1,231 @@
+"""Joint refinement of camera poses and Gaussian splats from posed images (BARF-style, splat renderer).
+
+The splat variant of research/pose_refine.py. Each iteration renders one training view v at its
+current world-to-camera pose T_v (a fresh random permutation of the views per epoch, as 3DGS) and
+takes the 3DGS loss on images blurred by a Gaussian of width s(it) pixels (coarse to fine):
+
+    L = (1 - lambda) |b_s * I - b_s * I_v|_1 + lambda (1 - SSIM(b_s * I, b_s * I_v)),
+    s(it) = blur_start (1 - it / blur_until) for it < blur_until, 0 after,
+
+where b_s is a Gaussian filter with zero padding (so dL/dI = b_s * dL/d(b_s * I): the filter is
+self-adjoint) and lambda = 0.2. The blur plays the part of BARF's coarse-to-fine positional encoding:
+it widens the basin of the photometric loss in the pose while the splats are still wrong. The
+active SH degree also starts at 0 and grows by one every `sh_interval` iterations once the blur is
+gone (view-dependent colour could otherwise absorb pose error).
+
+One backward (kernels.splat.render_backward(..., want_camera=True)) gives both the splats' gradients
+and the pose gradient g_v = dL/ddelta (6,), delta = (rho, phi) the left perturbation of the CURRENT
+pose, T_v <- exp(delta^) T_v (kernels/splat/camera.py). The splats take 3DGS's Adam step
+(research.splats.optim, position rate decaying log-linearly); the pose takes a per-view Adam step in
+that tangent space,
+
+    m_v <- b1 m_v + (1 - b1) g_v,  u_v <- b2 u_v + (1 - b2) g_v^2,
+    delta_v = -lr * m_hat_v / (sqrt(u_hat_v) + eps),   T_v <- exp(delta_v^) T_v,
+
+with lr = (pose_lr_trans * extent (x3), pose_lr_rot (x3)) decaying log-linearly to `pose_lr_final`
+times itself, and bias corrections counted per view. Poses move only from `pose_start` on, so the
+splats first form from the poses as given. No densification: the splats are initialised from many
+back-projected depth pixels (or uniformly in the box) and only move, rescale and recolour.
+
+Gauge: jointly refined poses and splats are defined up to one rigid motion of the whole scene;
+research.pose_refine.align_to_reference (Umeyama over the camera centres) removes it for
+evaluation, as BARF does with Procrustes.
+
+`refine_pose` is the tracking half alone: one view's pose against a fixed splat model (plain
+photometric L2 loss, no blur), the building block the single-view unit test checks.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+from tqdm import tqdm
+
+from kernels import _arrays as A
+from kernels import splat as ks
+from research.splats.loss import LAMBDA_DSSIM, l1_dssim
+from research.splats.model import GaussianModel
+from research.splats.optim import BETAS, LearningRates, expon_lr, make_adam
+
+
+@dataclass(frozen=True)
+class SplatJointConfig:
+    iterations: int = 2000
+    refine_poses: bool = True
+    pose_start: int = 100  # first iteration that moves the poses
+    pose_lr_rot: float = 3e-2  # radians per Adam step at the start (chosen on pose_refinement --seed 1)
+    pose_lr_trans: float = 3e-2  # times the scene extent
+    pose_lr_final: float = 0.05  # final pose rate as a fraction of the initial one
+    blur_start: float = 2.0  # pixels (Gaussian sigma) at iteration 0
+    blur_until: float = 0.5  # fraction of the iterations after which the images are sharp
+    sh_interval: int = 200
+    max_sh_degree: int = 3
+    lambda_dssim: float = LAMBDA_DSSIM
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.iterations, int) and self.iterations >= 1):
+            raise ValueError(f"iterations: expected an integer >= 1, got {self.iterations!r}")
+        for name in ("pose_lr_rot", "pose_lr_trans", "pose_lr_final", "blur_start"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name}: expected a finite value >= 0, got {v}")
+        if not 0.0 <= self.blur_until <= 1.0:
+            raise ValueError(f"blur_until: expected a fraction in [0, 1], got {self.blur_until}")
+        if not 0 <= self.max_sh_degree <= 3:
+            raise ValueError(f"max_sh_degree: expected 0..3, got {self.max_sh_degree}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def blur(self, it: int) -> float:
+        end = self.blur_until * self.iterations
+        return float(self.blur_start * (1.0 - it / end)) if it < end else 0.0
+
+    def sh_degree(self, it: int) -> int:
+        sharp = int(self.blur_until * self.iterations)
+        return int(min(self.max_sh_degree, max(0, it - sharp) // max(self.sh_interval, 1)))
+
+
+@dataclass
+class SplatJointLog:
+    losses: list[float]
+    rot_step_deg: list[float]  # |delta phi| of each pose update, degrees
+    seconds: float
+    sh_degree: int
+
+
+def _blur(img: np.ndarray, sigma: float) -> np.ndarray:
+    if sigma < 0.05:
+        return img
+    return gaussian_filter(img, sigma=(sigma, sigma, 0.0), mode="constant", truncate=3.0).astype(img.dtype)
+
+
+class PoseAdam:
+    """Per-view Adam in the left tangent space of each current pose (module docstring)."""
+
+    def __init__(self, n_views: int, eps: float = 1e-15):
+        self.m = np.zeros((n_views, 6))
+        self.u = np.zeros((n_views, 6))
+        self.t = np.zeros(n_views, dtype=int)
+        self.eps = eps
+
+    def step(self, v: int, grad: np.ndarray, lr: np.ndarray) -> np.ndarray:
+        b1, b2 = BETAS
+        self.t[v] += 1
+        self.m[v] = b1 * self.m[v] + (1 - b1) * grad
+        self.u[v] = b2 * self.u[v] + (1 - b2) * grad * grad
+        mh = self.m[v] / (1 - b1 ** self.t[v])
+        uh = self.u[v] / (1 - b2 ** self.t[v])
+        return -lr * mh / (np.sqrt(uh) + self.eps)
+
+
+def _apply(delta: np.ndarray, w2c: np.ndarray) -> np.ndarray:
+    out = ks.se3_exp(delta) @ w2c
+    U, _, Vt = np.linalg.svd(out[:3, :3])
+    out[:3, :3] = U @ Vt
+    out[3] = (0.0, 0.0, 0.0, 1.0)
+    return out
+
+
+def _check_inputs(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, images: np.ndarray) -> None:
+    if not isinstance(model, GaussianModel):
+        raise ValueError(f"model: expected a research.splats.model.GaussianModel, got {type(model).__name__}")
+    w2c = np.asarray(w2c)
+    if w2c.ndim != 3 or w2c.shape[1:] != (4, 4) or len(w2c) == 0:
+        raise ValueError(f"w2c: expected shape (N >= 1, 4, 4), got {w2c.shape}")
+    if np.asarray(K).shape != (3, 3):
+        raise ValueError(f"K: expected a 3x3 intrinsics matrix, got shape {np.asarray(K).shape}")
+    if images.ndim != 4 or images.shape[0] != len(w2c) or images.shape[3] != 3:
+        raise ValueError(f"images: expected shape ({len(w2c)}, H, W, 3), got {images.shape}")
+    if not np.all(np.isfinite(images)):
+        raise ValueError("images: contain NaN or infinite values")
+
+
+def train_joint_splats(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, images: np.ndarray, extent: float,
+                       cfg: SplatJointConfig, *, progress: bool = True, device: Any = None,
+                       desc: str = "joint splats") -> tuple[GaussianModel, np.ndarray, SplatJointLog]:
+    """Fit a copy of `model` to `images` (N, H, W, 3, linear RGB) seen from starting world-to-camera
+    poses `w2c` (N, 4, 4) with intrinsics K, refining the poses (module docstring).
+    Returns (model, refined w2c (N, 4, 4), log); the inputs are not modified."""
+    images = np.ascontiguousarray(images, dtype=np.float32)
+    _check_inputs(model, w2c, K, images)
+    if not (math.isfinite(extent) and extent > 0):
+        raise ValueError(f"extent: expected a positive scene scale, got {extent}")
+    cams = [ks.SplatCamera(T, K, images.shape[2], images.shape[1]) for T in np.asarray(w2c, dtype=np.float64)]
+    device = A.get_device(device)
+    current = np.array([c.viewmat for c in cams])
+    model = model.copy()
+    model.inputs(device)  # checks the initial model once before the unchecked loop
+    rng = np.random.default_rng(cfg.seed)
+    lr = LearningRates()
+    adam = make_adam(model, {"means": lr.means_init * extent, "log_scales": lr.log_scales, "quats": lr.quats,
+                             "opacity_logits": lr.opacity_logits, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest})
+    pose_adam = PoseAdam(len(cams))
+    pose_lr0 = np.array([cfg.pose_lr_trans * extent] * 3 + [cfg.pose_lr_rot] * 3)
+    background = np.asarray(cfg.background, dtype=np.float32)
+    losses, rot_steps, order = [], [], []
+    degree = 0
+    t0 = time.perf_counter()
+    with A.value_checks(False):
+        for it in tqdm(range(cfg.iterations), desc=desc, disable=not progress, mininterval=2.0):
+            adam.lr["means"] = expon_lr(it, lr.means_init * extent, lr.means_final * extent, cfg.iterations)
+            degree = cfg.sh_degree(it)
+            if not order:
+                order = list(rng.permutation(len(cams)))
+            v = order.pop()
+            cam = ks.SplatCamera(current[v], K, cams[v].width, cams[v].height)
+            inputs = model.inputs(device)
+            update_pose = cfg.refine_poses and it >= cfg.pose_start
+            result = ks.render(inputs, cam, background, sh_degree=degree)
+            sigma = cfg.blur(it)
+            pred = result.rgb.numpy()
+            loss, grad_b, _ = l1_dssim(_blur(pred, sigma), _blur(images[v], sigma), cfg.lambda_dssim, device=device)
+            if not np.isfinite(loss):
+                raise RuntimeError(f"iteration {it}: the loss is {loss}")
+            grad_img = np.ascontiguousarray(_blur(grad_b, sigma), dtype=np.float32)
+            g = ks.render_backward(inputs, result, grad_img, want_camera=update_pose)
+            g = {k: x.numpy() for k, x in g.items()}
+            adam.step({"means": g["means"], "log_scales": g["log_scales"], "quats": g["quats"],
+                       "opacity_logits": g["opacity_logits"], "sh_dc": np.ascontiguousarray(g["sh"][:, :1]),
+                       "sh_rest": np.ascontiguousarray(g["sh"][:, 1:])}, params=model.arrays())
+            if update_pose:
+                frac = (it - cfg.pose_start) / max(cfg.iterations - cfg.pose_start, 1)
+                lr_pose = pose_lr0 * cfg.pose_lr_final ** frac
+                delta = pose_adam.step(v, g["pose"].astype(np.float64), lr_pose)
+                current[v] = _apply(delta, current[v])
+                rot_steps.append(float(np.degrees(np.linalg.norm(delta[3:]))))
+            losses.append(float(loss))
+    return model, current, SplatJointLog(losses, rot_steps, time.perf_counter() - t0, degree)
+
+
+def refine_pose(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, image: np.ndarray, *, iterations: int = 200,
+                lr_rot: float = 2e-3, lr_trans: float = 2e-3, lr_final: float = 0.05, sh_degree: int = 0,
+                device: Any = None) -> tuple[np.ndarray, list[float]]:
+    """One view's world-to-camera pose refined against a FIXED splat model by Adam on the left
+    perturbation (module docstring), photometric L2 loss mean |I - image|^2. Returns (w2c, losses)."""
+    image = np.ascontiguousarray(image, dtype=np.float32)
+    _check_inputs(model, np.asarray(w2c)[None], K, image[None] if image.ndim == 3 else image)
+    if not (isinstance(iterations, int) and iterations >= 1):
+        raise ValueError(f"iterations: expected an integer >= 1, got {iterations!r}")
+    current = ks.SplatCamera(w2c, K, image.shape[1], image.shape[0]).viewmat.copy()
+    inputs = model.inputs(device)
+    opt = PoseAdam(1)
+    lr0 = np.array([lr_trans] * 3 + [lr_rot] * 3)
+    losses = []
+    with A.value_checks(False):
+        for it in range(iterations):
+            cam = ks.SplatCamera(current, K, image.shape[1], image.shape[0])
+            result = ks.render(inputs, cam, sh_degree=sh_degree)
+            diff = result.rgb.numpy().astype(np.float64) - image
+            losses.append(float(np.mean(diff ** 2)))
+            grad = (2.0 * diff / diff.size).astype(np.float32)
+            g = ks.render_backward(inputs, result, grad, want_camera=True)["pose"].numpy().astype(np.float64)
+            current = _apply(opt.step(0, g, lr0 * lr_final ** (it / max(iterations - 1, 1))), current)
+    return current, losses
