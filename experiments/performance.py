@@ -90,8 +90,8 @@ def _lines(row: dict) -> list[dict]:
             reference = row.get("ref", "")
         else:
             reference = f"not installed: {row['ref_missing'].split()[0]}" if "ref_missing" in row else ""
-        out.append({"case": row["bench"], "phase": phase, "drlab_s": value, "reference": reference,
-                    "ref_s": ref_s, "speedup": row.get(f"speedup_{phase}")})
+        out.append({"case": row["bench"], "sizes": _sizes(row), "phase": phase, "drlab_s": value,
+                    "reference": reference, "ref_s": ref_s, "speedup": row.get(f"speedup_{phase}")})
     return out
 
 
@@ -123,7 +123,7 @@ def run(ctx: Context) -> int:
 
     lines = [line for row in rows for line in _lines(row)]
     ms = lambda s: None if s is None else 1e3 * s  # noqa: E731
-    table_rows = [[ln["case"], _sizes(next(r for r in rows if r["bench"] == ln["case"])), ln["phase"],
+    table_rows = [[ln["case"], ln["sizes"], ln["phase"],
                    ms(ln["drlab_s"]), ln["reference"] or "-", "-" if ln["ref_s"] is None else ms(ln["ref_s"]),
                    "-" if ln["speedup"] is None else f"{ln['speedup']:.2f}x"] for ln in lines]
     full = ctx.mode == "full"
