@@ -38,11 +38,10 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.sh import sh_basis_grad
-from kernels.volume._act import density_act_grad, sigmoid_vjp
 from kernels.volume.field import Field, FieldOutput
-from kernels.volume.grid import GridField, corner_offsets, corner_vertex, corner_weight, grid_cell, sh_basis, \
-    trilinear_density, view_dir
-from kernels.volume.spheres import SphereField, center_offset
+from kernels.volume.grid import GridField, corner_offsets, corner_vertex, corner_weight, grid_cell, \
+    grid_raw_cotangents, sh_basis, view_dir
+from kernels.volume.spheres import SphereField, center_offset, sphere_density_cotangent
 
 wp.set_module_options({"enable_backward": False})
 
@@ -75,11 +74,7 @@ def _spheres_points_kernel(
         if m > zero:
             s = sharpness[k]
             d = s * wp.exp(-s * m)
-            if normalized:
-                gd = gs + (g0 * (colors[k, 0] - rgb[i, 0]) + g1 * (colors[k, 1] - rgb[i, 1])
-                           + g2 * (colors[k, 2] - rgb[i, 2])) * inv
-            else:
-                gd = gs + g0 * colors[k, 0] + g1 * colors[k, 1] + g2 * colors[k, 2]
+            gd = sphere_density_cotangent(gs, g0, g1, g2, colors, k, rgb, i, inv, normalized)
             c = -gd * s * d / dist
             px += c * dx
             py += c * dy
@@ -116,11 +111,8 @@ def _grid_points_kernel(
     if inside == 0:
         return
     dx, dy, dz = view_dir(dirs, i, sh_mode)
-    raw_d = trilinear_density(density, ix, iy, iz, fx, fy, fz, res)
-    g_raw_d = grad_sigma[i] * density_scale * density_act_grad(raw_d + density_bias, act_kind)
-    g0 = sigmoid_vjp(grad_rgb[i, 0], rgb[i, 0])
-    g1 = sigmoid_vjp(grad_rgb[i, 1], rgb[i, 1])
-    g2 = sigmoid_vjp(grad_rgb[i, 2], rgb[i, 2])
+    g_raw_d, g0, g1, g2 = grid_raw_cotangents(density, ix, iy, iz, fx, fy, fz, res, density_bias, density_scale,
+                                              act_kind, rgb, grad_sigma, grad_rgb, i)
     gradx, grady, gradz = sh_basis_grad(dx, dy, dz)
     gfx = zero
     gfy = zero

@@ -127,6 +127,18 @@ def view_dir(dirs: wp.array2d(dtype=typing.Any), i: int, sh_mode: int):
     return zero, zero, zero
 
 
+@wp.func
+def grid_raw_cotangents(density: wp.array(dtype=typing.Any), ix: int, iy: int, iz: int, fx: typing.Any,
+                        fy: typing.Any, fz: typing.Any, res: wp.vec3i, density_bias: typing.Any,
+                        density_scale: typing.Any, act_kind: int, rgb: wp.array2d(dtype=typing.Any),
+                        grad_sigma: wp.array(dtype=typing.Any), grad_rgb: wp.array2d(dtype=typing.Any), i: int):
+    """(g_D, g_K0, g_K1, g_K2) of point i: the cotangents of its raw (pre-activation) density and colour."""
+    raw_d = trilinear_density(density, ix, iy, iz, fx, fy, fz, res)
+    g_raw_d = grad_sigma[i] * density_scale * density_act_grad(raw_d + density_bias, act_kind)
+    return (g_raw_d, sigmoid_vjp(grad_rgb[i, 0], rgb[i, 0]), sigmoid_vjp(grad_rgb[i, 1], rgb[i, 1]),
+            sigmoid_vjp(grad_rgb[i, 2], rgb[i, 2]))
+
+
 @wp.kernel
 def _grid_forward_kernel(
     points: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any),
@@ -175,11 +187,8 @@ def _grid_backward_kernel(
     if inside == 0:
         return
     dx, dy, dz = view_dir(dirs, i, sh_mode)
-    raw_d = trilinear_density(density, ix, iy, iz, fx, fy, fz, res)
-    g_raw_d = grad_sigma[i] * density_scale * density_act_grad(raw_d + density_bias, act_kind)
-    g0 = sigmoid_vjp(grad_rgb[i, 0], rgb[i, 0])
-    g1 = sigmoid_vjp(grad_rgb[i, 1], rgb[i, 1])
-    g2 = sigmoid_vjp(grad_rgb[i, 2], rgb[i, 2])
+    g_raw_d, g0, g1, g2 = grid_raw_cotangents(density, ix, iy, iz, fx, fy, fz, res, density_bias, density_scale,
+                                              act_kind, rgb, grad_sigma, grad_rgb, i)
     for c in range(8):
         w = trilinear_weight(c, fx, fy, fz)
         v = corner_vertex(c, ix, iy, iz, res)

@@ -65,6 +65,17 @@ def center_offset(points: wp.array2d(dtype=typing.Any), i: int, centers: wp.arra
 
 
 @wp.func
+def sphere_density_cotangent(gs: typing.Any, g0: typing.Any, g1: typing.Any, g2: typing.Any,
+                             colors: wp.array2d(dtype=typing.Any), k: int, rgb: wp.array2d(dtype=typing.Any),
+                             i: int, inv: typing.Any, normalized: bool):
+    """dL/dd_k of point i: g_s + g . (col_k - rgb)/sigma, or g_s + g . col_k below the normalisation switch."""
+    if normalized:
+        return gs + (g0 * (colors[k, 0] - rgb[i, 0]) + g1 * (colors[k, 1] - rgb[i, 1])
+                     + g2 * (colors[k, 2] - rgb[i, 2])) * inv
+    return gs + g0 * colors[k, 0] + g1 * colors[k, 1] + g2 * colors[k, 2]
+
+
+@wp.func
 def spheres_at(px: typing.Any, py: typing.Any, pz: typing.Any, centers: wp.array2d(dtype=typing.Any),
                radii: wp.array(dtype=typing.Any), colors: wp.array2d(dtype=typing.Any),
                sharpness: wp.array(dtype=typing.Any)):
@@ -172,11 +183,7 @@ def _spheres_backward_kernel(
         s = sharpness[k]
         e = wp.exp(-s * m)
         d = s * e
-        if normalized:
-            gd = gs + (g0 * (colors[k, 0] - rgb[i, 0]) + g1 * (colors[k, 1] - rgb[i, 1])
-                       + g2 * (colors[k, 2] - rgb[i, 2])) * inv
-        else:
-            gd = gs + g0 * colors[k, 0] + g1 * colors[k, 1] + g2 * colors[k, 2]
+        gd = sphere_density_cotangent(gs, g0, g1, g2, colors, k, rgb, i, inv, normalized)
         wp.atomic_add(grad_colors, k, 0, g0 * d * inv)
         wp.atomic_add(grad_colors, k, 1, g1 * d * inv)
         wp.atomic_add(grad_colors, k, 2, g2 * d * inv)
