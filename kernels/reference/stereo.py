@@ -22,18 +22,23 @@ def _window_cells(H: int, W: int, x: int, y: int, d: int, r: int) -> list[tuple[
             for u in range(max(0, x - r), min(W - 1, x + r) + 1) if 0 <= u - d < W]
 
 
-def sad_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, r: int) -> np.ndarray:
-    """Mean |L - R| over the window; out of range: the range of all pixel values."""
-    H, W = L.shape
+def _window_mean_volume(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, r: int, cell_cost) -> np.ndarray:
+    """Mean of cell_cost(v, u, u - d) over the window of every (y, x, d) whose match exists; the rest get the
+    range of all pixel values (the out-of-range cost of SAD and BT)."""
+    H, W = L.shape[:2]
     invalid = max(L.max(), R.max()) - min(L.min(), R.min())
     out = np.full((H, W, dmax - dmin), invalid, dtype=np.float64)
     for y in range(H):
         for x in range(W):
             for k, d in enumerate(range(dmin, dmax)):
                 if 0 <= x - d < W:
-                    cells = _window_cells(H, W, x, y, d, r)
-                    out[y, x, k] = np.mean([abs(float(L[v, u]) - float(R[v, u - d])) for u, v in cells])
+                    out[y, x, k] = np.mean([cell_cost(v, u, u - d) for u, v in _window_cells(H, W, x, y, d, r)])
     return out
+
+
+def sad_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, r: int) -> np.ndarray:
+    """Mean |L - R| over the window; out of range: the range of all pixel values."""
+    return _window_mean_volume(L, R, dmin, dmax, r, lambda v, u, ur: abs(float(L[v, u]) - float(R[v, ur])))
 
 
 def zncc_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, r: int, eps: float) -> np.ndarray:
@@ -105,14 +110,7 @@ def bt_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, r: int) -> np.nd
             total += min(e_lr, e_rl)
         return total / C
 
-    invalid = max(L.max(), R.max()) - min(L.min(), R.min())
-    out = np.full((H, W, dmax - dmin), invalid, dtype=np.float64)
-    for y in range(H):
-        for x in range(W):
-            for k, d in enumerate(range(dmin, dmax)):
-                if 0 <= x - d < W:
-                    out[y, x, k] = np.mean([bt(v, u, u - d) for u, v in _window_cells(H, W, x, y, d, r)])
-    return out
+    return _window_mean_volume(L, R, dmin, dmax, r, bt)
 
 
 def feature_correlation(FL: np.ndarray, FR: np.ndarray, dmin: int, dmax: int) -> np.ndarray:

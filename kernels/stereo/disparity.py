@@ -255,14 +255,20 @@ def _mask_or_ones(a: Inputs, name: str, m: Any, shape: tuple[int, ...]) -> wp.ar
     return wp.ones(shape, dtype=wp.uint8, device=a.device) if m is None else a.mask(name, m, shape)
 
 
+def _uniqueness(uniqueness: float) -> float:
+    """The uniqueness ratio, checked: in [0, 1)."""
+    u = check_float("uniqueness", uniqueness, nonnegative=True)
+    if u >= 1.0:
+        raise ValueError(f"uniqueness: expected a ratio in [0, 1), got {uniqueness!r}")
+    return u
+
+
 def wta(cost: Any, dmin: int, *, subpixel: bool = True, uniqueness: float = 0.0,
         device: Any = None) -> tuple[Any, Any]:
     """Winner-take-all left disparity (H, W) and its validity mask (see the module docstring)."""
     a = Inputs(device, cost)
     c, dmin = _volume(a, cost, dmin, compact=True)
-    u = check_float("uniqueness", uniqueness, nonnegative=True)
-    if u >= 1.0:
-        raise ValueError(f"uniqueness: expected a ratio in [0, 1), got {uniqueness!r}")
+    u = _uniqueness(uniqueness)
     H, W, _ = c.shape
     disp = a.empty((H, W))
     valid = a.empty((H, W), wp.uint8)
@@ -287,9 +293,7 @@ def wta_left_right(cost: Any, dmin: int, *, subpixel: bool = True, uniqueness: f
     each equal to what the two entry points return."""
     a = Inputs(device, cost)
     c, dmin = _volume(a, cost, dmin, compact=True)
-    u = check_float("uniqueness", uniqueness, nonnegative=True)
-    if u >= 1.0:
-        raise ValueError(f"uniqueness: expected a ratio in [0, 1), got {uniqueness!r}")
+    u = _uniqueness(uniqueness)
     H, W, _ = c.shape
     disp_l, disp_r = a.empty((H, W)), a.empty((H, W))
     valid_l, valid_r = a.empty((H, W), wp.uint8), a.empty((H, W), wp.uint8)
