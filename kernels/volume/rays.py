@@ -60,6 +60,14 @@ from kernels.volume.render import RenderResult
 wp.set_module_options({"enable_backward": False})
 
 
+@wp.func
+def pixel_ray(pixels: wp.array2d(dtype=typing.Any), i: int, intr: wp.array(dtype=typing.Any)):
+    """((u - cx)/fx, (v - cy)/fy, n): pixel i's camera-frame ray (x, y, 1) and its length n."""
+    cx_ = (pixels[i, 0] - intr[2]) / intr[0]
+    cy_ = (pixels[i, 1] - intr[3]) / intr[1]
+    return cx_, cy_, wp.sqrt(cx_ * cx_ + cy_ * cy_ + pixels.dtype(1.0))
+
+
 @wp.kernel
 def _rays_kernel(
     pixels: wp.array2d(dtype=typing.Any), rot: wp.array2d(dtype=typing.Any), trans: wp.array(dtype=typing.Any),
@@ -68,9 +76,7 @@ def _rays_kernel(
 ):
     i = wp.tid() + offset
     one = pixels.dtype(1.0)
-    cx_ = (pixels[i, 0] - intr[2]) / intr[0]
-    cy_ = (pixels[i, 1] - intr[3]) / intr[1]
-    n = wp.sqrt(cx_ * cx_ + cy_ * cy_ + one)
+    cx_, cy_, n = pixel_ray(pixels, i, intr)
     ex = cx_ / n
     ey = cy_ / n
     ez = one / n
@@ -89,9 +95,7 @@ def _rays_backward_kernel(
     # Row i of `out`: (g_o in the camera frame R g_o (3), dL/dphi (3), dL/d(fx, fy, cx, cy) (4)).
     i = wp.tid() + offset
     one = pixels.dtype(1.0)
-    cx_ = (pixels[i, 0] - intr[2]) / intr[0]
-    cy_ = (pixels[i, 1] - intr[3]) / intr[1]
-    n = wp.sqrt(cx_ * cx_ + cy_ * cy_ + one)
+    cx_, cy_, n = pixel_ray(pixels, i, intr)
     e = wp.vector(cx_ / n, cy_ / n, one / n, length=3, dtype=pixels.dtype)
     go = wp.vector(pixels.dtype(0.0), pixels.dtype(0.0), pixels.dtype(0.0), length=3, dtype=pixels.dtype)
     ge = wp.vector(pixels.dtype(0.0), pixels.dtype(0.0), pixels.dtype(0.0), length=3, dtype=pixels.dtype)

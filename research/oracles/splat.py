@@ -177,6 +177,15 @@ def _tile_rects(u: np.ndarray, v: np.ndarray, r: np.ndarray, tiles_x: int, tiles
     return np.stack([x0, x1, y0, y1], axis=1)
 
 
+SPLAT_INPUTS = ("means", "log_scales", "quats", "opacity_logits", "sh")
+
+
+def _splat_leaves(means, log_scales, quats, opacity_logits, sh):
+    """The Dr.Jit backend for the inputs' dtype, and one differentiable leaf per splat input (SPLAT_INPUTS)."""
+    be = backend(np.asarray(means).dtype)
+    return be, {k: be.leaf(x) for k, x in zip(SPLAT_INPUTS, (means, log_scales, quats, opacity_logits, sh))}
+
+
 def project_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K, width: int, height: int,
                    near: float, far: float, cotangents: dict[str, np.ndarray] | None = None, tile_rule: str = "3dgs"
                    ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -184,12 +193,10 @@ def project_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K, wid
     culled splats' entries 0, as drlab stores them), and the VJPs for cotangents of
     means2d (N, 2), conics (N, 3), depths (N,), colors (N, 3), opacities (N,) (culled splats: none)."""
     _check_splats(means, log_scales, quats, opacity_logits, sh, viewmat, K, tile_rule)
-    be = backend(np.asarray(means).dtype)
+    be, leaves = _splat_leaves(means, log_scales, quats, opacity_logits, sh)
     dr = be.dr
     n = means.shape[0]
     n_coeffs = sh.shape[1]
-    names = ("means", "log_scales", "quats", "opacity_logits", "sh")
-    leaves = {k: be.leaf(x) for k, x in zip(names, (means, log_scales, quats, opacity_logits, sh))}
     P = _project(be, leaves, n, n_coeffs, viewmat, K, width, height, near, far)
     tx, ty = (width + TILE - 1) // TILE, (height + TILE - 1) // TILE
     vis = _visible(be, P, n, tx, ty, tile_rule)
@@ -212,7 +219,7 @@ def project_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K, wid
                  (outs["c0"], cot["colors"][:, 0]), (outs["c1"], cot["colors"][:, 1]),
                  (outs["c2"], cot["colors"][:, 2]), (outs["o"], cot["opacities"])]
         dr.backward(be.dot([p for p, _ in pairs], [c for _, c in pairs]))
-        grads = {k: be.grad(leaves[k], np.shape(x)) for k, x in zip(names, (means, log_scales, quats,
+        grads = {k: be.grad(leaves[k], np.shape(x)) for k, x in zip(SPLAT_INPUTS, (means, log_scales, quats,
                                                                             opacity_logits, sh))}
     return res, grads
 
@@ -239,12 +246,10 @@ def render_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K, widt
                            ("grad_depth", grad_depth, (height, width))):
         if c is not None:
             check_array(name, c, shape)
-    be = backend(np.asarray(means).dtype)
+    be, leaves = _splat_leaves(means, log_scales, quats, opacity_logits, sh)
     dr = be.dr
     n = means.shape[0]
     n_coeffs = sh.shape[1]
-    names = ("means", "log_scales", "quats", "opacity_logits", "sh")
-    leaves = {k: be.leaf(x) for k, x in zip(names, (means, log_scales, quats, opacity_logits, sh))}
     bg = be.leaf(np.asarray(background))
     camera = None
     if want_camera:
@@ -308,7 +313,8 @@ def render_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K, widt
             np.zeros((height, width)) if grad_alpha is None else grad_alpha,
             np.zeros((height, width)) if grad_depth is None else grad_depth]
     dr.backward(be.dot(outs, cots))
-    grads = {k: be.grad(leaves[k], np.shape(x)) for k, x in zip(names, (means, log_scales, quats, opacity_logits, sh))}
+    grads = {k: be.grad(leaves[k], np.shape(x))
+             for k, x in zip(SPLAT_INPUTS, (means, log_scales, quats, opacity_logits, sh))}
     grads["background"] = be.grad(bg, (3,))
     if camera is not None:
         grads["pose"] = be.grad(camera["pose"], (6,))
