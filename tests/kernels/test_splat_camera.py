@@ -67,6 +67,8 @@ def test_float32_camera_gradients_follow_float64():
         out[dtype] = grads
     for key in ("pose", "intrinsics"):
         ref = out[np.float64][key]
+        # float32 against float64, not a formula check (the float64 FD checks are): the pose and intrinsics
+        # gradients sum thousands of float32 per-pixel terms, so agreement is to ~1e-3 relative, not 1e-6
         np.testing.assert_allclose(out[np.float32][key], ref, rtol=2e-3, atol=2e-4 * np.abs(ref).max(), err_msg=key)
 
 

@@ -106,6 +106,7 @@ def test_float32_camera_gradient_close_to_float64():
         r = render_rays(field, o, d, BOX, n_samples=16, z_scale=z, t_threshold=0.0)
         res[dt] = render_backward_camera(field, r, w2c, intrinsics, pixels.astype(np_t),
                                          grad_rgb=np.ones((len(o), 3), np_t), grad_depth=np.ones(len(o), np_t))
+    # float32 against float64 (the float64 FD checks test the formula): sums over rays x samples in float32
     np.testing.assert_allclose(res[wp.float32].xi, res[wp.float64].xi, rtol=1e-3, atol=1e-4)
     np.testing.assert_allclose(res[wp.float32].intrinsics, res[wp.float64].intrinsics, rtol=1e-3, atol=1e-5)
 
