@@ -243,6 +243,10 @@ def gather(spec: Spec, sweep_dir: Path, runs: list[Run], outcomes: dict[str, dic
     return sweep_dir / "table.md", figure
 
 
+# groups up to which the figure draws vertical bars in the spec's order (beyond: sorted horizontal bars)
+_VERTICAL_MAX = 24
+
+
 def _figure(spec: Spec, sweep_dir: Path, rows: list[dict[str, Any]]) -> Path | None:
     import matplotlib
 
@@ -254,14 +258,34 @@ def _figure(spec: Spec, sweep_dir: Path, rows: list[dict[str, Any]]) -> Path | N
     shown = [r for r in rows if r["metrics"].get(spec.figure)]
     if not shown:
         return None
-    labels = [", ".join(f"{k.lstrip('-')}={v}" for k, v in r["group"].items()) + (f" {r['row']}" if "row" in r else "")
-              for r in shown]
+    labels = [(", ".join(f"{k.lstrip('-')}={v}" for k, v in r["group"].items())
+               + (f" {r['row']}" if "row" in r else "")).strip() or "all" for r in shown]
     means = [r["metrics"][spec.figure]["mean"] for r in shown]
     stds = [r["metrics"][spec.figure]["std"] for r in shown]
-    fig, ax = plt.subplots(figsize=(max(4.0, 0.45 * len(shown) + 2), 3.6))
-    ax.bar(range(len(shown)), means, yerr=stds, capsize=3, color="tab:blue")
-    ax.set_xticks(range(len(shown)), [lab.strip() or "all" for lab in labels], rotation=60, ha="right", fontsize=7)
-    ax.set_ylabel(spec.figure)
+    if len(shown) <= _VERTICAL_MAX:
+        # few groups: vertical bars in the spec's order
+        fig, ax = plt.subplots(figsize=(max(4.0, 0.45 * len(shown) + 2), 3.6))
+        ax.bar(range(len(shown)), means, yerr=stds, capsize=3, color="tab:blue")
+        ax.set_xticks(range(len(shown)), labels, rotation=60, ha="right", fontsize=7)
+        ax.set_ylabel(spec.figure)
+    else:
+        # a large grid: one horizontal bar per group, sorted by the metric so the best and the worst
+        # settings read off the ends, coloured by the value of the first grouping key
+        order = sorted(range(len(shown)), key=lambda i: means[i])
+        first = [str(next(iter(shown[i]["group"].values()), "")) for i in order]
+        palette = {v: plt.get_cmap("tab10")(j % 10) for j, v in enumerate(dict.fromkeys(first))}
+        fig, ax = plt.subplots(figsize=(9.0, 0.16 * len(shown) + 1.5))
+        ax.barh(range(len(order)), [means[i] for i in order], xerr=[stds[i] for i in order],
+                color=[palette[v] for v in first], error_kw={"elinewidth": 0.6})
+        ax.set_yticks(range(len(order)), [labels[i] for i in order], fontsize=6)
+        ax.invert_yaxis()
+        ax.set_xlabel(spec.figure)
+        ax.margins(y=0.002)
+        if len(palette) > 1:
+            from matplotlib.patches import Patch
+            key = next(iter(shown[0]["group"]), "").lstrip("-")
+            ax.legend([Patch(color=c) for c in palette.values()], [f"{key}={v}" for v in palette],
+                      fontsize=7, loc="upper right")  # the shortest bars are at the top
     ax.set_title(f"{spec.name}: {spec.figure} (mean ± std over seeds)", fontsize=9)
     fig.tight_layout()
     path = sweep_dir / "figure.png"

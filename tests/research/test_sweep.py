@@ -378,3 +378,21 @@ def test_run_key_is_the_hash_of_the_full_configuration():
     assert base.argv() == ["--smoke", "--trials", "5"]
     assert sweep.Run("x", "cpu", 7, (("--flag", False), ("--d", "s{seed}"), ("--l", [1, 2.5]))).argv() == \
         ["--d", "s7", "--l", "1", "2.5"]
+
+
+def test_figure_of_a_large_grid_sorts_groups_into_horizontal_bars(tmp_path):
+    """Beyond _VERTICAL_MAX groups the figure is a tall chart of horizontal bars sorted by the metric."""
+    from PIL import Image
+
+    spec = sweep.load_spec(REPO_ROOT / "experiments" / "sweeps" / "stereo_tuning.toml")
+    rng = __import__("numpy").random.default_rng(0)
+    rows = [{"group": {"--cost": cost, "--radius": r}, "row": "m",
+             "metrics": {spec.figure: {"mean": float(rng.random()), "std": 0.01}}}
+            for cost in ("sad", "bt", "census") for r in range(30)]
+    assert len(rows) > sweep._VERTICAL_MAX
+    path = sweep._figure(spec, tmp_path, rows)
+    width, height = Image.open(path).size
+    assert height > width
+    few = sweep._figure(spec, tmp_path, rows[:4])
+    width, height = Image.open(few).size
+    assert width > height
