@@ -77,6 +77,7 @@ from research.experiment import Context, Experiment, rendered_cache_help
 from research.results import markdown_table, save_figure
 
 SCENES = ("objects", "cornell")
+DEFAULT_NAME = "drlab default"
 LUMA_709 = np.array([0.2126, 0.7152, 0.0722])  # research.stereo.to_gray_u8's weights
 
 
@@ -386,7 +387,7 @@ def run(ctx: Context) -> int:
     import cv2
 
     from kernels.launch import default_threads
-    from research.stereo import AGGREGATIONS, COSTS, StereoConfig
+    from research.stereo import AGGREGATIONS, COSTS, DEFAULT_CONFIG, StereoConfig
 
     fmt = benchmark_format(ctx)
     if fmt is not None:
@@ -426,6 +427,14 @@ def run(ctx: Context) -> int:
     for name in ("OpenCV StereoSGBM", "OpenCV StereoBM"):
         keep(*tune([c for c in opencv_methods(st.dmax) if c.name == name], tuning, f"tune {name}", ctx))
     best_drlab = min((k for k in chosen if chosen[k].family == "drlab"), key=lambda k: tuning_d1[k])
+    # drlab's default (research.stereo.DEFAULT_CONFIG), fixed, not tuned here: its own choice was made on
+    # Middlebury 2001 tsukuba + venus and these tuning pairs (research.stereo's docstring).
+    default = drlab_method(DEFAULT_CONFIG, st.dmax, ctx.device)
+    default.name = DEFAULT_NAME
+    default.family = "drlab-default"
+    chosen[DEFAULT_NAME] = default
+    tuning_d1[DEFAULT_NAME] = float(np.mean([score(*default.run(p)[:2], p)["noc"]["d1"] for p in tuning]))
+    tuning_log[DEFAULT_NAME] = {"chosen": default.params, "candidates": [], "fixed": True}
     # The robust choice: among the chosen configurations, the lowest mean of the clean tuning D1 and the
     # D1 on the stressed tuning pairs (the same held-out p_000 pairs, stressed; never scored below).
     stressed_tuning = [p for p in pairs if p.name == "p_000" and p.condition == "stressed"]
@@ -440,6 +449,7 @@ def run(ctx: Context) -> int:
         results[name]["tuning_d1_stressed"] = tuning_d1_stressed[name]
     sgbm = results["OpenCV StereoSGBM"]
     best = results[best_drlab]
+    dflt = results[DEFAULT_NAME]
     robust = results[robust_drlab]
     threads = default_threads()
     load_end = os.getloadavg()[0]
@@ -464,6 +474,11 @@ def run(ctx: Context) -> int:
         f"stressed pairs {best['pooled_stressed']['d1']:.4f} against {sgbm['pooled_stressed']['d1']:.4f}: it "
         f"{verdicts['stressed']} SGBM; at {1000 * best['time_s_mean']:.1f} ms per pair against SGBM's "
         f"{1000 * sgbm['time_s_mean']:.1f} ms.\n\n"
+        f"**drlab's default** ({DEFAULT_NAME}: research.stereo.DEFAULT_CONFIG, not tuned in this run; chosen on "
+        f"Middlebury 2001 tsukuba + venus and the tuning pairs p_000, clean and stressed) has D1 noc "
+        f"{dflt['pooled']['d1']:.4f} clean and {dflt['pooled_stressed']['d1']:.4f} stressed, against SGBM's "
+        f"{sgbm['pooled']['d1']:.4f} and {sgbm['pooled_stressed']['d1']:.4f}, at {1000 * dflt['time_s_mean']:.1f} ms "
+        "per pair.\n\n"
         f"**Robust choice**: chosen by the mean of the clean and the stressed tuning D1 (p_000 of each scene, "
         f"clean and stressed; no evaluation pair), **{robust_drlab}** has D1 noc {robust['pooled']['d1']:.4f} "
         f"clean and {robust['pooled_stressed']['d1']:.4f} stressed, against SGBM's {sgbm['pooled']['d1']:.4f} and "
@@ -492,7 +507,7 @@ def run(ctx: Context) -> int:
     ctx.write_results(config=config, table_md=table,
                       metrics={"best_drlab": best_drlab, "goal_met": bool(best["pooled"]["d1"] < sgbm["pooled"]["d1"]),
                                "goal_met_stressed": bool(best["pooled_stressed"]["d1"] < sgbm["pooled_stressed"]["d1"]),
-                               "robust_drlab": robust_drlab,
+                               "robust_drlab": robust_drlab, "default_drlab": DEFAULT_NAME,
                                "methods": results, "tuning": tuning_log, "datasets": datasets})
     return 0
 
@@ -581,6 +596,9 @@ BENCHMARK_DRLAB = {
     "census + SGM-8": {"cost": "census", "aggregation": "sgm8", "p1": 16.0, "p2": 128.0, "census_radii": (3, 4)},
 }
 PROTOCOL_NAMES = {"middlebury": "Middlebury 2014/2021 (bad-0.5/1/2/4 and avgerr; nonocc and all masks)",
+                  "middlebury2003": "Middlebury 2001/2003 (bad-0.5/1/2/4, avgerr = EPE, and D1: error > 3 px and > 5 % "
+                                    "of the true disparity; over every pixel with known ground truth, as no occlusion "
+                                    "masks are given)",
                   "kitti": "KITTI 2012/2015 stereo (D1: error > 3 px and > 5 % of the true disparity; noc and occ)",
                   "eth3d": "ETH3D two-view (bad-1, bad-2 and avgerr; nonocc and all masks)"}
 
@@ -595,10 +613,15 @@ def benchmark_format(ctx: Context) -> str | None:
     explicit = ctx.data.absolute() != registry.default_data_dir().absolute()
     fmt = args.format or (detect_format(ctx.data) if explicit else None)
     if fmt is None:
-        if args.resolution != "full" or args.max_disp is not None:
-            raise ValueError("--resolution, --max-disp: apply to a benchmark --data folder only, and "
+        if args.resolution != "full" or args.max_disp is not None or args.gt_scale is not None:
+            raise ValueError("--resolution, --max-disp, --gt-scale: apply to a benchmark --data folder only, and "
                              f"{ctx.data} is not one")
         return None
+    if args.gt_scale is not None and fmt != "middlebury2003":
+        raise ValueError(f"--gt-scale: applies to --format middlebury2003 only, got {fmt}")
+    if fmt == "middlebury2003" and args.resolution != "full":
+        raise ValueError(f"--resolution: Middlebury 2001/2003 pairs are evaluated at their stored size only, got "
+                         f"{args.resolution!r}")
     given = [name for name in ("cost", *_SINGLE_OPTIONS) if getattr(args, name, None) is not None]
     if given:
         raise ValueError(f"--{given[0].replace('_', '-')}: applies to the Mitsuba run only, not to a benchmark "
@@ -609,10 +632,12 @@ def benchmark_format(ctx: Context) -> str | None:
     return fmt
 
 
-def _sgbm(dmax: int, channels: int) -> Any:
+SGBM_BLOCKS = (3, 5)  # the standard parameters below with blockSize 3 and with 5
+
+
+def _sgbm(dmax: int, channels: int, block: int = 3) -> Any:
     import cv2
 
-    block = 3
     return cv2.StereoSGBM_create(minDisparity=0, numDisparities=dmax, blockSize=block, P1=8 * channels * block ** 2,
                                  P2=32 * channels * block ** 2, disp12MaxDiff=1, preFilterCap=63, uniquenessRatio=10,
                                  speckleWindowSize=100, speckleRange=32, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
@@ -659,10 +684,10 @@ def benchmark_figure(p: Any, runs: dict[str, tuple[np.ndarray, np.ndarray, float
 def _volume_bytes(shape: tuple[int, int], dmax: int) -> int:
     """drlab's peak for one pair: the largest over the benchmark configurations of the volumes `match`
     holds at once (research.stereo.peak_volume_bytes: float32, or compact uint8/uint16 for census + SGM)."""
-    from research.stereo import StereoConfig, peak_volume_bytes
+    from research.stereo import DEFAULT_CONFIG, StereoConfig, peak_volume_bytes
 
-    return max(peak_volume_bytes(StereoConfig(**cfg), int(shape[0]), int(shape[1]), int(dmax))
-               for cfg in BENCHMARK_DRLAB.values())
+    return max(peak_volume_bytes(c, int(shape[0]), int(shape[1]), int(dmax))
+               for c in [DEFAULT_CONFIG] + [StereoConfig(**cfg) for cfg in BENCHMARK_DRLAB.values()])
 
 
 def _free_memory() -> int | None:
@@ -685,13 +710,13 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
 
     from kernels.launch import default_threads
     from research.datasets.stereo_benchmarks import load_benchmark
-    from research.stereo import PROTOCOLS, StereoConfig, match, pool_protocol, protocol_metrics
+    from research.stereo import DEFAULT_CONFIG, PROTOCOLS, StereoConfig, match, pool_protocol, protocol_metrics
 
     args = ctx.args
     if fmt == "kitti" and args.resolution != "full":
         raise ValueError(f"--resolution: KITTI's sparse ground truth is evaluated at full resolution only, got "
                          f"{args.resolution!r}")
-    pairs = load_benchmark(ctx.data, fmt, args.resolution)
+    pairs = load_benchmark(ctx.data, fmt, args.resolution, scale=args.gt_scale)
     limit = 2 if ctx.smoke else 5 if ctx.quick else None
     pairs = pairs[:limit]
 
@@ -715,12 +740,14 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
                              f"{free / 2**30:.1f} GiB available; use --resolution half or quarter, or --max-disp")
     peak = max(_volume_bytes(p.disparity.shape, drange(p)) for p in pairs)
 
-    methods = {name: StereoConfig(**cfg) for name, cfg in BENCHMARK_DRLAB.items()}
+    methods = {DEFAULT_NAME: DEFAULT_CONFIG, **{name: StereoConfig(**cfg) for name, cfg in BENCHMARK_DRLAB.items()}}
     results: dict[str, Any] = {name: {"family": "drlab", "params": cfg.to_dict(), "pairs": {}}
                                for name, cfg in methods.items()}
-    results["OpenCV StereoSGBM"] = {"family": "opencv", "params": {
-        "blockSize": 3, "P1": "8*cn*9", "P2": "32*cn*9", "mode": "3WAY", "uniquenessRatio": 10,
-        "speckleWindowSize": 100, "speckleRange": 32, "disp12MaxDiff": 1, "preFilterCap": 63}, "pairs": {}}
+    for block in SGBM_BLOCKS:
+        results[f"OpenCV StereoSGBM bs{block}"] = {"family": "opencv", "params": {
+            "blockSize": block, "P1": f"8*cn*{block}^2", "P2": f"32*cn*{block}^2", "mode": "3WAY",
+            "uniquenessRatio": 10, "speckleWindowSize": 100, "speckleRange": 32, "disp12MaxDiff": 1,
+            "preFilterCap": 63}, "pairs": {}}
     for p in ctx.tqdm(pairs, desc=f"{fmt} pairs"):
         dmax = drange(p)
         runs = {}
@@ -730,11 +757,12 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
         left, right = _as_u8(p.left_image), _as_u8(p.right_image)
         channels = 1 if left.ndim == 2 else 3
         bgr = (lambda x: x) if channels == 1 else (lambda x: np.ascontiguousarray(x[..., ::-1]))
-        t0 = time.perf_counter()
-        raw = _sgbm(dmax, channels).compute(bgr(left), bgr(right))
-        seconds = time.perf_counter() - t0
-        disp = raw.astype(np.float32) / 16.0
-        runs["OpenCV StereoSGBM"] = (disp, disp >= 0, seconds)
+        for block in SGBM_BLOCKS:
+            t0 = time.perf_counter()
+            raw = _sgbm(dmax, channels, block).compute(bgr(left), bgr(right))
+            seconds = time.perf_counter() - t0
+            disp = raw.astype(np.float32) / 16.0
+            runs[f"OpenCV StereoSGBM bs{block}"] = (disp, disp >= 0, seconds)
         for name, (d, v, s) in runs.items():
             row = protocol_metrics(fmt, d, v, p.disparity, p.noc, p.mask, p.foreground)
             results[name]["pairs"][p.name] = {**row, "seconds": s, "dmax": dmax}
@@ -747,7 +775,9 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
     masks = PROTOCOLS[fmt]["masks"]
     res = sorted({f"{p.disparity.shape[1]}x{p.disparity.shape[0]}" for p in pairs})
     noc_note = ""
-    if fmt != "kitti" and not all(p.has_noc_mask for p in pairs):
+    if fmt == "middlebury2003":
+        noc_note = " No occlusion masks: every score is over all pixels with known ground truth."
+    elif fmt != "kitti" and not all(p.has_noc_mask for p in pairs):
         missing = [p.name for p in pairs if not p.has_noc_mask]
         noc_note = (f" Pairs without mask0nocc.png ({', '.join(missing)}): their nonocc scores are over all known "
                     "pixels.")
@@ -760,8 +790,9 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
         def cells(r: dict) -> list[str]:
             return [f"{r[m][f'd1_{part}']:.4f}" for m in masks for part in parts]
     else:
-        keys = [f"bad{t:g}" for t in PROTOCOLS[fmt]["thresholds"]]
-        headers = ["method"] + [f"{k.replace('bad', 'bad-')} {m}" for m in masks for k in keys + ["avgerr"]] + \
+        keys = [f"bad{t:g}" for t in PROTOCOLS[fmt]["thresholds"]] + (["d1"] if fmt == "middlebury2003" else [])
+        headers = ["method"] + [f"{k.replace('bad', 'bad-').replace('d1', 'D1')} {m}" for m in masks
+                                for k in keys + ["avgerr"]] + \
                   [f"density {masks[0]}", "time ms"]
         fg_note = ""
 
@@ -771,17 +802,30 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
     rows = [[name] + cells(r["pooled"]) + [f"{r['pooled'][masks[0]]['density']:.3f}", f"{1000 * r['time_s_mean']:.1f}"]
             for name, r in results.items()]
     pooling = ("pixel-pooled over pairs (KITTI devkit)" if fmt == "kitti" else "mean over pairs (equal weights)")
+    per_pair = ""
+    if fmt != "kitti":
+        m0 = masks[0]
+        per_pair = ("\nPer pair, D1 / bad-2 / avgerr on " + m0 + ":\n\n" + markdown_table(
+            ["method"] + [p.name for p in pairs],
+            [[name] + [f"{r['pairs'][p.name][m0].get('d1', float('nan')):.4f} / "
+                       f"{r['pairs'][p.name][m0].get('bad2', float('nan')):.4f} / {r['pairs'][p.name][m0]['avgerr']:.3f}"
+                       for p in pairs] for name, r in results.items()]))
     dranges = sorted({v["dmax"] for v in next(iter(results.values()))["pairs"].values()})
     table = (
         f"Dataset: {fmt} stereo benchmark at {ctx.data}, {len(pairs)} pair(s) ({', '.join(p.name for p in pairs)}), "
         f"resolution {args.resolution} of the stored files ({', '.join(res)}), disparities [0, D) with D in "
         f"{dranges}. Protocol: {PROTOCOL_NAMES[fmt]}; invalid estimates filled as KITTI's devkit does, scores "
         f"{pooling}.{noc_note}{fg_note} drlab configurations chosen on the Mitsuba tuning pairs of the default "
-        f"run, not on this data; OpenCV StereoSGBM with standard parameters. Time: wall per pair, drlab with "
+        f"run, not on this data; drlab default = research.stereo.DEFAULT_CONFIG ({DEFAULT_CONFIG.label}), whose parameters "
+        f"were chosen on Middlebury 2001 tsukuba + venus and the Mitsuba tuning pairs (p_000 of objects and cornell, "
+        f"clean and stressed), never on teddy or cones. OpenCV StereoSGBM with standard parameters (P1 = 8 cn bs^2, "
+        f"P2 = 32 cn bs^2, 3-way, uniqueness 10, speckle window 100 and range 32, disp12MaxDiff 1, preFilterCap 63), "
+        f"blockSize 3 and 5, on the stored 8-bit images (colour as read), same disparity range. Colour inputs go to "
+        f"drlab as read too (uint8, normalised by research.images). Time: wall per pair, drlab with "
         f"{default_threads()} CPU threads (device {ctx.device}), OpenCV with {cv2.getNumThreads()} threads; "
         f"drlab's cost volumes take up to {peak / 2**20:.1f} MiB per pair (research.stereo.peak_volume_bytes: "
         f"float32 cost and aggregate; census + SGM in compact mode, uint8 costs and a uint16 aggregate).\n\n"
-        + markdown_table(headers, rows))
+        + markdown_table(headers, rows) + per_pair)
     config = {"benchmark": fmt, "data": str(ctx.data), "resolution": args.resolution, "pairs": [p.name for p in pairs],
               "drlab_volume_peak_bytes": peak,
               "image_sizes": res, "disparity_ranges": dranges, "protocol": PROTOCOL_NAMES[fmt],
@@ -829,6 +873,10 @@ def add_options(p: Any) -> None:
                    help="the benchmark layout of --data (default: detected from its files)")
     p.add_argument("--resolution", choices=tuple(RESOLUTIONS), default="full",
                    help="Middlebury/ETH3D: evaluate at this fraction of the stored files' size (default: full)")
+    p.add_argument("--gt-scale", type=_positive_float, default=None,
+                   help="--format middlebury2003: the ground-truth scale (disparity = stored value / scale) for "
+                        "every scene, overriding the table of the known scenes (tsukuba 16, venus 8, teddy 4, "
+                        "cones 4); required for any other scene")
     p.add_argument("--max-disp", type=_max_disp, default=None,
                    help="benchmarks: disparity range [0, N), N a multiple of 16 (default: each pair's ndisp "
                         "rounded up to 16; KITTI 256)")
@@ -855,6 +903,18 @@ def _nonnegative_float(value: str) -> float:
         x = float("nan")
     if not (np.isfinite(x) and x >= 0):
         raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {value!r}")
+    return x
+
+
+def _positive_float(value: str) -> float:
+    import argparse
+
+    try:
+        x = float(value)
+    except ValueError:
+        x = float("nan")
+    if not (np.isfinite(x) and x > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {value!r}")
     return x
 
 
