@@ -5,12 +5,15 @@ For the scenes `objects` and `cornell` this renders rectified pairs with exact
 disparity (`drlab dataset --stereo`, into data/stereo_depth-<scene>), converts
 them to 8-bit grayscale as a camera would store them, and runs
 
-  * drlab: every cost (SAD, ZNCC, census, Birchfield-Tomasi, feature correlation on patch
-    features) x every aggregation (none = plain winner-take-all, SGM over 4
+  * drlab: every cost (SAD, ZNCC, census, Birchfield-Tomasi, census+grad = kernels.stereo.adcensus,
+    feature correlation on patch features) x every aggregation (none = plain winner-take-all, SGM over 4
     paths, SGM over 8 paths), each followed by WTA with the sub-pixel
     parabola and the left-right check; plus soft-argmin in place of WTA on the
     best SGM configuration;
-  * OpenCV StereoSGBM and StereoBM.
+  * OpenCV StereoSGBM and StereoBM;
+  * "drlab default": research.stereo.DEFAULT_CONFIG as it is, not tuned here (its parameters were
+    chosen on the real Middlebury 2001 pairs tsukuba and venus and on these tuning pairs p_000, clean
+    and stressed; research.stereo's docstring), never the "best" or "robust" pick below.
 
 Protocol. Pair p_000 of each scene is a tuning pair; the others are the
 evaluation pairs. Every method's free parameters (drlab: window, P1, P2, soft-
@@ -40,19 +43,22 @@ of tuning the grid, scores that one drlab configuration (no OpenCV) on the tunin
 `tuning_d1`, which a sweep chooses by) and on the evaluation pairs, with the same metrics.json layout
 ("methods" holds one row). experiments/sweeps/stereo_tuning.toml spreads the grid over such runs.
 
-Benchmarks (`--data PATH` of a Middlebury 2014/2021, KITTI 2012/2015 or ETH3D two-view folder, its
-format detected or given with `--format`; research.datasets.stereo_benchmarks reads it): runs the
-drlab configurations the default run chose on its Mitsuba tuning pairs (BENCHMARK_DRLAB: BT + SGM-4
+Benchmarks (`--data PATH` of a Middlebury 2014/2021, Middlebury 2001/2003, KITTI 2012/2015 or ETH3D
+two-view folder, its format detected or given with `--format`; research.datasets.stereo_benchmarks reads
+it; `--gt-scale` overrides Middlebury 2001/2003's ground-truth scale table): runs drlab's default
+(research.stereo.DEFAULT_CONFIG, chosen on Middlebury 2001 tsukuba + venus and the Mitsuba tuning pairs),
+the drlab configurations the default run chose on its Mitsuba tuning pairs (BENCHMARK_DRLAB: BT + SGM-4
 soft-argmin, its best; ZNCC + SGM-4, its robust choice; SAD + SGM-4 soft-argmin, the best before BT;
 census + SGM-8; nothing is tuned on the benchmark) and OpenCV StereoSGBM with standard
-parameters (blockSize 3, P1 = 8 * cn * 3^2, P2 = 32 * cn * 3^2 for cn image channels, 3-way, uniqueness
+parameters (blockSize 3 and, as a second row, 5; P1 = 8 * cn * 3^2, P2 = 32 * cn * 3^2 for cn image channels, 3-way, uniqueness
 10, speckle window 100 and range 32, disp12MaxDiff 1, preFilterCap 63) on every pair, over
 disparities [0, D) with D the pair's ndisp (calib.txt) rounded up to a multiple of 16, or
 `--max-disp` (KITTI's default 256). drlab matches the stored images through research.images'
 normalisation (colour to grey, uint8 / 255); SGBM gets the stored 8-bit images (16-bit ones shifted
 to 8 bits). Scores follow the benchmark's protocol (research.stereo.protocol_metrics: Middlebury
 bad-0.5/1/2/4 and avgerr on nonocc and all; KITTI D1-bg/fg/all on noc and occ; ETH3D bad-1/2 and
-avgerr), at `--resolution` (full, half or quarter of the stored Middlebury/ETH3D files). Such a run
+avgerr; Middlebury 2001/2003 bad-0.5/1/2/4, avgerr = EPE and D1 over every pixel with known ground
+truth, as these sets come without occlusion masks, plus a per-pair table), at `--resolution` (full, half or quarter of the stored Middlebury/ETH3D files). Such a run
 needs its own `--out` (the default results/stereo_depth holds the Mitsuba table) and writes table.md,
 metrics.json and disparity_maps.png (the first pair); --smoke reads the first 2 pairs, --quick the first 5.
 
@@ -171,7 +177,7 @@ class Method:
 
 
 # P1 of the tuning grid's middle, about one cost unit of each cost (research.stereo: units).
-P1_BASE = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "bt": 0.01, "corr": 0.01}
+P1_BASE = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "bt": 0.01, "adcensus": 0.2, "corr": 0.01}
 
 
 def drlab_grid(cost: str, aggregation: str) -> list[dict[str, Any]]:
@@ -180,6 +186,7 @@ def drlab_grid(cost: str, aggregation: str) -> list[dict[str, Any]]:
                "zncc": [{"radius": r, "zncc_eps": e} for r in (2, 3, 4, 5) for e in (1e-4, 1e-3)],
                "census": [{"census_radii": rr} for rr in ((2, 3), (3, 4))],
                "bt": [{"radius": r} for r in (1, 2, 3)],
+               "adcensus": [{"radius": r} for r in (1, 2)],
                "corr": [{"radius": r} for r in (2, 3)]}[cost]
     if aggregation == "none":
         return windows
@@ -858,11 +865,12 @@ def add_options(p: Any) -> None:
     p.add_argument("--aggregation", choices=AGGREGATIONS, default=None,
                    help="with --cost: the aggregation (default sgm8)")
     p.add_argument("--radius", type=_nonnegative_int, default=None,
-                   help="with --cost: the window radius R of sad/zncc/bt/corr; census uses radii (R, R + 1), a "
+                   help="with --cost: the window radius R of sad/zncc/bt/adcensus/corr; census uses radii (R, R + 1), a "
                         "(2R+1) x (2R+3) window, as the tuning grid (default 2)")
     p.add_argument("--p1", type=_nonnegative_float, default=None,
                    help="with --cost and SGM: P1 in the cost's units (research.stereo: [0, 1] intensity for "
-                        "sad/bt/corr, bits for census, 1 - correlation for zncc); default: the grid's base "
+                        "sad/bt/corr, bits for census, 1 - correlation for zncc, fractions of one squashed term "
+                        "for adcensus); default: the grid's base "
                         f"({', '.join(f'{k} {v:g}' for k, v in P1_BASE.items())})")
     p.add_argument("--p2", type=_nonnegative_float, default=None,
                    help="with --cost and SGM: P2 >= P1 (default 8 P1)")
