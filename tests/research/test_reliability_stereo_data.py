@@ -281,11 +281,11 @@ CLI_CASES = [
 @pytest.mark.parametrize("case, argv, expected", CLI_CASES, ids=[c[0] for c in CLI_CASES])
 def test_bad_stereo_depth_benchmark_run(tmp_path, capsys, monkeypatch, case, argv, expected):
     """One line `<prog>: <message>`, exit status 2; the previous --out folder is left as it was."""
-    from experiments import stereo_depth
     from experiments.stereo_depth import main
+    from research import stereo_benchmark
 
     if "@lowmem" in argv:
-        monkeypatch.setattr(stereo_depth, "_free_memory", lambda: 1000)
+        monkeypatch.setattr(stereo_benchmark, "_free_memory", lambda: 1000)
 
     data = tmp_path / "data"
     out = tmp_path / "out"
