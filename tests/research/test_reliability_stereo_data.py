@@ -179,7 +179,7 @@ def test_bad_kitti_input(tmp_path, case, corrupt, expected):
 
 
 ARGUMENT_CASES = [
-    ("format-unknown", dict(fmt="sintel"), r"^format: expected one of \('middlebury', 'kitti', 'eth3d'\), got 'sintel'$"),
+    ("format-unknown", dict(fmt="sintel"), r"^format: expected one of \('middlebury', 'kitti', 'eth3d', 'middlebury2003'\), got 'sintel'$"),
     ("resolution-unknown", dict(resolution="double"), r"^resolution: expected one of \('full', 'half', 'quarter'\)"),
     ("kitti-at-half-resolution", dict(fmt="kitti", resolution="half"),
      r"^resolution: KITTI's sparse ground truth is evaluated at full resolution only, got 'half'$"),
@@ -275,6 +275,9 @@ CLI_CASES = [
     ("kitti-at-half-resolution", ["--resolution", "half", "--out", "{out}", "@kitti"],
      r"--resolution: KITTI's sparse ground truth is evaluated at full resolution only, got 'half'"),
     ("corrupt-pair-keeps-old-results", ["--out", "{out}", "@corrupt"], r"p/disp0\.pfm: expected 4608 bytes"),
+    ("gt-scale-on-middlebury-2014", ["--gt-scale", "4", "--out", "{out}"],
+     r"--gt-scale: applies to --format middlebury2003 only, got middlebury"),
+    ("gt-scale-zero", ["--gt-scale", "0", "--out", "{out}"], r"--gt-scale: expected a finite number > 0, got '0'"),
 ]
 
 

@@ -323,7 +323,7 @@ def test_without_data_the_run_stays_the_mitsuba_one(tmp_path, monkeypatch):
     monkeypatch.setattr(registry, "default_data_dir", lambda: tmp_path / "data")
 
     def ctx(data: Path) -> Context:
-        args = argparse.Namespace(data=data, format=None, resolution="full", max_disp=None)
+        args = argparse.Namespace(data=data, format=None, resolution="full", max_disp=None, gt_scale=None)
         return Context("stereo_depth", args, "cpu", tmp_path / "tmp", tmp_path / "out")
 
     assert benchmark_format(ctx(tmp_path / "data")) is None
