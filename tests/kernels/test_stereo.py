@@ -458,3 +458,15 @@ def test_adcensus_is_unchanged_by_an_intensity_offset_where_no_clip_binds():
     # The intensity term does see it.
     assert not np.allclose(stereo.adcensus_cost(L, R, 0, 6, bt_weight=1.0),
                            stereo.adcensus_cost(L, R + 0.1, 0, 6, bt_weight=1.0))
+
+
+def test_adcensus_wp_arrays_in_give_wp_arrays_out():
+    rng = np.random.default_rng(5)
+    L, R = rng.uniform(0, 1, (6, 10, 3)), rng.uniform(0, 1, (6, 10, 3))
+    grey = (L.mean(axis=2), R.mean(axis=2))
+    expected = stereo.adcensus_cost(L, R, 0, 4, grey=grey, bt_weight=0.3)
+    got = stereo.adcensus_cost(wp.array(L, dtype=wp.float64), wp.array(R, dtype=wp.float64), 0, 4, grey=grey,
+                               bt_weight=0.3)
+    assert isinstance(got, wp.array)
+    np.testing.assert_array_equal(got.numpy(), expected)
+    assert isinstance(stereo.sobel_x_clipped(wp.array(L, dtype=wp.float64)), wp.array)
