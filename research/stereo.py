@@ -43,7 +43,8 @@ Menze & Geiger; Middlebury, Scharstein & Szeliski), with e = |d - d_gt|:
     estimate gives a valid depth (Z = f b / d, kernels.stereo.depth_from_disparity).
 Images: `match` and `cost_volume` take uint8, uint16 or float images in [0, 1], grey (H, W) or
 colour (H, W, 3), through research.images.to_unit_grey (uint8 / 255, uint16 / 65535, colour by
-Rec. 601 luma, except "bt", which keeps colour; a float image outside [0, 1] is refused).
+Rec. 601 luma, except "bt", which keeps colour, and "adcensus", whose gradient and intensity terms keep
+colour while its census term reads the luma; a float image outside [0, 1] is refused).
 
 Units of the penalties and thresholds, none of which depends on the stored image range (8 or 16
 bits, or float), because every image is first normalised to [0, 1]:
