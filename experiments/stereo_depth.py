@@ -5,12 +5,15 @@ For the scenes `objects` and `cornell` this renders rectified pairs with exact
 disparity (`drlab dataset --stereo`, into data/stereo_depth-<scene>), converts
 them to 8-bit grayscale as a camera would store them, and runs
 
-  * drlab: every cost (SAD, ZNCC, census, Birchfield-Tomasi, feature correlation on patch
-    features) x every aggregation (none = plain winner-take-all, SGM over 4
+  * drlab: every cost (SAD, ZNCC, census, Birchfield-Tomasi, census+grad = kernels.stereo.adcensus,
+    feature correlation on patch features) x every aggregation (none = plain winner-take-all, SGM over 4
     paths, SGM over 8 paths), each followed by WTA with the sub-pixel
     parabola and the left-right check; plus soft-argmin in place of WTA on the
     best SGM configuration;
-  * OpenCV StereoSGBM and StereoBM.
+  * OpenCV StereoSGBM and StereoBM;
+  * "drlab default": research.stereo.DEFAULT_CONFIG as it is, not tuned here (its parameters were
+    chosen on the real Middlebury 2001 pairs tsukuba and venus and on these tuning pairs p_000, clean
+    and stressed; research.stereo's docstring), never the "best" or "robust" pick below.
 
 Protocol. Pair p_000 of each scene is a tuning pair; the others are the
 evaluation pairs. Every method's free parameters (drlab: window, P1, P2, soft-
@@ -40,26 +43,27 @@ of tuning the grid, scores that one drlab configuration (no OpenCV) on the tunin
 `tuning_d1`, which a sweep chooses by) and on the evaluation pairs, with the same metrics.json layout
 ("methods" holds one row). experiments/sweeps/stereo_tuning.toml spreads the grid over such runs.
 
-Benchmarks (`--data PATH` of a Middlebury 2014/2021, KITTI 2012/2015 or ETH3D two-view folder, its
-format detected or given with `--format`; research.datasets.stereo_benchmarks reads it): runs the
-drlab configurations the default run chose on its Mitsuba tuning pairs (BENCHMARK_DRLAB: BT + SGM-4
+Benchmarks (`--data PATH` of a Middlebury 2014/2021, Middlebury 2001/2003, KITTI 2012/2015 or ETH3D
+two-view folder, its format detected or given with `--format`; research.datasets.stereo_benchmarks reads
+it; `--gt-scale` overrides Middlebury 2001/2003's ground-truth scale table): runs drlab's default
+(research.stereo.DEFAULT_CONFIG, chosen on Middlebury 2001 tsukuba + venus and the Mitsuba tuning pairs),
+the drlab configurations the default run chose on its Mitsuba tuning pairs (BENCHMARK_DRLAB: BT + SGM-4
 soft-argmin, its best; ZNCC + SGM-4, its robust choice; SAD + SGM-4 soft-argmin, the best before BT;
 census + SGM-8; nothing is tuned on the benchmark) and OpenCV StereoSGBM with standard
-parameters (blockSize 3, P1 = 8 * cn * 3^2, P2 = 32 * cn * 3^2 for cn image channels, 3-way, uniqueness
+parameters (blockSize 3 and, as a second row, 5; P1 = 8 * cn * 3^2, P2 = 32 * cn * 3^2 for cn image channels, 3-way, uniqueness
 10, speckle window 100 and range 32, disp12MaxDiff 1, preFilterCap 63) on every pair, over
 disparities [0, D) with D the pair's ndisp (calib.txt) rounded up to a multiple of 16, or
 `--max-disp` (KITTI's default 256). drlab matches the stored images through research.images'
 normalisation (colour to grey, uint8 / 255); SGBM gets the stored 8-bit images (16-bit ones shifted
 to 8 bits). Scores follow the benchmark's protocol (research.stereo.protocol_metrics: Middlebury
 bad-0.5/1/2/4 and avgerr on nonocc and all; KITTI D1-bg/fg/all on noc and occ; ETH3D bad-1/2 and
-avgerr), at `--resolution` (full, half or quarter of the stored Middlebury/ETH3D files). Such a run
+avgerr; Middlebury 2001/2003 bad-0.5/1/2/4, avgerr = EPE and D1 over every pixel with known ground
+truth, as these sets come without occlusion masks, plus a per-pair table), at `--resolution` (full, half or quarter of the stored Middlebury/ETH3D files). Such a run
 needs its own `--out` (the default results/stereo_depth holds the Mitsuba table) and writes table.md,
 metrics.json and disparity_maps.png (the first pair); --smoke reads the first 2 pairs, --quick the first 5.
 
 Three runs share this module (the Mitsuba tuning table, one configuration, and the benchmark
-protocols of --data), and some of their table code; at about 880 lines it is over the ~600-line
-guideline: the benchmark run (from BENCHMARK_DRLAB down) is the part to move into a module of
-its own.
+protocols of --data, whose run lives in research.stereo_benchmark), and some of their table code.
 """
 
 from __future__ import annotations
@@ -75,6 +79,7 @@ import numpy as np
 
 from research.experiment import Context, Experiment, rendered_cache_help
 from research.results import markdown_table, save_figure
+from research.stereo_benchmark import DEFAULT_NAME, run_benchmark
 
 SCENES = ("objects", "cornell")
 LUMA_709 = np.array([0.2126, 0.7152, 0.0722])  # research.stereo.to_gray_u8's weights
@@ -170,7 +175,7 @@ class Method:
 
 
 # P1 of the tuning grid's middle, about one cost unit of each cost (research.stereo: units).
-P1_BASE = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "bt": 0.01, "corr": 0.01}
+P1_BASE = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "bt": 0.01, "adcensus": 0.2, "corr": 0.01}
 
 
 def drlab_grid(cost: str, aggregation: str) -> list[dict[str, Any]]:
@@ -179,6 +184,7 @@ def drlab_grid(cost: str, aggregation: str) -> list[dict[str, Any]]:
                "zncc": [{"radius": r, "zncc_eps": e} for r in (2, 3, 4, 5) for e in (1e-4, 1e-3)],
                "census": [{"census_radii": rr} for rr in ((2, 3), (3, 4))],
                "bt": [{"radius": r} for r in (1, 2, 3)],
+               "adcensus": [{"radius": r} for r in (1, 2)],
                "corr": [{"radius": r} for r in (2, 3)]}[cost]
     if aggregation == "none":
         return windows
@@ -386,7 +392,7 @@ def run(ctx: Context) -> int:
     import cv2
 
     from kernels.launch import default_threads
-    from research.stereo import AGGREGATIONS, COSTS, StereoConfig
+    from research.stereo import AGGREGATIONS, COSTS, DEFAULT_CONFIG, StereoConfig
 
     fmt = benchmark_format(ctx)
     if fmt is not None:
@@ -426,6 +432,14 @@ def run(ctx: Context) -> int:
     for name in ("OpenCV StereoSGBM", "OpenCV StereoBM"):
         keep(*tune([c for c in opencv_methods(st.dmax) if c.name == name], tuning, f"tune {name}", ctx))
     best_drlab = min((k for k in chosen if chosen[k].family == "drlab"), key=lambda k: tuning_d1[k])
+    # drlab's default (research.stereo.DEFAULT_CONFIG), fixed, not tuned here: its own choice was made on
+    # Middlebury 2001 tsukuba + venus and these tuning pairs (research.stereo's docstring).
+    default = drlab_method(DEFAULT_CONFIG, st.dmax, ctx.device)
+    default.name = DEFAULT_NAME
+    default.family = "drlab-default"
+    chosen[DEFAULT_NAME] = default
+    tuning_d1[DEFAULT_NAME] = float(np.mean([score(*default.run(p)[:2], p)["noc"]["d1"] for p in tuning]))
+    tuning_log[DEFAULT_NAME] = {"chosen": default.params, "candidates": [], "fixed": True}
     # The robust choice: among the chosen configurations, the lowest mean of the clean tuning D1 and the
     # D1 on the stressed tuning pairs (the same held-out p_000 pairs, stressed; never scored below).
     stressed_tuning = [p for p in pairs if p.name == "p_000" and p.condition == "stressed"]
@@ -440,6 +454,7 @@ def run(ctx: Context) -> int:
         results[name]["tuning_d1_stressed"] = tuning_d1_stressed[name]
     sgbm = results["OpenCV StereoSGBM"]
     best = results[best_drlab]
+    dflt = results[DEFAULT_NAME]
     robust = results[robust_drlab]
     threads = default_threads()
     load_end = os.getloadavg()[0]
@@ -464,6 +479,11 @@ def run(ctx: Context) -> int:
         f"stressed pairs {best['pooled_stressed']['d1']:.4f} against {sgbm['pooled_stressed']['d1']:.4f}: it "
         f"{verdicts['stressed']} SGBM; at {1000 * best['time_s_mean']:.1f} ms per pair against SGBM's "
         f"{1000 * sgbm['time_s_mean']:.1f} ms.\n\n"
+        f"**drlab's default** ({DEFAULT_NAME}: research.stereo.DEFAULT_CONFIG, not tuned in this run; chosen on "
+        f"Middlebury 2001 tsukuba + venus and the tuning pairs p_000, clean and stressed) has D1 noc "
+        f"{dflt['pooled']['d1']:.4f} clean and {dflt['pooled_stressed']['d1']:.4f} stressed, against SGBM's "
+        f"{sgbm['pooled']['d1']:.4f} and {sgbm['pooled_stressed']['d1']:.4f}, at {1000 * dflt['time_s_mean']:.1f} ms "
+        "per pair.\n\n"
         f"**Robust choice**: chosen by the mean of the clean and the stressed tuning D1 (p_000 of each scene, "
         f"clean and stressed; no evaluation pair), **{robust_drlab}** has D1 noc {robust['pooled']['d1']:.4f} "
         f"clean and {robust['pooled_stressed']['d1']:.4f} stressed, against SGBM's {sgbm['pooled']['d1']:.4f} and "
@@ -492,7 +512,7 @@ def run(ctx: Context) -> int:
     ctx.write_results(config=config, table_md=table,
                       metrics={"best_drlab": best_drlab, "goal_met": bool(best["pooled"]["d1"] < sgbm["pooled"]["d1"]),
                                "goal_met_stressed": bool(best["pooled_stressed"]["d1"] < sgbm["pooled_stressed"]["d1"]),
-                               "robust_drlab": robust_drlab,
+                               "robust_drlab": robust_drlab, "default_drlab": DEFAULT_NAME,
                                "methods": results, "tuning": tuning_log, "datasets": datasets})
     return 0
 
@@ -567,24 +587,6 @@ def run_single(ctx: Context, cfg: Any, st: Setup, tuning: list[Pair], evaluation
 
 # --------------------------------------------------------------------------- benchmarks
 
-# Configurations the default run chose on its Mitsuba tuning pairs (results/stereo_depth/metrics.json), none
-# on benchmark data: the best drlab configuration there (BT + SGM-4 soft-argmin since BT joined the grid; SAD +
-# SGM-4 soft-argmin before, kept for comparison), its robust choice (ZNCC + SGM-4: lowest mean of the clean and
-# the stressed tuning D1), and census + SGM-8 (census is robust to gain and offset between cameras). BT matches
-# colour images with its colour term.
-BENCHMARK_DRLAB = {
-    "BT + SGM-4 soft-argmin": {"cost": "bt", "aggregation": "sgm4", "p1": 0.02, "p2": 0.08, "radius": 3,
-                               "disparity": "soft_argmin", "temperature": 0.02},
-    "ZNCC + SGM-4": {"cost": "zncc", "aggregation": "sgm4", "p1": 0.4, "p2": 3.2, "radius": 5, "zncc_eps": 1e-3},
-    "SAD + SGM-4 soft-argmin": {"cost": "sad", "aggregation": "sgm4", "p1": 0.02, "p2": 0.08, "radius": 4,
-                                "disparity": "soft_argmin", "temperature": 0.02},
-    "census + SGM-8": {"cost": "census", "aggregation": "sgm8", "p1": 16.0, "p2": 128.0, "census_radii": (3, 4)},
-}
-PROTOCOL_NAMES = {"middlebury": "Middlebury 2014/2021 (bad-0.5/1/2/4 and avgerr; nonocc and all masks)",
-                  "kitti": "KITTI 2012/2015 stereo (D1: error > 3 px and > 5 % of the true disparity; noc and occ)",
-                  "eth3d": "ETH3D two-view (bad-1, bad-2 and avgerr; nonocc and all masks)"}
-
-
 def benchmark_format(ctx: Context) -> str | None:
     """The benchmark format of --data (None: the Mitsuba run, --data is the dataset cache root)."""
     from research import registry
@@ -595,10 +597,15 @@ def benchmark_format(ctx: Context) -> str | None:
     explicit = ctx.data.absolute() != registry.default_data_dir().absolute()
     fmt = args.format or (detect_format(ctx.data) if explicit else None)
     if fmt is None:
-        if args.resolution != "full" or args.max_disp is not None:
-            raise ValueError("--resolution, --max-disp: apply to a benchmark --data folder only, and "
+        if args.resolution != "full" or args.max_disp is not None or args.gt_scale is not None:
+            raise ValueError("--resolution, --max-disp, --gt-scale: apply to a benchmark --data folder only, and "
                              f"{ctx.data} is not one")
         return None
+    if args.gt_scale is not None and fmt != "middlebury2003":
+        raise ValueError(f"--gt-scale: applies to --format middlebury2003 only, got {fmt}")
+    if fmt == "middlebury2003" and args.resolution != "full":
+        raise ValueError(f"--resolution: Middlebury 2001/2003 pairs are evaluated at their stored size only, got "
+                         f"{args.resolution!r}")
     given = [name for name in ("cost", *_SINGLE_OPTIONS) if getattr(args, name, None) is not None]
     if given:
         raise ValueError(f"--{given[0].replace('_', '-')}: applies to the Mitsuba run only, not to a benchmark "
@@ -607,188 +614,6 @@ def benchmark_format(ctx: Context) -> str | None:
         raise ValueError(f"--out: a benchmark run needs its own results folder; the default {ctx.final_out} "
                          "holds the Mitsuba table")
     return fmt
-
-
-def _sgbm(dmax: int, channels: int) -> Any:
-    import cv2
-
-    block = 3
-    return cv2.StereoSGBM_create(minDisparity=0, numDisparities=dmax, blockSize=block, P1=8 * channels * block ** 2,
-                                 P2=32 * channels * block ** 2, disp12MaxDiff=1, preFilterCap=63, uniquenessRatio=10,
-                                 speckleWindowSize=100, speckleRange=32, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
-
-
-def benchmark_figure(p: Any, runs: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path) -> None:
-    """One pair: left image, ground truth, and each method's filled disparity and |error| (clipped at 5 px)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from research.stereo import fill_invalid
-
-    vmax = float(p.disparity[p.mask].max()) if p.mask.any() else 1.0
-    panels: list[tuple[str, Any, dict]] = [
-        ("left image", p.left_image, {"cmap": "gray"} if p.left_image.ndim == 2 else {}),
-        ("ground truth", np.ma.masked_where(~p.mask, p.disparity), {"vmin": 0, "vmax": vmax})]
-    for name, (d, v, _) in runs.items():
-        dense = fill_invalid(d, v)
-        panels.append((name, dense, {"vmin": 0, "vmax": vmax}))
-        panels.append((f"|error| {name}", np.ma.masked_where(~p.mask, np.abs(dense - p.disparity)),
-                       {"vmin": 0, "vmax": 5, "cmap": "inferno"}))
-    cols = 2
-    rows = (len(panels) + cols - 1) // cols
-    aspect = p.disparity.shape[0] / p.disparity.shape[1]
-    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 4.2 * aspect * rows + 0.6), squeeze=False)
-    for ax, (title, img, kw) in zip(axes.flat, panels):
-        im = ax.imshow(img, **kw)
-        if title != "left image":
-            fig.colorbar(im, ax=ax, fraction=0.046)
-        ax.set_title(title, fontsize=8)
-    for ax in axes.flat:
-        ax.set_xticks([])
-        ax.set_yticks([])
-    for ax in list(axes.flat)[len(panels):]:
-        ax.axis("off")
-    fig.suptitle(f"{p.benchmark} {p.name}: disparity (px) after KITTI fill; masked: no ground truth", fontsize=9)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
-
-
-def _volume_bytes(shape: tuple[int, int], dmax: int) -> int:
-    """drlab's peak for one pair: the largest over the benchmark configurations of the volumes `match`
-    holds at once (research.stereo.peak_volume_bytes: float32, or compact uint8/uint16 for census + SGM)."""
-    from research.stereo import StereoConfig, peak_volume_bytes
-
-    return max(peak_volume_bytes(StereoConfig(**cfg), int(shape[0]), int(shape[1]), int(dmax))
-               for cfg in BENCHMARK_DRLAB.values())
-
-
-def _free_memory() -> int | None:
-    """MemAvailable of /proc/meminfo in bytes (None where there is no such file)."""
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
-
-
-def _as_u8(img: np.ndarray) -> np.ndarray:
-    return img if img.dtype == np.uint8 else (img >> 8).astype(np.uint8)
-
-
-def run_benchmark(ctx: Context, fmt: str) -> int:
-    import cv2
-
-    from kernels.launch import default_threads
-    from research.datasets.stereo_benchmarks import load_benchmark
-    from research.stereo import PROTOCOLS, StereoConfig, match, pool_protocol, protocol_metrics
-
-    args = ctx.args
-    if fmt == "kitti" and args.resolution != "full":
-        raise ValueError(f"--resolution: KITTI's sparse ground truth is evaluated at full resolution only, got "
-                         f"{args.resolution!r}")
-    pairs = load_benchmark(ctx.data, fmt, args.resolution)
-    limit = 2 if ctx.smoke else 5 if ctx.quick else None
-    pairs = pairs[:limit]
-
-    def drange(p: Any) -> int:
-        if args.max_disp is not None:
-            return int(args.max_disp)
-        if p.ndisp is None:  # KITTI: 256, or less where the image is narrower
-            return int(min(256, max(16, (p.disparity.shape[1] - 1) // 16 * 16)))
-        return int(-(-p.ndisp // 16) * 16)
-
-    free = _free_memory() if ctx.device == "cpu" else None
-    for p in pairs:  # before any matching: every range must fit its image, every volume the memory
-        if drange(p) >= p.disparity.shape[1]:
-            where = "--max-disp" if args.max_disp is not None else f"{p.source}/calib.txt: ndisp={p.ndisp}"
-            raise ValueError(f"{where}: the disparity range [0, {drange(p)}) must be narrower than the image "
-                             f"({p.disparity.shape[1]} px wide)")
-        need = _volume_bytes(p.disparity.shape, drange(p))
-        if free is not None and need > free:
-            raise ValueError(f"{p.source}: drlab's volumes for {p.disparity.shape[1]}x{p.disparity.shape[0]}"
-                             f" x {drange(p)} disparities need about {need / 2**30:.1f} GiB, more than the "
-                             f"{free / 2**30:.1f} GiB available; use --resolution half or quarter, or --max-disp")
-    peak = max(_volume_bytes(p.disparity.shape, drange(p)) for p in pairs)
-
-    methods = {name: StereoConfig(**cfg) for name, cfg in BENCHMARK_DRLAB.items()}
-    results: dict[str, Any] = {name: {"family": "drlab", "params": cfg.to_dict(), "pairs": {}}
-                               for name, cfg in methods.items()}
-    results["OpenCV StereoSGBM"] = {"family": "opencv", "params": {
-        "blockSize": 3, "P1": "8*cn*9", "P2": "32*cn*9", "mode": "3WAY", "uniquenessRatio": 10,
-        "speckleWindowSize": 100, "speckleRange": 32, "disp12MaxDiff": 1, "preFilterCap": 63}, "pairs": {}}
-    for p in ctx.tqdm(pairs, desc=f"{fmt} pairs"):
-        dmax = drange(p)
-        runs = {}
-        for name, cfg in methods.items():
-            r = match(p.left_image, p.right_image, 0, dmax, cfg, ctx.device)
-            runs[name] = (r.disparity, r.valid, r.timings["total_s"])
-        left, right = _as_u8(p.left_image), _as_u8(p.right_image)
-        channels = 1 if left.ndim == 2 else 3
-        bgr = (lambda x: x) if channels == 1 else (lambda x: np.ascontiguousarray(x[..., ::-1]))
-        t0 = time.perf_counter()
-        raw = _sgbm(dmax, channels).compute(bgr(left), bgr(right))
-        seconds = time.perf_counter() - t0
-        disp = raw.astype(np.float32) / 16.0
-        runs["OpenCV StereoSGBM"] = (disp, disp >= 0, seconds)
-        for name, (d, v, s) in runs.items():
-            row = protocol_metrics(fmt, d, v, p.disparity, p.noc, p.mask, p.foreground)
-            results[name]["pairs"][p.name] = {**row, "seconds": s, "dmax": dmax}
-        if p is pairs[0]:
-            benchmark_figure(p, runs, ctx.out / "disparity_maps.png")
-    for name, r in results.items():
-        r["pooled"] = pool_protocol(fmt, list(r["pairs"].values()))
-        r["time_s_mean"] = float(np.mean([x["seconds"] for x in r["pairs"].values()]))
-
-    masks = PROTOCOLS[fmt]["masks"]
-    res = sorted({f"{p.disparity.shape[1]}x{p.disparity.shape[0]}" for p in pairs})
-    noc_note = ""
-    if fmt != "kitti" and not all(p.has_noc_mask for p in pairs):
-        missing = [p.name for p in pairs if not p.has_noc_mask]
-        noc_note = (f" Pairs without mask0nocc.png ({', '.join(missing)}): their nonocc scores are over all known "
-                    "pixels.")
-    if fmt == "kitti":
-        has_fg = all(p.foreground is not None for p in pairs)
-        parts = ("bg", "fg", "all") if has_fg else ("all",)
-        headers = ["method"] + [f"D1-{part} {m}" for m in masks for part in parts] + ["density noc", "time ms"]
-        fg_note = "" if has_fg else " No obj_map folder: D1-bg/fg need KITTI 2015's object maps, so D1-all only."
-
-        def cells(r: dict) -> list[str]:
-            return [f"{r[m][f'd1_{part}']:.4f}" for m in masks for part in parts]
-    else:
-        keys = [f"bad{t:g}" for t in PROTOCOLS[fmt]["thresholds"]]
-        headers = ["method"] + [f"{k.replace('bad', 'bad-')} {m}" for m in masks for k in keys + ["avgerr"]] + \
-                  [f"density {masks[0]}", "time ms"]
-        fg_note = ""
-
-        def cells(r: dict) -> list[str]:
-            return [f"{r[m][k]:.4f}" if k != "avgerr" else f"{r[m][k]:.3f}" for m in masks for k in keys + ["avgerr"]]
-
-    rows = [[name] + cells(r["pooled"]) + [f"{r['pooled'][masks[0]]['density']:.3f}", f"{1000 * r['time_s_mean']:.1f}"]
-            for name, r in results.items()]
-    pooling = ("pixel-pooled over pairs (KITTI devkit)" if fmt == "kitti" else "mean over pairs (equal weights)")
-    dranges = sorted({v["dmax"] for v in next(iter(results.values()))["pairs"].values()})
-    table = (
-        f"Dataset: {fmt} stereo benchmark at {ctx.data}, {len(pairs)} pair(s) ({', '.join(p.name for p in pairs)}), "
-        f"resolution {args.resolution} of the stored files ({', '.join(res)}), disparities [0, D) with D in "
-        f"{dranges}. Protocol: {PROTOCOL_NAMES[fmt]}; invalid estimates filled as KITTI's devkit does, scores "
-        f"{pooling}.{noc_note}{fg_note} drlab configurations chosen on the Mitsuba tuning pairs of the default "
-        f"run, not on this data; OpenCV StereoSGBM with standard parameters. Time: wall per pair, drlab with "
-        f"{default_threads()} CPU threads (device {ctx.device}), OpenCV with {cv2.getNumThreads()} threads; "
-        f"drlab's cost volumes take up to {peak / 2**20:.1f} MiB per pair (research.stereo.peak_volume_bytes: "
-        f"float32 cost and aggregate; census + SGM in compact mode, uint8 costs and a uint16 aggregate).\n\n"
-        + markdown_table(headers, rows))
-    config = {"benchmark": fmt, "data": str(ctx.data), "resolution": args.resolution, "pairs": [p.name for p in pairs],
-              "drlab_volume_peak_bytes": peak,
-              "image_sizes": res, "disparity_ranges": dranges, "protocol": PROTOCOL_NAMES[fmt],
-              "opencv": cv2.__version__, "drlab_threads": default_threads(), "opencv_threads": cv2.getNumThreads()}
-    ctx.write_results(config=config, table_md=table,
-                      metrics={"benchmark": fmt, "protocol": PROTOCOL_NAMES[fmt], "methods": results})
-    return 0
 
 
 def _short(params: dict[str, Any]) -> str:
@@ -814,11 +639,12 @@ def add_options(p: Any) -> None:
     p.add_argument("--aggregation", choices=AGGREGATIONS, default=None,
                    help="with --cost: the aggregation (default sgm8)")
     p.add_argument("--radius", type=_nonnegative_int, default=None,
-                   help="with --cost: the window radius R of sad/zncc/bt/corr; census uses radii (R, R + 1), a "
+                   help="with --cost: the window radius R of sad/zncc/bt/adcensus/corr; census uses radii (R, R + 1), a "
                         "(2R+1) x (2R+3) window, as the tuning grid (default 2)")
     p.add_argument("--p1", type=_nonnegative_float, default=None,
                    help="with --cost and SGM: P1 in the cost's units (research.stereo: [0, 1] intensity for "
-                        "sad/bt/corr, bits for census, 1 - correlation for zncc); default: the grid's base "
+                        "sad/bt/corr, bits for census, 1 - correlation for zncc, fractions of one squashed term "
+                        "for adcensus); default: the grid's base "
                         f"({', '.join(f'{k} {v:g}' for k, v in P1_BASE.items())})")
     p.add_argument("--p2", type=_nonnegative_float, default=None,
                    help="with --cost and SGM: P2 >= P1 (default 8 P1)")
@@ -829,6 +655,10 @@ def add_options(p: Any) -> None:
                    help="the benchmark layout of --data (default: detected from its files)")
     p.add_argument("--resolution", choices=tuple(RESOLUTIONS), default="full",
                    help="Middlebury/ETH3D: evaluate at this fraction of the stored files' size (default: full)")
+    p.add_argument("--gt-scale", type=_positive_float, default=None,
+                   help="--format middlebury2003: the ground-truth scale (disparity = stored value / scale) for "
+                        "every scene, overriding the table of the known scenes (tsukuba 16, venus 8, teddy 4, "
+                        "cones 4); required for any other scene")
     p.add_argument("--max-disp", type=_max_disp, default=None,
                    help="benchmarks: disparity range [0, N), N a multiple of 16 (default: each pair's ndisp "
                         "rounded up to 16; KITTI 256)")
@@ -855,6 +685,18 @@ def _nonnegative_float(value: str) -> float:
         x = float("nan")
     if not (np.isfinite(x) and x >= 0):
         raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {value!r}")
+    return x
+
+
+def _positive_float(value: str) -> float:
+    import argparse
+
+    try:
+        x = float(value)
+    except ValueError:
+        x = float("nan")
+    if not (np.isfinite(x) and x > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {value!r}")
     return x
 
 

@@ -113,6 +113,35 @@ def bt_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, r: int) -> np.nd
     return _window_mean_volume(L, R, dmin, dmax, r, bt)
 
 
+def sobel_x_clipped(img: np.ndarray, cap: float) -> np.ndarray:
+    """(clip(Sobel_x I, -cap, cap) + cap) / (2 cap) per channel, rows and columns clamped at the border."""
+    img = np.asarray(img, np.float64)
+    H, W = img.shape[:2]
+    out = np.empty_like(img)
+    for y in range(H):
+        for x in range(W):
+            g = 0.0
+            for dy, w in ((-1, 1.0), (0, 2.0), (1, 1.0)):
+                v = min(max(y + dy, 0), H - 1)
+                g = g + w * (img[v, min(x + 1, W - 1)] - img[v, max(x - 1, 0)])
+            out[y, x] = (np.clip(g, -cap, cap) + cap) / (2.0 * cap)
+    return out
+
+
+def adcensus_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, *, grey=None, census_radii=(3, 4),
+                  radius: int = 2, grad_cap: float = 0.25, lambda_census: float = 30.0, lambda_grad: float = 0.04,
+                  bt_weight: float = 0.0, lambda_bt: float = 0.04) -> np.ndarray:
+    """rho(census, l_c) + rho(BT on the clipped x-gradient, l_g) + w_bt rho(BT, l_bt), rho(c, l) = 1 - exp(-c / l)."""
+    gl, gr = (L, R) if grey is None else grey
+    rho = lambda c, lam: 1.0 - np.exp(-c / lam)  # noqa: E731
+    total = rho(census_cost(gl, gr, dmin, dmax, *census_radii), lambda_census)
+    total = total + rho(bt_cost(sobel_x_clipped(L, grad_cap), sobel_x_clipped(R, grad_cap), dmin, dmax, radius),
+                        lambda_grad)
+    if bt_weight > 0:
+        total = total + bt_weight * rho(bt_cost(L, R, dmin, dmax, radius), lambda_bt)
+    return total
+
+
 def feature_correlation(FL: np.ndarray, FR: np.ndarray, dmin: int, dmax: int) -> np.ndarray:
     """<F_L(x, y), F_R(x - d_k, y)> / sqrt(C); 0 out of range."""
     C, H, W = FL.shape

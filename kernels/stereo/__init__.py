@@ -19,6 +19,8 @@ Stages, one module each
   distance, and the feature correlation <F_L(x, y), F_R(x - d_k, y)> / sqrt(C) with its backward.
 * `bt`: the Birchfield-Tomasi sampling-insensitive dissimilarity (grey or colour, channel mean),
   window-averaged like SAD.
+* `adcensus`: census + BT on the clipped x-Sobel gradient (+ optionally BT on intensity), each term
+  squashed by 1 - exp(-c / lambda) and summed: robust to gain, offset and vignetting between cameras.
 * `sgm`: semi-global matching (Hirschmueller, PAMI 2008), S(p, k) = sum_r L_r(p, k) over 4 or 8
   path directions r, L_r penalising disparity steps by P1 (one step) and P2 (more).
 * compact mode: census costs as uint8 and the SGM aggregate as uint16 (3 bytes per cell instead
@@ -40,6 +42,7 @@ ValueError naming it before any kernel runs. The backward entry points return a 
 forward's argument name to its gradient.
 """
 
+from kernels.stereo.adcensus import adcensus_cost, sobel_x_clipped
 from kernels.stereo.bt import bt_cost
 from kernels.stereo.costs import (CENSUS_MAX_BITS, census_cost, census_transform, feature_correlation,
                                   feature_correlation_backward, sad_cost, zncc_cost)
@@ -49,7 +52,7 @@ from kernels.stereo.sgm import SGM_AXES, SGM_DIRECTIONS, SGM_LANES, sgm
 
 __all__ = [
     "CENSUS_MAX_BITS", "SGM_AXES", "SGM_DIRECTIONS", "SGM_LANES",
-    "sad_cost", "zncc_cost", "bt_cost", "census_transform", "census_cost", "feature_correlation",
+    "sad_cost", "zncc_cost", "bt_cost", "adcensus_cost", "sobel_x_clipped", "census_transform", "census_cost", "feature_correlation",
     "feature_correlation_backward",
     "sgm",
     "wta", "wta_right", "wta_left_right", "soft_argmin", "soft_argmin_backward", "left_right_check",

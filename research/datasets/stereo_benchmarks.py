@@ -36,6 +36,9 @@ KITTI 2012 / 2015 stereo: the `training` folder (or its parent):
     matrices (baseline = (P_left[0, 3] - P_right[0, 3]) / f, metres). Without it the pair has no
     cameras and a NaN baseline.
 
+Middlebury 2001/2003 (tsukuba, venus, teddy, cones: im2/im6 or im3/im4 with an 8-bit disp2/disp3 scaled
+by a per-scene factor): research.datasets.middlebury2003, at the stored resolution only.
+
 ETH3D ships its ground truth in a separate tree: for a pair folder `two_view_training/<scene>` without
 disp0GT.pfm, `two_view_training_gt/<scene>` is read for disp0GT.pfm and mask0nocc.png.
 
@@ -62,7 +65,7 @@ from research.cameras import Camera
 from research.datasets.integrity import DatasetError, read_or_fail
 from research.datasets.loader import StereoPair
 
-FORMATS = ("middlebury", "kitti", "eth3d")
+FORMATS = ("middlebury", "kitti", "eth3d", "middlebury2003")
 RESOLUTIONS = {"full": 1, "half": 2, "quarter": 4}
 CALIB_REQUIRED = ("cam0", "cam1", "doffs", "baseline", "width", "height", "ndisp")
 CALIB_OPTIONAL = ("isint", "vmin", "vmax", "dyavg", "dymax")
@@ -461,6 +464,10 @@ def detect_format(path: str | Path) -> str | None:
         return None
     if _kitti_dirs(root) or ((root / "training").is_dir() and _kitti_dirs(root / "training")):
         return "kitti"
+    from research.datasets.middlebury2003 import scene_folders
+
+    if scene_folders(root):
+        return "middlebury2003"
     folders = _pair_folders(root)
     if not folders:
         return None
@@ -474,8 +481,10 @@ def detect_format(path: str | Path) -> str | None:
     return "eth3d" if grey or doffs == 0 else "middlebury"
 
 
-def load_benchmark(path: str | Path, fmt: str | None = None, resolution: str = "full") -> list[StereoPair]:
-    """The pairs of a benchmark folder in format `fmt` (detected when None)."""
+def load_benchmark(path: str | Path, fmt: str | None = None, resolution: str = "full",
+                   scale: float | None = None) -> list[StereoPair]:
+    """The pairs of a benchmark folder in format `fmt` (detected when None); `scale`: Middlebury 2001/2003's
+    ground-truth scale, overriding its table (research.datasets.middlebury2003)."""
     if fmt is not None and fmt not in FORMATS:
         raise ValueError(f"format: expected one of {FORMATS}, got {fmt!r}")
     _resolution(resolution)
@@ -489,4 +498,13 @@ def load_benchmark(path: str | Path, fmt: str | None = None, resolution: str = "
             raise ValueError(f"resolution: KITTI's sparse ground truth is evaluated at full resolution only, "
                              f"got {resolution!r}")
         return load_kitti(path)
+    if fmt == "middlebury2003":
+        if resolution != "full":
+            raise ValueError(f"resolution: Middlebury 2001/2003 pairs are evaluated at their stored size only, "
+                             f"got {resolution!r}")
+        from research.datasets.middlebury2003 import load_middlebury2003
+
+        return load_middlebury2003(path, scale)
+    if scale is not None:
+        raise ValueError(f"scale: applies to the middlebury2003 format only, got format {fmt!r}")
     return load_middlebury(path, resolution, benchmark=fmt)

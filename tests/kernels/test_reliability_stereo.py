@@ -46,3 +46,29 @@ def test_integer_volumes_other_than_compact_ones_are_refused(call, match):
     with pytest.raises(ValueError, match=match) as e:
         call()
     assert "\n" not in str(e.value)
+
+
+_G = np.zeros((4, 6))
+_C = np.zeros((4, 6, 3))
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: stereo.adcensus_cost(_C, _C, 0, 3), "grey: expected the \\(left, right\\) grey images"),
+    (lambda: stereo.adcensus_cost(_C, _C, 0, 3, grey=_G), "grey: expected a \\(left, right\\) pair"),
+    (lambda: stereo.adcensus_cost(_C, _C, 0, 3, grey=(np.zeros((4, 5)), np.zeros((4, 5)))), "grey\\[0\\]: expected shape"),
+    (lambda: stereo.adcensus_cost(_C, _C, 0, 3, grey=(_G, _G.astype(np.float32))), "grey\\[1\\]: expected dtype float64 like"),
+    (lambda: stereo.adcensus_cost(_G, _C, 0, 3), "right"),
+    (lambda: stereo.adcensus_cost(_G, _G, 0, 9), "dmax"),
+    (lambda: stereo.adcensus_cost(_G, _G, 0, 3, lambda_census=0.0), "lambda_census"),
+    (lambda: stereo.adcensus_cost(_G, _G, 0, 3, grad_cap=-1.0), "grad_cap"),
+    (lambda: stereo.adcensus_cost(_G, _G, 0, 3, bt_weight=float("nan")), "bt_weight"),
+    (lambda: stereo.adcensus_cost(_G, _G, 0, 3, census_radii=(4, 4)), "radius_y, radius_x"),
+    (lambda: stereo.sobel_x_clipped(np.zeros(6), 0.25), "image: expected a grey"),
+    (lambda: stereo.sobel_x_clipped(_G, 0.0), "cap"),
+], ids=["colour-without-grey", "grey-not-a-pair", "grey-wrong-shape", "grey-wrong-dtype", "grey-and-colour",
+        "range-wider-than-image", "lambda-census-0", "grad-cap-negative", "bt-weight-nan", "census-81-bits",
+        "sobel-1d", "sobel-cap-0"])
+def test_adcensus_bad_input(call, match):
+    with pytest.raises(ValueError, match=match) as e:
+        call()
+    assert "\n" not in str(e.value)

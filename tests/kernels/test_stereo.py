@@ -73,13 +73,17 @@ def test_bt_is_insensitive_to_half_pixel_sampling():
     assert sad[:, 1:-1, :].min() > 0.01
 
 
-@pytest.mark.parametrize("cost", ["sad", "zncc", "census", "bt"])
+@pytest.mark.parametrize("cost", ["sad", "zncc", "census", "bt", "adcensus"])
 def test_out_of_range_cells_cost_at_least_any_match(cost):
     # Images with disjoint value ranges: the out-of-range fill must still bound every real cost from above.
     rng = np.random.default_rng(12)
     L, R = rng.uniform(0.0, 0.1, (6, 10)), rng.uniform(0.9, 1.0, (6, 10))
-    C = getattr(stereo, f"{cost}_cost")(L, R, -3, 5, 1, 1) if cost == "census" else \
-        getattr(stereo, f"{cost}_cost")(L, R, -3, 5, 1)
+    if cost == "adcensus":
+        C = stereo.adcensus_cost(L, R, -3, 5, census_radii=(1, 1), radius=1, bt_weight=1.0)
+    elif cost == "census":
+        C = stereo.census_cost(L, R, -3, 5, 1, 1)
+    else:
+        C = getattr(stereo, f"{cost}_cost")(L, R, -3, 5, 1)
     d = np.arange(-3, 5)
     x = np.arange(10)[:, None]
     out_of_range = np.broadcast_to((x - d < 0) | (x - d >= 10), C.shape)
@@ -413,3 +417,56 @@ def test_bad_dtypes_devices_and_parameters():
         stereo.soft_argmin_backward(np.zeros((2, 3, 2)), 0, np.zeros((3, 2)))
     with pytest.raises(ValueError, match="valid_left: expected dtype bool or uint8"):
         stereo.left_right_check(np.zeros((2, 3)), np.zeros((2, 3)), valid_left=np.zeros((2, 3), dtype=np.int64))
+
+
+# =========================================================================== adcensus
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("channels,cap", [(0, 0.25), (3, 0.1)])
+def test_sobel_x_clipped_matches_reference(dtype, channels, cap):
+    rng = np.random.default_rng(3)
+    img = rng.uniform(0.0, 1.0, (6, 9, channels) if channels else (6, 9)).astype(dtype)
+    got = stereo.sobel_x_clipped(img, cap)
+    assert got.dtype == dtype and got.shape == img.shape and got.min() >= 0 and got.max() <= 1
+    np.testing.assert_allclose(got, ref.sobel_x_clipped(img, cap), rtol=RTOL[dtype], atol=1e-7)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("seed,drange,channels,bt_weight", [(0, (0, 5), 0, 0.0), (1, (-2, 4), 3, 0.5), (2, (3, 9), 3, 0.0)])
+def test_adcensus_matches_reference(dtype, seed, drange, channels, bt_weight):
+    rng = np.random.default_rng(seed)
+    shape = (7, 11, channels) if channels else (7, 11)
+    L = rng.uniform(0.0, 1.0, shape)
+    R = np.clip(np.roll(L, -2, axis=1) + 0.05 * rng.standard_normal(shape), 0, 1)
+    L, R = L.astype(dtype), R.astype(dtype)
+    grey = (L.mean(axis=2), R.mean(axis=2)) if channels else None
+    kw = dict(census_radii=(1, 2), radius=1, grad_cap=0.2, lambda_census=5.0, lambda_grad=0.05, bt_weight=bt_weight,
+              lambda_bt=0.03)
+    got = stereo.adcensus_cost(L, R, *drange, grey=grey, **kw)
+    assert got.dtype == dtype and got.shape == (7, 11, drange[1] - drange[0])
+    np.testing.assert_allclose(got, ref.adcensus_cost(L, R, *drange, grey=grey, **kw), rtol=RTOL[dtype], atol=1e-6)
+
+
+def test_adcensus_is_unchanged_by_an_intensity_offset_where_no_clip_binds():
+    """Census and the x-gradient do not see a constant offset (nor does the clip, away from 0 and 1)."""
+    L, R = _images(4, shape=(10, 16))
+    L, R = 0.25 + 0.5 * L, 0.25 + 0.5 * np.clip(R, 0, 1)
+    a = stereo.adcensus_cost(L, R, 0, 6)
+    b = stereo.adcensus_cost(L, R + 0.1, 0, 6)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+    # The intensity term does see it.
+    assert not np.allclose(stereo.adcensus_cost(L, R, 0, 6, bt_weight=1.0),
+                           stereo.adcensus_cost(L, R + 0.1, 0, 6, bt_weight=1.0))
+
+
+def test_adcensus_wp_arrays_in_give_wp_arrays_out():
+    rng = np.random.default_rng(5)
+    L, R = rng.uniform(0, 1, (6, 10, 3)), rng.uniform(0, 1, (6, 10, 3))
+    grey = (L.mean(axis=2), R.mean(axis=2))
+    expected = stereo.adcensus_cost(L, R, 0, 4, grey=grey, bt_weight=0.3)
+    got = stereo.adcensus_cost(wp.array(L, dtype=wp.float64), wp.array(R, dtype=wp.float64), 0, 4, grey=grey,
+                               bt_weight=0.3)
+    assert isinstance(got, wp.array)
+    np.testing.assert_array_equal(got.numpy(), expected)
+    assert isinstance(stereo.sobel_x_clipped(wp.array(L, dtype=wp.float64)), wp.array)

@@ -126,3 +126,26 @@ def kitti_folder(root: Path, version: int = 2015, ids: tuple[str, ...] = ("00000
                     f"P3: {P(KITTI_F * (0.06 - KITTI_B))}\n")
         written[i] = {"occ": raw_occ, "noc": raw_noc, "left": left}
     return written
+
+
+def write_pgm(path: Path, a: np.ndarray) -> None:
+    """A binary (P5) PGM, 8-bit (maxval 255) for uint8, 16-bit big-endian (maxval 65535) for uint16."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    h, w = a.shape
+    maxval = 255 if a.dtype == np.uint8 else 65535
+    data = np.ascontiguousarray(a, dtype=">u2" if maxval > 255 else np.uint8).tobytes()
+    path.write_bytes(f"P5\n{w} {h}\n{maxval}\n".encode("ascii") + data)
+
+
+def middlebury2003_scene(folder: Path, seed: int = 0, scale: int = 4, tsukuba_names: bool = False,
+                         pgm: bool = False, colour: bool = True) -> dict:
+    """A Middlebury 2001/2003 scene folder: im2.png/im6.png/disp2.png (or im3/im4/disp3 as tsukuba), the
+    ground truth stored as round(d * scale) in 8 bits with 0 = unknown (here the two left-most columns)."""
+    left, right, disp = scene(seed, colour)
+    lname, rname, gname = ("im3.png", "im4.png", "disp3") if tsukuba_names else ("im2.png", "im6.png", "disp2")
+    write_png(folder / lname, left)
+    write_png(folder / rname, right)
+    raw = np.rint(disp * scale).astype(np.uint8)
+    raw[:, :2] = 0
+    (write_pgm if pgm else write_png)(folder / (gname + (".pgm" if pgm else ".png")), raw)
+    return {"left": left, "right": right, "disparity": np.where(raw > 0, raw / scale, 0.0), "known": raw > 0}

@@ -91,6 +91,13 @@ def _check_stereo(m):
         assert 0.0 <= r["pooled_stressed"]["d1"] <= 1.0 and 0.0 <= r["tuning_d1_stressed"] <= 1.0
     assert m["best_drlab"] in m["methods"] and m["robust_drlab"] in m["methods"]
     assert "OpenCV StereoSGBM" in m["methods"]
+    # drlab's default runs as it is (research.stereo.DEFAULT_CONFIG), never picked as the grid's best or robust one.
+    from research.stereo import DEFAULT_CONFIG
+
+    default = m["methods"][m["default_drlab"]]
+    assert default["family"] == "drlab-default" and default["params"]["cost"] == DEFAULT_CONFIG.cost
+    assert default["params"]["p1"] == DEFAULT_CONFIG.p1 and default["params"]["median"] == DEFAULT_CONFIG.median
+    assert m["default_drlab"] not in (m["best_drlab"], m["robust_drlab"])
 
 
 def _check_splats(m):

@@ -179,7 +179,7 @@ def test_bad_kitti_input(tmp_path, case, corrupt, expected):
 
 
 ARGUMENT_CASES = [
-    ("format-unknown", dict(fmt="sintel"), r"^format: expected one of \('middlebury', 'kitti', 'eth3d'\), got 'sintel'$"),
+    ("format-unknown", dict(fmt="sintel"), r"^format: expected one of \('middlebury', 'kitti', 'eth3d', 'middlebury2003'\), got 'sintel'$"),
     ("resolution-unknown", dict(resolution="double"), r"^resolution: expected one of \('full', 'half', 'quarter'\)"),
     ("kitti-at-half-resolution", dict(fmt="kitti", resolution="half"),
      r"^resolution: KITTI's sparse ground truth is evaluated at full resolution only, got 'half'$"),
@@ -206,6 +206,54 @@ def test_bad_reader_arguments(tmp_path, case, kw, expected):
     assert re.search(expected, msg), msg
 
 
+# --------------------------------------------------------------------------- Middlebury 2001/2003
+
+
+def _mb03(corrupt: Callable[[Path], None], name: str = "venus", **kw: object) -> Callable[[Path], Path]:
+    def make(root: Path) -> Path:
+        fx.middlebury2003_scene(root / name, scale=8, **kw)
+        corrupt(root / name)
+        return root
+    return make
+
+
+MB2003_CASES = [
+    ("unknown-scene-without-scale", _mb03(lambda f: None, name="aloe"), {},
+     r"aloe/disp2\.png: unknown scene 'aloe': its disparity scale is not in the table \(tsukuba 16, venus 8, "
+     r"teddy 4, cones 4\); give the scale"),
+    ("disparity-16-bit", _mb03(lambda f: fx.write_png(f / "disp2.png", np.full((24, 48), 24, np.uint16))), {},
+     r"venus/disp2\.png: expected an 8-bit disparity map, got 16-bit"),
+    ("disparity-pgm-16-bit", _mb03(lambda f: (f / "disp2.png").unlink() or fx.write_pgm(
+        f / "disp2.pgm", np.full((24, 48), 24, np.uint16))), {}, r"venus/disp2\.pgm: expected an 8-bit disparity map, got 16-bit"),
+    ("disparity-wrong-size", _mb03(lambda f: fx.write_png(f / "disp2.png", np.full((24, 40), 24, np.uint8))), {},
+     r"venus/disp2\.png: is 40x24, but im2\.png is 48x24"),
+    ("disparity-colour", _mb03(lambda f: fx.write_png(f / "disp2.png", np.full((24, 48, 3), 24, np.uint8))), {},
+     r"venus/disp2\.png: expected a one-channel disparity map, got 3 channels"),
+    ("right-wrong-size", _mb03(lambda f: fx.write_png(f / "im6.png", np.zeros((20, 48, 3), np.uint8))), {},
+     r"venus/im6\.png: is 48x20 colour, but im2\.png is 48x24 colour"),
+    ("image-16-bit", _mb03(lambda f: fx.write_png(f / "im2.png", np.zeros((24, 48, 3), np.uint16))), {},
+     r"venus/im2\.png: expected an 8-bit image, got 16-bit"),
+    ("disparity-all-unknown", _mb03(lambda f: fx.write_png(f / "disp2.png", np.zeros((24, 48), np.uint8))), {},
+     r"venus/disp2\.png: holds no known disparity"),
+    ("disparity-truncated", _mb03(lambda f: (f / "disp2.png").write_bytes((f / "disp2.png").read_bytes()[:60])), {},
+     r"venus/disp2\.png: "),
+    ("scale-zero", _mb03(lambda f: None), {"scale": 0.0}, r"scale: expected a finite number > 0, got 0\.0"),
+    ("scale-on-middlebury-2014", lambda root: (fx.middlebury_pair(root / "p"), root)[1], {"scale": 4.0, "fmt": "middlebury"},
+     r"scale: applies to the middlebury2003 format only"),
+    ("resolution-half", _mb03(lambda f: None), {"resolution": "half"},
+     r"resolution: Middlebury 2001/2003 pairs are evaluated at their stored size only, got 'half'"),
+]
+
+
+@pytest.mark.parametrize("case, make, kw, expected", MB2003_CASES, ids=[c[0] for c in MB2003_CASES])
+def test_bad_middlebury2003_input(tmp_path, case, make, kw, expected):
+    root = make(tmp_path)
+    with pytest.raises(ValueError) as e:
+        load_benchmark(root, kw.get("fmt"), kw.get("resolution", "full"), scale=kw.get("scale"))
+    msg = _one_line(e.value)
+    assert re.search(expected, msg), msg
+
+
 # --------------------------------------------------------------------------- stereo_depth --data
 
 CLI_CASES = [
@@ -218,7 +266,7 @@ CLI_CASES = [
     ("ndisp-wider-than-image", ["--out", "{out}", "@ndisp=64"],
      r"p/calib\.txt: ndisp=64: the disparity range \[0, 64\) must be narrower than the image \(48 px wide\)"),
     ("resolution-without-benchmark", ["--resolution", "half", "--out", "{out}", "@nodata"],
-     r"--resolution, --max-disp: apply to a benchmark --data folder only"),
+     r"--resolution, --max-disp, --gt-scale: apply to a benchmark --data folder only"),
     ("format-on-a-cache-root", ["--format", "eth3d", "--out", "{out}", "@nodata"],
      r": holds no eth3d pair"),
     ("volume-exceeds-free-memory", ["--out", "{out}", "@lowmem"],
@@ -227,17 +275,20 @@ CLI_CASES = [
     ("kitti-at-half-resolution", ["--resolution", "half", "--out", "{out}", "@kitti"],
      r"--resolution: KITTI's sparse ground truth is evaluated at full resolution only, got 'half'"),
     ("corrupt-pair-keeps-old-results", ["--out", "{out}", "@corrupt"], r"p/disp0\.pfm: expected 4608 bytes"),
+    ("gt-scale-on-middlebury-2014", ["--gt-scale", "4", "--out", "{out}"],
+     r"--gt-scale: applies to --format middlebury2003 only, got middlebury"),
+    ("gt-scale-zero", ["--gt-scale", "0", "--out", "{out}"], r"--gt-scale: expected a finite number > 0, got '0'"),
 ]
 
 
 @pytest.mark.parametrize("case, argv, expected", CLI_CASES, ids=[c[0] for c in CLI_CASES])
 def test_bad_stereo_depth_benchmark_run(tmp_path, capsys, monkeypatch, case, argv, expected):
     """One line `<prog>: <message>`, exit status 2; the previous --out folder is left as it was."""
-    from experiments import stereo_depth
     from experiments.stereo_depth import main
+    from research import stereo_benchmark
 
     if "@lowmem" in argv:
-        monkeypatch.setattr(stereo_depth, "_free_memory", lambda: 1000)
+        monkeypatch.setattr(stereo_benchmark, "_free_memory", lambda: 1000)
 
     data = tmp_path / "data"
     out = tmp_path / "out"

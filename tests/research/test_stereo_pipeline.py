@@ -119,3 +119,26 @@ def test_config_rejects_unknown_names():
         StereoConfig(cost="ssd")
     with pytest.raises(ValueError, match="aggregation"):
         StereoConfig(aggregation="sgm16")
+
+
+def test_border_invalidation_and_median_post_processing():
+    """In the columns x < dmax - 1, pixels left of d_b + 1 (d_b: the row's first valid full-range disparity)
+    become invalid; the median runs on the filled map and keeps the valid mask."""
+    import research.stereo as rs
+
+    disp = np.array([[0.0, 1.0, 2.0, 3.0, 2.5, 2.5, 2.5, 2.5],
+                     [0.0, 1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.5],
+                     [0.0, 1.0, 2.0, 3.0, 3.0, 3.0, 3.0, 3.0]], np.float32)
+    valid = np.ones_like(disp, bool)
+    valid[2, 4:] = False  # no valid full-range pixel in row 2: nothing to go by, the row stays as it is
+    cfg = StereoConfig("census", "sgm8", border_invalid=True)
+    d, v = rs.post_process(disp, valid, 5, cfg)  # dmax 5: columns 0..3 lack some hypotheses
+    np.testing.assert_array_equal(d, disp)
+    assert v[0].tolist() == [False] * 4 + [True] * 4  # x < 2.5 + 1: the whole band, columns 0..3
+    assert v[1].tolist() == [False, False] + [True] * 6  # x < 0.5 + 1
+    assert v[2].tolist() == [True] * 4 + [False] * 4
+    d2, v2 = rs.post_process(disp, valid, 5, StereoConfig("census", "sgm8", median=3))
+    np.testing.assert_array_equal(v2, valid)
+    from scipy.ndimage import median_filter
+
+    np.testing.assert_array_equal(d2, median_filter(rs.fill_invalid(disp, valid), size=3, mode="nearest"))
