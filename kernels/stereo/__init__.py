@@ -45,13 +45,14 @@ from kernels.stereo.costs import (CENSUS_MAX_BITS, census_cost, census_transform
                                   feature_correlation_backward, sad_cost, zncc_cost)
 from kernels.stereo.disparity import (depth_from_disparity, left_right_check, soft_argmin, soft_argmin_backward,
                                       wta, wta_left_right, wta_right)
+from kernels.stereo.fused import sgm_disparity
 from kernels.stereo.sgm import SGM_AXES, SGM_DIRECTIONS, SGM_LANES, sgm
 
 __all__ = [
     "CENSUS_MAX_BITS", "SGM_AXES", "SGM_DIRECTIONS", "SGM_LANES",
     "sad_cost", "zncc_cost", "bt_cost", "census_transform", "census_cost", "feature_correlation",
     "feature_correlation_backward",
-    "sgm",
+    "sgm", "sgm_disparity",
     "wta", "wta_right", "wta_left_right", "soft_argmin", "soft_argmin_backward", "left_right_check",
     "depth_from_disparity",
 ]

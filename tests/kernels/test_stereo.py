@@ -199,14 +199,17 @@ def test_compact_census_sgm_and_winners_equal_the_float_pipeline(drange):
     c32 = stereo.census_cost(L, R, *drange, 2, 3)
     assert c8.dtype == np.uint8
     np.testing.assert_array_equal(c8.astype(np.float32), c32)
-    if (drange[1] - drange[0]) % 8:
-        with pytest.raises(ValueError, match="cost: a uint8 volume needs a multiple of 8"):
-            stereo.sgm(c8, 8, 64, 8)
-        return
     for paths in (4, 8):
         s16, s32 = stereo.sgm(c8, 8, 64, paths), stereo.sgm(c32, 8.0, 64.0, paths)
         assert s16.dtype == np.uint16
         np.testing.assert_array_equal(s16.astype(np.float32), s32)
+        # The two SGM schemes (two sweeps on the CPU, one launch per axis on a GPU) agree exactly.
+        np.testing.assert_array_equal(stereo.sgm(c32, 8.0, 64.0, paths, method="axes"), s32)
+        if (drange[1] - drange[0]) % 8:
+            with pytest.raises(ValueError, match="cost: a uint8 volume needs a multiple of 8"):
+                stereo.sgm(c8, 8, 64, paths, method="axes")
+        else:
+            np.testing.assert_array_equal(stereo.sgm(c8, 8, 64, paths, method="axes"), s16)
     dmin = drange[0]
     for got, want in ((stereo.wta(s16, dmin, uniqueness=0.1), stereo.wta(s32, dmin, uniqueness=0.1)),
                       (stereo.wta_right(s16, dmin), stereo.wta_right(s32, dmin)),
@@ -413,3 +416,44 @@ def test_bad_dtypes_devices_and_parameters():
         stereo.soft_argmin_backward(np.zeros((2, 3, 2)), 0, np.zeros((3, 2)))
     with pytest.raises(ValueError, match="valid_left: expected dtype bool or uint8"):
         stereo.left_right_check(np.zeros((2, 3)), np.zeros((2, 3)), valid_left=np.zeros((2, 3), dtype=np.int64))
+
+
+@pytest.mark.parametrize("shape, dmin, paths, uniqueness, subpixel, lr", [
+    ((7, 9, 8), 0, 8, 0.0, True, 1.0),
+    ((13, 40, 40), -3, 8, 0.1, True, 1.0),
+    ((16, 70, 64), 2, 4, 0.0, False, 0.5),
+    ((5, 40, 33), -10, 8, 0.0, True, None),
+    ((1, 50, 32), 0, 8, 0.05, True, 2.0),
+], ids=["tiny", "d40-negative-dmin-uniqueness", "d64-4-paths-integer", "d33-no-lr-check", "one-row"])
+def test_sgm_disparity_equals_the_separate_calls(shape, dmin, paths, uniqueness, subpixel, lr):
+    # Small integer costs make ties and equal minima common, which the first-minimum rules must settle alike.
+    c8 = np.random.default_rng(11).integers(0, 20, shape).astype(np.uint8)
+    d, v = stereo.sgm_disparity(c8, dmin, 3, 20, paths, subpixel=subpixel, uniqueness=uniqueness, lr_max_diff=lr)
+    for cost in (c8, c8.astype(np.float32)):
+        S = stereo.sgm(cost, 3, 20, paths)
+        if lr is None:
+            want_d, want_v = stereo.wta(S, dmin, subpixel=subpixel, uniqueness=uniqueness)
+        else:
+            dl, vl, dr, vr = stereo.wta_left_right(S, dmin, subpixel=subpixel, uniqueness=uniqueness)
+            want_d, want_v = dl, stereo.left_right_check(dl, dr, lr, valid_left=vl, valid_right=vr)
+        np.testing.assert_array_equal(d, want_d)
+        np.testing.assert_array_equal(v, want_v)
+    assert 0.0 < v.mean() < 1.0  # both outcomes occur
+    # The float path of sgm_disparity (the separate calls) on the float32 volume: the same again.
+    d32, v32 = stereo.sgm_disparity(c8.astype(np.float32), dmin, 3.0, 20.0, paths, subpixel=subpixel,
+                                    uniqueness=uniqueness, lr_max_diff=lr)
+    np.testing.assert_array_equal(d32, d)
+    np.testing.assert_array_equal(v32, v)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("D", [5, 16, 21])
+def test_sgm_sweep_and_axes_agree_on_float_costs(dtype, D):
+    # Float costs: the two schemes add the same L_r in another order, so they agree to rounding, and both
+    # match the NumPy reference.
+    C = np.random.default_rng(12).normal(0.0, 1.0, (6, 11, D)).astype(dtype)
+    sweep_s = stereo.sgm(C, 0.3, 1.5, 8, method="sweep")
+    axes_s = stereo.sgm(C, 0.3, 1.5, 8, method="axes")
+    np.testing.assert_allclose(sweep_s, axes_s, rtol=SGM_RTOL[dtype], atol=1e-5 if dtype == np.float32 else 1e-12)
+    np.testing.assert_allclose(sweep_s, ref.sgm(C, 0.3, 1.5, 8), rtol=SGM_RTOL[dtype],
+                               atol=1e-5 if dtype == np.float32 else 1e-12)
