@@ -34,9 +34,10 @@ import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, check_float, check_int
-from kernels.stereo import disparity, sgm as sgm_module, sweep
+from kernels.stereo import disparity, sweep
 from kernels.stereo._common import check_dmin
 from kernels.stereo.disparity import _parabola
+from kernels.stereo.sgm import _sweep_cpu, checked, sgm
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -138,15 +139,15 @@ def sgm_disparity(cost: Any, dmin: int, p1: float, p2: float, paths: int = 8, *,
     u = disparity._uniqueness(uniqueness)
     shape = getattr(cost, "shape", ())
     if not (compact and a.device.is_cpu and len(shape) == 3 and 0 < shape[1] <= 65535):
-        agg = sgm_module.sgm(cost, p1, p2, paths, device=device)
+        agg = sgm(cost, p1, p2, paths, device=device)
         if not check:
             return disparity.wta(agg, dmin, subpixel=subpixel, uniqueness=u, device=device)
         dl, vl, dr, vr = disparity.wta_left_right(agg, dmin, subpixel=subpixel, uniqueness=u, device=device)
         return dl, disparity.left_right_check(dl, dr, tol, valid_left=vl, valid_right=vr, device=device)
-    c, paths, p1, p2 = sgm_module.checked(a, cost, p1, p2, paths)
+    c, paths, p1, p2 = checked(a, cost, p1, p2, paths)
     H, W, D = c.shape
     dmin = check_dmin(dmin, D, W)
-    agg = sgm_module._sweep_cpu(a, c, H, W, D, p1, p2, paths, True, padded_out=True)
+    agg = _sweep_cpu(a, c, H, W, D, p1, p2, paths, True, padded_out=True)
     Dp = agg.shape[2]
     nb = Dp // KEY_LANES
     agg_v = wp.array(ptr=agg.ptr, dtype=sweep.AGG_U16_VEC, shape=(H * W * nb,), device=a.device)
