@@ -7,7 +7,7 @@
     v = left_right_check(d_L, d_R, max_diff, valid_left=v_L, valid_right=v_R)
 
 (kernels.stereo.sgm and kernels.stereo.disparity state the math), bit for bit, with fewer passes
-over the volume where it can: for a uint8 cost volume on the CPU (compact mode, integer P1 and P2)
+over the volume on the CPU: for a uint8 cost volume (compact mode, integer P1 and P2)
 S comes from the two-sweep SGM of kernels.stereo.sweep, kept padded to whole vectors, and one
 thread per row then finds both views' winners and checks them:
 
@@ -22,7 +22,12 @@ thread per row then finds both views' winners and checks them:
 * then, per pixel, the range and uniqueness tests, the sub-pixel parabola and the left-right
   check, as the separate entry points compute them (the same expressions, in the same types).
 
-Other volumes (float costs, or a CUDA device) run the three calls above.
+A float volume on the CPU gets the float sweeps (S padded to 16 float32 or 8 float64 lanes, the
+padding raised to +inf) and `_rows_float`: vector minima give each left pixel's smallest S and each
+right pixel's (in the same reversed row buffer, +inf where no cell is in range); a scan in
+increasing k then finds the first hypothesis holding it (the first minimum again; costs are finite,
+so the scan always ends), whose own value is the winner's cost. A CUDA device runs the three calls
+above.
 """
 
 from __future__ import annotations
@@ -127,6 +132,96 @@ def _rows(agg_v: wp.array(dtype=sweep.AGG_U16_VEC), agg: wp.array3d(dtype=wp.uin
         valid[y, x] = wp.uint8(ok)
 
 
+@wp.kernel
+def _rows_float(agg_v: wp.array(dtype=typing.Any), agg: wp.array3d(dtype=typing.Any), rv: wp.array(dtype=typing.Any),
+                rv_v: wp.array(dtype=typing.Any), lm_v: wp.array(dtype=typing.Any), lm4_v: wp.array(dtype=typing.Any),
+                tail: typing.Any, lanes: int, D: int, dmin: int, subpixel: int, uniqueness: wp.float64, check: int,
+                max_diff: wp.float64, disp_l: wp.array2d(dtype=typing.Any), valid_l: wp.array2d(dtype=wp.uint8),
+                disp_r: wp.array2d(dtype=typing.Any), valid_r: wp.array2d(dtype=wp.uint8),
+                valid: wp.array2d(dtype=wp.uint8), offset: int):
+    # _rows for a float S (padded to whole vectors of `lanes`): the vectors give each pixel's and each
+    # right pixel's smallest cost (rv holds the right pixels' running minima, reversed as in _rows, +inf
+    # where none), then a scan in increasing k finds the first hypothesis holding it.
+    y = wp.tid() + offset
+    W = agg.shape[1]
+    nb = agg.shape[2] / lanes
+    RW = rv.shape[0] / agg.shape[0]
+    r0 = y * RW
+    M = W
+    inf = agg.dtype(wp.inf)
+    for i in range(RW):
+        rv[r0 + i] = inf
+    for x in range(W):
+        base = (y * W + x) * nb
+        ro = r0 + M + W - 1 - x + dmin
+        for j in range(nb):
+            v = agg_v[base + j]
+            if j == nb - 1:
+                v = wp.max(v, tail)
+            if j == 0:
+                lm_v[y] = v
+            else:
+                lm_v[y] = wp.min(lm_v[y], v)
+            o = ro + lanes * j
+            rv_v[o] = wp.min(rv_v[o], v)
+        q = 4 * y
+        cbest = wp.min(wp.min(wp.min(lm4_v[q], lm4_v[q + 1]), wp.min(lm4_v[q + 2], lm4_v[q + 3])))
+        best = int(0)
+        while agg[y, x, best] != cbest:
+            best += 1
+        cbest = agg[y, x, best]  # the first minimum's own value (-0.0 and 0.0 compare equal)
+        ok = int(1)
+        d = dmin + best
+        if x - d < 0 or x - d >= W:
+            ok = 0
+        if uniqueness > wp.float64(0.0):
+            keep = agg.dtype(wp.float64(1.0) - uniqueness)
+            for k in range(D):
+                if (k < best - 1 or k > best + 1) and agg[y, x, k] * keep < cbest:
+                    ok = 0
+        out = agg.dtype(d)
+        if subpixel != 0 and best > 0 and best + 1 < D:
+            out = out + _parabola(agg[y, x, best - 1], cbest, agg[y, x, best + 1])
+        disp_l[y, x] = out
+        valid_l[y, x] = wp.uint8(ok)
+    for xr in range(W):
+        cr = rv[r0 + M + W - 1 - xr]
+        out = agg.dtype(0.0)
+        ok = int(0)
+        if cr != inf:
+            # The first in-range k holding the minimum: x = xr + dmin + k >= 0.
+            best = wp.max(0, -xr - dmin)
+            while agg[y, xr + dmin + best, best] != cr:
+                best += 1
+            cr = agg[y, xr + dmin + best, best]
+            ok = 1
+            out = agg.dtype(dmin + best)
+            xm = xr + dmin + best - 1
+            xp = xr + dmin + best + 1
+            if subpixel != 0 and best > 0 and best + 1 < D and xm >= 0 and xp < W:
+                out = out + _parabola(agg[y, xm, best - 1], cr, agg[y, xp, best + 1])
+        disp_r[y, xr] = out
+        valid_r[y, xr] = wp.uint8(ok)
+    for x in range(W):
+        ok = int(valid_l[y, x])
+        if check != 0 and ok != 0:
+            dl = disp_l[y, x]
+            ok = 0
+            xr = int(wp.floor(wp.float64(x) - wp.float64(dl) + wp.float64(0.5)))
+            if xr >= 0 and xr < W:
+                if valid_r[y, xr] != wp.uint8(0):
+                    if wp.abs(wp.float64(dl) - wp.float64(disp_r[y, xr])) <= max_diff:
+                        ok = 1
+        valid[y, x] = wp.uint8(ok)
+
+
+for _s, _v in sweep.FLOAT_VEC.items():
+    wp.overload(_rows_float, {"agg_v": wp.array(dtype=_v), "agg": wp.array3d(dtype=_s), "rv": wp.array(dtype=_s),
+                              "rv_v": wp.array(dtype=_v), "lm_v": wp.array(dtype=_v),
+                              "lm4_v": wp.array(dtype=sweep.QUARTER[_s]), "tail": _v,
+                              "disp_l": wp.array2d(dtype=_s), "disp_r": wp.array2d(dtype=_s)})
+
+
 def sgm_disparity(cost: Any, dmin: int, p1: float, p2: float, paths: int = 8, *, subpixel: bool = True,
                   uniqueness: float = 0.0, lr_max_diff: float | None = 1.0,
                   device: Any = None) -> tuple[Any, Any]:
@@ -138,7 +233,7 @@ def sgm_disparity(cost: Any, dmin: int, p1: float, p2: float, paths: int = 8, *,
     tol = check_float("lr_max_diff", lr_max_diff, nonnegative=True) if check else 0.0
     u = disparity._uniqueness(uniqueness)
     shape = getattr(cost, "shape", ())
-    if not (compact and a.device.is_cpu and len(shape) == 3 and 0 < shape[1] <= 65535):
+    if not (a.device.is_cpu and len(shape) == 3 and 0 < shape[1] <= 65535):
         agg = sgm(cost, p1, p2, paths, device=device)
         if not check:
             return disparity.wta(agg, dmin, subpixel=subpixel, uniqueness=u, device=device)
@@ -147,20 +242,32 @@ def sgm_disparity(cost: Any, dmin: int, p1: float, p2: float, paths: int = 8, *,
     c, paths, p1, p2 = checked(a, cost, p1, p2, paths)
     H, W, D = c.shape
     dmin = check_dmin(dmin, D, W)
-    agg = _sweep_cpu(a, c, H, W, D, p1, p2, paths, True, padded_out=True)
+    agg = _sweep_cpu(a, c, H, W, D, p1, p2, paths, compact, padded_out=True)
+    lanes = sweep.lanes_of(compact, a.scalar)
     Dp = agg.shape[2]
-    nb = Dp // KEY_LANES
-    agg_v = wp.array(ptr=agg.ptr, dtype=sweep.AGG_U16_VEC, shape=(H * W * nb,), device=a.device)
-    RW = 3 * W + 2 * KEY_LANES
-    rk = wp.empty((H * RW,), dtype=wp.uint32, device=a.device)
-    rk_v = wp.array(ptr=rk.ptr, dtype=KEY_VEC, shape=(H * RW - KEY_LANES + 1,), strides=(4,), device=a.device)
-    lk_v = wp.empty((H,), dtype=KEY_VEC, device=a.device)
-    lk4_v = wp.array(ptr=lk_v.ptr, dtype=KEY_QUARTER, shape=(4 * H,), device=a.device)
-    lanes_k = KEY_VEC(*range(KEY_LANES))
-    tail = KEY_VEC(*[0 if (nb - 1) * KEY_LANES + i < D else KEY_NONE for i in range(KEY_LANES)])
-    disp_l, disp_r = a.empty((H, W), wp.float32), a.empty((H, W), wp.float32)
+    nb = Dp // lanes
+    RW = 3 * W + 2 * lanes
+    disp_l, disp_r = a.empty((H, W)), a.empty((H, W))
     valid_l, valid_r, valid = (a.empty((H, W), wp.uint8) for _ in range(3))
-    a.launch(_rows, H, [agg_v, agg, rk, rk_v, lk_v, lk4_v, lanes_k, tail, D, dmin, int(bool(subpixel)),
-                        wp.float64(u), int(check), wp.float64(tol), disp_l, valid_l, disp_r, valid_r, valid],
-             min_chunk=4)
+    flags = [D, dmin, int(bool(subpixel)), wp.float64(u), int(check), wp.float64(tol), disp_l, valid_l, disp_r,
+             valid_r, valid]
+    if compact:
+        agg_v = wp.array(ptr=agg.ptr, dtype=sweep.AGG_U16_VEC, shape=(H * W * nb,), device=a.device)
+        rk = wp.empty((H * RW,), dtype=wp.uint32, device=a.device)
+        rk_v = wp.array(ptr=rk.ptr, dtype=KEY_VEC, shape=(H * RW - lanes + 1,), strides=(4,), device=a.device)
+        lk_v = wp.empty((H,), dtype=KEY_VEC, device=a.device)
+        lk4_v = wp.array(ptr=lk_v.ptr, dtype=KEY_QUARTER, shape=(4 * H,), device=a.device)
+        lanes_k = KEY_VEC(*range(KEY_LANES))
+        tail = KEY_VEC(*[0 if (nb - 1) * KEY_LANES + i < D else KEY_NONE for i in range(KEY_LANES)])
+        a.launch(_rows, H, [agg_v, agg, rk, rk_v, lk_v, lk4_v, lanes_k, tail, *flags], min_chunk=4)
+    else:
+        vec = sweep.FLOAT_VEC[a.scalar]
+        item = wp.types.type_size_in_bytes(a.scalar)
+        agg_v = wp.array(ptr=agg.ptr, dtype=vec, shape=(H * W * nb,), device=a.device)
+        rv = wp.empty((H * RW,), dtype=a.scalar, device=a.device)
+        rv_v = wp.array(ptr=rv.ptr, dtype=vec, shape=(H * RW - lanes + 1,), strides=(item,), device=a.device)
+        lm_v = wp.empty((H,), dtype=vec, device=a.device)
+        lm4_v = wp.array(ptr=lm_v.ptr, dtype=sweep.QUARTER[a.scalar], shape=(4 * H,), device=a.device)
+        tail = vec(*[-np.inf if (nb - 1) * lanes + i < D else np.inf for i in range(lanes)])
+        a.launch(_rows_float, H, [agg_v, agg, rv, rv_v, lm_v, lm4_v, tail, lanes, *flags], min_chunk=4)
     return a.out(disp_l), a.out_mask(valid)

@@ -457,3 +457,23 @@ def test_sgm_sweep_and_axes_agree_on_float_costs(dtype, D):
     np.testing.assert_allclose(sweep_s, axes_s, rtol=SGM_RTOL[dtype], atol=1e-5 if dtype == np.float32 else 1e-12)
     np.testing.assert_allclose(sweep_s, ref.sgm(C, 0.3, 1.5, 8), rtol=SGM_RTOL[dtype],
                                atol=1e-5 if dtype == np.float32 else 1e-12)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("shape, dmin, uniqueness, lr", [((9, 30, 21), -4, 0.0, 1.0), ((6, 40, 16), 3, 0.2, 0.5),
+                                                         ((4, 25, 9), 0, 0.0, None)],
+                         ids=["d21-negative-dmin", "d16-uniqueness", "d9-no-lr-check"])
+def test_sgm_disparity_on_float_costs_equals_the_separate_calls(dtype, shape, dmin, uniqueness, lr):
+    # Real-valued costs (the float back end: vector minima, then the first hypothesis holding each).
+    c = np.random.default_rng(13).normal(0.0, 1.0, shape).astype(dtype)
+    d, v = stereo.sgm_disparity(c, dmin, 0.2, 0.9, 8, uniqueness=uniqueness, lr_max_diff=lr)
+    S = stereo.sgm(c, 0.2, 0.9, 8)
+    if lr is None:
+        want_d, want_v = stereo.wta(S, dmin, uniqueness=uniqueness)
+    else:
+        dl, vl, dr, vr = stereo.wta_left_right(S, dmin, uniqueness=uniqueness)
+        want_d, want_v = dl, stereo.left_right_check(dl, dr, lr, valid_left=vl, valid_right=vr)
+    assert d.dtype == dtype
+    np.testing.assert_array_equal(d, want_d)
+    np.testing.assert_array_equal(v, want_v)
+    assert 0.0 < v.mean() < 1.0
