@@ -205,22 +205,21 @@ def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "
     import warp as wp
 
     t0 = time.perf_counter()
-    if cfg.aggregation != "none" and cfg.disparity == "wta":
-        # SGM, both views' winners and the left-right check in one call (kernels.stereo.sgm_disparity, the
-        # same numbers as the separate calls below); aggregate_s covers all of it.
+    # SGM + winner-take-all: SGM, both views' winners and the left-right check in one call
+    # (kernels.stereo.sgm_disparity, the same numbers as the separate calls below); aggregate_s covers it all.
+    fused = cfg.aggregation != "none" and cfg.disparity == "wta"
+    if fused:
         disp, valid = stereo.sgm_disparity(cost, dmin, cfg.p1, cfg.p2, int(cfg.aggregation[3:]),
                                            uniqueness=cfg.uniqueness,
                                            lr_max_diff=cfg.lr_max_diff if cfg.lr_check else None, device=device)
         wp.synchronize_device(device)
-        t1 = time.perf_counter()
-        disp_np, valid_np = disp.numpy().astype(np.float32), valid.numpy().astype(bool)
-        t2 = time.perf_counter()
-        return StereoResult(disp_np, valid_np, {"aggregate_s": t1 - t0, "disparity_s": t2 - t1, "total_s": t2 - t0})
-    if cfg.aggregation != "none":
+    elif cfg.aggregation != "none":
         cost = stereo.sgm(cost, cfg.p1, cfg.p2, paths=int(cfg.aggregation[3:]), device=device)
         wp.synchronize_device(device)
     t1 = time.perf_counter()
-    if cfg.disparity == "soft_argmin":
+    if fused:
+        pass
+    elif cfg.disparity == "soft_argmin":
         disp = stereo.soft_argmin(cost, dmin, cfg.temperature, device=device)
         valid = wp.ones(disp.shape, dtype=wp.uint8, device=device)
         if cfg.lr_check:
@@ -229,7 +228,7 @@ def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "
         disp, valid, disp_r, valid_r = stereo.wta_left_right(cost, dmin, uniqueness=cfg.uniqueness, device=device)
     else:
         disp, valid = stereo.wta(cost, dmin, uniqueness=cfg.uniqueness, device=device)
-    if cfg.lr_check:
+    if cfg.lr_check and not fused:
         valid = stereo.left_right_check(disp, disp_r, cfg.lr_max_diff, valid_left=valid, valid_right=valid_r,
                                         device=device)
     disp_np, valid_np = disp.numpy().astype(np.float32), valid.numpy().astype(bool)

@@ -9,27 +9,30 @@ with L_r(p_0, k) = C(p_0, k) where the path enters the image,
 
 and S(p, k) = sum_r L_r(p, k). P1 penalises a one-step disparity change, P2 >= P1 any larger one.
 
-The recurrence is sequential along a scanline but scanlines are independent. Each axis (rows,
-columns, and for 8 paths the two diagonals) is one launch with one thread per scanline, which
-runs the path r and then -r back over the same pixels while they are still in cache. Each pixel
-lies on exactly one scanline of an axis, so the writes of S are disjoint and the launch splits
-across CPU threads (kernels.launch: a CPU launch runs on one thread and releases the GIL,
-docs/warp.md); axes run one after another.
+Two schemes compute S. On the CPU (method "sweep", the default there) kernels.stereo.sweep runs
+two scanline sweeps in SGBM's order, four paths each, on two threads, keeping only a row of L_r per
+path; its docstring has the details. On other devices (method "axes") each axis (rows, columns,
+and for 8 paths the two diagonals) is one launch with one thread per scanline, which runs the path
+r and then -r back over the same pixels while they are still in cache. Each pixel lies on exactly
+one scanline of an axis, so the writes of S are disjoint and the launch splits across CPU threads
+(kernels.launch: a CPU launch runs on one thread and releases the GIL, docs/warp.md); axes run one
+after another. The two schemes add the same L_r in another order: equal for integer costs and
+penalties, equal to float rounding otherwise.
 
-The hypotheses are processed as 8-wide vectors (SIMD on the CPU). Each scanline keeps L_r(p - r) in a
-row buffer between +inf sentinels, and reads the k - 1 and k + 1 candidates as the vectors that
-start one scalar before and after (unaligned vector views of the buffer), so no lane is shuffled;
-L_r(p) goes to a second row buffer and the two swap every step. D is padded to a multiple of 8 with hypotheses costing
-max C + 2 P2 + |max C| + 1, which no L_r(p, k) <= C(p, k) + P2 of a real hypothesis can reach, so
-the padding changes neither the real L_r nor their minimum.
+In the axis scheme the hypotheses are processed as 8-wide vectors. Each scanline keeps L_r(p - r)
+in a row buffer between +inf sentinels, and reads the k - 1 and k + 1 candidates as the vectors
+that start one scalar before and after (unaligned vector views of the buffer), so no lane is
+shuffled; L_r(p) goes to a second row buffer and the two swap every step. D is padded to a
+multiple of 8 with hypotheses costing max C + 2 P2 + |max C| + 1, which no L_r(p, k) <= C(p, k) +
+P2 of a real hypothesis can reach, so the padding changes neither the real L_r nor their minimum.
 
 Compact mode (a uint8 cost volume, for instance census Hamming distances): the aggregate S is
-uint16, 3 bytes per cell in all instead of float32's 8. The recurrence still runs in float32
-vectors, converting each cost vector on load and each aggregate vector on load and store. With
-integer costs and integer P1, P2 every L_r and S is an integer below 2^24, so float32 holds them
-exactly and S equals the float32 pipeline's bit for bit, provided S fits: every L_r(p, k) <= C(p, k)
-+ P2, so S <= paths (max C + P2), which must be <= 65535 (checked). D must be a multiple of 8 (no
-padding in this mode).
+uint16, 3 bytes per cell in all instead of float32's 8. With integer costs and integer P1, P2
+every L_r and S is an integer, so S equals the float32 pipeline's bit for bit, provided S fits:
+every L_r(p, k) <= C(p, k) + P2 <= 255 + P2, and P2 <= 7936 (checked) keeps 8 paths' sum within
+65535. The sweeps compute in int16 vectors; the axis scheme runs float32 vectors (integers below
+2^24, exact), converting each cost vector on load and each aggregate vector on load and store, and
+needs D a multiple of 8 (no padding in this mode).
 """
 
 from __future__ import annotations

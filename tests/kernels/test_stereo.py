@@ -477,3 +477,20 @@ def test_sgm_disparity_on_float_costs_equals_the_separate_calls(dtype, shape, dm
     np.testing.assert_array_equal(d, want_d)
     np.testing.assert_array_equal(v, want_v)
     assert 0.0 < v.mean() < 1.0
+
+
+@pytest.mark.parametrize("volume", ["uint8", "float64"])
+def test_sgm_disparity_matches_the_numpy_reference(volume):
+    # Against the NumPy chain ref.sgm -> ref.wta / ref.wta_right -> ref.left_right_check (no parabola, so the
+    # integer disparities compare exactly whatever the float type).
+    rng = np.random.default_rng(14)
+    c = rng.integers(0, 30, (8, 26, 12)) if volume == "uint8" else rng.normal(0.0, 1.0, (8, 26, 12))
+    c = c.astype(np.uint8 if volume == "uint8" else np.float64)
+    p1, p2 = (4, 24) if volume == "uint8" else (0.2, 0.9)
+    d, v = stereo.sgm_disparity(c, -2, p1, p2, 8, subpixel=False, uniqueness=0.05, lr_max_diff=1.0)
+    S = ref.sgm(c.astype(np.float64), p1, p2, 8)
+    dl, vl = ref.wta(S, -2, uniqueness=0.05, subpixel=False)
+    dr, vr = ref.wta_right(S, -2)  # always refined: its offset lies within 0.5 of the integer winner
+    np.testing.assert_array_equal(d, dl)
+    np.testing.assert_array_equal(v, ref.left_right_check(dl, np.round(dr), 1.0, vl, vr))
+    assert 0.0 < v.mean() < 1.0
