@@ -50,6 +50,7 @@ KEY_LANES = 32
 KEY_VEC = wp.types.vector(length=KEY_LANES, dtype=wp.uint32)
 KEY_QUARTER = wp.types.vector(length=KEY_LANES // 4, dtype=wp.uint32)
 KEY_NONE = 0xFFFFFFFF
+KEY_NONE_U32 = wp.constant(wp.uint32(KEY_NONE))
 
 
 @wp.kernel
@@ -69,7 +70,7 @@ def _rows(agg_v: wp.array(dtype=sweep.AGG_U16_VEC), agg: wp.array3d(dtype=wp.uin
     r0 = y * RW
     M = W
     for i in range(RW):
-        rk[r0 + i] = wp.uint32(KEY_NONE)
+        rk[r0 + i] = KEY_NONE_U32
     for x in range(W):
         base = (y * W + x) * nb
         ro = r0 + M + W - 1 - x + dmin
@@ -107,7 +108,7 @@ def _rows(agg_v: wp.array(dtype=sweep.AGG_U16_VEC), agg: wp.array3d(dtype=wp.uin
         kr = rk[r0 + M + W - 1 - xr]
         out = wp.float32(0.0)
         ok = int(0)
-        if kr != wp.uint32(KEY_NONE):
+        if kr != KEY_NONE_U32:
             best = int(kr % wp.uint32(65536))
             cbest = wp.float32(kr / wp.uint32(65536))
             ok = 1
