@@ -196,19 +196,19 @@ def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None, 
     """Semi-global matching: S = sum over `paths` (4 or 8) directions of L_r.
 
     A float volume gives a volume like `cost`. A uint8 volume (compact mode, module docstring) gives
-    a uint16 one; it needs integer P1 and P2 and P2 <= 7936 (and, with
-    method "axes", D a multiple of 8). `method`: "sweep" (kernels.stereo.sweep, CPU only), "axes"
+    a uint16 one; it needs integer P1 and P2 and P2 <= 7936 (and, with method "axes", D a multiple
+    of 8). `method`: "sweep" (kernels.stereo.sweep, CPU only), "axes"
     (one launch per axis, one thread per scanline: the GPU form), or "auto": "sweep" on the CPU,
     "axes" elsewhere. Both give the same S for integer costs, and agree to float rounding otherwise.
     """
     a = Inputs(device, cost)
-    c, paths, p1, p2 = checked(a, cost, p1, p2, paths)
-    compact = c.dtype == wp.uint8
-    H, W, D = c.shape
     if method not in ("auto", "sweep", "axes"):
         raise ValueError(f"method: expected 'auto', 'sweep' or 'axes', got {method!r}")
     if method == "sweep" and not a.device.is_cpu:
         raise ValueError(f"method: 'sweep' runs on the CPU only, got device {a.device}")
+    c, paths, p1, p2 = checked(a, cost, p1, p2, paths)
+    compact = c.dtype == wp.uint8
+    H, W, D = c.shape
     if method == "sweep" or (method == "auto" and a.device.is_cpu):
         return a.out(_sweep_cpu(a, c, H, W, D, p1, p2, paths, compact))
     nb = -(-D // SGM_LANES)
