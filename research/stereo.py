@@ -62,9 +62,9 @@ bits, or float), because every image is first normalised to [0, 1]:
 StereoConfig's field defaults (P1 = 8, P2 = 64) are census units.
 
 Memory: every configuration holds float32 volumes (`peak_volume_bytes`: the cost and SGM's
-aggregate, 8 bytes per cell), except census + SGM + winner-take-all with integer penalties once
-those would exceed FLOAT_VOLUME_BUDGET (1 GiB): that runs in compact mode (`uses_compact`: uint8
-costs, a uint16 aggregate, 3 bytes per cell, the same results).
+aggregate, 8 bytes per cell), except census + SGM + winner-take-all with integer penalties, which
+runs in compact mode (`uses_compact`: uint8 costs, a uint16 aggregate, 3 bytes per cell, the same
+results, and faster on the CPU).
 
 Benchmark protocols (Middlebury, KITTI, ETH3D; `protocol_metrics`, `pool_protocol`) are described
 at the end of this module.
@@ -223,38 +223,32 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
     return stereo.census_cost(l_img, r_img, dmin, dmax, *cfg.census_radii, compact=compact, device=device)
 
 
-# Above this many bytes of float32 volumes, census + SGM runs in compact mode (`uses_compact`).
-FLOAT_VOLUME_BUDGET = 2**30
-
-
 def uses_compact(cfg: StereoConfig, height: int, width: int, disparities: int) -> bool:
     """Whether `match` runs `cfg` in kernels.stereo's compact mode: uint8 census costs and a uint16 SGM
     aggregate (3 bytes per cell instead of float32's 8), whose results equal the float32 pipeline's
-    exactly. It applies to census + SGM + winner-take-all with integer P1 and P2, D a multiple of 8 and
-    paths x (census bits + P2) within uint16, when the float32 volumes would exceed FLOAT_VOLUME_BUDGET
-    (1 GiB): compact SGM converts every vector to float32 and back, which made it 1.8x slower than
-    float32 SGM at 256x256x64 (70 against 39 ms of CPU time, one thread), so it is kept for sizes
-    where memory, not time, is what runs out (Middlebury at half resolution, 1482x994x256: 3.0 GB of
-    float32 volumes, 1.1 GB compact)."""
+    exactly. It applies to census + SGM + winner-take-all with integer P1 and P2 within the uint8
+    volume's bound (kernels.stereo.sgm: P2 <= 7936) and D a multiple of 8,
+    at every size: on the CPU compact SGM runs in int16 vectors and is the faster path
+    (kernels.stereo.sweep). `height` and `width` do not change the answer; they are kept for callers."""
     if cfg.cost != "census" or cfg.aggregation == "none" or cfg.disparity != "wta" or disparities % 8:
         return False
     if cfg.p1 != int(cfg.p1) or cfg.p2 != int(cfg.p2):
         return False
-    bits = (2 * cfg.census_radii[0] + 1) * (2 * cfg.census_radii[1] + 1) - 1
-    if int(cfg.aggregation[3:]) * (bits + int(cfg.p2)) > 65535:
-        return False
-    return 8 * int(height) * int(width) * int(disparities) > FLOAT_VOLUME_BUDGET
+    return cfg.p2 <= 7936
 
 
 def peak_volume_bytes(cfg: StereoConfig, height: int, width: int, disparities: int) -> int:
-    """The bytes of the (H, W, D) volumes `match` holds at once for `cfg`: the cost volume and SGM's
-    aggregate (plus SGM's padded copies when D is not a multiple of 8), in float32 or compact mode."""
+    """The bytes of the (H, W, D) volumes `match` holds at once for `cfg` on the CPU: the cost volume and
+    SGM's aggregate (plus SGM's padded copies when D is not a multiple of its vector width, 16 float32 or
+    32 uint8 lanes), in float32 or compact mode."""
     cells = int(height) * int(width) * int(disparities)
     if cfg.aggregation == "none":
         return 4 * cells * (2 if cfg.cost == "adcensus" else 1)  # adcensus: the sum and one term
     if uses_compact(cfg, height, width, disparities):
-        return 3 * cells  # uint8 costs + uint16 aggregate
-    padded = int(height) * int(width) * (-(-int(disparities) // 8) * 8)
+        # uint8 costs + the uint16 aggregate padded to whole 32-lane vectors (+ the padded uint8 copy)
+        padded = int(height) * int(width) * (-(-int(disparities) // 32) * 32)
+        return cells + 2 * padded + (padded if padded != cells else 0)
+    padded = int(height) * int(width) * (-(-int(disparities) // 16) * 16)
     return 4 * (2 * cells + (2 * padded if padded != cells else 0))
 
 
@@ -271,11 +265,21 @@ def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "
     import warp as wp
 
     t0 = time.perf_counter()
-    if cfg.aggregation != "none":
+    # SGM + winner-take-all: SGM, both views' winners and the left-right check in one call
+    # (kernels.stereo.sgm_disparity, the same numbers as the separate calls below); aggregate_s covers it all.
+    fused = cfg.aggregation != "none" and cfg.disparity == "wta"
+    if fused:
+        disp, valid = stereo.sgm_disparity(cost, dmin, cfg.p1, cfg.p2, int(cfg.aggregation[3:]),
+                                           uniqueness=cfg.uniqueness,
+                                           lr_max_diff=cfg.lr_max_diff if cfg.lr_check else None, device=device)
+        wp.synchronize_device(device)
+    elif cfg.aggregation != "none":
         cost = stereo.sgm(cost, cfg.p1, cfg.p2, paths=int(cfg.aggregation[3:]), device=device)
         wp.synchronize_device(device)
     t1 = time.perf_counter()
-    if cfg.disparity == "soft_argmin":
+    if fused:
+        pass
+    elif cfg.disparity == "soft_argmin":
         disp = stereo.soft_argmin(cost, dmin, cfg.temperature, device=device)
         valid = wp.ones(disp.shape, dtype=wp.uint8, device=device)
         if cfg.lr_check:
@@ -284,7 +288,7 @@ def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "
         disp, valid, disp_r, valid_r = stereo.wta_left_right(cost, dmin, uniqueness=cfg.uniqueness, device=device)
     else:
         disp, valid = stereo.wta(cost, dmin, uniqueness=cfg.uniqueness, device=device)
-    if cfg.lr_check:
+    if cfg.lr_check and not fused:
         valid = stereo.left_right_check(disp, disp_r, cfg.lr_max_diff, valid_left=valid, valid_right=valid_r,
                                         device=device)
     disp_np, valid_np = disp.numpy().astype(np.float32), valid.numpy().astype(bool)

@@ -24,7 +24,8 @@ Stages, one module each
 * `sgm`: semi-global matching (Hirschmueller, PAMI 2008), S(p, k) = sum_r L_r(p, k) over 4 or 8
   path directions r, L_r penalising disparity steps by P1 (one step) and P2 (more).
 * compact mode: census costs as uint8 and the SGM aggregate as uint16 (3 bytes per cell instead
-  of float32's 8, the same values), for sizes where float32 volumes do not fit (kernels.stereo.sgm).
+  of float32's 8, the same values; on the CPU also the faster path, kernels.stereo.sgm).
+* `fused`: `sgm_disparity`, SGM + both views' winners + the left-right check in one call.
 * `disparity`: winner-take-all with a sub-pixel parabola and a uniqueness test, the right view's
   winner from the same volume, soft-argmin d = sum_k d_k softmax_k(-C / T) with its backward, the
   left-right consistency check, and depth Z = f b / d.
@@ -48,13 +49,14 @@ from kernels.stereo.costs import (CENSUS_MAX_BITS, census_cost, census_transform
                                   feature_correlation_backward, sad_cost, zncc_cost)
 from kernels.stereo.disparity import (depth_from_disparity, left_right_check, soft_argmin, soft_argmin_backward,
                                       wta, wta_left_right, wta_right)
+from kernels.stereo.fused import sgm_disparity
 from kernels.stereo.sgm import SGM_AXES, SGM_DIRECTIONS, SGM_LANES, sgm
 
 __all__ = [
     "CENSUS_MAX_BITS", "SGM_AXES", "SGM_DIRECTIONS", "SGM_LANES",
     "sad_cost", "zncc_cost", "bt_cost", "adcensus_cost", "sobel_x_clipped", "census_transform", "census_cost", "feature_correlation",
     "feature_correlation_backward",
-    "sgm",
+    "sgm", "sgm_disparity",
     "wta", "wta_right", "wta_left_right", "soft_argmin", "soft_argmin_backward", "left_right_check",
     "depth_from_disparity",
 ]

@@ -27,7 +27,8 @@ cells out of range hold a fixed cost no real match can beat (each cost below nam
   centre excluded) becomes a bit string with bit [I(q) < I(p)] per neighbour q (raster order,
   coordinates clamped to the image); the cost is the Hamming distance
   popcount(c_L(x, y) xor c_R(x - d, y)). Out of range: the number of bits. With `compact` the
-  volume is uint8 (every distance is an integer <= 64), for kernels.stereo.sgm's compact mode.
+  volume is uint8 (every distance is an integer <= 64), for kernels.stereo.sgm's compact mode. The
+  transform runs in kernels.stereo.census (one kernel per window size, its loops unrolled).
 * Feature correlation, RAFT-Stereo's 1D correlation (Lipson, Teed & Deng, 3DV 2021) restricted to
   the disparity range, for learned features F (C, H, W) (PyTorch's layout, as kernels/corr.py):
 
@@ -52,6 +53,7 @@ import warp as wp
 from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
 from kernels.launch import default_threads
 from kernels.stereo._common import check_dmin, check_range, image_pair, pixel
+from kernels.stereo.census import census_kernel
 
 # Every backward here is a hand-written kernel; Warp's autodiff code would only add compile time.
 wp.set_module_options({"enable_backward": False})
@@ -194,24 +196,6 @@ def _window_cost(left: wp.array2d(dtype=typing.Any), right: wp.array2d(dtype=typ
 
 
 @wp.kernel
-def _census_transform(img: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=wp.uint64), ry: int, rx: int,
-                      offset: int):
-    H = img.shape[0]
-    W = img.shape[1]
-    y, x = pixel(wp.tid() + offset, W)
-    c = img[y, x]
-    bits = wp.uint64(0)
-    for dy in range(-ry, ry + 1):
-        yy = wp.clamp(y + dy, 0, H - 1)
-        for dx in range(-rx, rx + 1):
-            if dy != 0 or dx != 0:
-                q = img[yy, wp.clamp(x + dx, 0, W - 1)]
-                # Branch-free: on texture the comparison is a coin toss that a branch would mispredict.
-                bits = (bits << wp.uint64(1)) | wp.uint64(wp.where(q < c, 1, 0))
-    out[y, x] = bits
-
-
-@wp.kernel
 def _census_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64), out: wp.array3d(dtype=typing.Any),
                  dmin: int, invalid: int, offset: int):
     W = cl.shape[1]
@@ -237,12 +221,17 @@ def _census_cost_v(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint
     base = (y * W + x) * nb
     for j in range(nb):
         v = out_v.dtype()
-        for lane in range(8):
-            u = x - (dmin + j * 8 + lane)
-            h = invalid
-            if u >= 0 and u < W:
-                h = int(wp.bit_count(a ^ cr[y, u]))
-            v[lane] = type(v[0])(h)
+        u0 = x - (dmin + j * 8)
+        if u0 - 7 >= 0 and u0 < W:  # every lane's right pixel exists: no test per lane
+            for lane in range(8):
+                v[lane] = type(v[0])(wp.bit_count(a ^ cr[y, u0 - lane]))
+        else:
+            for lane in range(8):
+                u = u0 - lane
+                h = invalid
+                if u >= 0 and u < W:
+                    h = int(wp.bit_count(a ^ cr[y, u]))
+                v[lane] = type(v[0])(h)
         out_v[base + j] = v
 
 
@@ -306,7 +295,7 @@ declare_float_overloads(_census_cost_v, vector_types=CENSUS_VEC)
 CENSUS_U8_VEC = wp.types.vector(length=8, dtype=wp.uint8)
 wp.overload(_census_cost_v, {"out_v": wp.array(dtype=CENSUS_U8_VEC)})
 wp.overload(_census_cost, {"out": wp.array3d(dtype=wp.uint8)})
-for _kernel in (_integral_rows, _window_cost, _census_transform, _census_cost, _channels_last, _corr_forward,
+for _kernel in (_integral_rows, _window_cost, _census_cost, _channels_last, _corr_forward,
                 _corr_backward_left, _corr_backward_right):
     declare_float_overloads(_kernel)
 
@@ -379,7 +368,7 @@ def census_transform(image: Any, radius_y: int = 3, radius_x: int = 4, *, device
     img = a.floats("image", image, ndim=2, nonempty=True)
     ry, rx, _ = _census_radii(radius_y, radius_x)
     out = a.empty(img.shape, wp.uint64)
-    a.launch(_census_transform, img.size, [img, out, ry, rx])
+    a.launch(census_kernel(ry, rx), img.size, [img, out])
     return a.out(out)
 
 
@@ -394,8 +383,8 @@ def census_cost(left: Any, right: Any, dmin: int, dmax: int, radius_y: int = 3, 
     ry, rx, bits = _census_radii(radius_y, radius_x)
     cl = a.empty((H, W), wp.uint64)
     cr = a.empty((H, W), wp.uint64)
-    a.launch(_census_transform, H * W, [l_img, cl, ry, rx])
-    a.launch(_census_transform, H * W, [r_img, cr, ry, rx])
+    a.launch(census_kernel(ry, rx), H * W, [l_img, cl])
+    a.launch(census_kernel(ry, rx), H * W, [r_img, cr])
     out = a.empty((H, W, D), wp.uint8 if compact else None)
     if D % 8 == 0:
         vec = CENSUS_U8_VEC if compact else CENSUS_VEC[a.scalar]

@@ -9,27 +9,30 @@ with L_r(p_0, k) = C(p_0, k) where the path enters the image,
 
 and S(p, k) = sum_r L_r(p, k). P1 penalises a one-step disparity change, P2 >= P1 any larger one.
 
-The recurrence is sequential along a scanline but scanlines are independent. Each axis (rows,
-columns, and for 8 paths the two diagonals) is one launch with one thread per scanline, which
-runs the path r and then -r back over the same pixels while they are still in cache. Each pixel
-lies on exactly one scanline of an axis, so the writes of S are disjoint and the launch splits
-across CPU threads (kernels.launch: a CPU launch runs on one thread and releases the GIL,
-docs/warp.md); axes run one after another.
+Two schemes compute S. On the CPU (method "sweep", the default there) kernels.stereo.sweep runs
+two scanline sweeps in SGBM's order, four paths each, on two threads, keeping only a row of L_r per
+path; its docstring has the details. On other devices (method "axes") each axis (rows, columns,
+and for 8 paths the two diagonals) is one launch with one thread per scanline, which runs the path
+r and then -r back over the same pixels while they are still in cache. Each pixel lies on exactly
+one scanline of an axis, so the writes of S are disjoint and the launch splits across CPU threads
+(kernels.launch: a CPU launch runs on one thread and releases the GIL, docs/warp.md); axes run one
+after another. The two schemes add the same L_r in another order: equal for integer costs and
+penalties, equal to float rounding otherwise.
 
-The hypotheses are processed as 8-wide vectors (SIMD on the CPU). Each scanline keeps L_r(p - r) in a
-row buffer between +inf sentinels, and reads the k - 1 and k + 1 candidates as the vectors that
-start one scalar before and after (unaligned vector views of the buffer), so no lane is shuffled;
-L_r(p) goes to a second row buffer and the two swap every step. D is padded to a multiple of 8 with hypotheses costing
-max C + 2 P2 + |max C| + 1, which no L_r(p, k) <= C(p, k) + P2 of a real hypothesis can reach, so
-the padding changes neither the real L_r nor their minimum.
+In the axis scheme the hypotheses are processed as 8-wide vectors. Each scanline keeps L_r(p - r)
+in a row buffer between +inf sentinels, and reads the k - 1 and k + 1 candidates as the vectors
+that start one scalar before and after (unaligned vector views of the buffer), so no lane is
+shuffled; L_r(p) goes to a second row buffer and the two swap every step. D is padded to a
+multiple of 8 with hypotheses costing max C + 2 P2 + |max C| + 1, which no L_r(p, k) <= C(p, k) +
+P2 of a real hypothesis can reach, so the padding changes neither the real L_r nor their minimum.
 
 Compact mode (a uint8 cost volume, for instance census Hamming distances): the aggregate S is
-uint16, 3 bytes per cell in all instead of float32's 8. The recurrence still runs in float32
-vectors, converting each cost vector on load and each aggregate vector on load and store. With
-integer costs and integer P1, P2 every L_r and S is an integer below 2^24, so float32 holds them
-exactly and S equals the float32 pipeline's bit for bit, provided S fits: every L_r(p, k) <= C(p, k)
-+ P2, so S <= paths (max C + P2), which must be <= 65535 (checked). D must be a multiple of 8 (no
-padding in this mode).
+uint16, 3 bytes per cell in all instead of float32's 8. With integer costs and integer P1, P2
+every L_r and S is an integer, so S equals the float32 pipeline's bit for bit, provided S fits:
+every L_r(p, k) <= C(p, k) + P2 <= 255 + P2, and P2 <= 7936 (checked) keeps 8 paths' sum within
+65535. The sweeps compute in int16 vectors; the axis scheme runs float32 vectors (integers below
+2^24, exact), converting each cost vector on load and each aggregate vector on load and store, and
+needs D a multiple of 8 (no padding in this mode).
 """
 
 from __future__ import annotations
@@ -41,7 +44,9 @@ import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
+from kernels.stereo import sweep
 from kernels.stereo._common import compact_volume, pixel
+from kernels.stereo.sweep import INT_MAX_P2
 
 wp.set_module_options({"enable_backward": False})
 
@@ -156,15 +161,13 @@ COMPACT_AGG_VEC = wp.types.vector(length=SGM_LANES, dtype=wp.uint16)
 wp.overload(_sgm_axis, {"cost_v": wp.array(dtype=COMPACT_COST_VEC), "agg_v": wp.array(dtype=COMPACT_AGG_VEC),
                         "win_v": wp.array(dtype=SGM_VEC[wp.float32]), "p1": wp.float32, "p2": wp.float32})
 declare_float_overloads(_copy_hypotheses)
+for _t in (wp.uint8, wp.uint16):
+    wp.overload(_copy_hypotheses, {"src": wp.array3d(dtype=_t), "dst": wp.array3d(dtype=_t)})
 
 
-def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) -> Any:
-    """Semi-global matching: S = sum over `paths` (4 or 8) directions of L_r.
-
-    A float volume gives a volume like `cost`. A uint8 volume (compact mode, module docstring) gives
-    a uint16 one; it needs D a multiple of 8, integer P1 and P2, and paths * (max C + P2) <= 65535.
-    """
-    a = Inputs(device, cost)
+def checked(a: Inputs, cost: Any, p1: Any, p2: Any, paths: Any) -> tuple[wp.array, int, float, float]:
+    """`sgm`'s arguments checked: (the volume as a wp.array, paths, p1, p2); a uint8 volume sets a.scalar
+    to float32 (its results' type)."""
     compact = _is_uint8(cost)
     if compact:
         c = compact_volume(a, "cost", cost, wp.uint8)
@@ -177,18 +180,41 @@ def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) 
     if p2 < p1:
         raise ValueError(f"p2: expected p2 >= p1 = {p1}, got {p2}")
     H, W, D = c.shape
-    nb = -(-D // SGM_LANES)
     if compact:
-        if D % SGM_LANES:
-            raise ValueError(f"cost: a uint8 volume needs a multiple of {SGM_LANES} hypotheses, got {D}")
         for name, value in (("p1", p1), ("p2", p2)):
             if value != int(value):
                 raise ValueError(f"{name}: a uint8 volume needs integer penalties, got {value}")
-        bound = paths * (int(c.numpy().max()) + int(p2))
-        if bound > 65535:
-            raise ValueError(f"p2: {paths} paths x (max cost + P2) = {bound} exceeds the uint16 aggregate "
-                             "(65535); use a float volume")
+        # A bound from the dtype, not from the volume's values (no read-back to the host).
+        if p2 > INT_MAX_P2:
+            raise ValueError(f"p2: a uint8 volume needs P2 <= {INT_MAX_P2} (so that 8 paths x (255 + P2) fit the "
+                             f"uint16 aggregate), got {p2:g}; use a float volume")
         a.scalar = wp.float32
+    return c, paths, p1, p2
+
+
+def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None, method: str = "auto") -> Any:
+    """Semi-global matching: S = sum over `paths` (4 or 8) directions of L_r.
+
+    A float volume gives a volume like `cost`. A uint8 volume (compact mode, module docstring) gives
+    a uint16 one; it needs integer P1 and P2 and P2 <= 7936 (and, with method "axes", D a multiple
+    of 8). `method`: "sweep" (kernels.stereo.sweep, CPU only), "axes"
+    (one launch per axis, one thread per scanline: the GPU form), or "auto": "sweep" on the CPU,
+    "axes" elsewhere. Both give the same S for integer costs, and agree to float rounding otherwise.
+    """
+    a = Inputs(device, cost)
+    if method not in ("auto", "sweep", "axes"):
+        raise ValueError(f"method: expected 'auto', 'sweep' or 'axes', got {method!r}")
+    if method == "sweep" and not a.device.is_cpu:
+        raise ValueError(f"method: 'sweep' runs on the CPU only, got device {a.device}")
+    c, paths, p1, p2 = checked(a, cost, p1, p2, paths)
+    compact = c.dtype == wp.uint8
+    H, W, D = c.shape
+    if method == "sweep" or (method == "auto" and a.device.is_cpu):
+        return a.out(_sweep_cpu(a, c, H, W, D, p1, p2, paths, compact))
+    nb = -(-D // SGM_LANES)
+    if compact:
+        if D % SGM_LANES:
+            raise ValueError(f"cost: a uint8 volume needs a multiple of {SGM_LANES} hypotheses on {a.device}, got {D}")
         cost_v = wp.array(ptr=c.ptr, dtype=COMPACT_COST_VEC, shape=(H * W * nb,), device=a.device)
         agg = a.empty((H, W, D), wp.uint16)
         agg_v = wp.array(ptr=agg.ptr, dtype=COMPACT_AGG_VEC, shape=(H * W * nb,), device=a.device)
@@ -212,6 +238,34 @@ def sgm(cost: Any, p1: float, p2: float, paths: int = 8, *, device: Any = None) 
         a.launch(_copy_hypotheses, H * W, [agg, out, wp.float64(0.0)])
         agg = out
     return a.out(agg)
+
+
+def _sweep_cpu(a: Inputs, c: wp.array, H: int, W: int, D: int, p1: float, p2: float, paths: int,
+               compact: bool, padded_out: bool = False) -> wp.array:
+    """S by kernels.stereo.sweep (CPU): the volume padded to whole vectors when needed (the padding's
+    values do not matter there), the aggregate cut back to D hypotheses unless `padded_out`."""
+    lanes = sweep.lanes_of(compact, a.scalar)
+    Dp = -(-D // lanes) * lanes
+    padded = c
+    if Dp != D:
+        padded = a.empty((H, W, Dp), c.dtype)
+        a.launch(_copy_hypotheses, H * W, [c, padded, wp.float64(0.0)])
+    if compact:
+        cost_v = wp.array(ptr=padded.ptr, dtype=sweep.COST_U8_VEC, shape=(H * W * Dp // lanes,), device=a.device)
+        agg = a.empty((H, W, Dp), wp.uint16)
+        agg_v = wp.array(ptr=agg.ptr, dtype=sweep.AGG_U16_VEC, shape=(H * W * Dp // lanes,), device=a.device)
+    else:
+        vec = sweep.FLOAT_VEC[a.scalar]
+        cost_v = wp.array(ptr=padded.ptr, dtype=vec, shape=(H * W * Dp // lanes,), device=a.device)
+        agg = a.empty((H, W, Dp))
+        agg_v = wp.array(ptr=agg.ptr, dtype=vec, shape=(H * W * Dp // lanes,), device=a.device)
+    sweep.sweep(cost_v, agg_v, H, W, D, paths, p1, p2, a.scalar, compact, a.launch)
+    del padded
+    if Dp != D and not padded_out:
+        out = a.empty((H, W, D), agg.dtype)
+        a.launch(_copy_hypotheses, H * W, [agg, out, wp.float64(0.0)])
+        agg = out
+    return agg
 
 
 def _is_uint8(x: Any) -> bool:

@@ -5,14 +5,19 @@ quarter size) and (375, 1242, 128) (KITTI's size); quick mode runs the first two
 (64, 128, 32), well under a second with every phase, for the test suite. A random texture and its
 copy shifted by 5 pixels plus noise (timings do not depend on the content), float32 in [0, 1]:
 
-  * cost_s: census cost volume, 7x9 window (62 bits), transforms included;
-  * aggregate_s: SGM over 8 paths (P1 = 8, P2 = 64) of that volume;
+  * cost_s: census cost volume, 7x9 window (62 bits), transforms included, as uint8 (compact mode,
+    the form the default pipeline uses);
+  * aggregate_s: SGM over 8 paths (P1 = 8, P2 = 64) of that volume (kernels.stereo.sgm: on the CPU
+    the two-sweep scheme of kernels.stereo.sweep, int16 lanes, a uint16 aggregate);
+  * backend_s: SGM-8, both views' winners and the left-right check on that volume in one call
+    (kernels.stereo.sgm_disparity), the pipeline's back end;
   * total_s: the default pipeline, research.stereo.match with StereoConfig() (census 7x9 +
     SGM-8 + winner-take-all with the sub-pixel parabola + the right view's winner + the left-right
     check), from the images to the disparity and validity maps on the host;
   * peak_mb: drlab's largest live arrays during total_s, from their nbytes (not RSS; tracemalloc
-    does not see Warp's allocations; research.stereo.peak_volume_bytes): the cost volume and SGM's
-    aggregate (plus its padded copies when D is not a multiple of 8), each H x W x D float32.
+    does not see Warp's allocations; research.stereo.peak_volume_bytes): the uint8 cost volume and
+    the uint16 aggregate (3 bytes per cell; plus padded copies when D is not a multiple of 32). No
+    volume per path exists: each SGM sweep keeps two rows of L_r per path.
 
 With `compare=True` and OpenCV importable, each case also times cv2.StereoSGBM 3-way on the same
 texture as 8-bit grey (blockSize 3, P1 = 8*3*3^2, P2 = 32*3*3^2, uniquenessRatio 10, speckle window
@@ -21,25 +26,18 @@ texture as 8-bit grey (blockSize 3, P1 = 8*3*3^2, P2 = 32*3*3^2, uniquenessRatio
 > 1 means drlab is faster); without OpenCV the case has `ref_missing` instead.
 
 Case `stereo.memory` (full mode only; tiny mode runs it at the tiny size): the default pipeline once
-at Middlebury 2014's half size, 1482x994 with 256 disparities, where float32 volumes would take
-3.0 GiB and research.stereo switches census + SGM to compact mode (uint8 costs, uint16 aggregate):
-`peak_mb` (the volumes' nbytes), `rss_peak_mb` (the process's peak resident set after the run,
-ru_maxrss, which includes everything the process held before), `compact` and `total_once_s` (one
-run, not a median: it takes tens of seconds).
+at Middlebury 2014's half size, 1482x994 with 256 disparities, in compact mode (uint8 costs, a
+uint16 aggregate; float32 volumes would take 3.0 GiB): `peak_mb` (the volumes' nbytes, 1079 MiB
+here), `rss_peak_mb` (the process's peak resident set after the run, ru_maxrss, which includes
+everything the process held before), `compact` and `total_once_s` (one run, not a median).
 
-Profile (where the time goes), CPU time of one thread (DRLAB_THREADS=1, cv2.setNumThreads(1),
-time.process_time, median of 5; the shared host's wall times were too noisy to compare), at
-256x256x64 before this session's changes / after them: census transform 9.0 ms per image (two per
-pair), census cost 15 / 9 ms, SGM-8 47 / 40 ms, WTA 7.6 ms + right-view WTA 17.5 ms / both in one row
-pass 19-22 ms, LR check 1 ms; the whole default pipeline 113 / 98 ms against OpenCV StereoSGBM 3-way's
-5.9-6.5 ms (15-17x; at 741x500x64, 664 / 546 ms against 39-41 ms, 14x). Per-call Python overhead
-and input checks are below 1 ms. What stops the 5x target: SGM-8 alone is 6x SGBM's whole run.
-It makes 8 passes of float32 8-lane vectors over the volume (four axes, each reading the cost and
-reading and writing the aggregate), where SGBM's 3-way mode runs 16-lane int16 arithmetic in fewer
-passes. Warp's CPU code turns 8-wide float32 vectors into SIMD instructions, but not uint16 ones: an
-8 x uint16 SGM was 2x slower than float32, and the compact mode's conversions make SGM 1.8x slower, so
-compact mode is kept for memory. Closing the gap needs SGBM's single-pass scanline scheme with
-16-bit lanes, which Warp's CPU code generation does not give today.
+Profile (where the time goes; docs/performance.md, section Stereo, has the before/after table and
+how it was measured): CPU time of one thread (DRLAB_THREADS=1, cv2.setNumThreads(1),
+time.process_time, median of 5, a loaded host), 256x256x64 / 741x500x64: census transform 2.6 /
+12.6 ms per image, census cost volume (both transforms + Hamming distances) 9.0 / 47 ms, SGM-8
+sweeps 11.5 / 84 ms, SGM + both winners + LR check 14.0 / 96 ms, the whole default pipeline 23.5 /
+145 ms against OpenCV StereoSGBM 3-way's 6.0 / 39 ms (3.9x / 3.7x). Per-call Python overhead and
+input checks are below 1 ms.
 
 Each figure is the median of 3 interleaved runs after a warm-up (research.bench). Every call
 allocates its output volume, as the entry points do, so page-fault time for fresh memory is part
@@ -100,17 +98,20 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
         cfg = StereoConfig()
 
         def cost():
-            return stereo.census_cost(left, right, 0, disparities, *CENSUS_RADII, device=device)
+            return stereo.census_cost(left, right, 0, disparities, *CENSUS_RADII, compact=True, device=device)
 
         volume = cost()
 
         def aggregate():
             return stereo.sgm(volume, P1, P2, paths=PATHS, device=device)
 
+        def backend():
+            return stereo.sgm_disparity(volume, 0, P1, P2, PATHS, device=device)
+
         def total():
             return match(left_np, right_np, 0, disparities, cfg, device)
 
-        fns = {"cost": cost, "aggregate": aggregate, "total": total}
+        fns = {"cost": cost, "aggregate": aggregate, "backend": backend, "total": total}
         row: dict[str, Any] = {}
         if compare and cv2 is not None:
             sgbm = _sgbm(disparities)
@@ -132,6 +133,7 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
             "cost": f"census{2 * CENSUS_RADII[0] + 1}x{2 * CENSUS_RADII[1] + 1}",
             "cost_s": t["cost"],
             "aggregate_s": t["aggregate"],
+            "backend_s": t["backend"],
             "total_s": t["total"],
             "peak_mb": peak_volume_bytes(cfg, height, width, disparities) / 2**20,
             **row,

@@ -23,7 +23,7 @@ def test_bt_bad_images(left, right, match):
 
 @pytest.mark.parametrize("p1, p2, match", [(8.5, 64, "p1: a uint8 volume needs integer penalties"),
                                            (8, 64.5, "p2: a uint8 volume needs integer penalties"),
-                                           (8, 9000, "p2: 8 paths x")],
+                                           (8, 9000, "p2: a uint8 volume needs P2 <= 7936")],
                          ids=["fractional-p1", "fractional-p2", "uint16-overflow"])
 def test_compact_sgm_bad_penalties(p1, p2, match):
     c8 = np.full((4, 9, 8), 62, dtype=np.uint8)
@@ -34,7 +34,8 @@ def test_compact_sgm_bad_penalties(p1, p2, match):
 
 @pytest.mark.parametrize("call, match", [
     (lambda: stereo.sgm(np.zeros((4, 9, 8), np.int8), 8, 64), "cost: expected dtype float32 or float64, got int8"),
-    (lambda: stereo.sgm(np.zeros((4, 9, 12), np.uint8), 8, 64), "cost: a uint8 volume needs a multiple of 8"),
+    (lambda: stereo.sgm(np.zeros((4, 9, 12), np.uint8), 8, 64, method="axes"),
+     "cost: a uint8 volume needs a multiple of 8"),
     (lambda: stereo.sgm(np.zeros((4, 9), np.uint8), 8, 64), "cost: expected a non-empty"),
     (lambda: stereo.wta(np.zeros((4, 9, 8), np.uint8), 0), "cost: expected dtype float32 or float64, got uint8"),
     (lambda: stereo.wta_left_right(np.zeros((4, 9, 8), np.uint32), 0), "cost: expected dtype float32"),
@@ -69,6 +70,23 @@ _C = np.zeros((4, 6, 3))
         "range-wider-than-image", "lambda-census-0", "grad-cap-negative", "bt-weight-nan", "census-81-bits",
         "sobel-1d", "sobel-cap-0"])
 def test_adcensus_bad_input(call, match):
+    with pytest.raises(ValueError, match=match) as e:
+        call()
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: stereo.sgm(np.zeros((4, 9, 8), np.float32), 8, 64, method="rows"), "method: expected 'auto'"),
+    (lambda: stereo.sgm_disparity(np.zeros((4, 9, 8), np.uint8), 0, 8, 64, lr_max_diff=-1.0), "lr_max_diff"),
+    (lambda: stereo.sgm_disparity(np.zeros((4, 9, 8), np.uint8), 0, 8, 64, uniqueness=1.0), "uniqueness"),
+    (lambda: stereo.sgm_disparity(np.zeros((4, 9, 8), np.uint8), 0, 8.5, 64), "p1: a uint8 volume needs integer"),
+    (lambda: stereo.sgm_disparity(np.zeros((4, 9, 8), np.uint8), 0, 8, 64, paths=6), "paths: expected 4 or 8"),
+    (lambda: stereo.sgm_disparity(np.zeros((4, 9, 8), np.uint8), 3, 8, 64), "dmin, dmax: the range"),
+    (lambda: stereo.sgm_disparity(np.zeros((4, 9, 8), np.uint16), 0, 8, 64), "cost: expected dtype float32"),
+    (lambda: stereo.sgm_disparity(np.zeros((4, 9), np.uint8), 0, 8, 64), "cost: expected a non-empty"),
+], ids=["sgm-method-rows", "lr-max-diff-negative", "uniqueness-1", "fractional-p1", "paths-6", "dmin-past-width",
+        "uint16-cost", "uint8-2d"])
+def test_sgm_disparity_bad_arguments(call, match):
     with pytest.raises(ValueError, match=match) as e:
         call()
     assert "\n" not in str(e.value)

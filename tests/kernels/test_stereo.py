@@ -203,14 +203,17 @@ def test_compact_census_sgm_and_winners_equal_the_float_pipeline(drange):
     c32 = stereo.census_cost(L, R, *drange, 2, 3)
     assert c8.dtype == np.uint8
     np.testing.assert_array_equal(c8.astype(np.float32), c32)
-    if (drange[1] - drange[0]) % 8:
-        with pytest.raises(ValueError, match="cost: a uint8 volume needs a multiple of 8"):
-            stereo.sgm(c8, 8, 64, 8)
-        return
     for paths in (4, 8):
         s16, s32 = stereo.sgm(c8, 8, 64, paths), stereo.sgm(c32, 8.0, 64.0, paths)
         assert s16.dtype == np.uint16
         np.testing.assert_array_equal(s16.astype(np.float32), s32)
+        # The two SGM schemes (two sweeps on the CPU, one launch per axis on a GPU) agree exactly.
+        np.testing.assert_array_equal(stereo.sgm(c32, 8.0, 64.0, paths, method="axes"), s32)
+        if (drange[1] - drange[0]) % 8:
+            with pytest.raises(ValueError, match="cost: a uint8 volume needs a multiple of 8"):
+                stereo.sgm(c8, 8, 64, paths, method="axes")
+        else:
+            np.testing.assert_array_equal(stereo.sgm(c8, 8, 64, paths, method="axes"), s16)
     dmin = drange[0]
     for got, want in ((stereo.wta(s16, dmin, uniqueness=0.1), stereo.wta(s32, dmin, uniqueness=0.1)),
                       (stereo.wta_right(s16, dmin), stereo.wta_right(s32, dmin)),
@@ -470,3 +473,81 @@ def test_adcensus_wp_arrays_in_give_wp_arrays_out():
     assert isinstance(got, wp.array)
     np.testing.assert_array_equal(got.numpy(), expected)
     assert isinstance(stereo.sobel_x_clipped(wp.array(L, dtype=wp.float64)), wp.array)
+
+
+@pytest.mark.parametrize("shape, dmin, paths, uniqueness, subpixel, lr", [
+    ((7, 9, 8), 0, 8, 0.0, True, 1.0),
+    ((13, 40, 40), -3, 8, 0.1, True, 1.0),
+    ((16, 70, 64), 2, 4, 0.0, False, 0.5),
+    ((5, 40, 33), -10, 8, 0.0, True, None),
+    ((1, 50, 32), 0, 8, 0.05, True, 2.0),
+], ids=["tiny", "d40-negative-dmin-uniqueness", "d64-4-paths-integer", "d33-no-lr-check", "one-row"])
+def test_sgm_disparity_equals_the_separate_calls(shape, dmin, paths, uniqueness, subpixel, lr):
+    # Small integer costs make ties and equal minima common, which the first-minimum rules must settle alike.
+    c8 = np.random.default_rng(11).integers(0, 20, shape).astype(np.uint8)
+    d, v = stereo.sgm_disparity(c8, dmin, 3, 20, paths, subpixel=subpixel, uniqueness=uniqueness, lr_max_diff=lr)
+    for cost in (c8, c8.astype(np.float32)):
+        S = stereo.sgm(cost, 3, 20, paths)
+        if lr is None:
+            want_d, want_v = stereo.wta(S, dmin, subpixel=subpixel, uniqueness=uniqueness)
+        else:
+            dl, vl, dr, vr = stereo.wta_left_right(S, dmin, subpixel=subpixel, uniqueness=uniqueness)
+            want_d, want_v = dl, stereo.left_right_check(dl, dr, lr, valid_left=vl, valid_right=vr)
+        np.testing.assert_array_equal(d, want_d)
+        np.testing.assert_array_equal(v, want_v)
+    assert 0.0 < v.mean() < 1.0  # both outcomes occur
+    # The float path of sgm_disparity (the separate calls) on the float32 volume: the same again.
+    d32, v32 = stereo.sgm_disparity(c8.astype(np.float32), dmin, 3.0, 20.0, paths, subpixel=subpixel,
+                                    uniqueness=uniqueness, lr_max_diff=lr)
+    np.testing.assert_array_equal(d32, d)
+    np.testing.assert_array_equal(v32, v)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("D", [5, 16, 21])
+def test_sgm_sweep_and_axes_agree_on_float_costs(dtype, D):
+    # Float costs: the two schemes add the same L_r in another order, so they agree to rounding, and both
+    # match the NumPy reference.
+    C = np.random.default_rng(12).normal(0.0, 1.0, (6, 11, D)).astype(dtype)
+    sweep_s = stereo.sgm(C, 0.3, 1.5, 8, method="sweep")
+    axes_s = stereo.sgm(C, 0.3, 1.5, 8, method="axes")
+    np.testing.assert_allclose(sweep_s, axes_s, rtol=SGM_RTOL[dtype], atol=1e-5 if dtype == np.float32 else 1e-12)
+    np.testing.assert_allclose(sweep_s, ref.sgm(C, 0.3, 1.5, 8), rtol=SGM_RTOL[dtype],
+                               atol=1e-5 if dtype == np.float32 else 1e-12)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("shape, dmin, uniqueness, lr", [((9, 30, 21), -4, 0.0, 1.0), ((6, 40, 16), 3, 0.2, 0.5),
+                                                         ((4, 25, 9), 0, 0.0, None)],
+                         ids=["d21-negative-dmin", "d16-uniqueness", "d9-no-lr-check"])
+def test_sgm_disparity_on_float_costs_equals_the_separate_calls(dtype, shape, dmin, uniqueness, lr):
+    # Real-valued costs (the float back end: vector minima, then the first hypothesis holding each).
+    c = np.random.default_rng(13).normal(0.0, 1.0, shape).astype(dtype)
+    d, v = stereo.sgm_disparity(c, dmin, 0.2, 0.9, 8, uniqueness=uniqueness, lr_max_diff=lr)
+    S = stereo.sgm(c, 0.2, 0.9, 8)
+    if lr is None:
+        want_d, want_v = stereo.wta(S, dmin, uniqueness=uniqueness)
+    else:
+        dl, vl, dr, vr = stereo.wta_left_right(S, dmin, uniqueness=uniqueness)
+        want_d, want_v = dl, stereo.left_right_check(dl, dr, lr, valid_left=vl, valid_right=vr)
+    assert d.dtype == dtype
+    np.testing.assert_array_equal(d, want_d)
+    np.testing.assert_array_equal(v, want_v)
+    assert 0.0 < v.mean() < 1.0
+
+
+@pytest.mark.parametrize("volume", ["uint8", "float64"])
+def test_sgm_disparity_matches_the_numpy_reference(volume):
+    # Against the NumPy chain ref.sgm -> ref.wta / ref.wta_right -> ref.left_right_check (no parabola, so the
+    # integer disparities compare exactly whatever the float type).
+    rng = np.random.default_rng(14)
+    c = rng.integers(0, 30, (8, 26, 12)) if volume == "uint8" else rng.normal(0.0, 1.0, (8, 26, 12))
+    c = c.astype(np.uint8 if volume == "uint8" else np.float64)
+    p1, p2 = (4, 24) if volume == "uint8" else (0.2, 0.9)
+    d, v = stereo.sgm_disparity(c, -2, p1, p2, 8, subpixel=False, uniqueness=0.05, lr_max_diff=1.0)
+    S = ref.sgm(c.astype(np.float64), p1, p2, 8)
+    dl, vl = ref.wta(S, -2, uniqueness=0.05, subpixel=False)
+    dr, vr = ref.wta_right(S, -2)  # always refined: its offset lies within 0.5 of the integer winner
+    np.testing.assert_array_equal(d, dl)
+    np.testing.assert_array_equal(v, ref.left_right_check(dl, np.round(dr), 1.0, vl, vr))
+    assert 0.0 < v.mean() < 1.0
