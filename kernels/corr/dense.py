@@ -20,8 +20,8 @@ from typing import Sequence
 import warp as wp
 
 from kernels._arrays import Inputs
-from kernels.corr._common import (Array, check_levels, check_list, check_radius, coords_in, levels_in,
-                                  sample_windows, sample_windows_adjoint, volume_in)
+from kernels.corr._common import (LEVELS_PER_LAUNCH, Array, check_levels, check_list, check_radius, coords_in,
+                                  levels_in, sample_levels, sample_windows_adjoint, volume_in)
 
 
 # --------------------------------------------------------------------------- entry points
@@ -44,9 +44,12 @@ def lookup(pyramid: Sequence[Array], coords: Array, radius: int, *, device: str 
     xy = coords_in(a, coords, height, width)
     side = 2 * radius + 1
     n = height * width
-    out = a.zeros((len(levels) * side * side, height, width))
-    for lvl, v in enumerate(levels):
-        a.launch(sample_windows, n, [v, xy, out, a.s(0.5 ** lvl), radius, lvl * side * side, 0], min_chunk=256)
+    out = a.empty((len(levels) * side * side, height, width))  # every element is written
+    for lvl0 in range(0, len(levels), LEVELS_PER_LAUNCH):
+        group = levels[lvl0:lvl0 + LEVELS_PER_LAUNCH]
+        padded = group + [group[0]] * (LEVELS_PER_LAUNCH - len(group))  # unused slots: never read
+        a.launch(sample_levels, n, [*padded, len(group), xy, out, a.s(0.5 ** lvl0), radius, lvl0 * side * side],
+                 min_chunk=256)
     return a.out(out)
 
 
