@@ -156,18 +156,21 @@ def sample_window(s: wp.array3d(dtype=typing.Any), p: int, row0: int, col0: int,
 @wp.kernel
 def sample_windows(s: wp.array3d(dtype=typing.Any), coords: wp.array3d(dtype=typing.Any),
                    out: wp.array3d(dtype=typing.Any),
-                   scale: typing.Any, radius: int, channel0: int, from_patch: int, offset: int):
-    """Equation (4) for one level, sampling S = s[p] by (3) (`sample_window`); thread = pixel.
+                   scale: typing.Any, radius: int, channel0: int, from_patch: int, block0: int, offset: int):
+    """Equation (4) for one level, sampling S = s[p - block0] by (3) (`sample_window`); thread =
+    pixel p = block0 + thread index.
 
-    Dense: s is V^l (H W, H_l, W_l), read from the window's origin (j0, i0). On the fly
-    (`from_patch` = 1): s is the tap patch (H W, 2r+2, 2r+2), read from (0, 0).
+    Levels: s holds the rows of V^l (B, H_l, W_l) of pixels block0 .. block0 + B - 1, read from
+    each window's origin (j0, i0). Patches (`from_patch` = 1): s holds the tap patches
+    (B, 2r+2, 2r+2), read from (0, 0).
     """
-    p = wp.tid() + offset
+    row = wp.tid() + offset
+    p = row + block0
     h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
     if from_patch != 0:
         i0 = 0
         j0 = 0
-    sample_window(s, p, j0, i0, fx, fy, out, channel0, h, w, 2 * radius + 1)
+    sample_window(s, row, j0, i0, fx, fy, out, channel0, h, w, 2 * radius + 1)
 
 
 @wp.func

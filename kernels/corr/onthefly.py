@@ -33,13 +33,14 @@ import typing
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Sequence
 
+import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
                                   features_in, level_shapes, levels_in, pack_rows, pixel_window, pool_levels,
                                   pool_levels_adjoint, sample_windows, sample_windows_adjoint)
-from kernels.launch import chunk_bounds, default_threads
+from kernels.launch import chunk_bounds, default_threads, parallel_ranges
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -216,8 +217,72 @@ for _k in (_unpack_channels_last_v, _patch_level, _patch_adjoint_features, _sum_
 
 
 def _channels_last_v(x: wp.array, a: Inputs) -> wp.array:
-    """(C, N) scalars -> (N, ceil(C / 8)) vectors."""
-    return pack_rows(x.transpose(), -(-x.shape[0] // VEC), a)
+    """(C, N) scalars -> (N, ceil(C / 8)) vectors.
+
+    On the CPU with C a multiple of 8 the vectors are the rows of x^T itself: NumPy's transposed
+    copy, aliased as vectors (a quarter of the packing kernel's time, which reads x^T strided).
+    """
+    channels, n = x.shape
+    if a.device.is_cpu and channels % VEC == 0:
+        rows = np.ascontiguousarray(x.numpy().T).reshape(n, channels // VEC, VEC)
+        return wp.array(rows, dtype=VEC_OF[a.scalar], device=a.device, copy=False)  # keeps `rows` alive
+    return pack_rows(x.transpose(), -(-channels // VEC), a)
+
+
+def full_product_level(height_l: int, width_l: int, radius: int, device: wp.Device) -> bool:
+    """Whether level l's taps come from the full product f1^T P^l(f2) by BLAS (CPU only).
+
+    The patch kernel forms at most (2r + 2)^2 dot products a pixel; BLAS forms all H_l W_l of
+    them, about 4x faster each (measured: 66-99 GFLOP/s for one BLAS thread against ~22 for the
+    patch kernel, 46x62 frames, C = 256). So the full product pays when H_l W_l is at most twice
+    the patch (the margin covers smaller C, where BLAS is less efficient): RAFT's two coarsest
+    levels at 1/8 resolution.
+    """
+    return device.is_cpu and height_l * width_l <= 2 * (2 * radius + 2) ** 2
+
+
+_blas_controller = None
+
+
+def _one_blas_thread() -> Any:
+    """A context in which BLAS runs on the calling thread alone (threadpoolctl; process-wide while it lasts).
+
+    The full products are split by rows over the launch threads (`parallel_ranges`), one BLAS thread
+    each: OpenBLAS's own threads spin on cores the launch threads already use (measured on the busy
+    2-core host: the on-the-fly forward took 36 ms of CPU time with them, 27 ms before the change).
+    """
+    global _blas_controller
+    if _blas_controller is None:
+        from threadpoolctl import ThreadpoolController
+
+        _blas_controller = ThreadpoolController()
+    return _blas_controller.limit(limits=1, user_api="blas")
+
+
+def _sample_full_product(x1_rows: np.ndarray, f2l: wp.array, xy: wp.array, out: wp.array, lvl: int,
+                         radius: int, inv: float, budget: int, a: Inputs) -> None:
+    """Level `lvl` of (4) from V^l = f1^T P^l(f2) / sqrt(C), formed by BLAS for blocks of pixels.
+
+    x1_rows: f1 channels-last (N, C) on the host; f2l: P^l(f2) as (C, H_l, W_l). Each block of B
+    pixels gets its rows of V^l ((B, H_l W_l), B H_l W_l <= `budget` values: no more than the patch
+    buffer it replaces) and is sampled like a dense level. The scale goes on the small operand
+    first, as in `volume._gemm_blas` (exact when sqrt(C) is a power of two).
+    """
+    _, height_l, width_l = f2l.shape
+    n = x1_rows.shape[0]
+    taps = height_l * width_l
+    f2s = f2l.numpy().reshape(-1, taps) * a.np_dtype.type(inv)
+    block = max(1, min(n, budget // taps))
+    buf = a.empty((block, height_l, width_l))
+    flat = buf.numpy().reshape(block, taps)
+    side = 2 * radius + 1
+    scale = a.s(0.5 ** lvl)
+    for p0 in range(0, n, block):
+        rows = min(block, n - p0)
+        with _one_blas_thread():
+            parallel_ranges(lambda lo, hi: np.matmul(x1_rows[p0 + lo:p0 + hi], f2s, out=flat[lo:hi]), rows,
+                            min_chunk=256)
+        a.launch(sample_windows, rows, [buf, xy, out, scale, radius, lvl * side * side, 0, p0], min_chunk=256)
 
 
 def _channels_first(x_v: wp.array, channels: int, a: Inputs) -> wp.array:
@@ -281,11 +346,31 @@ def pool_features_backward(grad_pyramid: Sequence[Array], *, device: str | None 
     return {"f2": a.out(pool_levels_adjoint(grads, a))}
 
 
-def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: int, itemsize: int = 4) -> int:
-    """Bytes the on-the-fly forward holds: f1 and the pooled f2 pyramid channels-last (padded to 8) + one patch."""
-    c_pad = -(-channels // VEC) * VEC
+def onthefly_held_bytes(height: int, width: int, channels: int, levels: int, itemsize: int = 4) -> int:
+    """Bytes the on-the-fly path keeps between lookups: f1 and the pooled f2 pyramid, (C, H_l, W_l) each.
+
+    The counterpart of `volume.dense_bytes` (the volume pyramid the dense path keeps instead).
+    """
     pixels = height * width + sum(hl * wl for hl, wl in level_shapes(height, width, levels))
-    return itemsize * (c_pad * pixels + height * width * (2 * radius + 2) ** 2)
+    return itemsize * channels * pixels
+
+
+def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: int, itemsize: int = 4) -> int:
+    """Peak bytes of an on-the-fly forward on the CPU, its output excluded (the dense lookup's is the same).
+
+    `onthefly_held_bytes` plus the working buffers of one call: f1 channels-last (channels padded
+    to 8), one level's channels-last copy at a time (the largest level sampled through patches),
+    the patch buffer, and at a full-product level its block of V^l (no larger than the patch
+    buffer) with the scaled P^l(f2).
+    """
+    c_pad = -(-channels // VEC) * VEC
+    n = height * width
+    patch = n * (2 * radius + 2) ** 2
+    shapes = level_shapes(height, width, levels)
+    full = [hl * wl for hl, wl in shapes if full_product_level(hl, wl, radius, wp.get_device("cpu"))]
+    patched = [hl * wl for hl, wl in shapes if not full_product_level(hl, wl, radius, wp.get_device("cpu"))]
+    work = c_pad * n + c_pad * max(patched, default=0) + patch * (1 + bool(full)) + channels * max(full, default=0)
+    return onthefly_held_bytes(height, width, channels, levels, itemsize) + itemsize * work
 
 
 def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radius: int, *,
@@ -300,13 +385,21 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
     side = 2 * radius + 1
     f1_v = _channels_last_v(x1, a)
     inv = a.s(1.0 / math.sqrt(channels))
-    patch = a.zeros((n, side + 1, side + 1))
-    out = a.zeros((len(levels) * side * side, height, width))
+    out = a.empty((len(levels) * side * side, height, width))  # every element is written
+    patch = None
     for lvl, (hl, wl) in enumerate(level_shapes(height, width, len(levels))):
+        if full_product_level(hl, wl, radius, a.device) and channels % VEC == 0:
+            x1_rows = f1_v.numpy().reshape(n, channels)  # f1 channels-last: the vectors' own memory
+            _sample_full_product(x1_rows, levels[lvl].reshape((channels, hl, wl)), xy, out, lvl, radius,
+                                 1.0 / math.sqrt(channels), n * (side + 1) ** 2, a)
+            continue
+        if patch is None:
+            patch = a.empty((n, side + 1, side + 1))  # every tap is written by _patch_level
         f2l_v = _channels_last_v(levels[lvl], a)
         scale = a.s(0.5 ** lvl)
         a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
-        a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1], min_chunk=256)
+        a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1, 0], min_chunk=256)
+        del f2l_v  # one level's copy at a time (`onthefly_bytes`)
     return a.out(out)
 
 
