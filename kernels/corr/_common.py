@@ -4,9 +4,11 @@ Lookup window. For a pixel p = (h, w) of frame 1 at level l with radius r, the
 (2r + 1)^2 samples of (4) share one fraction: with u0 = x_p / 2^l - 1/2 - r,
 the window's taps start at column i0 = floor(u0) with fraction fx = u0 - i0
 (and j0, fy from y_p the same way) (`pixel_window`). A map S = s[p] is sampled
-by (3) one window column a at a time (`sample_windows`, one thread per pixel: sample
-b's lower taps are sample b + 1's upper taps), taps outside s[p] reading 0. The dense lookup samples
-V^l[p] from (j0, i0); the on-the-fly lookup samples its tap patch from (0, 0).
+by (3) one window column a at a time (`sample_window`: sample b's lower taps are
+sample b + 1's upper taps), taps outside s[p] reading 0. The dense lookup samples
+V^l[p] from (j0, i0), up to four levels a launch (`sample_levels`, one thread per
+pixel); the on-the-fly lookup samples its tap patch from (0, 0), or blocks of
+rows of V^l (`sample_windows`, one level a launch).
 
 Adjoint of a window (`sample_windows_adjoint`), with g = d loss / d out:
   * d S[tap] += (weight of tap in (3)) g, into s[p] only, so per-pixel threads

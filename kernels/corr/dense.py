@@ -7,10 +7,12 @@ For each pixel p of frame 1, level l and window offsets a, b in {0, ..., 2r},
 with V^l[p] the level's (H_l, W_l) slice for p sampled by (3), taps outside the
 slice counting as 0. All samples of a level share the fractions (fx, fy), so
 they read the (2r + 2) x (2r + 2) tap patch of V^l[p] from (j0, i0). The forward
-and the adjoint each run one thread per pixel, the adjoint
-adding into row p of the level's gradient and pixel p of the coordinates' only.
-The kernels are `_common.sample_windows` and `_common.sample_windows_adjoint`
-(shared with the on-the-fly lookup), where the adjoint's formulas are written out.
+and the adjoint each run one thread per pixel, the forward over up to four levels
+per launch, the adjoint one level per launch, adding into row p of the level's
+gradient and pixel p of the coordinates' only. The kernels are
+`_common.sample_levels` and `_common.sample_windows_adjoint` (the window
+sampling is shared with the on-the-fly lookup), where the adjoint's formulas are
+written out.
 """
 
 from __future__ import annotations

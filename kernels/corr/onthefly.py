@@ -7,9 +7,19 @@ pixel p and level l the (2r + 2)^2 tap patch of its window
     T[p, ty, tx] = f1[:, p] . P^l(f2)[:, (j0 + ty, i0 + tx)] / sqrt(C)   (0 outside frame 2)
 
 is computed, then sampled by (3) exactly as the dense lookup samples V^l (the
-same kernels `sample_windows` and `sample_windows_adjoint`, on the patch). Memory
-is one patch buffer of H W (2r + 2)^2 values instead of the whole pyramid's
-H W sum_l H_l W_l.
+same kernels `sample_windows` and `sample_windows_adjoint`, on the patch).
+
+Coarse levels on the CPU. Where a level has few pixels (H_l W_l <= 2 (2r + 2)^2,
+`full_product_level`; RAFT's two coarsest at 1/8 resolution), the forward takes
+every tap from the rows of the full product V^l = f1^T P^l(f2) / sqrt(C) instead,
+by BLAS, for blocks of pixels at a time (each block's rows no larger than the
+patch buffer), and samples them as the dense lookup samples V^l. The values are
+those of (1) summed in BLAS's order (float rounding apart from the patches).
+
+Memory: the path keeps f1 and the pooled f2 pyramid between lookups, C (H W +
+sum_l H_l W_l) values (`onthefly_held_bytes`), instead of the volume pyramid's
+H W sum_l H_l W_l; a forward call adds channels-last copies of f1 and of one
+level, and the patch buffer of H W (2r + 2)^2 values (`onthefly_bytes`).
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then

@@ -78,6 +78,15 @@ def test_lookup_matches_reference(dtype, radius):
     assert np.count_nonzero(want == 0.0) > 0  # some windows lie wholly outside frame 2
 
 
+def test_lookup_more_levels_than_one_launch_covers():
+    """Five levels: the dense forward samples four levels a launch, so the fifth takes a second launch."""
+    f1, f2, coords = random_case(np.random.default_rng(9), np.float64, shape=(3, 16, 20))
+    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 5)
+    out = corr.lookup(pyramid, coords, 1)
+    np.testing.assert_allclose(out, ref.lookup(pyramid, coords, 1), **TOL[np.float64])
+    assert np.count_nonzero(out[4 * 9:]) > 0  # the last level's channels were written
+
+
 def test_lookup_channel_order_is_rafts():
     """One bright cell at frame-2 offset (+1, -2) from a pixel: it appears in channel (r + 1)(2r + 1) + (r - 2)."""
     h, w, radius = 6, 7, 2
