@@ -19,7 +19,8 @@ those of (1) summed in BLAS's order (float rounding apart from the patches).
 Memory: the path keeps f1 and the pooled f2 pyramid between lookups, C (H W +
 sum_l H_l W_l) values (`onthefly_held_bytes`), instead of the volume pyramid's
 H W sum_l H_l W_l; a forward call adds channels-last copies of f1 and of one
-level, and the patch buffer of H W (2r + 2)^2 values (`onthefly_bytes`).
+level, and the patch buffer of H W (2r + 2)^2 values (`onthefly_bytes`), whose
+memory the full-product levels reuse.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -307,21 +308,21 @@ def _one_blas_thread() -> Any:
 
 
 def _sample_full_product(x1_rows: np.ndarray, f2l: wp.array, xy: wp.array, out: wp.array, lvl: int,
-                         radius: int, inv: float, budget: int, a: Inputs) -> None:
+                         radius: int, inv: float, scratch: wp.array, a: Inputs) -> None:
     """Level `lvl` of (4) from V^l = f1^T P^l(f2) / sqrt(C), formed by BLAS for blocks of pixels.
 
     x1_rows: f1 channels-last (N, C) on the host; f2l: P^l(f2) as (C, H_l, W_l). Each block of B
-    pixels gets its rows of V^l ((B, H_l W_l), B H_l W_l <= `budget` values: no more than the patch
-    buffer it replaces) and is sampled like a dense level. The scale goes on the small operand
+    pixels gets its rows of V^l ((B, H_l W_l), in the memory of `scratch`, the patch buffer, so
+    B H_l W_l <= its size) and is sampled like a dense level. The scale goes on the small operand
     first, as in `volume._gemm_blas` (exact when sqrt(C) is a power of two).
     """
     _, height_l, width_l = f2l.shape
     n = x1_rows.shape[0]
     taps = height_l * width_l
     f2s = f2l.numpy().reshape(-1, taps) * a.np_dtype.type(inv)
-    block = max(1, min(n, budget // taps))
-    buf = a.empty((block, height_l, width_l))
-    flat = buf.numpy().reshape(block, taps)
+    block = max(1, min(n, scratch.size // taps))
+    flat = scratch.numpy().reshape(-1)[:block * taps].reshape(block, taps)
+    buf = wp.array(flat.reshape(block, height_l, width_l), dtype=a.scalar, device=a.device, copy=False)
     side = 2 * radius + 1
     scale = a.s(0.5 ** lvl)
     for p0 in range(0, n, block):
@@ -407,8 +408,8 @@ def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: 
 
     `onthefly_held_bytes` plus the working buffers of one call: f1 channels-last (channels padded
     to 8), one level's channels-last copy at a time (the largest level sampled through patches),
-    the patch buffer, and at a full-product level its block of V^l (no larger than the patch
-    buffer) with the scaled P^l(f2).
+    the patch buffer (whose memory a full-product level reuses for its blocks of V^l) and at a
+    full-product level the scaled P^l(f2).
     """
     c_pad = -(-channels // VEC) * VEC
     n = height * width
@@ -416,7 +417,7 @@ def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: 
     shapes = level_shapes(height, width, levels)
     full = [hl * wl for hl, wl in shapes if full_product_level(hl, wl, radius, wp.get_device("cpu"))]
     patched = [hl * wl for hl, wl in shapes if not full_product_level(hl, wl, radius, wp.get_device("cpu"))]
-    work = c_pad * n + c_pad * max(patched, default=0) + patch * (1 + bool(full)) + channels * max(full, default=0)
+    work = c_pad * n + c_pad * max(patched, default=0) + patch + channels * max(full, default=0)
     return onthefly_held_bytes(height, width, channels, levels, itemsize) + itemsize * work
 
 
@@ -433,15 +434,14 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
     f1_v = _channels_last_v(x1, a)
     inv = a.s(1.0 / math.sqrt(channels))
     out = a.empty((len(levels) * side * side, height, width))  # every element is written
-    patch = None
+    # Every tap is written by _patch_level; a full-product level reuses the memory for its blocks.
+    patch = a.empty((n, side + 1, side + 1))
     for lvl, (hl, wl) in enumerate(level_shapes(height, width, len(levels))):
         if full_product_level(hl, wl, radius, a.device) and channels % VEC == 0:
             x1_rows = f1_v.numpy().reshape(n, channels)  # f1 channels-last: the vectors' own memory
             _sample_full_product(x1_rows, levels[lvl].reshape((channels, hl, wl)), xy, out, lvl, radius,
-                                 1.0 / math.sqrt(channels), n * (side + 1) ** 2, a)
+                                 1.0 / math.sqrt(channels), patch, a)
             continue
-        if patch is None:
-            patch = a.empty((n, side + 1, side + 1))  # every tap is written by _patch_level
         f2l_v = _channels_last_v(levels[lvl], a)
         scale = a.s(0.5 ** lvl)
         a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])

@@ -150,9 +150,9 @@ def test_memory_accounting():
     pixels = 46 * 62 + 23 * 31 + 11 * 15 + 5 * 7
     assert corr.dense_bytes(46, 62, 4) == 4 * 46 * 62 * pixels
     assert corr.onthefly_held_bytes(46, 62, 256, 4) == 4 * 256 * (46 * 62 + pixels)  # f1 and the pooled f2
-    # The peak adds f1 and level 0 channels-last, the patch buffer and, for the full-product levels
-    # 2 and 3 (11x15 and 5x7 <= 2 * 10^2 taps), a block of V^l no larger than the patch plus the scaled level 2.
-    work = 256 * 46 * 62 * 2 + 2 * 46 * 62 * 10 ** 2 + 256 * 11 * 15
+    # The peak adds f1 and level 0 channels-last, the patch buffer (whose memory the full-product levels
+    # 2 and 3, 11x15 and 5x7 <= 2 * 10^2 taps, reuse for their blocks of V^l) and the scaled level 2.
+    work = 256 * 46 * 62 * 2 + 46 * 62 * 10 ** 2 + 256 * 11 * 15
     assert corr.onthefly_bytes(46, 62, 256, 4, 4) == corr.onthefly_held_bytes(46, 62, 256, 4) + 4 * work
 
 
