@@ -290,6 +290,7 @@ def full_product_level(height_l: int, width_l: int, radius: int, device: wp.Devi
 
 
 _blas_controller = None
+_BLAS_ROWS = 256  # rows of V^l per BLAS call in `_sample_full_product`
 
 
 def _one_blas_thread() -> Any:
@@ -327,9 +328,17 @@ def _sample_full_product(x1_rows: np.ndarray, f2l: wp.array, xy: wp.array, out: 
     scale = a.s(0.5 ** lvl)
     for p0 in range(0, n, block):
         rows = min(block, n - p0)
+        starts = range(0, rows, _BLAS_ROWS)
+
+        def products(lo: int, hi: int) -> None:
+            # The same BLAS calls (row chunks of _BLAS_ROWS) whatever the thread count, so the
+            # values do not depend on it (BLAS may round a product's edge rows differently).
+            for r0 in starts[lo:hi]:
+                r1 = min(r0 + _BLAS_ROWS, rows)
+                np.matmul(x1_rows[p0 + r0:p0 + r1], f2s, out=flat[r0:r1])
+
         with _one_blas_thread():
-            parallel_ranges(lambda lo, hi: np.matmul(x1_rows[p0 + lo:p0 + hi], f2s, out=flat[lo:hi]), rows,
-                            min_chunk=256)
+            parallel_ranges(products, len(starts), min_chunk=1)
         a.launch(sample_windows, rows, [buf, xy, out, scale, radius, lvl * side * side, 0, p0], min_chunk=256)
 
 

@@ -78,6 +78,19 @@ def test_lookup_matches_reference(dtype, radius):
     assert np.count_nonzero(want == 0.0) > 0  # some windows lie wholly outside frame 2
 
 
+def test_onthefly_independent_of_thread_count(monkeypatch):
+    """The full-product levels run BLAS on row chunks fixed in advance, the patches in race-free split
+    launches: the same bytes with 1 and 3 launch threads (576 pixels: three BLAS chunks per level)."""
+    f1, f2, coords = random_case(np.random.default_rng(13), np.float32, shape=(16, 24, 24))
+    f2_pyramid = corr.pool_features(f2, 3)
+    assert corr.full_product_level(6, 6, 2, wp.get_device("cpu"))
+    outs = []
+    for threads in ("1", "3"):
+        monkeypatch.setenv("DRLAB_THREADS", threads)
+        outs.append(corr.lookup_onthefly(f1, f2_pyramid, coords, 2))
+    assert outs[0].tobytes() == outs[1].tobytes()
+
+
 def test_lookup_more_levels_than_one_launch_covers():
     """Five levels: the dense forward samples four levels a launch, so the fifth takes a second launch."""
     f1, f2, coords = random_case(np.random.default_rng(9), np.float64, shape=(3, 16, 20))
