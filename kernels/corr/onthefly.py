@@ -50,7 +50,7 @@ import warp as wp
 from kernels._arrays import Inputs, declare_float_overloads
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
                                   features_in, level_shapes, levels_in, pack_rows, pixel_window, pool_levels,
-                                  pool_levels_adjoint, sample_windows, sample_windows_adjoint)
+                                  pool_levels_adjoint, sample_window, sample_windows, sample_windows_adjoint)
 from kernels.launch import chunk_bounds, default_threads, parallel_ranges
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -163,27 +163,22 @@ def _tap_or_zero(f1_v: wp.array2d(dtype=typing.Any), p: int, f2l_v: wp.array2d(d
     return inv_sqrt_c * inv_sqrt_c.dtype(0.0)
 
 
-@wp.kernel
-def _patch_level(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typing.Any),
-                 coords: wp.array3d(dtype=typing.Any), patch: wp.array3d(dtype=typing.Any),
-                 height_l: int, width_l: int, scale: typing.Any, radius: int, inv_sqrt_c: typing.Any, offset: int):
-    """patch[p, ty, tx] = f1[:, p] . P^l(f2)[:, tap] / sqrt(C), 0 outside; thread = pixel * (2r+2) + ty.
+@wp.func
+def _patch_row(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typing.Any),
+               patch: wp.array3d(dtype=typing.Any), p: int, ty: int, i0: int, j0: int, height_l: int, width_l: int,
+               radius: int, inv_sqrt_c: typing.Any):
+    """Row ty of pixel p's patch: patch[p, ty, tx] = f1[:, p] . P^l(f2)[:, (j0 + ty, i0 + tx)] / sqrt(C), 0 outside.
 
     The taps of a row are contiguous in P^l(f2) and share f1[:, p], so they go five, four or two
     at a time (`_dot_v5`, `_dot_v4`, `_dot_v2`), loading f1[:, p] once per group: the dot products
     are bound by loads (five at a time: 12% less time than four, 1 KB taps, C = 256). Each tap's
     sum is formed in one order whatever its group, so the patch is bit-identical to one tap at a time.
     """
-    t = wp.tid() + offset
     side = 2 * radius + 2
-    p = t // side
-    ty = t % side
-    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
     row = j0 + ty
-    zero = coords.dtype(0.0)
     if row < 0 or row >= height_l:
         for tx in range(side):
-            patch[p, ty, tx] = zero
+            patch[p, ty, tx] = inv_sqrt_c.dtype(0.0)
         return
     base = row * width_l
     tx = int(0)
@@ -212,6 +207,33 @@ def _patch_level(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typ
         else:
             patch[p, ty, tx] = _tap_or_zero(f1_v, p, f2l_v, row, col, width_l, inv_sqrt_c)
             tx += 1
+
+
+@wp.kernel
+def _patch_level(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typing.Any),
+                 coords: wp.array3d(dtype=typing.Any), patch: wp.array3d(dtype=typing.Any),
+                 height_l: int, width_l: int, scale: typing.Any, radius: int, inv_sqrt_c: typing.Any, offset: int):
+    """The patch of (`_patch_row`) for every pixel; thread = pixel * (2r+2) + ty (the backward's recomputation)."""
+    t = wp.tid() + offset
+    side = 2 * radius + 2
+    p = t // side
+    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+    _patch_row(f1_v, f2l_v, patch, p, t % side, i0, j0, height_l, width_l, radius, inv_sqrt_c)
+
+
+@wp.kernel
+def _patch_sample_level(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typing.Any),
+                        coords: wp.array3d(dtype=typing.Any), patch: wp.array3d(dtype=typing.Any),
+                        out: wp.array3d(dtype=typing.Any), height_l: int, width_l: int, scale: typing.Any,
+                        radius: int, inv_sqrt_c: typing.Any, channel0: int, offset: int):
+    """Pixel p's patch (`_patch_row`, every row), then its window sampled from it (`sample_window`, from
+    (0, 0)) while the patch is still in cache: the forward's level in one launch; thread = pixel."""
+    p = wp.tid() + offset
+    side = 2 * radius + 2
+    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+    for ty in range(side):
+        _patch_row(f1_v, f2l_v, patch, p, ty, i0, j0, height_l, width_l, radius, inv_sqrt_c)
+    sample_window(patch, p, 0, 0, fx, fy, out, channel0, h, w, side - 1)
 
 
 @wp.kernel
@@ -257,7 +279,7 @@ def _sum_slots(slots_v: wp.array3d(dtype=typing.Any), out_v: wp.array2d(dtype=ty
 
 
 
-for _k in (_unpack_channels_last_v, _patch_level, _patch_adjoint_features, _sum_slots):
+for _k in (_unpack_channels_last_v, _patch_level, _patch_sample_level, _patch_adjoint_features, _sum_slots):
     declare_float_overloads(_k, vector_types=VEC_OF)
 
 
@@ -453,8 +475,14 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
             continue
         f2l_v = _channels_last_v(levels[lvl], a)
         scale = a.s(0.5 ** lvl)
-        a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
-        a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1, 0], min_chunk=256)
+        if a.device.is_cpu:
+            # One launch: each pixel's window sampled while its patch is in cache (8% less time than two
+            # launches). On CUDA a thread per patch row keeps more threads busy.
+            a.launch(_patch_sample_level, n, [f1_v, f2l_v, xy, patch, out, hl, wl, scale, radius, inv,
+                                              lvl * side * side], min_chunk=64)
+        else:
+            a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
+            a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1, 0])
         del f2l_v  # one level's copy at a time (`onthefly_bytes`)
     return a.out(out)
 
