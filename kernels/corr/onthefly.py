@@ -171,7 +171,7 @@ def _patch_row(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typin
 
     The taps of a row are contiguous in P^l(f2) and share f1[:, p], so they go five, four or two
     at a time (`_dot_v5`, `_dot_v4`, `_dot_v2`), loading f1[:, p] once per group: the dot products
-    are bound by loads (five at a time: 12% less time than four, 1 KB taps, C = 256). Each tap's
+    are bound by loads (five at a time: 12-19% less time than four, 1 KB taps, C = 256). Each tap's
     sum is formed in one order whatever its group, so the patch is bit-identical to one tap at a time.
     """
     side = 2 * radius + 2
@@ -320,7 +320,8 @@ def _one_blas_thread() -> Any:
 
     The full products are split by rows over the launch threads (`parallel_ranges`), one BLAS thread
     each: OpenBLAS's own threads spin on cores the launch threads already use (measured on the busy
-    2-core host: the on-the-fly forward took 36 ms of CPU time with them, 27 ms before the change).
+    2-core host: the on-the-fly forward took 36 ms of CPU time with them, 22 ms with one BLAS
+    thread per launch thread).
     """
     global _blas_controller
     if _blas_controller is None:
