@@ -66,8 +66,8 @@ backward here is written by hand.
 
 from kernels.corr._common import VEC, level_shapes, vec8d, vec8f
 from kernels.corr.dense import lookup, lookup_backward
-from kernels.corr.onthefly import (lookup_onthefly, lookup_onthefly_backward, onthefly_bytes, pool_features,
-                                   pool_features_backward)
+from kernels.corr.onthefly import (full_product_level, lookup_onthefly, lookup_onthefly_backward, onthefly_bytes,
+                                   onthefly_held_bytes, pool_features, pool_features_backward)
 from kernels.corr.volume import (correlation_pyramid, correlation_pyramid_backward, correlation_volume,
                                  correlation_volume_backward, dense_bytes)
 
@@ -76,4 +76,5 @@ __all__ = [
     "correlation_volume", "correlation_volume_backward", "correlation_pyramid", "correlation_pyramid_backward",
     "dense_bytes", "lookup", "lookup_backward",
     "pool_features", "pool_features_backward", "lookup_onthefly", "lookup_onthefly_backward", "onthefly_bytes",
+    "onthefly_held_bytes", "full_product_level",
 ]

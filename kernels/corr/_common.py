@@ -4,9 +4,11 @@ Lookup window. For a pixel p = (h, w) of frame 1 at level l with radius r, the
 (2r + 1)^2 samples of (4) share one fraction: with u0 = x_p / 2^l - 1/2 - r,
 the window's taps start at column i0 = floor(u0) with fraction fx = u0 - i0
 (and j0, fy from y_p the same way) (`pixel_window`). A map S = s[p] is sampled
-by (3) one window column a at a time (`sample_windows`, one thread per pixel: sample
-b's lower taps are sample b + 1's upper taps), taps outside s[p] reading 0. The dense lookup samples
-V^l[p] from (j0, i0); the on-the-fly lookup samples its tap patch from (0, 0).
+by (3) one window column a at a time (`sample_window`: sample b's lower taps are
+sample b + 1's upper taps), taps outside s[p] reading 0. The dense lookup samples
+V^l[p] from (j0, i0), up to four levels a launch (`sample_levels`, one thread per
+pixel); the on-the-fly lookup samples its tap patch from (0, 0), or blocks of
+rows of V^l (`sample_windows`, one level a launch).
 
 Adjoint of a window (`sample_windows_adjoint`), with g = d loss / d out:
   * d S[tap] += (weight of tap in (3)) g, into s[p] only, so per-pixel threads
@@ -93,47 +95,117 @@ def _scatter_tap(g: wp.array3d(dtype=typing.Any), p: int, row: int, col: int, va
 # --------------------------------------------------------------------------- window sampling (4) and its adjoint
 
 
-@wp.kernel
-def sample_windows(s: wp.array3d(dtype=typing.Any), coords: wp.array3d(dtype=typing.Any),
-                   out: wp.array3d(dtype=typing.Any),
-                   scale: typing.Any, radius: int, channel0: int, from_patch: int, offset: int):
-    """Equation (4) for one level, sampling S = s[p] by (3); thread = pixel.
+@wp.func
+def _row_taps(s: wp.array3d(dtype=typing.Any), p: int, row: int, cl: int, cr: int, okl: bool, okr: bool,
+              gx: typing.Any, fx: typing.Any):
+    """gx S[p, row, left] + fx S[p, row, right] of (3), each tap 0 outside s[p] (cl, cr: the columns
+    clamped into the image, read only where okl, okr say the unclamped ones exist)."""
+    zero = s.dtype(0.0)
+    if row < 0 or row >= s.shape[1]:
+        return gx * zero + fx * zero  # not a literal 0: a NaN position gives NaN, as tap by tap
+    left = wp.where(okl, s[p, row, cl], zero)
+    right = wp.where(okr, s[p, row, cr], zero)
+    return gx * left + fx * right
 
-    Dense: s is V^l (H W, H_l, W_l), read from the window's origin (j0, i0). On the fly
-    (`from_patch` = 1): s is the tap patch (H W, 2r+2, 2r+2), read from (0, 0). A window whose
-    taps all lie inside s[p] (every patch, and most level-0 windows) reads them without the
-    per-tap bounds test; both branches compute the same expression.
+
+@wp.func
+def sample_window(s: wp.array3d(dtype=typing.Any), p: int, row0: int, col0: int, fx: typing.Any, fy: typing.Any,
+                  out: wp.array3d(dtype=typing.Any), channel0: int, h: int, w: int, side: int):
+    """out[channel0 + a side + b, h, w] = (3) of S = s[p] at taps (row0 + b, col0 + a), a, b < side.
+
+    Column a's samples share its two tap columns, and sample b's lower taps are sample b + 1's
+    upper taps, so each row of taps is read once per column. A window whose taps all lie inside
+    s[p] (every patch, most level-0 windows) reads them without tests; otherwise each column's
+    two tap columns are tested once and each row once (`_row_taps`), and a column whose taps all
+    lie outside writes (3) of zero taps. Both branches compute the same expression, tap by tap.
     """
-    p = wp.tid() + offset
-    side = 2 * radius + 1
-    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-    row0 = j0
-    col0 = i0
-    if from_patch != 0:
-        row0 = 0
-        col0 = 0
     one = s.dtype(1.0)
+    zero = s.dtype(0.0)
     gx = one - fx
     gy = one - fy
-    inside = row0 >= 0 and col0 >= 0 and row0 + side < s.shape[1] and col0 + side < s.shape[2]
-    for a in range(side):
-        col = col0 + a
-        ch = channel0 + a * side
-        # Sample b's lower taps are sample b + 1's upper taps: each row of taps is read once.
-        if inside:
+    height = s.shape[1]
+    width = s.shape[2]
+    if row0 >= 0 and col0 >= 0 and row0 + side < height and col0 + side < width:
+        for a in range(side):
+            col = col0 + a
+            ch = channel0 + a * side
             top = gx * s[p, row0, col] + fx * s[p, row0, col + 1]
             for b in range(side):
                 row = row0 + b + 1
                 bottom = gx * s[p, row, col] + fx * s[p, row, col + 1]
                 out[ch + b, h, w] = gy * top + fy * bottom
                 top = bottom
-        else:
-            top = gx * _tap(s, p, row0, col) + fx * _tap(s, p, row0, col + 1)
-            for b in range(side):
-                row = row0 + b + 1
-                bottom = gx * _tap(s, p, row, col) + fx * _tap(s, p, row, col + 1)
-                out[ch + b, h, w] = gy * top + fy * bottom
-                top = bottom
+    else:
+        for a in range(side):
+            col = col0 + a
+            ch = channel0 + a * side
+            okl = col >= 0 and col < width
+            okr = col >= -1 and col + 1 < width
+            if okl or okr:
+                cl = wp.clamp(col, 0, width - 1)
+                cr = wp.clamp(col + 1, 0, width - 1)
+                top = _row_taps(s, p, row0, cl, cr, okl, okr, gx, fx)
+                for b in range(side):
+                    bottom = _row_taps(s, p, row0 + b + 1, cl, cr, okl, okr, gx, fx)
+                    out[ch + b, h, w] = gy * top + fy * bottom
+                    top = bottom
+            else:
+                row_taps = gx * zero + fx * zero  # as `_row_taps` outside (NaN for a NaN position)
+                for b in range(side):
+                    out[ch + b, h, w] = gy * row_taps + fy * row_taps
+
+
+@wp.kernel
+def sample_windows(s: wp.array3d(dtype=typing.Any), coords: wp.array3d(dtype=typing.Any),
+                   out: wp.array3d(dtype=typing.Any),
+                   scale: typing.Any, radius: int, channel0: int, from_patch: int, block0: int, offset: int):
+    """Equation (4) for one level, sampling S = s[p - block0] by (3) (`sample_window`); thread =
+    pixel p = block0 + thread index.
+
+    Levels: s holds the rows of V^l (B, H_l, W_l) of pixels block0 .. block0 + B - 1, read from
+    each window's origin (j0, i0). Patches (`from_patch` = 1): s holds the tap patches
+    (B, 2r+2, 2r+2), read from (0, 0).
+    """
+    row = wp.tid() + offset
+    p = row + block0
+    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+    if from_patch != 0:
+        i0 = 0
+        j0 = 0
+    sample_window(s, row, j0, i0, fx, fy, out, channel0, h, w, 2 * radius + 1)
+
+
+@wp.func
+def _sample_level(v: wp.array3d(dtype=typing.Any), coords: wp.array3d(dtype=typing.Any), p: int,
+                  out: wp.array3d(dtype=typing.Any), scale: typing.Any, radius: int, channel0: int):
+    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+    sample_window(v, p, j0, i0, fx, fy, out, channel0, h, w, 2 * radius + 1)
+
+
+LEVELS_PER_LAUNCH = 4  # pyramid levels one `sample_levels` launch covers
+
+
+@wp.kernel
+def sample_levels(v0: wp.array3d(dtype=typing.Any), v1: wp.array3d(dtype=typing.Any),
+                  v2: wp.array3d(dtype=typing.Any), v3: wp.array3d(dtype=typing.Any), n_levels: int,
+                  coords: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any),
+                  scale0: typing.Any, radius: int, channel0: int, offset: int):
+    """Equation (4) for up to four consecutive levels v0..v3 (the first `n_levels` of them, level k
+    at scale scale0 / 2^k and channels from channel0 + k (2r+1)^2); thread = pixel.
+
+    One launch for the levels instead of one per level: a launch costs tens of microseconds of
+    Python, and a split launch several launches.
+    """
+    p = wp.tid() + offset
+    per = (2 * radius + 1) * (2 * radius + 1)
+    half = coords.dtype(0.5)
+    _sample_level(v0, coords, p, out, scale0, radius, channel0)
+    if n_levels > 1:
+        _sample_level(v1, coords, p, out, scale0 * half, radius, channel0 + per)
+    if n_levels > 2:
+        _sample_level(v2, coords, p, out, scale0 * half * half, radius, channel0 + 2 * per)
+    if n_levels > 3:
+        _sample_level(v3, coords, p, out, scale0 * half * half * half, radius, channel0 + 3 * per)
 
 
 @wp.kernel
@@ -176,7 +248,7 @@ def sample_windows_adjoint(s: wp.array3d(dtype=typing.Any), coords: wp.array3d(d
     grad_coords[1, h, w] = grad_coords[1, h, w] + gy * scale
 
 
-for _k in (sample_windows, sample_windows_adjoint):
+for _k in (sample_windows, sample_levels, sample_windows_adjoint):
     declare_float_overloads(_k)
 
 

@@ -7,10 +7,12 @@ For each pixel p of frame 1, level l and window offsets a, b in {0, ..., 2r},
 with V^l[p] the level's (H_l, W_l) slice for p sampled by (3), taps outside the
 slice counting as 0. All samples of a level share the fractions (fx, fy), so
 they read the (2r + 2) x (2r + 2) tap patch of V^l[p] from (j0, i0). The forward
-and the adjoint each run one thread per pixel, the adjoint
-adding into row p of the level's gradient and pixel p of the coordinates' only.
-The kernels are `_common.sample_windows` and `_common.sample_windows_adjoint`
-(shared with the on-the-fly lookup), where the adjoint's formulas are written out.
+and the adjoint each run one thread per pixel, the forward over up to four levels
+per launch, the adjoint one level per launch, adding into row p of the level's
+gradient and pixel p of the coordinates' only. The kernels are
+`_common.sample_levels` and `_common.sample_windows_adjoint` (the window
+sampling is shared with the on-the-fly lookup), where the adjoint's formulas are
+written out.
 """
 
 from __future__ import annotations
@@ -20,8 +22,8 @@ from typing import Sequence
 import warp as wp
 
 from kernels._arrays import Inputs
-from kernels.corr._common import (Array, check_levels, check_list, check_radius, coords_in, levels_in,
-                                  sample_windows, sample_windows_adjoint, volume_in)
+from kernels.corr._common import (LEVELS_PER_LAUNCH, Array, check_levels, check_list, check_radius, coords_in,
+                                  levels_in, sample_levels, sample_windows_adjoint, volume_in)
 
 
 # --------------------------------------------------------------------------- entry points
@@ -44,9 +46,12 @@ def lookup(pyramid: Sequence[Array], coords: Array, radius: int, *, device: str 
     xy = coords_in(a, coords, height, width)
     side = 2 * radius + 1
     n = height * width
-    out = a.zeros((len(levels) * side * side, height, width))
-    for lvl, v in enumerate(levels):
-        a.launch(sample_windows, n, [v, xy, out, a.s(0.5 ** lvl), radius, lvl * side * side, 0], min_chunk=256)
+    out = a.empty((len(levels) * side * side, height, width))  # every element is written
+    for lvl0 in range(0, len(levels), LEVELS_PER_LAUNCH):
+        group = levels[lvl0:lvl0 + LEVELS_PER_LAUNCH]
+        padded = group + [group[0]] * (LEVELS_PER_LAUNCH - len(group))  # unused slots: never read
+        a.launch(sample_levels, n, [*padded, len(group), xy, out, a.s(0.5 ** lvl0), radius, lvl0 * side * side],
+                 min_chunk=256)
     return a.out(out)
 
 

@@ -7,9 +7,20 @@ pixel p and level l the (2r + 2)^2 tap patch of its window
     T[p, ty, tx] = f1[:, p] . P^l(f2)[:, (j0 + ty, i0 + tx)] / sqrt(C)   (0 outside frame 2)
 
 is computed, then sampled by (3) exactly as the dense lookup samples V^l (the
-same kernels `sample_windows` and `sample_windows_adjoint`, on the patch). Memory
-is one patch buffer of H W (2r + 2)^2 values instead of the whole pyramid's
-H W sum_l H_l W_l.
+same kernels `sample_windows` and `sample_windows_adjoint`, on the patch).
+
+Coarse levels on the CPU. Where a level has few pixels (H_l W_l <= 2 (2r + 2)^2,
+`full_product_level`; RAFT's two coarsest at 1/8 resolution), the forward takes
+every tap from the rows of the full product V^l = f1^T P^l(f2) / sqrt(C) instead,
+by BLAS, for blocks of pixels at a time (each block's rows no larger than the
+patch buffer), and samples them as the dense lookup samples V^l. The values are
+those of (1) summed in BLAS's order (float rounding apart from the patches).
+
+Memory: the path keeps f1 and the pooled f2 pyramid between lookups, C (H W +
+sum_l H_l W_l) values (`onthefly_held_bytes`), instead of the volume pyramid's
+H W sum_l H_l W_l; a forward call adds channels-last copies of f1 and of one
+level, and the patch buffer of H W (2r + 2)^2 values (`onthefly_bytes`), whose
+memory the full-product levels reuse.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -33,13 +44,14 @@ import typing
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Sequence
 
+import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
                                   features_in, level_shapes, levels_in, pack_rows, pixel_window, pool_levels,
-                                  pool_levels_adjoint, sample_windows, sample_windows_adjoint)
-from kernels.launch import chunk_bounds, default_threads
+                                  pool_levels_adjoint, sample_window, sample_windows, sample_windows_adjoint)
+from kernels.launch import chunk_bounds, default_threads, parallel_ranges
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -113,6 +125,36 @@ def _dot_v4(a_v: wp.array2d(dtype=typing.Any), i: int, b_v: wp.array2d(dtype=typ
 
 
 @wp.func
+def _dot_v5(a_v: wp.array2d(dtype=typing.Any), i: int, b_v: wp.array2d(dtype=typing.Any), j: int):
+    """a[i] . b[j + t] for t = 0..4: a[i]'s vectors loaded once for five taps, each sum in `_dot_v`'s order."""
+    x = a_v[i, 0]
+    acc0 = wp.cw_mul(x, b_v[j, 0])
+    acc1 = wp.cw_mul(x, b_v[j + 1, 0])
+    acc2 = wp.cw_mul(x, b_v[j + 2, 0])
+    acc3 = wp.cw_mul(x, b_v[j + 3, 0])
+    acc4 = wp.cw_mul(x, b_v[j + 4, 0])
+    for k in range(1, a_v.shape[1]):
+        x = a_v[i, k]
+        acc0 += wp.cw_mul(x, b_v[j, k])
+        acc1 += wp.cw_mul(x, b_v[j + 1, k])
+        acc2 += wp.cw_mul(x, b_v[j + 2, k])
+        acc3 += wp.cw_mul(x, b_v[j + 3, k])
+        acc4 += wp.cw_mul(x, b_v[j + 4, k])
+    s0 = acc0[0]
+    s1 = acc1[0]
+    s2 = acc2[0]
+    s3 = acc3[0]
+    s4 = acc4[0]
+    for q in range(1, VEC):
+        s0 += acc0[q]
+        s1 += acc1[q]
+        s2 += acc2[q]
+        s3 += acc3[q]
+        s4 += acc4[q]
+    return s0, s1, s2, s3, s4
+
+
+@wp.func
 def _tap_or_zero(f1_v: wp.array2d(dtype=typing.Any), p: int, f2l_v: wp.array2d(dtype=typing.Any), row: int,
                  col: int, width_l: int, inv_sqrt_c: typing.Any):
     """f1[:, p] . P^l(f2)[:, (row, col)] / sqrt(C) for a tap in the level's row, 0 past its ends."""
@@ -121,48 +163,77 @@ def _tap_or_zero(f1_v: wp.array2d(dtype=typing.Any), p: int, f2l_v: wp.array2d(d
     return inv_sqrt_c * inv_sqrt_c.dtype(0.0)
 
 
-@wp.kernel
-def _patch_level(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typing.Any),
-                 coords: wp.array3d(dtype=typing.Any), patch: wp.array3d(dtype=typing.Any),
-                 height_l: int, width_l: int, scale: typing.Any, radius: int, inv_sqrt_c: typing.Any, offset: int):
-    """patch[p, ty, tx] = f1[:, p] . P^l(f2)[:, tap] / sqrt(C), 0 outside; thread = pixel * (2r+2) + ty.
+@wp.func
+def _patch_row(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typing.Any),
+               patch: wp.array3d(dtype=typing.Any), p: int, ty: int, i0: int, j0: int, height_l: int, width_l: int,
+               radius: int, inv_sqrt_c: typing.Any):
+    """Row ty of pixel p's patch: patch[p, ty, tx] = f1[:, p] . P^l(f2)[:, (j0 + ty, i0 + tx)] / sqrt(C), 0 outside.
 
-    The taps of a row are contiguous in P^l(f2) and share f1[:, p], so they go four at a time
-    (`_dot_v4`), then two at a time (2r + 2 is even), loading f1[:, p] once per group: the dot
-    products are bound by loads, and this halves them. Each tap's sum is formed in one order
-    whatever its group, so the patch is bit-identical to one tap at a time.
+    The taps of a row are contiguous in P^l(f2) and share f1[:, p], so they go five, four or two
+    at a time (`_dot_v5`, `_dot_v4`, `_dot_v2`), loading f1[:, p] once per group: the dot products
+    are bound by loads (five at a time: 12-19% less time than four, 1 KB taps, C = 256). Each tap's
+    sum is formed in one order whatever its group, so the patch is bit-identical to one tap at a time.
     """
-    t = wp.tid() + offset
     side = 2 * radius + 2
-    p = t // side
-    ty = t % side
-    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
     row = j0 + ty
-    zero = coords.dtype(0.0)
     if row < 0 or row >= height_l:
         for tx in range(side):
-            patch[p, ty, tx] = zero
+            patch[p, ty, tx] = inv_sqrt_c.dtype(0.0)
         return
     base = row * width_l
     tx = int(0)
     while tx < side:
         col = i0 + tx
-        if tx + 4 <= side and col >= 0 and col + 3 < width_l:
+        if tx + 5 <= side and col >= 0 and col + 4 < width_l:
+            s0, s1, s2, s3, s4 = _dot_v5(f1_v, p, f2l_v, base + col)
+            patch[p, ty, tx] = s0 * inv_sqrt_c
+            patch[p, ty, tx + 1] = s1 * inv_sqrt_c
+            patch[p, ty, tx + 2] = s2 * inv_sqrt_c
+            patch[p, ty, tx + 3] = s3 * inv_sqrt_c
+            patch[p, ty, tx + 4] = s4 * inv_sqrt_c
+            tx += 5
+        elif tx + 4 <= side and col >= 0 and col + 3 < width_l:
             s0, s1, s2, s3 = _dot_v4(f1_v, p, f2l_v, base + col)
             patch[p, ty, tx] = s0 * inv_sqrt_c
             patch[p, ty, tx + 1] = s1 * inv_sqrt_c
             patch[p, ty, tx + 2] = s2 * inv_sqrt_c
             patch[p, ty, tx + 3] = s3 * inv_sqrt_c
             tx += 4
-        elif col >= 0 and col + 1 < width_l:
+        elif tx + 2 <= side and col >= 0 and col + 1 < width_l:
             s0, s1 = _dot_v2(f1_v, p, f2l_v, base + col)
             patch[p, ty, tx] = s0 * inv_sqrt_c
             patch[p, ty, tx + 1] = s1 * inv_sqrt_c
             tx += 2
         else:
             patch[p, ty, tx] = _tap_or_zero(f1_v, p, f2l_v, row, col, width_l, inv_sqrt_c)
-            patch[p, ty, tx + 1] = _tap_or_zero(f1_v, p, f2l_v, row, col + 1, width_l, inv_sqrt_c)
-            tx += 2
+            tx += 1
+
+
+@wp.kernel
+def _patch_level(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typing.Any),
+                 coords: wp.array3d(dtype=typing.Any), patch: wp.array3d(dtype=typing.Any),
+                 height_l: int, width_l: int, scale: typing.Any, radius: int, inv_sqrt_c: typing.Any, offset: int):
+    """The patch of (`_patch_row`) for every pixel; thread = pixel * (2r+2) + ty (the backward's recomputation)."""
+    t = wp.tid() + offset
+    side = 2 * radius + 2
+    p = t // side
+    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+    _patch_row(f1_v, f2l_v, patch, p, t % side, i0, j0, height_l, width_l, radius, inv_sqrt_c)
+
+
+@wp.kernel
+def _patch_sample_level(f1_v: wp.array2d(dtype=typing.Any), f2l_v: wp.array2d(dtype=typing.Any),
+                        coords: wp.array3d(dtype=typing.Any), patch: wp.array3d(dtype=typing.Any),
+                        out: wp.array3d(dtype=typing.Any), height_l: int, width_l: int, scale: typing.Any,
+                        radius: int, inv_sqrt_c: typing.Any, channel0: int, offset: int):
+    """Pixel p's patch (`_patch_row`, every row), then its window sampled from it (`sample_window`, from
+    (0, 0)) while the patch is still in cache: the forward's level in one launch; thread = pixel."""
+    p = wp.tid() + offset
+    side = 2 * radius + 2
+    h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+    for ty in range(side):
+        _patch_row(f1_v, f2l_v, patch, p, ty, i0, j0, height_l, width_l, radius, inv_sqrt_c)
+    sample_window(patch, p, 0, 0, fx, fy, out, channel0, h, w, side - 1)
 
 
 @wp.kernel
@@ -208,7 +279,7 @@ def _sum_slots(slots_v: wp.array3d(dtype=typing.Any), out_v: wp.array2d(dtype=ty
 
 
 
-for _k in (_unpack_channels_last_v, _patch_level, _patch_adjoint_features, _sum_slots):
+for _k in (_unpack_channels_last_v, _patch_level, _patch_sample_level, _patch_adjoint_features, _sum_slots):
     declare_float_overloads(_k, vector_types=VEC_OF)
 
 
@@ -216,8 +287,82 @@ for _k in (_unpack_channels_last_v, _patch_level, _patch_adjoint_features, _sum_
 
 
 def _channels_last_v(x: wp.array, a: Inputs) -> wp.array:
-    """(C, N) scalars -> (N, ceil(C / 8)) vectors."""
-    return pack_rows(x.transpose(), -(-x.shape[0] // VEC), a)
+    """(C, N) scalars -> (N, ceil(C / 8)) vectors.
+
+    On the CPU with C a multiple of 8 the vectors are the rows of x^T itself: NumPy's transposed
+    copy, aliased as vectors (a quarter of the packing kernel's time, which reads x^T strided).
+    """
+    channels, n = x.shape
+    if a.device.is_cpu and channels % VEC == 0:
+        rows = np.ascontiguousarray(x.numpy().T).reshape(n, channels // VEC, VEC)
+        return wp.array(rows, dtype=VEC_OF[a.scalar], device=a.device, copy=False)  # keeps `rows` alive
+    return pack_rows(x.transpose(), -(-channels // VEC), a)
+
+
+def full_product_level(height_l: int, width_l: int, radius: int, device: wp.Device) -> bool:
+    """Whether level l's taps come from the full product f1^T P^l(f2) by BLAS (CPU only).
+
+    The patch kernel forms at most (2r + 2)^2 dot products a pixel; BLAS forms all H_l W_l of
+    them, about 4x faster each (measured: 66-99 GFLOP/s for one BLAS thread against ~22 for the
+    patch kernel, 46x62 frames, C = 256). So the full product pays when H_l W_l is at most twice
+    the patch (the margin covers smaller C, where BLAS is less efficient): RAFT's two coarsest
+    levels at 1/8 resolution.
+    """
+    return device.is_cpu and height_l * width_l <= 2 * (2 * radius + 2) ** 2
+
+
+_blas_controller = None
+_BLAS_ROWS = 256  # rows of V^l per BLAS call in `_sample_full_product`
+
+
+def _one_blas_thread() -> Any:
+    """A context in which BLAS runs on the calling thread alone (threadpoolctl; process-wide while it lasts).
+
+    The full products are split by rows over the launch threads (`parallel_ranges`), one BLAS thread
+    each: OpenBLAS's own threads spin on cores the launch threads already use (measured on the busy
+    2-core host: the on-the-fly forward took 36 ms of CPU time with them, 22 ms with one BLAS
+    thread per launch thread).
+    """
+    global _blas_controller
+    if _blas_controller is None:
+        from threadpoolctl import ThreadpoolController
+
+        _blas_controller = ThreadpoolController()
+    return _blas_controller.limit(limits=1, user_api="blas")
+
+
+def _sample_full_product(x1_rows: np.ndarray, f2l: wp.array, xy: wp.array, out: wp.array, lvl: int,
+                         radius: int, inv: float, scratch: wp.array, a: Inputs) -> None:
+    """Level `lvl` of (4) from V^l = f1^T P^l(f2) / sqrt(C), formed by BLAS for blocks of pixels.
+
+    x1_rows: f1 channels-last (N, C) on the host; f2l: P^l(f2) as (C, H_l, W_l). Each block of B
+    pixels gets its rows of V^l ((B, H_l W_l), in the memory of `scratch`, the patch buffer, so
+    B H_l W_l <= its size) and is sampled like a dense level. The scale goes on the small operand
+    first, as in `volume._gemm_blas` (exact when sqrt(C) is a power of two).
+    """
+    _, height_l, width_l = f2l.shape
+    n = x1_rows.shape[0]
+    taps = height_l * width_l
+    f2s = f2l.numpy().reshape(-1, taps) * a.np_dtype.type(inv)
+    block = max(1, min(n, scratch.size // taps))
+    flat = scratch.numpy().reshape(-1)[:block * taps].reshape(block, taps)
+    buf = wp.array(flat.reshape(block, height_l, width_l), dtype=a.scalar, device=a.device, copy=False)
+    side = 2 * radius + 1
+    scale = a.s(0.5 ** lvl)
+    for p0 in range(0, n, block):
+        rows = min(block, n - p0)
+        starts = range(0, rows, _BLAS_ROWS)
+
+        def products(lo: int, hi: int) -> None:
+            # The same BLAS calls (row chunks of _BLAS_ROWS) whatever the thread count, so the
+            # values do not depend on it (BLAS may round a product's edge rows differently).
+            for r0 in starts[lo:hi]:
+                r1 = min(r0 + _BLAS_ROWS, rows)
+                np.matmul(x1_rows[p0 + r0:p0 + r1], f2s, out=flat[r0:r1])
+
+        with _one_blas_thread():
+            parallel_ranges(products, len(starts), min_chunk=1)
+        a.launch(sample_windows, rows, [buf, xy, out, scale, radius, lvl * side * side, 0, p0], min_chunk=256)
 
 
 def _channels_first(x_v: wp.array, channels: int, a: Inputs) -> wp.array:
@@ -281,11 +426,31 @@ def pool_features_backward(grad_pyramid: Sequence[Array], *, device: str | None 
     return {"f2": a.out(pool_levels_adjoint(grads, a))}
 
 
-def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: int, itemsize: int = 4) -> int:
-    """Bytes the on-the-fly forward holds: f1 and the pooled f2 pyramid channels-last (padded to 8) + one patch."""
-    c_pad = -(-channels // VEC) * VEC
+def onthefly_held_bytes(height: int, width: int, channels: int, levels: int, itemsize: int = 4) -> int:
+    """Bytes the on-the-fly path keeps between lookups: f1 and the pooled f2 pyramid, (C, H_l, W_l) each.
+
+    The counterpart of `volume.dense_bytes` (the volume pyramid the dense path keeps instead).
+    """
     pixels = height * width + sum(hl * wl for hl, wl in level_shapes(height, width, levels))
-    return itemsize * (c_pad * pixels + height * width * (2 * radius + 2) ** 2)
+    return itemsize * channels * pixels
+
+
+def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: int, itemsize: int = 4) -> int:
+    """Peak bytes of an on-the-fly forward on the CPU, its output excluded (the dense lookup's is the same).
+
+    `onthefly_held_bytes` plus the working buffers of one call: f1 channels-last (channels padded
+    to 8), one level's channels-last copy at a time (the largest level sampled through patches),
+    the patch buffer (whose memory a full-product level reuses for its blocks of V^l) and at a
+    full-product level the scaled P^l(f2).
+    """
+    c_pad = -(-channels // VEC) * VEC
+    n = height * width
+    patch = n * (2 * radius + 2) ** 2
+    shapes = level_shapes(height, width, levels)
+    full = [hl * wl for hl, wl in shapes if full_product_level(hl, wl, radius, wp.get_device("cpu"))]
+    patched = [hl * wl for hl, wl in shapes if not full_product_level(hl, wl, radius, wp.get_device("cpu"))]
+    work = c_pad * n + c_pad * max(patched, default=0) + patch + channels * max(full, default=0)
+    return onthefly_held_bytes(height, width, channels, levels, itemsize) + itemsize * work
 
 
 def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radius: int, *,
@@ -300,13 +465,26 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
     side = 2 * radius + 1
     f1_v = _channels_last_v(x1, a)
     inv = a.s(1.0 / math.sqrt(channels))
-    patch = a.zeros((n, side + 1, side + 1))
-    out = a.zeros((len(levels) * side * side, height, width))
+    out = a.empty((len(levels) * side * side, height, width))  # every element is written
+    # Every tap is written by _patch_level; a full-product level reuses the memory for its blocks.
+    patch = a.empty((n, side + 1, side + 1))
     for lvl, (hl, wl) in enumerate(level_shapes(height, width, len(levels))):
+        if full_product_level(hl, wl, radius, a.device) and channels % VEC == 0:
+            x1_rows = f1_v.numpy().reshape(n, channels)  # f1 channels-last: the vectors' own memory
+            _sample_full_product(x1_rows, levels[lvl].reshape((channels, hl, wl)), xy, out, lvl, radius,
+                                 1.0 / math.sqrt(channels), patch, a)
+            continue
         f2l_v = _channels_last_v(levels[lvl], a)
         scale = a.s(0.5 ** lvl)
-        a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
-        a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1], min_chunk=256)
+        if a.device.is_cpu:
+            # One launch: each pixel's window sampled while its patch is in cache (8% less time than two
+            # launches). On CUDA a thread per patch row keeps more threads busy.
+            a.launch(_patch_sample_level, n, [f1_v, f2l_v, xy, patch, out, hl, wl, scale, radius, inv,
+                                              lvl * side * side], min_chunk=64)
+        else:
+            a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
+            a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1, 0])
+        del f2l_v  # one level's copy at a time (`onthefly_bytes`)
     return a.out(out)
 
 

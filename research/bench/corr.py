@@ -8,17 +8,21 @@ coordinates within +-8 px of each pixel's centre.
 * `corr.lookup`: `fwd_s`, one dense lookup (4); `fwd_bwd_s`, the lookup plus its
   adjoint to every pyramid level and to the coordinates; `bytes`, the stored pyramid;
 * `corr.lookup_onthefly`: `fwd_s` and `fwd_bwd_s` of the on-the-fly lookup (the
-  backward reaching f1, every pooled f2 level and the coordinates); `bytes`, what it
-  holds instead of the pyramid (f1, the pooled f2 pyramid, one patch buffer);
-  `max_abs_diff`, its largest deviation from the dense lookup; `ratio_to_dense_fwd`,
-  its forward time over the dense lookup's (timed interleaved with it), and
-  `memory_ratio`, the dense pyramid's bytes over its own. The dense pyramid grows as
-  (H W)^2 and the on-the-fly buffers as C H W, so the ratio grows with the frame:
-  `memory_ratio_sintel` is the same ratio at RAFT's 1/8 resolution of a 1024x436
-  MPI-Sintel frame (54 x 128 features), from the same byte counts.
+  backward reaching f1, every pooled f2 level and the coordinates); `max_abs_diff`, its
+  largest deviation from the dense lookup; `ratio_to_dense_fwd`, its forward time over the
+  dense lookup's (timed interleaved with it).
 
-Memory (`bytes`, `peak_mb`) is the nbytes of the arrays each path keeps between
-lookups, computed from their shapes (Warp's allocations are invisible to tracemalloc).
+Memory, from the arrays' nbytes computed from their shapes (Warp's allocations are invisible to
+tracemalloc), outputs excluded on both sides (the two lookups return the same array):
+  * dense `bytes`: the volume pyramid, kept between lookups (`corr.dense_bytes`);
+  * on-the-fly `bytes`: what it keeps between lookups instead, f1 and the pooled f2 pyramid
+    (`corr.onthefly_held_bytes`), and `memory_ratio` = dense bytes / that;
+  * on-the-fly `peak_bytes`: that plus the working buffers of one forward call (channels-last
+    copies, the patch buffer; `corr.onthefly_bytes`), and `memory_ratio_peak` = dense bytes / that;
+  * `peak_mb`: each row's largest figure in MiB.
+The dense pyramid grows as (H W)^2 and the on-the-fly buffers as C H W, so the ratios grow with
+the frame: `memory_ratio_sintel` and `memory_ratio_peak_sintel` are the same ratios at RAFT's 1/8
+resolution of a 1024x436 MPI-Sintel frame (54 x 128 features), from the same byte counts.
 
 `compare=True` (research.bench's convention) times PyTorch on the same inputs, interleaved with
 drlab in one `time_medians` call, with torch.set_num_threads set to drlab's thread count:
@@ -157,16 +161,21 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
                                                                           - dense_fwd().numpy()).max())}
     t = time_medians(fns, repeats=repeats, sync=sync)
     t_bwd = time_medians({"dense": dense_fwd_bwd, "otf": otf_fwd_bwd}, repeats=repeats, sync=sync)
-    for name, key, nbytes in (("corr.lookup", "dense", dense_bytes),
-                              ("corr.lookup_onthefly", "otf",
-                               corr.onthefly_bytes(height, width, sizes["channels"], levels, radius))):
+    channels = sizes["channels"]
+    held = corr.onthefly_held_bytes(height, width, channels, levels)
+    peak = corr.onthefly_bytes(height, width, channels, levels, radius)
+    for name, key, nbytes, peak_bytes in (("corr.lookup", "dense", dense_bytes, dense_bytes),
+                                          ("corr.lookup_onthefly", "otf", held, peak)):
         row = {"bench": name, **head, "fwd_s": t[key], "fwd_bwd_s": t_bwd[key], "bytes": nbytes,
-               "peak_mb": nbytes / 2 ** 20, **missing}
+               "peak_mb": peak_bytes / 2 ** 20, **missing}
         if key == "otf":
+            sintel_dense = corr.dense_bytes(*SINTEL_FEATURES, levels)
             row.update(max_abs_diff=float(np.abs(otf_fwd().numpy() - dense_fwd().numpy()).max()),
-                       ratio_to_dense_fwd=t["otf"] / t["dense"], memory_ratio=dense_bytes / nbytes,
-                       memory_ratio_sintel=corr.dense_bytes(*SINTEL_FEATURES, levels)
-                       / corr.onthefly_bytes(*SINTEL_FEATURES, sizes["channels"], levels, radius))
+                       ratio_to_dense_fwd=t["otf"] / t["dense"], peak_bytes=peak,
+                       memory_ratio=dense_bytes / held, memory_ratio_peak=dense_bytes / peak,
+                       memory_ratio_sintel=sintel_dense / corr.onthefly_held_bytes(*SINTEL_FEATURES, channels, levels),
+                       memory_ratio_peak_sintel=sintel_dense
+                       / corr.onthefly_bytes(*SINTEL_FEATURES, channels, levels, radius))
         if ref is not None:
             row.update(ref_row, ref_fwd_s=t["ref"], speedup_fwd=t["ref"] / t[key])
         yield row

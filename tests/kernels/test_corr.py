@@ -78,6 +78,28 @@ def test_lookup_matches_reference(dtype, radius):
     assert np.count_nonzero(want == 0.0) > 0  # some windows lie wholly outside frame 2
 
 
+def test_onthefly_independent_of_thread_count(monkeypatch):
+    """The full-product levels run BLAS on row chunks fixed in advance, the patches in race-free split
+    launches: the same bytes with 1 and 3 launch threads (576 pixels: three BLAS chunks per level)."""
+    f1, f2, coords = random_case(np.random.default_rng(13), np.float32, shape=(16, 24, 24))
+    f2_pyramid = corr.pool_features(f2, 3)
+    assert corr.full_product_level(6, 6, 2, wp.get_device("cpu"))
+    outs = []
+    for threads in ("1", "3"):
+        monkeypatch.setenv("DRLAB_THREADS", threads)
+        outs.append(corr.lookup_onthefly(f1, f2_pyramid, coords, 2))
+    assert outs[0].tobytes() == outs[1].tobytes()
+
+
+def test_lookup_more_levels_than_one_launch_covers():
+    """Five levels: the dense forward samples four levels a launch, so the fifth takes a second launch."""
+    f1, f2, coords = random_case(np.random.default_rng(9), np.float64, shape=(3, 16, 20))
+    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 5)
+    out = corr.lookup(pyramid, coords, 1)
+    np.testing.assert_allclose(out, ref.lookup(pyramid, coords, 1), **TOL[np.float64])
+    assert np.count_nonzero(out[4 * 9:]) > 0  # the last level's channels were written
+
+
 def test_lookup_channel_order_is_rafts():
     """One bright cell at frame-2 offset (+1, -2) from a pixel: it appears in channel (r + 1)(2r + 1) + (r - 2)."""
     h, w, radius = 6, 7, 2
@@ -138,8 +160,35 @@ def test_warp_arrays_in_warp_arrays_out():
 
 
 def test_memory_accounting():
-    assert corr.dense_bytes(46, 62, 4) == 4 * 46 * 62 * (46 * 62 + 23 * 31 + 11 * 15 + 5 * 7)
-    assert corr.onthefly_bytes(46, 62, 256, 4, 4) < corr.dense_bytes(46, 62, 4) / 4
+    pixels = 46 * 62 + 23 * 31 + 11 * 15 + 5 * 7
+    assert corr.dense_bytes(46, 62, 4) == 4 * 46 * 62 * pixels
+    assert corr.onthefly_held_bytes(46, 62, 256, 4) == 4 * 256 * (46 * 62 + pixels)  # f1 and the pooled f2
+    # The peak adds f1 and level 0 channels-last, the patch buffer (whose memory the full-product levels
+    # 2 and 3, 11x15 and 5x7 <= 2 * 10^2 taps, reuse for their blocks of V^l) and the scaled level 2.
+    work = 256 * 46 * 62 * 2 + 46 * 62 * 10 ** 2 + 256 * 11 * 15
+    assert corr.onthefly_bytes(46, 62, 256, 4, 4) == corr.onthefly_held_bytes(46, 62, 256, 4) + 4 * work
+
+
+# (shape, levels, radius, which levels take the full product). Level 0 of the first case (130 taps)
+# goes through patches, levels 1 and 2 (30 and 6 taps <= 2 * 6^2) through the product in one block;
+# the second case's level 1 (6x8 = 48 taps) needs two blocks (192 pixels x 48 > the 192 x 36 patch).
+FULL_PRODUCT_CASES = [((16, 10, 13), 3, 2, [False, True, True]), ((8, 12, 16), 2, 2, [False, True])]
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("shape,levels,radius,full", FULL_PRODUCT_CASES, ids=["one_block", "two_blocks"])
+def test_onthefly_full_product_levels(dtype, shape, levels, radius, full):
+    """Levels small enough for the full product f1^T P^l(f2) by BLAS (CPU, C a multiple of 8) give the
+    reference lookup, as the patch levels of the same call do."""
+    f1, f2, coords = random_case(np.random.default_rng(11), dtype, shape=shape)
+    shapes = corr.level_shapes(shape[1], shape[2], levels)
+    assert [corr.full_product_level(h, w, radius, wp.get_device("cpu")) for h, w in shapes] == full
+    out = corr.lookup_onthefly(f1, corr.pool_features(f2, levels), coords, radius)
+    want = ref.lookup(ref.pyramid(ref.volume(f1.astype(np.float64), f2.astype(np.float64)), levels),
+                      coords.astype(np.float64), radius)
+    np.testing.assert_allclose(out, want, **TOL[dtype])
+    per = (2 * radius + 1) ** 2
+    assert np.count_nonzero(want[per:] == 0.0) > 0 and np.count_nonzero(want[per:]) > 0  # taps in and outside
 
 
 # --------------------------------------------------------------------------- gradients (float64, FD)
