@@ -167,6 +167,22 @@ class RayOptions:
     temp_dir: str | None = None  # Ray's session folder of a local instance (None: Ray's default)
 
 
+# Ray's switch between "this machine only" and "a cluster" (ray._private.ray_constants.ENABLE_RAY_CLUSTER,
+# read from this variable when Ray is imported). On Linux it defaults to cluster mode, in which Ray
+# replaces a node address of 127.0.0.1 by the machine's outward address, and the GCS server, the
+# raylet and the workers then listen on that interface (measured with Ray 2.60). Switched off, the
+# node address stays 127.0.0.1 and every one of them listens on the loopback interface only.
+_CLUSTER_SWITCH = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
+def _local_instance_on_loopback() -> None:
+    """Make the local instance that ray.init is about to start listen on the loopback address only."""
+    os.environ[_CLUSTER_SWITCH] = "0"
+    ray_constants = sys.modules.get("ray._private.ray_constants")
+    if ray_constants is not None:  # Ray was imported before the variable was set: set what it read
+        ray_constants.ENABLE_RAY_CLUSTER = False
+
+
 def ray_session(opts: RayOptions):
     """Context manager: connect to `opts.address` or start a bounded local Ray instance; shut down after.
 
@@ -177,6 +193,8 @@ def ray_session(opts: RayOptions):
 
     @contextlib.contextmanager
     def session():
+        if not opts.address:
+            _local_instance_on_loopback()
         try:
             import ray
         except ImportError:

@@ -396,3 +396,37 @@ def test_figure_of_a_large_grid_sorts_groups_into_horizontal_bars(tmp_path):
     few = sweep._figure(spec, tmp_path, rows[:4])
     width, height = Image.open(few).size
     assert width > height
+
+
+def _listening_addresses(pids: list[int]) -> list[tuple[int, str]]:
+    """(pid, local address) of every TCP socket in LISTEN state that one of `pids` holds, from /proc:
+    the socket inodes among each process's open files, matched against /proc/net/tcp and tcp6."""
+    listening = {}
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for line in Path(table).read_text().splitlines()[1:]:
+            fields = line.split()
+            if fields[3] == "0A":  # TCP_LISTEN
+                listening[fields[9]] = fields[1].split(":")[0]
+    found = []
+    for pid in pids:
+        try:
+            links = [os.readlink(f"/proc/{pid}/fd/{fd}") for fd in os.listdir(f"/proc/{pid}/fd")]
+        except OSError:
+            continue
+        for link in links:
+            if link.startswith("socket:[") and link[8:-1] in listening:
+                found.append((pid, listening[link[8:-1]]))
+    return found
+
+
+# /proc/net/tcp writes an IPv4 address as 8 hex digits in host byte order (127.0.0.1 -> 0100007F);
+# tcp6 as 32, with an IPv4-mapped loopback ending in ...0000FFFF0100007F
+_LOOPBACK_HEX = {"0100007F", "00000000000000000000000001000000", "0000000000000000FFFF00000100007F"}
+
+
+def test_local_ray_instance_listens_on_the_loopback_address_only(ray_instance):
+    pids = [pid for pid, _ in _processes_of(ray_instance["session"])]
+    sockets = _listening_addresses(pids)
+    assert sockets, "found no listening socket of the Ray instance (GCS server, raylet)"
+    assert all(addr in _LOOPBACK_HEX for _, addr in sockets), \
+        f"Ray listens beyond the loopback interface: {sorted(set(a for _, a in sockets) - _LOOPBACK_HEX)}"
