@@ -165,16 +165,31 @@ def _composite_forward_kernel(
     out_n_used[r] = k - start
 
 
+@wp.func
+def _backward_step(T: typing.Any, prefix: typing.Any, e: typing.Any, c: typing.Any, zk: typing.Any, dk: typing.Any,
+                   gr: typing.Any, gg: typing.Any, gb: typing.Any, gd: typing.Any, total: typing.Any,
+                   tail: typing.Any):
+    """One sample of the backward: (T_{k+1}, prefix through k, dL/dsigma_k, w_k)."""
+    w = T * (type(T)(1.0) - e)
+    f = gr * c[0] + gg * c[1] + gb * c[2] + gd * zk
+    prefix = prefix + w * f
+    T = T * e
+    return T, prefix, dk * (T * f - (total - prefix) + tail), w
+
+
 @wp.kernel
 def _composite_backward_kernel(
-    factor: wp.array(dtype=typing.Any), rgb: wp.array2d(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
+    factor: wp.array(dtype=typing.Any), rgb: wp.array(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
     z: wp.array(dtype=typing.Any), ray_offsets: wp.array(dtype=wp.int32), background: wp.array2d(dtype=typing.Any),
     background_per_ray: int, out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_transmittance: wp.array(dtype=typing.Any), out_n_used: wp.array(dtype=wp.int32),
     grad_rgb: wp.array2d(dtype=typing.Any), grad_depth: wp.array(dtype=typing.Any),
     grad_opacity: wp.array(dtype=typing.Any), grad_sigma: wp.array(dtype=typing.Any),
-    grad_sample_rgb: wp.array2d(dtype=typing.Any), offset: int,
+    grad_sample_rgb: wp.array(dtype=typing.Any), factor4: wp.array(dtype=typing.Any), z4: wp.array(dtype=typing.Any),
+    delta4: wp.array(dtype=typing.Any), grad_sigma4: wp.array(dtype=typing.Any), offset: int,
 ):
+    # rgb and grad_sample_rgb are (N, 3) arrays viewed as N vec3; the *4 arrays view their namesakes
+    # as vec4 (samples 4q..4q+3). Quads where aligned, as in the forward kernel: the same operations.
     r = wp.tid() + offset
     zero = factor.dtype(0.0)
     one = factor.dtype(1.0)
@@ -183,6 +198,7 @@ def _composite_backward_kernel(
     gg = grad_rgb[r, 1]
     gb = grad_rgb[r, 2]
     gd = grad_depth[r]
+    g3 = wp.vector(gr, gg, gb)
     T_final = out_transmittance[r]
     g_bg = gr * background[b, 0] + gg * background[b, 1] + gb * background[b, 2]
     total = (gr * (out_rgb[r, 0] - T_final * background[b, 0]) + gg * (out_rgb[r, 1] - T_final * background[b, 1])
@@ -192,21 +208,37 @@ def _composite_backward_kernel(
     stop = start + out_n_used[r]
     T = one
     prefix = zero
-    for k in range(start, stop):
-        e = factor[k]  # exp(-sigma_k delta_k), stored by the forward: bit for bit its T_k and w_k
-        w = T * (one - e)
-        f = gr * rgb[k, 0] + gg * rgb[k, 1] + gb * rgb[k, 2] + gd * z[k]
-        prefix += w * f
-        T = T * e
-        grad_sigma[k] = delta[k] * (T * f - (total - prefix) + tail)
-        grad_sample_rgb[k, 0] = gr * w
-        grad_sample_rgb[k, 1] = gg * w
-        grad_sample_rgb[k, 2] = gb * w
-    for k in range(stop, ray_offsets[r + 1]):
-        grad_sigma[k] = zero
-        grad_sample_rgb[k, 0] = zero
-        grad_sample_rgb[k, 1] = zero
-        grad_sample_rgb[k, 2] = zero
+    k = start
+    while k < stop and k % 4 != 0:
+        # factor: exp(-sigma_k delta_k), stored by the forward: bit for bit its T_k and w_k
+        T, prefix, gs, w = _backward_step(T, prefix, factor[k], rgb[k], z[k], delta[k], gr, gg, gb, gd, total, tail)
+        grad_sigma[k] = gs
+        grad_sample_rgb[k] = g3 * w
+        k += 1
+    while k + 4 <= stop:
+        q = k // 4
+        e4 = factor4[q]
+        z_q = z4[q]
+        d_q = delta4[q]
+        T, prefix, gs0, w0 = _backward_step(T, prefix, e4[0], rgb[k], z_q[0], d_q[0], gr, gg, gb, gd, total, tail)
+        T, prefix, gs1, w1 = _backward_step(T, prefix, e4[1], rgb[k + 1], z_q[1], d_q[1], gr, gg, gb, gd, total, tail)
+        T, prefix, gs2, w2 = _backward_step(T, prefix, e4[2], rgb[k + 2], z_q[2], d_q[2], gr, gg, gb, gd, total, tail)
+        T, prefix, gs3, w3 = _backward_step(T, prefix, e4[3], rgb[k + 3], z_q[3], d_q[3], gr, gg, gb, gd, total, tail)
+        grad_sigma4[q] = wp.vector(gs0, gs1, gs2, gs3)
+        grad_sample_rgb[k] = g3 * w0
+        grad_sample_rgb[k + 1] = g3 * w1
+        grad_sample_rgb[k + 2] = g3 * w2
+        grad_sample_rgb[k + 3] = g3 * w3
+        k += 4
+    while k < stop:
+        T, prefix, gs, w = _backward_step(T, prefix, factor[k], rgb[k], z[k], delta[k], gr, gg, gb, gd, total, tail)
+        grad_sigma[k] = gs
+        grad_sample_rgb[k] = g3 * w
+        k += 1
+    zero3 = wp.vector(zero, zero, zero)
+    for j in range(stop, ray_offsets[r + 1]):
+        grad_sigma[j] = zero
+        grad_sample_rgb[j] = zero3
 
 
 @dataclass
@@ -427,8 +459,10 @@ def composite_backward(
         grad_sigma = A.check_out("out[0]", out[0], (n,), a.scalar, a.device)
         grad_sample_rgb = A.check_out("out[1]", out[1], (n, 3), a.scalar, a.device)
     a.launch(_composite_backward_kernel, n_rays,
-             [res["factor"], c, d, zz, offsets, bg, per_ray, res["rgb"], res["depth"], res["transmittance"],
-              res["n_used"], *grads, grad_sigma, grad_sample_rgb], min_chunk=256)
+             [res["factor"], _vec_view(c, 3), d, zz, offsets, bg, per_ray, res["rgb"], res["depth"],
+              res["transmittance"], res["n_used"], *grads, grad_sigma, _vec_view(grad_sample_rgb, 3),
+              _vec_view(res["factor"], 4), _vec_view(zz, 4), _vec_view(d, 4), _vec_view(grad_sigma, 4)],
+             min_chunk=256)
     if out is not None:
         return grad_sigma, grad_sample_rgb
     return a.out(grad_sigma), a.out(grad_sample_rgb)
@@ -459,4 +493,5 @@ def _vec_view(x: wp.array, length: int) -> wp.array:
 
 
 _declare_overloads(_composite_forward_kernel, vec3=("rgb",), vec4=("factor4", "z4"))
-A.declare_float_overloads(_composite_backward_kernel)
+_declare_overloads(_composite_backward_kernel, vec3=("rgb", "grad_sample_rgb"),
+                   vec4=("factor4", "z4", "delta4", "grad_sigma4"))
