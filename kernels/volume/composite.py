@@ -336,6 +336,9 @@ def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, rgb: wp.arr
     return 1
 
 
+_BACKGROUNDS: dict[tuple, wp.array] = {}  # (bytes, dtype, device) -> a checked (1, 3) background
+
+
 def _background(a: A.Inputs, background: Any, n_rays: int) -> tuple[wp.array, int]:
     """The background as a (1, 3) or (R, 3) array of the call's dtype, and whether it is per ray.
 
@@ -346,7 +349,19 @@ def _background(a: A.Inputs, background: Any, n_rays: int) -> tuple[wp.array, in
         bg = bg.reshape((1, 3))
     if tuple(bg.shape) not in ((1, 3), (n_rays, 3)):
         raise ValueError(f"background: expected shape (3,) or (R, 3) = ({n_rays}, 3), got {tuple(bg.shape)}")
-    return a.floats("background", bg), int(bg.shape[0] != 1)
+    if isinstance(bg, wp.array) or bg.shape[0] != 1:
+        return a.floats("background", bg), int(bg.shape[0] != 1)
+    # One colour given on the host (the usual tuple): its checked device copy is kept, so that a
+    # call does not pay for a new wp.array (~30 us of Python) each time.
+    key = (bg.tobytes(), bg.dtype.str, a.device.alias)
+    arr = _BACKGROUNDS.get(key)
+    if arr is None:
+        arr = a.floats("background", bg)
+        if np.isfinite(bg).all():  # only a valid colour is kept (value checks may be off now)
+            if len(_BACKGROUNDS) >= 64:
+                _BACKGROUNDS.clear()
+            _BACKGROUNDS[key] = arr
+    return arr, 0
 
 
 def _samples(a: A.Inputs, sigma: Any, rgb: Any, delta: Any, z: Any, ray_offsets: Any, values: bool
@@ -403,7 +418,7 @@ def composite_forward(
                                  for k, (shape, t) in layout.items()})
     s, c, d, zz, offsets = args
     factor_given = _fill_factor(s, d, res.factor, c, zz, check=A.values_checked())
-    a.launch(_composite_forward_kernel, n_rays,
+    a.launch(_FORWARD[a.scalar], n_rays,
              [s, _vec_view(c, 3), d, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth, res.opacity,
               res.transmittance, res.n_used, res.factor, factor_given, _vec_view(res.factor, 4), _vec_view(zz, 4)],
              min_chunk=256)
@@ -458,7 +473,7 @@ def composite_backward(
             raise ValueError("out: expected a pair (grad_sigma (N,), grad_rgb (N, 3)) of wp.arrays")
         grad_sigma = A.check_out("out[0]", out[0], (n,), a.scalar, a.device)
         grad_sample_rgb = A.check_out("out[1]", out[1], (n, 3), a.scalar, a.device)
-    a.launch(_composite_backward_kernel, n_rays,
+    a.launch(_BACKWARD[a.scalar], n_rays,
              [res["factor"], _vec_view(c, 3), d, zz, offsets, bg, per_ray, res["rgb"], res["depth"],
               res["transmittance"], res["n_used"], *grads, grad_sigma, _vec_view(grad_sample_rgb, 3),
               _vec_view(res["factor"], 4), _vec_view(zz, 4), _vec_view(d, 4), _vec_view(grad_sigma, 4)],
@@ -472,8 +487,12 @@ _VEC3 = {wp.float32: wp.vec3f, wp.float64: wp.vec3d}
 _VEC4 = {wp.float32: wp.vec4f, wp.float64: wp.vec4d}
 
 
-def _declare_overloads(kernel: Any, vec3: tuple[str, ...], vec4: tuple[str, ...]) -> None:
-    """Both float overloads of a generic kernel whose arrays named in `vec3`/`vec4` hold vectors."""
+def _declare_overloads(kernel: Any, vec3: tuple[str, ...], vec4: tuple[str, ...]) -> dict[Any, Any]:
+    """Both float overloads of a generic kernel whose arrays named in `vec3`/`vec4` hold vectors,
+    as {scalar type: overload}. Launching an overload rather than the generic kernel spares Warp
+    inferring and normalising the argument types on every launch (~50 us of Python a launch,
+    each chunk of a split launch paying it)."""
+    overloads = {}
     for scalar in A.FLOATS:
         types: dict[str, Any] = {}
         for arg in kernel.adj.args:
@@ -482,7 +501,8 @@ def _declare_overloads(kernel: Any, vec3: tuple[str, ...], vec4: tuple[str, ...]
                 types[arg.label] = wp.array(dtype=dt, ndim=arg.type.ndim)
             elif arg.type is typing.Any:
                 types[arg.label] = scalar
-        wp.overload(kernel, types)
+        overloads[scalar] = wp.overload(kernel, types)
+    return overloads
 
 
 def _vec_view(x: wp.array, length: int) -> wp.array:
@@ -492,6 +512,6 @@ def _vec_view(x: wp.array, length: int) -> wp.array:
     return wp.array(ptr=x.ptr, dtype=vt, shape=(x.size // length,), device=x.device)
 
 
-_declare_overloads(_composite_forward_kernel, vec3=("rgb",), vec4=("factor4", "z4"))
-_declare_overloads(_composite_backward_kernel, vec3=("rgb", "grad_sample_rgb"),
-                   vec4=("factor4", "z4", "delta4", "grad_sigma4"))
+_FORWARD = _declare_overloads(_composite_forward_kernel, vec3=("rgb",), vec4=("factor4", "z4"))
+_BACKWARD = _declare_overloads(_composite_backward_kernel, vec3=("rgb", "grad_sample_rgb"),
+                               vec4=("factor4", "z4", "delta4", "grad_sigma4"))

@@ -61,3 +61,12 @@ def test_negative_zero_density_and_huge_finite_colours_are_valid(dtype):
     res = composite_forward(**args)
     plus = composite_forward(**{**args, "sigma": np.abs(args["sigma"])})
     np.testing.assert_array_equal(res.rgb, plus.rgb)
+
+
+def test_background_seen_with_checks_off_is_still_checked_later():
+    args = {k: v[:2 * S] if k != "ray_offsets" else dense_offsets(2, S) for k, v in _good(np.float64).items()}
+    bg = (0.0, np.nan, 0.0)
+    with value_checks(False):
+        composite_forward(**args, background=bg)
+    with pytest.raises(ValueError, match="background: expected finite values"):
+        composite_forward(**args, background=bg)
