@@ -26,7 +26,10 @@ field at x_k, and the compositing of kernels.volume.composite (z_k = t_k, early 
 there), without the packed sample, field-output and factor arrays of the general path (their
 allocation, first-touch page faults and memory traffic were most of the textbook task's time,
 docs/performance.md). Forward only. It evaluates exp(-sigma_k delta_k) with Warp's exp, so it
-agrees with the general path on the CPU (NumPy's exp there) to float rounding.
+agrees with the general path on the CPU (NumPy's exp there) to float rounding. Its sphere loop
+reads the parameters packed per sphere as two vec4s (spheres_at_packed; the same arithmetic as
+spheres_at) and the rays' origins, directions and colours as vec3s: fewer indexed loads, whose
+address arithmetic Warp's CPU code repeats for every one.
 """
 
 from __future__ import annotations
@@ -103,6 +106,38 @@ def spheres_at(px: typing.Any, py: typing.Any, pz: typing.Any, centers: wp.array
     return sig, nr, ng, nb
 
 
+@wp.func
+def spheres_at_packed(px: typing.Any, py: typing.Any, pz: typing.Any, geometry: wp.array(dtype=typing.Any),
+                      appearance: wp.array(dtype=typing.Any)):
+    """spheres_at with the parameters packed per sphere: geometry[k] = (c_k, r_k) and
+    appearance[k] = (col_k, s_k) as vec4s, two loads a sphere instead of eight indexed ones (Warp's
+    CPU code computes and wraps every index). The same operations in the same order: bit for bit
+    spheres_at."""
+    zero = type(px)(0.0)
+    sig = zero
+    nr = zero
+    ng = zero
+    nb = zero
+    for k in range(geometry.shape[0]):
+        g = geometry[k]
+        a = appearance[k]
+        dx = px - g[0]
+        dy = py - g[1]
+        dz = pz - g[2]
+        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        m = wp.max(zero, dist - g[3])
+        d = a[3] * wp.exp(-a[3] * m)
+        sig += d
+        nr += d * a[0]
+        ng += d * a[1]
+        nb += d * a[2]
+    if sig > type(px)(1e-6):
+        nr = nr / sig
+        ng = ng / sig
+        nb = nb / sig
+    return sig, nr, ng, nb
+
+
 @wp.kernel
 def _spheres_forward_kernel(
     points: wp.array2d(dtype=typing.Any), centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
@@ -119,13 +154,14 @@ def _spheres_forward_kernel(
 
 @wp.kernel
 def _spheres_render_dense_kernel(
-    origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
-    delta: wp.array2d(dtype=typing.Any), centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
-    colors: wp.array2d(dtype=typing.Any), sharpness: wp.array(dtype=typing.Any),
+    origins: wp.array(dtype=typing.Any), dirs: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
+    delta: wp.array2d(dtype=typing.Any), geometry: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
     background: wp.array(dtype=typing.Any), t_threshold: typing.Any,
-    out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
+    out_rgb: wp.array(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_opacity: wp.array(dtype=typing.Any), offset: int,
 ):
+    # origins, dirs, out_rgb: (R, 3) arrays viewed as R vec3; background one vec3; geometry and
+    # appearance: the packed sphere parameters (spheres_at_packed).
     r = wp.tid() + offset
     one = t.dtype(1.0)
     T = one
@@ -133,16 +169,17 @@ def _spheres_render_dense_kernel(
     cg = t.dtype(0.0)
     cb = t.dtype(0.0)
     dep = t.dtype(0.0)
+    o = origins[r]
+    dr = dirs[r]
     for j in range(t.shape[1]):
         if T < t_threshold:
             break
         tk = t[r, j]
         # x = o + (t d), rounded as kernels.volume.sampling.dense_samples rounds it
-        sx = tk * dirs[r, 0]
-        sy = tk * dirs[r, 1]
-        sz = tk * dirs[r, 2]
-        sig, nr, ng, nb = spheres_at(origins[r, 0] + sx, origins[r, 1] + sy, origins[r, 2] + sz,
-                                     centers, radii, colors, sharpness)
+        sx = tk * dr[0]
+        sy = tk * dr[1]
+        sz = tk * dr[2]
+        sig, nr, ng, nb = spheres_at_packed(o[0] + sx, o[1] + sy, o[2] + sz, geometry, appearance)
         e = wp.exp(-sig * delta[r, j])
         w = T * (one - e)
         cr += w * nr
@@ -150,9 +187,8 @@ def _spheres_render_dense_kernel(
         cb += w * nb
         dep += w * tk
         T = T * e
-    out_rgb[r, 0] = cr + T * background[0]
-    out_rgb[r, 1] = cg + T * background[1]
-    out_rgb[r, 2] = cb + T * background[2]
+    bg = background[0]
+    out_rgb[r] = type(bg)(cr + T * bg[0], cg + T * bg[1], cb + T * bg[2])
     out_depth[r] = dep
     out_opacity[r] = one - T
 
@@ -262,9 +298,21 @@ class SphereField(Field):
             raise ValueError(f"background: expected shape (3,), got {bg.shape}")
         A.check_finite("background", bg)
         rgb, depth, opacity = a.empty((n_rays, 3)), a.empty(n_rays), a.empty(n_rays)
-        a.launch(_spheres_render_dense_kernel, n_rays,
-                 [o, d, tt, dl, *self._param_args(), a.floats("background", bg), a.s(t_threshold), rgb, depth,
-                  opacity], min_chunk=16)
+        v3, v4 = _VEC3[self.dtype], _VEC4[self.dtype]
+        P = {k: v.numpy() if self.device.is_cpu else v for k, v in self.params.items()}
+        if self.device.is_cpu:  # packed on the host: zero-copy views of the parameters, K rows
+            geometry = np.concatenate([P["centers"], P["radii"][:, None]], axis=1)
+            appearance = np.concatenate([P["colors"], P["sharpness"][:, None]], axis=1)
+            geometry, appearance = wp.array(geometry, dtype=v4), wp.array(appearance, dtype=v4)
+        else:
+            geometry = wp.empty(self.params["radii"].shape[0], dtype=v4, device=self.device)
+            appearance = wp.empty(self.params["radii"].shape[0], dtype=v4, device=self.device)
+            wp.launch(_pack_spheres_kernel, geometry.shape[0], [*self._param_args(), geometry, appearance],
+                      device=self.device)
+        view3 = lambda x: wp.array(ptr=x.ptr, dtype=v3, shape=(x.shape[0],), device=x.device)  # noqa: E731
+        a.launch(_RENDER_DENSE[self.dtype], n_rays,
+                 [view3(o), view3(d), tt, dl, geometry, appearance, wp.array(bg[None], dtype=v3, device=self.device),
+                  a.s(t_threshold), view3(rgb), depth, opacity], min_chunk=16)
         return a.out(rgb), a.out(depth), a.out(opacity)
 
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
@@ -277,4 +325,44 @@ class SphereField(Field):
 
 A.declare_float_overloads(_spheres_forward_kernel)
 A.declare_float_overloads(_spheres_backward_kernel)
-A.declare_float_overloads(_spheres_render_dense_kernel)
+_VEC3 = {wp.float32: wp.vec3f, wp.float64: wp.vec3d}
+_VEC4 = {wp.float32: wp.vec4f, wp.float64: wp.vec4d}
+
+
+@wp.kernel
+def _pack_spheres_kernel(centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
+                         colors: wp.array2d(dtype=typing.Any), sharpness: wp.array(dtype=typing.Any),
+                         geometry: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any)):
+    k = wp.tid()
+    g = geometry[k]
+    g[0] = centers[k, 0]
+    g[1] = centers[k, 1]
+    g[2] = centers[k, 2]
+    g[3] = radii[k]
+    geometry[k] = g
+    a = appearance[k]
+    a[0] = colors[k, 0]
+    a[1] = colors[k, 1]
+    a[2] = colors[k, 2]
+    a[3] = sharpness[k]
+    appearance[k] = a
+
+
+def _render_dense_overloads() -> dict[Any, Any]:
+    """{scalar: the concrete overload of _spheres_render_dense_kernel} (launching a concrete overload
+    spares Warp inferring the argument types on every launch); also declares _pack_spheres_kernel's."""
+    out = {}
+    for s in A.FLOATS:
+        v3, v4 = _VEC3[s], _VEC4[s]
+        out[s] = wp.overload(_spheres_render_dense_kernel, {
+            "origins": wp.array(dtype=v3), "dirs": wp.array(dtype=v3), "t": wp.array2d(dtype=s),
+            "delta": wp.array2d(dtype=s), "geometry": wp.array(dtype=v4), "appearance": wp.array(dtype=v4),
+            "background": wp.array(dtype=v3), "t_threshold": s, "out_rgb": wp.array(dtype=v3),
+            "out_depth": wp.array(dtype=s), "out_opacity": wp.array(dtype=s)})
+        wp.overload(_pack_spheres_kernel, {
+            "centers": wp.array2d(dtype=s), "radii": wp.array(dtype=s), "colors": wp.array2d(dtype=s),
+            "sharpness": wp.array(dtype=s), "geometry": wp.array(dtype=v4), "appearance": wp.array(dtype=v4)})
+    return out
+
+
+_RENDER_DENSE = _render_dense_overloads()
