@@ -49,12 +49,15 @@ and the kernel reads them. NumPy's float32 exp is within 2 ulp of the exact valu
 factor (relative 2.4e-7); float64 is within 1 ulp either way. Samples after early termination
 get factors too (unused). On CUDA the kernel evaluates the exponential itself.
 
-Value checks on the CPU ride on that pass: while a block of sigma and delta is in cache, one
-unsigned maximum of its bits per array tells whether every value is finite and >= 0, and a sum
-per thread's range of rgb and z whether they are finite; only on a doubt do the exact checks of
-kernels._arrays run (they raise). So the forward reads sigma, delta, rgb and z once for the
-checks and the factors together instead of six separate single-threaded passes, and the checks
-still finish before the kernel is launched.
+Value checks on the CPU ride on passes the forward makes anyway instead of six separate
+single-threaded passes over the samples. sigma and delta: while a block of them is in cache for
+the factors, one unsigned maximum of its bits per array tells whether every value is finite and
+>= 0 (before the launch). rgb and z: the kernel's sums C and D are NaN or infinite if any
+processed colour or depth is (the weights are finite once sigma and delta are), so each ray flags
+itself from its own sums, adding up only its samples after early termination; after the launch
+the flags are read. Only on a flag (or a doubt: -0.0, sums that overflow) do the exact checks of
+kernels._arrays run, and they raise the ValueError naming the argument. A bad rgb or z is so
+reported after the launch: the outputs (and `out` buffers) are then to be discarded.
 
 Inputs follow the array contract (kernels._arrays): NumPy in gives NumPy out, wp.arrays in give
 wp.arrays on their device; inside `value_checks(False)` only shapes and dtypes are checked.
@@ -106,9 +109,11 @@ def _composite_forward_kernel(
     out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_opacity: wp.array(dtype=typing.Any), out_transmittance: wp.array(dtype=typing.Any),
     out_n_used: wp.array(dtype=wp.int32), out_factor: wp.array(dtype=typing.Any), factor_given: int,
-    factor4: wp.array(dtype=typing.Any), z4: wp.array(dtype=typing.Any), offset: int,
+    factor4: wp.array(dtype=typing.Any), z4: wp.array(dtype=typing.Any), check_values: int,
+    out_bad: wp.array(dtype=wp.int32), offset: int,
 ):
     # rgb is the (N, 3) colours viewed as N vec3; factor4 and z4 view out_factor and z as vec4 (samples 4q..4q+3).
+    # check_values != 0: out_bad[r] = 1 if a colour or depth of the ray may be NaN or infinite (see below).
     r = wp.tid() + offset
     one = sigma.dtype(1.0)
     T = one
@@ -155,6 +160,18 @@ def _composite_forward_kernel(
             e = _sample_factor(sigma, delta, out_factor, k, factor_given)
             T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e, rgb[k], z[k])
             k += 1
+    if check_values != 0:
+        # The sums C and D are NaN or infinite if a processed colour or depth is (w_k is finite:
+        # sigma and delta were checked), so only the samples after early termination are added
+        # up here. Infinite sums of finite values are a false alarm that the exact check clears.
+        rest = sigma.dtype(0.0)
+        for j in range(k, ray_offsets[r + 1]):
+            c = rgb[j]
+            rest += c[0] + c[1] + c[2] + z[j]
+        bad = int(1)
+        if wp.isfinite(cr) and wp.isfinite(cg) and wp.isfinite(cb) and wp.isfinite(d) and wp.isfinite(rest):
+            bad = 0
+        out_bad[r] = bad
     b = r * background_per_ray
     out_rgb[r, 0] = cr + T * background[b, 0]
     out_rgb[r, 1] = cg + T * background[b, 1]
@@ -289,23 +306,20 @@ _MAX_FINITE_BITS = {np.dtype(np.float32): (np.uint32, np.uint32(0x7F7FFFFF)),
                     np.dtype(np.float64): (np.uint64, np.uint64(0x7FEFFFFFFFFFFFFF))}
 
 
-def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, rgb: wp.array, z: wp.array,
-                 check: bool) -> int:
+def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, check: bool) -> int:
     """On the CPU, factor = exp(-sigma delta) for every sample with NumPy's vectorised exp, in
     cache-sized blocks split over the launch threads; returns 1 (the kernel then reads the
     factors), or 0 on CUDA (the kernel evaluates them, and nothing is checked here).
 
-    With `check`, the same pass also tests the sample values, while each block is in cache:
-    sigma and delta >= 0 and finite as ONE unsigned maximum of their bits per block
-    (_MAX_FINITE_BITS), rgb and z finite as a sum per range (NaN and inf propagate). Any doubt
-    (including -0.0, or a sum that overflows) runs the exact checks of kernels._arrays, which
-    raise the ValueError naming the argument. See the module docstring for the rounding of the
+    With `check`, the same pass also tests sigma and delta while each block is in cache: >= 0
+    and finite as ONE unsigned maximum of their bits per block (_MAX_FINITE_BITS). Any doubt
+    (including -0.0) runs the exact checks of kernels._arrays, which raise the ValueError naming
+    the argument. See the module docstring for the rounding of the
     factors.
     """
     if not factor.device.is_cpu:
         return 0
     s, d, f = sigma.numpy(), delta.numpy(), factor.numpy()  # zero-copy views of host arrays
-    c, zz = rgb.numpy().reshape(-1), z.numpy()
     uint, top = _MAX_FINITE_BITS[f.dtype]
     s_bits, d_bits = s.view(uint), d.view(uint)
     doubt: list[bool] = []
@@ -320,10 +334,6 @@ def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, rgb: wp.arr
             np.exp(out, out=out)
             if check:
                 bad = bad or s_bits[b:e].max() > top or d_bits[b:e].max() > top
-        if check and hi > lo:
-            with np.errstate(over="ignore", invalid="ignore"):
-                bad = bad or not (np.isfinite(np.add.reduce(c[3 * lo:3 * hi]))
-                                  and np.isfinite(np.add.reduce(zz[lo:hi])))
         if bad:
             doubt.append(True)
 
@@ -331,8 +341,6 @@ def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, rgb: wp.arr
     if doubt:
         A.check_at_least("sigma", sigma, 0.0)
         A.check_at_least("delta", delta, 0.0)
-        A.check_finite("rgb", rgb)
-        A.check_finite("z", z)
     return 1
 
 
@@ -369,8 +377,9 @@ def _samples(a: A.Inputs, sigma: Any, rgb: Any, delta: Any, z: Any, ray_offsets:
     """[sigma, rgb, delta, z, ray_offsets] as wp.arrays, the sample count N and the ray count R.
 
     Shapes, dtypes and the offsets are checked here. `values` True checks the sample values here
-    only on CUDA: on the CPU the forward's factor pass checks them (_fill_factor), before the
-    launch. The backward passes False (the forward checked them).
+    only on CUDA: on the CPU the forward checks sigma and delta in its factor pass
+    (_fill_factor, before the launch) and rgb and z through its kernel's sums (module
+    docstring). The backward passes False (the forward checked them).
     """
     on_cuda = values and not a.device.is_cpu
     s = a.floats("sigma", sigma, (None,), finite=False)
@@ -417,11 +426,16 @@ def composite_forward(
         res = CompositeResult(**{k: A.check_out(f"out.{k}", getattr(out, k), shape, t, a.device)
                                  for k, (shape, t) in layout.items()})
     s, c, d, zz, offsets = args
-    factor_given = _fill_factor(s, d, res.factor, c, zz, check=A.values_checked())
+    check = A.values_checked() and a.device.is_cpu  # on CUDA _samples checked the values
+    factor_given = _fill_factor(s, d, res.factor, check)
+    bad = a.empty(n_rays if check else 1, wp.int32)
     a.launch(_FORWARD[a.scalar], n_rays,
              [s, _vec_view(c, 3), d, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth, res.opacity,
-              res.transmittance, res.n_used, res.factor, factor_given, _vec_view(res.factor, 4), _vec_view(zz, 4)],
-             min_chunk=256)
+              res.transmittance, res.n_used, res.factor, factor_given, _vec_view(res.factor, 4), _vec_view(zz, 4),
+              int(check), bad], min_chunk=256)
+    if check and n_rays and bad.numpy().any():  # a NaN or inf in rgb or z, or a false alarm (module docstring)
+        A.check_finite("rgb", c)
+        A.check_finite("z", zz)
     if out is not None or not a.as_numpy:
         return res
     return CompositeResult(**{k: a.out(v) for k, v in vars(res).items()})

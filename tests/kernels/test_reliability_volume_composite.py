@@ -1,6 +1,7 @@
 """Bad sample values to composite_forward on arrays large enough for several threads and blocks of
-the CPU factor pass (where the value checks run): one ValueError naming the argument, whichever
-block holds the bad value, in float32 and float64; -0.0 is a valid density."""
+the CPU factor pass (where sigma and delta are checked) and rays that terminate early (whose later
+colours and depths the kernel adds up only for the check): one ValueError naming the argument,
+wherever the bad value sits, in float32 and float64; -0.0 is a valid density."""
 
 from __future__ import annotations
 
@@ -57,7 +58,7 @@ def test_bad_sample_values_raise(dtype, change, match):
 def test_negative_zero_density_and_huge_finite_colours_are_valid(dtype):
     args = _good(dtype)
     args["sigma"][::7] = -0.0  # fails the one-pass bit test, passes the exact check (-0.0 >= 0)
-    args["rgb"][5] = np.finfo(dtype).max  # the colour sum overflows: the exact check finds only finite values
+    args["rgb"][5] = np.finfo(dtype).max  # the largest finite value is valid
     res = composite_forward(**args)
     plus = composite_forward(**{**args, "sigma": np.abs(args["sigma"])})
     np.testing.assert_array_equal(res.rgb, plus.rgb)
