@@ -31,14 +31,16 @@ reads the parameters packed per sphere as two vec4s (spheres_at_packed; the same
 spheres_at) and the rays' origins, directions and colours as vec3s: fewer indexed loads, whose
 address arithmetic Warp's CPU code repeats for every one.
 
-On the CPU render_dense runs in two passes around NumPy instead: pass 1 writes the exponents
--s_k m_k of every sample and sphere (R S K values), NumPy's vectorised exp turns them into the
-falloffs exp(-s_k m_k) in place (split over the launch threads), and pass 2 does the rest of
-spheres_at and the compositing per ray. Warp's scalar expf is a library call per sphere and
-sample (every live float register saved around it); the fused kernel spent most of its time
-there. The only change is the exponential's rounding: NumPy's float32 exp is within 2.4 ulp
-(Warp's 0.5), so on the textbook scene float32 images differ from the fused kernel's by at most
-3.0e-7 (depth 9.5e-7), float64 by 3.4e-16 (depth 1.0e-15). On CUDA the fused kernel runs.
+On the CPU forward and render_dense run in two passes around NumPy instead: pass 1 writes the
+exponents -s_k m_k of every point (or sample) and sphere (N K values), NumPy's vectorised exp
+turns them into the falloffs exp(-s_k m_k) in place (split over the launch threads), and pass 2
+does the rest of spheres_at (spheres_from_falloff) and, for render_dense, the compositing per
+ray. Warp's scalar expf is a library call per sphere and point (every live float register saved
+around it); the one-kernel versions spent most of their time there. The only change is the
+exponential's rounding: NumPy's float32 exp is within 2.4 ulp (Warp's 0.5), so on the textbook
+scene float32 images differ from the fused kernel's by at most 3.0e-7 (depth 9.5e-7), float64 by
+3.4e-16 (depth 1.0e-15). The backward evaluates its own exponentials, as before. On CUDA the
+one-kernel versions run.
 """
 
 from __future__ import annotations
@@ -59,7 +61,8 @@ from kernels.volume.workspace import Workspace
 wp.set_module_options({"enable_backward": False})
 
 COLOR_NORMALIZE_EPS = 1e-6
-# render_dense on the CPU runs the two-pass path; True runs the fused kernel there too (CUDA's; for tests).
+# forward and render_dense on the CPU run the two-pass paths; True runs the one-kernel paths there too
+# (CUDA's; for tests).
 _FUSED_ON_CPU = False
 
 # The chapter's scene: (centre, radius, colour, sharpness).
@@ -150,6 +153,64 @@ def spheres_at_packed(px: typing.Any, py: typing.Any, pz: typing.Any, geometry: 
     return sig, nr, ng, nb
 
 
+@wp.func
+def spheres_from_falloff(falloff: wp.array(dtype=typing.Any), i: int, appearance: wp.array(dtype=typing.Any)):
+    """spheres_at's (sigma, r, g, b) from falloff[i + k] = exp(-s_k m_k) given (the CPU passes):
+    d_k = s_k falloff_k, then the same sums and normalisation in the same order."""
+    zero = falloff.dtype(0.0)
+    sig = zero
+    nr = zero
+    ng = zero
+    nb = zero
+    for k in range(appearance.shape[0]):
+        a = appearance[k]
+        d = a[3] * falloff[i + k]
+        sig += d
+        nr += d * a[0]
+        ng += d * a[1]
+        nb += d * a[2]
+    if sig > falloff.dtype(1e-6):
+        nr = nr / sig
+        ng = ng / sig
+        nb = nb / sig
+    return sig, nr, ng, nb
+
+
+@wp.func
+def sphere_exponents(px: typing.Any, py: typing.Any, pz: typing.Any, geometry: wp.array(dtype=typing.Any),
+                     appearance: wp.array(dtype=typing.Any), out: wp.array(dtype=typing.Any), i: int):
+    """out[i + k] = -s_k m_k at the point (px, py, pz) for every sphere k (the CPU passes' first half)."""
+    zero = type(px)(0.0)
+    for k in range(geometry.shape[0]):
+        g = geometry[k]
+        dx = px - g[0]
+        dy = py - g[1]
+        dz = pz - g[2]
+        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        out[i + k] = -appearance[k][3] * wp.max(zero, dist - g[3])
+
+
+@wp.kernel
+def _spheres_exponent_kernel(points: wp.array(dtype=typing.Any), geometry: wp.array(dtype=typing.Any),
+                             appearance: wp.array(dtype=typing.Any), out_exponent: wp.array(dtype=typing.Any),
+                             offset: int):
+    # CPU field forward, pass 1 (points (N, 3) viewed as N vec3).
+    i = wp.tid() + offset
+    p = points[i]
+    sphere_exponents(p[0], p[1], p[2], geometry, appearance, out_exponent, i * geometry.shape[0])
+
+
+@wp.kernel
+def _spheres_from_falloff_kernel(falloff: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
+                                 out_sigma: wp.array(dtype=typing.Any), out_rgb: wp.array(dtype=typing.Any),
+                                 offset: int):
+    # CPU field forward, pass 2 (out_rgb (N, 3) viewed as N vec3).
+    i = wp.tid() + offset
+    sig, nr, ng, nb = spheres_from_falloff(falloff, i * appearance.shape[0], appearance)
+    out_sigma[i] = sig
+    out_rgb[i] = type(out_rgb[i])(nr, ng, nb)
+
+
 @wp.kernel
 def _spheres_forward_kernel(
     points: wp.array2d(dtype=typing.Any), centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
@@ -211,28 +272,16 @@ def _spheres_dense_exponent_kernel(
     geometry: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
     out_exponent: wp.array(dtype=typing.Any), offset: int,
 ):
-    # CPU pass 1 of render_dense: out_exponent[(r S + j) K + k] = -s_k m_k at x = o_r + t_rj d_r.
+    # CPU render_dense, pass 1: the exponents at x = o_r + t_rj d_r, sample (r, j) at (r S + j) K.
     r = wp.tid() + offset
     o = origins[r]
     dr = dirs[r]
-    zero = t.dtype(0.0)
     n_s = t.shape[1]
-    n_k = geometry.shape[0]
-    i = r * n_s * n_k
     for j in range(n_s):
         tk = t[r, j]
-        px = o[0] + tk * dr[0]  # rounded as kernels.volume.sampling.dense_samples rounds it
-        py = o[1] + tk * dr[1]
-        pz = o[2] + tk * dr[2]
-        for k in range(n_k):
-            g = geometry[k]
-            dx = px - g[0]
-            dy = py - g[1]
-            dz = pz - g[2]
-            dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
-            m = wp.max(zero, dist - g[3])
-            out_exponent[i] = -appearance[k][3] * m
-            i += 1
+        # rounded as kernels.volume.sampling.dense_samples rounds it
+        sphere_exponents(o[0] + tk * dr[0], o[1] + tk * dr[1], o[2] + tk * dr[2], geometry, appearance,
+                         out_exponent, (r * n_s + j) * geometry.shape[0])
 
 
 @wp.kernel
@@ -242,37 +291,19 @@ def _spheres_dense_composite_kernel(
     out_rgb: wp.array(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_opacity: wp.array(dtype=typing.Any), offset: int,
 ):
-    # CPU pass 2 of render_dense: falloff = exp(pass 1's exponents), so d_k = s_k falloff; then
-    # spheres_at's sums and normalisation and the fused kernel's compositing, operation for operation.
+    # CPU render_dense, pass 2: the spheres from the falloffs, composited as the fused kernel does.
     r = wp.tid() + offset
     one = t.dtype(1.0)
-    zero = t.dtype(0.0)
     T = one
-    cr = zero
-    cg = zero
-    cb = zero
-    dep = zero
+    cr = t.dtype(0.0)
+    cg = t.dtype(0.0)
+    cb = t.dtype(0.0)
+    dep = t.dtype(0.0)
     n_s = t.shape[1]
-    n_k = appearance.shape[0]
     for j in range(n_s):
         if T < t_threshold:
             break
-        sig = zero
-        nr = zero
-        ng = zero
-        nb = zero
-        i = (r * n_s + j) * n_k
-        for k in range(n_k):
-            a = appearance[k]
-            d = a[3] * falloff[i + k]
-            sig += d
-            nr += d * a[0]
-            ng += d * a[1]
-            nb += d * a[2]
-        if sig > t.dtype(1e-6):
-            nr = nr / sig
-            ng = ng / sig
-            nb = nb / sig
+        sig, nr, ng, nb = spheres_from_falloff(falloff, (r * n_s + j) * appearance.shape[0], appearance)
         tk = t[r, j]
         e = wp.exp(-sig * delta[r, j])
         w = T * (one - e)
@@ -360,11 +391,42 @@ class SphereField(Field):
         P = self.params
         return [P["centers"], P["radii"], P["colors"], P["sharpness"]]
 
+    def _packed(self) -> tuple[wp.array, wp.array]:
+        """(geometry, appearance): the parameters as K vec4s (c_k, r_k) and (col_k, s_k)."""
+        v4 = _VEC4[self.dtype]
+        if self.device.is_cpu:  # K rows packed on the host from zero-copy views
+            P = {k: v.numpy() for k, v in self.params.items()}
+            return (wp.array(np.concatenate([P["centers"], P["radii"][:, None]], axis=1), dtype=v4),
+                    wp.array(np.concatenate([P["colors"], P["sharpness"][:, None]], axis=1), dtype=v4))
+        k = self.params["radii"].shape[0]
+        geometry = wp.empty(k, dtype=v4, device=self.device)
+        appearance = wp.empty(k, dtype=v4, device=self.device)
+        wp.launch(_pack_spheres_kernel, k, [*self._param_args(), geometry, appearance], device=self.device)
+        return geometry, appearance
+
+    def _falloffs(self, a: A.Inputs, n_threads: int, n_points: int, pass1: Any, pass1_inputs: list[Any],
+                  geometry: wp.array, appearance: wp.array) -> wp.array:
+        """CPU: exp(-s_k m_k) for n_points points (or samples) x K spheres, flat: `pass1` over
+        n_threads writes the exponents, NumPy's exp (split over the launch threads) turns them into
+        falloffs in place."""
+        falloff = a.empty(n_points * geometry.shape[0])
+        a.launch(pass1, n_threads, [*pass1_inputs, geometry, appearance, falloff], min_chunk=16)
+        f = falloff.numpy()
+        parallel_ranges(lambda lo, hi: np.exp(f[lo:hi], out=f[lo:hi]), f.shape[0])
+        return falloff
+
     def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
         a, p, _ = self._inputs(points, dirs)
         n = p.shape[0]
         sigma, rgb = a.empty(n), a.empty((n, 3))
-        a.launch(_spheres_forward_kernel, n, [p, *self._param_args(), sigma, rgb])
+        if not self.device.is_cpu or _FUSED_ON_CPU:
+            a.launch(_spheres_forward_kernel, n, [p, *self._param_args(), sigma, rgb])
+            return self._result(a, sigma, rgb)
+        # CPU: the falloffs by NumPy's exp between two passes (module docstring).
+        k1, k2 = _FIELD_PASSES[self.dtype]
+        geometry, appearance = self._packed()
+        falloff = self._falloffs(a, n, n, k1, [_vec_view3(p)], geometry, appearance)
+        a.launch(k2, n, [falloff, appearance, sigma, _vec_view3(rgb)])
         return self._result(a, sigma, rgb)
 
     def render_dense(self, origins: A.ArrayLike, dirs: A.ArrayLike, t: A.ArrayLike, delta: A.ArrayLike,
@@ -392,32 +454,18 @@ class SphereField(Field):
             raise ValueError(f"background: expected shape (3,), got {bg.shape}")
         A.check_finite("background", bg)
         rgb, depth, opacity = a.empty((n_rays, 3)), a.empty(n_rays), a.empty(n_rays)
-        v3, v4 = _VEC3[self.dtype], _VEC4[self.dtype]
-        P = {k: v.numpy() if self.device.is_cpu else v for k, v in self.params.items()}
-        if self.device.is_cpu:  # packed on the host: zero-copy views of the parameters, K rows
-            geometry = np.concatenate([P["centers"], P["radii"][:, None]], axis=1)
-            appearance = np.concatenate([P["colors"], P["sharpness"][:, None]], axis=1)
-            geometry, appearance = wp.array(geometry, dtype=v4), wp.array(appearance, dtype=v4)
-        else:
-            geometry = wp.empty(self.params["radii"].shape[0], dtype=v4, device=self.device)
-            appearance = wp.empty(self.params["radii"].shape[0], dtype=v4, device=self.device)
-            wp.launch(_pack_spheres_kernel, geometry.shape[0], [*self._param_args(), geometry, appearance],
-                      device=self.device)
-        view3 = lambda x: wp.array(ptr=x.ptr, dtype=v3, shape=(x.shape[0],), device=x.device)  # noqa: E731
-        bg_v = wp.array(bg[None], dtype=v3, device=self.device)
+        geometry, appearance = self._packed()
+        bg_v = wp.array(bg[None], dtype=_VEC3[self.dtype], device=self.device)
+        o3, d3, rgb3 = _vec_view3(o), _vec_view3(d), _vec_view3(rgb)
+        fused, k1, k2 = _RENDER_DENSE[self.dtype]
         if not self.device.is_cpu or _FUSED_ON_CPU:
-            a.launch(_RENDER_DENSE[self.dtype][0], n_rays,
-                     [view3(o), view3(d), tt, dl, geometry, appearance, bg_v, a.s(t_threshold), view3(rgb), depth,
-                      opacity], min_chunk=16)
+            a.launch(fused, n_rays, [o3, d3, tt, dl, geometry, appearance, bg_v, a.s(t_threshold), rgb3, depth,
+                                     opacity], min_chunk=16)
             return a.out(rgb), a.out(depth), a.out(opacity)
-        # CPU: the sphere exponentials in NumPy (module docstring), between two split launches.
-        falloff = a.empty(n_rays * tt.shape[1] * geometry.shape[0])
-        a.launch(_RENDER_DENSE[self.dtype][1], n_rays, [view3(o), view3(d), tt, geometry, appearance, falloff],
+        # CPU: the sphere falloffs by NumPy's exp between two split launches (module docstring).
+        falloff = self._falloffs(a, n_rays, n_rays * tt.shape[1], k1, [o3, d3, tt], geometry, appearance)
+        a.launch(k2, n_rays, [falloff, tt, dl, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity],
                  min_chunk=16)
-        f = falloff.numpy()
-        parallel_ranges(lambda lo, hi: np.exp(f[lo:hi], out=f[lo:hi]), f.shape[0])
-        a.launch(_RENDER_DENSE[self.dtype][2], n_rays,
-                 [falloff, tt, dl, appearance, bg_v, a.s(t_threshold), view3(rgb), depth, opacity], min_chunk=16)
         return a.out(rgb), a.out(depth), a.out(opacity)
 
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
@@ -478,3 +526,13 @@ def _render_dense_overloads() -> dict[Any, tuple[Any, Any, Any]]:
 
 
 _RENDER_DENSE = _render_dense_overloads()
+_FIELD_PASSES = {s: (wp.overload(_spheres_exponent_kernel, {
+    "points": wp.array(dtype=_VEC3[s]), "geometry": wp.array(dtype=_VEC4[s]), "appearance": wp.array(dtype=_VEC4[s]),
+    "out_exponent": wp.array(dtype=s)}), wp.overload(_spheres_from_falloff_kernel, {
+        "falloff": wp.array(dtype=s), "appearance": wp.array(dtype=_VEC4[s]), "out_sigma": wp.array(dtype=s),
+        "out_rgb": wp.array(dtype=_VEC3[s])})) for s in A.FLOATS}
+
+
+def _vec_view3(x: wp.array) -> wp.array:
+    """A contiguous (N, 3) float array seen as N vec3s (zero-copy)."""
+    return wp.array(ptr=x.ptr, dtype=_VEC3[x.dtype], shape=(x.shape[0],), device=x.device)
