@@ -31,9 +31,10 @@ reads the parameters packed per sphere as two vec4s (spheres_at_packed; the same
 spheres_at) and the rays' origins, directions and colours as vec3s: fewer indexed loads, whose
 address arithmetic Warp's CPU code repeats for every one.
 
-On the CPU forward and render_dense run in two passes around NumPy instead: pass 1 writes the
-exponents -s_k m_k of every point (or sample) and sphere (N K values), NumPy's vectorised exp
-turns them into the falloffs exp(-s_k m_k) in place (split over the launch threads), and pass 2
+On the CPU forward and render_dense run in two passes around NumPy instead, over blocks of
+points (or rays) of at most _FALLOFF_BLOCK values: pass 1 writes the exponents -s_k m_k of every
+point (or sample) and sphere of the block, NumPy's vectorised exp turns them into the falloffs
+exp(-s_k m_k) in place (split over the launch threads), and pass 2
 does the rest of spheres_at (spheres_from_falloff) and, for render_dense, the compositing per
 ray. Warp's scalar expf is a library call per sphere and point (every live float register saved
 around it); the one-kernel versions spent most of their time there. The only change is the
@@ -64,6 +65,8 @@ COLOR_NORMALIZE_EPS = 1e-6
 # forward and render_dense on the CPU run the two-pass paths; True runs the one-kernel paths there too
 # (CUDA's; for tests).
 _FUSED_ON_CPU = False
+# Falloff values per block of the CPU passes (8 MB in float32): their memory stays bounded at any size.
+_FALLOFF_BLOCK = 1 << 21
 
 # The chapter's scene: (centre, radius, colour, sharpness).
 TEXTBOOK_SPHERES = (
@@ -193,20 +196,21 @@ def sphere_exponents(px: typing.Any, py: typing.Any, pz: typing.Any, geometry: w
 @wp.kernel
 def _spheres_exponent_kernel(points: wp.array(dtype=typing.Any), geometry: wp.array(dtype=typing.Any),
                              appearance: wp.array(dtype=typing.Any), out_exponent: wp.array(dtype=typing.Any),
-                             offset: int):
-    # CPU field forward, pass 1 (points (N, 3) viewed as N vec3).
-    i = wp.tid() + offset
-    p = points[i]
-    sphere_exponents(p[0], p[1], p[2], geometry, appearance, out_exponent, i * geometry.shape[0])
+                             base: int, offset: int):
+    # CPU field forward, pass 1 over the block of points from `base` (points (N, 3) viewed as N vec3).
+    j = wp.tid() + offset
+    p = points[base + j]
+    sphere_exponents(p[0], p[1], p[2], geometry, appearance, out_exponent, j * geometry.shape[0])
 
 
 @wp.kernel
 def _spheres_from_falloff_kernel(falloff: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
                                  out_sigma: wp.array(dtype=typing.Any), out_rgb: wp.array(dtype=typing.Any),
-                                 offset: int):
-    # CPU field forward, pass 2 (out_rgb (N, 3) viewed as N vec3).
-    i = wp.tid() + offset
-    sig, nr, ng, nb = spheres_from_falloff(falloff, i * appearance.shape[0], appearance)
+                                 base: int, offset: int):
+    # CPU field forward, pass 2 over the block from `base` (out_rgb (N, 3) viewed as N vec3).
+    j = wp.tid() + offset
+    i = base + j
+    sig, nr, ng, nb = spheres_from_falloff(falloff, j * appearance.shape[0], appearance)
     out_sigma[i] = sig
     out_rgb[i] = type(out_rgb[i])(nr, ng, nb)
 
@@ -270,10 +274,12 @@ def _spheres_render_dense_kernel(
 def _spheres_dense_exponent_kernel(
     origins: wp.array(dtype=typing.Any), dirs: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
     geometry: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
-    out_exponent: wp.array(dtype=typing.Any), offset: int,
+    out_exponent: wp.array(dtype=typing.Any), base: int, offset: int,
 ):
-    # CPU render_dense, pass 1: the exponents at x = o_r + t_rj d_r, sample (r, j) at (r S + j) K.
-    r = wp.tid() + offset
+    # CPU render_dense, pass 1 over the block of rays from `base`: the exponents at x = o_r + t_rj d_r,
+    # sample (r, j) at ((r - base) S + j) K.
+    q = wp.tid() + offset
+    r = base + q
     o = origins[r]
     dr = dirs[r]
     n_s = t.shape[1]
@@ -281,7 +287,7 @@ def _spheres_dense_exponent_kernel(
         tk = t[r, j]
         # rounded as kernels.volume.sampling.dense_samples rounds it
         sphere_exponents(o[0] + tk * dr[0], o[1] + tk * dr[1], o[2] + tk * dr[2], geometry, appearance,
-                         out_exponent, (r * n_s + j) * geometry.shape[0])
+                         out_exponent, (q * n_s + j) * geometry.shape[0])
 
 
 @wp.kernel
@@ -289,10 +295,12 @@ def _spheres_dense_composite_kernel(
     falloff: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any), delta: wp.array2d(dtype=typing.Any),
     appearance: wp.array(dtype=typing.Any), background: wp.array(dtype=typing.Any), t_threshold: typing.Any,
     out_rgb: wp.array(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
-    out_opacity: wp.array(dtype=typing.Any), offset: int,
+    out_opacity: wp.array(dtype=typing.Any), base: int, offset: int,
 ):
-    # CPU render_dense, pass 2: the spheres from the falloffs, composited as the fused kernel does.
-    r = wp.tid() + offset
+    # CPU render_dense, pass 2 over the block from `base`: the spheres from the falloffs, composited
+    # as the fused kernel does.
+    q = wp.tid() + offset
+    r = base + q
     one = t.dtype(1.0)
     T = one
     cr = t.dtype(0.0)
@@ -303,7 +311,7 @@ def _spheres_dense_composite_kernel(
     for j in range(n_s):
         if T < t_threshold:
             break
-        sig, nr, ng, nb = spheres_from_falloff(falloff, (r * n_s + j) * appearance.shape[0], appearance)
+        sig, nr, ng, nb = spheres_from_falloff(falloff, (q * n_s + j) * appearance.shape[0], appearance)
         tk = t[r, j]
         e = wp.exp(-sig * delta[r, j])
         w = T * (one - e)
@@ -404,16 +412,21 @@ class SphereField(Field):
         wp.launch(_pack_spheres_kernel, k, [*self._param_args(), geometry, appearance], device=self.device)
         return geometry, appearance
 
-    def _falloffs(self, a: A.Inputs, n_threads: int, n_points: int, pass1: Any, pass1_inputs: list[Any],
-                  geometry: wp.array, appearance: wp.array) -> wp.array:
-        """CPU: exp(-s_k m_k) for n_points points (or samples) x K spheres, flat: `pass1` over
-        n_threads writes the exponents, NumPy's exp (split over the launch threads) turns them into
-        falloffs in place."""
-        falloff = a.empty(n_points * geometry.shape[0])
-        a.launch(pass1, n_threads, [*pass1_inputs, geometry, appearance, falloff], min_chunk=16)
+    def _two_passes(self, a: A.Inputs, n_items: int, samples_per_item: int, pass1: Any, pass1_inputs: list[Any],
+                    pass2: Any, pass2_inputs: list[Any], geometry: wp.array, appearance: wp.array) -> None:
+        """The CPU passes (module docstring) over n_items points or rays of samples_per_item samples,
+        in blocks of at most _FALLOFF_BLOCK falloff values (bounded memory, and a block is still in
+        cache when pass 2 reads it): `pass1` writes the exponents -s_k m_k of a block, NumPy's exp
+        (split over the launch threads) turns them into falloffs in place, `pass2` consumes them."""
+        per_item = samples_per_item * geometry.shape[0]
+        block = max(1, min(n_items, _FALLOFF_BLOCK // max(per_item, 1)))
+        falloff = a.empty(block * per_item)
         f = falloff.numpy()
-        parallel_ranges(lambda lo, hi: np.exp(f[lo:hi], out=f[lo:hi]), f.shape[0])
-        return falloff
+        for base in range(0, n_items, block):
+            nb = min(block, n_items - base)
+            a.launch(pass1, nb, [*pass1_inputs, geometry, appearance, falloff, base], min_chunk=16)
+            parallel_ranges(lambda lo, hi: np.exp(f[lo:hi], out=f[lo:hi]), nb * per_item)
+            a.launch(pass2, nb, [falloff, *pass2_inputs, base], min_chunk=16)
 
     def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
         a, p, _ = self._inputs(points, dirs)
@@ -425,8 +438,7 @@ class SphereField(Field):
         # CPU: the falloffs by NumPy's exp between two passes (module docstring).
         k1, k2 = _FIELD_PASSES[self.dtype]
         geometry, appearance = self._packed()
-        falloff = self._falloffs(a, n, n, k1, [_vec_view3(p)], geometry, appearance)
-        a.launch(k2, n, [falloff, appearance, sigma, _vec_view3(rgb)])
+        self._two_passes(a, n, 1, k1, [_vec_view3(p)], k2, [appearance, sigma, _vec_view3(rgb)], geometry, appearance)
         return self._result(a, sigma, rgb)
 
     def render_dense(self, origins: A.ArrayLike, dirs: A.ArrayLike, t: A.ArrayLike, delta: A.ArrayLike,
@@ -463,9 +475,8 @@ class SphereField(Field):
                                      opacity], min_chunk=16)
             return a.out(rgb), a.out(depth), a.out(opacity)
         # CPU: the sphere falloffs by NumPy's exp between two split launches (module docstring).
-        falloff = self._falloffs(a, n_rays, n_rays * tt.shape[1], k1, [o3, d3, tt], geometry, appearance)
-        a.launch(k2, n_rays, [falloff, tt, dl, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity],
-                 min_chunk=16)
+        self._two_passes(a, n_rays, tt.shape[1], k1, [o3, d3, tt], k2,
+                         [tt, dl, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity], geometry, appearance)
         return a.out(rgb), a.out(depth), a.out(opacity)
 
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
