@@ -34,7 +34,12 @@ samples). Samples after the termination point get zero gradient; a ray with no s
 the background with zero gradient.
 
 One thread per ray: every thread writes only its own ray's outputs and its own samples'
-gradients, so both kernels run through kernels.launch.launch_split on the CPU.
+gradients, so both kernels run through kernels.launch.launch_split on the CPU. The loops take
+the samples four at a time where four consecutive ones start at a multiple of 4 (vec4 loads of
+the factors and depths, vec3 loads of the colours) and none of the four terminates the ray, one
+at a time elsewhere: the same operations in the same order, so the outputs are bit for bit those
+of a one-at-a-time loop, with a quarter of the loop and index arithmetic (Warp's CPU code
+computes and wraps every index, docs/performance.md).
 
 Factors on the CPU. Warp's scalar exp costs 3.7 ns a sample on one core, more than the rest of
 the forward loop (3.0 ns): on the CPU the factors exp(-sigma_k delta_k) of all N samples are
@@ -43,6 +48,16 @@ and the kernel reads them. NumPy's float32 exp is within 2 ulp of the exact valu
 0.5 ulp), so float32 outputs can differ from the in-kernel exponential by a few ulp of each
 factor (relative 2.4e-7); float64 is within 1 ulp either way. Samples after early termination
 get factors too (unused). On CUDA the kernel evaluates the exponential itself.
+
+Value checks on the CPU ride on passes the forward makes anyway instead of six separate
+single-threaded passes over the samples. sigma and delta: while a block of them is in cache for
+the factors, one unsigned maximum of its bits per array tells whether every value is finite and
+>= 0 (before the launch). rgb and z: the kernel's sums C and D are NaN or infinite if any
+processed colour or depth is (the weights are finite once sigma and delta are), so each ray flags
+itself from its own sums, adding up only its samples after early termination; after the launch
+the flags are read. Only on a flag (or a doubt: -0.0, sums that overflow) do the exact checks of
+kernels._arrays run, and they raise the ValueError naming the argument. A bad rgb or z is so
+reported after the launch: the outputs (and `out` buffers) are then to be discarded.
 
 Inputs follow the array contract (kernels._arrays): NumPy in gives NumPy out, wp.arrays in give
 wp.arrays on their device; inside `value_checks(False)` only shapes and dtypes are checked.
@@ -67,15 +82,38 @@ wp.set_module_options({"enable_backward": False})
 DEFAULT_T_THRESHOLD = 1e-4
 
 
+@wp.func
+def _sample_factor(sigma: wp.array(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
+                   factor: wp.array(dtype=typing.Any), k: int, factor_given: int):
+    """exp(-sigma_k delta_k): read from `factor` (filled before the launch), or evaluated and stored."""
+    if factor_given != 0:
+        return factor[k]
+    e = wp.exp(-sigma[k] * delta[k])
+    factor[k] = e
+    return e
+
+
+@wp.func
+def _composite_step(T: typing.Any, cr: typing.Any, cg: typing.Any, cb: typing.Any, d: typing.Any, e: typing.Any,
+                    c: typing.Any, zk: typing.Any):
+    """One sample of the quadrature: w = T (1 - e); (T e, C + w c, D + w z)."""
+    w = T * (type(T)(1.0) - e)
+    return T * e, cr + w * c[0], cg + w * c[1], cb + w * c[2], d + w * zk
+
+
 @wp.kernel
 def _composite_forward_kernel(
-    sigma: wp.array(dtype=typing.Any), rgb: wp.array2d(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
+    sigma: wp.array(dtype=typing.Any), rgb: wp.array(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
     z: wp.array(dtype=typing.Any), ray_offsets: wp.array(dtype=wp.int32), background: wp.array2d(dtype=typing.Any),
     background_per_ray: int, t_threshold: typing.Any,
     out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_opacity: wp.array(dtype=typing.Any), out_transmittance: wp.array(dtype=typing.Any),
-    out_n_used: wp.array(dtype=wp.int32), out_factor: wp.array(dtype=typing.Any), factor_given: int, offset: int,
+    out_n_used: wp.array(dtype=wp.int32), out_factor: wp.array(dtype=typing.Any), factor_given: int,
+    factor4: wp.array(dtype=typing.Any), z4: wp.array(dtype=typing.Any), check_values: int,
+    out_bad: wp.array(dtype=wp.int32), offset: int,
 ):
+    # rgb is the (N, 3) colours viewed as N vec3; factor4 and z4 view out_factor and z as vec4 (samples 4q..4q+3).
+    # check_values != 0: out_bad[r] = 1 if a colour or depth of the ray may be NaN or infinite (see below).
     r = wp.tid() + offset
     one = sigma.dtype(1.0)
     T = one
@@ -83,23 +121,57 @@ def _composite_forward_kernel(
     cg = sigma.dtype(0.0)
     cb = sigma.dtype(0.0)
     d = sigma.dtype(0.0)
-    n = int(0)
-    for k in range(ray_offsets[r], ray_offsets[r + 1]):
+    start = ray_offsets[r]
+    stop = ray_offsets[r + 1]
+    k = start
+    # Single samples up to a multiple of 4 (stop = k ends the ray: early termination) ...
+    while k < stop and k % 4 != 0:
         if T < t_threshold:
-            break
-        e = sigma.dtype(0.0)
-        if factor_given != 0:
-            e = out_factor[k]  # exp(-sigma_k delta_k), filled in before the launch (_fill_factor)
+            stop = k
         else:
-            e = wp.exp(-sigma[k] * delta[k])
-            out_factor[k] = e
-        w = T * (one - e)
-        cr += w * rgb[k, 0]
-        cg += w * rgb[k, 1]
-        cb += w * rgb[k, 2]
-        d += w * z[k]
-        T = T * e
-        n += 1
+            e = _sample_factor(sigma, delta, out_factor, k, factor_given)
+            T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e, rgb[k], z[k])
+            k += 1
+    # ... then four at a time while none of the four terminates (the same operations in the same
+    # order as one at a time, so bit for bit the same sums; fewer loop and index computations) ...
+    while k + 4 <= stop:
+        q = k // 4
+        e4 = factor4[q]
+        if factor_given == 0:
+            e4 = wp.vector(wp.exp(-sigma[k] * delta[k]), wp.exp(-sigma[k + 1] * delta[k + 1]),
+                           wp.exp(-sigma[k + 2] * delta[k + 2]), wp.exp(-sigma[k + 3] * delta[k + 3]))
+            factor4[q] = e4
+        T1 = T * e4[0]
+        T2 = T1 * e4[1]
+        T3 = T2 * e4[2]
+        if T < t_threshold or T1 < t_threshold or T2 < t_threshold or T3 < t_threshold:
+            break
+        z_q = z4[q]
+        T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e4[0], rgb[k], z_q[0])
+        T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e4[1], rgb[k + 1], z_q[1])
+        T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e4[2], rgb[k + 2], z_q[2])
+        T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e4[3], rgb[k + 3], z_q[3])
+        k += 4
+    # ... and single samples for the rest (the tail, or the quad in which the ray terminates).
+    while k < stop:
+        if T < t_threshold:
+            stop = k
+        else:
+            e = _sample_factor(sigma, delta, out_factor, k, factor_given)
+            T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e, rgb[k], z[k])
+            k += 1
+    if check_values != 0:
+        # The sums C and D are NaN or infinite if a processed colour or depth is (w_k is finite:
+        # sigma and delta were checked), so only the samples after early termination are added
+        # up here. Infinite sums of finite values are a false alarm that the exact check clears.
+        rest = sigma.dtype(0.0)
+        for j in range(k, ray_offsets[r + 1]):
+            c = rgb[j]
+            rest += c[0] + c[1] + c[2] + z[j]
+        bad = int(1)
+        if wp.isfinite(cr) and wp.isfinite(cg) and wp.isfinite(cb) and wp.isfinite(d) and wp.isfinite(rest):
+            bad = 0
+        out_bad[r] = bad
     b = r * background_per_ray
     out_rgb[r, 0] = cr + T * background[b, 0]
     out_rgb[r, 1] = cg + T * background[b, 1]
@@ -107,19 +179,34 @@ def _composite_forward_kernel(
     out_depth[r] = d
     out_opacity[r] = one - T
     out_transmittance[r] = T
-    out_n_used[r] = n
+    out_n_used[r] = k - start
+
+
+@wp.func
+def _backward_step(T: typing.Any, prefix: typing.Any, e: typing.Any, c: typing.Any, zk: typing.Any, dk: typing.Any,
+                   gr: typing.Any, gg: typing.Any, gb: typing.Any, gd: typing.Any, total: typing.Any,
+                   tail: typing.Any):
+    """One sample of the backward: (T_{k+1}, prefix through k, dL/dsigma_k, w_k)."""
+    w = T * (type(T)(1.0) - e)
+    f = gr * c[0] + gg * c[1] + gb * c[2] + gd * zk
+    prefix = prefix + w * f
+    T = T * e
+    return T, prefix, dk * (T * f - (total - prefix) + tail), w
 
 
 @wp.kernel
 def _composite_backward_kernel(
-    factor: wp.array(dtype=typing.Any), rgb: wp.array2d(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
+    factor: wp.array(dtype=typing.Any), rgb: wp.array(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
     z: wp.array(dtype=typing.Any), ray_offsets: wp.array(dtype=wp.int32), background: wp.array2d(dtype=typing.Any),
     background_per_ray: int, out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_transmittance: wp.array(dtype=typing.Any), out_n_used: wp.array(dtype=wp.int32),
     grad_rgb: wp.array2d(dtype=typing.Any), grad_depth: wp.array(dtype=typing.Any),
     grad_opacity: wp.array(dtype=typing.Any), grad_sigma: wp.array(dtype=typing.Any),
-    grad_sample_rgb: wp.array2d(dtype=typing.Any), offset: int,
+    grad_sample_rgb: wp.array(dtype=typing.Any), factor4: wp.array(dtype=typing.Any), z4: wp.array(dtype=typing.Any),
+    delta4: wp.array(dtype=typing.Any), grad_sigma4: wp.array(dtype=typing.Any), offset: int,
 ):
+    # rgb and grad_sample_rgb are (N, 3) arrays viewed as N vec3; the *4 arrays view their namesakes
+    # as vec4 (samples 4q..4q+3). Quads where aligned, as in the forward kernel: the same operations.
     r = wp.tid() + offset
     zero = factor.dtype(0.0)
     one = factor.dtype(1.0)
@@ -128,6 +215,7 @@ def _composite_backward_kernel(
     gg = grad_rgb[r, 1]
     gb = grad_rgb[r, 2]
     gd = grad_depth[r]
+    g3 = wp.vector(gr, gg, gb)
     T_final = out_transmittance[r]
     g_bg = gr * background[b, 0] + gg * background[b, 1] + gb * background[b, 2]
     total = (gr * (out_rgb[r, 0] - T_final * background[b, 0]) + gg * (out_rgb[r, 1] - T_final * background[b, 1])
@@ -137,21 +225,37 @@ def _composite_backward_kernel(
     stop = start + out_n_used[r]
     T = one
     prefix = zero
-    for k in range(start, stop):
-        e = factor[k]  # exp(-sigma_k delta_k), stored by the forward: bit for bit its T_k and w_k
-        w = T * (one - e)
-        f = gr * rgb[k, 0] + gg * rgb[k, 1] + gb * rgb[k, 2] + gd * z[k]
-        prefix += w * f
-        T = T * e
-        grad_sigma[k] = delta[k] * (T * f - (total - prefix) + tail)
-        grad_sample_rgb[k, 0] = gr * w
-        grad_sample_rgb[k, 1] = gg * w
-        grad_sample_rgb[k, 2] = gb * w
-    for k in range(stop, ray_offsets[r + 1]):
-        grad_sigma[k] = zero
-        grad_sample_rgb[k, 0] = zero
-        grad_sample_rgb[k, 1] = zero
-        grad_sample_rgb[k, 2] = zero
+    k = start
+    while k < stop and k % 4 != 0:
+        # factor: exp(-sigma_k delta_k), stored by the forward: bit for bit its T_k and w_k
+        T, prefix, gs, w = _backward_step(T, prefix, factor[k], rgb[k], z[k], delta[k], gr, gg, gb, gd, total, tail)
+        grad_sigma[k] = gs
+        grad_sample_rgb[k] = g3 * w
+        k += 1
+    while k + 4 <= stop:
+        q = k // 4
+        e4 = factor4[q]
+        z_q = z4[q]
+        d_q = delta4[q]
+        T, prefix, gs0, w0 = _backward_step(T, prefix, e4[0], rgb[k], z_q[0], d_q[0], gr, gg, gb, gd, total, tail)
+        T, prefix, gs1, w1 = _backward_step(T, prefix, e4[1], rgb[k + 1], z_q[1], d_q[1], gr, gg, gb, gd, total, tail)
+        T, prefix, gs2, w2 = _backward_step(T, prefix, e4[2], rgb[k + 2], z_q[2], d_q[2], gr, gg, gb, gd, total, tail)
+        T, prefix, gs3, w3 = _backward_step(T, prefix, e4[3], rgb[k + 3], z_q[3], d_q[3], gr, gg, gb, gd, total, tail)
+        grad_sigma4[q] = wp.vector(gs0, gs1, gs2, gs3)
+        grad_sample_rgb[k] = g3 * w0
+        grad_sample_rgb[k + 1] = g3 * w1
+        grad_sample_rgb[k + 2] = g3 * w2
+        grad_sample_rgb[k + 3] = g3 * w3
+        k += 4
+    while k < stop:
+        T, prefix, gs, w = _backward_step(T, prefix, factor[k], rgb[k], z[k], delta[k], gr, gg, gb, gd, total, tail)
+        grad_sigma[k] = gs
+        grad_sample_rgb[k] = g3 * w
+        k += 1
+    zero3 = wp.vector(zero, zero, zero)
+    for j in range(stop, ray_offsets[r + 1]):
+        grad_sigma[j] = zero
+        grad_sample_rgb[j] = zero3
 
 
 @dataclass
@@ -193,22 +297,54 @@ def dense_offsets(n_rays: int, n_samples: int) -> np.ndarray:
     return (np.arange(n_rays + 1, dtype=np.int64) * n_samples).astype(np.int32)
 
 
-def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array) -> int:
-    """On the CPU, factor = exp(-sigma delta) for every sample with NumPy's vectorised exp, split
-    over the launch threads; returns 1 (the kernel then reads the factors), or 0 on CUDA (the
-    kernel evaluates them). See the module docstring for the rounding this changes."""
+# Samples per NumPy block in the CPU factor pass: sigma, delta and factor of a block (768 KB in
+# float32) stay in a core's L2 cache between the multiply, the exp and the value checks.
+_FILL_BLOCK = 1 << 16
+# The largest finite float as an unsigned integer: a non-negative finite float's bits are at most
+# this, and a negative number (sign bit), -0.0, inf or NaN have larger bits.
+_MAX_FINITE_BITS = {np.dtype(np.float32): (np.uint32, np.uint32(0x7F7FFFFF)),
+                    np.dtype(np.float64): (np.uint64, np.uint64(0x7FEFFFFFFFFFFFFF))}
+
+
+def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, check: bool) -> int:
+    """On the CPU, factor = exp(-sigma delta) for every sample with NumPy's vectorised exp, in
+    cache-sized blocks split over the launch threads; returns 1 (the kernel then reads the
+    factors), or 0 on CUDA (the kernel evaluates them, and nothing is checked here).
+
+    With `check`, the same pass also tests sigma and delta while each block is in cache: >= 0
+    and finite as ONE unsigned maximum of their bits per block (_MAX_FINITE_BITS). Any doubt
+    (including -0.0) runs the exact checks of kernels._arrays, which raise the ValueError naming
+    the argument. See the module docstring for the rounding of the
+    factors.
+    """
     if not factor.device.is_cpu:
         return 0
     s, d, f = sigma.numpy(), delta.numpy(), factor.numpy()  # zero-copy views of host arrays
+    uint, top = _MAX_FINITE_BITS[f.dtype]
+    s_bits, d_bits = s.view(uint), d.view(uint)
+    doubt: list[bool] = []
 
     def fill(lo: int, hi: int) -> None:
-        out = f[lo:hi]
-        np.multiply(s[lo:hi], d[lo:hi], out=out)
-        np.negative(out, out=out)
-        np.exp(out, out=out)
+        bad = False
+        for b in range(lo, hi, _FILL_BLOCK):
+            e = min(b + _FILL_BLOCK, hi)
+            out = f[b:e]
+            np.multiply(s[b:e], d[b:e], out=out)
+            np.negative(out, out=out)
+            np.exp(out, out=out)
+            if check:
+                bad = bad or s_bits[b:e].max() > top or d_bits[b:e].max() > top
+        if bad:
+            doubt.append(True)
 
     parallel_ranges(fill, f.shape[0])
+    if doubt:
+        A.check_at_least("sigma", sigma, 0.0)
+        A.check_at_least("delta", delta, 0.0)
     return 1
+
+
+_BACKGROUNDS: dict[tuple, wp.array] = {}  # (bytes, dtype, device) -> a checked (1, 3) background
 
 
 def _background(a: A.Inputs, background: Any, n_rays: int) -> tuple[wp.array, int]:
@@ -221,21 +357,37 @@ def _background(a: A.Inputs, background: Any, n_rays: int) -> tuple[wp.array, in
         bg = bg.reshape((1, 3))
     if tuple(bg.shape) not in ((1, 3), (n_rays, 3)):
         raise ValueError(f"background: expected shape (3,) or (R, 3) = ({n_rays}, 3), got {tuple(bg.shape)}")
-    return a.floats("background", bg), int(bg.shape[0] != 1)
+    if isinstance(bg, wp.array) or bg.shape[0] != 1:
+        return a.floats("background", bg), int(bg.shape[0] != 1)
+    # One colour given on the host (the usual tuple): its checked device copy is kept, so that a
+    # call does not pay for a new wp.array (~30 us of Python) each time.
+    key = (bg.tobytes(), bg.dtype.str, a.device.alias)
+    arr = _BACKGROUNDS.get(key)
+    if arr is None:
+        arr = a.floats("background", bg)
+        if np.isfinite(bg).all():  # only a valid colour is kept (value checks may be off now)
+            if len(_BACKGROUNDS) >= 64:
+                _BACKGROUNDS.clear()
+            _BACKGROUNDS[key] = arr
+    return arr, 0
 
 
 def _samples(a: A.Inputs, sigma: Any, rgb: Any, delta: Any, z: Any, ray_offsets: Any, values: bool
              ) -> tuple[list[wp.array], int, int]:
     """[sigma, rgb, delta, z, ray_offsets] as wp.arrays, the sample count N and the ray count R.
 
-    `values` False skips the value checks of the samples (the backward's: the forward checked them).
+    Shapes, dtypes and the offsets are checked here. `values` True checks the sample values here
+    only on CUDA: on the CPU the forward checks sigma and delta in its factor pass
+    (_fill_factor, before the launch) and rgb and z through its kernel's sums (module
+    docstring). The backward passes False (the forward checked them).
     """
+    on_cuda = values and not a.device.is_cpu
     s = a.floats("sigma", sigma, (None,), finite=False)
     n = s.shape[0]
-    c = a.floats("rgb", rgb, (n, 3), finite=values)
+    c = a.floats("rgb", rgb, (n, 3), finite=on_cuda)
     d = a.floats("delta", delta, (n,), finite=False)
-    zz = a.floats("z", z, (n,), finite=values)
-    if values:
+    zz = a.floats("z", z, (n,), finite=on_cuda)
+    if on_cuda:
         A.check_at_least("sigma", s, 0.0)
         A.check_at_least("delta", d, 0.0)
     offsets = check_ray_offsets(a, "ray_offsets", ray_offsets, n)
@@ -273,10 +425,17 @@ def composite_forward(
     else:
         res = CompositeResult(**{k: A.check_out(f"out.{k}", getattr(out, k), shape, t, a.device)
                                  for k, (shape, t) in layout.items()})
-    factor_given = _fill_factor(args[0], args[2], res.factor)
-    a.launch(_composite_forward_kernel, n_rays,
-             args + [bg, per_ray, a.s(t_threshold), res.rgb, res.depth, res.opacity, res.transmittance, res.n_used,
-                     res.factor, factor_given], min_chunk=256)
+    s, c, d, zz, offsets = args
+    check = A.values_checked() and a.device.is_cpu  # on CUDA _samples checked the values
+    factor_given = _fill_factor(s, d, res.factor, check)
+    bad = a.empty(n_rays if check else 1, wp.int32)
+    a.launch(_FORWARD[a.scalar], n_rays,
+             [s, _vec_view(c, 3), d, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth, res.opacity,
+              res.transmittance, res.n_used, res.factor, factor_given, _vec_view(res.factor, 4), _vec_view(zz, 4),
+              int(check), bad], min_chunk=256)
+    if check and n_rays and bad.numpy().any():  # a NaN or inf in rgb or z, or a false alarm (module docstring)
+        A.check_finite("rgb", c)
+        A.check_finite("z", zz)
     if out is not None or not a.as_numpy:
         return res
     return CompositeResult(**{k: a.out(v) for k, v in vars(res).items()})
@@ -328,13 +487,45 @@ def composite_backward(
             raise ValueError("out: expected a pair (grad_sigma (N,), grad_rgb (N, 3)) of wp.arrays")
         grad_sigma = A.check_out("out[0]", out[0], (n,), a.scalar, a.device)
         grad_sample_rgb = A.check_out("out[1]", out[1], (n, 3), a.scalar, a.device)
-    a.launch(_composite_backward_kernel, n_rays,
-             [res["factor"], c, d, zz, offsets, bg, per_ray, res["rgb"], res["depth"], res["transmittance"],
-              res["n_used"], *grads, grad_sigma, grad_sample_rgb], min_chunk=256)
+    a.launch(_BACKWARD[a.scalar], n_rays,
+             [res["factor"], _vec_view(c, 3), d, zz, offsets, bg, per_ray, res["rgb"], res["depth"],
+              res["transmittance"], res["n_used"], *grads, grad_sigma, _vec_view(grad_sample_rgb, 3),
+              _vec_view(res["factor"], 4), _vec_view(zz, 4), _vec_view(d, 4), _vec_view(grad_sigma, 4)],
+             min_chunk=256)
     if out is not None:
         return grad_sigma, grad_sample_rgb
     return a.out(grad_sigma), a.out(grad_sample_rgb)
 
 
-A.declare_float_overloads(_composite_forward_kernel)
-A.declare_float_overloads(_composite_backward_kernel)
+_VEC3 = {wp.float32: wp.vec3f, wp.float64: wp.vec3d}
+_VEC4 = {wp.float32: wp.vec4f, wp.float64: wp.vec4d}
+
+
+def _declare_overloads(kernel: Any, vec3: tuple[str, ...], vec4: tuple[str, ...]) -> dict[Any, Any]:
+    """Both float overloads of a generic kernel whose arrays named in `vec3`/`vec4` hold vectors,
+    as {scalar type: overload}. Launching an overload rather than the generic kernel spares Warp
+    inferring and normalising the argument types on every launch (~50 us of Python a launch,
+    each chunk of a split launch paying it)."""
+    overloads = {}
+    for scalar in A.FLOATS:
+        types: dict[str, Any] = {}
+        for arg in kernel.adj.args:
+            if wp.types.is_array(arg.type) and arg.type.dtype is typing.Any:
+                dt = _VEC3[scalar] if arg.label in vec3 else _VEC4[scalar] if arg.label in vec4 else scalar
+                types[arg.label] = wp.array(dtype=dt, ndim=arg.type.ndim)
+            elif arg.type is typing.Any:
+                types[arg.label] = scalar
+        overloads[scalar] = wp.overload(kernel, types)
+    return overloads
+
+
+def _vec_view(x: wp.array, length: int) -> wp.array:
+    """A contiguous float array seen as consecutive vectors of `length` (x[length i : length (i+1)] as entry i;
+    a trailing remainder is left out). Zero-copy: x must stay alive while the view is used."""
+    vt = (_VEC3 if length == 3 else _VEC4)[x.dtype]
+    return wp.array(ptr=x.ptr, dtype=vt, shape=(x.size // length,), device=x.device)
+
+
+_FORWARD = _declare_overloads(_composite_forward_kernel, vec3=("rgb",), vec4=("factor4", "z4"))
+_BACKWARD = _declare_overloads(_composite_backward_kernel, vec3=("rgb", "grad_sample_rgb"),
+                               vec4=("factor4", "z4", "delta4", "grad_sigma4"))

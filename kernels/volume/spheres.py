@@ -26,7 +26,22 @@ field at x_k, and the compositing of kernels.volume.composite (z_k = t_k, early 
 there), without the packed sample, field-output and factor arrays of the general path (their
 allocation, first-touch page faults and memory traffic were most of the textbook task's time,
 docs/performance.md). Forward only. It evaluates exp(-sigma_k delta_k) with Warp's exp, so it
-agrees with the general path on the CPU (NumPy's exp there) to float rounding.
+agrees with the general path on the CPU (NumPy's exp there) to float rounding. Its sphere loop
+reads the parameters packed per sphere as two vec4s (spheres_at_packed; the same arithmetic as
+spheres_at) and the rays' origins, directions and colours as vec3s: fewer indexed loads, whose
+address arithmetic Warp's CPU code repeats for every one.
+
+On the CPU forward and render_dense run in two passes around NumPy instead, over blocks of
+points (or rays) of at most _FALLOFF_BLOCK values: pass 1 writes the exponents -s_k m_k of every
+point (or sample) and sphere of the block, NumPy's vectorised exp turns them into the falloffs
+exp(-s_k m_k) in place (split over the launch threads), and pass 2
+does the rest of spheres_at (spheres_from_falloff) and, for render_dense, the compositing per
+ray. Warp's scalar expf is a library call per sphere and point (every live float register saved
+around it); the one-kernel versions spent most of their time there. The only change is the
+exponential's rounding: NumPy's float32 exp is within 2.4 ulp (Warp's 0.5), so on the textbook
+scene float32 images differ from the fused kernel's by at most 3.0e-7 (depth 9.5e-7), float64 by
+3.4e-16 (depth 1.0e-15). The backward evaluates its own exponentials, as before. On CUDA the
+one-kernel versions run.
 """
 
 from __future__ import annotations
@@ -41,11 +56,17 @@ from kernels import _arrays as A
 from kernels.volume._checks import check_dtype
 from kernels.volume.composite import DEFAULT_T_THRESHOLD
 from kernels.volume.field import Field, FieldOutput
+from kernels.launch import parallel_ranges
 from kernels.volume.workspace import Workspace
 
 wp.set_module_options({"enable_backward": False})
 
 COLOR_NORMALIZE_EPS = 1e-6
+# forward and render_dense on the CPU run the two-pass paths; True runs the one-kernel paths there too
+# (CUDA's; for tests).
+_FUSED_ON_CPU = False
+# Falloff values per block of the CPU passes (8 MB in float32): their memory stays bounded at any size.
+_FALLOFF_BLOCK = 1 << 21
 
 # The chapter's scene: (centre, radius, colour, sharpness).
 TEXTBOOK_SPHERES = (
@@ -103,6 +124,97 @@ def spheres_at(px: typing.Any, py: typing.Any, pz: typing.Any, centers: wp.array
     return sig, nr, ng, nb
 
 
+@wp.func
+def spheres_at_packed(px: typing.Any, py: typing.Any, pz: typing.Any, geometry: wp.array(dtype=typing.Any),
+                      appearance: wp.array(dtype=typing.Any)):
+    """spheres_at with the parameters packed per sphere: geometry[k] = (c_k, r_k) and
+    appearance[k] = (col_k, s_k) as vec4s, two loads a sphere instead of eight indexed ones (Warp's
+    CPU code computes and wraps every index). The same operations in the same order: bit for bit
+    spheres_at."""
+    zero = type(px)(0.0)
+    sig = zero
+    nr = zero
+    ng = zero
+    nb = zero
+    for k in range(geometry.shape[0]):
+        g = geometry[k]
+        a = appearance[k]
+        dx = px - g[0]
+        dy = py - g[1]
+        dz = pz - g[2]
+        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        m = wp.max(zero, dist - g[3])
+        d = a[3] * wp.exp(-a[3] * m)
+        sig += d
+        nr += d * a[0]
+        ng += d * a[1]
+        nb += d * a[2]
+    if sig > type(px)(1e-6):
+        nr = nr / sig
+        ng = ng / sig
+        nb = nb / sig
+    return sig, nr, ng, nb
+
+
+@wp.func
+def spheres_from_falloff(falloff: wp.array(dtype=typing.Any), i: int, appearance: wp.array(dtype=typing.Any)):
+    """spheres_at's (sigma, r, g, b) from falloff[i + k] = exp(-s_k m_k) given (the CPU passes):
+    d_k = s_k falloff_k, then the same sums and normalisation in the same order."""
+    zero = falloff.dtype(0.0)
+    sig = zero
+    nr = zero
+    ng = zero
+    nb = zero
+    for k in range(appearance.shape[0]):
+        a = appearance[k]
+        d = a[3] * falloff[i + k]
+        sig += d
+        nr += d * a[0]
+        ng += d * a[1]
+        nb += d * a[2]
+    if sig > falloff.dtype(1e-6):
+        nr = nr / sig
+        ng = ng / sig
+        nb = nb / sig
+    return sig, nr, ng, nb
+
+
+@wp.func
+def sphere_exponents(px: typing.Any, py: typing.Any, pz: typing.Any, geometry: wp.array(dtype=typing.Any),
+                     appearance: wp.array(dtype=typing.Any), out: wp.array(dtype=typing.Any), i: int):
+    """out[i + k] = -s_k m_k at the point (px, py, pz) for every sphere k (the CPU passes' first half)."""
+    zero = type(px)(0.0)
+    for k in range(geometry.shape[0]):
+        g = geometry[k]
+        dx = px - g[0]
+        dy = py - g[1]
+        dz = pz - g[2]
+        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        out[i + k] = -appearance[k][3] * wp.max(zero, dist - g[3])
+
+
+@wp.kernel
+def _spheres_exponent_kernel(points: wp.array(dtype=typing.Any), geometry: wp.array(dtype=typing.Any),
+                             appearance: wp.array(dtype=typing.Any), out_exponent: wp.array(dtype=typing.Any),
+                             base: int, offset: int):
+    # CPU field forward, pass 1 over the block of points from `base` (points (N, 3) viewed as N vec3).
+    j = wp.tid() + offset
+    p = points[base + j]
+    sphere_exponents(p[0], p[1], p[2], geometry, appearance, out_exponent, j * geometry.shape[0])
+
+
+@wp.kernel
+def _spheres_from_falloff_kernel(falloff: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
+                                 out_sigma: wp.array(dtype=typing.Any), out_rgb: wp.array(dtype=typing.Any),
+                                 base: int, offset: int):
+    # CPU field forward, pass 2 over the block from `base` (out_rgb (N, 3) viewed as N vec3).
+    j = wp.tid() + offset
+    i = base + j
+    sig, nr, ng, nb = spheres_from_falloff(falloff, j * appearance.shape[0], appearance)
+    out_sigma[i] = sig
+    out_rgb[i] = type(out_rgb[i])(nr, ng, nb)
+
+
 @wp.kernel
 def _spheres_forward_kernel(
     points: wp.array2d(dtype=typing.Any), centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
@@ -119,13 +231,14 @@ def _spheres_forward_kernel(
 
 @wp.kernel
 def _spheres_render_dense_kernel(
-    origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
-    delta: wp.array2d(dtype=typing.Any), centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
-    colors: wp.array2d(dtype=typing.Any), sharpness: wp.array(dtype=typing.Any),
+    origins: wp.array(dtype=typing.Any), dirs: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
+    delta: wp.array2d(dtype=typing.Any), geometry: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
     background: wp.array(dtype=typing.Any), t_threshold: typing.Any,
-    out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
+    out_rgb: wp.array(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_opacity: wp.array(dtype=typing.Any), offset: int,
 ):
+    # origins, dirs, out_rgb: (R, 3) arrays viewed as R vec3; background one vec3; geometry and
+    # appearance: the packed sphere parameters (spheres_at_packed).
     r = wp.tid() + offset
     one = t.dtype(1.0)
     T = one
@@ -133,16 +246,17 @@ def _spheres_render_dense_kernel(
     cg = t.dtype(0.0)
     cb = t.dtype(0.0)
     dep = t.dtype(0.0)
+    o = origins[r]
+    dr = dirs[r]
     for j in range(t.shape[1]):
         if T < t_threshold:
             break
         tk = t[r, j]
         # x = o + (t d), rounded as kernels.volume.sampling.dense_samples rounds it
-        sx = tk * dirs[r, 0]
-        sy = tk * dirs[r, 1]
-        sz = tk * dirs[r, 2]
-        sig, nr, ng, nb = spheres_at(origins[r, 0] + sx, origins[r, 1] + sy, origins[r, 2] + sz,
-                                     centers, radii, colors, sharpness)
+        sx = tk * dr[0]
+        sy = tk * dr[1]
+        sz = tk * dr[2]
+        sig, nr, ng, nb = spheres_at_packed(o[0] + sx, o[1] + sy, o[2] + sz, geometry, appearance)
         e = wp.exp(-sig * delta[r, j])
         w = T * (one - e)
         cr += w * nr
@@ -150,9 +264,64 @@ def _spheres_render_dense_kernel(
         cb += w * nb
         dep += w * tk
         T = T * e
-    out_rgb[r, 0] = cr + T * background[0]
-    out_rgb[r, 1] = cg + T * background[1]
-    out_rgb[r, 2] = cb + T * background[2]
+    bg = background[0]
+    out_rgb[r] = type(bg)(cr + T * bg[0], cg + T * bg[1], cb + T * bg[2])
+    out_depth[r] = dep
+    out_opacity[r] = one - T
+
+
+@wp.kernel
+def _spheres_dense_exponent_kernel(
+    origins: wp.array(dtype=typing.Any), dirs: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
+    geometry: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
+    out_exponent: wp.array(dtype=typing.Any), base: int, offset: int,
+):
+    # CPU render_dense, pass 1 over the block of rays from `base`: the exponents at x = o_r + t_rj d_r,
+    # sample (r, j) at ((r - base) S + j) K.
+    q = wp.tid() + offset
+    r = base + q
+    o = origins[r]
+    dr = dirs[r]
+    n_s = t.shape[1]
+    for j in range(n_s):
+        tk = t[r, j]
+        # rounded as kernels.volume.sampling.dense_samples rounds it
+        sphere_exponents(o[0] + tk * dr[0], o[1] + tk * dr[1], o[2] + tk * dr[2], geometry, appearance,
+                         out_exponent, (q * n_s + j) * geometry.shape[0])
+
+
+@wp.kernel
+def _spheres_dense_composite_kernel(
+    falloff: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any), delta: wp.array2d(dtype=typing.Any),
+    appearance: wp.array(dtype=typing.Any), background: wp.array(dtype=typing.Any), t_threshold: typing.Any,
+    out_rgb: wp.array(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
+    out_opacity: wp.array(dtype=typing.Any), base: int, offset: int,
+):
+    # CPU render_dense, pass 2 over the block from `base`: the spheres from the falloffs, composited
+    # as the fused kernel does.
+    q = wp.tid() + offset
+    r = base + q
+    one = t.dtype(1.0)
+    T = one
+    cr = t.dtype(0.0)
+    cg = t.dtype(0.0)
+    cb = t.dtype(0.0)
+    dep = t.dtype(0.0)
+    n_s = t.shape[1]
+    for j in range(n_s):
+        if T < t_threshold:
+            break
+        sig, nr, ng, nb = spheres_from_falloff(falloff, (q * n_s + j) * appearance.shape[0], appearance)
+        tk = t[r, j]
+        e = wp.exp(-sig * delta[r, j])
+        w = T * (one - e)
+        cr += w * nr
+        cg += w * ng
+        cb += w * nb
+        dep += w * tk
+        T = T * e
+    bg = background[0]
+    out_rgb[r] = type(bg)(cr + T * bg[0], cg + T * bg[1], cb + T * bg[2])
     out_depth[r] = dep
     out_opacity[r] = one - T
 
@@ -230,11 +399,46 @@ class SphereField(Field):
         P = self.params
         return [P["centers"], P["radii"], P["colors"], P["sharpness"]]
 
+    def _packed(self) -> tuple[wp.array, wp.array]:
+        """(geometry, appearance): the parameters as K vec4s (c_k, r_k) and (col_k, s_k)."""
+        v4 = _VEC4[self.dtype]
+        if self.device.is_cpu:  # K rows packed on the host from zero-copy views
+            P = {k: v.numpy() for k, v in self.params.items()}
+            return (wp.array(np.concatenate([P["centers"], P["radii"][:, None]], axis=1), dtype=v4),
+                    wp.array(np.concatenate([P["colors"], P["sharpness"][:, None]], axis=1), dtype=v4))
+        k = self.params["radii"].shape[0]
+        geometry = wp.empty(k, dtype=v4, device=self.device)
+        appearance = wp.empty(k, dtype=v4, device=self.device)
+        wp.launch(_pack_spheres_kernel, k, [*self._param_args(), geometry, appearance], device=self.device)
+        return geometry, appearance
+
+    def _two_passes(self, a: A.Inputs, n_items: int, samples_per_item: int, pass1: Any, pass1_inputs: list[Any],
+                    pass2: Any, pass2_inputs: list[Any], geometry: wp.array, appearance: wp.array) -> None:
+        """The CPU passes (module docstring) over n_items points or rays of samples_per_item samples,
+        in blocks of at most _FALLOFF_BLOCK falloff values (bounded memory, and a block is still in
+        cache when pass 2 reads it): `pass1` writes the exponents -s_k m_k of a block, NumPy's exp
+        (split over the launch threads) turns them into falloffs in place, `pass2` consumes them."""
+        per_item = samples_per_item * geometry.shape[0]
+        block = max(1, min(n_items, _FALLOFF_BLOCK // max(per_item, 1)))
+        falloff = a.empty(block * per_item)
+        f = falloff.numpy()
+        for base in range(0, n_items, block):
+            nb = min(block, n_items - base)
+            a.launch(pass1, nb, [*pass1_inputs, geometry, appearance, falloff, base], min_chunk=16)
+            parallel_ranges(lambda lo, hi: np.exp(f[lo:hi], out=f[lo:hi]), nb * per_item)
+            a.launch(pass2, nb, [falloff, *pass2_inputs, base], min_chunk=16)
+
     def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
         a, p, _ = self._inputs(points, dirs)
         n = p.shape[0]
         sigma, rgb = a.empty(n), a.empty((n, 3))
-        a.launch(_spheres_forward_kernel, n, [p, *self._param_args(), sigma, rgb])
+        if not self.device.is_cpu or _FUSED_ON_CPU:
+            a.launch(_spheres_forward_kernel, n, [p, *self._param_args(), sigma, rgb])
+            return self._result(a, sigma, rgb)
+        # CPU: the falloffs by NumPy's exp between two passes (module docstring).
+        k1, k2 = _FIELD_PASSES[self.dtype]
+        geometry, appearance = self._packed()
+        self._two_passes(a, n, 1, k1, [_vec_view3(p)], k2, [appearance, sigma, _vec_view3(rgb)], geometry, appearance)
         return self._result(a, sigma, rgb)
 
     def render_dense(self, origins: A.ArrayLike, dirs: A.ArrayLike, t: A.ArrayLike, delta: A.ArrayLike,
@@ -262,9 +466,17 @@ class SphereField(Field):
             raise ValueError(f"background: expected shape (3,), got {bg.shape}")
         A.check_finite("background", bg)
         rgb, depth, opacity = a.empty((n_rays, 3)), a.empty(n_rays), a.empty(n_rays)
-        a.launch(_spheres_render_dense_kernel, n_rays,
-                 [o, d, tt, dl, *self._param_args(), a.floats("background", bg), a.s(t_threshold), rgb, depth,
-                  opacity], min_chunk=16)
+        geometry, appearance = self._packed()
+        bg_v = wp.array(bg[None], dtype=_VEC3[self.dtype], device=self.device)
+        o3, d3, rgb3 = _vec_view3(o), _vec_view3(d), _vec_view3(rgb)
+        fused, k1, k2 = _RENDER_DENSE[self.dtype]
+        if not self.device.is_cpu or _FUSED_ON_CPU:
+            a.launch(fused, n_rays, [o3, d3, tt, dl, geometry, appearance, bg_v, a.s(t_threshold), rgb3, depth,
+                                     opacity], min_chunk=16)
+            return a.out(rgb), a.out(depth), a.out(opacity)
+        # CPU: the sphere falloffs by NumPy's exp between two split launches (module docstring).
+        self._two_passes(a, n_rays, tt.shape[1], k1, [o3, d3, tt], k2,
+                         [tt, dl, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity], geometry, appearance)
         return a.out(rgb), a.out(depth), a.out(opacity)
 
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
@@ -277,4 +489,61 @@ class SphereField(Field):
 
 A.declare_float_overloads(_spheres_forward_kernel)
 A.declare_float_overloads(_spheres_backward_kernel)
-A.declare_float_overloads(_spheres_render_dense_kernel)
+_VEC3 = {wp.float32: wp.vec3f, wp.float64: wp.vec3d}
+_VEC4 = {wp.float32: wp.vec4f, wp.float64: wp.vec4d}
+
+
+@wp.kernel
+def _pack_spheres_kernel(centers: wp.array2d(dtype=typing.Any), radii: wp.array(dtype=typing.Any),
+                         colors: wp.array2d(dtype=typing.Any), sharpness: wp.array(dtype=typing.Any),
+                         geometry: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any)):
+    k = wp.tid()
+    g = geometry[k]
+    g[0] = centers[k, 0]
+    g[1] = centers[k, 1]
+    g[2] = centers[k, 2]
+    g[3] = radii[k]
+    geometry[k] = g
+    a = appearance[k]
+    a[0] = colors[k, 0]
+    a[1] = colors[k, 1]
+    a[2] = colors[k, 2]
+    a[3] = sharpness[k]
+    appearance[k] = a
+
+
+def _render_dense_overloads() -> dict[Any, tuple[Any, Any, Any]]:
+    """{scalar: concrete overloads of (the fused kernel, CPU pass 1, CPU pass 2)} (launching a
+    concrete overload spares Warp inferring the argument types on every launch); also declares
+    _pack_spheres_kernel's."""
+    out = {}
+    for s in A.FLOATS:
+        v3, v4 = _VEC3[s], _VEC4[s]
+        rays = {"origins": wp.array(dtype=v3), "dirs": wp.array(dtype=v3), "t": wp.array2d(dtype=s)}
+        params = {"geometry": wp.array(dtype=v4), "appearance": wp.array(dtype=v4)}
+        outputs = {"background": wp.array(dtype=v3), "t_threshold": s, "out_rgb": wp.array(dtype=v3),
+                   "out_depth": wp.array(dtype=s), "out_opacity": wp.array(dtype=s)}
+        out[s] = (
+            wp.overload(_spheres_render_dense_kernel,
+                        {**rays, "delta": wp.array2d(dtype=s), **params, **outputs}),
+            wp.overload(_spheres_dense_exponent_kernel, {**rays, **params, "out_exponent": wp.array(dtype=s)}),
+            wp.overload(_spheres_dense_composite_kernel,
+                        {"falloff": wp.array(dtype=s), "t": wp.array2d(dtype=s), "delta": wp.array2d(dtype=s),
+                         "appearance": wp.array(dtype=v4), **outputs}))
+        wp.overload(_pack_spheres_kernel, {
+            "centers": wp.array2d(dtype=s), "radii": wp.array(dtype=s), "colors": wp.array2d(dtype=s),
+            "sharpness": wp.array(dtype=s), "geometry": wp.array(dtype=v4), "appearance": wp.array(dtype=v4)})
+    return out
+
+
+_RENDER_DENSE = _render_dense_overloads()
+_FIELD_PASSES = {s: (wp.overload(_spheres_exponent_kernel, {
+    "points": wp.array(dtype=_VEC3[s]), "geometry": wp.array(dtype=_VEC4[s]), "appearance": wp.array(dtype=_VEC4[s]),
+    "out_exponent": wp.array(dtype=s)}), wp.overload(_spheres_from_falloff_kernel, {
+        "falloff": wp.array(dtype=s), "appearance": wp.array(dtype=_VEC4[s]), "out_sigma": wp.array(dtype=s),
+        "out_rgb": wp.array(dtype=_VEC3[s])})) for s in A.FLOATS}
+
+
+def _vec_view3(x: wp.array) -> wp.array:
+    """A contiguous (N, 3) float array seen as N vec3s (zero-copy)."""
+    return wp.array(ptr=x.ptr, dtype=_VEC3[x.dtype], shape=(x.shape[0],), device=x.device)

@@ -337,3 +337,23 @@ def test_cpu_factors_within_stated_rounding_of_exact_exp(dtype, max_ulp):
     exact = np.exp(x.astype(np.longdouble))
     ulp = np.abs(res.factor.astype(np.longdouble) - exact) / np.spacing(exact.astype(dtype)).astype(np.longdouble)
     assert float(ulp.max()) <= max_ulp
+
+
+@pytest.mark.parametrize("dtype, rtol", [(np.float32, 2e-6), (np.float64, 1e-14)])
+@pytest.mark.parametrize("t_threshold", [0.0, 1e-4, 0.05])
+def test_in_kernel_exponential_path_agrees(monkeypatch, dtype, rtol, t_threshold):
+    """The kernel's own exp(-sigma delta) (what runs on CUDA; here forced on the CPU) against the
+    NumPy factor pass: the same samples used, outputs within the rounding of the two exponentials."""
+    import kernels.volume.composite as comp
+
+    inp = composite_inputs(2)
+    args = [inp[k].astype(dtype) for k in ("sigma", "rgb", "delta", "z")]
+    off, bg = inp["ray_offsets"], inp["background"].astype(dtype)
+    ref = composite_forward(*args, off, bg, t_threshold)
+    monkeypatch.setattr(comp, "_fill_factor", lambda *a, **k: 0)
+    got = composite_forward(*args, off, bg, t_threshold)
+    np.testing.assert_array_equal(got.n_used, ref.n_used)
+    for name in ("rgb", "depth", "opacity", "transmittance"):
+        np.testing.assert_allclose(getattr(got, name), getattr(ref, name), rtol=rtol, atol=rtol)
+    used = np.concatenate([np.arange(a, a + u) for a, u in zip(off[:-1], ref.n_used)])
+    np.testing.assert_allclose(got.factor[used], ref.factor[used], rtol=rtol)

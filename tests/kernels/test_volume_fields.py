@@ -310,3 +310,40 @@ def test_backward_into_a_workspace_matches_fresh_gradients(make):
             np.testing.assert_array_equal(reused[name].numpy(), fresh[name].numpy())
     with pytest.raises(ValueError, match="workspace: expected a kernels.volume.Workspace"):
         field.backward(pts, None, out, gs, gr, object())
+
+
+@pytest.mark.parametrize("np_t, wp_t, tol", [(np.float32, wp.float32, 2e-6), (np.float64, wp.float64, 1e-14)])
+def test_sphere_forward_one_kernel_agrees_with_cpu_two_pass_path(monkeypatch, np_t, wp_t, tol):
+    # SphereField.forward on the CPU takes the falloffs exp(-s_k m_k) from NumPy between two passes;
+    # the one-kernel forward (what runs on CUDA), forced on the CPU, gives the same values to rounding.
+    import kernels.volume.spheres as spheres_module
+
+    field = SphereField.textbook(wp_t)
+    pts = np.random.default_rng(8).uniform([-2.0, -1.5, 2.5], [2.5, 1.5, 6.0], (3000, 3)).astype(np_t)
+    pts[0] = (0.0, 0.0, 4.0)  # inside a sphere: m = 0
+    two_pass = field.forward(pts)
+    monkeypatch.setattr(spheres_module, "_FUSED_ON_CPU", True)
+    one = field.forward(pts)
+    np.testing.assert_allclose(two_pass.sigma, one.sigma, rtol=tol, atol=tol)
+    np.testing.assert_allclose(two_pass.rgb, one.rgb, rtol=tol, atol=tol)
+
+
+@pytest.mark.parametrize("block", [1, 2, 299, 10 ** 9], ids=["one_value", "two_values", "uneven", "one_block"])
+def test_sphere_cpu_passes_give_the_same_values_in_any_block_size(monkeypatch, block):
+    # The CPU passes run in blocks of falloff values (bounded memory); the block size changes nothing.
+    import kernels.volume.spheres as spheres_module
+
+    field = SphereField.textbook(wp.float32)
+    rng = np.random.default_rng(9)
+    pts = rng.uniform([-2.0, -1.5, 2.5], [2.5, 1.5, 6.0], (1001, 3)).astype(np.float32)
+    o = rng.normal(0.0, 0.2, (37, 3)).astype(np.float32)
+    d = np.tile(np.array([0.0, 0.0, 1.0], np.float32), (37, 1))
+    t = np.tile(np.linspace(1.0, 6.0, 21, dtype=np.float32), (37, 1))
+    dl = np.full((37, 21), 0.25, np.float32)
+    ref_field, ref_render = field.forward(pts), field.render_dense(o, d, t, dl, t_threshold=1e-3)
+    monkeypatch.setattr(spheres_module, "_FALLOFF_BLOCK", block)
+    got_field, got_render = field.forward(pts), field.render_dense(o, d, t, dl, t_threshold=1e-3)
+    np.testing.assert_array_equal(got_field.sigma, ref_field.sigma)
+    np.testing.assert_array_equal(got_field.rgb, ref_field.rgb)
+    for a, b in zip(got_render, ref_render):
+        np.testing.assert_array_equal(a, b)

@@ -179,3 +179,26 @@ def test_sphere_render_dense_matches_reference_and_general_path(np_t, wp_t, tol,
     rgb_wp, _, _ = field.render_dense(*(wp.array(a) for a in (o, d, t, delta)), background=bg, t_threshold=thr)
     assert isinstance(rgb_wp, wp.array)
     np.testing.assert_array_equal(rgb_wp.numpy(), rgb)
+
+
+@pytest.mark.parametrize("thr", [0.0, 0.3], ids=["no_termination", "early_termination"])
+@pytest.mark.parametrize("np_t, wp_t, tol", [(np.float32, wp.float32, 2e-6), (np.float64, wp.float64, 1e-14)])
+def test_sphere_render_dense_fused_kernel_agrees_with_cpu_two_pass_path(monkeypatch, np_t, wp_t, tol, thr):
+    # The fused kernel (what runs on CUDA), forced on the CPU, against the CPU path (NumPy's exp of
+    # the sphere falloffs between two launches): the same image to the rounding of the exponentials.
+    import kernels.volume.spheres as spheres_module
+
+    rng = np.random.default_rng(6)
+    field = SphereField.textbook(wp_t)
+    n_rays, n_s = 50, 29
+    o = rng.normal(0.0, 0.2, (n_rays, 3))
+    d = rng.normal([0, 0, 1], 0.3, (n_rays, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = np.sort(rng.uniform(1.0, 6.0, (n_rays, n_s)), axis=1)
+    delta = np.diff(t, axis=1, append=t[:, -1:] + 1e-3)
+    args = [x.astype(np_t) for x in (o, d, t, delta)]
+    two_pass = field.render_dense(*args, background=(0.1, 0.2, 0.3), t_threshold=thr)
+    monkeypatch.setattr(spheres_module, "_FUSED_ON_CPU", True)
+    fused = field.render_dense(*args, background=(0.1, 0.2, 0.3), t_threshold=thr)
+    for a, b in zip(two_pass, fused):
+        np.testing.assert_allclose(a, b, rtol=tol, atol=tol)
