@@ -12,7 +12,8 @@ Between lookups the path keeps these arrays alone: s C8 (H W + sum_l H_l W_l) by
 or 2 (`stored_bytes`), in place of the volume pyramid's 4 H W sum_l H_l W_l.
 
 Dequantisation (`widen`). A lookup widens f1 and one level at a time back to the working dtype
-(float32, or float64 for float64 inputs), which is exact (every float16 is a float32), into the
+(float32, or float64 for float64 inputs), which is exact (every float16 is a float32; on the CPU by
+integer operations on the bits, `float16_to_float32`), into the
 channels-last vectors the float32 path builds in each call. Everything after that, the patch dot
 products, the BLAS products and their sums, is the float32 path's arithmetic: the float16 lookup
 equals, bit for bit, the float32 lookup of the float16-rounded features. Its difference from the
@@ -134,6 +135,29 @@ def store(maps: list[wp.array], feature_dtype: str, a: Inputs) -> list[wp.array]
     return out
 
 
+def float16_to_float32(h: np.ndarray) -> np.ndarray:
+    """Finite float16 values as float32, exactly, by integer operations on their bits.
+
+    A float16 with sign s, exponent field e (5 bits) and mantissa m (10 bits) is
+    (-1)^s 2^(e - 15) (1 + m / 2^10) (e > 0) or (-1)^s 2^-14 m / 2^10 (e = 0). Placing s at bit 31
+    and e, m at bits 27..13 (above 0 in float32's 8-bit exponent field) gives the float32
+    (-1)^s 2^(e - 127) (1 + m / 2^10), or the float32 subnormal (-1)^s 2^-126 m / 2^10: either
+    times 2^112 is the float16's value, exactly (a power-of-two scale). The bits move by one
+    shift left by 16 (s to bit 31), an arithmetic shift right by 3 (e, m to 27..13; s copied into
+    30..28) and a mask clearing 30..28. Infinities and NaN would come out finite: the stores
+    hold finite values only. Five in-place passes (0.19 ms for 2852 x 256 values against 1.2 ms
+    for NumPy's astype, which converts value by value here).
+    """
+    w = h.view(np.uint16).astype(np.uint32)
+    w <<= 16
+    v = w.view(np.int32)
+    v >>= 3
+    v &= np.int32(-0x70000001)  # 0x8fffffff
+    f = w.view(np.float32)
+    f *= np.float32(2.0 ** 112)
+    return f
+
+
 def widen(x: wp.array, a: Inputs) -> wp.array:
     """Stored rows (N, C8) as (N, C8 / 8) vectors of the working dtype (exact; float32 storage: no copy
     where the working dtype is float32)."""
@@ -142,7 +166,10 @@ def widen(x: wp.array, a: Inputs) -> wp.array:
     if x.dtype == a.scalar:
         return wp.array(ptr=x.ptr, shape=(n, c8 // VEC), dtype=vec, device=x.device)  # x outlives the call
     if a.device.is_cpu:
-        rows = x.numpy().astype(a.np_dtype).reshape(n, c8 // VEC, VEC)  # NumPy's vectorised conversion
+        if a.scalar == wp.float32:
+            rows = float16_to_float32(x.numpy()).reshape(n, c8 // VEC, VEC)
+        else:
+            rows = x.numpy().astype(a.np_dtype).reshape(n, c8 // VEC, VEC)
         return wp.array(rows, dtype=vec, device=a.device, copy=False)  # keeps `rows` alive
     out = a.empty((n, c8 // VEC), vec)
     a.launch(_widen_rows_v, out.size, [x, out])
