@@ -508,14 +508,15 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
     arithmetic stays float32) and is forward-only; "float32" (the default) uses them as given.
     """
     radius = check_radius(radius)
-    if check_feature_dtype(feature_dtype) != "float32":
-        return lookup_onthefly_features(onthefly_features(f1, f2_pyramid, feature_dtype=feature_dtype,
-                                                          device=device), coords, radius)
+    feature_dtype = check_feature_dtype(feature_dtype)
     check_list("f2_pyramid", f2_pyramid, "(C, H_l, W_l)")
     a = Inputs(device, f1, *f2_pyramid, coords)
     x1, levels, xy = _feature_pyramid(a, f1, f2_pyramid, coords)
     channels = x1.shape[0]
     inv = 1.0 / math.sqrt(channels)
+    if feature_dtype != "float32":
+        _, height, width = xy.shape
+        return _lookup_stored(_store(a, x1, levels, height, width, feature_dtype), xy, radius, a)
     out = _forward(a, _channels_last_v(x1, a), channels, xy, radius, len(levels),
                    lambda lvl: _channels_last_v(levels[lvl], a),
                    lambda lvl: levels[lvl].numpy().reshape(channels, -1) * a.np_dtype.type(inv))
@@ -534,9 +535,15 @@ def onthefly_features(f1: Array, f2_pyramid: Sequence[Array], *, feature_dtype: 
     check_levels(len(f2_pyramid), height, width)
     x2 = a.floats("f2_pyramid[0]", f2_pyramid[0], (channels, height, width))
     levels = levels_in(a, "f2_pyramid", f2_pyramid, x2, (channels,), height, width)
-    maps = [x1.reshape((channels, height * width))] + [x.reshape((channels, x.shape[1] * x.shape[2])) for x in levels]
-    rows = store(maps, feature_dtype, a)
-    return OnTheFlyFeatures(rows[0], tuple(rows[1:]), channels, height, width, feature_dtype, a.scalar)
+    flat = [x.reshape((channels, x.shape[1] * x.shape[2])) for x in levels]
+    return _store(a, x1.reshape((channels, height * width)), flat, height, width, feature_dtype)
+
+
+def _store(a: Inputs, x1: wp.array, levels: list[wp.array], height: int, width: int,
+           feature_dtype: str) -> OnTheFlyFeatures:
+    """Checked f1 (C, H W) and levels (C, H_l W_l) stored as `OnTheFlyFeatures`."""
+    rows = store([x1, *levels], feature_dtype, a)
+    return OnTheFlyFeatures(rows[0], tuple(rows[1:]), x1.shape[0], height, width, feature_dtype, a.scalar)
 
 
 def lookup_onthefly_features(features: OnTheFlyFeatures, coords: Array, radius: int) -> Array:
@@ -551,6 +558,10 @@ def lookup_onthefly_features(features: OnTheFlyFeatures, coords: Array, radius: 
     a = Inputs(features.device, coords)
     a.scalar = features.scalar  # coords must have the stored features' working dtype (checked by coords_in)
     xy = coords_in(a, coords, features.height, features.width)
+    return _lookup_stored(features, xy, radius, a)
+
+
+def _lookup_stored(features: OnTheFlyFeatures, xy: wp.array, radius: int, a: Inputs) -> Array:
     channels = features.channels
     inv = 1.0 / math.sqrt(channels)
     out = _forward(a, widen(features.f1, a), channels, xy, radius, len(features.levels),

@@ -120,15 +120,15 @@ def store(maps: list[wp.array], feature_dtype: str, a: Inputs) -> list[wp.array]
     wdt, ndt, _ = FEATURE_DTYPES[feature_dtype]
     if feature_dtype == "float32":
         wdt, ndt = a.scalar, a.np_dtype
+    hosts = [x.numpy() for x in maps]
+    if feature_dtype == "float16":  # every map checked before any is stored
+        big = max(float(np.abs(h).max(initial=0.0)) for h in hosts)
+        if big > FLOAT16_MAX:
+            raise ValueError(f"feature_dtype: float16 storage holds |values| <= {FLOAT16_MAX:g}, "
+                             f"the features reach {big:g}; use feature_dtype='float32'")
     out = []
-    for x in maps:
-        channels, n = x.shape
-        host = x.numpy()
-        if feature_dtype == "float16":
-            big = float(np.abs(host).max(initial=0.0))
-            if big > FLOAT16_MAX:
-                raise ValueError(f"feature_dtype: float16 storage holds |values| <= {FLOAT16_MAX:g}, "
-                                 f"the features reach {big:g}; use feature_dtype='float32'")
+    for host in hosts:
+        channels, n = host.shape
         rows = np.zeros((n, -(-channels // VEC) * VEC), dtype=ndt)
         rows[:, :channels] = host.T  # rounds to nearest in the storage dtype
         out.append(wp.array(rows, dtype=wdt, device=a.device))
