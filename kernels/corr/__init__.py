@@ -68,10 +68,10 @@ backward here is written by hand.
 
 from kernels.corr._common import VEC, level_shapes, vec8d, vec8f
 from kernels.corr.dense import lookup, lookup_backward
-from kernels.corr.onthefly import (full_product_level, lookup_onthefly, lookup_onthefly_backward,
-                                   lookup_onthefly_features, onthefly_bytes, onthefly_features, onthefly_held_bytes,
-                                   pool_features, pool_features_backward)
-from kernels.corr.stored import FEATURE_DTYPES, OnTheFlyFeatures, stored_bytes
+from kernels.corr._common import full_product_level
+from kernels.corr.onthefly import (lookup_onthefly, lookup_onthefly_backward, lookup_onthefly_features,
+                                   onthefly_features, pool_features, pool_features_backward)
+from kernels.corr.stored import FEATURE_DTYPES, OnTheFlyFeatures, onthefly_bytes, onthefly_held_bytes, stored_bytes
 from kernels.corr.volume import (correlation_pyramid, correlation_pyramid_backward, correlation_volume,
                                  correlation_volume_backward, dense_bytes)
 

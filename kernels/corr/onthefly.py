@@ -20,7 +20,11 @@ Memory: the path keeps f1 and the pooled f2 pyramid between lookups, C (H W +
 sum_l H_l W_l) values (`onthefly_held_bytes`), instead of the volume pyramid's
 H W sum_l H_l W_l; a forward call adds channels-last copies of f1 and of one
 level, and the patch buffer of H W (2r + 2)^2 values (`onthefly_bytes`), whose
-memory the full-product levels reuse.
+memory the full-product levels reuse (both counts in kernels.corr.stored).
+
+Stored features (`onthefly_features`, `lookup_onthefly_features`; kernels.corr.stored):
+f1 and P^l(f2) kept channels-last between lookups, in float32 or float16 (half the
+bytes held; widened exactly per call, so the arithmetic below is float32's, forward-only).
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -49,10 +53,10 @@ import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
-                                  features_in, level_shapes, levels_in, pack_rows, pixel_window, pool_levels,
-                                  pool_levels_adjoint, sample_window, sample_windows, sample_windows_adjoint)
-from kernels.corr.stored import (OnTheFlyFeatures, check_feature_dtype, refuse_backward, store, stored_bytes,
-                                 widen)
+                                  features_in, full_product_level, level_shapes, levels_in, pack_rows, pixel_window,
+                                  pool_levels, pool_levels_adjoint, sample_window, sample_windows,
+                                  sample_windows_adjoint)
+from kernels.corr.stored import OnTheFlyFeatures, check_feature_dtype, refuse_backward, store, widen
 from kernels.launch import chunk_bounds, default_threads, parallel_ranges
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -301,18 +305,6 @@ def _channels_last_v(x: wp.array, a: Inputs) -> wp.array:
     return pack_rows(x.transpose(), -(-channels // VEC), a)
 
 
-def full_product_level(height_l: int, width_l: int, radius: int, device: wp.Device) -> bool:
-    """Whether level l's taps come from the full product f1^T P^l(f2) by BLAS (CPU only).
-
-    The patch kernel forms at most (2r + 2)^2 dot products a pixel; BLAS forms all H_l W_l of
-    them, about 4x faster each (measured: 66-99 GFLOP/s for one BLAS thread against ~22 for the
-    patch kernel, 46x62 frames, C = 256). So the full product pays when H_l W_l is at most twice
-    the patch (the margin covers smaller C, where BLAS is less efficient): RAFT's two coarsest
-    levels at 1/8 resolution.
-    """
-    return device.is_cpu and height_l * width_l <= 2 * (2 * radius + 2) ** 2
-
-
 _blas_controller = None
 _BLAS_ROWS = 256  # rows of V^l per BLAS call in `_sample_full_product`
 
@@ -423,41 +415,6 @@ def pool_features_backward(grad_pyramid: Sequence[Array], *, device: str | None 
     check_levels(len(grad_pyramid), height, width)
     grads = levels_in(a, "grad_pyramid", grad_pyramid, g0, (channels,), height, width)
     return {"f2": a.out(pool_levels_adjoint(grads, a))}
-
-
-def onthefly_held_bytes(height: int, width: int, channels: int, levels: int, itemsize: int = 4, *,
-                        feature_dtype: str = "float32") -> int:
-    """Bytes the on-the-fly path keeps between lookups: f1 and the pooled f2 pyramid, (C, H_l, W_l) each
-    ("float32": the inputs themselves, `itemsize` bytes a value), or their float16 store (`stored_bytes`:
-    channels-last, padded to a multiple of 8 channels, 2 bytes a value).
-
-    The counterpart of `volume.dense_bytes` (the volume pyramid the dense path keeps instead).
-    """
-    if check_feature_dtype(feature_dtype) != "float32":
-        return stored_bytes(height, width, channels, levels, feature_dtype)
-    pixels = height * width + sum(hl * wl for hl, wl in level_shapes(height, width, levels))
-    return itemsize * channels * pixels
-
-
-def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: int, itemsize: int = 4, *,
-                   feature_dtype: str = "float32") -> int:
-    """Peak bytes of an on-the-fly forward on the CPU, its output excluded (the dense lookup's is the same).
-
-    `onthefly_held_bytes` plus the working buffers of one call: f1 channels-last (channels padded
-    to 8), one level's channels-last copy at a time (the largest level sampled through patches),
-    the patch buffer (whose memory a full-product level reuses for its blocks of V^l) and at a
-    full-product level the scaled P^l(f2). With float16 features (`lookup_onthefly_features`) the
-    working copies are the widened f1 and level, of the same sizes, in the working dtype.
-    """
-    c_pad = -(-channels // VEC) * VEC
-    n = height * width
-    patch = n * (2 * radius + 2) ** 2
-    shapes = level_shapes(height, width, levels)
-    full = [hl * wl for hl, wl in shapes if full_product_level(hl, wl, radius, wp.get_device("cpu"))]
-    patched = [hl * wl for hl, wl in shapes if not full_product_level(hl, wl, radius, wp.get_device("cpu"))]
-    work = c_pad * n + c_pad * max(patched, default=0) + patch + channels * max(full, default=0)
-    held = onthefly_held_bytes(height, width, channels, levels, itemsize, feature_dtype=feature_dtype)
-    return held + itemsize * work
 
 
 def _scaled_level(level_rows: np.ndarray, channels: int, inv: float, a: Inputs) -> np.ndarray:

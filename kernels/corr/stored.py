@@ -30,6 +30,9 @@ the kernel took 41.5 ns against 17.4 ns read as float32 (a micro-benchmark of th
 product, 2852 pixels x 100 taps, one thread, interleaved): Warp converts a vector of 8 halves
 lane by lane, which costs more than the halved bytes save. bfloat16 was slower still (58.2 ns).
 
+Byte counts (`onthefly_held_bytes`, `onthefly_bytes`, `stored_bytes`): what the on-the-fly
+path holds between lookups and at the peak of a forward call, for either storage.
+
 The float16 storage is forward-only: the lookup's backward needs gradients with respect to the
 float32 features, and the entry points refuse `feature_dtype="float16"` there.
 """
@@ -44,7 +47,7 @@ import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs
-from kernels.corr._common import VEC, VEC_OF, level_shapes
+from kernels.corr._common import VEC, VEC_OF, full_product_level, level_shapes
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -174,3 +177,38 @@ def widen(x: wp.array, a: Inputs) -> wp.array:
     out = a.empty((n, c8 // VEC), vec)
     a.launch(_widen_rows_v, out.size, [x, out])
     return out
+
+
+def onthefly_held_bytes(height: int, width: int, channels: int, levels: int, itemsize: int = 4, *,
+                        feature_dtype: str = "float32") -> int:
+    """Bytes the on-the-fly path keeps between lookups: f1 and the pooled f2 pyramid, (C, H_l, W_l) each
+    ("float32": the inputs themselves, `itemsize` bytes a value), or their float16 store (`stored_bytes`:
+    channels-last, padded to a multiple of 8 channels, 2 bytes a value).
+
+    The counterpart of `volume.dense_bytes` (the volume pyramid the dense path keeps instead).
+    """
+    if check_feature_dtype(feature_dtype) != "float32":
+        return stored_bytes(height, width, channels, levels, feature_dtype)
+    pixels = height * width + sum(hl * wl for hl, wl in level_shapes(height, width, levels))
+    return itemsize * channels * pixels
+
+
+def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: int, itemsize: int = 4, *,
+                   feature_dtype: str = "float32") -> int:
+    """Peak bytes of an on-the-fly forward on the CPU, its output excluded (the dense lookup's is the same).
+
+    `onthefly_held_bytes` plus the working buffers of one call: f1 channels-last (channels padded
+    to 8), one level's channels-last copy at a time (the largest level sampled through patches),
+    the patch buffer (whose memory a full-product level reuses for its blocks of V^l) and at a
+    full-product level the scaled P^l(f2). With float16 features (`lookup_onthefly_features`) the
+    working copies are the widened f1 and level, of the same sizes, in the working dtype.
+    """
+    c_pad = -(-channels // VEC) * VEC
+    n = height * width
+    patch = n * (2 * radius + 2) ** 2
+    shapes = level_shapes(height, width, levels)
+    full = [hl * wl for hl, wl in shapes if full_product_level(hl, wl, radius, wp.get_device("cpu"))]
+    patched = [hl * wl for hl, wl in shapes if not full_product_level(hl, wl, radius, wp.get_device("cpu"))]
+    work = c_pad * n + c_pad * max(patched, default=0) + patch + channels * max(full, default=0)
+    held = onthefly_held_bytes(height, width, channels, levels, itemsize, feature_dtype=feature_dtype)
+    return held + itemsize * work

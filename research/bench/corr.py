@@ -189,7 +189,8 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
             row.update(feature_dtype=dtype, max_abs_diff=float(np.abs(out - dense_out).max()),
                        ratio_to_dense_fwd=t[key] / t["dense"], peak_bytes=peak,
                        memory_ratio=dense_bytes / nbytes, memory_ratio_peak=dense_bytes / peak,
-                       memory_ratio_sintel=sintel_dense / held_sintel, memory_ratio_peak_sintel=sintel_dense / peak_sintel)
+                       memory_ratio_sintel=sintel_dense / held_sintel,
+                       memory_ratio_peak_sintel=sintel_dense / peak_sintel)
             if dtype != "float32":
                 diff = float(np.abs(out - otf_out).max())
                 row.update(max_abs_diff_float32=diff, rel_diff_float32=diff / float(np.abs(otf_out).max()))
