@@ -49,6 +49,8 @@ Stages, one module each (each opens with its own math, adjoints and layout):
   * `dense`: the lookup (4) in a stored pyramid, with its adjoint;
   * `onthefly`: the same lookup from f1 and the pooled features P^l(f2) without
     storing V, with its adjoint;
+  * `stored`: f1 and P^l(f2) stored for repeated on-the-fly lookups, in float32 or,
+    halving what is held, float16 (forward-only; the arithmetic stays float32);
   * `_common`: what they share: the window sampling (3)-(4) and its adjoint, the
     pooling (2) and its adjoint, vector packing and the argument checks.
 
@@ -66,8 +68,10 @@ backward here is written by hand.
 
 from kernels.corr._common import VEC, level_shapes, vec8d, vec8f
 from kernels.corr.dense import lookup, lookup_backward
-from kernels.corr.onthefly import (full_product_level, lookup_onthefly, lookup_onthefly_backward, onthefly_bytes,
-                                   onthefly_held_bytes, pool_features, pool_features_backward)
+from kernels.corr._common import full_product_level
+from kernels.corr.onthefly import (lookup_onthefly, lookup_onthefly_backward, lookup_onthefly_features,
+                                   onthefly_features, pool_features, pool_features_backward)
+from kernels.corr.stored import FEATURE_DTYPES, OnTheFlyFeatures, onthefly_bytes, onthefly_held_bytes, stored_bytes
 from kernels.corr.volume import (correlation_pyramid, correlation_pyramid_backward, correlation_volume,
                                  correlation_volume_backward, dense_bytes)
 
@@ -76,5 +80,6 @@ __all__ = [
     "correlation_volume", "correlation_volume_backward", "correlation_pyramid", "correlation_pyramid_backward",
     "dense_bytes", "lookup", "lookup_backward",
     "pool_features", "pool_features_backward", "lookup_onthefly", "lookup_onthefly_backward", "onthefly_bytes",
-    "onthefly_held_bytes", "full_product_level",
+    "onthefly_held_bytes", "full_product_level", "onthefly_features", "lookup_onthefly_features",
+    "OnTheFlyFeatures", "FEATURE_DTYPES", "stored_bytes",
 ]

@@ -20,7 +20,11 @@ Memory: the path keeps f1 and the pooled f2 pyramid between lookups, C (H W +
 sum_l H_l W_l) values (`onthefly_held_bytes`), instead of the volume pyramid's
 H W sum_l H_l W_l; a forward call adds channels-last copies of f1 and of one
 level, and the patch buffer of H W (2r + 2)^2 values (`onthefly_bytes`), whose
-memory the full-product levels reuse.
+memory the full-product levels reuse (both counts in kernels.corr.stored).
+
+Stored features (`onthefly_features`, `lookup_onthefly_features`; kernels.corr.stored):
+f1 and P^l(f2) kept channels-last between lookups, in float32 or float16 (half the
+bytes held; widened exactly per call, so the arithmetic below is float32's, forward-only).
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -42,15 +46,17 @@ from __future__ import annotations
 import math
 import typing
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
-                                  features_in, level_shapes, levels_in, pack_rows, pixel_window, pool_levels,
-                                  pool_levels_adjoint, sample_window, sample_windows, sample_windows_adjoint)
+                                  features_in, full_product_level, level_shapes, levels_in, pack_rows, pixel_window,
+                                  pool_levels, pool_levels_adjoint, sample_window, sample_windows,
+                                  sample_windows_adjoint)
+from kernels.corr.stored import OnTheFlyFeatures, check_feature_dtype, refuse_backward, store, widen
 from kernels.launch import chunk_bounds, default_threads, parallel_ranges
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -299,18 +305,6 @@ def _channels_last_v(x: wp.array, a: Inputs) -> wp.array:
     return pack_rows(x.transpose(), -(-channels // VEC), a)
 
 
-def full_product_level(height_l: int, width_l: int, radius: int, device: wp.Device) -> bool:
-    """Whether level l's taps come from the full product f1^T P^l(f2) by BLAS (CPU only).
-
-    The patch kernel forms at most (2r + 2)^2 dot products a pixel; BLAS forms all H_l W_l of
-    them, about 4x faster each (measured: 66-99 GFLOP/s for one BLAS thread against ~22 for the
-    patch kernel, 46x62 frames, C = 256). So the full product pays when H_l W_l is at most twice
-    the patch (the margin covers smaller C, where BLAS is less efficient): RAFT's two coarsest
-    levels at 1/8 resolution.
-    """
-    return device.is_cpu and height_l * width_l <= 2 * (2 * radius + 2) ** 2
-
-
 _blas_controller = None
 _BLAS_ROWS = 256  # rows of V^l per BLAS call in `_sample_full_product`
 
@@ -331,19 +325,16 @@ def _one_blas_thread() -> Any:
     return _blas_controller.limit(limits=1, user_api="blas")
 
 
-def _sample_full_product(x1_rows: np.ndarray, f2l: wp.array, xy: wp.array, out: wp.array, lvl: int,
-                         radius: int, inv: float, scratch: wp.array, a: Inputs) -> None:
+def _sample_full_product(x1_rows: np.ndarray, f2s: np.ndarray, height_l: int, width_l: int, xy: wp.array,
+                         out: wp.array, lvl: int, radius: int, scratch: wp.array, a: Inputs) -> None:
     """Level `lvl` of (4) from V^l = f1^T P^l(f2) / sqrt(C), formed by BLAS for blocks of pixels.
 
-    x1_rows: f1 channels-last (N, C) on the host; f2l: P^l(f2) as (C, H_l, W_l). Each block of B
-    pixels gets its rows of V^l ((B, H_l W_l), in the memory of `scratch`, the patch buffer, so
-    B H_l W_l <= its size) and is sampled like a dense level. The scale goes on the small operand
-    first, as in `volume._gemm_blas` (exact when sqrt(C) is a power of two).
+    x1_rows: f1 channels-last (N, C) on the host; f2s: P^l(f2) / sqrt(C) as (C, H_l W_l), C-ordered
+    (`_scaled_level`). Each block of B pixels gets its rows of V^l ((B, H_l W_l), in the memory of
+    `scratch`, the patch buffer, so B H_l W_l <= its size) and is sampled like a dense level.
     """
-    _, height_l, width_l = f2l.shape
     n = x1_rows.shape[0]
     taps = height_l * width_l
-    f2s = f2l.numpy().reshape(-1, taps) * a.np_dtype.type(inv)
     block = max(1, min(n, scratch.size // taps))
     flat = scratch.numpy().reshape(-1)[:block * taps].reshape(block, taps)
     buf = wp.array(flat.reshape(block, height_l, width_l), dtype=a.scalar, device=a.device, copy=False)
@@ -426,55 +417,33 @@ def pool_features_backward(grad_pyramid: Sequence[Array], *, device: str | None 
     return {"f2": a.out(pool_levels_adjoint(grads, a))}
 
 
-def onthefly_held_bytes(height: int, width: int, channels: int, levels: int, itemsize: int = 4) -> int:
-    """Bytes the on-the-fly path keeps between lookups: f1 and the pooled f2 pyramid, (C, H_l, W_l) each.
-
-    The counterpart of `volume.dense_bytes` (the volume pyramid the dense path keeps instead).
-    """
-    pixels = height * width + sum(hl * wl for hl, wl in level_shapes(height, width, levels))
-    return itemsize * channels * pixels
-
-
-def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: int, itemsize: int = 4) -> int:
-    """Peak bytes of an on-the-fly forward on the CPU, its output excluded (the dense lookup's is the same).
-
-    `onthefly_held_bytes` plus the working buffers of one call: f1 channels-last (channels padded
-    to 8), one level's channels-last copy at a time (the largest level sampled through patches),
-    the patch buffer (whose memory a full-product level reuses for its blocks of V^l) and at a
-    full-product level the scaled P^l(f2).
-    """
-    c_pad = -(-channels // VEC) * VEC
-    n = height * width
-    patch = n * (2 * radius + 2) ** 2
-    shapes = level_shapes(height, width, levels)
-    full = [hl * wl for hl, wl in shapes if full_product_level(hl, wl, radius, wp.get_device("cpu"))]
-    patched = [hl * wl for hl, wl in shapes if not full_product_level(hl, wl, radius, wp.get_device("cpu"))]
-    work = c_pad * n + c_pad * max(patched, default=0) + patch + channels * max(full, default=0)
-    return onthefly_held_bytes(height, width, channels, levels, itemsize) + itemsize * work
+def _scaled_level(level_rows: np.ndarray, channels: int, inv: float, a: Inputs) -> np.ndarray:
+    """P^l(f2) / sqrt(C) as a C-ordered (C, H_l W_l) array from its channels-last rows (N_l, >= C).
+    The scale goes on the small operand first, as in `volume._gemm_blas` (exact when sqrt(C) is a
+    power of two)."""
+    f2s = np.empty((channels, level_rows.shape[0]), dtype=a.np_dtype)
+    f2s[...] = level_rows[:, :channels].T
+    f2s *= a.np_dtype.type(inv)
+    return f2s
 
 
-def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radius: int, *,
-                    device: str | None = None) -> Array:
-    """Equation (4) computed from f1 and pooled f2 (`pool_features`) without the volume."""
-    radius = check_radius(radius)
-    check_list("f2_pyramid", f2_pyramid, "(C, H_l, W_l)")
-    a = Inputs(device, f1, *f2_pyramid, coords)
-    x1, levels, xy = _feature_pyramid(a, f1, f2_pyramid, coords)
-    channels, n = x1.shape
+def _forward(a: Inputs, f1_v: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
+             level_v: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray]) -> wp.array:
+    """Equation (4) from f1 channels-last vectors (N, C8 / 8), one level at a time: `level_v(l)` gives
+    P^l(f2) channels-last (N_l, C8 / 8), `level_scaled(l)` P^l(f2) / sqrt(C) as (C, N_l) on the host."""
+    n = f1_v.shape[0]
     _, height, width = xy.shape
     side = 2 * radius + 1
-    f1_v = _channels_last_v(x1, a)
     inv = a.s(1.0 / math.sqrt(channels))
-    out = a.empty((len(levels) * side * side, height, width))  # every element is written
+    out = a.empty((n_levels * side * side, height, width))  # every element is written
     # Every tap is written by _patch_level; a full-product level reuses the memory for its blocks.
     patch = a.empty((n, side + 1, side + 1))
-    for lvl, (hl, wl) in enumerate(level_shapes(height, width, len(levels))):
+    for lvl, (hl, wl) in enumerate(level_shapes(height, width, n_levels)):
         if full_product_level(hl, wl, radius, a.device) and channels % VEC == 0:
             x1_rows = f1_v.numpy().reshape(n, channels)  # f1 channels-last: the vectors' own memory
-            _sample_full_product(x1_rows, levels[lvl].reshape((channels, hl, wl)), xy, out, lvl, radius,
-                                 1.0 / math.sqrt(channels), patch, a)
+            _sample_full_product(x1_rows, level_scaled(lvl), hl, wl, xy, out, lvl, radius, patch, a)
             continue
-        f2l_v = _channels_last_v(levels[lvl], a)
+        f2l_v = level_v(lvl)
         scale = a.s(0.5 ** lvl)
         if a.device.is_cpu:
             # One launch: each pixel's window sampled while its patch is in cache (8% less time than two
@@ -485,13 +454,86 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
             a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
             a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1, 0])
         del f2l_v  # one level's copy at a time (`onthefly_bytes`)
+    return out
+
+
+def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radius: int, *,
+                    feature_dtype: str = "float32", device: str | None = None) -> Array:
+    """Equation (4) computed from f1 and pooled f2 (`pool_features`) without the volume.
+
+    `feature_dtype="float16"` rounds the features to float16 first (`onthefly_features`; the
+    arithmetic stays float32) and is forward-only; "float32" (the default) uses them as given.
+    """
+    radius = check_radius(radius)
+    feature_dtype = check_feature_dtype(feature_dtype)
+    check_list("f2_pyramid", f2_pyramid, "(C, H_l, W_l)")
+    a = Inputs(device, f1, *f2_pyramid, coords)
+    x1, levels, xy = _feature_pyramid(a, f1, f2_pyramid, coords)
+    channels = x1.shape[0]
+    inv = 1.0 / math.sqrt(channels)
+    if feature_dtype != "float32":
+        _, height, width = xy.shape
+        return _lookup_stored(_store(a, x1, levels, height, width, feature_dtype), xy, radius, a)
+    out = _forward(a, _channels_last_v(x1, a), channels, xy, radius, len(levels),
+                   lambda lvl: _channels_last_v(levels[lvl], a),
+                   lambda lvl: levels[lvl].numpy().reshape(channels, -1) * a.np_dtype.type(inv))
+    return a.out(out)
+
+
+def onthefly_features(f1: Array, f2_pyramid: Sequence[Array], *, feature_dtype: str = "float16",
+                      device: str | None = None) -> OnTheFlyFeatures:
+    """f1 and the pooled f2 levels stored for repeated lookups (kernels.corr.stored), in
+    `feature_dtype` ("float16": rounded to nearest, |values| <= 65504; "float32": as given)."""
+    feature_dtype = check_feature_dtype(feature_dtype)
+    check_list("f2_pyramid", f2_pyramid, "(C, H_l, W_l)")
+    a = Inputs(device, f1, *f2_pyramid)
+    x1 = features_in(a, "f1", f1)
+    channels, height, width = x1.shape
+    check_levels(len(f2_pyramid), height, width)
+    x2 = a.floats("f2_pyramid[0]", f2_pyramid[0], (channels, height, width))
+    levels = levels_in(a, "f2_pyramid", f2_pyramid, x2, (channels,), height, width)
+    flat = [x.reshape((channels, x.shape[1] * x.shape[2])) for x in levels]
+    return _store(a, x1.reshape((channels, height * width)), flat, height, width, feature_dtype)
+
+
+def _store(a: Inputs, x1: wp.array, levels: list[wp.array], height: int, width: int,
+           feature_dtype: str) -> OnTheFlyFeatures:
+    """Checked f1 (C, H W) and levels (C, H_l W_l) stored as `OnTheFlyFeatures`."""
+    rows = store([x1, *levels], feature_dtype, a)
+    return OnTheFlyFeatures(rows[0], tuple(rows[1:]), x1.shape[0], height, width, feature_dtype, a.scalar)
+
+
+def lookup_onthefly_features(features: OnTheFlyFeatures, coords: Array, radius: int) -> Array:
+    """Equation (4) from stored features (`onthefly_features`), on their device, in coords' kind.
+
+    Each call widens f1 and one level at a time to the working dtype (exact), then computes as
+    `lookup_onthefly`: the float16 result equals the float32 lookup of the float16-rounded features.
+    """
+    if not isinstance(features, OnTheFlyFeatures):
+        raise ValueError(f"features: expected the OnTheFlyFeatures of onthefly_features, got {type(features).__name__}")
+    radius = check_radius(radius)
+    a = Inputs(features.device, coords)
+    a.scalar = features.scalar  # coords must have the stored features' working dtype (checked by coords_in)
+    xy = coords_in(a, coords, features.height, features.width)
+    return _lookup_stored(features, xy, radius, a)
+
+
+def _lookup_stored(features: OnTheFlyFeatures, xy: wp.array, radius: int, a: Inputs) -> Array:
+    channels = features.channels
+    inv = 1.0 / math.sqrt(channels)
+    out = _forward(a, widen(features.f1, a), channels, xy, radius, len(features.levels),
+                   lambda lvl: widen(features.levels[lvl], a),
+                   lambda lvl: _scaled_level(features.levels[lvl].numpy(), channels, inv, a))
     return a.out(out)
 
 
 def lookup_onthefly_backward(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radius: int, grad_out: Array,
-                             *, device: str | None = None) -> dict[str, Array | list[Array]]:
+                             *, feature_dtype: str = "float32",
+                             device: str | None = None) -> dict[str, Array | list[Array]]:
     """Adjoint of `lookup_onthefly`. Returns a dict {"f1": d f1 (C, H, W), "f2_pyramid": [d P^l(f2)
-    (C, H_l, W_l) for every level], "coords": d coords (2, H, W)}, in f1's kind."""
+    (C, H_l, W_l) for every level], "coords": d coords (2, H, W)}, in f1's kind. Float32 features
+    only: `feature_dtype="float16"` (forward-only) raises ValueError."""
+    refuse_backward(feature_dtype)
     radius = check_radius(radius)
     check_list("f2_pyramid", f2_pyramid, "(C, H_l, W_l)")
     a = Inputs(device, f1, *f2_pyramid, coords, grad_out)

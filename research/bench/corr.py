@@ -10,13 +10,19 @@ coordinates within +-8 px of each pixel's centre.
 * `corr.lookup_onthefly`: `fwd_s` and `fwd_bwd_s` of the on-the-fly lookup (the
   backward reaching f1, every pooled f2 level and the coordinates); `max_abs_diff`, its
   largest deviation from the dense lookup; `ratio_to_dense_fwd`, its forward time over the
-  dense lookup's (timed interleaved with it).
+  dense lookup's (timed interleaved with it); `feature_dtype` "float32";
+* `corr.lookup_onthefly_float16`: the same lookup from features stored in float16
+  (`corr.onthefly_features`, stored once; `corr.lookup_onthefly_features` timed, which widens
+  them per call; forward only, so no `fwd_bwd_s`), timed in the same interleaved call;
+  `max_abs_diff` from the dense lookup, `max_abs_diff_float32` from the float32 on-the-fly
+  lookup and `rel_diff_float32`, that over the largest |output| (the correlation's scale).
 
 Memory, from the arrays' nbytes computed from their shapes (Warp's allocations are invisible to
 tracemalloc), outputs excluded on both sides (the two lookups return the same array):
   * dense `bytes`: the volume pyramid, kept between lookups (`corr.dense_bytes`);
   * on-the-fly `bytes`: what it keeps between lookups instead, f1 and the pooled f2 pyramid
-    (`corr.onthefly_held_bytes`), and `memory_ratio` = dense bytes / that;
+    (`corr.onthefly_held_bytes`; in float16, their store, `corr.stored_bytes`), and
+    `memory_ratio` = dense bytes / that;
   * on-the-fly `peak_bytes`: that plus the working buffers of one forward call (channels-last
     copies, the patch buffer; `corr.onthefly_bytes`), and `memory_ratio_peak` = dense bytes / that;
   * `peak_mb`: each row's largest figure in MiB.
@@ -147,12 +153,14 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
 
     f2_pyramid = corr.pool_features(f2, levels)
     otf_fwd = lambda: corr.lookup_onthefly(f1, f2_pyramid, coords, radius)  # noqa: E731
+    features16 = corr.onthefly_features(f1, f2_pyramid, feature_dtype="float16")
+    otf16_fwd = lambda: corr.lookup_onthefly_features(features16, coords, radius)  # noqa: E731
 
     def otf_fwd_bwd() -> None:
         corr.lookup_onthefly(f1, f2_pyramid, coords, radius)
         corr.lookup_onthefly_backward(f1, f2_pyramid, coords, radius, grad_out)
 
-    fns = {"dense": dense_fwd, "otf": otf_fwd}
+    fns = {"dense": dense_fwd, "otf": otf_fwd, "otf16": otf16_fwd}
     ref_row: dict[str, Any] = {}
     if ref is not None:
         t_pyramid = ref[0]()
@@ -162,20 +170,30 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
     t = time_medians(fns, repeats=repeats, sync=sync)
     t_bwd = time_medians({"dense": dense_fwd_bwd, "otf": otf_fwd_bwd}, repeats=repeats, sync=sync)
     channels = sizes["channels"]
-    held = corr.onthefly_held_bytes(height, width, channels, levels)
-    peak = corr.onthefly_bytes(height, width, channels, levels, radius)
-    for name, key, nbytes, peak_bytes in (("corr.lookup", "dense", dense_bytes, dense_bytes),
-                                          ("corr.lookup_onthefly", "otf", held, peak)):
-        row = {"bench": name, **head, "fwd_s": t[key], "fwd_bwd_s": t_bwd[key], "bytes": nbytes,
-               "peak_mb": peak_bytes / 2 ** 20, **missing}
-        if key == "otf":
-            sintel_dense = corr.dense_bytes(*SINTEL_FEATURES, levels)
-            row.update(max_abs_diff=float(np.abs(otf_fwd().numpy() - dense_fwd().numpy()).max()),
-                       ratio_to_dense_fwd=t["otf"] / t["dense"], peak_bytes=peak,
-                       memory_ratio=dense_bytes / held, memory_ratio_peak=dense_bytes / peak,
-                       memory_ratio_sintel=sintel_dense / corr.onthefly_held_bytes(*SINTEL_FEATURES, channels, levels),
-                       memory_ratio_peak_sintel=sintel_dense
-                       / corr.onthefly_bytes(*SINTEL_FEATURES, channels, levels, radius))
+    sintel_dense = corr.dense_bytes(*SINTEL_FEATURES, levels)
+    dense_out = dense_fwd().numpy()
+    otf_out = otf_fwd().numpy()
+    for name, key, dtype in (("corr.lookup", "dense", None), ("corr.lookup_onthefly", "otf", "float32"),
+                             ("corr.lookup_onthefly_float16", "otf16", "float16")):
+        if dtype is None:
+            nbytes = peak = dense_bytes
+        else:
+            nbytes = corr.onthefly_held_bytes(height, width, channels, levels, feature_dtype=dtype)
+            peak = corr.onthefly_bytes(height, width, channels, levels, radius, feature_dtype=dtype)
+        bwd = {"fwd_bwd_s": t_bwd[key]} if key in t_bwd else {}  # the float16 path is forward-only
+        row = {"bench": name, **head, "fwd_s": t[key], **bwd, "bytes": nbytes, "peak_mb": peak / 2 ** 20, **missing}
+        if dtype is not None:
+            out = otf_out if dtype == "float32" else otf16_fwd().numpy()
+            held_sintel = corr.onthefly_held_bytes(*SINTEL_FEATURES, channels, levels, feature_dtype=dtype)
+            peak_sintel = corr.onthefly_bytes(*SINTEL_FEATURES, channels, levels, radius, feature_dtype=dtype)
+            row.update(feature_dtype=dtype, max_abs_diff=float(np.abs(out - dense_out).max()),
+                       ratio_to_dense_fwd=t[key] / t["dense"], peak_bytes=peak,
+                       memory_ratio=dense_bytes / nbytes, memory_ratio_peak=dense_bytes / peak,
+                       memory_ratio_sintel=sintel_dense / held_sintel,
+                       memory_ratio_peak_sintel=sintel_dense / peak_sintel)
+            if dtype != "float32":
+                diff = float(np.abs(out - otf_out).max())
+                row.update(max_abs_diff_float32=diff, rel_diff_float32=diff / float(np.abs(otf_out).max()))
         if ref is not None:
             row.update(ref_row, ref_fwd_s=t["ref"], speedup_fwd=t["ref"] / t[key])
         yield row

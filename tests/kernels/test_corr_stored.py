@@ -1,0 +1,117 @@
+"""kernels.corr.stored: on-the-fly lookups from features stored in float16 (forward-only) or float32."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from kernels import corr
+from kernels._arrays import Inputs
+from kernels.corr import stored
+from kernels.reference import corr as ref
+
+# (C, H, W, levels, radius): C a multiple of 8 and not (padded channels), levels through patches
+# and (on the CPU) through the full product (H_l W_l <= 2 (2r + 2)^2).
+CASES = [(16, 12, 16, 3, 2), (12, 9, 11, 2, 1), (24, 20, 22, 4, 1)]
+
+
+def case(rng: np.random.Generator, c: int, h: int, w: int, levels: int, scale: float = 1.0, relu: bool = False):
+    f1 = rng.standard_normal((c, h, w)) * scale
+    f2 = rng.standard_normal((c, h, w)) * scale
+    if relu:  # feature-network-like: non-negative, with a common offset (dot products far from 0)
+        f1, f2 = np.maximum(f1 + 0.5 * scale, 0), np.maximum(f2 + 0.5 * scale, 0)
+    f1, f2 = f1.astype(np.float32), f2.astype(np.float32)
+    coords = np.stack([rng.uniform(-4, w + 4, (h, w)), rng.uniform(-4, h + 4, (h, w))]).astype(np.float32)
+    return f1, corr.pool_features(f2, levels), coords
+
+
+def rounded(x: np.ndarray) -> np.ndarray:
+    return x.astype(np.float16).astype(np.float32)
+
+
+@pytest.mark.parametrize("shape", CASES, ids=lambda s: "x".join(map(str, s)))
+def test_float16_is_float32_lookup_of_rounded_features(shape):
+    # The float16 path widens exactly and then runs the float32 arithmetic: equal bit for bit.
+    c, h, w, levels, radius = shape
+    f1, f2_pyramid, coords = case(np.random.default_rng(3), c, h, w, levels)
+    got = corr.lookup_onthefly(f1, f2_pyramid, coords, radius, feature_dtype="float16")
+    want = corr.lookup_onthefly(rounded(f1), [rounded(p) for p in f2_pyramid], coords, radius)
+    assert got.dtype == np.float32 and got.shape == want.shape
+    np.testing.assert_array_equal(got, want)
+    # and against the plain NumPy reference (float64) built from the rounded features
+    # (1) at level l with the rounded pooled features: V^l[p, q] = f1~[:, p] . P^l(f2)~[:, q] / sqrt(C)
+    volumes = [np.einsum("chw,cij->hwij", rounded(f1).astype(np.float64), rounded(p).astype(np.float64)) / np.sqrt(c)
+               for p in f2_pyramid]
+    np.testing.assert_allclose(got, ref.lookup(volumes, coords.astype(np.float64), radius), rtol=1e-5, atol=2e-5)
+
+
+@pytest.mark.parametrize("shape", CASES, ids=lambda s: "x".join(map(str, s)))
+def test_float32_store_is_bit_identical_to_lookup_onthefly(shape):
+    c, h, w, levels, radius = shape
+    f1, f2_pyramid, coords = case(np.random.default_rng(4), c, h, w, levels)
+    features = corr.onthefly_features(f1, f2_pyramid, feature_dtype="float32")
+    want = corr.lookup_onthefly(f1, f2_pyramid, coords, radius)
+    np.testing.assert_array_equal(corr.lookup_onthefly_features(features, coords, radius), want)
+    np.testing.assert_array_equal(corr.lookup_onthefly(f1, f2_pyramid, coords, radius, feature_dtype="float32"), want)
+
+
+@pytest.mark.parametrize("kind", ["normal", "relu_features", "large"])
+def test_float16_error_within_rounding_bound(kind):
+    # Rounding each feature to float16 (relative error <= 2^-11) moves a tap by at most
+    # (2^-10 + 2^-22) sum_c |f1_c f2_c| / sqrt(C); a sample is a convex combination of taps. The
+    # bound below uses max_p |f1_p| max_q |f2_q| / sqrt(C) (Cauchy-Schwarz) and adds float32's
+    # own rounding of both lookups (C products each, 2^-24 relative): a bound, not a tuned tolerance.
+    c, h, w, levels, radius = 64, 16, 20, 3, 2
+    scale = 300.0 if kind == "large" else 1.0
+    f1, f2_pyramid, coords = case(np.random.default_rng(5), c, h, w, levels, scale, relu=kind == "relu_features")
+    got = corr.lookup_onthefly(f1, f2_pyramid, coords, radius, feature_dtype="float16")
+    want = corr.lookup_onthefly(f1, f2_pyramid, coords, radius)
+    n1 = np.linalg.norm(f1.reshape(c, -1), axis=0).max()
+    n2 = max(np.linalg.norm(p.reshape(c, -1), axis=0).max() for p in f2_pyramid)
+    bound = (2.0 ** -10 + 2.0 ** -22 + 2 * c * 2.0 ** -24) * n1 * n2 / np.sqrt(c)
+    err = np.abs(got - want).max()
+    assert 0 < err <= bound
+    assert err <= 2e-3 * np.abs(want).max()  # relative to the correlation's scale, as documented
+
+
+def test_float16_to_float32_exact_for_every_finite_half():
+    bits = np.arange(2 ** 16, dtype=np.uint32).astype(np.uint16)
+    halves = bits.view(np.float16)
+    finite = halves[np.isfinite(halves)]
+    got = stored.float16_to_float32(finite)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got.view(np.uint32), finite.astype(np.float32).view(np.uint32))
+
+
+def test_widen_kernel_matches_host_conversion():
+    # The device path (`_widen_rows_v`, used off the CPU) run on the CPU against the host conversion.
+    rng = np.random.default_rng(6)
+    rows = (rng.standard_normal((7, 16)) * np.exp(rng.uniform(-12, 9, (7, 16)))).clip(-65504, 65504)
+    x = wp.array(rows.astype(np.float16), dtype=wp.float16, device="cpu")
+    a = Inputs("cpu")
+    a.scalar = wp.float32
+    out = a.empty((7, 2), corr.vec8f)
+    wp.launch(stored._widen_rows_v, dim=out.size, inputs=[x, out, 0], device="cpu")
+    want = stored.float16_to_float32(rows.astype(np.float16))
+    np.testing.assert_array_equal(out.numpy().reshape(7, 16), want)
+
+
+@pytest.mark.parametrize("c", [256, 12])
+def test_held_bytes_exact(c):
+    h, w, levels, radius = 46, 62, 4, 4
+    c8 = -(-c // 8) * 8
+    pixels = h * w + sum(hl * wl for hl, wl in corr.level_shapes(h, w, levels))
+    assert corr.stored_bytes(h, w, c, levels) == 2 * c8 * pixels
+    assert corr.onthefly_held_bytes(h, w, c, levels, feature_dtype="float16") == 2 * c8 * pixels
+    assert corr.stored_bytes(h, w, c, levels, "float32") == 4 * c8 * pixels
+    # the working buffers of a call are those of the float32 path
+    work32 = corr.onthefly_bytes(h, w, c, levels, radius) - corr.onthefly_held_bytes(h, w, c, levels)
+    assert corr.onthefly_bytes(h, w, c, levels, radius, feature_dtype="float16") == 2 * c8 * pixels + work32
+    rng = np.random.default_rng(7)
+    f1 = rng.standard_normal((c, h, w)).astype(np.float32)
+    pyramid = corr.pool_features(rng.standard_normal((c, h, w)).astype(np.float32), levels)
+    features = corr.onthefly_features(f1, pyramid)
+    assert features.feature_dtype == "float16" and features.nbytes == 2 * c8 * pixels
+    if c == 256:  # RAFT's size: the volume pyramid against the float16 store
+        assert corr.dense_bytes(h, w, levels) / features.nbytes > 12.6
