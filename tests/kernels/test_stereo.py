@@ -448,6 +448,49 @@ def test_adcensus_matches_reference(dtype, seed, drange, channels, bt_weight):
     np.testing.assert_allclose(got, ref.adcensus_cost(L, R, *drange, grey=grey, **kw), rtol=RTOL[dtype], atol=1e-6)
 
 
+def _rho_sum(terms, dtype):
+    """sum of w (1 - exp(-c / lambda)) over (volume, lambda, w), in `dtype`, terms added in order."""
+    total = None
+    for c, lam, w in terms:
+        t = dtype(w) * (dtype(1.0) - np.exp(-np.asarray(c, dtype) * dtype(1.0 / lam)))
+        total = t if total is None else total + t
+    return total
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("channels,drange,radius,bt_weight", [(0, (0, 16), 2, 0.3), (3, (-3, 9), 1, 0.0),
+                                                              (3, (2, 19), 3, 1.0)])
+def test_adcensus_fused_equals_its_terms_composed(dtype, channels, drange, radius, bt_weight):
+    """The one fused launch gives the volume of composing census_cost, bt_cost on the clipped gradient and on the
+    intensity, and the rho sums, on rows spanning several of the fused kernel's bands. Tolerance: NumPy's exp and
+    Warp's may differ in the last bit, which 1 - exp(-c / lambda) turns into an absolute difference of about one
+    ulp of 1 (6e-8 in float32), large relative to small costs; so an absolute bound of a few ulps of 1."""
+    rng = np.random.default_rng(11)
+    shape = (41, 23, channels) if channels else (41, 23)
+    L = rng.uniform(0.0, 1.0, shape).astype(dtype)
+    R = np.clip(np.roll(L, -3, axis=1) + 0.05 * rng.standard_normal(shape), 0, 1).astype(dtype)
+    grey = (L.mean(axis=2), R.mean(axis=2)) if channels else (L, R)
+    got = stereo.adcensus_cost(L, R, *drange, grey=grey if channels else None, radius=radius, bt_weight=bt_weight)
+    terms = [(stereo.census_cost(*grey, *drange, 3, 4), 30.0, 1.0),
+             (stereo.bt_cost(stereo.sobel_x_clipped(L), stereo.sobel_x_clipped(R), *drange, radius), 0.04, 1.0)]
+    if bt_weight:
+        terms.append((stereo.bt_cost(L, R, *drange, radius), 0.04, bt_weight))
+    np.testing.assert_allclose(got, _rho_sum(terms, dtype), rtol=0, atol=5e-7 if dtype == np.float32 else 1e-15)
+
+
+@pytest.mark.parametrize("bt_weight", [0.0, 0.3])
+def test_adcensus_compact_is_the_rounded_float_cost(bt_weight):
+    L, R = (x.astype(np.float32) for x in _images(6, shape=(12, 20)))
+    q = stereo.compact_levels(bt_weight)
+    assert q * (2 + bt_weight) <= 255 < (q + 1) * (2 + bt_weight)
+    full = stereo.adcensus_cost(L, R, 0, 8, bt_weight=bt_weight)
+    got = stereo.adcensus_cost(L, R, 0, 8, bt_weight=bt_weight, levels=q)
+    assert got.dtype == np.uint8
+    expected = np.floor(full * np.float32(q) + np.float32(0.5))
+    np.testing.assert_array_equal(got, expected.astype(np.uint8))
+    assert np.abs(got / q - full).max() <= 0.5 / q + 1e-6
+
+
 def test_adcensus_is_unchanged_by_an_intensity_offset_where_no_clip_binds():
     """Census and the x-gradient do not see a constant offset (nor does the clip, away from 0 and 1)."""
     L, R = _images(4, shape=(10, 16))
