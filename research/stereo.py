@@ -62,9 +62,10 @@ bits, or float), because every image is first normalised to [0, 1]:
 StereoConfig's field defaults (P1 = 8, P2 = 64) are census units.
 
 Memory: every configuration holds float32 volumes (`peak_volume_bytes`: the cost and SGM's
-aggregate, 8 bytes per cell), except census + SGM + winner-take-all with integer penalties once
-those would exceed FLOAT_VOLUME_BUDGET (1 GiB): that runs in compact mode (`uses_compact`: uint8
-costs, a uint16 aggregate, 3 bytes per cell, the same results).
+aggregate, 8 bytes per cell), except census + SGM + winner-take-all with integer penalties and
+adcensus + SGM + winner-take-all once those would exceed FLOAT_VOLUME_BUDGET (1 GiB): they run in
+compact mode (`uses_compact`: uint8 costs, a uint16 aggregate, 3 bytes per cell; census gives the same
+results, adcensus quantises its cost to steps of 1 / 110 and its penalties to that step).
 
 Benchmark protocols (Middlebury, KITTI, ETH3D; `protocol_metrics`, `pool_protocol`) are described
 at the end of this module.
@@ -79,7 +80,7 @@ estimated itself.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -132,6 +133,7 @@ class StereoConfig:
     lambda_grad: float = 0.04  # adcensus: units of the clipped gradient image G in [0, 1]
     bt_weight: float = 0.0  # adcensus: weight of the intensity BT term (0: none)
     lambda_bt: float = 0.04  # adcensus: [0, 1] intensity units
+    census_eps: float = 0.0  # adcensus: census tolerance, bit [I(q) < I(p) - eps], [0, 1] intensity units
     border_invalid: bool = False
     median: int = 0  # 0: none; else an odd size >= 3
 
@@ -141,7 +143,7 @@ class StereoConfig:
             if value not in allowed:
                 raise ValueError(f"{name}: expected one of {allowed}, got {value!r}")
         for name in ("p1", "p2", "zncc_eps", "temperature", "uniqueness", "lr_max_diff", "grad_cap", "lambda_census",
-                     "lambda_grad", "bt_weight", "lambda_bt"):
+                     "lambda_grad", "bt_weight", "lambda_bt", "census_eps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name}: expected a finite number >= 0, got {value!r}")
@@ -204,10 +206,12 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
         colour = unit_pair(left, right)
         grey = tuple(wp.array(x, device=device) for x in unit_grey_pair(left, right))
         l_img, r_img = (wp.array(x, device=device) for x in colour)
+        levels = stereo.compact_levels(cfg.bt_weight) if uses_compact(cfg, *grey[0].shape, dmax - dmin) else 0
         return stereo.adcensus_cost(l_img, r_img, dmin, dmax, grey=grey if colour[0].ndim == 3 else None,
                                     census_radii=cfg.census_radii, radius=cfg.radius, grad_cap=cfg.grad_cap,
                                     lambda_census=cfg.lambda_census, lambda_grad=cfg.lambda_grad,
-                                    bt_weight=cfg.bt_weight, lambda_bt=cfg.lambda_bt, device=device)
+                                    bt_weight=cfg.bt_weight, lambda_bt=cfg.lambda_bt, census_eps=cfg.census_eps,
+                                    levels=levels, device=device)
     left, right = unit_grey_pair(left, right)
     _check_range_args(dmin, dmax)
     if cfg.cost == "corr":
@@ -227,31 +231,47 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
 FLOAT_VOLUME_BUDGET = 2**30
 
 
+def compact_penalties(cfg: StereoConfig) -> tuple[int, int]:
+    """P1, P2 of an "adcensus" configuration in units of its compact cost (kernels.stereo.adcensus: the uint8
+    round(C q), q = compact_levels(bt_weight)): round(P q). DEFAULT_CONFIG: q = 110, 0.8 -> 88, 6.4 -> 704."""
+    q = stereo.compact_levels(cfg.bt_weight)
+    return int(round(cfg.p1 * q)), int(round(cfg.p2 * q))
+
+
 def uses_compact(cfg: StereoConfig, height: int, width: int, disparities: int) -> bool:
-    """Whether `match` runs `cfg` in kernels.stereo's compact mode: uint8 census costs and a uint16 SGM
-    aggregate (3 bytes per cell instead of float32's 8), whose results equal the float32 pipeline's
-    exactly. It applies to census + SGM + winner-take-all with integer P1 and P2, D a multiple of 8 and
-    paths x (census bits + P2) within uint16, when the float32 volumes would exceed FLOAT_VOLUME_BUDGET
-    (1 GiB): compact SGM converts every vector to float32 and back, which made it 1.8x slower than
-    float32 SGM at 256x256x64 (70 against 39 ms of CPU time, one thread), so it is kept for sizes
-    where memory, not time, is what runs out (Middlebury at half resolution, 1482x994x256: 3.0 GB of
-    float32 volumes, 1.1 GB compact)."""
-    if cfg.cost != "census" or cfg.aggregation == "none" or cfg.disparity != "wta" or disparities % 8:
+    """Whether `match` runs `cfg` in kernels.stereo's compact mode: uint8 costs and a uint16 SGM aggregate
+    (3 bytes per cell instead of float32's 8). It applies, when the float32 volumes would exceed
+    FLOAT_VOLUME_BUDGET (1 GiB), to SGM + winner-take-all with D a multiple of 8 and paths x (max cost + P2)
+    within uint16, and
+      * census with integer P1 and P2: the same results as the float32 pipeline, exactly;
+      * "adcensus": its cost quantised to uint8 with step 1 / q (q = compact_levels(bt_weight), 110 for
+        DEFAULT_CONFIG: at most 0.0045 off, against terms in [0, 1)) and P1, P2 rounded to that step
+        (`compact_penalties`); not bit-identical, D1 unchanged within noise (docs/performance.md).
+    Compact SGM converts every vector to float32 and back, which made it 1.8x slower than float32 SGM at
+    256x256x64 (70 against 39 ms of CPU time, one thread), so it is kept for sizes where memory, not time,
+    is what runs out (Middlebury at half resolution, 1482x994x256: 3.0 GB of float32 volumes, 1.1 GB
+    compact)."""
+    if cfg.cost not in ("census", "adcensus") or cfg.aggregation == "none" or cfg.disparity != "wta" or \
+            disparities % 8:
         return False
-    if cfg.p1 != int(cfg.p1) or cfg.p2 != int(cfg.p2):
-        return False
-    bits = (2 * cfg.census_radii[0] + 1) * (2 * cfg.census_radii[1] + 1) - 1
-    if int(cfg.aggregation[3:]) * (bits + int(cfg.p2)) > 65535:
+    if cfg.cost == "adcensus":
+        max_cost, p2 = 255, compact_penalties(cfg)[1]
+    else:
+        if cfg.p1 != int(cfg.p1) or cfg.p2 != int(cfg.p2):
+            return False
+        max_cost, p2 = (2 * cfg.census_radii[0] + 1) * (2 * cfg.census_radii[1] + 1) - 1, int(cfg.p2)
+    if int(cfg.aggregation[3:]) * (max_cost + p2) > 65535:
         return False
     return 8 * int(height) * int(width) * int(disparities) > FLOAT_VOLUME_BUDGET
 
 
 def peak_volume_bytes(cfg: StereoConfig, height: int, width: int, disparities: int) -> int:
     """The bytes of the (H, W, D) volumes `match` holds at once for `cfg`: the cost volume and SGM's
-    aggregate (plus SGM's padded copies when D is not a multiple of 8), in float32 or compact mode."""
+    aggregate (plus SGM's padded copies when D is not a multiple of 8), in float32 or compact mode (the
+    adcensus kernel's band buffers, 2 (2 r + 2) W D values per band, are not counted)."""
     cells = int(height) * int(width) * int(disparities)
     if cfg.aggregation == "none":
-        return 4 * cells * (2 if cfg.cost == "adcensus" else 1)  # adcensus: the sum and one term
+        return 4 * cells
     if uses_compact(cfg, height, width, disparities):
         return 3 * cells  # uint8 costs + uint16 aggregate
     padded = int(height) * int(width) * (-(-int(disparities) // 8) * 8)
@@ -267,9 +287,13 @@ def _check_range_args(dmin: Any, dmax: Any) -> None:
 
 
 def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "cpu") -> StereoResult:
-    """Aggregate a cost volume (wp.array), then extract the disparity as `cfg` says; timed (no cost_s)."""
+    """Aggregate a cost volume (wp.array), then extract the disparity as `cfg` says; timed (no cost_s).
+    A compact (uint8) "adcensus" volume takes `cfg`'s penalties in its units (`compact_penalties`)."""
     import warp as wp
 
+    if cfg.cost == "adcensus" and cost.dtype == wp.uint8:
+        p1, p2 = compact_penalties(cfg)
+        cfg = replace(cfg, p1=float(p1), p2=float(p2))
     t0 = time.perf_counter()
     if cfg.aggregation != "none":
         cost = stereo.sgm(cost, cfg.p1, cfg.p2, paths=int(cfg.aggregation[3:]), device=device)
