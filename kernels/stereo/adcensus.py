@@ -10,7 +10,10 @@ cannot exceed its weight:
 
 * C_census: the Hamming distance of census bit strings (kernels.stereo.costs.census_cost) over a
   (2 ry + 1) x (2 rx + 1) window of the grey images; invariant to any monotonic intensity change
-  (gain, offset, gamma); l_census in bits.
+  (gain, offset, gamma); l_census in bits. With a tolerance census_eps > 0 (in [0, 1] intensity units)
+  the bit is [I(q) < I(p) - eps]: on a flat, noisy surface (a textureless wall) every bit is then 0
+  in both views instead of a coin toss, so the term is flat there and SGM carries the disparity in
+  from the edges; still invariant to an offset, not to gain.
 * C_grad: the Birchfield-Tomasi window mean (kernels.stereo.bt) on the images' clipped x-gradient,
   StereoSGBM's prefilter. Per channel c of an image I in [0, 1] (rows clamped at the border),
 
@@ -78,6 +81,24 @@ def _sobel_x(img: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any
         g = (img[ym, xp, c] - img[ym, xm, c]) + two * (img[y, xp, c] - img[y, xm, c]) + (img[yp, xp, c] - img[yp, xm, c])
         g = wp.min(wp.max(g, -c_), c_)
         out[y, x, c] = (g + c_) / (two * c_)
+
+
+@wp.kernel
+def _census_eps(img: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=wp.uint64), ry: int, rx: int,
+                eps: wp.float64, offset: int):
+    # kernels.stereo.costs' census transform with the bit [I(q) < I(p) - eps] (same order, clamped coordinates).
+    H = img.shape[0]
+    W = img.shape[1]
+    y, x = pixel(wp.tid() + offset, W)
+    c = img[y, x] - img.dtype(eps)
+    bits = wp.uint64(0)
+    for dy in range(-ry, ry + 1):
+        yy = wp.clamp(y + dy, 0, H - 1)
+        for dx in range(-rx, rx + 1):
+            if dy != 0 or dx != 0:
+                q = img[yy, wp.clamp(x + dx, 0, W - 1)]
+                bits = (bits << wp.uint64(1)) | wp.uint64(wp.where(q < c, 1, 0))
+    out[y, x] = bits
 
 
 @wp.kernel
@@ -224,7 +245,7 @@ def _fused_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64)
                     out[y, x, k] = out.dtype(total)
 
 
-for _kernel in (_sobel_x, _half_ranges, _rho_table, _fused_cost):
+for _kernel in (_sobel_x, _census_eps, _half_ranges, _rho_table, _fused_cost):
     declare_float_overloads(_kernel)
 # Compact mode: float32 arithmetic, the cost quantised to uint8.
 wp.overload(_fused_cost, {**{arg.label: wp.array(dtype=wp.float32, ndim=arg.type.ndim) for arg in _fused_cost.adj.args
@@ -257,12 +278,13 @@ def sobel_x_clipped(image: Any, cap: float = 0.25, *, device: Any = None) -> Any
 def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[Any, Any] | None = None,
                   census_radii: tuple[int, int] = (3, 4), radius: int = 2, grad_cap: float = 0.25,
                   lambda_census: float = 30.0, lambda_grad: float = 0.04, bt_weight: float = 0.0,
-                  lambda_bt: float = 0.04, levels: int = 0, device: Any = None) -> Any:
+                  lambda_bt: float = 0.04, census_eps: float = 0.0, levels: int = 0, device: Any = None) -> Any:
     """The combined cost volume (H, W, dmax - dmin) of the module docstring.
 
     `left`, `right`: grey (H, W) or colour (H, W, C) float images in [0, 1] (the gradient and BT terms);
     `grey`: the (left, right) grey images the census term reads, required for colour input (grey input
-    is its own grey image). `radius`: the window radius of the BT terms. `levels` > 0 (compact mode): the
+    is its own grey image). `radius`: the window radius of the BT terms. `census_eps` >= 0: the census
+    tolerance (module docstring; 0 is the plain census transform). `levels` > 0 (compact mode): the
     cost as uint8 round(C levels), at most compact_levels(bt_weight) levels per unit (float32 images).
     """
     a = Inputs(device, left, right)
@@ -289,6 +311,7 @@ def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[An
         check_float(name, value, positive=True)
     bt_weight = check_float("bt_weight", bt_weight, nonnegative=True)
     r = check_int("radius", radius, minimum=0)
+    census_eps = check_float("census_eps", census_eps, nonnegative=True)
     levels = check_int("levels", levels, minimum=0)
     if levels and levels * (2.0 + bt_weight) > 255:
         raise ValueError(f"levels: expected at most {compact_levels(bt_weight)} levels per unit so that every cost "
@@ -297,8 +320,13 @@ def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[An
         raise ValueError("levels: compact mode (levels > 0) takes float32 images")
     ry, rx, bits = _census_radii(*census_radii)
     dmin, D = check_range(dmin, dmax, W)
-    cl = census_transform(g_l, ry, rx, device=a.device)
-    cr = census_transform(g_r, ry, rx, device=a.device)
+    if census_eps > 0:
+        cl, cr = a.empty((H, W), wp.uint64), a.empty((H, W), wp.uint64)
+        a.launch(_census_eps, H * W, [g_l, cl, ry, rx, wp.float64(census_eps)], min_chunk=1024)
+        a.launch(_census_eps, H * W, [g_r, cr, ry, rx, wp.float64(census_eps)], min_chunk=1024)
+    else:
+        cl = census_transform(g_l, ry, rx, device=a.device)
+        cr = census_transform(g_r, ry, rx, device=a.device)
     rho_census = a.empty((bits + 1,))
     a.launch(_rho_table, bits + 1, [rho_census, wp.float64(lambda_census)])
     src = l_img if ndim == 3 else l_img.contiguous().reshape((H, W, 1))

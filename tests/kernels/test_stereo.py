@@ -433,8 +433,10 @@ def test_sobel_x_clipped_matches_reference(dtype, channels, cap):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
-@pytest.mark.parametrize("seed,drange,channels,bt_weight", [(0, (0, 5), 0, 0.0), (1, (-2, 4), 3, 0.5), (2, (3, 9), 3, 0.0)])
-def test_adcensus_matches_reference(dtype, seed, drange, channels, bt_weight):
+@pytest.mark.parametrize("seed,drange,channels,bt_weight,eps", [(0, (0, 5), 0, 0.0, 0.0), (1, (-2, 4), 3, 0.5, 0.0),
+                                                                 (2, (3, 9), 3, 0.0, 0.0), (3, (0, 6), 0, 0.3, 0.05),
+                                                                 (4, (-1, 5), 3, 0.3, 0.2)])
+def test_adcensus_matches_reference(dtype, seed, drange, channels, bt_weight, eps):
     rng = np.random.default_rng(seed)
     shape = (7, 11, channels) if channels else (7, 11)
     L = rng.uniform(0.0, 1.0, shape)
@@ -442,7 +444,7 @@ def test_adcensus_matches_reference(dtype, seed, drange, channels, bt_weight):
     L, R = L.astype(dtype), R.astype(dtype)
     grey = (L.mean(axis=2), R.mean(axis=2)) if channels else None
     kw = dict(census_radii=(1, 2), radius=1, grad_cap=0.2, lambda_census=5.0, lambda_grad=0.05, bt_weight=bt_weight,
-              lambda_bt=0.03)
+              lambda_bt=0.03, census_eps=eps)
     got = stereo.adcensus_cost(L, R, *drange, grey=grey, **kw)
     assert got.dtype == dtype and got.shape == (7, 11, drange[1] - drange[0])
     np.testing.assert_allclose(got, ref.adcensus_cost(L, R, *drange, grey=grey, **kw), rtol=RTOL[dtype], atol=1e-6)
@@ -501,6 +503,20 @@ def test_adcensus_is_unchanged_by_an_intensity_offset_where_no_clip_binds():
     # The intensity term does see it.
     assert not np.allclose(stereo.adcensus_cost(L, R, 0, 6, bt_weight=1.0),
                            stereo.adcensus_cost(L, R + 0.1, 0, 6, bt_weight=1.0))
+    # Nor does the census tolerance.
+    np.testing.assert_allclose(stereo.adcensus_cost(L, R, 0, 6, census_eps=0.05),
+                               stereo.adcensus_cost(L, R + 0.1, 0, 6, census_eps=0.05), rtol=0, atol=1e-9)
+
+
+def test_adcensus_census_tolerance_flattens_a_noisy_flat_surface():
+    """Below the tolerance, noise on a flat image sets no census bit: the census term is 0 at every hypothesis."""
+    rng = np.random.default_rng(8)
+    L, R = 0.5 + 0.004 * rng.standard_normal((9, 14)), 0.5 + 0.004 * rng.standard_normal((9, 14))
+    plain = stereo.adcensus_cost(L, R, 0, 4, census_radii=(1, 1))
+    tol = stereo.adcensus_cost(L, R, 0, 4, census_radii=(1, 1), census_eps=0.05)
+    grad_only = stereo.adcensus_cost(L, R, 0, 4, census_radii=(1, 1), census_eps=0.05, lambda_census=1e-3)
+    np.testing.assert_array_equal(tol[:, 3:], grad_only[:, 3:])  # census distance 0 wherever in range, any lambda
+    assert not np.array_equal(plain[:, 4:], tol[:, 4:])
 
 
 def test_adcensus_wp_arrays_in_give_wp_arrays_out():
