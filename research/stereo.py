@@ -28,7 +28,14 @@ over the cost's terms (census alone, + gradient, + intensity with weight 0.3, 0.
 0.1, BT radius 1 or 2), P1 in {0.05 ... 0.8}, P2 / P1 in {4, 8, 16}, the median, uniqueness and
 border options. None of the pairs the tables report (Middlebury teddy and cones, Mitsuba
 pairs other than p_000) took part. StereoConfig()'s own field defaults stay census + SGM-8 (census
-units), the pipeline research.bench times in compact mode.
+units), the pipeline research.bench times in compact mode. A later round on the same tuning data (same
+score: 0.1511 for the default) tried the census tolerance census_eps 0.01 / 0.02 / 0.04 (0.1514 / 0.1553 /
+0.1548), lr_max_diff 2 (0.1501), P2 12.8 (0.1558), P1 0.4 (0.1636), and BT radius 3 / 4 / 5 (0.1448 /
+0.1434 / 0.1422). The radius gains come from the 128-px Mitsuba pairs while tsukuba + venus get worse
+at every step (mean D1 0.021 -> 0.022 / 0.025 / 0.027), and cornell at 256 px stays at 0.27 clean. So
+the default was kept. Cornell's outliers lie on the slanted, textureless walls and ceiling (0.27-0.38 px
+of disparity per pixel), where SGM's P1 favours fronto-parallel plateaus, and in the left band where
+the LR check removes the wall and the row fill copies one value.
 
 Patch features (for "corr", standing in for learned ones): each pixel's
 (2r+1)^2 neighbourhood (replicated at the border), minus its mean, divided by
