@@ -345,10 +345,10 @@ def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[An
     if bt_weight == 0:  # unused stand-ins for the intensity term's arrays
         images += images[:6]
         invalid.append(0.0)
-    # Bands of rows: on the CPU enough to balance the threads, each long enough to amortise the 2 r rows its
-    # ring starts with; elsewhere bands of 4 (r + 1) rows, so the buffers never exceed one float volume.
-    threads = default_threads()
-    band = 4 * (r + 1) if a.device.is_cuda else max(2 * r + 1, math.ceil(H / (4 * threads)))
+    # Bands of rows: at least 4 (r + 1) rows, so the 2 r rows each band's ring starts with add under half its
+    # work and all buffers together never exceed one float volume; on the CPU, fewer and longer bands where
+    # 4 per thread balance the threads.
+    band = 4 * (r + 1) if a.device.is_cuda else max(4 * (r + 1), math.ceil(H / (4 * default_threads())))
     n_bands = math.ceil(H / band)
     ring = a.empty((2 * n_bands, 2 * r + 1, W, D))
     rowsum = a.empty((2 * n_bands, W, D))
