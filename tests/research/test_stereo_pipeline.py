@@ -133,6 +133,10 @@ def test_adcensus_compact_mode_quantises_the_cost_and_the_penalties(monkeypatch)
     assert np.mean(np.abs(got.disparity - want.disparity)[:, 16:] <= 0.25) > 0.98
     assert np.mean(got.valid == want.valid) > 0.98
     assert rs.peak_volume_bytes(DEFAULT_CONFIG, 24, 64, 16) == 3 * 24 * 64 * 16
+    monkeypatch.undo()
+    # Middlebury at half resolution: compact by the real budget (3.0 GB of float32 volumes > 1 GiB).
+    assert rs.uses_compact(DEFAULT_CONFIG, 994, 1482, 256) and not rs.uses_compact(DEFAULT_CONFIG, 375, 450, 64)
+    assert rs.peak_volume_bytes(DEFAULT_CONFIG, 994, 1482, 256) == 3 * 994 * 1482 * 256
 
 
 def test_config_rejects_unknown_names():
