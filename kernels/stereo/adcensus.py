@@ -189,12 +189,18 @@ def _col_mean(rowsum: wp.array3d(dtype=typing.Any), t: int, x: int, k: int, d: i
 
 
 @wp.kernel
-def _fused_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(dtype=typing.Any),
-                gl: wp.array3d(dtype=typing.Any), gl_lo: wp.array3d(dtype=typing.Any), gl_hi: wp.array3d(dtype=typing.Any),
-                gr: wp.array3d(dtype=typing.Any), gr_lo: wp.array3d(dtype=typing.Any), gr_hi: wp.array3d(dtype=typing.Any),
-                il: wp.array3d(dtype=typing.Any), il_lo: wp.array3d(dtype=typing.Any), il_hi: wp.array3d(dtype=typing.Any),
-                ir: wp.array3d(dtype=typing.Any), ir_lo: wp.array3d(dtype=typing.Any), ir_hi: wp.array3d(dtype=typing.Any),
-                ring: wp.array4d(dtype=typing.Any), rowsum: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any),
+def _fused_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64),
+                rho_census: wp.array(dtype=typing.Any),
+                gl: wp.array3d(dtype=typing.Any), gl_lo: wp.array3d(dtype=typing.Any),
+                gl_hi: wp.array3d(dtype=typing.Any),
+                gr: wp.array3d(dtype=typing.Any), gr_lo: wp.array3d(dtype=typing.Any),
+                gr_hi: wp.array3d(dtype=typing.Any),
+                il: wp.array3d(dtype=typing.Any), il_lo: wp.array3d(dtype=typing.Any),
+                il_hi: wp.array3d(dtype=typing.Any),
+                ir: wp.array3d(dtype=typing.Any), ir_lo: wp.array3d(dtype=typing.Any),
+                ir_hi: wp.array3d(dtype=typing.Any),
+                ring: wp.array4d(dtype=typing.Any), rowsum: wp.array3d(dtype=typing.Any),
+                out: wp.array3d(dtype=typing.Any),
                 dmin: int, radius: int, band: int, bits: int, lambda_grad: wp.float64, invalid_grad: wp.float64,
                 bt_weight: wp.float64, lambda_bt: wp.float64, invalid_bt: wp.float64, levels: wp.float64,
                 offset: int):
