@@ -12,8 +12,8 @@ cannot exceed its weight:
   (2 ry + 1) x (2 rx + 1) window of the grey images; invariant to any monotonic intensity change
   (gain, offset, gamma); l_census in bits. With a tolerance census_eps > 0 (in [0, 1] intensity units)
   the bit is [I(q) < I(p) - eps]: on a flat, noisy surface (a textureless wall) every bit is then 0
-  in both views instead of a coin toss, so the term is flat there and SGM carries the disparity in
-  from the edges; still invariant to an offset, not to gain.
+  in both views instead of a coin toss, so the term is flat there; still invariant to an offset, not
+  to gain (it did not improve drlab's tuning pairs, research.stereo; off by default).
 * C_grad: the Birchfield-Tomasi window mean (kernels.stereo.bt) on the images' clipped x-gradient,
   StereoSGBM's prefilter. Per channel c of an image I in [0, 1] (rows clamped at the border),
 
@@ -37,8 +37,8 @@ fused launch that writes the final cost: a thread owns a band of rows and keeps,
 of the 2 r + 1 rows of per-pixel bt values its window needs (each row computed once per band) and
 their row sums; for every cell it adds rho(popcount(c_L xor c_R)) from the table and the two terms'
 rho(window mean). The sums and rho run in the images' float type in the order of the separate passes
-(kernels.stereo.bt's, then the terms added in order), so the volume is bit-identical to composing
-census_cost, bt_cost and the rho sums. No (H, W, D) volume besides the result exists; the band
+(kernels.stereo.bt's, then the terms added in order), so the volume is bit-identical to the former
+composition of census_cost, bt_cost and one rho-accumulation pass per term. No (H, W, D) volume besides the result exists; the band
 buffers hold 2 (2 r + 2) W D values per band.
 
 Compact mode (`levels` = q > 0, float32 images): the cost is stored as the uint8 round(C q), with
@@ -49,12 +49,11 @@ and the volume kernels.stereo.sgm's compact mode takes with integer penalties P 
 
 from __future__ import annotations
 
+import math
 import typing
 from typing import Any
 
 import warp as wp
-
-import math
 
 from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
 from kernels.launch import default_threads
