@@ -28,7 +28,14 @@ over the cost's terms (census alone, + gradient, + intensity with weight 0.3, 0.
 0.1, BT radius 1 or 2), P1 in {0.05 ... 0.8}, P2 / P1 in {4, 8, 16}, the median, uniqueness and
 border options. None of the pairs the tables report (Middlebury teddy and cones, Mitsuba
 pairs other than p_000) took part. StereoConfig()'s own field defaults stay census + SGM-8 (census
-units), the pipeline research.bench times in compact mode.
+units), the pipeline research.bench times in compact mode. A later round on the same tuning data (same
+score: 0.1511 for the default) tried the census tolerance census_eps 0.01 / 0.02 / 0.04 (0.1514 / 0.1553 /
+0.1548), lr_max_diff 2 (0.1501), P2 12.8 (0.1558), P1 0.4 (0.1636), and BT radius 3 / 4 / 5 (0.1448 /
+0.1434 / 0.1422). The radius gains come from the 128-px Mitsuba pairs while tsukuba + venus get worse
+at every step (mean D1 0.021 -> 0.022 / 0.025 / 0.027), and cornell at 256 px stays at 0.27 clean. So
+the default was kept. Cornell's outliers lie on the slanted, textureless walls and ceiling (0.27-0.38 px
+of disparity per pixel), where SGM's P1 favours fronto-parallel plateaus, and in the left band where
+the LR check removes the wall and the row fill copies one value.
 
 Patch features (for "corr", standing in for learned ones): each pixel's
 (2r+1)^2 neighbourhood (replicated at the border), minus its mean, divided by
@@ -62,9 +69,11 @@ bits, or float), because every image is first normalised to [0, 1]:
 StereoConfig's field defaults (P1 = 8, P2 = 64) are census units.
 
 Memory: every configuration holds float32 volumes (`peak_volume_bytes`: the cost and SGM's
-aggregate, 8 bytes per cell), except census + SGM + winner-take-all with integer penalties, which
-runs in compact mode (`uses_compact`: uint8 costs, a uint16 aggregate, 3 bytes per cell, the same
-results, and faster on the CPU).
+aggregate, 8 bytes per cell), except SGM + winner-take-all on census costs with integer penalties,
+at every size, and on "adcensus" costs once float32 volumes would exceed FLOAT_VOLUME_BUDGET (1 GiB):
+they run in compact mode (`uses_compact`: uint8 costs, a uint16 aggregate, 3 bytes per cell; census
+gives the same results and is the faster path on the CPU, adcensus quantises its cost to steps of
+1 / 110 and its penalties to that step).
 
 Benchmark protocols (Middlebury, KITTI, ETH3D; `protocol_metrics`, `pool_protocol`) are described
 at the end of this module.
@@ -79,7 +88,7 @@ estimated itself.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -132,6 +141,7 @@ class StereoConfig:
     lambda_grad: float = 0.04  # adcensus: units of the clipped gradient image G in [0, 1]
     bt_weight: float = 0.0  # adcensus: weight of the intensity BT term (0: none)
     lambda_bt: float = 0.04  # adcensus: [0, 1] intensity units
+    census_eps: float = 0.0  # adcensus: census tolerance, bit [I(q) < I(p) - eps], [0, 1] intensity units
     border_invalid: bool = False
     median: int = 0  # 0: none; else an odd size >= 3
 
@@ -141,7 +151,7 @@ class StereoConfig:
             if value not in allowed:
                 raise ValueError(f"{name}: expected one of {allowed}, got {value!r}")
         for name in ("p1", "p2", "zncc_eps", "temperature", "uniqueness", "lr_max_diff", "grad_cap", "lambda_census",
-                     "lambda_grad", "bt_weight", "lambda_bt"):
+                     "lambda_grad", "bt_weight", "lambda_bt", "census_eps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name}: expected a finite number >= 0, got {value!r}")
@@ -204,10 +214,12 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
         colour = unit_pair(left, right)
         grey = tuple(wp.array(x, device=device) for x in unit_grey_pair(left, right))
         l_img, r_img = (wp.array(x, device=device) for x in colour)
+        levels = stereo.compact_levels(cfg.bt_weight) if uses_compact(cfg, *grey[0].shape, dmax - dmin) else 0
         return stereo.adcensus_cost(l_img, r_img, dmin, dmax, grey=grey if colour[0].ndim == 3 else None,
                                     census_radii=cfg.census_radii, radius=cfg.radius, grad_cap=cfg.grad_cap,
                                     lambda_census=cfg.lambda_census, lambda_grad=cfg.lambda_grad,
-                                    bt_weight=cfg.bt_weight, lambda_bt=cfg.lambda_bt, device=device)
+                                    bt_weight=cfg.bt_weight, lambda_bt=cfg.lambda_bt, census_eps=cfg.census_eps,
+                                    levels=levels, device=device)
     left, right = unit_grey_pair(left, right)
     _check_range_args(dmin, dmax)
     if cfg.cost == "corr":
@@ -223,27 +235,44 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
     return stereo.census_cost(l_img, r_img, dmin, dmax, *cfg.census_radii, compact=compact, device=device)
 
 
+# Above this many bytes of float32 volumes, "adcensus" + SGM runs in compact mode (`uses_compact`).
+FLOAT_VOLUME_BUDGET = 2**30
+
+
+def compact_penalties(cfg: StereoConfig) -> tuple[int, int]:
+    """P1, P2 of an "adcensus" configuration in units of its compact cost (kernels.stereo.adcensus: the uint8
+    round(C q), q = compact_levels(bt_weight)): round(P q). DEFAULT_CONFIG: q = 110, 0.8 -> 88, 6.4 -> 704."""
+    q = stereo.compact_levels(cfg.bt_weight)
+    return int(round(cfg.p1 * q)), int(round(cfg.p2 * q))
+
+
 def uses_compact(cfg: StereoConfig, height: int, width: int, disparities: int) -> bool:
-    """Whether `match` runs `cfg` in kernels.stereo's compact mode: uint8 census costs and a uint16 SGM
-    aggregate (3 bytes per cell instead of float32's 8), whose results equal the float32 pipeline's
-    exactly. It applies to census + SGM + winner-take-all with integer P1 and P2 within the uint8
-    volume's bound (kernels.stereo.sgm: P2 <= 7936) and D a multiple of 8,
-    at every size: on the CPU compact SGM runs in int16 vectors and is the faster path
-    (kernels.stereo.sweep). `height` and `width` do not change the answer; they are kept for callers."""
-    if cfg.cost != "census" or cfg.aggregation == "none" or cfg.disparity != "wta" or disparities % 8:
+    """Whether `match` runs `cfg` in kernels.stereo's compact mode: uint8 costs and a uint16 SGM aggregate
+    (3 bytes per cell instead of float32's 8), for SGM + winner-take-all with D a multiple of 8 and P2
+    within the uint8 volume's bound (kernels.stereo.sgm: P2 <= 7936, in cost units):
+      * census with integer P1 and P2, at every size: the same results as the float32 pipeline, exactly,
+        and on the CPU the faster path (compact SGM runs in int16 vectors, kernels.stereo.sweep);
+      * "adcensus" once its float32 volumes would exceed FLOAT_VOLUME_BUDGET: its cost quantised to uint8
+        with step 1 / q (q = compact_levels(bt_weight), 110 for DEFAULT_CONFIG: at most 0.0045 off,
+        against terms in [0, 1)) and P1, P2 rounded to that step (`compact_penalties`); not
+        bit-identical, D1 unchanged within noise (docs/performance.md), so it is kept for sizes where
+        memory runs out (Middlebury at half resolution, 1482x994x256)."""
+    if cfg.cost not in ("census", "adcensus") or cfg.aggregation == "none" or cfg.disparity != "wta" or \
+            disparities % 8:
         return False
-    if cfg.p1 != int(cfg.p1) or cfg.p2 != int(cfg.p2):
-        return False
-    return cfg.p2 <= 7936
+    if cfg.cost == "census":
+        return cfg.p1 == int(cfg.p1) and cfg.p2 == int(cfg.p2) and cfg.p2 <= 7936
+    return compact_penalties(cfg)[1] <= 7936 and 8 * int(height) * int(width) * int(disparities) > FLOAT_VOLUME_BUDGET
 
 
 def peak_volume_bytes(cfg: StereoConfig, height: int, width: int, disparities: int) -> int:
     """The bytes of the (H, W, D) volumes `match` holds at once for `cfg` on the CPU: the cost volume and
     SGM's aggregate (plus SGM's padded copies when D is not a multiple of its vector width, 16 float32 or
-    32 uint8 lanes), in float32 or compact mode."""
+    32 uint8 lanes), in float32 or compact mode (the adcensus kernel's band buffers, 2 (2 r + 2) W D values
+    per band, are not counted)."""
     cells = int(height) * int(width) * int(disparities)
     if cfg.aggregation == "none":
-        return 4 * cells * (2 if cfg.cost == "adcensus" else 1)  # adcensus: the sum and one term
+        return 4 * cells
     if uses_compact(cfg, height, width, disparities):
         # uint8 costs + the uint16 aggregate padded to whole 32-lane vectors (+ the padded uint8 copy)
         padded = int(height) * int(width) * (-(-int(disparities) // 32) * 32)
@@ -261,9 +290,13 @@ def _check_range_args(dmin: Any, dmax: Any) -> None:
 
 
 def disparity_from_cost(cost: Any, dmin: int, cfg: StereoConfig, device: str = "cpu") -> StereoResult:
-    """Aggregate a cost volume (wp.array), then extract the disparity as `cfg` says; timed (no cost_s)."""
+    """Aggregate a cost volume (wp.array), then extract the disparity as `cfg` says; timed (no cost_s).
+    A compact (uint8) "adcensus" volume takes `cfg`'s penalties in its units (`compact_penalties`)."""
     import warp as wp
 
+    if cfg.cost == "adcensus" and cost.dtype == wp.uint8:
+        p1, p2 = compact_penalties(cfg)
+        cfg = replace(cfg, p1=float(p1), p2=float(p2))
     t0 = time.perf_counter()
     # SGM + winner-take-all: SGM, both views' winners and the left-right check in one call
     # (kernels.stereo.sgm_disparity, the same numbers as the separate calls below); aggregate_s covers it all.

@@ -57,8 +57,8 @@ def zncc_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, r: int, eps: f
     return out
 
 
-def census_transform(img: np.ndarray, ry: int, rx: int) -> np.ndarray:
-    """Bit [I(q) < I(p)] per neighbour q of the (2 ry + 1) x (2 rx + 1) window, raster order, clamped."""
+def census_transform(img: np.ndarray, ry: int, rx: int, eps: float = 0.0) -> np.ndarray:
+    """Bit [I(q) < I(p) - eps] per neighbour q of the (2 ry + 1) x (2 rx + 1) window, raster order, clamped."""
     H, W = img.shape
     out = np.zeros((H, W), dtype=np.uint64)
     for y in range(H):
@@ -68,14 +68,14 @@ def census_transform(img: np.ndarray, ry: int, rx: int) -> np.ndarray:
                 for dx in range(-rx, rx + 1):
                     if dy or dx:
                         q = img[min(max(y + dy, 0), H - 1), min(max(x + dx, 0), W - 1)]
-                        bits = (bits << 1) | int(q < img[y, x])
+                        bits = (bits << 1) | int(q < img[y, x] - eps)
             out[y, x] = bits
     return out
 
 
-def census_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, ry: int, rx: int) -> np.ndarray:
+def census_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, ry: int, rx: int, eps: float = 0.0) -> np.ndarray:
     """Hamming distance of the census bit strings; out of range: the number of bits."""
-    cl, cr = census_transform(L, ry, rx), census_transform(R, ry, rx)
+    cl, cr = census_transform(L, ry, rx, eps), census_transform(R, ry, rx, eps)
     H, W = L.shape
     nbits = (2 * ry + 1) * (2 * rx + 1) - 1
     out = np.full((H, W, dmax - dmin), float(nbits))
@@ -130,11 +130,11 @@ def sobel_x_clipped(img: np.ndarray, cap: float) -> np.ndarray:
 
 def adcensus_cost(L: np.ndarray, R: np.ndarray, dmin: int, dmax: int, *, grey=None, census_radii=(3, 4),
                   radius: int = 2, grad_cap: float = 0.25, lambda_census: float = 30.0, lambda_grad: float = 0.04,
-                  bt_weight: float = 0.0, lambda_bt: float = 0.04) -> np.ndarray:
+                  bt_weight: float = 0.0, lambda_bt: float = 0.04, census_eps: float = 0.0) -> np.ndarray:
     """rho(census, l_c) + rho(BT on the clipped x-gradient, l_g) + w_bt rho(BT, l_bt), rho(c, l) = 1 - exp(-c / l)."""
     gl, gr = (L, R) if grey is None else grey
     rho = lambda c, lam: 1.0 - np.exp(-c / lam)  # noqa: E731
-    total = rho(census_cost(gl, gr, dmin, dmax, *census_radii), lambda_census)
+    total = rho(census_cost(gl, gr, dmin, dmax, *census_radii, census_eps), lambda_census)
     total = total + rho(bt_cost(sobel_x_clipped(L, grad_cap), sobel_x_clipped(R, grad_cap), dmin, dmax, radius),
                         lambda_grad)
     if bt_weight > 0:

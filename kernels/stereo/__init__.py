@@ -23,8 +23,9 @@ Stages, one module each
   squashed by 1 - exp(-c / lambda) and summed: robust to gain, offset and vignetting between cameras.
 * `sgm`: semi-global matching (Hirschmueller, PAMI 2008), S(p, k) = sum_r L_r(p, k) over 4 or 8
   path directions r, L_r penalising disparity steps by P1 (one step) and P2 (more).
-* compact mode: census costs as uint8 and the SGM aggregate as uint16 (3 bytes per cell instead
-  of float32's 8, the same values; on the CPU also the faster path, kernels.stereo.sgm).
+* compact mode: census costs (and adcensus costs quantised, step 1 / compact_levels) as uint8 and
+  the SGM aggregate as uint16 (3 bytes per cell instead of float32's 8; on the CPU also the faster
+  path, kernels.stereo.sweep).
 * `fused`: `sgm_disparity`, SGM + both views' winners + the left-right check in one call.
 * `disparity`: winner-take-all with a sub-pixel parabola and a uniqueness test, the right view's
   winner from the same volume, soft-argmin d = sum_k d_k softmax_k(-C / T) with its backward, the
@@ -43,7 +44,7 @@ ValueError naming it before any kernel runs. The backward entry points return a 
 forward's argument name to its gradient.
 """
 
-from kernels.stereo.adcensus import adcensus_cost, sobel_x_clipped
+from kernels.stereo.adcensus import adcensus_cost, compact_levels, sobel_x_clipped
 from kernels.stereo.bt import bt_cost
 from kernels.stereo.costs import (CENSUS_MAX_BITS, census_cost, census_transform, feature_correlation,
                                   feature_correlation_backward, sad_cost, zncc_cost)
@@ -54,7 +55,7 @@ from kernels.stereo.sgm import SGM_AXES, SGM_DIRECTIONS, SGM_LANES, sgm
 
 __all__ = [
     "CENSUS_MAX_BITS", "SGM_AXES", "SGM_DIRECTIONS", "SGM_LANES",
-    "sad_cost", "zncc_cost", "bt_cost", "adcensus_cost", "sobel_x_clipped", "census_transform", "census_cost", "feature_correlation",
+    "sad_cost", "zncc_cost", "bt_cost", "adcensus_cost", "compact_levels", "sobel_x_clipped", "census_transform", "census_cost", "feature_correlation",
     "feature_correlation_backward",
     "sgm", "sgm_disparity",
     "wta", "wta_right", "wta_left_right", "soft_argmin", "soft_argmin_backward", "left_right_check",

@@ -10,7 +10,10 @@ cannot exceed its weight:
 
 * C_census: the Hamming distance of census bit strings (kernels.stereo.costs.census_cost) over a
   (2 ry + 1) x (2 rx + 1) window of the grey images; invariant to any monotonic intensity change
-  (gain, offset, gamma); l_census in bits.
+  (gain, offset, gamma); l_census in bits. With a tolerance census_eps > 0 (in [0, 1] intensity units)
+  the bit is [I(q) < I(p) - eps]: on a flat, noisy surface (a textureless wall) every bit is then 0
+  in both views instead of a coin toss, so the term is flat there; still invariant to an offset, not
+  to gain (it did not improve drlab's tuning pairs, research.stereo; off by default).
 * C_grad: the Birchfield-Tomasi window mean (kernels.stereo.bt) on the images' clipped x-gradient,
   StereoSGBM's prefilter. Per channel c of an image I in [0, 1] (rows clamped at the border),
 
@@ -27,21 +30,36 @@ Every term is independent of the stored image range once the images are in [0, 1
 normalisation). Each term's out-of-range cells (x - d outside [0, W)) hold its own maximum (census:
 the bit count; BT: the value range), so the sum's out-of-range cost is at least every in-range one.
 
-Launches: the gradient image (one thread per pixel), then for each term its cost volume and one
-accumulation C += w rho(c, lambda) (one thread per pixel, over its D hypotheses).
+Launches: the census bit strings of each grey image (one uint64 per pixel, computed once;
+kernels.stereo.costs.census_transform), the gradient images, each term image's half-pixel ranges
+(I_min, I_max) of the BT dissimilarity, a table rho(h, l_census) for every Hamming distance h, then ONE
+fused launch that writes the final cost: a thread owns a band of rows and keeps, per BT term, a ring
+of the 2 r + 1 rows of per-pixel bt values its window needs (each row computed once per band) and
+their row sums; for every cell it adds rho(popcount(c_L xor c_R)) from the table and the two terms'
+rho(window mean). The sums and rho run in the images' float type in the order of the separate passes
+(kernels.stereo.bt's, then the terms added in order), so the volume is bit-identical to the former
+composition of census_cost, bt_cost and one rho-accumulation pass per term. No (H, W, D) volume besides the result exists; the band
+buffers hold 2 (2 r + 2) W D values per band.
+
+Compact mode (`levels` = q > 0, float32 images): the cost is stored as the uint8 round(C q), with
+q <= 255 / (2 + w_bt) so that every cost (< 2 + w_bt) fits; the quantisation step is 1 / q
+(compact_levels(0.3) = 110: a step of 0.0091, at most 0.0045 off), a quarter of float32's memory,
+and the volume kernels.stereo.sgm's compact mode takes with integer penalties P q.
 """
 
 from __future__ import annotations
 
+import math
 import typing
 from typing import Any
 
 import warp as wp
 
-from kernels._arrays import Inputs, check_float, declare_float_overloads
+from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
+from kernels.launch import default_threads
 from kernels.stereo._common import check_range, image_pair, pixel
-from kernels.stereo.bt import bt_cost
-from kernels.stereo.costs import _census_radii, census_cost
+from kernels.stereo.bt import _half_range
+from kernels.stereo.costs import _census_radii, census_transform
 
 wp.set_module_options({"enable_backward": False})
 
@@ -65,21 +83,185 @@ def _sobel_x(img: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any
 
 
 @wp.kernel
-def _robust_add(src: wp.array3d(dtype=typing.Any), acc: wp.array3d(dtype=typing.Any), lam: wp.float64,
-                weight: wp.float64, first: int, offset: int):
-    y, x = pixel(wp.tid() + offset, src.shape[1])
-    inv = acc.dtype(wp.float64(1.0) / lam)
-    w = acc.dtype(weight)
-    for k in range(src.shape[2]):
-        term = w * (acc.dtype(1.0) - wp.exp(-acc.dtype(src[y, x, k]) * inv))
-        if first != 0:
-            acc[y, x, k] = term
-        else:
-            acc[y, x, k] = acc[y, x, k] + term
+def _census_eps(img: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=wp.uint64), ry: int, rx: int,
+                eps: wp.float64, offset: int):
+    # kernels.stereo.costs' census transform with the bit [I(q) < I(p) - eps] (same order, clamped coordinates).
+    H = img.shape[0]
+    W = img.shape[1]
+    y, x = pixel(wp.tid() + offset, W)
+    c = img[y, x] - img.dtype(eps)
+    bits = wp.uint64(0)
+    for dy in range(-ry, ry + 1):
+        yy = wp.clamp(y + dy, 0, H - 1)
+        for dx in range(-rx, rx + 1):
+            if dy != 0 or dx != 0:
+                q = img[yy, wp.clamp(x + dx, 0, W - 1)]
+                bits = (bits << wp.uint64(1)) | wp.uint64(wp.where(q < c, 1, 0))
+    out[y, x] = bits
 
 
-for _kernel in (_sobel_x, _robust_add):
+@wp.kernel
+def _half_ranges(img: wp.array3d(dtype=typing.Any), lo: wp.array3d(dtype=typing.Any),
+                 hi: wp.array3d(dtype=typing.Any), offset: int):
+    # (I_min, I_max) of every pixel's half-pixel neighbourhood per channel (kernels.stereo.bt's _half_range).
+    y, x = pixel(wp.tid() + offset, img.shape[1])
+    for c in range(img.shape[2]):
+        a, b = _half_range(img, y, x, c)
+        lo[y, x, c] = a
+        hi[y, x, c] = b
+
+
+@wp.func
+def _robust_term(c: typing.Any, lam: wp.float64, weight: wp.float64):
+    """w rho(c, lambda) = w (1 - exp(-c / lambda)), with 1 / lambda rounded to c's type once."""
+    inv = type(c)(wp.float64(1.0) / lam)
+    return type(c)(weight) * (type(c)(1.0) - wp.exp(-c * inv))
+
+
+@wp.kernel
+def _rho_table(table: wp.array(dtype=typing.Any), lam: wp.float64, offset: int):
+    # table[h] = 1 - exp(-h / lambda) for the census distance h, with _robust_term's arithmetic.
+    h = wp.tid() + offset
+    table[h] = _robust_term(table.dtype(h), lam, wp.float64(1.0))
+
+
+@wp.func
+def _bt_cell(L: wp.array3d(dtype=typing.Any), l_lo: wp.array3d(dtype=typing.Any), l_hi: wp.array3d(dtype=typing.Any),
+             R: wp.array3d(dtype=typing.Any), r_lo: wp.array3d(dtype=typing.Any), r_hi: wp.array3d(dtype=typing.Any),
+             y: int, x: int, u: int):
+    """bt(x, y, d) for u = x - d inside the image, the channel mean (kernels.stereo.bt's _bt_pixel)."""
+    zero = L.dtype(0.0)
+    acc = zero
+    C = L.shape[2]
+    for c in range(C):
+        lv = L[y, x, c]
+        rv = R[y, u, c]
+        e_lr = wp.max(wp.max(zero, lv - r_hi[y, u, c]), r_lo[y, u, c] - lv)
+        e_rl = wp.max(wp.max(zero, rv - l_hi[y, x, c]), l_lo[y, x, c] - rv)
+        acc += wp.min(e_lr, e_rl)
+    return acc * (L.dtype(1.0) / L.dtype(C))
+
+
+@wp.func
+def _fill_row(L: wp.array3d(dtype=typing.Any), l_lo: wp.array3d(dtype=typing.Any), l_hi: wp.array3d(dtype=typing.Any),
+              R: wp.array3d(dtype=typing.Any), r_lo: wp.array3d(dtype=typing.Any), r_hi: wp.array3d(dtype=typing.Any),
+              ring: wp.array4d(dtype=typing.Any), t: int, v: int, dmin: int):
+    """ring[t, v mod S, x, k] = bt(x, v, d_k) for the in-range cells of row v (the others are never read)."""
+    W = L.shape[1]
+    D = ring.shape[3]
+    s = v % ring.shape[1]
+    for x in range(W):
+        for k in range(wp.max(0, x - dmin - W + 1), wp.min(D, x - dmin + 1)):
+            ring[t, s, x, k] = _bt_cell(L, l_lo, l_hi, R, r_lo, r_hi, v, x, x - dmin - k)
+    return 0
+
+
+@wp.func
+def _row_sums(ring: wp.array4d(dtype=typing.Any), rowsum: wp.array3d(dtype=typing.Any), t: int, v0: int, v1: int,
+              dmin: int):
+    """rowsum[t, x, k] = sum over v in [v0, v1] of bt(x, v, d_k), rows added in ascending order (bt's _sum_rows;
+    the first row is assigned, which equals adding it to 0 exactly). Rows outer, so the ring slot is found once per
+    row and the inner loop runs along contiguous hypotheses."""
+    W = rowsum.shape[1]
+    D = rowsum.shape[2]
+    for v in range(v0, v1 + 1):
+        s = v % ring.shape[1]
+        for x in range(W):
+            for k in range(wp.max(0, x - dmin - W + 1), wp.min(D, x - dmin + 1)):
+                if v == v0:
+                    rowsum[t, x, k] = ring[t, s, x, k]
+                else:
+                    rowsum[t, x, k] = rowsum[t, x, k] + ring[t, s, x, k]
+    return 0
+
+
+@wp.func
+def _col_mean(rowsum: wp.array3d(dtype=typing.Any), t: int, x: int, k: int, d: int, radius: int, rows: int):
+    """The window mean of the in-range columns (bt's _mean_cols); (x, d) must be in range."""
+    W = rowsum.shape[1]
+    lo = wp.max(wp.max(x - radius, 0), d)
+    hi = wp.min(wp.min(x + radius, W - 1), W - 1 + d)
+    s = rowsum.dtype(0.0)
+    for u in range(lo, hi + 1):
+        s += rowsum[t, u, k]
+    return s / rowsum.dtype(rows * (hi - lo + 1))
+
+
+@wp.kernel
+def _fused_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64),
+                rho_census: wp.array(dtype=typing.Any),
+                gl: wp.array3d(dtype=typing.Any), gl_lo: wp.array3d(dtype=typing.Any),
+                gl_hi: wp.array3d(dtype=typing.Any),
+                gr: wp.array3d(dtype=typing.Any), gr_lo: wp.array3d(dtype=typing.Any),
+                gr_hi: wp.array3d(dtype=typing.Any),
+                il: wp.array3d(dtype=typing.Any), il_lo: wp.array3d(dtype=typing.Any),
+                il_hi: wp.array3d(dtype=typing.Any),
+                ir: wp.array3d(dtype=typing.Any), ir_lo: wp.array3d(dtype=typing.Any),
+                ir_hi: wp.array3d(dtype=typing.Any),
+                ring: wp.array4d(dtype=typing.Any), rowsum: wp.array3d(dtype=typing.Any),
+                out: wp.array3d(dtype=typing.Any),
+                dmin: int, radius: int, band: int, bits: int, lambda_grad: wp.float64, invalid_grad: wp.float64,
+                bt_weight: wp.float64, lambda_bt: wp.float64, invalid_bt: wp.float64, levels: wp.float64,
+                offset: int):
+    # One thread per band of `band` rows; it owns ring[2 b : 2 b + 2] and rowsum[2 b : 2 b + 2] (t = 0: the
+    # gradient term, 1: the intensity term) and writes out[y0:y1].
+    b = wp.tid() + offset
+    H = cl.shape[0]
+    W = cl.shape[1]
+    D = out.shape[2]
+    r = radius
+    T = 1 + wp.where(bt_weight > wp.float64(0.0), 1, 0)
+    y0 = b * band
+    y1 = wp.min(y0 + band, H)
+    for v in range(wp.max(y0 - r, 0), wp.min(y0 + r, H - 1) + 1):
+        _fill_row(gl, gl_lo, gl_hi, gr, gr_lo, gr_hi, ring, 2 * b, v, dmin)
+        if T > 1:
+            _fill_row(il, il_lo, il_hi, ir, ir_lo, ir_hi, ring, 2 * b + 1, v, dmin)
+    for y in range(y0, y1):
+        if y > y0 and y + r < H:
+            _fill_row(gl, gl_lo, gl_hi, gr, gr_lo, gr_hi, ring, 2 * b, y + r, dmin)
+            if T > 1:
+                _fill_row(il, il_lo, il_hi, ir, ir_lo, ir_hi, ring, 2 * b + 1, y + r, dmin)
+        v0 = wp.max(y - r, 0)
+        v1 = wp.min(y + r, H - 1)
+        rows = v1 - v0 + 1
+        for t in range(T):
+            _row_sums(ring, rowsum, 2 * b + t, v0, v1, dmin)
+        for x in range(W):
+            a = cl[y, x]
+            for k in range(D):
+                d = dmin + k
+                u = x - d
+                if u >= 0 and u < W:
+                    total = rho_census[int(wp.bit_count(a ^ cr[y, u]))]
+                    total = total + _robust_term(_col_mean(rowsum, 2 * b, x, k, d, r, rows), lambda_grad,
+                                                 wp.float64(1.0))
+                    if T > 1:
+                        total = total + _robust_term(_col_mean(rowsum, 2 * b + 1, x, k, d, r, rows), lambda_bt,
+                                                     bt_weight)
+                else:
+                    total = rho_census[bits]
+                    total = total + _robust_term(gl.dtype(invalid_grad), lambda_grad, wp.float64(1.0))
+                    if T > 1:
+                        total = total + _robust_term(gl.dtype(invalid_bt), lambda_bt, bt_weight)
+                if levels > wp.float64(0.0):
+                    out[y, x, k] = out.dtype(wp.min(int(total * gl.dtype(levels) + gl.dtype(0.5)), 255))
+                else:
+                    out[y, x, k] = out.dtype(total)
+
+
+for _kernel in (_sobel_x, _census_eps, _half_ranges, _rho_table, _fused_cost):
     declare_float_overloads(_kernel)
+# Compact mode: float32 arithmetic, the cost quantised to uint8.
+wp.overload(_fused_cost, {**{arg.label: wp.array(dtype=wp.float32, ndim=arg.type.ndim) for arg in _fused_cost.adj.args
+                             if wp.types.is_array(arg.type) and arg.type.dtype is typing.Any},
+                          "out": wp.array3d(dtype=wp.uint8)})
+
+
+def compact_levels(bt_weight: float) -> int:
+    """Quantisation levels per unit cost of compact mode: the largest q with q (2 + bt_weight) <= 255, so every
+    cost (< 2 + bt_weight) fits a uint8 as round(C q)."""
+    return int(255 // (2.0 + float(bt_weight)))
 
 
 def sobel_x_clipped(image: Any, cap: float = 0.25, *, device: Any = None) -> Any:
@@ -101,12 +283,14 @@ def sobel_x_clipped(image: Any, cap: float = 0.25, *, device: Any = None) -> Any
 def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[Any, Any] | None = None,
                   census_radii: tuple[int, int] = (3, 4), radius: int = 2, grad_cap: float = 0.25,
                   lambda_census: float = 30.0, lambda_grad: float = 0.04, bt_weight: float = 0.0,
-                  lambda_bt: float = 0.04, device: Any = None) -> Any:
+                  lambda_bt: float = 0.04, census_eps: float = 0.0, levels: int = 0, device: Any = None) -> Any:
     """The combined cost volume (H, W, dmax - dmin) of the module docstring.
 
     `left`, `right`: grey (H, W) or colour (H, W, C) float images in [0, 1] (the gradient and BT terms);
     `grey`: the (left, right) grey images the census term reads, required for colour input (grey input
-    is its own grey image). `radius`: the window radius of the BT terms.
+    is its own grey image). `radius`: the window radius of the BT terms. `census_eps` >= 0: the census
+    tolerance (module docstring; 0 is the plain census transform). `levels` > 0 (compact mode): the
+    cost as uint8 round(C levels), at most compact_levels(bt_weight) levels per unit (float32 images).
     """
     a = Inputs(device, left, right)
     ndim = len(getattr(left, "shape", ()))
@@ -131,16 +315,50 @@ def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[An
                         ("lambda_bt", lambda_bt)):
         check_float(name, value, positive=True)
     bt_weight = check_float("bt_weight", bt_weight, nonnegative=True)
-
-    total = a.empty((H, W, dmax - dmin))
-    census = census_cost(g_l, g_r, dmin, dmax, *census_radii, device=a.device)
-    a.launch(_robust_add, H * W, [census, total, wp.float64(lambda_census), wp.float64(1.0), 1], min_chunk=256)
-    del census
-    gl, gr = sobel_x_clipped(l_img, grad_cap, device=a.device), sobel_x_clipped(r_img, grad_cap, device=a.device)
-    grad = bt_cost(gl, gr, dmin, dmax, radius, device=a.device)
-    a.launch(_robust_add, H * W, [grad, total, wp.float64(lambda_grad), wp.float64(1.0), 0], min_chunk=256)
-    del grad
+    r = check_int("radius", radius, minimum=0)
+    census_eps = check_float("census_eps", census_eps, nonnegative=True)
+    levels = check_int("levels", levels, minimum=0)
+    if levels and levels * (2.0 + bt_weight) > 255:
+        raise ValueError(f"levels: expected at most {compact_levels(bt_weight)} levels per unit so that every cost "
+                         f"(< 2 + bt_weight = {2 + bt_weight:g}) fits a uint8, got {levels}")
+    if levels and a.scalar != wp.float32:
+        raise ValueError("levels: compact mode (levels > 0) takes float32 images")
+    ry, rx, bits = _census_radii(*census_radii)
+    dmin, D = check_range(dmin, dmax, W)
+    if census_eps > 0:
+        cl, cr = a.empty((H, W), wp.uint64), a.empty((H, W), wp.uint64)
+        a.launch(_census_eps, H * W, [g_l, cl, ry, rx, wp.float64(census_eps)], min_chunk=1024)
+        a.launch(_census_eps, H * W, [g_r, cr, ry, rx, wp.float64(census_eps)], min_chunk=1024)
+    else:
+        cl = census_transform(g_l, ry, rx, device=a.device)
+        cr = census_transform(g_r, ry, rx, device=a.device)
+    rho_census = a.empty((bits + 1,))
+    a.launch(_rho_table, bits + 1, [rho_census, wp.float64(lambda_census)])
+    src = l_img if ndim == 3 else l_img.contiguous().reshape((H, W, 1))
+    dst = r_img if ndim == 3 else r_img.contiguous().reshape((H, W, 1))
+    terms = [sobel_x_clipped(src, grad_cap, device=a.device), sobel_x_clipped(dst, grad_cap, device=a.device)]
     if bt_weight > 0:
-        bt = bt_cost(l_img, r_img, dmin, dmax, radius, device=a.device)
-        a.launch(_robust_add, H * W, [bt, total, wp.float64(lambda_bt), wp.float64(bt_weight), 0], min_chunk=256)
-    return a.out(total)
+        terms += [src, dst]
+    images, invalid = [], []
+    for j, img in enumerate(terms):
+        lo, hi = a.empty(img.shape), a.empty(img.shape)
+        a.launch(_half_ranges, H * W, [img, lo, hi], min_chunk=1024)
+        images += [img, lo, hi]
+        if j % 2:  # the term's out-of-range cost: the range of both images' values (kernels.stereo.bt)
+            lh, rh = terms[j - 1].numpy(), img.numpy()
+            invalid.append(float(max(lh.max(), rh.max())) - float(min(lh.min(), rh.min())))
+    if bt_weight == 0:  # unused stand-ins for the intensity term's arrays
+        images += images[:6]
+        invalid.append(0.0)
+    # Bands of rows: at least 4 (r + 1) rows, so the 2 r rows each band's ring starts with add under half its
+    # work and all buffers together never exceed one float volume; on the CPU, fewer and longer bands where
+    # 4 per thread balance the threads.
+    band = 4 * (r + 1) if a.device.is_cuda else max(4 * (r + 1), math.ceil(H / (4 * default_threads())))
+    n_bands = math.ceil(H / band)
+    ring = a.empty((2 * n_bands, 2 * r + 1, W, D))
+    rowsum = a.empty((2 * n_bands, W, D))
+    out = a.empty((H, W, D), wp.uint8 if levels else None)
+    a.launch(_fused_cost, n_bands, [cl, cr, rho_census, *images, ring, rowsum, out, dmin, r, band, bits,
+                                    wp.float64(lambda_grad), wp.float64(invalid[0]), wp.float64(bt_weight),
+                                    wp.float64(lambda_bt), wp.float64(invalid[1]), wp.float64(levels)], min_chunk=1)
+    return a.out(out)

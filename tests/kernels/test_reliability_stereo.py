@@ -64,10 +64,17 @@ _C = np.zeros((4, 6, 3))
     (lambda: stereo.adcensus_cost(_G, _G, 0, 3, grad_cap=-1.0), "grad_cap"),
     (lambda: stereo.adcensus_cost(_G, _G, 0, 3, bt_weight=float("nan")), "bt_weight"),
     (lambda: stereo.adcensus_cost(_G, _G, 0, 3, census_radii=(4, 4)), "radius_y, radius_x"),
+    (lambda: stereo.adcensus_cost(_G, _G, 0, 3, radius=-1), "radius"),
+    (lambda: stereo.adcensus_cost(_G.astype(np.float32), _G.astype(np.float32), 0, 3, levels=111, bt_weight=0.3),
+     "levels: expected at most 110"),
+    (lambda: stereo.adcensus_cost(_G, _G, 0, 3, levels=100), "levels: compact mode .* float32"),
+    (lambda: stereo.adcensus_cost(_G, _G, 0, 3, levels=-1), "levels"),
+    (lambda: stereo.adcensus_cost(_G, _G, 0, 3, census_eps=-0.1), "census_eps"),
     (lambda: stereo.sobel_x_clipped(np.zeros(6), 0.25), "image: expected a grey"),
     (lambda: stereo.sobel_x_clipped(_G, 0.0), "cap"),
 ], ids=["colour-without-grey", "grey-not-a-pair", "grey-wrong-shape", "grey-wrong-dtype", "grey-and-colour",
         "range-wider-than-image", "lambda-census-0", "grad-cap-negative", "bt-weight-nan", "census-81-bits",
+        "radius-negative", "levels-overflow-uint8", "levels-with-float64", "levels-negative", "census-eps-negative",
         "sobel-1d", "sobel-cap-0"])
 def test_adcensus_bad_input(call, match):
     with pytest.raises(ValueError, match=match) as e:

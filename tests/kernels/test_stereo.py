@@ -436,8 +436,10 @@ def test_sobel_x_clipped_matches_reference(dtype, channels, cap):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
-@pytest.mark.parametrize("seed,drange,channels,bt_weight", [(0, (0, 5), 0, 0.0), (1, (-2, 4), 3, 0.5), (2, (3, 9), 3, 0.0)])
-def test_adcensus_matches_reference(dtype, seed, drange, channels, bt_weight):
+@pytest.mark.parametrize("seed,drange,channels,bt_weight,eps", [(0, (0, 5), 0, 0.0, 0.0), (1, (-2, 4), 3, 0.5, 0.0),
+                                                                 (2, (3, 9), 3, 0.0, 0.0), (3, (0, 6), 0, 0.3, 0.05),
+                                                                 (4, (-1, 5), 3, 0.3, 0.2)])
+def test_adcensus_matches_reference(dtype, seed, drange, channels, bt_weight, eps):
     rng = np.random.default_rng(seed)
     shape = (7, 11, channels) if channels else (7, 11)
     L = rng.uniform(0.0, 1.0, shape)
@@ -445,10 +447,53 @@ def test_adcensus_matches_reference(dtype, seed, drange, channels, bt_weight):
     L, R = L.astype(dtype), R.astype(dtype)
     grey = (L.mean(axis=2), R.mean(axis=2)) if channels else None
     kw = dict(census_radii=(1, 2), radius=1, grad_cap=0.2, lambda_census=5.0, lambda_grad=0.05, bt_weight=bt_weight,
-              lambda_bt=0.03)
+              lambda_bt=0.03, census_eps=eps)
     got = stereo.adcensus_cost(L, R, *drange, grey=grey, **kw)
     assert got.dtype == dtype and got.shape == (7, 11, drange[1] - drange[0])
     np.testing.assert_allclose(got, ref.adcensus_cost(L, R, *drange, grey=grey, **kw), rtol=RTOL[dtype], atol=1e-6)
+
+
+def _rho_sum(terms, dtype):
+    """sum of w (1 - exp(-c / lambda)) over (volume, lambda, w), in `dtype`, terms added in order."""
+    total = None
+    for c, lam, w in terms:
+        t = dtype(w) * (dtype(1.0) - np.exp(-np.asarray(c, dtype) * dtype(1.0 / lam)))
+        total = t if total is None else total + t
+    return total
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("channels,drange,radius,bt_weight", [(0, (0, 16), 2, 0.3), (3, (-3, 9), 1, 0.0),
+                                                              (3, (2, 19), 3, 1.0)])
+def test_adcensus_fused_equals_its_terms_composed(dtype, channels, drange, radius, bt_weight):
+    """The one fused launch gives the volume of composing census_cost, bt_cost on the clipped gradient and on the
+    intensity, and the rho sums, on rows spanning several of the fused kernel's bands. Tolerance: NumPy's exp and
+    Warp's may differ in the last bit, which 1 - exp(-c / lambda) turns into an absolute difference of about one
+    ulp of 1 (6e-8 in float32), large relative to small costs; so an absolute bound of a few ulps of 1."""
+    rng = np.random.default_rng(11)
+    shape = (41, 23, channels) if channels else (41, 23)
+    L = rng.uniform(0.0, 1.0, shape).astype(dtype)
+    R = np.clip(np.roll(L, -3, axis=1) + 0.05 * rng.standard_normal(shape), 0, 1).astype(dtype)
+    grey = (L.mean(axis=2), R.mean(axis=2)) if channels else (L, R)
+    got = stereo.adcensus_cost(L, R, *drange, grey=grey if channels else None, radius=radius, bt_weight=bt_weight)
+    terms = [(stereo.census_cost(*grey, *drange, 3, 4), 30.0, 1.0),
+             (stereo.bt_cost(stereo.sobel_x_clipped(L), stereo.sobel_x_clipped(R), *drange, radius), 0.04, 1.0)]
+    if bt_weight:
+        terms.append((stereo.bt_cost(L, R, *drange, radius), 0.04, bt_weight))
+    np.testing.assert_allclose(got, _rho_sum(terms, dtype), rtol=0, atol=5e-7 if dtype == np.float32 else 1e-15)
+
+
+@pytest.mark.parametrize("bt_weight", [0.0, 0.3])
+def test_adcensus_compact_is_the_rounded_float_cost(bt_weight):
+    L, R = (x.astype(np.float32) for x in _images(6, shape=(12, 20)))
+    q = stereo.compact_levels(bt_weight)
+    assert q * (2 + bt_weight) <= 255 < (q + 1) * (2 + bt_weight)
+    full = stereo.adcensus_cost(L, R, 0, 8, bt_weight=bt_weight)
+    got = stereo.adcensus_cost(L, R, 0, 8, bt_weight=bt_weight, levels=q)
+    assert got.dtype == np.uint8
+    expected = np.floor(full * np.float32(q) + np.float32(0.5))
+    np.testing.assert_array_equal(got, expected.astype(np.uint8))
+    assert np.abs(got / q - full).max() <= 0.5 / q + 1e-6
 
 
 def test_adcensus_is_unchanged_by_an_intensity_offset_where_no_clip_binds():
@@ -461,6 +506,20 @@ def test_adcensus_is_unchanged_by_an_intensity_offset_where_no_clip_binds():
     # The intensity term does see it.
     assert not np.allclose(stereo.adcensus_cost(L, R, 0, 6, bt_weight=1.0),
                            stereo.adcensus_cost(L, R + 0.1, 0, 6, bt_weight=1.0))
+    # Nor does the census tolerance.
+    np.testing.assert_allclose(stereo.adcensus_cost(L, R, 0, 6, census_eps=0.05),
+                               stereo.adcensus_cost(L, R + 0.1, 0, 6, census_eps=0.05), rtol=0, atol=1e-9)
+
+
+def test_adcensus_census_tolerance_flattens_a_noisy_flat_surface():
+    """Below the tolerance, noise on a flat image sets no census bit: the census term is 0 at every hypothesis."""
+    rng = np.random.default_rng(8)
+    L, R = 0.5 + 0.004 * rng.standard_normal((9, 14)), 0.5 + 0.004 * rng.standard_normal((9, 14))
+    plain = stereo.adcensus_cost(L, R, 0, 4, census_radii=(1, 1))
+    tol = stereo.adcensus_cost(L, R, 0, 4, census_radii=(1, 1), census_eps=0.05)
+    grad_only = stereo.adcensus_cost(L, R, 0, 4, census_radii=(1, 1), census_eps=0.05, lambda_census=1e-3)
+    np.testing.assert_array_equal(tol[:, 3:], grad_only[:, 3:])  # census distance 0 wherever in range, any lambda
+    assert not np.array_equal(plain[:, 4:], tol[:, 4:])
 
 
 def test_adcensus_wp_arrays_in_give_wp_arrays_out():
