@@ -47,6 +47,8 @@ T_MIN = 1e-4
 MIN_CHUNK = 1024
 # Columns of the per-(tile, splat) gradient rows: mean2d (2), conic (3), opacity, colour (3), depth.
 _GRAD_COLS = 10
+# Unit roundoff of each float dtype (the pixel spans' safety margin, _span_widening).
+_UNIT_ROUNDOFF = {wp.float32: 2.0 ** -24, wp.float64: 2.0 ** -53}
 
 
 @wp.func
@@ -71,58 +73,155 @@ def _gauss_power(packed: wp.array2d(dtype=Any), g: int, pxf: Any, pyf: Any):
     return dx, dy, -packed.dtype(0.5) * (packed[g, 2] * dx * dx + packed[g, 4] * dy * dy) - packed[g, 3] * dx * dy
 
 
+@wp.func
+def _span_widening(qa: wp.float64, qb: wp.float64, qc: wp.float64, unit: wp.float64):
+    """The factor 1 + m by which a splat's pixel spans widen its 1/255 ellipse; 0: no spans.
+
+    The rasteriser evaluates the power in the splats' dtype (unit roundoff `unit`): it differs from
+    the exact -1/2 d^T Q d (of the same stored u, v, Q) by at most ~11 unit M, where M = Q00 dx^2 +
+    Q11 dy^2 + 2 |Q01 dx dy| <= 2 d^T Q d / (1 - rho), rho = |Q01| / sqrt(Q00 Q11). Widened by
+    16 unit / (1 - rho), plus 1e-6 for the float64 arithmetic of the spans, every pixel outside a
+    span computes a power below the skip threshold, as it would have in the full tile. A conic too
+    elongated (1 - rho < 1e-3) or not positive definite gets no spans (the whole tile).
+    """
+    zero = wp.float64(0.0)
+    if qa <= zero or qc <= zero:
+        return zero
+    gap = wp.float64(1.0) - wp.abs(qb) / wp.sqrt(qa * qc)
+    if gap < wp.float64(1e-3) or qa * qc - qb * qb <= zero:
+        return zero
+    return wp.float64(1.0) + wp.float64(1e-6) + wp.float64(16.0) * unit / gap
+
+
+@wp.func
+def _floor_in(x: wp.float64, lo: int, hi: int):
+    """floor(x) clamped to [lo, hi] (x clamped first, so any finite x converts safely)."""
+    return int(wp.floor(wp.clamp(x, wp.float64(float(lo)), wp.float64(float(hi)))))
+
+
+@wp.func
+def _ceil_in(x: wp.float64, lo: int, hi: int):
+    """ceil(x) clamped to [lo, hi]."""
+    return int(wp.ceil(wp.clamp(x, wp.float64(float(lo)), wp.float64(float(hi)))))
+
+
 @wp.kernel
 def _raster_forward_kernel(
     packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
     sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
-    alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any),
-    out_depth: wp.array2d(dtype=Any),
+    alpha_max: Any, stop_inclusive: int, unit: wp.float64, out_rgb: wp.array3d(dtype=Any),
+    out_alpha: wp.array2d(dtype=Any), out_depth: wp.array2d(dtype=Any),
     final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32), offset: int,
 ):
-    t = wp.tid() + offset
-    tile = t / TILE_PIXELS
-    px, py = _tile_pixel(tile, t - tile * TILE_PIXELS, tiles_x)
-    if px >= width or py >= height:
-        return
+    # One thread per tile, splats in the outer loop (front to back), the pixels of each splat's span
+    # in the inner one. Each pixel sees the same splats in the same order, with the same arithmetic,
+    # as a loop over the tile's list per pixel; its running sums live in the output arrays
+    # (final_T = T, out_rgb and out_depth the blended sums), and n_contrib < 0 marks a stopped pixel
+    # (-1 - its count).
+    tile = wp.tid() + offset
     zero = packed.dtype(0.0)
     one = packed.dtype(1.0)
-    pxf, pyf = _pixel_centre(packed, px, py)
+    half = packed.dtype(0.5)
+    tile_y = tile / tiles_x
+    x_lo = (tile - tile_y * tiles_x) * TILE
+    y_lo = tile_y * TILE
+    x_hi = wp.min(x_lo + TILE, width)
+    y_hi = wp.min(y_lo + TILE, height)
     start = ranges[tile, 0]
     end = ranges[tile, 1]
-    tr = one
-    cr = zero
-    cg = zero
-    cb = zero
-    cd = zero
-    last = start
+    for py in range(y_lo, y_hi):
+        for px in range(x_lo, x_hi):
+            final_T[py, px] = one
+            out_rgb[py, px, 0] = zero
+            out_rgb[py, px, 1] = zero
+            out_rgb[py, px, 2] = zero
+            out_depth[py, px] = zero
+            n_contrib[py, px] = start
+    n_pix = (x_hi - x_lo) * (y_hi - y_lo)
+    stopped = int(0)
+    h64 = wp.float64(0.5)
     for s in range(start, end):
         g = sorted_gid[s]
-        dx, dy, power = _gauss_power(packed, g, pxf, pyf)
+        u = packed[g, 0]
+        v = packed[g, 1]
+        qa = packed[g, 2]
+        qb = packed[g, 3]
+        qc = packed[g, 4]
+        o = packed[g, 5]
         # packed[g, 6] = -ln(255 o): below it alpha < 1/255, so exp() is skipped.
-        if power > zero or power < packed[g, 6]:
-            continue
-        alpha = wp.min(alpha_max, packed[g, 5] * wp.exp(power))
-        if alpha < packed.dtype(ALPHA_MIN):
-            continue
-        next_t = tr * (one - alpha)
-        if next_t < packed.dtype(T_MIN):
+        thr = packed[g, 6]
+        z = packed[g, 7]
+        c0 = colors[g, 0]
+        c1 = colors[g, 1]
+        c2 = colors[g, 2]
+        # The splat's rows and, per row, columns inside its widened 1/255 ellipse d^T Q d <= k.
+        qa64 = wp.float64(qa)
+        qb64 = wp.float64(qb)
+        qc64 = wp.float64(qc)
+        u64 = wp.float64(u)
+        v64 = wp.float64(v)
+        grow = _span_widening(qa64, qb64, qc64, unit)
+        spans = grow > wp.float64(0.0)
+        k = wp.float64(-2.0) * wp.float64(thr) * grow
+        det = qa64 * qc64 - qb64 * qb64
+        row0 = y_lo
+        row1 = y_hi
+        if spans:
+            hy = wp.sqrt(k * qa64 / det)
+            row0 = _ceil_in(v64 - hy - h64, y_lo, y_hi)
+            row1 = _floor_in(v64 + hy - h64, y_lo - 1, y_hi - 1) + 1
+        for py in range(row0, row1):
+            pyf = packed.dtype(float(py)) + half
+            col0 = x_lo
+            col1 = x_hi
+            if spans:
+                dy64 = v64 - (wp.float64(float(py)) + h64)
+                disc = k * qa64 - det * dy64 * dy64
+                col1 = col0
+                if disc >= wp.float64(0.0):
+                    # dx = u - pixel centre within (-Q01 dy -+ sqrt(disc)) / Q00
+                    mid = u64 + qb64 * dy64 / qa64 - h64
+                    w = wp.sqrt(disc) / qa64
+                    col0 = _ceil_in(mid - w, x_lo, x_hi)
+                    col1 = _floor_in(mid + w, x_lo - 1, x_hi - 1) + 1
+            for px in range(col0, col1):
+                nc = n_contrib[py, px]
+                if nc < 0:
+                    continue
+                pxf = packed.dtype(float(px)) + half
+                dx = u - pxf
+                dy = v - pyf
+                power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
+                if power > zero or power < thr:
+                    continue
+                alpha = wp.min(alpha_max, o * wp.exp(power))
+                if alpha < packed.dtype(ALPHA_MIN):
+                    continue
+                tr = final_T[py, px]
+                next_t = tr * (one - alpha)
+                if next_t < packed.dtype(T_MIN) or (stop_inclusive != 0 and next_t == packed.dtype(T_MIN)):
+                    n_contrib[py, px] = -1 - nc
+                    stopped += 1
+                    continue
+                wgt = alpha * tr
+                out_rgb[py, px, 0] = out_rgb[py, px, 0] + wgt * c0
+                out_rgb[py, px, 1] = out_rgb[py, px, 1] + wgt * c1
+                out_rgb[py, px, 2] = out_rgb[py, px, 2] + wgt * c2
+                out_depth[py, px] = out_depth[py, px] + wgt * z
+                final_T[py, px] = next_t
+                n_contrib[py, px] = s + 1
+        if stopped == n_pix:
             break
-        if stop_inclusive != 0 and next_t == packed.dtype(T_MIN):
-            break
-        wgt = alpha * tr
-        cr += wgt * colors[g, 0]
-        cg += wgt * colors[g, 1]
-        cb += wgt * colors[g, 2]
-        cd += wgt * packed[g, 7]
-        tr = next_t
-        last = s + 1
-    out_rgb[py, px, 0] = cr + tr * background[0]
-    out_rgb[py, px, 1] = cg + tr * background[1]
-    out_rgb[py, px, 2] = cb + tr * background[2]
-    out_alpha[py, px] = one - tr
-    out_depth[py, px] = cd
-    final_T[py, px] = tr
-    n_contrib[py, px] = last
+    for py in range(y_lo, y_hi):
+        for px in range(x_lo, x_hi):
+            tr = final_T[py, px]
+            out_rgb[py, px, 0] = out_rgb[py, px, 0] + tr * background[0]
+            out_rgb[py, px, 1] = out_rgb[py, px, 1] + tr * background[1]
+            out_rgb[py, px, 2] = out_rgb[py, px, 2] + tr * background[2]
+            out_alpha[py, px] = one - tr
+            nc = n_contrib[py, px]
+            if nc < 0:
+                n_contrib[py, px] = -1 - nc
 
 
 @wp.kernel
@@ -272,13 +371,18 @@ def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
     if tiles is None:
         tiles = bin_tiles(s, width, height, mode)
     _check_tiles_mode(tiles, mode)
-    out = Raster(a.zeros((height, width, 3)), a.zeros((height, width)), a.zeros((height, width)),
-                 a.zeros((height, width)), a.zeros((height, width), wp.int32))
+    # Every pixel belongs to one tile, whose thread writes all its outputs: no zero fill needed.
+    dev = a.device
+    out = Raster(wp.empty((height, width, 3), dtype=a.scalar, device=dev),
+                 wp.empty((height, width), dtype=a.scalar, device=dev),
+                 wp.empty((height, width), dtype=a.scalar, device=dev),
+                 wp.empty((height, width), dtype=a.scalar, device=dev),
+                 wp.empty((height, width), dtype=wp.int32, device=dev))
     n_tiles = tiles.tiles_x * tiles.tiles_y
-    a.launch(_raster_forward_kernel, n_tiles * TILE_PIXELS,
+    a.launch(_raster_forward_kernel, n_tiles,
              [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x,
-              a.s(ALPHA_MAX_OF[mode]), mid, out.rgb,
-              out.alpha, out.depth, out.final_T, out.n_contrib], min_chunk=TILE_PIXELS)
+              a.s(ALPHA_MAX_OF[mode]), mid, wp.float64(_UNIT_ROUNDOFF[a.scalar]), out.rgb,
+              out.alpha, out.depth, out.final_T, out.n_contrib], min_chunk=1)
     return out, tiles
 
 
