@@ -37,7 +37,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
-from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles
+from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles, ceil_in, floor_in
 
 wp.set_module_options({"enable_backward": False})
 
@@ -47,8 +47,6 @@ T_MIN = 1e-4
 MIN_CHUNK = 1024
 # Columns of the per-(tile, splat) gradient rows: mean2d (2), conic (3), opacity, colour (3), depth.
 _GRAD_COLS = 10
-# Unit roundoff of each float dtype (the pixel spans' safety margin, _span_widening).
-_UNIT_ROUNDOFF = {wp.float32: 2.0 ** -24, wp.float64: 2.0 ** -53}
 
 
 @wp.func
@@ -73,43 +71,11 @@ def _gauss_power(packed: wp.array2d(dtype=Any), g: int, pxf: Any, pyf: Any):
     return dx, dy, -packed.dtype(0.5) * (packed[g, 2] * dx * dx + packed[g, 4] * dy * dy) - packed[g, 3] * dx * dy
 
 
-@wp.func
-def _span_widening(qa: wp.float64, qb: wp.float64, qc: wp.float64, unit: wp.float64):
-    """The factor 1 + m by which a splat's pixel spans widen its 1/255 ellipse; 0: no spans.
-
-    The rasteriser evaluates the power in the splats' dtype (unit roundoff `unit`): it differs from
-    the exact -1/2 d^T Q d (of the same stored u, v, Q) by at most ~11 unit M, where M = Q00 dx^2 +
-    Q11 dy^2 + 2 |Q01 dx dy| <= 2 d^T Q d / (1 - rho), rho = |Q01| / sqrt(Q00 Q11). Widened by
-    16 unit / (1 - rho), plus 1e-6 for the float64 arithmetic of the spans, every pixel outside a
-    span computes a power below the skip threshold, as it would have in the full tile. A conic too
-    elongated (1 - rho < 1e-3) or not positive definite gets no spans (the whole tile).
-    """
-    zero = wp.float64(0.0)
-    if qa <= zero or qc <= zero:
-        return zero
-    gap = wp.float64(1.0) - wp.abs(qb) / wp.sqrt(qa * qc)
-    if gap < wp.float64(1e-3) or qa * qc - qb * qb <= zero:
-        return zero
-    return wp.float64(1.0) + wp.float64(1e-6) + wp.float64(16.0) * unit / gap
-
-
-@wp.func
-def _floor_in(x: wp.float64, lo: int, hi: int):
-    """floor(x) clamped to [lo, hi] (x clamped first, so any finite x converts safely)."""
-    return int(wp.floor(wp.clamp(x, wp.float64(float(lo)), wp.float64(float(hi)))))
-
-
-@wp.func
-def _ceil_in(x: wp.float64, lo: int, hi: int):
-    """ceil(x) clamped to [lo, hi]."""
-    return int(wp.ceil(wp.clamp(x, wp.float64(float(lo)), wp.float64(float(hi)))))
-
-
 @wp.kernel
 def _raster_forward_kernel(
     packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
-    sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
-    alpha_max: Any, stop_inclusive: int, unit: wp.float64, out_rgb: wp.array3d(dtype=Any),
+    spans: wp.array2d(dtype=wp.float64), sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
+    width: int, height: int, tiles_x: int, alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any),
     out_alpha: wp.array2d(dtype=Any), out_depth: wp.array2d(dtype=Any),
     final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32), offset: int,
 ):
@@ -154,36 +120,26 @@ def _raster_forward_kernel(
         c0 = colors[g, 0]
         c1 = colors[g, 1]
         c2 = colors[g, 2]
-        # The splat's rows and, per row, columns inside its widened 1/255 ellipse d^T Q d <= k.
-        qa64 = wp.float64(qa)
-        qb64 = wp.float64(qb)
-        qc64 = wp.float64(qc)
-        u64 = wp.float64(u)
-        v64 = wp.float64(v)
-        grow = _span_widening(qa64, qb64, qc64, unit)
-        spans = grow > wp.float64(0.0)
-        k = wp.float64(-2.0) * wp.float64(thr) * grow
-        det = qa64 * qc64 - qb64 * qb64
+        # The splat's rows and, per row, columns inside its widened 1/255 ellipse (tiles.py: spans).
+        hy = spans[g, 5]
         row0 = y_lo
         row1 = y_hi
-        if spans:
-            hy = wp.sqrt(k * qa64 / det)
-            row0 = _ceil_in(v64 - hy - h64, y_lo, y_hi)
-            row1 = _floor_in(v64 + hy - h64, y_lo - 1, y_hi - 1) + 1
+        if hy >= wp.float64(0.0):
+            row0 = ceil_in(spans[g, 1] - hy - h64, y_lo, y_hi)
+            row1 = floor_in(spans[g, 1] + hy - h64, y_lo - 1, y_hi - 1) + 1
         for py in range(row0, row1):
             pyf = packed.dtype(float(py)) + half
             col0 = x_lo
             col1 = x_hi
-            if spans:
-                dy64 = v64 - (wp.float64(float(py)) + h64)
-                disc = k * qa64 - det * dy64 * dy64
+            if hy >= wp.float64(0.0):
+                dy64 = spans[g, 1] - (wp.float64(float(py)) + h64)
+                disc = spans[g, 3] - spans[g, 4] * dy64 * dy64
                 col1 = col0
                 if disc >= wp.float64(0.0):
-                    # dx = u - pixel centre within (-Q01 dy -+ sqrt(disc)) / Q00
-                    mid = u64 + qb64 * dy64 / qa64 - h64
-                    w = wp.sqrt(disc) / qa64
-                    col0 = _ceil_in(mid - w, x_lo, x_hi)
-                    col1 = _floor_in(mid + w, x_lo - 1, x_hi - 1) + 1
+                    mid = spans[g, 0] - h64 + spans[g, 2] * dy64
+                    w = wp.sqrt(disc)
+                    col0 = ceil_in(mid - w, x_lo, x_hi)
+                    col1 = floor_in(mid + w, x_lo - 1, x_hi - 1) + 1
             for px in range(col0, col1):
                 nc = n_contrib[py, px]
                 if nc < 0:
@@ -380,8 +336,8 @@ def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
                  wp.empty((height, width), dtype=wp.int32, device=dev))
     n_tiles = tiles.tiles_x * tiles.tiles_y
     a.launch(_raster_forward_kernel, n_tiles,
-             [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x,
-              a.s(ALPHA_MAX_OF[mode]), mid, wp.float64(_UNIT_ROUNDOFF[a.scalar]), out.rgb,
+             [tiles.packed, s.colors, bg, tiles.spans, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x,
+              a.s(ALPHA_MAX_OF[mode]), mid, out.rgb,
               out.alpha, out.depth, out.final_T, out.n_contrib], min_chunk=1)
     return out, tiles
 
