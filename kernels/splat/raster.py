@@ -37,7 +37,8 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
-from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles, ceil_in, floor_in
+from kernels.splat.tiles import (TILE, TILE_PIXELS, Splats2D, Tiles, band_columns, bin_tiles, ceil_in, floor_in,
+                                 span_rows)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -73,8 +74,8 @@ def _gauss_power(packed: wp.array2d(dtype=Any), g: int, pxf: Any, pyf: Any):
 
 @wp.kernel
 def _raster_forward_kernel(
-    packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
-    spans: wp.array2d(dtype=wp.float64), sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
+    packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
+    sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
     width: int, height: int, tiles_x: int, alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any),
     out_alpha: wp.array2d(dtype=Any), out_depth: wp.array2d(dtype=Any),
     final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32), offset: int,
@@ -105,7 +106,6 @@ def _raster_forward_kernel(
             n_contrib[py, px] = start
     n_pix = (x_hi - x_lo) * (y_hi - y_lo)
     stopped = int(0)
-    h64 = wp.float64(0.5)
     for s in range(start, end):
         g = sorted_gid[s]
         u = packed[g, 0]
@@ -117,29 +117,23 @@ def _raster_forward_kernel(
         # packed[g, 6] = -ln(255 o): below it alpha < 1/255, so exp() is skipped.
         thr = packed[g, 6]
         z = packed[g, 7]
-        c0 = colors[g, 0]
-        c1 = colors[g, 1]
-        c2 = colors[g, 2]
-        # The splat's rows and, per row, columns inside its widened 1/255 ellipse (tiles.py: spans).
-        hy = spans[g, 5]
+        c0 = packed[g, 8]
+        c1 = packed[g, 9]
+        c2 = packed[g, 10]
+        # The splat's rows inside its widened 1/255 ellipse in this tile, and the columns of any of
+        # those rows (tiles.py: span_rows, band_columns).
         row0 = y_lo
         row1 = y_hi
-        if hy >= wp.float64(0.0):
-            row0 = ceil_in(spans[g, 1] - hy - h64, y_lo, y_hi)
-            row1 = floor_in(spans[g, 1] + hy - h64, y_lo - 1, y_hi - 1) + 1
+        col0 = x_lo
+        col1 = x_hi
+        if packed[g, 14] >= zero:
+            row0, row1 = span_rows(packed, g, y_lo, y_hi)
+            if row1 > row0:
+                left, right = band_columns(packed, g, row0, row1 - 1)
+                col0 = ceil_in(left, x_lo, x_hi)
+                col1 = floor_in(right, x_lo - 1, x_hi - 1) + 1
         for py in range(row0, row1):
             pyf = packed.dtype(float(py)) + half
-            col0 = x_lo
-            col1 = x_hi
-            if hy >= wp.float64(0.0):
-                dy64 = spans[g, 1] - (wp.float64(float(py)) + h64)
-                disc = spans[g, 3] - spans[g, 4] * dy64 * dy64
-                col1 = col0
-                if disc >= wp.float64(0.0):
-                    mid = spans[g, 0] - h64 + spans[g, 2] * dy64
-                    w = wp.sqrt(disc)
-                    col0 = ceil_in(mid - w, x_lo, x_hi)
-                    col1 = floor_in(mid + w, x_lo - 1, x_hi - 1) + 1
             for px in range(col0, col1):
                 nc = n_contrib[py, px]
                 if nc < 0:
@@ -336,7 +330,7 @@ def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
                  wp.empty((height, width), dtype=wp.int32, device=dev))
     n_tiles = tiles.tiles_x * tiles.tiles_y
     a.launch(_raster_forward_kernel, n_tiles,
-             [tiles.packed, s.colors, bg, tiles.spans, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x,
+             [tiles.packed, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x,
               a.s(ALPHA_MAX_OF[mode]), mid, out.rgb,
               out.alpha, out.depth, out.final_T, out.n_contrib], min_chunk=1)
     return out, tiles

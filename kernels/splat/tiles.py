@@ -34,6 +34,10 @@ wp.set_module_options({"enable_backward": False})
 TILE = 16
 TILE_PIXELS = TILE * TILE
 MIN_CHUNK = 1024
+# Columns of a splat's packed row, all the rasteriser reads of it (16 float32 = one 64-byte cache
+# line): 0-1 mean2d u, v; 2-4 conic Q00, Q01, Q11; 5 opacity o; 6 -ln(255 o); 7 depth; 8-10 colour;
+# 11-15 its spans S, B, C, hy, dy* (hy < 0: no spans; band_columns).
+PACKED_COLS = 16
 # Unit roundoff of each float dtype (the margin of the pixel spans, _span_widening).
 UNIT_ROUNDOFF = {wp.float32: 2.0 ** -24, wp.float64: 2.0 ** -53}
 
@@ -45,7 +49,9 @@ def _span_widening(qa: wp.float64, qb: wp.float64, qc: wp.float64, unit: wp.floa
     The rasteriser evaluates the power in the splats' dtype (unit roundoff `unit`): it differs from
     the exact -1/2 d^T Q d (of the same stored u, v, Q) by at most ~11 unit M, where M = Q00 dx^2 +
     Q11 dy^2 + 2 |Q01 dx dy| <= 2 d^T Q d / (1 - rho), rho = |Q01| / sqrt(Q00 Q11). Widened by
-    16 unit / (1 - rho), plus 1e-6 for the float64 arithmetic of the spans, every pixel outside
+    16 unit / (1 - rho), plus 1e-4 (for the float64 arithmetic of the spans and for storing their
+    S, B, C, hy, dy* in the splats' dtype: 1e-4 of B is far more than float32's rounding of B, C and
+    S dy, whose relative 6e-8 |S| hy <= 6e-8 sqrt(B) / sqrt(2 (1 - rho))), every pixel outside
     computes a power below the skip threshold. A conic too elongated (1 - rho < 1e-3) or not
     positive definite gets no spans (its whole box of tiles, every pixel of them).
     """
@@ -55,7 +61,7 @@ def _span_widening(qa: wp.float64, qb: wp.float64, qc: wp.float64, unit: wp.floa
     gap = wp.float64(1.0) - wp.abs(qb) / wp.sqrt(qa * qc)
     if gap < wp.float64(1e-3) or qa * qc - qb * qb <= zero:
         return zero
-    return wp.float64(1.0) + wp.float64(1e-6) + wp.float64(16.0) * unit / gap
+    return wp.float64(1.0) + wp.float64(1e-4) + wp.float64(16.0) * unit / gap
 
 
 @wp.func
@@ -71,34 +77,48 @@ def ceil_in(x: wp.float64, lo: int, hi: int):
 
 
 @wp.func
-def _span_row_tiles(spans: wp.array2d(dtype=wp.float64), i: int, ty: int, x0: int, x1: int, width: int,
-                    height: int):
-    """The tiles [tx0, tx1) of tile row ty, within [x0, x1), that hold a pixel of splat i's spans.
+def band_columns(packed: wp.array2d(dtype=Any), i: int, p0: int, p1: int):
+    """(left, right): every span column (pixel x index, continuous) of splat i in pixel rows p0..p1.
 
-    Over the pixel rows py of the tile row inside the ellipse, dy = v - (py + 1/2) runs through
-    [d0, d1]; the columns of row dy are (u - 1/2) + S dy -+ sqrt(B - C dy^2) (spans[i] = u, v, S,
-    B, C, hy). S dy + sqrt(.) is concave, S dy - sqrt(.) convex, both extreme at dy = +-dy*,
-    dy* = S sqrt(B / (C (C + S^2))): clamped into [d0, d1], they bound the columns of all those rows.
+    Over those rows dy = v - (py + 1/2) runs through [d0, d1]; the columns of row dy are
+    (u - 1/2) + S dy -+ sqrt(B - C dy^2) (packed columns 11-15: S, B, C, hy, dy*). S dy + sqrt(.)
+    is concave, S dy - sqrt(.) convex, extreme at dy = +-dy*, dy* = S sqrt(B / (C (C + S^2))):
+    clamped into [d0, d1], they bound the columns of all those rows. In float64.
     """
-    u = spans[i, 0]
-    v = spans[i, 1]
-    sl = spans[i, 2]
-    bb = spans[i, 3]
-    cc = spans[i, 4]
-    hy = spans[i, 5]
+    u = wp.float64(packed[i, 0])
+    v = wp.float64(packed[i, 1])
+    sl = wp.float64(packed[i, 11])
+    bb = wp.float64(packed[i, 12])
+    cc = wp.float64(packed[i, 13])
+    hy = wp.float64(packed[i, 14])
+    ds = wp.float64(packed[i, 15])
     h = wp.float64(0.5)
     zero = wp.float64(0.0)
-    p0 = wp.max(ty * TILE, ceil_in(v - hy - h, 0, height))
-    p1 = wp.min(wp.min(ty * TILE + TILE, height) - 1, floor_in(v + hy - h, -1, height - 1))
-    if p1 < p0:
-        return x0, x0
     d0 = wp.clamp(v - wp.float64(float(p1)) - h, -hy, hy)
     d1 = wp.clamp(v - wp.float64(float(p0)) - h, -hy, hy)
-    dstar = sl * wp.sqrt(bb / (cc * (cc + sl * sl)))
-    dr = wp.clamp(dstar, d0, d1)
-    dl = wp.clamp(-dstar, d0, d1)
+    dr = wp.clamp(ds, d0, d1)
+    dl = wp.clamp(-ds, d0, d1)
     right = u - h + sl * dr + wp.sqrt(wp.max(zero, bb - cc * dr * dr))
     left = u - h + sl * dl - wp.sqrt(wp.max(zero, bb - cc * dl * dl))
+    return left, right
+
+
+@wp.func
+def span_rows(packed: wp.array2d(dtype=Any), i: int, lo: int, hi: int):
+    """The pixel rows [r0, r1) within [lo, hi) of splat i's spans (|v - (py + 1/2)| <= hy)."""
+    v = wp.float64(packed[i, 1])
+    hy = wp.float64(packed[i, 14])
+    h = wp.float64(0.5)
+    return ceil_in(v - hy - h, lo, hi), floor_in(v + hy - h, lo - 1, hi - 1) + 1
+
+
+@wp.func
+def _span_row_tiles(packed: wp.array2d(dtype=Any), i: int, ty: int, x0: int, x1: int, width: int, height: int):
+    """The tiles [tx0, tx1) of tile row ty, within [x0, x1), that hold a pixel of splat i's spans."""
+    p0, p1 = span_rows(packed, i, ty * TILE, wp.min(ty * TILE + TILE, height))
+    if p1 <= p0:
+        return x0, x0
+    left, right = band_columns(packed, i, p0, p1 - 1)
     c0 = ceil_in(left, 0, width)
     c1 = floor_in(right, -1, width - 1)
     if c1 < c0:
@@ -112,10 +132,10 @@ def _span_row_tiles(spans: wp.array2d(dtype=wp.float64), i: int, ty: int, x0: in
 
 @wp.kernel
 def _tile_counts_kernel(
-    means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), opacities: wp.array(dtype=Any),
-    depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), width: int, height: int, tiles_x: int,
-    tiles_y: int, mode: int, unit: wp.float64, rects: wp.array2d(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
-    packed: wp.array2d(dtype=Any), spans: wp.array2d(dtype=wp.float64), offset: int,
+    means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any),
+    opacities: wp.array(dtype=Any), depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), width: int,
+    height: int, tiles_x: int, tiles_y: int, mode: int, unit: wp.float64, rects: wp.array2d(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32), packed: wp.array2d(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     r = radii[i]
@@ -170,25 +190,30 @@ def _tile_counts_kernel(
     packed[i, 5] = o
     packed[i, 6] = thr
     packed[i, 7] = depths[i]
+    packed[i, 8] = colors[i, 0]
+    packed[i, 9] = colors[i, 1]
+    packed[i, 10] = colors[i, 2]
     # The spans: rows and columns inside the ellipse d^T Q d <= k, the rasteriser's threshold
-    # -2 thr widened for rounding (_span_widening); in float64 from the stored values.
+    # -2 thr widened for rounding (_span_widening); computed in float64 from the stored values.
     qa64 = wp.float64(qa)
     qb64 = wp.float64(qb)
     qc64 = wp.float64(qc)
     grow = _span_widening(qa64, qb64, qc64, unit)
-    spans[i, 0] = wp.float64(u)
-    spans[i, 1] = wp.float64(v)
-    spans[i, 5] = wp.float64(-1.0)
+    packed[i, 14] = means2d.dtype(-1.0)
     if grow > wp.float64(0.0):
         kk = wp.float64(-2.0) * wp.float64(thr) * grow
         det64 = qa64 * qc64 - qb64 * qb64
-        spans[i, 2] = qb64 / qa64
-        spans[i, 3] = kk / qa64
-        spans[i, 4] = det64 / (qa64 * qa64)
-        spans[i, 5] = wp.sqrt(kk * qa64 / det64)
+        sl = qb64 / qa64
+        bb = kk / qa64
+        cc = det64 / (qa64 * qa64)
+        packed[i, 11] = means2d.dtype(sl)
+        packed[i, 12] = means2d.dtype(bb)
+        packed[i, 13] = means2d.dtype(cc)
+        packed[i, 14] = means2d.dtype(wp.sqrt(bb / cc))
+        packed[i, 15] = means2d.dtype(sl * wp.sqrt(bb / (cc * (cc + sl * sl))))
         n = int(0)
         for ty in range(y0, y1):
-            tx0, tx1 = _span_row_tiles(spans, i, ty, x0, x1, width, height)
+            tx0, tx1 = _span_row_tiles(packed, i, ty, x0, x1, width, height)
             n += tx1 - tx0
         counts[i] = n
     else:
@@ -224,7 +249,7 @@ def _starts_kernel(order: wp.array(dtype=wp.int32), ranked_starts: wp.array(dtyp
 
 @wp.kernel
 def _emit_kernel(
-    rects: wp.array2d(dtype=wp.int32), spans: wp.array2d(dtype=wp.float64), starts: wp.array(dtype=wp.int32),
+    rects: wp.array2d(dtype=wp.int32), packed: wp.array2d(dtype=Any), starts: wp.array(dtype=wp.int32),
     counts: wp.array(dtype=wp.int32), width: int, height: int, tiles_x: int, keys: wp.array(dtype=wp.int32),
     values: wp.array(dtype=wp.int64), offset: int,
 ):
@@ -235,8 +260,8 @@ def _emit_kernel(
     for ty in range(rects[i, 2], rects[i, 3]):
         tx0 = rects[i, 0]
         tx1 = rects[i, 1]
-        if spans[i, 5] >= wp.float64(0.0):  # the tiles _tile_counts_kernel counted
-            tx0, tx1 = _span_row_tiles(spans, i, ty, rects[i, 0], rects[i, 1], width, height)
+        if packed[i, 14] >= packed.dtype(0.0):  # the tiles _tile_counts_kernel counted
+            tx0, tx1 = _span_row_tiles(packed, i, ty, rects[i, 0], rects[i, 1], width, height)
         for tx in range(tx0, tx1):
             keys[e] = ty * tiles_x + tx
             # The value carries both the emitted index (high 32 bits) and the splat (low 32 bits), so the
@@ -352,8 +377,7 @@ class Tiles:
     sorted_gid: wp.array  # (E,) splat of each sorted entry
     sorted_entry: wp.array  # (E,) emitted index of each sorted entry
     ranges: wp.array  # (n_tiles, 2)
-    packed: wp.array  # (N, 8): u, v, Q00, Q01, Q11, opacity, -ln(255 opacity), depth (rows of binned splats)
-    spans: wp.array  # (N, 6) float64: u, v, S, B, C, hy of the pixel spans (hy < 0: none; module docstring)
+    packed: wp.array  # (N, PACKED_COLS): one row per splat, the columns of PACKED_COLS' comment
     mode: str = DEFAULT_MODE  # the tile rule they were binned with (kernels/splat/modes.py)
 
 
@@ -375,15 +399,14 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     n_tiles = tiles_x * tiles_y
     rects = wp.zeros((n, 4), dtype=wp.int32, device=dev)
     counts = wp.zeros(n, dtype=wp.int32, device=dev)
-    packed = wp.zeros((n, 8), dtype=s.scalar, device=dev)
-    spans = wp.zeros((n, 6), dtype=wp.float64, device=dev)
-    a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.opacities, s.depths, s.radii, width, height, tiles_x,
-                                     tiles_y, mid, wp.float64(UNIT_ROUNDOFF[s.scalar]), rects, counts, packed, spans],
+    packed = wp.zeros((n, PACKED_COLS), dtype=s.scalar, device=dev)
+    a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.colors, s.opacities, s.depths, s.radii, width, height,
+                                     tiles_x, tiles_y, mid, wp.float64(UNIT_ROUNDOFF[s.scalar]), rects, counts, packed],
              min_chunk=MIN_CHUNK)
     if n == 0:
         return Tiles(tiles_x, tiles_y, 0, counts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
                      wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
-                     packed, spans, mode)
+                     packed, mode)
     means2d, radii, depths = s.means2d, s.radii, s.depths
 
     # Depth order by a stable sort of the depths (culled splats last).
@@ -403,7 +426,7 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     if n_entries == 0:
         return Tiles(tiles_x, tiles_y, 0, starts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
                      wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
-                     packed, spans, mode)
+                     packed, mode)
     ranges = wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev)
 
     # Keys are the tiles; values the emitted indices. The radix sort is stable, so a tile's entries keep
@@ -412,11 +435,11 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     keys = wp.empty(2 * n_entries, dtype=wp.int32, device=dev)
     values = wp.empty(2 * n_entries, dtype=wp.int64, device=dev)
     # The emit kernel writes the disjoint slice [starts[i], starts[i] + counts[i]) of splat i.
-    a.launch(_emit_kernel, n, [rects, spans, starts, counts, width, height, tiles_x, keys, values], min_chunk=MIN_CHUNK)
+    a.launch(_emit_kernel, n, [rects, packed, starts, counts, width, height, tiles_x, keys, values], min_chunk=MIN_CHUNK)
     wp.utils.radix_sort_pairs(keys, values, n_entries, 0, tile_bits)
     sorted_gid = wp.empty(n_entries, dtype=wp.int32, device=dev)
     sorted_entry = wp.empty(n_entries, dtype=wp.int32, device=dev)
     a.launch(_ranges_kernel, n_entries, [keys, values, n_entries, sorted_gid, sorted_entry, ranges],
              min_chunk=MIN_CHUNK)
-    return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed, spans, mode)
+    return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)
 
