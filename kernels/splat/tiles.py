@@ -38,6 +38,11 @@ MIN_CHUNK = 1024
 # line): 0-1 mean2d u, v; 2-4 conic Q00, Q01, Q11; 5 opacity o; 6 -ln(255 o); 7 depth; 8-10 colour;
 # 11-15 its spans S, B, C, hy, dy* (hy < 0: no spans; band_columns).
 PACKED_COLS = 16
+# The CPU's counting sort by tile: at most SORT_CHUNKS chunks of at least SORT_CHUNK_MIN entries.
+SORT_CHUNKS = 32
+SORT_CHUNK_MIN = 1 << 16
+# Tile rows per splat whose listed tiles the counts kernel keeps for the emit kernel.
+ROW_CACHE = 4
 # Unit roundoff of each float dtype (the margin of the pixel spans, _span_widening).
 UNIT_ROUNDOFF = {wp.float32: 2.0 ** -24, wp.float64: 2.0 ** -53}
 
@@ -135,7 +140,8 @@ def _tile_counts_kernel(
     means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any),
     opacities: wp.array(dtype=Any), depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), width: int,
     height: int, tiles_x: int, tiles_y: int, mode: int, unit: wp.float64, rects: wp.array2d(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32), packed: wp.array2d(dtype=Any), offset: int,
+    counts: wp.array(dtype=wp.int32), packed: wp.array2d(dtype=Any), row_tiles: wp.array2d(dtype=wp.int32),
+    offset: int,
 ):
     i = wp.tid() + offset
     r = radii[i]
@@ -215,6 +221,9 @@ def _tile_counts_kernel(
         for ty in range(y0, y1):
             tx0, tx1 = _span_row_tiles(packed, i, ty, x0, x1, width, height)
             n += tx1 - tx0
+            if ty - y0 < ROW_CACHE:  # the emit kernel reads these instead of recomputing them
+                row_tiles[i, 2 * (ty - y0)] = tx0
+                row_tiles[i, 2 * (ty - y0) + 1] = tx1
         counts[i] = n
     else:
         counts[i] = (x1 - x0) * (y1 - y0)
@@ -268,6 +277,59 @@ def _emit_kernel(
             # sorted entries need no gather through the emitted order afterwards.
             values[e] = (wp.int64(e) << wp.int64(32)) | wp.int64(i)
             e += 1
+
+
+@wp.kernel
+def _emit_gid_kernel(
+    rects: wp.array2d(dtype=wp.int32), packed: wp.array2d(dtype=Any), starts: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32), row_tiles: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
+    keys: wp.array(dtype=wp.int32), gids: wp.array(dtype=wp.int32), offset: int,
+):
+    # _emit_kernel's entries, for the counting sort: the tile and the splat of each emitted index.
+    i = wp.tid() + offset
+    if counts[i] == 0:
+        return
+    e = starts[i]
+    y0 = rects[i, 2]
+    for ty in range(y0, rects[i, 3]):
+        tx0 = rects[i, 0]
+        tx1 = rects[i, 1]
+        if packed[i, 14] >= packed.dtype(0.0):
+            if ty - y0 < ROW_CACHE:
+                tx0 = row_tiles[i, 2 * (ty - y0)]
+                tx1 = row_tiles[i, 2 * (ty - y0) + 1]
+            else:
+                tx0, tx1 = _span_row_tiles(packed, i, ty, rects[i, 0], rects[i, 1], width, height)
+        for tx in range(tx0, tx1):
+            keys[e] = ty * tiles_x + tx
+            gids[e] = i
+            e += 1
+
+
+@wp.kernel
+def _tile_hist_kernel(keys: wp.array(dtype=wp.int32), n: int, chunk: int, hist: wp.array2d(dtype=wp.int32),
+                      offset: int):
+    # Chunk c of the emitted entries counts its entries per tile into its own histogram row.
+    c = wp.tid() + offset
+    for e in range(c * chunk, wp.min(n, c * chunk + chunk)):
+        t = keys[e]
+        hist[c, t] = hist[c, t] + 1
+
+
+@wp.kernel
+def _tile_scatter_kernel(
+    keys: wp.array(dtype=wp.int32), gids: wp.array(dtype=wp.int32), n: int, chunk: int,
+    next_slot: wp.array2d(dtype=wp.int32), sorted_gid: wp.array(dtype=wp.int32),
+    sorted_entry: wp.array(dtype=wp.int32), offset: int,
+):
+    # Chunk c places its entries, in emitted (depth) order, at its own run of slots in each tile's list.
+    c = wp.tid() + offset
+    for e in range(c * chunk, wp.min(n, c * chunk + chunk)):
+        t = keys[e]
+        pos = next_slot[c, t]
+        next_slot[c, t] = pos + 1
+        sorted_gid[pos] = gids[e]
+        sorted_entry[pos] = e
 
 
 @wp.kernel
@@ -400,8 +462,10 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     rects = wp.zeros((n, 4), dtype=wp.int32, device=dev)
     counts = wp.zeros(n, dtype=wp.int32, device=dev)
     packed = wp.zeros((n, PACKED_COLS), dtype=s.scalar, device=dev)
+    row_tiles = wp.empty((n, 2 * ROW_CACHE), dtype=wp.int32, device=dev)
     a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.colors, s.opacities, s.depths, s.radii, width, height,
-                                     tiles_x, tiles_y, mid, wp.float64(UNIT_ROUNDOFF[s.scalar]), rects, counts, packed],
+                                     tiles_x, tiles_y, mid, wp.float64(UNIT_ROUNDOFF[s.scalar]), rects, counts, packed,
+                                     row_tiles],
              min_chunk=MIN_CHUNK)
     if n == 0:
         return Tiles(tiles_x, tiles_y, 0, counts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
@@ -427,6 +491,9 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
         return Tiles(tiles_x, tiles_y, 0, starts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
                      wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
                      packed, mode)
+    if dev.is_cpu:
+        return _counting_sort(a, rects, packed, row_tiles, starts, counts, n, n_entries, width, height, tiles_x, tiles_y,
+                              mode)
     ranges = wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev)
 
     # Keys are the tiles; values the emitted indices. The radix sort is stable, so a tile's entries keep
@@ -443,3 +510,38 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
              min_chunk=MIN_CHUNK)
     return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)
 
+
+def _counting_sort(a: A.Inputs, rects: wp.array, packed: wp.array, row_tiles: wp.array, starts: wp.array,
+                   counts: wp.array, n: int,
+                   n_entries: int, width: int, height: int, tiles_x: int, tiles_y: int, mode: str) -> Tiles:
+    """The CPU's (tile, depth) order: a stable counting sort of the emitted entries by tile.
+
+    The emitted entries (in depth order) are cut into chunks; each chunk counts its entries per
+    tile (one histogram row per chunk); a scan of the histogram in (tile, chunk) order gives every
+    chunk its first slot in every tile's list, and each chunk writes its entries there in emitted
+    order. The lists are the radix sort's (stable, by tile) for any number of chunks, from two
+    sequential passes over the entries and no key/value copies; every chunk writes only its own
+    histogram row and slots, so both kernels run split over the CPU threads.
+    """
+    dev = a.device
+    n_tiles = tiles_x * tiles_y
+    keys = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    gids = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    a.launch(_emit_gid_kernel, n, [rects, packed, starts, counts, row_tiles, width, height, tiles_x, keys, gids],
+             min_chunk=MIN_CHUNK)
+    n_chunks = max(1, min(SORT_CHUNKS, n_entries // SORT_CHUNK_MIN))
+    chunk = -(-n_entries // n_chunks)
+    hist = wp.zeros((n_chunks, n_tiles), dtype=wp.int32, device=dev)
+    a.launch(_tile_hist_kernel, n_chunks, [keys, n_entries, chunk, hist], min_chunk=1)
+    h = hist.numpy().T  # (tiles, chunks), a zero-copy view on the CPU
+    first = (np.cumsum(h, dtype=np.int64).reshape(h.shape) - h).astype(np.int32)  # scan in (tile, chunk) order
+    total = h.sum(axis=1)
+    ranges = np.stack([first[:, 0], first[:, 0] + total], axis=1).astype(np.int32)
+    ranges[total == 0] = 0
+    next_slot = wp.array(np.ascontiguousarray(first.T), dtype=wp.int32, device=dev)
+    sorted_gid = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    sorted_entry = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    a.launch(_tile_scatter_kernel, n_chunks, [keys, gids, n_entries, chunk, next_slot, sorted_gid, sorted_entry],
+             min_chunk=1)
+    return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry,
+                 wp.array(ranges, dtype=wp.int32, device=dev), packed, mode)
