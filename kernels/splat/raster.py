@@ -176,86 +176,146 @@ def _raster_forward_kernel(
 
 @wp.kernel
 def _raster_backward_tile_kernel(
-    packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
+    packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
     sorted_gid: wp.array(dtype=wp.int32), sorted_entry: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
     width: int, height: int, tiles_x: int, alpha_max: Any, final_T: wp.array2d(dtype=Any),
     n_contrib: wp.array2d(dtype=wp.int32), g_rgb: wp.array3d(dtype=Any), g_alpha: wp.array2d(dtype=Any),
-    g_depth: wp.array2d(dtype=Any),
+    g_depth: wp.array2d(dtype=Any), state: wp.array3d(dtype=Any),
     entry_grads: wp.array2d(dtype=Any), tile_bg_grads: wp.array2d(dtype=Any), offset: int,
 ):
-    # One thread per tile: it alone writes the rows of its (tile, splat) entries and its background row.
+    # One thread per tile: it alone writes the rows of its (tile, splat) entries and its background
+    # row. Splats in the outer loop, back to front, the pixels of each splat's spans inside: each
+    # pixel sees the splats it blended in the same (reverse) order and arithmetic as a walk down its
+    # own list, with its running T and colour behind in `state` (T, S_r, S_g, S_b, S_depth); an
+    # entry's row sums its pixels' terms in the same (row-major) pixel order, then is written once.
     tile = wp.tid() + offset
     zero = packed.dtype(0.0)
     one = packed.dtype(1.0)
     half = packed.dtype(0.5)
+    tile_y = tile / tiles_x
+    x_lo = (tile - tile_y * tiles_x) * TILE
+    y_lo = tile_y * TILE
+    x_hi = wp.min(x_lo + TILE, width)
+    y_hi = wp.min(y_lo + TILE, height)
     start = ranges[tile, 0]
+    end = ranges[tile, 1]
     bg0 = background[0]
     bg1 = background[1]
     bg2 = background[2]
     gbg0 = zero
     gbg1 = zero
     gbg2 = zero
-    for local in range(TILE_PIXELS):
-        px, py = _tile_pixel(tile, local, tiles_x)
-        if px >= width or py >= height:
-            continue
-        pxf, pyf = _pixel_centre(packed, px, py)
-        tf = final_T[py, px]
-        gr = g_rgb[py, px, 0]
-        gg = g_rgb[py, px, 1]
-        gb = g_rgb[py, px, 2]
-        ga = g_alpha[py, px]
-        gd = g_depth[py, px]
-        gbg0 += tf * gr
-        gbg1 += tf * gg
-        gbg2 += tf * gb
-        bg_dot = bg0 * gr + bg1 * gg + bg2 * gb
-        tr = tf
-        sr = zero
-        sg = zero
-        sb = zero
-        sd = zero
-        s = n_contrib[py, px] - 1
-        while s >= start:
-            g = sorted_gid[s]
-            dx, dy, power = _gauss_power(packed, g, pxf, pyf)
-            qa = packed[g, 2]
-            qb = packed[g, 3]
-            qc = packed[g, 4]
-            if power <= zero and power >= packed[g, 6]:
-                gauss = wp.exp(power)
-                raw = packed[g, 5] * gauss
-                alpha = wp.min(alpha_max, raw)
-                if alpha >= packed.dtype(ALPHA_MIN):
-                    tr = tr / (one - alpha)
-                    wgt = alpha * tr
-                    c0 = colors[g, 0]
-                    c1 = colors[g, 1]
-                    c2 = colors[g, 2]
-                    z = packed[g, 7]
-                    row = sorted_entry[s]
-                    entry_grads[row, 6] += wgt * gr
-                    entry_grads[row, 7] += wgt * gg
-                    entry_grads[row, 8] += wgt * gb
-                    entry_grads[row, 9] += wgt * gd
-                    g_a = tr * ((c0 - sr) * gr + (c1 - sg) * gg + (c2 - sb) * gb + (z - sd) * gd)
-                    g_a += (ga - bg_dot) * tf / (one - alpha)
-                    sr = alpha * c0 + (one - alpha) * sr
-                    sg = alpha * c1 + (one - alpha) * sg
-                    sb = alpha * c2 + (one - alpha) * sb
-                    sd = alpha * z + (one - alpha) * sd
-                    if raw <= alpha_max:
-                        entry_grads[row, 5] += gauss * g_a
-                        g_p = alpha * g_a
-                        entry_grads[row, 0] += -(qa * dx + qb * dy) * g_p
-                        entry_grads[row, 1] += -(qb * dx + qc * dy) * g_p
-                        entry_grads[row, 2] += -half * dx * dx * g_p
-                        entry_grads[row, 3] += -dx * dy * g_p
-                        entry_grads[row, 4] += -half * dy * dy * g_p
-            s -= 1
+    last = start
+    for py in range(y_lo, y_hi):
+        for px in range(x_lo, x_hi):
+            tf = final_T[py, px]
+            gbg0 += tf * g_rgb[py, px, 0]
+            gbg1 += tf * g_rgb[py, px, 1]
+            gbg2 += tf * g_rgb[py, px, 2]
+            state[py, px, 0] = tf
+            state[py, px, 1] = zero
+            state[py, px, 2] = zero
+            state[py, px, 3] = zero
+            state[py, px, 4] = zero
+            last = wp.max(last, n_contrib[py, px])
     tile_bg_grads[tile, 0] = gbg0
     tile_bg_grads[tile, 1] = gbg1
     tile_bg_grads[tile, 2] = gbg2
+    for s in range(last, end):  # entries no pixel reached
+        row = sorted_entry[s]
+        for j in range(_GRAD_COLS):
+            entry_grads[row, j] = zero
+    s = last - 1
+    while s >= start:
+        g = sorted_gid[s]
+        u = packed[g, 0]
+        v = packed[g, 1]
+        qa = packed[g, 2]
+        qb = packed[g, 3]
+        qc = packed[g, 4]
+        o = packed[g, 5]
+        thr = packed[g, 6]
+        z = packed[g, 7]
+        c0 = packed[g, 8]
+        c1 = packed[g, 9]
+        c2 = packed[g, 10]
+        a0 = zero
+        a1 = zero
+        a2 = zero
+        a3 = zero
+        a4 = zero
+        a5 = zero
+        a6 = zero
+        a7 = zero
+        a8 = zero
+        a9 = zero
+        row0 = y_lo
+        row1 = y_hi
+        col0 = x_lo
+        col1 = x_hi
+        if packed[g, 14] >= zero:
+            row0, row1 = span_rows(packed, g, y_lo, y_hi)
+            if row1 > row0:
+                left, right = band_columns(packed, g, row0, row1 - 1)
+                col0 = ceil_in(left, x_lo, x_hi)
+                col1 = floor_in(right, x_lo - 1, x_hi - 1) + 1
+        for py in range(row0, row1):
+            pyf = packed.dtype(float(py)) + half
+            for px in range(col0, col1):
+                if s >= n_contrib[py, px]:
+                    continue
+                pxf = packed.dtype(float(px)) + half
+                dx = u - pxf
+                dy = v - pyf
+                power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
+                if power <= zero and power >= thr:
+                    gauss = wp.exp(power)
+                    raw = o * gauss
+                    alpha = wp.min(alpha_max, raw)
+                    if alpha >= packed.dtype(ALPHA_MIN):
+                        gr = g_rgb[py, px, 0]
+                        gg = g_rgb[py, px, 1]
+                        gb = g_rgb[py, px, 2]
+                        gd = g_depth[py, px]
+                        tf = final_T[py, px]
+                        bg_dot = bg0 * gr + bg1 * gg + bg2 * gb
+                        tr = state[py, px, 0] / (one - alpha)
+                        sr = state[py, px, 1]
+                        sg = state[py, px, 2]
+                        sb = state[py, px, 3]
+                        sd = state[py, px, 4]
+                        wgt = alpha * tr
+                        a6 += wgt * gr
+                        a7 += wgt * gg
+                        a8 += wgt * gb
+                        a9 += wgt * gd
+                        g_a = tr * ((c0 - sr) * gr + (c1 - sg) * gg + (c2 - sb) * gb + (z - sd) * gd)
+                        g_a += (g_alpha[py, px] - bg_dot) * tf / (one - alpha)
+                        state[py, px, 0] = tr
+                        state[py, px, 1] = alpha * c0 + (one - alpha) * sr
+                        state[py, px, 2] = alpha * c1 + (one - alpha) * sg
+                        state[py, px, 3] = alpha * c2 + (one - alpha) * sb
+                        state[py, px, 4] = alpha * z + (one - alpha) * sd
+                        if raw <= alpha_max:
+                            a5 += gauss * g_a
+                            g_p = alpha * g_a
+                            a0 += -(qa * dx + qb * dy) * g_p
+                            a1 += -(qb * dx + qc * dy) * g_p
+                            a2 += -half * dx * dx * g_p
+                            a3 += -dx * dy * g_p
+                            a4 += -half * dy * dy * g_p
+        row = sorted_entry[s]
+        entry_grads[row, 0] = a0
+        entry_grads[row, 1] = a1
+        entry_grads[row, 2] = a2
+        entry_grads[row, 3] = a3
+        entry_grads[row, 4] = a4
+        entry_grads[row, 5] = a5
+        entry_grads[row, 6] = a6
+        entry_grads[row, 7] = a7
+        entry_grads[row, 8] = a8
+        entry_grads[row, 9] = a9
+        s -= 1
 
 
 @wp.kernel
@@ -381,11 +441,14 @@ def rasterize_backward_wp(a: A.Inputs, s: Splats2D, width: int, height: int, bg:
     g_a = a.zeros((height, width)) if grad_alpha is None else a.floats("grad_alpha", grad_alpha, (height, width))
     g_d = a.zeros((height, width)) if grad_depth is None else a.floats("grad_depth", grad_depth, (height, width))
     n_tiles = tiles.tiles_x * tiles.tiles_y
-    entry_grads = a.zeros((max(tiles.n_entries, 1), _GRAD_COLS))
-    tile_bg = a.zeros((n_tiles, 3))
+    # Every entry's row and every tile's background row is written by its tile's thread.
+    dev = a.device
+    entry_grads = wp.empty((max(tiles.n_entries, 1), _GRAD_COLS), dtype=a.scalar, device=dev)
+    tile_bg = wp.empty((n_tiles, 3), dtype=a.scalar, device=dev)
+    state = wp.empty((height, width, 5), dtype=a.scalar, device=dev)
     a.launch(_raster_backward_tile_kernel, n_tiles,
-             [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.sorted_entry, tiles.ranges, width, height,
-              tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]), final_t, n_contrib, g_rgb, g_a, g_d, entry_grads, tile_bg],
+             [tiles.packed, bg, tiles.sorted_gid, tiles.sorted_entry, tiles.ranges, width, height,
+              tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]), final_t, n_contrib, g_rgb, g_a, g_d, state, entry_grads, tile_bg],
              min_chunk=1)
     out = {"means2d": a.zeros((n, 2)), "conics": a.zeros((n, 3)), "opacities": a.zeros(n), "colors": a.zeros((n, 3)),
            "depths": a.zeros(n)}

@@ -1,21 +1,35 @@
-"""Tile binning: which splats each 16 x 16 pixel tile blends, front to back.
+"""Tile binning: which splats each 16 x 16 pixel tile blends, front to back; and each splat's spans.
 
 As in 3DGS (Kerbl et al. 2023), a visible splat belongs to the tiles its square mean2d +- radius
 meets, by the tile rule of the mode (kernels/splat/modes.py): "3dgs" 3DGS's getRect,
 floor((u - 1/2 - r)/16) <= tx < floor((u - 1/2 + r + 15)/16), "gsplat" gsplat's
 floor((u - r)/16) <= tx < ceil((u + r)/16) (rows likewise, both clamped to the image's tiles).
-Of these it is listed only in those that also meet the bounding box of the ellipse
-d^T Q d <= 2 ln(255 o) (half-sizes sqrt(2 ln(255 o) Q11 / det Q) and sqrt(2 ln(255 o) Q00 / det Q)),
-outside which alpha < 1/255 and the rasteriser skips it anyway: the image is the same, and splats
-with 255 o < 1 are never listed. The (tile, splat) pairs are listed sorted by (tile, depth rank):
-the splats are ordered by depth (a stable radix sort, culled splats last), each splat's pairs are
-emitted as one slice [starts[i], starts[i] + counts[i]) (its tiles in row-major order), the slices
-laid out in depth order, and one stable radix sort (wp.utils.radix_sort_pairs) on the tile index
-alone (ceil(log2 tiles) bits: one 16-bit pass up to 65536 tiles) then lists every tile's splats
-front to back; per-tile ranges [start, end) index the sorted list. The sorted value carries both
-the emitted index (the backward's gradient row) and the splat, so nothing is gathered through the
-emitted order. Every kernel writes only its own slots (the emit kernel splat i's slice), so all
-run split over CPU threads.
+Of these it is listed only in those that hold a pixel of its spans: the pixels (centres
+(px + 1/2, py + 1/2)) inside the ellipse d^T Q d <= k, d = mean2d - p, with k = 2 ln(255 o)
+widened by a rounding margin (_span_widening). Outside that ellipse the rasteriser computes
+alpha < 1/255 and skips the splat anyway, so every pixel blends the same splats in the same order
+as under the mode's rule alone (splats with 255 o < 1 are never listed). Pixel row py of the
+spans (dy = v - py - 1/2, |dy| <= hy) holds the columns
+px in [(u - 1/2) + S dy - sqrt(B - C dy^2), (u - 1/2) + S dy + sqrt(B - C dy^2)],
+S = Q01 / Q00, B = k / Q00, C = det Q / Q00^2, hy = sqrt(B / C). A tile row lists the splat in
+the tiles its spans' columns over the tile row's pixel rows reach (band_columns: the extremes of
+the span ends over a row band, in closed form). A conic too elongated for the margin's bound
+(1 - |Q01| / sqrt(Q00 Q11) < 1e-3) has no spans: the tiles of its ellipse's bounding box, and
+the rasteriser visits every pixel of them.
+
+Each splat's packed row (PACKED_COLS: mean, conic, opacity, -ln(255 o), depth, colour, spans) is
+all the rasteriser reads of it: one 64-byte cache line in float32.
+
+The (tile, splat) pairs are listed sorted by (tile, depth rank): the splats are ordered by depth
+(a stable radix sort, culled splats last), each splat's pairs are emitted as one slice
+[starts[i], starts[i] + counts[i]) (its tiles in row-major order), the slices laid out in depth
+order, and a stable sort by tile alone then lists every tile's splats front to back; per-tile
+ranges [start, end) index the sorted list, and each sorted entry keeps its emitted index (the
+backward's gradient row) and its splat. On the CPU the sort is a counting sort by tile
+(_counting_sort: per-chunk histograms, a scan, a scatter); on CUDA a radix sort
+(wp.utils.radix_sort_pairs, ceil(log2 tiles) bits); both give the same lists. Every kernel writes
+only its own slots (the emit kernel splat i's slice, a sort chunk its histogram row and slots),
+so all run split over CPU threads.
 """
 
 from __future__ import annotations
@@ -148,6 +162,9 @@ def _tile_counts_kernel(
     counts[i] = 0
     for j in range(4):
         rects[i, j] = 0
+    for j in range(PACKED_COLS):  # every row fully written: the arrays need no zero fill
+        packed[i, j] = means2d.dtype(0.0)
+    packed[i, 14] = means2d.dtype(-1.0)
     o = opacities[i]
     # The splat's alpha reaches 1/255 only inside the ellipse d^T Q d <= k2 (and never if 255 o < 1).
     if r <= 0 or o * means2d.dtype(255.0) < means2d.dtype(1.0):
@@ -205,7 +222,6 @@ def _tile_counts_kernel(
     qb64 = wp.float64(qb)
     qc64 = wp.float64(qc)
     grow = _span_widening(qa64, qb64, qc64, unit)
-    packed[i, 14] = means2d.dtype(-1.0)
     if grow > wp.float64(0.0):
         kk = wp.float64(-2.0) * wp.float64(thr) * grow
         det64 = qa64 * qc64 - qb64 * qb64
@@ -451,17 +467,23 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     outside which its alpha is below 1/255: the second bound only drops pixels the rasteriser
     would skip.
     """
-    mid = mode_id(mode)
+    mode_id(mode)
     width = A.check_int("width", width, minimum=1)
     height = A.check_int("height", height, minimum=1)
+    return _bin_tiles(s, width, height, mode, counting_sort=s.device.is_cpu)
+
+
+def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: bool) -> Tiles:
+    """`bin_tiles` with the entry sort chosen: the counting sort (the CPU's) or the radix sort (CUDA's)."""
+    mid = mode_id(mode)
     a = s.inputs()
     dev = s.device
     n = s.n
     tiles_x, tiles_y = (width + TILE - 1) // TILE, (height + TILE - 1) // TILE
     n_tiles = tiles_x * tiles_y
-    rects = wp.zeros((n, 4), dtype=wp.int32, device=dev)
-    counts = wp.zeros(n, dtype=wp.int32, device=dev)
-    packed = wp.zeros((n, PACKED_COLS), dtype=s.scalar, device=dev)
+    rects = wp.empty((n, 4), dtype=wp.int32, device=dev)
+    counts = wp.empty(n, dtype=wp.int32, device=dev)
+    packed = wp.empty((n, PACKED_COLS), dtype=s.scalar, device=dev)
     row_tiles = wp.empty((n, 2 * ROW_CACHE), dtype=wp.int32, device=dev)
     a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.colors, s.opacities, s.depths, s.radii, width, height,
                                      tiles_x, tiles_y, mid, wp.float64(UNIT_ROUNDOFF[s.scalar]), rects, counts, packed,
@@ -491,7 +513,7 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
         return Tiles(tiles_x, tiles_y, 0, starts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
                      wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
                      packed, mode)
-    if dev.is_cpu:
+    if counting_sort:
         return _counting_sort(a, rects, packed, row_tiles, starts, counts, n, n_entries, width, height, tiles_x, tiles_y,
                               mode)
     ranges = wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev)
