@@ -155,10 +155,15 @@ def _tile_counts_kernel(
     opacities: wp.array(dtype=Any), depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), width: int,
     height: int, tiles_x: int, tiles_y: int, mode: int, unit: wp.float64, rects: wp.array2d(dtype=wp.int32),
     counts: wp.array(dtype=wp.int32), packed: wp.array2d(dtype=Any), row_tiles: wp.array2d(dtype=wp.int32),
-    offset: int,
+    depth_keys: wp.array(dtype=Any), order: wp.array(dtype=wp.int32), offset: int,
 ):
     i = wp.tid() + offset
     r = radii[i]
+    # The keys of the depth sort: culled splats sort last (their rank is never used).
+    depth_keys[i] = depths[i]
+    if r <= 0:
+        depth_keys[i] = depths.dtype(1e30)
+    order[i] = i
     counts[i] = 0
     for j in range(4):
         rects[i, j] = 0
@@ -243,19 +248,6 @@ def _tile_counts_kernel(
         counts[i] = n
     else:
         counts[i] = (x1 - x0) * (y1 - y0)
-
-
-@wp.kernel
-def _depth_keys_kernel(
-    depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), keys: wp.array(dtype=Any),
-    values: wp.array(dtype=wp.int32), offset: int,
-):
-    i = wp.tid() + offset
-    # Culled splats sort last; their rank is never used.
-    keys[i] = depths[i]
-    if radii[i] <= 0:
-        keys[i] = depths.dtype(1e30)
-    values[i] = i
 
 
 @wp.kernel
@@ -439,7 +431,7 @@ def splats_2d(means2d: Any, conics: Any, colors: Any, opacities: Any, depths: An
     return out
 
 
-for _k in (_tile_counts_kernel, _depth_keys_kernel, _count_invalid_kernel):
+for _k in (_tile_counts_kernel, _count_invalid_kernel):
     A.declare_float_overloads(_k)
 
 
@@ -485,30 +477,35 @@ def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: b
     counts = wp.empty(n, dtype=wp.int32, device=dev)
     packed = wp.empty((n, PACKED_COLS), dtype=s.scalar, device=dev)
     row_tiles = wp.empty((n, 2 * ROW_CACHE), dtype=wp.int32, device=dev)
+    dkeys = wp.empty(2 * n, dtype=s.scalar, device=dev)  # the radix sort's keys and values take 2n slots
+    order = wp.empty(2 * n, dtype=wp.int32, device=dev)
     a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.colors, s.opacities, s.depths, s.radii, width, height,
                                      tiles_x, tiles_y, mid, wp.float64(UNIT_ROUNDOFF[s.scalar]), rects, counts, packed,
-                                     row_tiles],
+                                     row_tiles, dkeys, order],
              min_chunk=MIN_CHUNK)
     if n == 0:
         return Tiles(tiles_x, tiles_y, 0, counts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
                      wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
                      packed, mode)
-    means2d, radii, depths = s.means2d, s.radii, s.depths
 
     # Depth order by a stable sort of the depths (culled splats last).
-    dkeys = wp.empty(2 * n, dtype=means2d.dtype, device=dev)
-    order = wp.empty(2 * n, dtype=wp.int32, device=dev)
-    a.launch(_depth_keys_kernel, n, [depths, radii, dkeys, order], min_chunk=MIN_CHUNK)
     wp.utils.radix_sort_pairs(dkeys, order, n)
     # Each splat's entries are the slice [starts[i], starts[i] + counts[i)), its tiles in row-major
     # order; the slices follow one another in depth order, so that the entries come out depth-ordered.
-    ranked_counts = wp.empty(n, dtype=wp.int32, device=dev)
-    a.launch(_ranked_counts_kernel, n, [order, counts, ranked_counts], min_chunk=MIN_CHUNK)
-    ranked_starts = wp.empty(n, dtype=wp.int32, device=dev)
-    wp.utils.array_scan(ranked_counts, ranked_starts, inclusive=False)
-    n_entries = int(ranked_starts[n - 1:n].numpy()[0]) + int(ranked_counts[n - 1:n].numpy()[0])
     starts = wp.empty(n, dtype=wp.int32, device=dev)
-    a.launch(_starts_kernel, n, [order, ranked_starts, starts], min_chunk=MIN_CHUNK)
+    if counting_sort:  # the CPU: the same scan through zero-copy NumPy views, without three launches
+        rank_order = order.numpy()[:n]
+        ranked_counts_np = counts.numpy()[rank_order]
+        ranked_starts_np = np.cumsum(ranked_counts_np, dtype=np.int64) - ranked_counts_np
+        n_entries = int(ranked_starts_np[-1] + ranked_counts_np[-1])
+        starts.numpy()[rank_order] = ranked_starts_np
+    else:
+        ranked_counts = wp.empty(n, dtype=wp.int32, device=dev)
+        a.launch(_ranked_counts_kernel, n, [order, counts, ranked_counts], min_chunk=MIN_CHUNK)
+        ranked_starts = wp.empty(n, dtype=wp.int32, device=dev)
+        wp.utils.array_scan(ranked_counts, ranked_starts, inclusive=False)
+        n_entries = int(ranked_starts[n - 1:n].numpy()[0]) + int(ranked_counts[n - 1:n].numpy()[0])
+        a.launch(_starts_kernel, n, [order, ranked_starts, starts], min_chunk=MIN_CHUNK)
     if n_entries == 0:
         return Tiles(tiles_x, tiles_y, 0, starts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
                      wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
