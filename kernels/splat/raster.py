@@ -26,6 +26,13 @@ Every tile's backward runs on one thread and writes one gradient row per (tile, 
 which a second kernel sums per splat: no Warp atomic is atomic between concurrent CPU launches
 (docs/warp.md), so with no shared accumulator the tiles run in parallel through
 kernels.launch.launch_split, and the result does not depend on the thread count.
+
+Loop order (speed only; every pixel's arithmetic and order are those above). One thread per
+tile walks the tile's list once, splats outside (front to back; back to front in the backward),
+and for each splat only the pixels of its spans in the tile (kernels/splat/tiles.py: the box of
+the rows and columns inside its alpha >= 1/255 ellipse, widened for rounding; every other pixel
+would skip it). Each pixel's running T and sums live in arrays between splats; the forward marks
+a stopped pixel (n_contrib < 0 until the end) and ends the tile once all its pixels stopped.
 """
 
 from __future__ import annotations
@@ -37,8 +44,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
-from kernels.splat.tiles import (TILE, TILE_PIXELS, Splats2D, Tiles, band_columns, bin_tiles, ceil_in, floor_in,
-                                 span_rows)
+from kernels.splat.tiles import TILE, Splats2D, Tiles, band_columns, bin_tiles, ceil_in, floor_in, span_rows
 
 wp.set_module_options({"enable_backward": False})
 
@@ -48,28 +54,6 @@ T_MIN = 1e-4
 MIN_CHUNK = 1024
 # Columns of the per-(tile, splat) gradient rows: mean2d (2), conic (3), opacity, colour (3), depth.
 _GRAD_COLS = 10
-
-
-@wp.func
-def _tile_pixel(tile: int, local: int, tiles_x: int):
-    """(px, py) of pixel `local` (row-major in the TILE x TILE block) of tile `tile` (row-major, tiles_x wide)."""
-    tile_y = tile / tiles_x
-    return (tile - tile_y * tiles_x) * TILE + local % TILE, tile_y * TILE + local / TILE
-
-
-@wp.func
-def _pixel_centre(packed: wp.array2d(dtype=Any), px: int, py: int):
-    """(px + 1/2, py + 1/2) in the dtype of the splats."""
-    half = packed.dtype(0.5)
-    return packed.dtype(float(px)) + half, packed.dtype(float(py)) + half
-
-
-@wp.func
-def _gauss_power(packed: wp.array2d(dtype=Any), g: int, pxf: Any, pyf: Any):
-    """(dx, dy, -1/2 d^T Q d) of splat g's packed row at the pixel centre (pxf, pyf), d = mean2d - p."""
-    dx = packed[g, 0] - pxf
-    dy = packed[g, 1] - pyf
-    return dx, dy, -packed.dtype(0.5) * (packed[g, 2] * dx * dx + packed[g, 4] * dy * dy) - packed[g, 3] * dx * dy
 
 
 @wp.kernel

@@ -4,19 +4,21 @@ As in 3DGS (Kerbl et al. 2023), a visible splat belongs to the tiles its square 
 meets, by the tile rule of the mode (kernels/splat/modes.py): "3dgs" 3DGS's getRect,
 floor((u - 1/2 - r)/16) <= tx < floor((u - 1/2 + r + 15)/16), "gsplat" gsplat's
 floor((u - r)/16) <= tx < ceil((u + r)/16) (rows likewise, both clamped to the image's tiles).
-Of these it is listed only in those that hold a pixel of its spans: the pixels (centres
-(px + 1/2, py + 1/2)) inside the ellipse d^T Q d <= k, d = mean2d - p, with k = 2 ln(255 o)
-widened by a rounding margin (_span_widening). Outside that ellipse the rasteriser computes
-alpha < 1/255 and skips the splat anyway, so every pixel blends the same splats in the same order
-as under the mode's rule alone (splats with 255 o < 1 are never listed). Pixel row py of the
-spans (dy = v - py - 1/2, |dy| <= hy) holds the columns
-px in [(u - 1/2) + S dy - sqrt(B - C dy^2), (u - 1/2) + S dy + sqrt(B - C dy^2)],
-S = Q01 / Q00, B = k / Q00, C = det Q / Q00^2, hy = sqrt(B / C). A tile row lists the splat in
-the tiles its spans' columns over the tile row's pixel rows reach (band_columns: the extremes of
-the span ends over a row band, in closed form). A conic too elongated for the margin's bound
-(1 - |Q01| / sqrt(Q00 Q11) < 1e-3) has no spans: the tiles of its ellipse's bounding box, and
-the rasteriser visits every pixel of them.
+Of these it is listed only in those that also meet the bounding box of the ellipse
+d^T Q d <= 2 ln(255 o) (half-sizes sqrt(2 ln(255 o) Q11 / det Q) and sqrt(2 ln(255 o) Q00 / det Q)),
+outside which alpha < 1/255 and the rasteriser skips it anyway: the image is the same, and splats
+with 255 o < 1 are never listed.
 
+The spans, which the rasteriser visits instead of every pixel of a tile: the pixels (centres
+(px + 1/2, py + 1/2)) inside the ellipse d^T Q d <= k, d = mean2d - p, k = 2 ln(255 o) widened by
+a rounding margin (_span_widening), outside which the rasteriser's own test skips the splat.
+Pixel row py (dy = v - py - 1/2, |dy| <= hy) holds the columns
+px in [(u - 1/2) + S dy - sqrt(B - C dy^2), (u - 1/2) + S dy + sqrt(B - C dy^2)],
+S = Q01 / Q00, B = k / Q00, C = det Q / Q00^2, hy = sqrt(B / C); band_columns bounds the columns
+over a band of rows in closed form. A conic too elongated for the margin's bound
+(1 - |Q01| / sqrt(Q00 Q11) < 1e-3) has no spans: the rasteriser visits every pixel of its tiles.
+(Listing a splat only in the tiles its spans reach was tried: it cut the entries by 14-18% but
+cost more in the binning than it saved, as the rasteriser passes an unreached entry in a few ns.)
 Each splat's packed row (PACKED_COLS: mean, conic, opacity, -ln(255 o), depth, colour, spans) is
 all the rasteriser reads of it: one 64-byte cache line in float32.
 
@@ -55,8 +57,6 @@ PACKED_COLS = 16
 # The CPU's counting sort by tile: at most SORT_CHUNKS chunks of at least SORT_CHUNK_MIN entries.
 SORT_CHUNKS = 32
 SORT_CHUNK_MIN = 1 << 16
-# Tile rows per splat whose listed tiles the counts kernel keeps for the emit kernel.
-ROW_CACHE = 4
 # Unit roundoff of each float dtype (the margin of the pixel spans, _span_widening).
 UNIT_ROUNDOFF = {wp.float32: 2.0 ** -24, wp.float64: 2.0 ** -53}
 
@@ -72,7 +72,7 @@ def _span_widening(qa: wp.float64, qb: wp.float64, qc: wp.float64, unit: wp.floa
     S, B, C, hy, dy* in the splats' dtype: 1e-4 of B is far more than float32's rounding of B, C and
     S dy, whose relative 6e-8 |S| hy <= 6e-8 sqrt(B) / sqrt(2 (1 - rho))), every pixel outside
     computes a power below the skip threshold. A conic too elongated (1 - rho < 1e-3) or not
-    positive definite gets no spans (its whole box of tiles, every pixel of them).
+    positive definite gets no spans (every pixel of its tiles).
     """
     zero = wp.float64(0.0)
     if qa <= zero or qc <= zero:
@@ -131,31 +131,13 @@ def span_rows(packed: wp.array2d(dtype=Any), i: int, lo: int, hi: int):
     return ceil_in(v - hy - h, lo, hi), floor_in(v + hy - h, lo - 1, hi - 1) + 1
 
 
-@wp.func
-def _span_row_tiles(packed: wp.array2d(dtype=Any), i: int, ty: int, x0: int, x1: int, width: int, height: int):
-    """The tiles [tx0, tx1) of tile row ty, within [x0, x1), that hold a pixel of splat i's spans."""
-    p0, p1 = span_rows(packed, i, ty * TILE, wp.min(ty * TILE + TILE, height))
-    if p1 <= p0:
-        return x0, x0
-    left, right = band_columns(packed, i, p0, p1 - 1)
-    c0 = ceil_in(left, 0, width)
-    c1 = floor_in(right, -1, width - 1)
-    if c1 < c0:
-        return x0, x0
-    tx0 = wp.max(x0, c0 / TILE)
-    tx1 = wp.min(x1, c1 / TILE + 1)
-    if tx1 < tx0:
-        return x0, x0
-    return tx0, tx1
-
-
 @wp.kernel
 def _tile_counts_kernel(
     means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any),
-    opacities: wp.array(dtype=Any), depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), width: int,
-    height: int, tiles_x: int, tiles_y: int, mode: int, unit: wp.float64, rects: wp.array2d(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32), packed: wp.array2d(dtype=Any), row_tiles: wp.array2d(dtype=wp.int32),
-    depth_keys: wp.array(dtype=Any), order: wp.array(dtype=wp.int32), offset: int,
+    opacities: wp.array(dtype=Any), depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), tiles_x: int,
+    tiles_y: int, mode: int, unit: wp.float64, rects: wp.array2d(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32), packed: wp.array2d(dtype=Any), depth_keys: wp.array(dtype=Any),
+    order: wp.array(dtype=wp.int32), offset: int,
 ):
     i = wp.tid() + offset
     r = radii[i]
@@ -238,16 +220,7 @@ def _tile_counts_kernel(
         packed[i, 13] = means2d.dtype(cc)
         packed[i, 14] = means2d.dtype(wp.sqrt(bb / cc))
         packed[i, 15] = means2d.dtype(sl * wp.sqrt(bb / (cc * (cc + sl * sl))))
-        n = int(0)
-        for ty in range(y0, y1):
-            tx0, tx1 = _span_row_tiles(packed, i, ty, x0, x1, width, height)
-            n += tx1 - tx0
-            if ty - y0 < ROW_CACHE:  # the emit kernel reads these instead of recomputing them
-                row_tiles[i, 2 * (ty - y0)] = tx0
-                row_tiles[i, 2 * (ty - y0) + 1] = tx1
-        counts[i] = n
-    else:
-        counts[i] = (x1 - x0) * (y1 - y0)
+    counts[i] = (x1 - x0) * (y1 - y0)
 
 
 @wp.kernel
@@ -266,20 +239,15 @@ def _starts_kernel(order: wp.array(dtype=wp.int32), ranked_starts: wp.array(dtyp
 
 @wp.kernel
 def _emit_kernel(
-    rects: wp.array2d(dtype=wp.int32), packed: wp.array2d(dtype=Any), starts: wp.array(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32), width: int, height: int, tiles_x: int, keys: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=wp.int64), offset: int,
+    rects: wp.array2d(dtype=wp.int32), starts: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
+    tiles_x: int, keys: wp.array(dtype=wp.int32), values: wp.array(dtype=wp.int64), offset: int,
 ):
     i = wp.tid() + offset
     if counts[i] == 0:
         return
     e = starts[i]
     for ty in range(rects[i, 2], rects[i, 3]):
-        tx0 = rects[i, 0]
-        tx1 = rects[i, 1]
-        if packed[i, 14] >= packed.dtype(0.0):  # the tiles _tile_counts_kernel counted
-            tx0, tx1 = _span_row_tiles(packed, i, ty, rects[i, 0], rects[i, 1], width, height)
-        for tx in range(tx0, tx1):
+        for tx in range(rects[i, 0], rects[i, 1]):
             keys[e] = ty * tiles_x + tx
             # The value carries both the emitted index (high 32 bits) and the splat (low 32 bits), so the
             # sorted entries need no gather through the emitted order afterwards.
@@ -289,26 +257,16 @@ def _emit_kernel(
 
 @wp.kernel
 def _emit_gid_kernel(
-    rects: wp.array2d(dtype=wp.int32), packed: wp.array2d(dtype=Any), starts: wp.array(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32), row_tiles: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
-    keys: wp.array(dtype=wp.int32), gids: wp.array(dtype=wp.int32), offset: int,
+    rects: wp.array2d(dtype=wp.int32), starts: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
+    tiles_x: int, keys: wp.array(dtype=wp.int32), gids: wp.array(dtype=wp.int32), offset: int,
 ):
     # _emit_kernel's entries, for the counting sort: the tile and the splat of each emitted index.
     i = wp.tid() + offset
     if counts[i] == 0:
         return
     e = starts[i]
-    y0 = rects[i, 2]
-    for ty in range(y0, rects[i, 3]):
-        tx0 = rects[i, 0]
-        tx1 = rects[i, 1]
-        if packed[i, 14] >= packed.dtype(0.0):
-            if ty - y0 < ROW_CACHE:
-                tx0 = row_tiles[i, 2 * (ty - y0)]
-                tx1 = row_tiles[i, 2 * (ty - y0) + 1]
-            else:
-                tx0, tx1 = _span_row_tiles(packed, i, ty, rects[i, 0], rects[i, 1], width, height)
-        for tx in range(tx0, tx1):
+    for ty in range(rects[i, 2], rects[i, 3]):
+        for tx in range(rects[i, 0], rects[i, 1]):
             keys[e] = ty * tiles_x + tx
             gids[e] = i
             e += 1
@@ -476,12 +434,11 @@ def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: b
     rects = wp.empty((n, 4), dtype=wp.int32, device=dev)
     counts = wp.empty(n, dtype=wp.int32, device=dev)
     packed = wp.empty((n, PACKED_COLS), dtype=s.scalar, device=dev)
-    row_tiles = wp.empty((n, 2 * ROW_CACHE), dtype=wp.int32, device=dev)
     dkeys = wp.empty(2 * n, dtype=s.scalar, device=dev)  # the radix sort's keys and values take 2n slots
     order = wp.empty(2 * n, dtype=wp.int32, device=dev)
-    a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.colors, s.opacities, s.depths, s.radii, width, height,
+    a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.colors, s.opacities, s.depths, s.radii,
                                      tiles_x, tiles_y, mid, wp.float64(UNIT_ROUNDOFF[s.scalar]), rects, counts, packed,
-                                     row_tiles, dkeys, order],
+                                     dkeys, order],
              min_chunk=MIN_CHUNK)
     if n == 0:
         return Tiles(tiles_x, tiles_y, 0, counts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
@@ -511,8 +468,7 @@ def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: b
                      wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
                      packed, mode)
     if counting_sort:
-        return _counting_sort(a, rects, packed, row_tiles, starts, counts, n, n_entries, width, height, tiles_x, tiles_y,
-                              mode)
+        return _counting_sort(a, rects, packed, starts, counts, n, n_entries, tiles_x, tiles_y, mode)
     ranges = wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev)
 
     # Keys are the tiles; values the emitted indices. The radix sort is stable, so a tile's entries keep
@@ -521,7 +477,7 @@ def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: b
     keys = wp.empty(2 * n_entries, dtype=wp.int32, device=dev)
     values = wp.empty(2 * n_entries, dtype=wp.int64, device=dev)
     # The emit kernel writes the disjoint slice [starts[i], starts[i] + counts[i]) of splat i.
-    a.launch(_emit_kernel, n, [rects, packed, starts, counts, width, height, tiles_x, keys, values], min_chunk=MIN_CHUNK)
+    a.launch(_emit_kernel, n, [rects, starts, counts, tiles_x, keys, values], min_chunk=MIN_CHUNK)
     wp.utils.radix_sort_pairs(keys, values, n_entries, 0, tile_bits)
     sorted_gid = wp.empty(n_entries, dtype=wp.int32, device=dev)
     sorted_entry = wp.empty(n_entries, dtype=wp.int32, device=dev)
@@ -530,9 +486,8 @@ def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: b
     return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)
 
 
-def _counting_sort(a: A.Inputs, rects: wp.array, packed: wp.array, row_tiles: wp.array, starts: wp.array,
-                   counts: wp.array, n: int,
-                   n_entries: int, width: int, height: int, tiles_x: int, tiles_y: int, mode: str) -> Tiles:
+def _counting_sort(a: A.Inputs, rects: wp.array, packed: wp.array, starts: wp.array, counts: wp.array, n: int,
+                   n_entries: int, tiles_x: int, tiles_y: int, mode: str) -> Tiles:
     """The CPU's (tile, depth) order: a stable counting sort of the emitted entries by tile.
 
     The emitted entries (in depth order) are cut into chunks; each chunk counts its entries per
@@ -546,7 +501,7 @@ def _counting_sort(a: A.Inputs, rects: wp.array, packed: wp.array, row_tiles: wp
     n_tiles = tiles_x * tiles_y
     keys = wp.empty(n_entries, dtype=wp.int32, device=dev)
     gids = wp.empty(n_entries, dtype=wp.int32, device=dev)
-    a.launch(_emit_gid_kernel, n, [rects, packed, starts, counts, row_tiles, width, height, tiles_x, keys, gids],
+    a.launch(_emit_gid_kernel, n, [rects, starts, counts, tiles_x, keys, gids],
              min_chunk=MIN_CHUNK)
     n_chunks = max(1, min(SORT_CHUNKS, n_entries // SORT_CHUNK_MIN))
     chunk = -(-n_entries // n_chunks)

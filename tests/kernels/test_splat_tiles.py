@@ -36,7 +36,8 @@ def hard_splats(seed: int) -> dict[str, np.ndarray]:
     rows = []
     # Axis ratios 40 (1 - rho = 1.25e-3 at 45 degrees: spans) and 50 (8e-4: no spans, the whole box).
     for ratio in (40.0, 50.0, 30.0):
-        rows.append((rng.uniform(0, W), rng.uniform(0, H), _conic(rng.uniform(8, 30), ratio, math.pi / 4 + rng.uniform(-0.02, 0.02)),
+        angle = math.pi / 4 + rng.uniform(-0.02, 0.02)
+        rows.append((rng.uniform(0, W), rng.uniform(0, H), _conic(rng.uniform(8, 30), ratio, angle),
                      rng.uniform(0.3, 0.9)))
     rows.append((W / 2, H / 2, _conic(200.0, 1.5, 0.3), 0.2))  # covers the image
     rows.append((-25.0, H + 20.0, _conic(40.0, 2.0, 1.0), 0.7))  # centred off the image
