@@ -27,12 +27,13 @@ which a second kernel sums per splat: no Warp atomic is atomic between concurren
 (docs/warp.md), so with no shared accumulator the tiles run in parallel through
 kernels.launch.launch_split, and the result does not depend on the thread count.
 
-Loop order (speed only; every pixel's arithmetic and order are those above). One thread per
-tile walks the tile's list once, splats outside (front to back; back to front in the backward),
+Loop order (speed only; every pixel's arithmetic and order are those above). On the CPU one
+thread per tile walks the tile's list once, splats outside (front to back; back to front in the backward),
 and for each splat only the pixels of its spans in the tile (kernels/splat/tiles.py: the box of
 the rows and columns inside its alpha >= 1/255 ellipse, widened for rounding; every other pixel
 would skip it). Each pixel's running T and sums live in arrays between splats; the forward marks
 a stopped pixel (n_contrib < 0 until the end) and ends the tile once all its pixels stopped.
+On CUDA the forward runs a thread per pixel over its tile's whole list (the same results).
 """
 
 from __future__ import annotations
@@ -44,7 +45,8 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
-from kernels.splat.tiles import TILE, Splats2D, Tiles, band_columns, bin_tiles, ceil_in, floor_in, span_rows
+from kernels.splat.tiles import (TILE, TILE_PIXELS, Splats2D, Tiles, band_columns, bin_tiles, ceil_in, floor_in,
+                                 span_rows)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -156,6 +158,66 @@ def _raster_forward_kernel(
             nc = n_contrib[py, px]
             if nc < 0:
                 n_contrib[py, px] = -1 - nc
+
+
+@wp.kernel
+def _raster_forward_pixel_kernel(
+    packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
+    sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
+    alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any),
+    out_depth: wp.array2d(dtype=Any), final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32),
+    offset: int,
+):
+    # The same forward with one thread per pixel walking its tile's whole list: the layout for CUDA,
+    # whose threads are many and cheap (the CPU runs _raster_forward_kernel).
+    t = wp.tid() + offset
+    tile = t / TILE_PIXELS
+    local = t - tile * TILE_PIXELS
+    tile_y = tile / tiles_x
+    px = (tile - tile_y * tiles_x) * TILE + local % TILE
+    py = tile_y * TILE + local / TILE
+    if px >= width or py >= height:
+        return
+    zero = packed.dtype(0.0)
+    one = packed.dtype(1.0)
+    half = packed.dtype(0.5)
+    pxf = packed.dtype(float(px)) + half
+    pyf = packed.dtype(float(py)) + half
+    start = ranges[tile, 0]
+    end = ranges[tile, 1]
+    tr = one
+    cr = zero
+    cg = zero
+    cb = zero
+    cd = zero
+    last = start
+    for s in range(start, end):
+        g = sorted_gid[s]
+        dx = packed[g, 0] - pxf
+        dy = packed[g, 1] - pyf
+        power = -half * (packed[g, 2] * dx * dx + packed[g, 4] * dy * dy) - packed[g, 3] * dx * dy
+        if power > zero or power < packed[g, 6]:
+            continue
+        alpha = wp.min(alpha_max, packed[g, 5] * wp.exp(power))
+        if alpha < packed.dtype(ALPHA_MIN):
+            continue
+        next_t = tr * (one - alpha)
+        if next_t < packed.dtype(T_MIN) or (stop_inclusive != 0 and next_t == packed.dtype(T_MIN)):
+            break
+        wgt = alpha * tr
+        cr += wgt * packed[g, 8]
+        cg += wgt * packed[g, 9]
+        cb += wgt * packed[g, 10]
+        cd += wgt * packed[g, 7]
+        tr = next_t
+        last = s + 1
+    out_rgb[py, px, 0] = cr + tr * background[0]
+    out_rgb[py, px, 1] = cg + tr * background[1]
+    out_rgb[py, px, 2] = cb + tr * background[2]
+    out_alpha[py, px] = one - tr
+    out_depth[py, px] = cd
+    final_T[py, px] = tr
+    n_contrib[py, px] = last
 
 
 @wp.kernel
@@ -326,7 +388,8 @@ def _gather_entry_grads_kernel(
     g_depths[i] = acc[9]
 
 
-for _k in (_raster_forward_kernel, _raster_backward_tile_kernel, _gather_entry_grads_kernel):
+for _k in (_raster_forward_kernel, _raster_forward_pixel_kernel, _raster_backward_tile_kernel,
+           _gather_entry_grads_kernel):
     A.declare_float_overloads(_k)
 
 
@@ -360,6 +423,12 @@ def _check_tiles_mode(tiles: Tiles, mode: str) -> None:
 def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
                  tiles: Tiles | None = None, mode: str = DEFAULT_MODE) -> tuple[Raster, Tiles]:
     """`rasterize` with wp.array results (the render chain's last stage); `bg` a wp.array."""
+    return _rasterize_wp(s, width, height, bg, tiles, mode, per_tile=s.device.is_cpu)
+
+
+def _rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array, tiles: Tiles | None, mode: str,
+                  per_tile: bool) -> tuple[Raster, Tiles]:
+    """`rasterize_wp` with the forward's layout chosen: a thread per tile (the CPU's) or per pixel (CUDA's)."""
     mid = mode_id(mode)
     a = s.inputs()
     if tiles is None:
@@ -373,10 +442,12 @@ def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
                  wp.empty((height, width), dtype=a.scalar, device=dev),
                  wp.empty((height, width), dtype=wp.int32, device=dev))
     n_tiles = tiles.tiles_x * tiles.tiles_y
-    a.launch(_raster_forward_kernel, n_tiles,
-             [tiles.packed, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x,
-              a.s(ALPHA_MAX_OF[mode]), mid, out.rgb,
-              out.alpha, out.depth, out.final_T, out.n_contrib], min_chunk=1)
+    args = [tiles.packed, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]),
+            mid, out.rgb, out.alpha, out.depth, out.final_T, out.n_contrib]
+    if per_tile:
+        a.launch(_raster_forward_kernel, n_tiles, args, min_chunk=1)
+    else:
+        a.launch(_raster_forward_pixel_kernel, n_tiles * TILE_PIXELS, args, min_chunk=TILE_PIXELS)
     return out, tiles
 
 
