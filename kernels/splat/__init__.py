@@ -16,7 +16,8 @@ The chain, one module per stage:
                    opacity sigmoid(a) (times Mip-Splatting's compensation); the per-splat math and
                    its VJPs live in ewa.py, the SH basis in kernels/sh.py
     tiles.py       16 x 16 pixel tiles: each splat listed in the tiles its alpha >= 1/255 region
-                   meets, sorted by tile then depth (two radix sorts)
+                   meets, sorted by tile then depth (a radix sort by depth, then a counting sort
+                   by tile on the CPU, a radix sort on CUDA); each splat's pixel spans
     raster.py      per pixel, front to back: alpha_i = min(0.99, o_i G_i), T_{i+1} = T_i (1 - alpha_i),
                    rgb = sum_i c_i alpha_i T_i + T_final background, stopping at T < 1e-4
                    (in the default mode; "gsplat": 0.999 and <= 1e-4)

@@ -26,6 +26,14 @@ Every tile's backward runs on one thread and writes one gradient row per (tile, 
 which a second kernel sums per splat: no Warp atomic is atomic between concurrent CPU launches
 (docs/warp.md), so with no shared accumulator the tiles run in parallel through
 kernels.launch.launch_split, and the result does not depend on the thread count.
+
+Loop order (speed only; every pixel's arithmetic and order are those above). On the CPU one
+thread per tile walks the tile's list once, splats outside (front to back; back to front in the backward),
+and for each splat only the pixels of its spans in the tile (kernels/splat/tiles.py: the box of
+the rows and columns inside its alpha >= 1/255 ellipse, widened for rounding; every other pixel
+would skip it). Each pixel's running T and sums live in arrays between splats; the forward marks
+a stopped pixel (n_contrib < 0 until the end) and ends the tile once all its pixels stopped.
+On CUDA the forward runs a thread per pixel over its tile's whole list (the same results).
 """
 
 from __future__ import annotations
@@ -37,7 +45,8 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
-from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles
+from kernels.splat.tiles import (TILE, TILE_PIXELS, Splats2D, Tiles, band_columns, bin_tiles, ceil_in, floor_in,
+                                 span_rows)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -49,44 +58,131 @@ MIN_CHUNK = 1024
 _GRAD_COLS = 10
 
 
-@wp.func
-def _tile_pixel(tile: int, local: int, tiles_x: int):
-    """(px, py) of pixel `local` (row-major in the TILE x TILE block) of tile `tile` (row-major, tiles_x wide)."""
-    tile_y = tile / tiles_x
-    return (tile - tile_y * tiles_x) * TILE + local % TILE, tile_y * TILE + local / TILE
-
-
-@wp.func
-def _pixel_centre(packed: wp.array2d(dtype=Any), px: int, py: int):
-    """(px + 1/2, py + 1/2) in the dtype of the splats."""
+@wp.kernel
+def _raster_forward_kernel(
+    packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
+    sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
+    width: int, height: int, tiles_x: int, alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any),
+    out_alpha: wp.array2d(dtype=Any), out_depth: wp.array2d(dtype=Any),
+    final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32), offset: int,
+):
+    # One thread per tile, splats in the outer loop (front to back), the pixels of each splat's span
+    # in the inner one. Each pixel sees the same splats in the same order, with the same arithmetic,
+    # as a loop over the tile's list per pixel; its running sums live in the output arrays
+    # (final_T = T, out_rgb and out_depth the blended sums), and n_contrib < 0 marks a stopped pixel
+    # (-1 - its count).
+    tile = wp.tid() + offset
+    zero = packed.dtype(0.0)
+    one = packed.dtype(1.0)
     half = packed.dtype(0.5)
-    return packed.dtype(float(px)) + half, packed.dtype(float(py)) + half
-
-
-@wp.func
-def _gauss_power(packed: wp.array2d(dtype=Any), g: int, pxf: Any, pyf: Any):
-    """(dx, dy, -1/2 d^T Q d) of splat g's packed row at the pixel centre (pxf, pyf), d = mean2d - p."""
-    dx = packed[g, 0] - pxf
-    dy = packed[g, 1] - pyf
-    return dx, dy, -packed.dtype(0.5) * (packed[g, 2] * dx * dx + packed[g, 4] * dy * dy) - packed[g, 3] * dx * dy
+    tile_y = tile / tiles_x
+    x_lo = (tile - tile_y * tiles_x) * TILE
+    y_lo = tile_y * TILE
+    x_hi = wp.min(x_lo + TILE, width)
+    y_hi = wp.min(y_lo + TILE, height)
+    start = ranges[tile, 0]
+    end = ranges[tile, 1]
+    for py in range(y_lo, y_hi):
+        for px in range(x_lo, x_hi):
+            final_T[py, px] = one
+            out_rgb[py, px, 0] = zero
+            out_rgb[py, px, 1] = zero
+            out_rgb[py, px, 2] = zero
+            out_depth[py, px] = zero
+            n_contrib[py, px] = start
+    n_pix = (x_hi - x_lo) * (y_hi - y_lo)
+    stopped = int(0)
+    for s in range(start, end):
+        g = sorted_gid[s]
+        u = packed[g, 0]
+        v = packed[g, 1]
+        qa = packed[g, 2]
+        qb = packed[g, 3]
+        qc = packed[g, 4]
+        o = packed[g, 5]
+        # packed[g, 6] = -ln(255 o): below it alpha < 1/255, so exp() is skipped.
+        thr = packed[g, 6]
+        z = packed[g, 7]
+        c0 = packed[g, 8]
+        c1 = packed[g, 9]
+        c2 = packed[g, 10]
+        # The splat's rows inside its widened 1/255 ellipse in this tile, and the columns of any of
+        # those rows (tiles.py: span_rows, band_columns).
+        row0 = y_lo
+        row1 = y_hi
+        col0 = x_lo
+        col1 = x_hi
+        if packed[g, 14] >= zero:
+            row0, row1 = span_rows(packed, g, y_lo, y_hi)
+            if row1 > row0:
+                left, right = band_columns(packed, g, row0, row1 - 1)
+                col0 = ceil_in(left, x_lo, x_hi)
+                col1 = floor_in(right, x_lo - 1, x_hi - 1) + 1
+        for py in range(row0, row1):
+            pyf = packed.dtype(float(py)) + half
+            for px in range(col0, col1):
+                nc = n_contrib[py, px]
+                if nc < 0:
+                    continue
+                pxf = packed.dtype(float(px)) + half
+                dx = u - pxf
+                dy = v - pyf
+                power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
+                if power > zero or power < thr:
+                    continue
+                alpha = wp.min(alpha_max, o * wp.exp(power))
+                if alpha < packed.dtype(ALPHA_MIN):
+                    continue
+                tr = final_T[py, px]
+                next_t = tr * (one - alpha)
+                if next_t < packed.dtype(T_MIN) or (stop_inclusive != 0 and next_t == packed.dtype(T_MIN)):
+                    n_contrib[py, px] = -1 - nc
+                    stopped += 1
+                    continue
+                wgt = alpha * tr
+                out_rgb[py, px, 0] = out_rgb[py, px, 0] + wgt * c0
+                out_rgb[py, px, 1] = out_rgb[py, px, 1] + wgt * c1
+                out_rgb[py, px, 2] = out_rgb[py, px, 2] + wgt * c2
+                out_depth[py, px] = out_depth[py, px] + wgt * z
+                final_T[py, px] = next_t
+                n_contrib[py, px] = s + 1
+        if stopped == n_pix:
+            break
+    for py in range(y_lo, y_hi):
+        for px in range(x_lo, x_hi):
+            tr = final_T[py, px]
+            out_rgb[py, px, 0] = out_rgb[py, px, 0] + tr * background[0]
+            out_rgb[py, px, 1] = out_rgb[py, px, 1] + tr * background[1]
+            out_rgb[py, px, 2] = out_rgb[py, px, 2] + tr * background[2]
+            out_alpha[py, px] = one - tr
+            nc = n_contrib[py, px]
+            if nc < 0:
+                n_contrib[py, px] = -1 - nc
 
 
 @wp.kernel
-def _raster_forward_kernel(
-    packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
+def _raster_forward_pixel_kernel(
+    packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
     sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
     alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any),
-    out_depth: wp.array2d(dtype=Any),
-    final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32), offset: int,
+    out_depth: wp.array2d(dtype=Any), final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32),
+    offset: int,
 ):
+    # The same forward with one thread per pixel walking its tile's whole list: the layout for CUDA,
+    # whose threads are many and cheap (the CPU runs _raster_forward_kernel).
     t = wp.tid() + offset
     tile = t / TILE_PIXELS
-    px, py = _tile_pixel(tile, t - tile * TILE_PIXELS, tiles_x)
+    local = t - tile * TILE_PIXELS
+    tile_y = tile / tiles_x
+    px = (tile - tile_y * tiles_x) * TILE + local % TILE
+    py = tile_y * TILE + local / TILE
     if px >= width or py >= height:
         return
     zero = packed.dtype(0.0)
     one = packed.dtype(1.0)
-    pxf, pyf = _pixel_centre(packed, px, py)
+    half = packed.dtype(0.5)
+    pxf = packed.dtype(float(px)) + half
+    pyf = packed.dtype(float(py)) + half
     start = ranges[tile, 0]
     end = ranges[tile, 1]
     tr = one
@@ -97,22 +193,21 @@ def _raster_forward_kernel(
     last = start
     for s in range(start, end):
         g = sorted_gid[s]
-        dx, dy, power = _gauss_power(packed, g, pxf, pyf)
-        # packed[g, 6] = -ln(255 o): below it alpha < 1/255, so exp() is skipped.
+        dx = packed[g, 0] - pxf
+        dy = packed[g, 1] - pyf
+        power = -half * (packed[g, 2] * dx * dx + packed[g, 4] * dy * dy) - packed[g, 3] * dx * dy
         if power > zero or power < packed[g, 6]:
             continue
         alpha = wp.min(alpha_max, packed[g, 5] * wp.exp(power))
         if alpha < packed.dtype(ALPHA_MIN):
             continue
         next_t = tr * (one - alpha)
-        if next_t < packed.dtype(T_MIN):
-            break
-        if stop_inclusive != 0 and next_t == packed.dtype(T_MIN):
+        if next_t < packed.dtype(T_MIN) or (stop_inclusive != 0 and next_t == packed.dtype(T_MIN)):
             break
         wgt = alpha * tr
-        cr += wgt * colors[g, 0]
-        cg += wgt * colors[g, 1]
-        cb += wgt * colors[g, 2]
+        cr += wgt * packed[g, 8]
+        cg += wgt * packed[g, 9]
+        cb += wgt * packed[g, 10]
         cd += wgt * packed[g, 7]
         tr = next_t
         last = s + 1
@@ -127,86 +222,146 @@ def _raster_forward_kernel(
 
 @wp.kernel
 def _raster_backward_tile_kernel(
-    packed: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
+    packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
     sorted_gid: wp.array(dtype=wp.int32), sorted_entry: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
     width: int, height: int, tiles_x: int, alpha_max: Any, final_T: wp.array2d(dtype=Any),
     n_contrib: wp.array2d(dtype=wp.int32), g_rgb: wp.array3d(dtype=Any), g_alpha: wp.array2d(dtype=Any),
-    g_depth: wp.array2d(dtype=Any),
+    g_depth: wp.array2d(dtype=Any), state: wp.array3d(dtype=Any),
     entry_grads: wp.array2d(dtype=Any), tile_bg_grads: wp.array2d(dtype=Any), offset: int,
 ):
-    # One thread per tile: it alone writes the rows of its (tile, splat) entries and its background row.
+    # One thread per tile: it alone writes the rows of its (tile, splat) entries and its background
+    # row. Splats in the outer loop, back to front, the pixels of each splat's spans inside: each
+    # pixel sees the splats it blended in the same (reverse) order and arithmetic as a walk down its
+    # own list, with its running T and colour behind in `state` (T, S_r, S_g, S_b, S_depth); an
+    # entry's row sums its pixels' terms in the same (row-major) pixel order, then is written once.
     tile = wp.tid() + offset
     zero = packed.dtype(0.0)
     one = packed.dtype(1.0)
     half = packed.dtype(0.5)
+    tile_y = tile / tiles_x
+    x_lo = (tile - tile_y * tiles_x) * TILE
+    y_lo = tile_y * TILE
+    x_hi = wp.min(x_lo + TILE, width)
+    y_hi = wp.min(y_lo + TILE, height)
     start = ranges[tile, 0]
+    end = ranges[tile, 1]
     bg0 = background[0]
     bg1 = background[1]
     bg2 = background[2]
     gbg0 = zero
     gbg1 = zero
     gbg2 = zero
-    for local in range(TILE_PIXELS):
-        px, py = _tile_pixel(tile, local, tiles_x)
-        if px >= width or py >= height:
-            continue
-        pxf, pyf = _pixel_centre(packed, px, py)
-        tf = final_T[py, px]
-        gr = g_rgb[py, px, 0]
-        gg = g_rgb[py, px, 1]
-        gb = g_rgb[py, px, 2]
-        ga = g_alpha[py, px]
-        gd = g_depth[py, px]
-        gbg0 += tf * gr
-        gbg1 += tf * gg
-        gbg2 += tf * gb
-        bg_dot = bg0 * gr + bg1 * gg + bg2 * gb
-        tr = tf
-        sr = zero
-        sg = zero
-        sb = zero
-        sd = zero
-        s = n_contrib[py, px] - 1
-        while s >= start:
-            g = sorted_gid[s]
-            dx, dy, power = _gauss_power(packed, g, pxf, pyf)
-            qa = packed[g, 2]
-            qb = packed[g, 3]
-            qc = packed[g, 4]
-            if power <= zero and power >= packed[g, 6]:
-                gauss = wp.exp(power)
-                raw = packed[g, 5] * gauss
-                alpha = wp.min(alpha_max, raw)
-                if alpha >= packed.dtype(ALPHA_MIN):
-                    tr = tr / (one - alpha)
-                    wgt = alpha * tr
-                    c0 = colors[g, 0]
-                    c1 = colors[g, 1]
-                    c2 = colors[g, 2]
-                    z = packed[g, 7]
-                    row = sorted_entry[s]
-                    entry_grads[row, 6] += wgt * gr
-                    entry_grads[row, 7] += wgt * gg
-                    entry_grads[row, 8] += wgt * gb
-                    entry_grads[row, 9] += wgt * gd
-                    g_a = tr * ((c0 - sr) * gr + (c1 - sg) * gg + (c2 - sb) * gb + (z - sd) * gd)
-                    g_a += (ga - bg_dot) * tf / (one - alpha)
-                    sr = alpha * c0 + (one - alpha) * sr
-                    sg = alpha * c1 + (one - alpha) * sg
-                    sb = alpha * c2 + (one - alpha) * sb
-                    sd = alpha * z + (one - alpha) * sd
-                    if raw <= alpha_max:
-                        entry_grads[row, 5] += gauss * g_a
-                        g_p = alpha * g_a
-                        entry_grads[row, 0] += -(qa * dx + qb * dy) * g_p
-                        entry_grads[row, 1] += -(qb * dx + qc * dy) * g_p
-                        entry_grads[row, 2] += -half * dx * dx * g_p
-                        entry_grads[row, 3] += -dx * dy * g_p
-                        entry_grads[row, 4] += -half * dy * dy * g_p
-            s -= 1
+    last = start
+    for py in range(y_lo, y_hi):
+        for px in range(x_lo, x_hi):
+            tf = final_T[py, px]
+            gbg0 += tf * g_rgb[py, px, 0]
+            gbg1 += tf * g_rgb[py, px, 1]
+            gbg2 += tf * g_rgb[py, px, 2]
+            state[py, px, 0] = tf
+            state[py, px, 1] = zero
+            state[py, px, 2] = zero
+            state[py, px, 3] = zero
+            state[py, px, 4] = zero
+            last = wp.max(last, n_contrib[py, px])
     tile_bg_grads[tile, 0] = gbg0
     tile_bg_grads[tile, 1] = gbg1
     tile_bg_grads[tile, 2] = gbg2
+    for s in range(last, end):  # entries no pixel reached
+        row = sorted_entry[s]
+        for j in range(_GRAD_COLS):
+            entry_grads[row, j] = zero
+    s = last - 1
+    while s >= start:
+        g = sorted_gid[s]
+        u = packed[g, 0]
+        v = packed[g, 1]
+        qa = packed[g, 2]
+        qb = packed[g, 3]
+        qc = packed[g, 4]
+        o = packed[g, 5]
+        thr = packed[g, 6]
+        z = packed[g, 7]
+        c0 = packed[g, 8]
+        c1 = packed[g, 9]
+        c2 = packed[g, 10]
+        a0 = zero
+        a1 = zero
+        a2 = zero
+        a3 = zero
+        a4 = zero
+        a5 = zero
+        a6 = zero
+        a7 = zero
+        a8 = zero
+        a9 = zero
+        row0 = y_lo
+        row1 = y_hi
+        col0 = x_lo
+        col1 = x_hi
+        if packed[g, 14] >= zero:
+            row0, row1 = span_rows(packed, g, y_lo, y_hi)
+            if row1 > row0:
+                left, right = band_columns(packed, g, row0, row1 - 1)
+                col0 = ceil_in(left, x_lo, x_hi)
+                col1 = floor_in(right, x_lo - 1, x_hi - 1) + 1
+        for py in range(row0, row1):
+            pyf = packed.dtype(float(py)) + half
+            for px in range(col0, col1):
+                if s >= n_contrib[py, px]:
+                    continue
+                pxf = packed.dtype(float(px)) + half
+                dx = u - pxf
+                dy = v - pyf
+                power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
+                if power <= zero and power >= thr:
+                    gauss = wp.exp(power)
+                    raw = o * gauss
+                    alpha = wp.min(alpha_max, raw)
+                    if alpha >= packed.dtype(ALPHA_MIN):
+                        gr = g_rgb[py, px, 0]
+                        gg = g_rgb[py, px, 1]
+                        gb = g_rgb[py, px, 2]
+                        gd = g_depth[py, px]
+                        tf = final_T[py, px]
+                        bg_dot = bg0 * gr + bg1 * gg + bg2 * gb
+                        tr = state[py, px, 0] / (one - alpha)
+                        sr = state[py, px, 1]
+                        sg = state[py, px, 2]
+                        sb = state[py, px, 3]
+                        sd = state[py, px, 4]
+                        wgt = alpha * tr
+                        a6 += wgt * gr
+                        a7 += wgt * gg
+                        a8 += wgt * gb
+                        a9 += wgt * gd
+                        g_a = tr * ((c0 - sr) * gr + (c1 - sg) * gg + (c2 - sb) * gb + (z - sd) * gd)
+                        g_a += (g_alpha[py, px] - bg_dot) * tf / (one - alpha)
+                        state[py, px, 0] = tr
+                        state[py, px, 1] = alpha * c0 + (one - alpha) * sr
+                        state[py, px, 2] = alpha * c1 + (one - alpha) * sg
+                        state[py, px, 3] = alpha * c2 + (one - alpha) * sb
+                        state[py, px, 4] = alpha * z + (one - alpha) * sd
+                        if raw <= alpha_max:
+                            a5 += gauss * g_a
+                            g_p = alpha * g_a
+                            a0 += -(qa * dx + qb * dy) * g_p
+                            a1 += -(qb * dx + qc * dy) * g_p
+                            a2 += -half * dx * dx * g_p
+                            a3 += -dx * dy * g_p
+                            a4 += -half * dy * dy * g_p
+        row = sorted_entry[s]
+        entry_grads[row, 0] = a0
+        entry_grads[row, 1] = a1
+        entry_grads[row, 2] = a2
+        entry_grads[row, 3] = a3
+        entry_grads[row, 4] = a4
+        entry_grads[row, 5] = a5
+        entry_grads[row, 6] = a6
+        entry_grads[row, 7] = a7
+        entry_grads[row, 8] = a8
+        entry_grads[row, 9] = a9
+        s -= 1
 
 
 @wp.kernel
@@ -233,7 +388,8 @@ def _gather_entry_grads_kernel(
     g_depths[i] = acc[9]
 
 
-for _k in (_raster_forward_kernel, _raster_backward_tile_kernel, _gather_entry_grads_kernel):
+for _k in (_raster_forward_kernel, _raster_forward_pixel_kernel, _raster_backward_tile_kernel,
+           _gather_entry_grads_kernel):
     A.declare_float_overloads(_k)
 
 
@@ -267,18 +423,31 @@ def _check_tiles_mode(tiles: Tiles, mode: str) -> None:
 def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
                  tiles: Tiles | None = None, mode: str = DEFAULT_MODE) -> tuple[Raster, Tiles]:
     """`rasterize` with wp.array results (the render chain's last stage); `bg` a wp.array."""
+    return _rasterize_wp(s, width, height, bg, tiles, mode, per_tile=s.device.is_cpu)
+
+
+def _rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array, tiles: Tiles | None, mode: str,
+                  per_tile: bool) -> tuple[Raster, Tiles]:
+    """`rasterize_wp` with the forward's layout chosen: a thread per tile (the CPU's) or per pixel (CUDA's)."""
     mid = mode_id(mode)
     a = s.inputs()
     if tiles is None:
         tiles = bin_tiles(s, width, height, mode)
     _check_tiles_mode(tiles, mode)
-    out = Raster(a.zeros((height, width, 3)), a.zeros((height, width)), a.zeros((height, width)),
-                 a.zeros((height, width)), a.zeros((height, width), wp.int32))
+    # Every pixel belongs to one tile, whose thread writes all its outputs: no zero fill needed.
+    dev = a.device
+    out = Raster(wp.empty((height, width, 3), dtype=a.scalar, device=dev),
+                 wp.empty((height, width), dtype=a.scalar, device=dev),
+                 wp.empty((height, width), dtype=a.scalar, device=dev),
+                 wp.empty((height, width), dtype=a.scalar, device=dev),
+                 wp.empty((height, width), dtype=wp.int32, device=dev))
     n_tiles = tiles.tiles_x * tiles.tiles_y
-    a.launch(_raster_forward_kernel, n_tiles * TILE_PIXELS,
-             [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x,
-              a.s(ALPHA_MAX_OF[mode]), mid, out.rgb,
-              out.alpha, out.depth, out.final_T, out.n_contrib], min_chunk=TILE_PIXELS)
+    args = [tiles.packed, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]),
+            mid, out.rgb, out.alpha, out.depth, out.final_T, out.n_contrib]
+    if per_tile:
+        a.launch(_raster_forward_kernel, n_tiles, args, min_chunk=1)
+    else:
+        a.launch(_raster_forward_pixel_kernel, n_tiles * TILE_PIXELS, args, min_chunk=TILE_PIXELS)
     return out, tiles
 
 
@@ -327,11 +496,14 @@ def rasterize_backward_wp(a: A.Inputs, s: Splats2D, width: int, height: int, bg:
     g_a = a.zeros((height, width)) if grad_alpha is None else a.floats("grad_alpha", grad_alpha, (height, width))
     g_d = a.zeros((height, width)) if grad_depth is None else a.floats("grad_depth", grad_depth, (height, width))
     n_tiles = tiles.tiles_x * tiles.tiles_y
-    entry_grads = a.zeros((max(tiles.n_entries, 1), _GRAD_COLS))
-    tile_bg = a.zeros((n_tiles, 3))
+    # Every entry's row and every tile's background row is written by its tile's thread.
+    dev = a.device
+    entry_grads = wp.empty((max(tiles.n_entries, 1), _GRAD_COLS), dtype=a.scalar, device=dev)
+    tile_bg = wp.empty((n_tiles, 3), dtype=a.scalar, device=dev)
+    state = wp.empty((height, width, 5), dtype=a.scalar, device=dev)
     a.launch(_raster_backward_tile_kernel, n_tiles,
-             [tiles.packed, s.colors, bg, tiles.sorted_gid, tiles.sorted_entry, tiles.ranges, width, height,
-              tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]), final_t, n_contrib, g_rgb, g_a, g_d, entry_grads, tile_bg],
+             [tiles.packed, bg, tiles.sorted_gid, tiles.sorted_entry, tiles.ranges, width, height,
+              tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]), final_t, n_contrib, g_rgb, g_a, g_d, state, entry_grads, tile_bg],
              min_chunk=1)
     out = {"means2d": a.zeros((n, 2)), "conics": a.zeros((n, 3)), "opacities": a.zeros(n), "colors": a.zeros((n, 3)),
            "depths": a.zeros(n)}

@@ -1,4 +1,4 @@
-"""Tile binning: which splats each 16 x 16 pixel tile blends, front to back.
+"""Tile binning: which splats each 16 x 16 pixel tile blends, front to back; and each splat's spans.
 
 As in 3DGS (Kerbl et al. 2023), a visible splat belongs to the tiles its square mean2d +- radius
 meets, by the tile rule of the mode (kernels/splat/modes.py): "3dgs" 3DGS's getRect,
@@ -7,15 +7,31 @@ floor((u - r)/16) <= tx < ceil((u + r)/16) (rows likewise, both clamped to the i
 Of these it is listed only in those that also meet the bounding box of the ellipse
 d^T Q d <= 2 ln(255 o) (half-sizes sqrt(2 ln(255 o) Q11 / det Q) and sqrt(2 ln(255 o) Q00 / det Q)),
 outside which alpha < 1/255 and the rasteriser skips it anyway: the image is the same, and splats
-with 255 o < 1 are never listed. The (tile, splat) pairs are listed sorted by (tile, depth rank):
-the splats are ordered by depth (a stable radix sort, culled splats last), each splat's pairs are
-emitted as one slice [starts[i], starts[i] + counts[i]) (its tiles in row-major order), the slices
-laid out in depth order, and one stable radix sort (wp.utils.radix_sort_pairs) on the tile index
-alone (ceil(log2 tiles) bits: one 16-bit pass up to 65536 tiles) then lists every tile's splats
-front to back; per-tile ranges [start, end) index the sorted list. The sorted value carries both
-the emitted index (the backward's gradient row) and the splat, so nothing is gathered through the
-emitted order. Every kernel writes only its own slots (the emit kernel splat i's slice), so all
-run split over CPU threads.
+with 255 o < 1 are never listed.
+
+The spans, which the rasteriser visits instead of every pixel of a tile: the pixels (centres
+(px + 1/2, py + 1/2)) inside the ellipse d^T Q d <= k, d = mean2d - p, k = 2 ln(255 o) widened by
+a rounding margin (_span_widening), outside which the rasteriser's own test skips the splat.
+Pixel row py (dy = v - py - 1/2, |dy| <= hy) holds the columns
+px in [(u - 1/2) + S dy - sqrt(B - C dy^2), (u - 1/2) + S dy + sqrt(B - C dy^2)],
+S = Q01 / Q00, B = k / Q00, C = det Q / Q00^2, hy = sqrt(B / C); band_columns bounds the columns
+over a band of rows in closed form. A conic too elongated for the margin's bound
+(1 - |Q01| / sqrt(Q00 Q11) < 1e-3) has no spans: the rasteriser visits every pixel of its tiles.
+(Listing a splat only in the tiles its spans reach was tried: it cut the entries by 14-18% but
+cost more in the binning than it saved, as the rasteriser passes an unreached entry in a few ns.)
+Each splat's packed row (PACKED_COLS: mean, conic, opacity, -ln(255 o), depth, colour, spans) is
+all the rasteriser reads of it: one 64-byte cache line in float32.
+
+The (tile, splat) pairs are listed sorted by (tile, depth rank): the splats are ordered by depth
+(a stable radix sort, culled splats last), each splat's pairs are emitted as one slice
+[starts[i], starts[i] + counts[i]) (its tiles in row-major order), the slices laid out in depth
+order, and a stable sort by tile alone then lists every tile's splats front to back; per-tile
+ranges [start, end) index the sorted list, and each sorted entry keeps its emitted index (the
+backward's gradient row) and its splat. On the CPU the sort is a counting sort by tile
+(_counting_sort: per-chunk histograms, a scan, a scatter); on CUDA a radix sort
+(wp.utils.radix_sort_pairs, ceil(log2 tiles) bits); both give the same lists. Every kernel writes
+only its own slots (the emit kernel splat i's slice, a sort chunk its histogram row and slots),
+so all run split over CPU threads.
 """
 
 from __future__ import annotations
@@ -34,19 +50,108 @@ wp.set_module_options({"enable_backward": False})
 TILE = 16
 TILE_PIXELS = TILE * TILE
 MIN_CHUNK = 1024
+# Columns of a splat's packed row, all the rasteriser reads of it (16 float32 = one 64-byte cache
+# line): 0-1 mean2d u, v; 2-4 conic Q00, Q01, Q11; 5 opacity o; 6 -ln(255 o); 7 depth; 8-10 colour;
+# 11-15 its spans S, B, C, hy, dy* (hy < 0: no spans; band_columns).
+PACKED_COLS = 16
+# The CPU's counting sort by tile: at most SORT_CHUNKS chunks of at least SORT_CHUNK_MIN entries.
+SORT_CHUNKS = 32
+SORT_CHUNK_MIN = 1 << 16
+# Unit roundoff of each float dtype (the margin of the pixel spans, _span_widening).
+UNIT_ROUNDOFF = {wp.float32: 2.0 ** -24, wp.float64: 2.0 ** -53}
+
+
+@wp.func
+def _span_widening(qa: wp.float64, qb: wp.float64, qc: wp.float64, unit: wp.float64):
+    """The factor 1 + m by which a splat's spans widen its 1/255 ellipse; 0: no spans.
+
+    The rasteriser evaluates the power in the splats' dtype (unit roundoff `unit`): it differs from
+    the exact -1/2 d^T Q d (of the same stored u, v, Q) by at most ~11 unit M, where M = Q00 dx^2 +
+    Q11 dy^2 + 2 |Q01 dx dy| <= 2 d^T Q d / (1 - rho), rho = |Q01| / sqrt(Q00 Q11). Widened by
+    16 unit / (1 - rho), plus 1e-4 (for the float64 arithmetic of the spans and for storing their
+    S, B, C, hy, dy* in the splats' dtype: 1e-4 of B is far more than float32's rounding of B, C and
+    S dy, whose relative 6e-8 |S| hy <= 6e-8 sqrt(B) / sqrt(2 (1 - rho))), every pixel outside
+    computes a power below the skip threshold. A conic too elongated (1 - rho < 1e-3) or not
+    positive definite gets no spans (every pixel of its tiles).
+    """
+    zero = wp.float64(0.0)
+    if qa <= zero or qc <= zero:
+        return zero
+    gap = wp.float64(1.0) - wp.abs(qb) / wp.sqrt(qa * qc)
+    if gap < wp.float64(1e-3) or qa * qc - qb * qb <= zero:
+        return zero
+    return wp.float64(1.0) + wp.float64(1e-4) + wp.float64(16.0) * unit / gap
+
+
+@wp.func
+def floor_in(x: wp.float64, lo: int, hi: int):
+    """floor(x) clamped to [lo, hi] (x clamped first, so any finite x converts safely)."""
+    return int(wp.floor(wp.clamp(x, wp.float64(float(lo)), wp.float64(float(hi)))))
+
+
+@wp.func
+def ceil_in(x: wp.float64, lo: int, hi: int):
+    """ceil(x) clamped to [lo, hi]."""
+    return int(wp.ceil(wp.clamp(x, wp.float64(float(lo)), wp.float64(float(hi)))))
+
+
+@wp.func
+def band_columns(packed: wp.array2d(dtype=Any), i: int, p0: int, p1: int):
+    """(left, right): every span column (pixel x index, continuous) of splat i in pixel rows p0..p1.
+
+    Over those rows dy = v - (py + 1/2) runs through [d0, d1]; the columns of row dy are
+    (u - 1/2) + S dy -+ sqrt(B - C dy^2) (packed columns 11-15: S, B, C, hy, dy*). S dy + sqrt(.)
+    is concave, S dy - sqrt(.) convex, extreme at dy = +-dy*, dy* = S sqrt(B / (C (C + S^2))):
+    clamped into [d0, d1], they bound the columns of all those rows. In float64.
+    """
+    u = wp.float64(packed[i, 0])
+    v = wp.float64(packed[i, 1])
+    sl = wp.float64(packed[i, 11])
+    bb = wp.float64(packed[i, 12])
+    cc = wp.float64(packed[i, 13])
+    hy = wp.float64(packed[i, 14])
+    ds = wp.float64(packed[i, 15])
+    h = wp.float64(0.5)
+    zero = wp.float64(0.0)
+    d0 = wp.clamp(v - wp.float64(float(p1)) - h, -hy, hy)
+    d1 = wp.clamp(v - wp.float64(float(p0)) - h, -hy, hy)
+    dr = wp.clamp(ds, d0, d1)
+    dl = wp.clamp(-ds, d0, d1)
+    right = u - h + sl * dr + wp.sqrt(wp.max(zero, bb - cc * dr * dr))
+    left = u - h + sl * dl - wp.sqrt(wp.max(zero, bb - cc * dl * dl))
+    return left, right
+
+
+@wp.func
+def span_rows(packed: wp.array2d(dtype=Any), i: int, lo: int, hi: int):
+    """The pixel rows [r0, r1) within [lo, hi) of splat i's spans (|v - (py + 1/2)| <= hy)."""
+    v = wp.float64(packed[i, 1])
+    hy = wp.float64(packed[i, 14])
+    h = wp.float64(0.5)
+    return ceil_in(v - hy - h, lo, hi), floor_in(v + hy - h, lo - 1, hi - 1) + 1
 
 
 @wp.kernel
 def _tile_counts_kernel(
-    means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), opacities: wp.array(dtype=Any),
-    depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), tiles_x: int, tiles_y: int, mode: int,
-    rects: wp.array2d(dtype=wp.int32), counts: wp.array(dtype=wp.int32), packed: wp.array2d(dtype=Any), offset: int,
+    means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any),
+    opacities: wp.array(dtype=Any), depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), tiles_x: int,
+    tiles_y: int, mode: int, unit: wp.float64, rects: wp.array2d(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32), packed: wp.array2d(dtype=Any), depth_keys: wp.array(dtype=Any),
+    order: wp.array(dtype=wp.int32), offset: int,
 ):
     i = wp.tid() + offset
     r = radii[i]
+    # The keys of the depth sort: culled splats sort last (their rank is never used).
+    depth_keys[i] = depths[i]
+    if r <= 0:
+        depth_keys[i] = depths.dtype(1e30)
+    order[i] = i
     counts[i] = 0
     for j in range(4):
         rects[i, j] = 0
+    for j in range(PACKED_COLS):  # every row fully written: the arrays need no zero fill
+        packed[i, j] = means2d.dtype(0.0)
+    packed[i, 14] = means2d.dtype(-1.0)
     o = opacities[i]
     # The splat's alpha reaches 1/255 only inside the ellipse d^T Q d <= k2 (and never if 255 o < 1).
     if r <= 0 or o * means2d.dtype(255.0) < means2d.dtype(1.0):
@@ -86,28 +191,36 @@ def _tile_counts_kernel(
     rects[i, 1] = x1
     rects[i, 2] = y0
     rects[i, 3] = y1
-    counts[i] = (x1 - x0) * (y1 - y0)
+    thr = -means2d.dtype(0.5) * k2
     packed[i, 0] = u
     packed[i, 1] = v
     packed[i, 2] = qa
     packed[i, 3] = qb
     packed[i, 4] = qc
     packed[i, 5] = o
-    packed[i, 6] = -means2d.dtype(0.5) * k2
+    packed[i, 6] = thr
     packed[i, 7] = depths[i]
-
-
-@wp.kernel
-def _depth_keys_kernel(
-    depths: wp.array(dtype=Any), radii: wp.array(dtype=wp.int32), keys: wp.array(dtype=Any),
-    values: wp.array(dtype=wp.int32), offset: int,
-):
-    i = wp.tid() + offset
-    # Culled splats sort last; their rank is never used.
-    keys[i] = depths[i]
-    if radii[i] <= 0:
-        keys[i] = depths.dtype(1e30)
-    values[i] = i
+    packed[i, 8] = colors[i, 0]
+    packed[i, 9] = colors[i, 1]
+    packed[i, 10] = colors[i, 2]
+    # The spans: rows and columns inside the ellipse d^T Q d <= k, the rasteriser's threshold
+    # -2 thr widened for rounding (_span_widening); computed in float64 from the stored values.
+    qa64 = wp.float64(qa)
+    qb64 = wp.float64(qb)
+    qc64 = wp.float64(qc)
+    grow = _span_widening(qa64, qb64, qc64, unit)
+    if grow > wp.float64(0.0):
+        kk = wp.float64(-2.0) * wp.float64(thr) * grow
+        det64 = qa64 * qc64 - qb64 * qb64
+        sl = qb64 / qa64
+        bb = kk / qa64
+        cc = det64 / (qa64 * qa64)
+        packed[i, 11] = means2d.dtype(sl)
+        packed[i, 12] = means2d.dtype(bb)
+        packed[i, 13] = means2d.dtype(cc)
+        packed[i, 14] = means2d.dtype(wp.sqrt(bb / cc))
+        packed[i, 15] = means2d.dtype(sl * wp.sqrt(bb / (cc * (cc + sl * sl))))
+    counts[i] = (x1 - x0) * (y1 - y0)
 
 
 @wp.kernel
@@ -140,6 +253,49 @@ def _emit_kernel(
             # sorted entries need no gather through the emitted order afterwards.
             values[e] = (wp.int64(e) << wp.int64(32)) | wp.int64(i)
             e += 1
+
+
+@wp.kernel
+def _emit_gid_kernel(
+    rects: wp.array2d(dtype=wp.int32), starts: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
+    tiles_x: int, keys: wp.array(dtype=wp.int32), gids: wp.array(dtype=wp.int32), offset: int,
+):
+    # _emit_kernel's entries, for the counting sort: the tile and the splat of each emitted index.
+    i = wp.tid() + offset
+    if counts[i] == 0:
+        return
+    e = starts[i]
+    for ty in range(rects[i, 2], rects[i, 3]):
+        for tx in range(rects[i, 0], rects[i, 1]):
+            keys[e] = ty * tiles_x + tx
+            gids[e] = i
+            e += 1
+
+
+@wp.kernel
+def _tile_hist_kernel(keys: wp.array(dtype=wp.int32), n: int, chunk: int, hist: wp.array2d(dtype=wp.int32),
+                      offset: int):
+    # Chunk c of the emitted entries counts its entries per tile into its own histogram row.
+    c = wp.tid() + offset
+    for e in range(c * chunk, wp.min(n, c * chunk + chunk)):
+        t = keys[e]
+        hist[c, t] = hist[c, t] + 1
+
+
+@wp.kernel
+def _tile_scatter_kernel(
+    keys: wp.array(dtype=wp.int32), gids: wp.array(dtype=wp.int32), n: int, chunk: int,
+    next_slot: wp.array2d(dtype=wp.int32), sorted_gid: wp.array(dtype=wp.int32),
+    sorted_entry: wp.array(dtype=wp.int32), offset: int,
+):
+    # Chunk c places its entries, in emitted (depth) order, at its own run of slots in each tile's list.
+    c = wp.tid() + offset
+    for e in range(c * chunk, wp.min(n, c * chunk + chunk)):
+        t = keys[e]
+        pos = next_slot[c, t]
+        next_slot[c, t] = pos + 1
+        sorted_gid[pos] = gids[e]
+        sorted_entry[pos] = e
 
 
 @wp.kernel
@@ -233,7 +389,7 @@ def splats_2d(means2d: Any, conics: Any, colors: Any, opacities: Any, depths: An
     return out
 
 
-for _k in (_tile_counts_kernel, _depth_keys_kernel, _count_invalid_kernel):
+for _k in (_tile_counts_kernel, _count_invalid_kernel):
     A.declare_float_overloads(_k)
 
 
@@ -249,7 +405,7 @@ class Tiles:
     sorted_gid: wp.array  # (E,) splat of each sorted entry
     sorted_entry: wp.array  # (E,) emitted index of each sorted entry
     ranges: wp.array  # (n_tiles, 2)
-    packed: wp.array  # (N, 8): u, v, Q00, Q01, Q11, opacity, -ln(255 opacity), depth (rows of binned splats)
+    packed: wp.array  # (N, PACKED_COLS): one row per splat, the columns of PACKED_COLS' comment
     mode: str = DEFAULT_MODE  # the tile rule they were binned with (kernels/splat/modes.py)
 
 
@@ -261,43 +417,59 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     outside which its alpha is below 1/255: the second bound only drops pixels the rasteriser
     would skip.
     """
-    mid = mode_id(mode)
+    mode_id(mode)
     width = A.check_int("width", width, minimum=1)
     height = A.check_int("height", height, minimum=1)
+    return _bin_tiles(s, width, height, mode, counting_sort=s.device.is_cpu)
+
+
+def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: bool) -> Tiles:
+    """`bin_tiles` with the entry sort chosen: the counting sort (the CPU's) or the radix sort (CUDA's)."""
+    mid = mode_id(mode)
     a = s.inputs()
     dev = s.device
     n = s.n
     tiles_x, tiles_y = (width + TILE - 1) // TILE, (height + TILE - 1) // TILE
     n_tiles = tiles_x * tiles_y
-    rects = wp.zeros((n, 4), dtype=wp.int32, device=dev)
-    counts = wp.zeros(n, dtype=wp.int32, device=dev)
-    packed = wp.zeros((n, 8), dtype=s.scalar, device=dev)
-    a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.opacities, s.depths, s.radii, tiles_x, tiles_y, mid, rects,
-                                     counts, packed], min_chunk=MIN_CHUNK)
+    rects = wp.empty((n, 4), dtype=wp.int32, device=dev)
+    counts = wp.empty(n, dtype=wp.int32, device=dev)
+    packed = wp.empty((n, PACKED_COLS), dtype=s.scalar, device=dev)
+    dkeys = wp.empty(2 * n, dtype=s.scalar, device=dev)  # the radix sort's keys and values take 2n slots
+    order = wp.empty(2 * n, dtype=wp.int32, device=dev)
+    a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.colors, s.opacities, s.depths, s.radii,
+                                     tiles_x, tiles_y, mid, wp.float64(UNIT_ROUNDOFF[s.scalar]), rects, counts, packed,
+                                     dkeys, order],
+             min_chunk=MIN_CHUNK)
     if n == 0:
         return Tiles(tiles_x, tiles_y, 0, counts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
                      wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
                      packed, mode)
-    means2d, radii, depths = s.means2d, s.radii, s.depths
 
     # Depth order by a stable sort of the depths (culled splats last).
-    dkeys = wp.empty(2 * n, dtype=means2d.dtype, device=dev)
-    order = wp.empty(2 * n, dtype=wp.int32, device=dev)
-    a.launch(_depth_keys_kernel, n, [depths, radii, dkeys, order], min_chunk=MIN_CHUNK)
     wp.utils.radix_sort_pairs(dkeys, order, n)
     # Each splat's entries are the slice [starts[i], starts[i] + counts[i)), its tiles in row-major
     # order; the slices follow one another in depth order, so that the entries come out depth-ordered.
-    ranked_counts = wp.empty(n, dtype=wp.int32, device=dev)
-    a.launch(_ranked_counts_kernel, n, [order, counts, ranked_counts], min_chunk=MIN_CHUNK)
-    ranked_starts = wp.empty(n, dtype=wp.int32, device=dev)
-    wp.utils.array_scan(ranked_counts, ranked_starts, inclusive=False)
-    n_entries = int(ranked_starts[n - 1:n].numpy()[0]) + int(ranked_counts[n - 1:n].numpy()[0])
     starts = wp.empty(n, dtype=wp.int32, device=dev)
-    a.launch(_starts_kernel, n, [order, ranked_starts, starts], min_chunk=MIN_CHUNK)
-    ranges = wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev)
+    if counting_sort:  # the CPU: the same scan through zero-copy NumPy views, without three launches
+        rank_order = order.numpy()[:n]
+        ranked_counts_np = counts.numpy()[rank_order]
+        ranked_starts_np = np.cumsum(ranked_counts_np, dtype=np.int64) - ranked_counts_np
+        n_entries = int(ranked_starts_np[-1] + ranked_counts_np[-1])
+        starts.numpy()[rank_order] = ranked_starts_np
+    else:
+        ranked_counts = wp.empty(n, dtype=wp.int32, device=dev)
+        a.launch(_ranked_counts_kernel, n, [order, counts, ranked_counts], min_chunk=MIN_CHUNK)
+        ranked_starts = wp.empty(n, dtype=wp.int32, device=dev)
+        wp.utils.array_scan(ranked_counts, ranked_starts, inclusive=False)
+        n_entries = int(ranked_starts[n - 1:n].numpy()[0]) + int(ranked_counts[n - 1:n].numpy()[0])
+        a.launch(_starts_kernel, n, [order, ranked_starts, starts], min_chunk=MIN_CHUNK)
     if n_entries == 0:
         return Tiles(tiles_x, tiles_y, 0, starts, counts, wp.zeros(1, dtype=wp.int32, device=dev),
-                     wp.zeros(1, dtype=wp.int32, device=dev), ranges, packed, mode)
+                     wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
+                     packed, mode)
+    if counting_sort:
+        return _counting_sort(a, rects, packed, starts, counts, n, n_entries, tiles_x, tiles_y, mode)
+    ranges = wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev)
 
     # Keys are the tiles; values the emitted indices. The radix sort is stable, so a tile's entries keep
     # the depth order they were emitted in: the result is the order of the keys (tile, depth rank).
@@ -312,3 +484,38 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     a.launch(_ranges_kernel, n_entries, [keys, values, n_entries, sorted_gid, sorted_entry, ranges],
              min_chunk=MIN_CHUNK)
     return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)
+
+
+def _counting_sort(a: A.Inputs, rects: wp.array, packed: wp.array, starts: wp.array, counts: wp.array, n: int,
+                   n_entries: int, tiles_x: int, tiles_y: int, mode: str) -> Tiles:
+    """The CPU's (tile, depth) order: a stable counting sort of the emitted entries by tile.
+
+    The emitted entries (in depth order) are cut into chunks; each chunk counts its entries per
+    tile (one histogram row per chunk); a scan of the histogram in (tile, chunk) order gives every
+    chunk its first slot in every tile's list, and each chunk writes its entries there in emitted
+    order. The lists are the radix sort's (stable, by tile) for any number of chunks, from two
+    sequential passes over the entries and no key/value copies; every chunk writes only its own
+    histogram row and slots, so both kernels run split over the CPU threads.
+    """
+    dev = a.device
+    n_tiles = tiles_x * tiles_y
+    keys = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    gids = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    a.launch(_emit_gid_kernel, n, [rects, starts, counts, tiles_x, keys, gids],
+             min_chunk=MIN_CHUNK)
+    n_chunks = max(1, min(SORT_CHUNKS, n_entries // SORT_CHUNK_MIN))
+    chunk = -(-n_entries // n_chunks)
+    hist = wp.zeros((n_chunks, n_tiles), dtype=wp.int32, device=dev)
+    a.launch(_tile_hist_kernel, n_chunks, [keys, n_entries, chunk, hist], min_chunk=1)
+    h = hist.numpy().T  # (tiles, chunks), a zero-copy view on the CPU
+    first = (np.cumsum(h, dtype=np.int64).reshape(h.shape) - h).astype(np.int32)  # scan in (tile, chunk) order
+    total = h.sum(axis=1)
+    ranges = np.stack([first[:, 0], first[:, 0] + total], axis=1).astype(np.int32)
+    ranges[total == 0] = 0
+    next_slot = wp.array(np.ascontiguousarray(first.T), dtype=wp.int32, device=dev)
+    sorted_gid = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    sorted_entry = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    a.launch(_tile_scatter_kernel, n_chunks, [keys, gids, n_entries, chunk, next_slot, sorted_gid, sorted_entry],
+             min_chunk=1)
+    return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry,
+                 wp.array(ranges, dtype=wp.int32, device=dev), packed, mode)

@@ -16,10 +16,10 @@ where the T < 1e-4 stop ends most pixels early.
 
 Phases (medians of REPEATS runs after a warm-up, kernels.splat; the parameters are
 wp.arrays on the device, so every result stays there):
-  fwd_s      render(): projection, tile binning, both radix sorts, rasterisation;
+  fwd_s      render(): projection, tile binning with its sorts, rasterisation;
   fwd_bwd_s  render() then render_backward() for a random image cotangent;
   fwd_bwd_camera_s  the same with want_camera=True (the pose and intrinsics gradients too);
-  project_s, bin_s, raster_s  the forward's stages alone (projection; tile binning with both
+  project_s, bin_s, raster_s  the forward's stages alone (projection; tile binning with its
              sorts; rasterisation of the binned tiles), for where the forward's time goes;
   rasterize_s  binning plus rasterisation of the projected splats: what the dense reference does.
 The forward-only case times fwd_s and the stages. Extra keys: visible splats, (tile, splat)
