@@ -38,7 +38,8 @@ def test_splat_bench_forward_only_case_is_full_size_only():
     ({"bench": "stereo.sgm", "height": 500, "width": 741, "disparities": 64, "speedup_total": 0.1},
      [("default SGM <= 5x OpenCV StereoSGBM's time at 741x500x64", "NOT met")]),
     ({"bench": "corr.lookup_onthefly", "ratio_to_dense_fwd": 2.0, "memory_ratio": 5.0},
-     [("on-the-fly within 3x of the dense lookup", "met"), ("on-the-fly holds >= 10x less memory", "NOT met")]),
+     [("on-the-fly within 3x of the dense lookup (float32 features, shown beside it)", "met"),
+      ("on-the-fly holds >= 10x less memory (float32 features, shown beside it)", "NOT met")]),
 ], ids=["splat_1M_met", "splat_1M_not_met", "splat_100k_no_target", "splat_dense_ratio", "stereo_kitti_no_target",
         "stereo_middlebury_not_met", "corr_onthefly"])
 def test_targets_apply_to_the_sizes_they_name(row, want):
