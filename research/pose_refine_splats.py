@@ -48,7 +48,7 @@ from tqdm import tqdm
 
 from kernels import _arrays as A
 from kernels import splat as ks
-from research.splats.loss import LAMBDA_DSSIM, l1_dssim
+from research.splats.loss import LAMBDA_DSSIM, depth_loss, l1_dssim
 from research.splats.model import GaussianModel
 from research.splats.optim import BETAS, LearningRates, expon_lr, make_adam
 
@@ -66,13 +66,14 @@ class SplatJointConfig:
     sh_interval: int = 200
     max_sh_degree: int = 3
     lambda_dssim: float = LAMBDA_DSSIM
+    depth_weight: float = 0.0  # weight of the expected-depth L1 loss (RGB-D); 0: colour only, as BARF
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     seed: int = 0
 
     def __post_init__(self) -> None:
         if not (isinstance(self.iterations, int) and self.iterations >= 1):
             raise ValueError(f"iterations: expected an integer >= 1, got {self.iterations!r}")
-        for name in ("pose_lr_rot", "pose_lr_trans", "pose_lr_final", "blur_start"):
+        for name in ("pose_lr_rot", "pose_lr_trans", "pose_lr_final", "blur_start", "depth_weight"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name}: expected a finite value >= 0, got {v}")
@@ -150,7 +151,8 @@ def _check_inputs(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, images: 
 
 def train_joint_splats(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, images: np.ndarray, extent: float,
                        cfg: SplatJointConfig, *, progress: bool = True, device: Any = None,
-                       desc: str = "joint splats") -> tuple[GaussianModel, np.ndarray, SplatJointLog]:
+                       desc: str = "joint splats", depths: np.ndarray | None = None
+                       ) -> tuple[GaussianModel, np.ndarray, SplatJointLog]:
     """Fit a copy of `model` to `images` (N, H, W, 3, linear RGB) seen from starting world-to-camera
     poses `w2c` (N, 4, 4) with intrinsics K, refining the poses (module docstring).
     Returns (model, refined w2c (N, 4, 4), log); the inputs are not modified."""
@@ -158,6 +160,11 @@ def train_joint_splats(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, ima
     _check_inputs(model, w2c, K, images)
     if not (math.isfinite(extent) and extent > 0):
         raise ValueError(f"extent: expected a positive scene scale, got {extent}")
+    if cfg.depth_weight > 0:
+        if depths is None or np.shape(depths) != images.shape[:3]:
+            raise ValueError(f"depths: expected measured z-depths of shape {images.shape[:3]} with depth_weight > 0, "
+                             f"got {None if depths is None else np.shape(depths)}")
+        depths = np.asarray(depths, dtype=np.float64)
     cams = [ks.SplatCamera(T, K, images.shape[2], images.shape[1]) for T in np.asarray(w2c, dtype=np.float64)]
     device = A.get_device(device)
     current = np.array([c.viewmat for c in cams])
@@ -190,7 +197,13 @@ def train_joint_splats(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, ima
             if not np.isfinite(loss):
                 raise RuntimeError(f"iteration {it}: the loss is {loss}")
             grad_img = np.ascontiguousarray(_blur(grad_b, sigma), dtype=np.float32)
-            g = ks.render_backward(inputs, result, grad_img, want_camera=update_pose)
+            g_alpha = g_depth = None
+            if cfg.depth_weight > 0:
+                ld, gd, ga = depth_loss(result.depth.numpy(), result.alpha.numpy(), depths[v], kind="l1")
+                loss += cfg.depth_weight * ld
+                g_depth = np.ascontiguousarray(cfg.depth_weight * gd, dtype=np.float32)
+                g_alpha = np.ascontiguousarray(cfg.depth_weight * ga, dtype=np.float32)
+            g = ks.render_backward(inputs, result, grad_img, g_alpha, g_depth, want_camera=update_pose)
             g = {k: x.numpy() for k, x in g.items()}
             adam.step({"means": g["means"], "log_scales": g["log_scales"], "quats": g["quats"],
                        "opacity_logits": g["opacity_logits"], "sh_dc": np.ascontiguousarray(g["sh"][:, :1]),
@@ -203,6 +216,81 @@ def train_joint_splats(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, ima
                 rot_steps.append(float(np.degrees(np.linalg.norm(delta[3:]))))
             losses.append(float(loss))
     return model, current, SplatJointLog(losses, rot_steps, time.perf_counter() - t0, degree)
+
+
+@dataclass
+class PolishLog:
+    cost_before: np.ndarray  # (N,) 0.5 |r|^2 per view at the starting poses
+    cost_after: np.ndarray
+    steps: np.ndarray  # (N,) accepted LM steps per view
+    seconds: float
+
+
+def _render_rgb(inputs: Any, T: np.ndarray, K: np.ndarray, W: int, H: int, background: np.ndarray, sh_degree: int):
+    return ks.render(inputs, ks.SplatCamera(T, K, W, H), background, sh_degree=sh_degree)
+
+
+def pose_jacobian(inputs: Any, T: np.ndarray, K: np.ndarray, W: int, H: int, background: np.ndarray,
+                  sh_degree: int, h: float = 1e-3) -> np.ndarray:
+    """J (H W 3, 6): the rendered image's directional derivatives along the six left-perturbation axes
+    (translation first), by central differences of the forward render with step h (radians for the
+    rotation, scene units for the translation). Used only for the Gauss-Newton curvature J^T J; the
+    gradient J^T r comes from the exact backward."""
+    cols = []
+    for k in range(6):
+        e = np.zeros(6)
+        e[k] = h
+        plus = _render_rgb(inputs, ks.se3_exp(e) @ T, K, W, H, background, sh_degree).rgb.numpy()
+        minus = _render_rgb(inputs, ks.se3_exp(-e) @ T, K, W, H, background, sh_degree).rgb.numpy()
+        cols.append((plus.astype(np.float64) - minus).ravel() / (2 * h))
+    return np.stack(cols, axis=1)
+
+
+def polish_poses(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, images: np.ndarray, *, sh_degree: int,
+                 iterations: int = 10, background: Any = (0.0, 0.0, 0.0), tol_deg: float = 1e-4,
+                 device: Any = None) -> tuple[np.ndarray, PolishLog]:
+    """Every view's world-to-camera pose refined alone against the FIXED splat model by Levenberg-Marquardt
+    on the photometric cost 0.5 |I(T) - image|^2 (module docstring). Returns (w2c (N, 4, 4), log)."""
+    images = np.ascontiguousarray(images, dtype=np.float32)
+    _check_inputs(model, w2c, K, images)
+    if not (isinstance(iterations, int) and iterations >= 0):
+        raise ValueError(f"iterations: expected an integer >= 0, got {iterations!r}")
+    n, H, W = images.shape[:3]
+    bg = np.asarray(background, dtype=np.float32)
+    inputs = model.inputs(device)
+    out = np.array([ks.SplatCamera(T, K, W, H).viewmat for T in np.asarray(w2c, dtype=np.float64)])
+    before, after, steps = np.zeros(n), np.zeros(n), np.zeros(n, dtype=int)
+    t0 = time.perf_counter()
+    with A.value_checks(False):
+        for v in range(n):
+            T = out[v]
+            result = _render_rgb(inputs, T, K, W, H, bg, sh_degree)
+            r = result.rgb.numpy().astype(np.float64) - images[v]
+            cost = 0.5 * float(np.sum(r * r))
+            before[v] = cost
+            lam = 1e-3
+            for _ in range(iterations):
+                g = ks.render_backward(inputs, result, np.ascontiguousarray(r, dtype=np.float32),
+                                       want_camera=True)["pose"].numpy().astype(np.float64)
+                J = pose_jacobian(inputs, T, K, W, H, bg, sh_degree)
+                JtJ = J.T @ J
+                accepted = False
+                for _try in range(8):
+                    delta = -np.linalg.solve(JtJ + lam * np.diag(np.diag(JtJ)) + 1e-12 * np.eye(6), g)
+                    T_new = _apply(delta, T)
+                    res_new = _render_rgb(inputs, T_new, K, W, H, bg, sh_degree)
+                    r_new = res_new.rgb.numpy().astype(np.float64) - images[v]
+                    cost_new = 0.5 * float(np.sum(r_new * r_new))
+                    if cost_new < cost:
+                        T, result, r, cost, accepted = T_new, res_new, r_new, cost_new, True
+                        lam = max(lam / 3.0, 1e-6)
+                        steps[v] += 1
+                        break
+                    lam *= 4.0
+                if not accepted or np.degrees(np.linalg.norm(delta[3:])) < tol_deg:
+                    break
+            out[v], after[v] = T, cost
+    return out, PolishLog(before, after, steps, time.perf_counter() - t0)
 
 
 def refine_pose(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, image: np.ndarray, *, iterations: int = 200,
