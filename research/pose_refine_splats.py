@@ -60,7 +60,8 @@ reported seed 0 was not used for any of this):
     and stronger coarse phase (blur 4 px until 75% of the iterations instead of 2 px until 50%) gives
     0.70 / 1.32, and a slower pose-rate decay changed nothing earlier (0.68 / 1.37);
   * what reduces it is the image formation: with the Mip-Splatting opacity compensation
-    (`antialiased`) the RGB-D fit goes from 0.61 / 0.92 to 0.42 / 0.70 degrees. The likely mechanism
+    (`antialiased`) the RGB-D fit goes from 0.61 / 0.92 to 0.42 / 0.70 degrees, the RGB fit from
+    0.69 / 1.39 to 0.54 / 1.09. The likely mechanism
     (supported by that one test, not proven): the rasteriser's 0.3 px^2 dilation widens every splat,
     most on the ground seen near the horizon and at its far edge against the black background, which
     the low views' pitch then compensates. Depth
