@@ -44,8 +44,8 @@ nothing, so it is not quadrature aliasing. The likely cause, not verified, is th
 shape-radiance ambiguity on the textured ground (README: texture at the wrong depth), which makes
 the field's renders from nearby poses inconsistent.
 
-Status of `--model splats` before the changes below: the pose rates (3e-2 per Adam step, rotation in radians, translation times the
-scene extent) were chosen on --seed 1 perturbations with 1500-iteration fits (rot mean / max after:
+Status of `--model splats` before the changes below: the pose rates (3e-2 per Adam step, rotation in
+radians, translation times the scene extent) were chosen on --seed 1 perturbations with 1500-iteration fits (rot mean / max after:
 2e-3: 3.7 / 5.2 deg; 1e-2: 1.5 / 2.8; 3e-2: 1.2 / 2.5), not on seed 0; at the quick size (3000
 iterations) seed 1 gives 0.69 / 1.39 deg (test PSNR 22.4 dB), and a slower rate decay (to 0.2 instead
 of 0.05 of the initial rate) 0.68 / 1.37 (both with an SE(3) alignment). Reported seed 0, quick mode
