@@ -139,7 +139,7 @@ def _check_oracle(m):
 
 
 def _check_pose_refinement(m):
-    assert set(m["runs"]) == {"gt", "noisy", "refined"}
+    assert set(m["runs"]) == {"gt", "noisy", "refined", "refined_rgbd"}  # refined_rgbd: default depth weight
     for r in m["runs"].values():
         assert _finite(r["test_psnr"]) and r["test_psnr"] > 3
     # ground-truth poses are never moved; 1e-5 deg, not 1e-6: arccos of a rotation trace 1 ulp below 3
@@ -147,7 +147,11 @@ def _check_pose_refinement(m):
     assert m["runs"]["gt"]["errors"]["rot_max_deg"] < 1e-5
     assert abs(m["errors_before_unaligned"]["rot_mean_deg"] - m["perturbation"]["rot_deg"]) < 1e-6
     assert m["model"] == "splats" and m["joint"]["refine_poses"]  # the default model
-    assert m["runs"]["refined"]["errors"]["rot_max_deg"] != m["errors_before"]["rot_max_deg"]  # the poses moved
+    for run in ("refined", "refined_rgbd"):  # the poses moved
+        assert m["runs"][run]["errors"]["rot_max_deg"] != m["errors_before"]["rot_max_deg"]
+    assert m["depth_weight_rgbd"] > 0 and m["runs"]["refined"]["final_loss"] != m["runs"]["refined_rgbd"]["final_loss"]
+    # the test views' poses optimised against each fixed model (test-time pose optimisation)
+    assert all(np.isfinite(r["test_psnr_tto"]) and r["test_psnr_tto"] > 3 for r in m["runs"].values())
 
 
 def _check_feature_vo(m):

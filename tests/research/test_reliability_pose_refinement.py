@@ -13,7 +13,7 @@ CASES = [
     ("rot-nan", ["--rot-deg", "nan"], r"--rot-deg: expected a value in \[0, 30\] degrees"),
     ("trans-negative", ["--trans-frac", "-0.1"], r"--trans-frac: expected a value in \[0, 0.5\]"),
     ("depth-negative", ["--depth-weight", "-1"], r"--depth-weight: expected a finite value >= 0"),
-    ("depth-with-splats", ["--depth-weight", "1"], r"--depth-weight: .*expected 0 with --model splats"),
+    ("depth-inf", ["--depth-weight", "inf"], r"--depth-weight: expected a finite value >= 0"),
     ("model-unknown", ["--model", "nerf"], r"--model: invalid choice: 'nerf'"),
 ]
 
