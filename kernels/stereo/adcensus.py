@@ -61,7 +61,10 @@ from kernels.stereo._common import check_range, image_pair, pixel
 from kernels.stereo.bt import _half_range
 from kernels.stereo.costs import _census_radii, census_transform
 
-wp.set_module_options({"enable_backward": False})
+# The host's vector width (-march=native, as kernels.stereo.sweep); fuse_fp off: no multiply-add is ever contracted
+# into an FMA, so every value is the same on hosts with and without FMA units.
+wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False,
+                       "cpu_compiler_flags": "-march=native -mllvm=-inline-threshold=9000"})
 
 
 @wp.kernel
