@@ -38,8 +38,23 @@ of the 2 r + 1 rows of per-pixel bt values its window needs (each row computed o
 their row sums; for every cell it adds rho(popcount(c_L xor c_R)) from the table and the two terms'
 rho(window mean). The sums and rho run in the images' float type in the order of the separate passes
 (kernels.stereo.bt's, then the terms added in order), so the volume is bit-identical to the former
-composition of census_cost, bt_cost and one rho-accumulation pass per term. No (H, W, D) volume besides the result exists; the band
-buffers hold 2 (2 r + 2) W D values per band.
+composition of census_cost, bt_cost and one rho-accumulation pass per term. No (H, W, D) volume besides the
+result exists; the band buffers hold 2 (2 r + 2) W D' values per band (D' = D rounded up to whole vectors).
+
+Vector form. The hypotheses of a pixel go through in vectors of 16 float32 (8 float64) lanes, Warp's fixed-size
+vectors, which the CPU compiler turns into the host's SIMD registers (compiled with -march=native as
+kernels.stereo.sweep, and with FMA contraction off so no multiply-add is fused on any host). Each right term
+image and its half-pixel ranges are first copied with every row mirrored and the channels planar, so that
+R(x - d_k) over consecutive k is a run of consecutive scalars (read as an unaligned vector; zero margins of one
+vector width on each side cover the lanes past the image). A ring row is filled a vector at a time (every vector
+holding an in-range cell of the row; its other lanes hold finite values that are never read), the row sums are
+vector sums, and where a vector's 16 cells all lie in range with the same window [max(x - r, 0), min(x + r,
+W - 1)] (the window bounds of kernels.stereo.bt's mean then do not depend on d) the window mean is a vector sum
+divided by the cell count; the census lookup, rho (one scalar exp per term: there is no vector exp whose values
+equal the scalar one) and the store then run lane by lane. Other vectors (near the image's left and right ends,
+a partial last vector) run a lane at a time as before. Every vector operation is the scalar operation on each
+lane in the same order, so the volume is bit for bit the scalar kernel's (tests: the vector and the lane-at-a-time
+hypotheses agree exactly).
 
 Compact mode (`levels` = q > 0, float32 images): the cost is stored as the uint8 round(C q), with
 q <= 255 / (2 + w_bt) so that every cost (< 2 + w_bt) fits; the quantisation step is 1 / q
@@ -147,7 +162,7 @@ def _bt_cell(L: wp.array3d(dtype=typing.Any), l_lo: wp.array3d(dtype=typing.Any)
 
 # Hypotheses go through in vectors of LANES (16 float32 or 8 float64; AVX-512 registers where the CPU has them):
 # every vector operation below is the scalar operation of the same name on each lane, so a lane's value is the
-# scalar loop's value bit for bit (docstring: Vector form).
+# scalar loop's value bit for bit (module docstring: Vector form).
 LANES = {wp.float32: 16, wp.float64: 8}
 VEC = {s: wp.types.vector(length=n, dtype=s) for s, n in LANES.items()}
 
