@@ -445,7 +445,7 @@ def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[An
     nb = -(-D // lanes)
     pad = lanes  # the mirrored rows' margins: a vector holding one in-range cell reads at most lanes - 1 beyond
     row = W + 2 * pad
-    images, invalid, keep = [], [], []
+    images, invalid, keep = [], [], []  # keep: the mirrored arrays the vector views (no owners) point into
     for j, img in enumerate(terms):
         lo, hi = a.empty(img.shape), a.empty(img.shape)
         a.launch(_half_ranges, H * W, [img, lo, hi], min_chunk=1024)
@@ -480,5 +480,4 @@ def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[An
                                     lanes, row, pad, wp.float64(lambda_grad), wp.float64(invalid[0]),
                                     wp.float64(bt_weight), wp.float64(lambda_bt), wp.float64(invalid[1]),
                                     wp.float64(levels)], min_chunk=1)
-    del keep
     return a.out(out)
