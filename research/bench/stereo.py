@@ -53,7 +53,8 @@ time.process_time, median of 5, a loaded host), 256x256x64 / 741x500x64: census 
 12.6 ms per image, census cost volume (both transforms + Hamming distances) 9.0 / 47 ms, SGM-8
 sweeps 11.5 / 84 ms, SGM + both winners + LR check 14.0 / 96 ms, the whole default pipeline 23.5 /
 145 ms against OpenCV StereoSGBM 3-way's 6.0 / 39 ms (3.9x / 3.7x). Per-call Python overhead and
-input checks are below 1 ms.
+input checks are below 1 ms. The stereo.default pipeline, measured the same way: 121 / 658 ms (cost
+72 / 391 ms) against StereoSGBM's 5.9 / 37.6 ms, 20.6x / 17.5x (docs/performance.md).
 
 Each figure is the median of 3 interleaved runs after a warm-up (research.bench). Every call
 allocates its output volume, as the entry points do, so page-fault time for fresh memory is part
