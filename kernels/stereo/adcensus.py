@@ -38,8 +38,23 @@ of the 2 r + 1 rows of per-pixel bt values its window needs (each row computed o
 their row sums; for every cell it adds rho(popcount(c_L xor c_R)) from the table and the two terms'
 rho(window mean). The sums and rho run in the images' float type in the order of the separate passes
 (kernels.stereo.bt's, then the terms added in order), so the volume is bit-identical to the former
-composition of census_cost, bt_cost and one rho-accumulation pass per term. No (H, W, D) volume besides the result exists; the band
-buffers hold 2 (2 r + 2) W D values per band.
+composition of census_cost, bt_cost and one rho-accumulation pass per term. No (H, W, D) volume besides the
+result exists; the band buffers hold 2 (2 r + 2) W D' values per band (D' = D rounded up to whole vectors).
+
+Vector form. The hypotheses of a pixel go through in vectors of 16 float32 (8 float64) lanes, Warp's fixed-size
+vectors, which the CPU compiler turns into the host's SIMD registers (compiled with -march=native as
+kernels.stereo.sweep, and with FMA contraction off so no multiply-add is fused on any host). Each right term
+image and its half-pixel ranges are first copied with every row mirrored and the channels planar, so that
+R(x - d_k) over consecutive k is a run of consecutive scalars (read as an unaligned vector; zero margins of one
+vector width on each side cover the lanes past the image). A ring row is filled a vector at a time (every vector
+holding an in-range cell of the row; its other lanes hold finite values that are never read), the row sums are
+vector sums, and where a vector's 16 cells all lie in range with the same window [max(x - r, 0), min(x + r,
+W - 1)] (the window bounds of kernels.stereo.bt's mean then do not depend on d) the window mean is a vector sum
+divided by the cell count; the census lookup, rho (one scalar exp per term: there is no vector exp whose values
+equal the scalar one) and the store then run lane by lane. Other vectors (near the image's left and right ends,
+a partial last vector) run a lane at a time as before. Every vector operation is the scalar operation on each
+lane in the same order, so the volume is bit for bit the scalar kernel's (tests: the vector and the lane-at-a-time
+hypotheses agree exactly).
 
 Compact mode (`levels` = q > 0, float32 images): the cost is stored as the uint8 round(C q), with
 q <= 255 / (2 + w_bt) so that every cost (< 2 + w_bt) fits; the quantisation step is 1 / q
@@ -61,7 +76,10 @@ from kernels.stereo._common import check_range, image_pair, pixel
 from kernels.stereo.bt import _half_range
 from kernels.stereo.costs import _census_radii, census_transform
 
-wp.set_module_options({"enable_backward": False})
+# The host's vector width (-march=native, as kernels.stereo.sweep); fuse_fp off: no multiply-add is ever contracted
+# into an FMA, so every value is the same on hosts with and without FMA units.
+wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False,
+                       "cpu_compiler_flags": "-march=native -mllvm=-inline-threshold=9000"})
 
 
 @wp.kernel
@@ -142,49 +160,100 @@ def _bt_cell(L: wp.array3d(dtype=typing.Any), l_lo: wp.array3d(dtype=typing.Any)
     return acc * (L.dtype(1.0) / L.dtype(C))
 
 
+# Hypotheses go through in vectors of LANES (16 float32 or 8 float64; AVX-512 registers where the CPU has them):
+# every vector operation below is the scalar operation of the same name on each lane, so a lane's value is the
+# scalar loop's value bit for bit (module docstring: Vector form).
+LANES = {wp.float32: 16, wp.float64: 8}
+VEC = {s: wp.types.vector(length=n, dtype=s) for s, n in LANES.items()}
+
+
+@wp.kernel
+def _reverse_planar(img: wp.array3d(dtype=typing.Any), out: wp.array(dtype=typing.Any), row: int, pad: int,
+                    offset: int):
+    # out[(c H + y) row + pad + W - 1 - x] = img[y, x, c]: each channel's rows mirrored, so that R(x - d) over
+    # consecutive d is a run of consecutive scalars; the margins (pad each side) stay zero.
+    H = img.shape[0]
+    W = img.shape[1]
+    y, x = pixel(wp.tid() + offset, W)
+    for c in range(img.shape[2]):
+        out[(c * H + y) * row + pad + W - 1 - x] = img[y, x, c]
+
+
 @wp.func
 def _fill_row(L: wp.array3d(dtype=typing.Any), l_lo: wp.array3d(dtype=typing.Any), l_hi: wp.array3d(dtype=typing.Any),
-              R: wp.array3d(dtype=typing.Any), r_lo: wp.array3d(dtype=typing.Any), r_hi: wp.array3d(dtype=typing.Any),
-              ring: wp.array4d(dtype=typing.Any), t: int, v: int, dmin: int):
-    """ring[t, v mod S, x, k] = bt(x, v, d_k) for the in-range cells of row v (the others are never read)."""
+              rev_v: wp.array(dtype=typing.Any), rev_lo_v: wp.array(dtype=typing.Any),
+              rev_hi_v: wp.array(dtype=typing.Any), ring_v: wp.array(dtype=typing.Any), t: int, v: int, dmin: int,
+              D: int, nb: int, lanes: int, slots: int, row: int, pad: int):
+    """ring[t, v mod slots, x, k] = bt(x, v, d_k) (kernels.stereo.bt's _bt_pixel, the channel mean) for every vector
+    of hypotheses holding an in-range cell of row v; its other lanes hold finite values that are never read."""
+    H = L.shape[0]
     W = L.shape[1]
-    D = ring.shape[3]
-    s = v % ring.shape[1]
+    C = L.shape[2]
+    s = v % slots
+    zero = rev_v.dtype(L.dtype(0.0))
+    scale = L.dtype(1.0) / L.dtype(C)
     for x in range(W):
-        for k in range(wp.max(0, x - dmin - W + 1), wp.min(D, x - dmin + 1)):
-            ring[t, s, x, k] = _bt_cell(L, l_lo, l_hi, R, r_lo, r_hi, v, x, x - dmin - k)
+        kl = wp.max(0, x - dmin - W + 1)
+        kh = wp.min(D, x - dmin + 1)
+        if kl < kh:
+            for j in range(kl / lanes, (kh - 1) / lanes + 1):
+                acc = zero
+                for c in range(C):
+                    q = (c * H + v) * row + pad + W - 1 - x + dmin + j * lanes  # lane i: R(x - dmin - k0 - i)
+                    lv = rev_v.dtype(L[v, x, c])
+                    rv = rev_v[q]
+                    e_lr = wp.max(wp.max(zero, lv - rev_hi_v[q]), rev_lo_v[q] - lv)
+                    e_rl = wp.max(wp.max(zero, rv - rev_v.dtype(l_hi[v, x, c])), rev_v.dtype(l_lo[v, x, c]) - rv)
+                    acc = acc + wp.min(e_lr, e_rl)
+                ring_v[((t * slots + s) * W + x) * nb + j] = acc * scale
     return 0
 
 
 @wp.func
-def _row_sums(ring: wp.array4d(dtype=typing.Any), rowsum: wp.array3d(dtype=typing.Any), t: int, v0: int, v1: int,
-              dmin: int):
+def _row_sums(ring_v: wp.array(dtype=typing.Any), rowsum_v: wp.array(dtype=typing.Any), t: int, v0: int, v1: int,
+              W: int, nb: int, slots: int):
     """rowsum[t, x, k] = sum over v in [v0, v1] of bt(x, v, d_k), rows added in ascending order (bt's _sum_rows;
-    the first row is assigned, which equals adding it to 0 exactly). Rows outer, so the ring slot is found once per
-    row and the inner loop runs along contiguous hypotheses."""
-    W = rowsum.shape[1]
-    D = rowsum.shape[2]
+    the first row is assigned, which equals adding it to 0 exactly), a vector of hypotheses at a time."""
     for v in range(v0, v1 + 1):
-        s = v % ring.shape[1]
-        for x in range(W):
-            for k in range(wp.max(0, x - dmin - W + 1), wp.min(D, x - dmin + 1)):
-                if v == v0:
-                    rowsum[t, x, k] = ring[t, s, x, k]
-                else:
-                    rowsum[t, x, k] = rowsum[t, x, k] + ring[t, s, x, k]
+        src = (t * slots + v % slots) * W * nb
+        dst = t * W * nb
+        for i in range(W * nb):
+            if v == v0:
+                rowsum_v[dst + i] = ring_v[src + i]
+            else:
+                rowsum_v[dst + i] = rowsum_v[dst + i] + ring_v[src + i]
     return 0
 
 
 @wp.func
-def _col_mean(rowsum: wp.array3d(dtype=typing.Any), t: int, x: int, k: int, d: int, radius: int, rows: int):
+def _col_mean(rowsum: wp.array(dtype=typing.Any), t: int, W: int, Dp: int, x: int, k: int, d: int, radius: int,
+              rows: int):
     """The window mean of the in-range columns (bt's _mean_cols); (x, d) must be in range."""
-    W = rowsum.shape[1]
     lo = wp.max(wp.max(x - radius, 0), d)
     hi = wp.min(wp.min(x + radius, W - 1), W - 1 + d)
     s = rowsum.dtype(0.0)
     for u in range(lo, hi + 1):
-        s += rowsum[t, u, k]
+        s += rowsum[(t * W + u) * Dp + k]
     return s / rowsum.dtype(rows * (hi - lo + 1))
+
+
+@wp.func
+def _col_mean_v(rowsum_v: wp.array(dtype=typing.Any), t: int, W: int, nb: int, j: int, lo: int, hi: int,
+                rows: int, scalar: typing.Any):
+    """_col_mean of a vector of hypotheses whose window [lo, hi] is the same for every lane, lanes added alike."""
+    s = rowsum_v.dtype(scalar)
+    for u in range(lo, hi + 1):
+        s = s + rowsum_v[(t * W + u) * nb + j]
+    return s / type(scalar)(rows * (hi - lo + 1))
+
+
+@wp.func
+def _store(out: wp.array3d(dtype=typing.Any), y: int, x: int, k: int, total: typing.Any, levels: wp.float64):
+    if levels > wp.float64(0.0):
+        out[y, x, k] = out.dtype(wp.min(int(total * type(total)(levels) + type(total)(0.5)), 255))
+    else:
+        out[y, x, k] = out.dtype(total)
+    return 0
 
 
 @wp.kernel
@@ -192,70 +261,102 @@ def _fused_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64)
                 rho_census: wp.array(dtype=typing.Any),
                 gl: wp.array3d(dtype=typing.Any), gl_lo: wp.array3d(dtype=typing.Any),
                 gl_hi: wp.array3d(dtype=typing.Any),
-                gr: wp.array3d(dtype=typing.Any), gr_lo: wp.array3d(dtype=typing.Any),
-                gr_hi: wp.array3d(dtype=typing.Any),
+                gr_v: wp.array(dtype=typing.Any), gr_lo_v: wp.array(dtype=typing.Any),
+                gr_hi_v: wp.array(dtype=typing.Any),
                 il: wp.array3d(dtype=typing.Any), il_lo: wp.array3d(dtype=typing.Any),
                 il_hi: wp.array3d(dtype=typing.Any),
-                ir: wp.array3d(dtype=typing.Any), ir_lo: wp.array3d(dtype=typing.Any),
-                ir_hi: wp.array3d(dtype=typing.Any),
-                ring: wp.array4d(dtype=typing.Any), rowsum: wp.array3d(dtype=typing.Any),
-                out: wp.array3d(dtype=typing.Any),
-                dmin: int, radius: int, band: int, bits: int, lambda_grad: wp.float64, invalid_grad: wp.float64,
+                ir_v: wp.array(dtype=typing.Any), ir_lo_v: wp.array(dtype=typing.Any),
+                ir_hi_v: wp.array(dtype=typing.Any),
+                ring_v: wp.array(dtype=typing.Any), rowsum: wp.array(dtype=typing.Any),
+                rowsum_v: wp.array(dtype=typing.Any), out: wp.array3d(dtype=typing.Any),
+                dmin: int, radius: int, band: int, bits: int, lanes: int, row: int, pad: int,
+                lambda_grad: wp.float64, invalid_grad: wp.float64,
                 bt_weight: wp.float64, lambda_bt: wp.float64, invalid_bt: wp.float64, levels: wp.float64,
                 offset: int):
-    # One thread per band of `band` rows; it owns ring[2 b : 2 b + 2] and rowsum[2 b : 2 b + 2] (t = 0: the
-    # gradient term, 1: the intensity term) and writes out[y0:y1].
+    # One thread per band of `band` rows; it owns ring slots [2 b, 2 b + 2) and rowsum slots [2 b, 2 b + 2) (t = 0:
+    # the gradient term, 1: the intensity term) and writes out[y0:y1].
     b = wp.tid() + offset
     H = cl.shape[0]
     W = cl.shape[1]
     D = out.shape[2]
+    nb = (D + lanes - 1) / lanes
+    Dp = nb * lanes
     r = radius
+    S = 2 * r + 1
     T = 1 + wp.where(bt_weight > wp.float64(0.0), 1, 0)
+    zero = gl.dtype(0.0)
     y0 = b * band
     y1 = wp.min(y0 + band, H)
     for v in range(wp.max(y0 - r, 0), wp.min(y0 + r, H - 1) + 1):
-        _fill_row(gl, gl_lo, gl_hi, gr, gr_lo, gr_hi, ring, 2 * b, v, dmin)
+        _fill_row(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, ring_v, 2 * b, v, dmin, D, nb, lanes, S, row, pad)
         if T > 1:
-            _fill_row(il, il_lo, il_hi, ir, ir_lo, ir_hi, ring, 2 * b + 1, v, dmin)
+            _fill_row(il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v, 2 * b + 1, v, dmin, D, nb, lanes, S, row,
+                      pad)
     for y in range(y0, y1):
         if y > y0 and y + r < H:
-            _fill_row(gl, gl_lo, gl_hi, gr, gr_lo, gr_hi, ring, 2 * b, y + r, dmin)
+            _fill_row(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, ring_v, 2 * b, y + r, dmin, D, nb, lanes, S, row,
+                      pad)
             if T > 1:
-                _fill_row(il, il_lo, il_hi, ir, ir_lo, ir_hi, ring, 2 * b + 1, y + r, dmin)
+                _fill_row(il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v, 2 * b + 1, y + r, dmin, D, nb, lanes, S,
+                          row, pad)
         v0 = wp.max(y - r, 0)
         v1 = wp.min(y + r, H - 1)
         rows = v1 - v0 + 1
         for t in range(T):
-            _row_sums(ring, rowsum, 2 * b + t, v0, v1, dmin)
+            _row_sums(ring_v, rowsum_v, 2 * b + t, v0, v1, W, nb, S)
         for x in range(W):
             a = cl[y, x]
-            for k in range(D):
-                d = dmin + k
-                u = x - d
-                if u >= 0 and u < W:
-                    total = rho_census[int(wp.bit_count(a ^ cr[y, u]))]
-                    total = total + _robust_term(_col_mean(rowsum, 2 * b, x, k, d, r, rows), lambda_grad,
-                                                 wp.float64(1.0))
+            lo = wp.max(x - r, 0)
+            hi = wp.min(x + r, W - 1)
+            for j in range(nb):
+                k0 = j * lanes
+                d0 = dmin + k0
+                # Every lane in range with the window [lo, hi] (_col_mean's bounds do not depend on d): vector means.
+                if k0 + lanes <= D and d0 + lanes - 1 <= lo and d0 >= hi - (W - 1) and d0 > x - W:
+                    m_grad = _col_mean_v(rowsum_v, 2 * b, W, nb, j, lo, hi, rows, zero)
+                    m_bt = m_grad
                     if T > 1:
-                        total = total + _robust_term(_col_mean(rowsum, 2 * b + 1, x, k, d, r, rows), lambda_bt,
-                                                     bt_weight)
+                        m_bt = _col_mean_v(rowsum_v, 2 * b + 1, W, nb, j, lo, hi, rows, zero)
+                    for i in range(lanes):
+                        total = rho_census[int(wp.bit_count(a ^ cr[y, x - d0 - i]))]
+                        total = total + _robust_term(m_grad[i], lambda_grad, wp.float64(1.0))
+                        if T > 1:
+                            total = total + _robust_term(m_bt[i], lambda_bt, bt_weight)
+                        _store(out, y, x, k0 + i, total, levels)
                 else:
-                    total = rho_census[bits]
-                    total = total + _robust_term(gl.dtype(invalid_grad), lambda_grad, wp.float64(1.0))
-                    if T > 1:
-                        total = total + _robust_term(gl.dtype(invalid_bt), lambda_bt, bt_weight)
-                if levels > wp.float64(0.0):
-                    out[y, x, k] = out.dtype(wp.min(int(total * gl.dtype(levels) + gl.dtype(0.5)), 255))
-                else:
-                    out[y, x, k] = out.dtype(total)
+                    for k in range(k0, wp.min(k0 + lanes, D)):
+                        d = dmin + k
+                        u = x - d
+                        if u >= 0 and u < W:
+                            total = rho_census[int(wp.bit_count(a ^ cr[y, u]))]
+                            total = total + _robust_term(_col_mean(rowsum, 2 * b, W, Dp, x, k, d, r, rows),
+                                                         lambda_grad, wp.float64(1.0))
+                            if T > 1:
+                                total = total + _robust_term(_col_mean(rowsum, 2 * b + 1, W, Dp, x, k, d, r, rows),
+                                                             lambda_bt, bt_weight)
+                        else:
+                            total = rho_census[bits]
+                            total = total + _robust_term(gl.dtype(invalid_grad), lambda_grad, wp.float64(1.0))
+                            if T > 1:
+                                total = total + _robust_term(gl.dtype(invalid_bt), lambda_bt, bt_weight)
+                        _store(out, y, x, k, total, levels)
 
 
-for _kernel in (_sobel_x, _census_eps, _half_ranges, _rho_table, _fused_cost):
+for _kernel in (_sobel_x, _census_eps, _half_ranges, _rho_table, _reverse_planar):
     declare_float_overloads(_kernel)
+declare_float_overloads(_fused_cost, VEC)
 # Compact mode: float32 arithmetic, the cost quantised to uint8.
-wp.overload(_fused_cost, {**{arg.label: wp.array(dtype=wp.float32, ndim=arg.type.ndim) for arg in _fused_cost.adj.args
+wp.overload(_fused_cost, {**{arg.label: wp.array(dtype=VEC[wp.float32] if arg.label.endswith("_v") else wp.float32,
+                                                 ndim=arg.type.ndim) for arg in _fused_cost.adj.args
                              if wp.types.is_array(arg.type) and arg.type.dtype is typing.Any},
                           "out": wp.array3d(dtype=wp.uint8)})
+
+
+def _vector_view(flat: wp.array, lanes: int) -> wp.array:
+    """Vectors of `lanes` consecutive scalars of `flat` starting at any scalar (unaligned, strides of one scalar)."""
+    item = wp.types.type_size_in_bytes(flat.dtype)
+    return wp.array(ptr=flat.ptr, dtype=VEC[flat.dtype], shape=(flat.shape[0] - lanes + 1,), strides=(item,),
+                    device=flat.device)
 
 
 def compact_levels(bt_weight: float) -> int:
@@ -339,14 +440,28 @@ def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[An
     terms = [sobel_x_clipped(src, grad_cap, device=a.device), sobel_x_clipped(dst, grad_cap, device=a.device)]
     if bt_weight > 0:
         terms += [src, dst]
-    images, invalid = [], []
+    scalar = a.scalar
+    lanes = LANES[scalar]
+    nb = -(-D // lanes)
+    pad = lanes  # the mirrored rows' margins: a vector holding one in-range cell reads at most lanes - 1 beyond
+    row = W + 2 * pad
+    images, invalid, keep = [], [], []  # keep: the mirrored arrays the vector views (no owners) point into
     for j, img in enumerate(terms):
         lo, hi = a.empty(img.shape), a.empty(img.shape)
         a.launch(_half_ranges, H * W, [img, lo, hi], min_chunk=1024)
-        images += [img, lo, hi]
-        if j % 2:  # the term's out-of-range cost: the range of both images' values (kernels.stereo.bt)
+        if j % 2:  # right images: mirrored planar rows, read as vectors over d (kernels' _fill_row)
+            views = []
+            for arr in (img, lo, hi):
+                flat = a.zeros((img.shape[2] * H * row,))
+                a.launch(_reverse_planar, H * W, [arr, flat, row, pad], min_chunk=1024)
+                keep.append(flat)
+                views.append(_vector_view(flat, lanes))
+            images += views
+            # the term's out-of-range cost: the range of both images' values (kernels.stereo.bt)
             lh, rh = terms[j - 1].numpy(), img.numpy()
             invalid.append(float(max(lh.max(), rh.max())) - float(min(lh.min(), rh.min())))
+        else:
+            images += [img, lo, hi]
     if bt_weight == 0:  # unused stand-ins for the intensity term's arrays
         images += images[:6]
         invalid.append(0.0)
@@ -355,10 +470,14 @@ def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[An
     # 4 per thread balance the threads.
     band = 4 * (r + 1) if a.device.is_cuda else max(4 * (r + 1), math.ceil(H / (4 * default_threads())))
     n_bands = math.ceil(H / band)
-    ring = a.empty((2 * n_bands, 2 * r + 1, W, D))
-    rowsum = a.empty((2 * n_bands, W, D))
+    vec = VEC[scalar]
+    # zeros: the lanes past the in-range cells stay finite (never read, but summed alongside)
+    ring_v = wp.zeros((2 * n_bands * (2 * r + 1) * W * nb,), dtype=vec, device=a.device)
+    rowsum = a.zeros((2 * n_bands * W * nb * lanes,))
+    rowsum_v = wp.array(ptr=rowsum.ptr, dtype=vec, shape=(2 * n_bands * W * nb,), device=a.device)
     out = a.empty((H, W, D), wp.uint8 if levels else None)
-    a.launch(_fused_cost, n_bands, [cl, cr, rho_census, *images, ring, rowsum, out, dmin, r, band, bits,
-                                    wp.float64(lambda_grad), wp.float64(invalid[0]), wp.float64(bt_weight),
-                                    wp.float64(lambda_bt), wp.float64(invalid[1]), wp.float64(levels)], min_chunk=1)
+    a.launch(_fused_cost, n_bands, [cl, cr, rho_census, *images, ring_v, rowsum, rowsum_v, out, dmin, r, band, bits,
+                                    lanes, row, pad, wp.float64(lambda_grad), wp.float64(invalid[0]),
+                                    wp.float64(bt_weight), wp.float64(lambda_bt), wp.float64(invalid[1]),
+                                    wp.float64(levels)], min_chunk=1)
     return a.out(out)

@@ -25,6 +25,22 @@ texture as 8-bit grey (blockSize 3, P1 = 8*3*3^2, P2 = 32*3*3^2, uniquenessRatio
 `time_medians` call: keys `ref`, `ref_total_s` and `speedup_total` (OpenCV's time / drlab's,
 > 1 means drlab is faster); without OpenCV the case has `ref_missing` instead.
 
+Case `stereo.default`, at 256x256x64 and 741x500x64 (tiny mode: 64x128x32), on the same pair and with
+the same StereoSGBM reference: research.stereo's DEFAULT_CONFIG, the pipeline `match` runs when no
+configuration is given ("adcensus": census 7x9 + BT on the clipped x-Sobel gradient + 0.3 x intensity
+BT, kernels.stereo.adcensus; SGM-8; both views' winners, the left-right check, border invalidation and
+a 3x3 median). The `stereo.sgm` cases above time StereoConfig()'s field defaults (census + SGM-8),
+which are not that pipeline:
+
+  * cost_s: research.stereo.cost_volume with DEFAULT_CONFIG (float32 below its float budget, as
+    `match` runs it at these sizes: `compact` says which), images to the volume;
+  * aggregate_s: SGM-8 of that volume with the configuration's penalties (kernels.stereo.sgm);
+  * backend_s: research.stereo.disparity_from_cost, everything after the cost (SGM, both winners, the
+    left-right check, the post-processing, the maps on the host);
+  * total_s: research.stereo.match with DEFAULT_CONFIG; `speedup_total` against StereoSGBM as above;
+  * peak_mb: research.stereo.peak_volume_bytes (the cost volume and SGM's aggregate; the adcensus
+    kernel's band buffers are not counted).
+
 Case `stereo.memory` (full mode only; tiny mode runs it at the tiny size): the default pipeline once
 at Middlebury 2014's half size, 1482x994 with 256 disparities, in compact mode (uint8 costs, a
 uint16 aggregate; float32 volumes would take 3.0 GiB): `peak_mb` (the volumes' nbytes, 1079 MiB
@@ -37,7 +53,8 @@ time.process_time, median of 5, a loaded host), 256x256x64 / 741x500x64: census 
 12.6 ms per image, census cost volume (both transforms + Hamming distances) 9.0 / 47 ms, SGM-8
 sweeps 11.5 / 84 ms, SGM + both winners + LR check 14.0 / 96 ms, the whole default pipeline 23.5 /
 145 ms against OpenCV StereoSGBM 3-way's 6.0 / 39 ms (3.9x / 3.7x). Per-call Python overhead and
-input checks are below 1 ms.
+input checks are below 1 ms. The stereo.default pipeline, measured the same way: 121 / 658 ms (cost
+72 / 391 ms) against StereoSGBM's 5.9 / 37.6 ms, 20.6x / 17.5x (docs/performance.md).
 
 Each figure is the median of 3 interleaved runs after a warm-up (research.bench). Every call
 allocates its output volume, as the entry points do, so page-fault time for fresh memory is part
@@ -113,14 +130,7 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
 
         fns = {"cost": cost, "aggregate": aggregate, "backend": backend, "total": total}
         row: dict[str, Any] = {}
-        if compare and cv2 is not None:
-            sgbm = _sgbm(disparities)
-            l8, r8 = (np.floor(x * 255.0 + 0.5).astype(np.uint8) for x in (left_np, right_np))
-            fns["ref_total"] = lambda: sgbm.compute(l8, r8)
-            row["ref"] = (f"OpenCV {cv2.__version__} cv2.StereoSGBM 3-way (blockSize {SGBM_BLOCK}, P1 8*3*bs^2, "
-                          f"P2 32*3*bs^2, uniqueness 10, speckle 100/32), {cv2.getNumThreads()} threads")
-        elif compare:
-            row["ref_missing"] = "cv2 (opencv-python-headless)"
+        _reference(fns, row, cv2, compare, disparities, left_np, right_np)
         t = time_medians(fns, sync=lambda: wp.synchronize_device(device))
         yield {
             "bench": "stereo.sgm",
@@ -141,9 +151,72 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
                if "ref_total" in t else {}),
         }
         del volume
+    for height, width, disparities in TINY_SIZES if tiny else DEFAULT_SIZES:
+        yield _default_case(device, threads, height, width, disparities, cv2 if compare else None, compare)
     if quick and not tiny:
         return
     yield _memory_case(device, threads, *(TINY_SIZES[0] if tiny else MEMORY_SIZE))
+
+
+DEFAULT_SIZES = SIZES[:2]  # the sizes of the "default pipeline <= 5x StereoSGBM" target
+
+
+def _reference(fns: dict, row: dict, cv2: Any, compare: bool, disparities: int, left: np.ndarray,
+               right: np.ndarray) -> None:
+    """Add OpenCV StereoSGBM's `ref_total` to `fns` and its description to `row` (or `ref_missing`)."""
+    if compare and cv2 is not None:
+        sgbm = _sgbm(disparities)
+        l8, r8 = (np.floor(x * 255.0 + 0.5).astype(np.uint8) for x in (left, right))
+        fns["ref_total"] = lambda: sgbm.compute(l8, r8)
+        row["ref"] = (f"OpenCV {cv2.__version__} cv2.StereoSGBM 3-way (blockSize {SGBM_BLOCK}, P1 8*3*bs^2, "
+                      f"P2 32*3*bs^2, uniqueness 10, speckle 100/32), {cv2.getNumThreads()} threads")
+    elif compare:
+        row["ref_missing"] = "cv2 (opencv-python-headless)"
+
+
+def _default_case(device: str, threads: int, height: int, width: int, disparities: int, cv2: Any,
+                  compare: bool) -> dict:
+    """Case `stereo.default`: research.stereo.DEFAULT_CONFIG's pipeline (module docstring)."""
+    from research.stereo import (DEFAULT_CONFIG, compact_penalties, cost_volume, disparity_from_cost, match,
+                                 peak_volume_bytes, uses_compact)
+
+    cfg = DEFAULT_CONFIG
+    left_np, right_np = _pair(height, width)
+    compact = uses_compact(cfg, height, width, disparities)
+    p1, p2 = compact_penalties(cfg) if compact else (cfg.p1, cfg.p2)
+    paths = int(cfg.aggregation[3:])
+
+    def cost():
+        return cost_volume(left_np, right_np, 0, disparities, cfg, device)
+
+    volume = cost()
+    fns = {"cost": cost,
+           "aggregate": lambda: stereo.sgm(volume, float(p1), float(p2), paths=paths, device=device),
+           "backend": lambda: disparity_from_cost(volume, 0, cfg, device),
+           "total": lambda: match(left_np, right_np, 0, disparities, cfg, device)}
+    row: dict[str, Any] = {}
+    _reference(fns, row, cv2, compare, disparities, left_np, right_np)
+    t = time_medians(fns, sync=lambda: wp.synchronize_device(device))
+    del volume
+    return {
+        "bench": "stereo.default",
+        "device": str(wp.get_device(device)),
+        "threads": threads,
+        "height": height,
+        "width": width,
+        "disparities": disparities,
+        "paths": paths,
+        "config": cfg.label,
+        "compact": compact,
+        "cost_s": t["cost"],
+        "aggregate_s": t["aggregate"],
+        "backend_s": t["backend"],
+        "total_s": t["total"],
+        "peak_mb": peak_volume_bytes(cfg, height, width, disparities) / 2**20,
+        **row,
+        **({"ref_total_s": t["ref_total"], "speedup_total": t["ref_total"] / t["total"]}
+           if "ref_total" in t else {}),
+    }
 
 
 MEMORY_SIZE = (994, 1482, 256)  # Middlebury 2014 at half resolution

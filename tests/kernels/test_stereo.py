@@ -483,6 +483,24 @@ def test_adcensus_fused_equals_its_terms_composed(dtype, channels, drange, radiu
     np.testing.assert_allclose(got, _rho_sum(terms, dtype), rtol=0, atol=5e-7 if dtype == np.float32 else 1e-15)
 
 
+@pytest.mark.parametrize("dtype,channels,levels", [(d, c, 0) for d in DTYPES for c in (0, 3)] + [(np.float32, 0, 110)])
+def test_adcensus_vector_and_scalar_hypotheses_agree_bit_for_bit(dtype, channels, levels):
+    """The fused kernel computes whole vectors of hypotheses (16 float32 or 8 float64 lanes) where every lane's
+    window is in range and a lane at a time elsewhere (a partial last vector). A cell's value depends only on
+    (x, y, d), so the range [o, o + n) (n = the vector width: all in vectors) and [0, o + n) (the last o
+    hypotheses a lane at a time) must agree exactly on their common disparities."""
+    n = 16 if dtype == np.float32 else 8
+    rng = np.random.default_rng(5)
+    shape = (13, 70, channels) if channels else (13, 70)
+    L = rng.uniform(0.0, 1.0, shape).astype(dtype)
+    R = np.clip(np.roll(L, -4, axis=1) + 0.05 * rng.standard_normal(shape), 0, 1).astype(dtype)
+    grey = (L.mean(axis=2), R.mean(axis=2)) if channels else None
+    for o in (1, n // 2 + 1, n - 1):
+        vec = stereo.adcensus_cost(L, R, o, o + n, grey=grey, bt_weight=0.3, levels=levels)
+        mixed = stereo.adcensus_cost(L, R, 0, o + n, grey=grey, bt_weight=0.3, levels=levels)
+        np.testing.assert_array_equal(vec, mixed[:, :, o:])
+
+
 @pytest.mark.parametrize("bt_weight", [0.0, 0.3])
 def test_adcensus_compact_is_the_rounded_float_cost(bt_weight):
     L, R = (x.astype(np.float32) for x in _images(6, shape=(12, 20)))
