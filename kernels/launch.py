@@ -39,13 +39,19 @@ has finished when `launch_split` returns, and an exception raised by any chunk
 all chunks have stopped.
 
 Threads: `threads` if given, else the environment variable DRLAB_THREADS, else
-`os.cpu_count()`. The grid is cut into up to CHUNKS_PER_THREAD * threads
-near-equal chunks of at least `min_chunk` indices, which the threads (the
-caller plus pool workers) pull one at a time. A static split into `threads`
-equal parts waits for the slowest part; pulling smaller chunks balances
-indices of unequal cost (early ray termination, tiles holding different
-numbers of splats) and a core shared with another process. A grid too small
-for two chunks runs as one plain launch.
+`os.cpu_count()`. The grid is cut into chunks of decreasing size (guided
+self-scheduling, `guided_bounds`): each chunk takes 1 / (GUIDED_FACTOR *
+threads) of the indices not yet assigned, and none is smaller than `min_chunk`;
+the threads (the caller plus pool workers) pull them in order, one at a time.
+A static split into `threads` equal parts waits for the slowest part; pulling
+chunks balances indices of unequal cost (early ray termination, tiles holding
+different numbers of splats) and a core that is briefly busy with another
+process. With equal chunks the last one to finish leaves the other threads idle
+for up to a chunk's time (8 chunks on 2 threads: up to 1/8 of the work); the
+guided chunks start large (few launches) and end with chunks of `min_chunk`, so
+that idle tail is a small chunk's time. The cut depends only on `dim`, the
+thread count and `min_chunk`. A grid too small for two chunks runs as one plain
+launch.
 
 Two host-side helpers share the same thread pool: `parallel_ranges(fn, n)`
 calls fn(lo, hi) on contiguous ranges, one per thread (NumPy passes over large
@@ -67,8 +73,8 @@ import warp as wp
 
 # A launch costs tens of microseconds of Python; smaller chunks rarely repay the hand-off to a thread.
 DEFAULT_MIN_CHUNK = 1024
-# Chunks per thread: more chunks than threads balance unequal work and busy cores.
-CHUNKS_PER_THREAD = 4
+# Guided chunks: each takes 1 / (GUIDED_FACTOR * threads) of the indices left (module docstring).
+GUIDED_FACTOR = 2
 ENV_THREADS = "DRLAB_THREADS"
 
 _pool: ThreadPoolExecutor | None = None
@@ -98,6 +104,19 @@ def chunk_bounds(dim: int, n_chunks: int) -> list[tuple[int, int]]:
     bounds, offset = [], 0
     for j in range(n_chunks):
         size = base + (1 if j < extra else 0)
+        bounds.append((offset, size))
+        offset += size
+    return bounds
+
+
+def guided_bounds(dim: int, threads: int, min_chunk: int) -> list[tuple[int, int]]:
+    """(offset, size) of contiguous chunks covering [0, dim) in order: each takes
+    ceil(left / (GUIDED_FACTOR * threads)) of the `left` indices not yet cut, at least `min_chunk`
+    (the last one may be smaller only when fewer are left)."""
+    bounds, offset = [], 0
+    while offset < dim:
+        left = dim - offset
+        size = min(left, max(min_chunk, -(-left // (GUIDED_FACTOR * threads))))
         bounds.append((offset, size))
         offset += size
     return bounds
@@ -227,14 +246,14 @@ def launch_split(
     device = wp.get_device(device)
     inputs = list(inputs)
 
-    n_chunks = min(n_threads * CHUNKS_PER_THREAD, dim // min_chunk)
-    if device.is_cuda or n_threads == 1 or n_chunks <= 1:
+    if device.is_cuda or n_threads == 1 or dim < 2 * min_chunk:
         wp.launch(kernel, dim=dim, inputs=[*inputs, 0], device=device)
         if synchronize:
             wp.synchronize_device(device)
         return
 
-    bounds = chunk_bounds(dim, n_chunks)
+    bounds = guided_bounds(dim, n_threads, min_chunk)
+    n_chunks = len(bounds)
     n_workers = min(n_threads, n_chunks)
     next_chunk = iter(range(n_chunks))
     take_lock = threading.Lock()

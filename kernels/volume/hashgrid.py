@@ -13,7 +13,10 @@ vertices fit in T (dense level, no collisions), else the spatial hash of the pap
     h(v) = (v_x * 1  XOR  v_y * 2654435761  XOR  v_z * 805459861)  mod T   (uint32 arithmetic).
 
 The encoding is the concatenation enc(p) = [enc_0, ..., enc_{L-1}] (N, L F); tables are stored
-as one (L T, F) array, level l in rows l T .. l T + T - 1.
+as one (L T, F) array, level l in rows l T .. l T + T - 1. `encode` returns enc as the transposed
+view of a contiguous (L F, N) array (feature-major): the forward's threads run level by level, and
+each level's features are then written contiguously over the points instead of 2F of every 4 L F
+bytes of each point's row (a 16x write amplification of cache lines at L = 16, F = 2).
 
 Backward, for a cotangent G (N, L F): dL/dtable_l[h_l(i + b)] += w_b G[n, l F : l F + F] over all
 points -- a scatter, done with atomic adds in one launch PER LEVEL (no Warp atomic is atomic
@@ -83,6 +86,7 @@ def _hash_forward_kernel(
     dense: wp.array(dtype=wp.int32), table_size: int,
     table: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), offset: int,
 ):
+    # out (L F, N): feature-major, so consecutive threads (points of one level) write consecutively.
     # Level-major threads (t = l N + n): a chunk of consecutive threads reads one level's table (T F
     # values, 4 MB at T = 2^19, F = 2 in float32) instead of all L levels' at once, so its random
     # reads stay in the cache (point-major: 1.6x slower at 131072 points, docs/performance.md).
@@ -103,15 +107,15 @@ def _hash_forward_kernel(
             row = corner_row(c, l, ix, iy, iz, res, dense[l], table_size)
             s0 += w * table[row, 0]
             s1 += w * table[row, 1]
-        out[n, l * 2] = s0
-        out[n, l * 2 + 1] = s1
+        out[l * 2, n] = s0
+        out[l * 2 + 1, n] = s1
     else:
         for f in range(F):
             s = points.dtype(0.0)
             for c in range(8):
                 w = trilinear_weight(c, fx, fy, fz)
                 s += w * table[corner_row(c, l, ix, iy, iz, res, dense[l], table_size), f]
-            out[n, l * F + f] = s
+            out[l * F + f, n] = s
 
 
 @wp.kernel
@@ -127,11 +131,21 @@ def _hash_backward_kernel(
     res = resolutions[l]
     ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
     F = grad_table.shape[1]
-    for c in range(8):
-        w = trilinear_weight(c, fx, fy, fz)
-        row = corner_row(c, l, ix, iy, iz, res, dense[l], table_size)
-        for f in range(F):
-            wp.atomic_add(grad_table, row, f, w * grad_out[n, l * F + f])
+    d = dense[l]
+    if F == 2:  # the usual case: the point's two cotangents read once, into registers
+        g0 = grad_out[n, l * 2]
+        g1 = grad_out[n, l * 2 + 1]
+        for c in range(8):
+            w = trilinear_weight(c, fx, fy, fz)
+            row = corner_row(c, l, ix, iy, iz, res, d, table_size)
+            wp.atomic_add(grad_table, row, 0, w * g0)
+            wp.atomic_add(grad_table, row, 1, w * g1)
+    else:
+        for c in range(8):
+            w = trilinear_weight(c, fx, fy, fz)
+            row = corner_row(c, l, ix, iy, iz, res, d, table_size)
+            for f in range(F):
+                wp.atomic_add(grad_table, row, f, w * grad_out[n, l * F + f])
 
 
 def level_resolutions(n_levels: int, base_resolution: int, max_resolution: int) -> np.ndarray:
@@ -189,17 +203,18 @@ class HashEncoding:
                              f"got {A.type_name(table.dtype)} on {table.device}")
 
     def encode(self, points: wp.array, table: wp.array) -> wp.array:
-        """enc (N, L F) for points (N, 3)."""
+        """enc (N, L F) for points (N, 3): the transposed view of a contiguous (L F, N) array."""
         self._check(points, table)
         n = points.shape[0]
-        out = wp.empty((n, self.n_outputs), dtype=points.dtype, device=points.device)
+        out = wp.empty((self.n_outputs, n), dtype=points.dtype, device=points.device)
         if n:
             launch_split(_hash_forward_kernel, n * self.n_levels,
                          [points, *self._static(points.dtype, points.device), table, out], device=points.device)
-        return out
+        return out.transpose()
 
     def backward(self, points: wp.array, table: wp.array, grad_enc: wp.array) -> wp.array:
-        """dL/dtable (L T, F) for the cotangent grad_enc (N, L F)."""
+        """dL/dtable (L T, F) for the cotangent grad_enc (N, L F), any strides (fastest as the transposed
+        view of a contiguous (L F, N) array, which each level's launch reads contiguously)."""
         self._check(points, table)
         A.check_shape("grad_enc", grad_enc, (points.shape[0], self.n_outputs))
         if not isinstance(grad_enc, wp.array) or grad_enc.dtype != points.dtype or grad_enc.device != points.device:

@@ -9,15 +9,19 @@ Backward, for the cotangent g = dL/dy (the standard back-propagation recursion):
     dz_{L-1} = g,   dW_l = dz_l^T a_l,   db_l = sum_n dz_l[n],   da_l = dz_l W_l,
     dz_{l-1} = da_l * [z_{l-1} > 0],     dL/dx = da_0.
 
+The forward keeps only the activations a_l (relu(z_l) overwrites z_l): the mask [z_{l-1} > 0] is
+[a_l > 0], the same set, so the pre-activations need no memory of their own.
+
 Two backends compute the same thing:
   * "warp": every step is a Warp kernel. The three products are one kernel, C = A B (+ bias,
     ReLU), with one thread per output element ((n, j) for z, (n, k) for da, (j, k) for dW) and
     the transposes W^T, dz^T passed as strided views; j for db. Each is a gather with disjoint
     writes, so launch_split is safe. It runs on the CPU and on CUDA.
   * "numpy" (the default on the CPU): the three matrix products (z = a W^T, dW = dz^T a,
-    da = dz W) are NumPy/BLAS products written straight into the Warp arrays' memory, and the
-    per-sample parts (bias + ReLU, the ReLU mask) stay Warp kernels. A Warp CPU launch runs on
-    one thread (docs/warp.md), so a (N x 64) x (64 x 64) product is tens of times faster in BLAS.
+    da = dz W) are NumPy/BLAS products written straight into the Warp arrays' memory, with the
+    per-sample parts (+ bias and ReLU after z, the ReLU mask after da) applied by NumPy to each
+    block of 2048 rows right after its product, while it is in the cache. A Warp CPU launch runs
+    on one thread (docs/warp.md), so a (N x 64) x (64 x 64) product is tens of times faster in BLAS.
 The tests check both backends against a NumPy reference and against each other. The MLP works on
 wp.arrays (the neural fields' intermediate values) and returns wp.arrays.
 """
@@ -32,7 +36,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.launch import launch_split, parallel_ranges
+from kernels.launch import launch_split, parallel_items, parallel_ranges
 
 wp.set_module_options({"enable_backward": False})
 
@@ -74,26 +78,14 @@ def _matmul(a: wp.array, b: wp.array, out: wp.array, bias: wp.array | None = Non
 
 
 @wp.kernel
-def _bias_relu_kernel(
-    z: wp.array2d(dtype=typing.Any), b: wp.array(dtype=typing.Any), relu: int,
-    act: wp.array2d(dtype=typing.Any), offset: int,
-):
-    n = wp.tid() + offset
-    for j in range(z.shape[1]):
-        s = z[n, j] + b[j]
-        z[n, j] = s
-        if relu != 0:
-            act[n, j] = wp.max(s, z.dtype(0.0))
-
-
-@wp.kernel
 def _relu_backward_kernel(
-    da: wp.array2d(dtype=typing.Any), z: wp.array2d(dtype=typing.Any), offset: int,
+    da: wp.array2d(dtype=typing.Any), act: wp.array2d(dtype=typing.Any), offset: int,
 ):
+    # act = relu(z) of the layer below: act > 0 exactly where z > 0.
     n = wp.tid() + offset
-    for j in range(z.shape[1]):
-        if not (z[n, j] > z.dtype(0.0)):
-            da[n, j] = z.dtype(0.0)
+    for j in range(act.shape[1]):
+        if not (act[n, j] > act.dtype(0.0)):
+            da[n, j] = act.dtype(0.0)
 
 
 @wp.kernel
@@ -113,6 +105,9 @@ def _grad_bias_kernel(
 _BLAS_BLOCK = 8192
 # Below this many rows a product is one BLAS call; above, row blocks run on the launch threads.
 _SPLIT_ROWS = 4096
+# Rows per block: the product, the bias and the ReLU (or the ReLU mask) are applied to one block while
+# it is in the cache (2048 x 64 float32 = 512 kB), instead of as separate passes over (N, 64) arrays.
+_SUB_ROWS = 2048
 
 _blas_controller = None
 
@@ -133,13 +128,65 @@ def _one_blas_thread():
     return _blas_controller.limit(limits=1, user_api="blas")
 
 
-def _rows_matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    """out = a b, row blocks of `a` on the launch threads (each row's product is the same BLAS call)."""
-    if a.shape[0] < _SPLIT_ROWS:
-        np.matmul(a, b, out=out)
+def _row_blocks(fn, n: int) -> None:
+    """fn(lo, hi) over the row blocks [j S, (j + 1) S) of S = _SUB_ROWS rows covering [0, n), the last
+    one taking the remainder (S .. 2 S - 1 rows); once n >= _SPLIT_ROWS the launch threads pull the
+    blocks one at a time (single-threaded BLAS).
+
+    The blocks do not depend on the thread count, and none is short: OpenBLAS computes a product of
+    a few hundred rows (e.g. 300 x 64 times 64 x 4) with another kernel, whose rounding differs from
+    that of the same rows inside a longer product; with blocks of >= S rows each row's result is the
+    one a single long product gives (tests/kernels/test_volume_fields.py)."""
+    if n < _SPLIT_ROWS:
+        fn(0, n)
         return
+    n_blocks = n // _SUB_ROWS
+
+    def block(j: int) -> None:
+        fn(j * _SUB_ROWS, n if j == n_blocks - 1 else (j + 1) * _SUB_ROWS)
+
     with _one_blas_thread():
-        parallel_ranges(lambda lo, hi: np.matmul(a[lo:hi], b, out=out[lo:hi]), a.shape[0], min_chunk=_SPLIT_ROWS // 2)
+        parallel_items(block, n_blocks)
+
+
+def _layer_forward_blas(a: np.ndarray, w: np.ndarray, b: np.ndarray, relu: bool, out: np.ndarray) -> None:
+    """out = a W^T + b, then relu(out) in place when `relu`, one row sub-block at a time.
+
+    The sum z + b and the maximum are the same single IEEE operations as the Warp kernels', so only
+    the product's rounding is BLAS's. `a` may be a strided view (a feature-major encoding, whose
+    row blocks are column-major blocks that BLAS reads as transposed)."""
+    wt = w.T
+
+    def block(lo: int, hi: int) -> None:
+        zb = out[lo:hi]
+        np.matmul(a[lo:hi], wt, out=zb)
+        zb += b
+        if relu:
+            np.maximum(zb, zb.dtype.type(0.0), out=zb)
+
+    _row_blocks(block, a.shape[0])
+
+
+def _layer_input_grad_blas(dz: np.ndarray, w: np.ndarray, act: np.ndarray | None, out: np.ndarray) -> None:
+    """out = dz W, then multiplied by [act > 0] (the ReLU of the layer below: act = relu(z) > 0
+    exactly where z > 0) when `act` is given, one row block at a time. `out` may be the transpose
+    of a C-contiguous (n_in, N) array: its row blocks are then written as (W^T dz_block^T).
+
+    Multiplying by 0 gives the same value as setting 0 for every finite entry (a negative one
+    becomes -0.0, equal to 0.0); an infinite or NaN entry of dz W under an inactive unit would
+    become NaN instead of 0."""
+    feature_major = not out.flags.c_contiguous and out.T.flags.c_contiguous
+
+    def block(lo: int, hi: int) -> None:
+        if feature_major:
+            np.matmul(w.T, dz[lo:hi].T, out=out[lo:hi].T)
+        else:
+            np.matmul(dz[lo:hi], w, out=out[lo:hi])
+        if act is not None:  # times the mask as 0/1: 15x faster than a masked copy (np.copyto where=)
+            ob = out[lo:hi]
+            np.multiply(ob, act[lo:hi] > 0, out=ob)
+
+    _row_blocks(block, dz.shape[0])
 
 
 def _weight_grad_blas(dz: np.ndarray, a: np.ndarray, out: np.ndarray) -> None:
@@ -162,8 +209,22 @@ def _weight_grad_blas(dz: np.ndarray, a: np.ndarray, out: np.ndarray) -> None:
 
 @dataclass
 class MLPCache:
+    """What the backward needs: the input a_l of every layer (a_{l+1} = relu(z_l) is also the ReLU's
+    mask, a_{l+1} > 0 exactly where z_l > 0), the output, and the parameters they came from."""
+
     inputs: list[wp.array]  # a_l, the input of layer l
-    pre: list[wp.array]  # z_l
+    output: wp.array  # y = z_{L-1}
+    params: dict[str, wp.array]
+
+    @property
+    def pre(self) -> list[wp.array]:
+        """The pre-activations z_l, recomputed from a_l (for checks; the forward keeps only a_l)."""
+        pre = []
+        for l in range(1, len(self.inputs)):
+            a = self.inputs[l - 1].numpy()
+            w, b = self.params[f"W{l - 1}"].numpy(), self.params[f"b{l - 1}"].numpy()
+            pre.append(wp.array(a @ w.T + b, dtype=self.output.dtype, device="cpu"))
+        return [*pre, self.output]
 
 
 def init_mlp_params(sizes: Sequence[int], seed: int, dtype: Any, device: wp.Device) -> dict[str, wp.array]:
@@ -216,27 +277,28 @@ class MLP:
         if x.dtype != self.dtype or x.device != self.device:
             raise ValueError(f"x: expected a wp.array of {self.dtype} on {self.device}")
         n = x.shape[0]
-        cache = MLPCache([], [])
+        inputs = []
         a = x
         for l in range(self.n_layers):
             W, b = self.params[f"W{l}"], self.params[f"b{l}"]
-            relu = int(l < self.n_layers - 1)
-            z = self._empty((n, self.sizes[l + 1]))
-            act = self._empty((n, self.sizes[l + 1])) if relu else z
+            relu = l < self.n_layers - 1
+            z = self._empty((n, self.sizes[l + 1]))  # relu(z) overwrites z: the backward needs only a_{l+1}
             if n:
                 if self.backend == "numpy":
-                    _rows_matmul(a.numpy(), W.numpy().T, z.numpy())
-                    launch_split(_bias_relu_kernel, n, [z, b, relu, act], device=self.device, min_chunk=256)
+                    _layer_forward_blas(a.numpy(), W.numpy(), b.numpy(), relu, z.numpy())
                 else:
-                    _matmul(a, W.transpose(), z, b, act if relu else None)
-            cache.inputs.append(a)
-            cache.pre.append(z)
-            a = act
-        return a, cache
+                    _matmul(a, W.transpose(), z, b, z if relu else None)
+            inputs.append(a)
+            a = z
+        return a, MLPCache(inputs, a, self.params)
 
-    def backward(self, cache: MLPCache, grad_out: wp.array, need_input_grad: bool = False
-                 ) -> tuple[dict[str, wp.array], wp.array | None]:
-        """(gradients of every W_l, b_l; dL/dx or None) for the cotangent grad_out (N, n_out)."""
+    def backward(self, cache: MLPCache, grad_out: wp.array, need_input_grad: bool = False,
+                 input_grad_feature_major: bool = False) -> tuple[dict[str, wp.array], wp.array | None]:
+        """(gradients of every W_l, b_l; dL/dx or None) for the cotangent grad_out (N, n_out).
+
+        With `input_grad_feature_major` (numpy backend), dL/dx (N, n_in) is the transposed view of a
+        contiguous (n_in, N) array: each input feature's gradient is contiguous over the points (the
+        hash encoding's per-level backward reads it so, kernels.volume.hashgrid)."""
         n = cache.inputs[0].shape[0]
         A.check_shape("grad_out", grad_out, (n, self.sizes[-1]))
         if not isinstance(grad_out, wp.array) or grad_out.dtype != self.dtype or grad_out.device != self.device:
@@ -249,13 +311,18 @@ class MLP:
             dW = self._empty(tuple(W.shape))
             db = self._empty((W.shape[0],))
             need_da = l > 0 or need_input_grad
-            da = self._empty((n, W.shape[1])) if need_da else None
+            da = None
+            if need_da:
+                if l == 0 and input_grad_feature_major and self.backend == "numpy":
+                    da = self._empty((W.shape[1], n)).transpose()
+                else:
+                    da = self._empty((n, W.shape[1]))
             if self.backend == "numpy":
                 dz_np = dz.numpy()
                 _weight_grad_blas(dz_np, a.numpy(), dW.numpy())
                 db.numpy()[:] = dz_np.sum(axis=0)
-                if need_da:
-                    _rows_matmul(dz_np, W.numpy(), da.numpy())
+                if need_da and n:  # with the ReLU mask of the layer below (a_l > 0) applied per block
+                    _layer_input_grad_blas(dz_np, W.numpy(), a.numpy() if l > 0 else None, da.numpy())
             else:
                 _matmul(dz.transpose(), a, dW, min_chunk=64)
                 launch_split(_grad_bias_kernel, W.shape[0], [dz, db], device=self.device, min_chunk=16)
@@ -263,13 +330,13 @@ class MLP:
                     _matmul(dz, W, da)
             grads[f"W{l}"], grads[f"b{l}"] = dW, db
             if l > 0:
-                if n:
-                    launch_split(_relu_backward_kernel, n, [da, cache.pre[l - 1]], device=self.device, min_chunk=256)
+                if n and self.backend != "numpy":
+                    launch_split(_relu_backward_kernel, n, [da, a], device=self.device, min_chunk=256)
                 dz = da
             else:
                 grad_x = da
         return grads, grad_x
 
 
-for _kernel in (_matmul_kernel, _bias_relu_kernel, _relu_backward_kernel, _grad_bias_kernel):
+for _kernel in (_matmul_kernel, _relu_backward_kernel, _grad_bias_kernel):
     A.declare_float_overloads(_kernel)

@@ -127,7 +127,8 @@ class NeuralField(Field):
         grad_raw = a.empty((n, 4))
         a.launch(_head_backward_kernel, n, [raw, p, *self._head_static(a), rgb, gs, gr, grad_raw])
         needs_enc_grad = any(k not in self._mlp_names() for k in self.params)
-        grads, grad_enc = self._mlp().backward(out.cache["mlp"], grad_raw, need_input_grad=needs_enc_grad)
+        grads, grad_enc = self._mlp().backward(out.cache["mlp"], grad_raw, need_input_grad=needs_enc_grad,
+                                               input_grad_feature_major=True)
         if needs_enc_grad:
             grads.update(self._encode_backward(p, grad_enc))
         return {k: grads[k] for k in self.params}

@@ -90,6 +90,22 @@ def test_chunk_bounds_cover_range(dim, n):
     assert max(s for _, s in bounds) - min(s for _, s in bounds) <= 1
 
 
+@pytest.mark.parametrize("dim, threads, min_chunk", [(2048, 2, 1024), (98_304, 2, 1024), (1_000_003, 2, 1024),
+                                                    (4097, 3, 7), (100, 4, 1)],
+                         ids=["two_min_chunks", "launch_bench", "million_odd", "three_threads", "min_chunk_one"])
+def test_guided_bounds_cover_range_in_shrinking_chunks(dim, threads, min_chunk):
+    bounds = kl.guided_bounds(dim, threads, min_chunk)
+    assert bounds[0][0] == 0 and sum(s for _, s in bounds) == dim
+    assert all(o + s == bounds[j + 1][0] for j, (o, s) in enumerate(bounds[:-1]))  # contiguous, in order
+    sizes = [s for _, s in bounds]
+    assert all(a >= b for a, b in zip(sizes, sizes[1:]))  # never growing
+    assert all(s >= min_chunk for s in sizes[:-1]) and sizes[-1] >= 1
+    assert sizes[0] == -(-dim // (kl.GUIDED_FACTOR * threads)) or sizes[0] == min(dim, min_chunk)
+    if dim >= 16 * min_chunk * threads:  # large grids: the tail is small chunks, the head few large ones
+        assert sizes[-2] == min_chunk and len(bounds) < dim // min_chunk / 4
+    assert kl.guided_bounds(dim, threads, min_chunk) == bounds  # depends only on the arguments
+
+
 @pytest.mark.parametrize("threads", [1, 2, 4])
 def test_argument_check_error_propagates(threads):
     x32 = wp.zeros(4096, dtype=wp.float32, device=DEVICE)

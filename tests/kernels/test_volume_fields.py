@@ -131,6 +131,30 @@ def test_hash_encoding_forward(np_t, wp_t, tol, n_features):
     np.testing.assert_allclose(got, ref, rtol=tol * 10, atol=tol * 10)
 
 
+@pytest.mark.parametrize("n_features", [2, 3], ids=["two_features", "three_features"])  # the backward's two paths
+@pytest.mark.parametrize("layout", ["point_major", "feature_major"])
+def test_hash_encoding_backward_is_the_adjoint_of_the_forward(n_features, layout):
+    # enc is linear in the table, enc = M table, so <G, M t> = <M^T G, t> for any G and t (float64);
+    # the cotangent is read through its strides, row-major or as the transposed (L F, N) array.
+    enc = HashEncoding(BOX, n_levels=4, n_features=n_features, log2_table_size=7, base_resolution=2, max_resolution=20)
+    rng = np.random.default_rng(7)
+    table = rng.normal(size=enc.table_shape)
+    p = wp.array(rng.uniform(BOX[0] - 0.1, BOX[1] + 0.1, (300, 3)), dtype=wp.float64)
+    g = rng.normal(size=(300, enc.n_outputs))
+    g_wp = wp.array(g, dtype=wp.float64) if layout == "point_major" else \
+        wp.array(np.ascontiguousarray(g.T), dtype=wp.float64).transpose()
+    out = enc.encode(p, wp.array(table, dtype=wp.float64)).numpy()
+    np.testing.assert_allclose(out, hash_reference(enc, p.numpy(), table), rtol=1e-12, atol=1e-12)
+    grad = enc.backward(p, wp.array(table, dtype=wp.float64), g_wp).numpy()
+    assert np.sum(g * out) == pytest.approx(np.sum(grad * table), rel=1e-12)
+    # and entry by entry: the gradient of a single table entry is the sum of its trilinear weights x G
+    for row, f in ((0, 0), (enc.table_size + 5, n_features - 1), (3 * enc.table_size + 17, 0)):
+        e = np.zeros(enc.table_shape)
+        e[row, f] = 1.0
+        m = hash_reference(enc, p.numpy(), e)
+        assert grad[row, f] == pytest.approx(np.sum(m * g), rel=1e-12, abs=1e-12)
+
+
 def test_level_resolutions_follow_the_geometric_progression():
     enc = HashEncoding(BOX, n_levels=16, base_resolution=16, max_resolution=2048)
     b = np.exp((np.log(2048) - np.log(16)) / 15)
@@ -189,15 +213,44 @@ def test_mlp_numpy_backend_split_products(np_t, wp_t, tol):
             mlp = MLP(sizes, params, "numpy")
             y, cache = mlp.forward(wp.array(x, dtype=wp_t))
             grads, gx = mlp.backward(cache, wp.array(g, dtype=wp_t), need_input_grad=True)
+            # the same dL/dx stored feature-major ((n_in, N) contiguous, seen as its transpose)
+            grads_t, gx_t = mlp.backward(cache, wp.array(g, dtype=wp_t), need_input_grad=True,
+                                         input_grad_feature_major=True)
         finally:
             del os.environ["DRLAB_THREADS"]
         np.testing.assert_allclose(y.numpy(), a1 @ p64["W1"].T + p64["b1"], rtol=tol * 10, atol=tol * 10)
         for k, v in want.items():
             np.testing.assert_allclose(grads[k].numpy(), v, rtol=tol * 10, atol=tol * 10 * np.abs(v).max())
         np.testing.assert_allclose(gx.numpy(), dz0 @ p64["W0"], rtol=tol * 10, atol=tol * 10)
+        assert gx_t.shape == (n, 7) and not gx_t.is_contiguous and gx_t.transpose().is_contiguous
+        np.testing.assert_array_equal(gx_t.numpy(), gx.numpy())
+        for k in grads:
+            np.testing.assert_array_equal(grads_t[k].numpy(), grads[k].numpy())
         results.append([y.numpy(), gx.numpy(), *(grads[k].numpy() for k in sorted(grads))])
     for a, b in zip(*results):
         np.testing.assert_array_equal(a, b)
+
+
+def test_mlp_numpy_backend_rows_match_one_long_product():
+    # The row blocks (kernels.volume.mlp._row_blocks) are never short, so every row equals the same
+    # row of one long single-threaded BLAS product (OpenBLAS rounds short products differently).
+    from threadpoolctl import threadpool_limits
+
+    from kernels.volume import mlp as mlp_mod
+
+    sizes = [64, 64, 4]
+    n = 3 * mlp_mod._SUB_ROWS + 300
+    params = init_mlp_params(sizes, 2, wp.float32, wp.get_device("cpu"))
+    x = np.random.default_rng(8).normal(size=(n, 64)).astype(np.float32)
+    y, _ = MLP(sizes, params, "numpy").forward(wp.array(x, dtype=wp.float32))
+    p = {k: v.numpy() for k, v in params.items()}
+    with threadpool_limits(limits=1, user_api="blas"):
+        h = x @ p["W0"].T
+        h += p["b0"]
+        np.maximum(h, np.float32(0.0), out=h)
+        want = h @ p["W1"].T
+        want += p["b1"]
+    np.testing.assert_array_equal(y.numpy(), want)
 
 
 def test_mlp_backends_agree_on_the_backward():
