@@ -64,7 +64,14 @@ reported seed 0 was not used for any of this):
     0.69 / 1.39 to 0.54 / 1.09. The likely mechanism
     (supported by that one test, not proven): the rasteriser's 0.3 px^2 dilation widens every splat,
     most on the ground seen near the horizon and at its far edge against the black background, which
-    the low views' pitch then compensates. Depth
+    the low views' pitch then compensates. Tested with the dilation as a parameter (`dilation`,
+    kernels/splat/modes.py), the same RGB fit started from the ground-truth poses with the compensation,
+    3000 iterations, seed 1: the pitch mode (least-squares amplitude of the camera-x rotation against
+    cos(elevation)) shrinks with the dilation, 0.3 px^2: 0.63 cos(elev) (0.43 mean / 0.82 max deg,
+    training loss 0.0343); 0.1: 0.36 (0.28 / 0.55, 0.0303); 0.03: 0.27 (0.23 / 0.48, 0.0286); 0 (where
+    the compensation is 1, so effectively without it): 0.29 (0.23 / 0.51, 0.0276). So the dilation
+    is the larger part of the drift, not all of it (the residual about the fit, 0.11-0.13 deg rms,
+    does not change). Depth
     pins the scale and the centres (0.59% -> 0.24% of the radius) but not the pitch. The 64 x 64
     images are the other limit: a 1-degree pitch traded against the matching centre shift moves the
     scene's depth extent by about 0.3 px of parallax, within the model's own error.
