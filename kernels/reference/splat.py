@@ -32,6 +32,7 @@ MODES = ("3dgs", "gsplat")
 ALPHA_MAX = {"3dgs": 0.99, "gsplat": 0.999}
 RADIUS_FLOOR = {"3dgs": 0.1, "gsplat": 0.01}
 AA_FLOOR = {"3dgs": 2.5e-5, "gsplat": 0.0}
+DILATION = 0.3  # the low-pass dilation (px^2) of both modes
 
 
 def frustum_limits(cam, mode: str) -> tuple[float, float, float, float]:
@@ -66,9 +67,11 @@ def culled(u: float, v: float, r: float, width: int, height: int, mode: str) -> 
 
 
 def project(params: dict, cam, sh_degree: int | None = None, antialiased: bool = False, mode: str = "3dgs",
-            radius_floor: float | None = None) -> dict:
+            radius_floor: float | None = None, dilation: float | None = None) -> dict:
     """Per-splat projection (kernels/splat/projection.py) of float64 parameters; radius 0 = culled.
-    `radius_floor` overrides the mode's floor of the radius's eigenvalue term (for tests)."""
+    `radius_floor` overrides the mode's floor of the radius's eigenvalue term (for tests), `dilation`
+    the low-pass dilation 0.3 px^2 added to every 2D covariance."""
+    s = DILATION if dilation is None else dilation
     floor = RADIUS_FLOOR[mode] if radius_floor is None else radius_floor
     means, log_scales, quats = params["means"], params["log_scales"], params["quats"]
     logits, sh = params["opacity_logits"], params["sh"]
@@ -91,7 +94,7 @@ def project(params: dict, cam, sh_degree: int | None = None, antialiased: bool =
         yc = z * min(max(y / z, -lyn), lyp)
         J = np.array([[fx / z, 0.0, -fx * xc / z**2], [0.0, fy / z, -fy * yc / z**2]])
         cov = J @ sigma_cam @ J.T
-        cov_dilated = cov + 0.3 * np.eye(2)
+        cov_dilated = cov + s * np.eye(2)
         det = np.linalg.det(cov_dilated)
         if det <= 0:
             continue
@@ -184,8 +187,9 @@ def rasterize(m2, conics, colors, opacities, depths, radii, width, height, backg
 
 def render(params: dict, cam, background: np.ndarray, sh_degree: int | None = None,
            antialiased: bool = False, mode: str = "3dgs",
-           radius_floor: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           radius_floor: float | None = None, dilation: float | None = None
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rgb, alpha, depth) of the whole chain for float64 parameters and a SplatCamera."""
-    p = project(params, cam, sh_degree, antialiased, mode, radius_floor)
+    p = project(params, cam, sh_degree, antialiased, mode, radius_floor, dilation)
     return rasterize(p["means2d"], p["conics"], p["colors"], p["opacities"], p["depths"], p["radii"], cam.width,
                      cam.height, background, mode)

@@ -30,7 +30,7 @@ getRect tile rule, alpha clamp 0.99, stop when T (1 - alpha) < 1e-4, and its `an
 option as `antialiased=True`. "gsplat" follows gsplat: clamp x/z to [-cx/fx - 0.15 W/fx,
 (W - cx)/fx + 0.15 W/fx], radius floor 0.01, its tile rule, alpha clamp 0.999, stop when
 T (1 - alpha) <= 1e-4, and its rasterize_mode="antialiased" as `antialiased=True`. Both dilate
-Sigma2d by 0.3 I and skip alpha < 1/255.
+Sigma2d by 0.3 I (the entry points' `dilation` replaces 0.3) and skip alpha < 1/255.
 
 Every backward is written by hand; each module's docstring gives its math. Non-smooth points,
 where gradients are one-sided: the 1/255 skip, the alpha clamp, the T stop, the colour
@@ -71,7 +71,7 @@ argument before any launch. All kernels are generic over float32 and float64.
 from kernels.sh import SH_C0
 from kernels.splat.camera import DEFAULT_FAR, DEFAULT_NEAR, SplatCamera, se3_exp
 from kernels.splat.ewa import DILATION
-from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, MODES, RADIUS_FLOOR_OF
+from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, DILATION_OF, MODES, RADIUS_FLOOR_OF, dilation_of
 from kernels.splat.projection import GaussianInputs, Projection, gaussian_inputs, project, project_backward
 from kernels.splat.raster import ALPHA_MAX, ALPHA_MIN, T_MIN, Raster, rasterize, rasterize_backward
 from kernels.splat.render import Render, render, render_backward
@@ -79,8 +79,8 @@ from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles, s
 
 __all__ = [
     "ALPHA_MAX", "ALPHA_MAX_OF", "ALPHA_MIN", "DEFAULT_MODE", "MODES", "RADIUS_FLOOR_OF", "DEFAULT_FAR",
-    "DEFAULT_NEAR", "DILATION", "SH_C0", "TILE", "TILE_PIXELS", "T_MIN",
+    "DEFAULT_NEAR", "DILATION", "DILATION_OF", "SH_C0", "TILE", "TILE_PIXELS", "T_MIN",
     "GaussianInputs", "Projection", "Raster", "Render", "SplatCamera", "Splats2D", "Tiles",
-    "bin_tiles", "gaussian_inputs", "project", "project_backward", "rasterize", "rasterize_backward", "render",
-    "render_backward", "se3_exp", "splats_2d",
+    "bin_tiles", "dilation_of", "gaussian_inputs", "project", "project_backward", "rasterize", "rasterize_backward",
+    "render", "render_backward", "se3_exp", "splats_2d",
 ]

@@ -43,11 +43,13 @@ Camera pose (`pose_vjp`), for a left perturbation [W | t] <- exp(xi^) [W | t], x
     the camera centre -W^T t moves by -W^T rho (and not with phi), which the caller adds for the
     view direction (kernels/splat/projection.py).
 
-Dilation (`dilate_cov2d`): (a1, b, c1) = (a + 0.3, b, c + 0.3) and det0 = a c - b^2 for
-Sigma2d = [[a, b], [b, c]]; VJP dL/da = dL/da1 + dL/ddet0 c, dL/dc = dL/dc1 + dL/ddet0 a,
-dL/db = dL/db' - 2 b dL/ddet0, split half and half over Sigma2d's two off-diagonal entries.
+Dilation (`dilate_cov2d`): (a1, b, c1) = (a + s, b, c + s) and det0 = a c - b^2 for
+Sigma2d = [[a, b], [b, c]] and the low-pass dilation s >= 0 in px^2 (0.3 in both modes, DILATION;
+the entry points' `dilation`, kernels/splat/modes.py), a constant without a gradient;
+VJP dL/da = dL/da1 + dL/ddet0 c, dL/dc = dL/dc1 + dL/ddet0 a, dL/db = dL/db' - 2 b dL/ddet0, split half
+and half over Sigma2d's two off-diagonal entries.
 
-Conic (`conic_inverse`): the dilated covariance (a1, b, c1) = Sigma2d + 0.3 I has
+Conic (`conic_inverse`): the dilated covariance (a1, b, c1) = Sigma2d + s I has
     det = a1 c1 - b^2,  Q = (c1, -b, a1) / det,
     VJP for dL/dQ = (gA, gB, gC) and an extra dL/ddet from other users of det:
     g_det' = g_det - (gA c1 - gB b + gC a1) / det^2,
@@ -70,6 +72,7 @@ from typing import Any
 
 import warp as wp
 
+# The low-pass dilation s (px^2) of both reference codes: the entry points' default (kernels/splat/modes.py).
 DILATION = 0.3
 # The floor of the antialiasing compensation's ratio in the 3DGS code (module docstring).
 AA_FLOOR_3DGS = 2.5e-5
@@ -270,14 +273,15 @@ def pose_vjp(p: Any, g_p: Any, cov_c: Any, g_cov_c: Any):
 
 
 @wp.func
-def dilate_cov2d(cov2d: Any):
+def dilate_cov2d(cov2d: Any, dilation: wp.float64):
     """(a, b, c, det0, a1, c1): Sigma2d = [[a, b], [b, c]], its determinant det0 = a c - b^2, and the
-    diagonal a1 = a + 0.3, c1 = c + 0.3 of the dilated Sigma2d + 0.3 I."""
+    diagonal a1 = a + s, c1 = c + s of the dilated Sigma2d + s I, s = `dilation` (px^2)."""
     a = cov2d[0, 0]
     b = cov2d[0, 1]
     c = cov2d[1, 1]
     det0 = a * c - b * b
-    return a, b, c, det0, a + type(a)(DILATION), c + type(a)(DILATION)
+    s = type(a)(dilation)
+    return a, b, c, det0, a + s, c + s
 
 
 @wp.func

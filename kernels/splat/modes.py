@@ -11,7 +11,8 @@ backward is the gradient of that forward (kernels/reference/splat.py writes both
     Jacobian clamp      |x/z| <= 1.3 tan_fovx,                 -cx/fx - 0.3 tan_fovx <= x/z
                         tan_fovx = W / (2 fx)                    <= (W - cx)/fx + 0.3 tan_fovx
                         (symmetric about the principal point)   (y/z likewise with fy, cy, H)
-    dilation            Sigma2d + 0.3 I                        Sigma2d + 0.3 I
+    dilation s          Sigma2d + 0.3 I                        Sigma2d + 0.3 I
+                        (the entry points' `dilation` replaces s; default None keeps 0.3)
     radius              ceil(3 sqrt(h + sqrt(max(0.1,          ceil(3 sqrt(h + sqrt(max(0.01,
                         h^2 - det))))                          h^2 - det))))
     tiles of a splat    3DGS's getRect on pixel centres at     floor((u - r)/16) <= tx <
@@ -41,11 +42,16 @@ tiles only the larger square meets then blend it (tests/kernels/test_splat_modes
 
 from __future__ import annotations
 
+import math
+import numbers
+
 MODES = ("3dgs", "gsplat")
 DEFAULT_MODE = "3dgs"
 # Per mode: the alpha clamp and the floor of the eigenvalue term of the radius (module docstring).
 ALPHA_MAX_OF = {"3dgs": 0.99, "gsplat": 0.999}
 RADIUS_FLOOR_OF = {"3dgs": 0.1, "gsplat": 0.01}
+# Per mode: the low-pass dilation s (px^2) added to every projected covariance (kernels/splat/ewa.py).
+DILATION_OF = {"3dgs": 0.3, "gsplat": 0.3}
 
 
 def mode_id(mode: str) -> int:
@@ -53,3 +59,21 @@ def mode_id(mode: str) -> int:
     if not isinstance(mode, str) or mode not in MODES:
         raise ValueError(f"mode: expected one of {', '.join(repr(m) for m in MODES)}, got {mode!r}")
     return MODES.index(mode)
+
+
+def dilation_of(mode: str, dilation: float | None, antialiased: bool = False) -> float:
+    """The low-pass dilation (px^2) to use: `dilation`, or the mode's (DILATION_OF) when it is None.
+
+    ValueError naming the argument unless it is a finite number >= 0, and > 0 with `antialiased`: the
+    compensation sqrt(det0 / det) compares the covariance before and after the dilation, so with s = 0 it
+    is 1 and `antialiased` would silently do nothing."""
+    mode_id(mode)
+    if dilation is None:
+        return DILATION_OF[mode]
+    if isinstance(dilation, bool) or not isinstance(dilation, numbers.Real) or not math.isfinite(dilation) \
+            or dilation < 0:
+        raise ValueError(f"dilation: expected a finite number >= 0 (px^2) or None, got {dilation!r}")
+    if antialiased and dilation == 0:
+        raise ValueError("dilation: expected > 0 with antialiased=True (the compensation sqrt(det0 / det) is 1 "
+                         "without a dilation), got 0")
+    return float(dilation)

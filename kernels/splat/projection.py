@@ -6,7 +6,7 @@ coefficients f (K = (L+1)^2, 3), for the world-to-camera [W | t] and intrinsics 
     Sigma = R(q/|q|) S S^T R^T,  S = diag(exp l)                      (ewa.quat_scale_to_covar)
     p = W mu + t = (x, y, z);  culled if z < near or z > far
     mean2d, Sigma2d = EWA projection of (p, W Sigma W^T)               (ewa.persp_proj)
-    (a1, b, c1) = Sigma2d + 0.3 I  (a 0.3 px^2 low-pass dilation); culled if det <= 0
+    (a1, b, c1) = Sigma2d + s I  (the low-pass dilation s, 0.3 px^2 by default); culled if det <= 0
     conic Q = (a1, b, c1)^-1 stored as (Q00, Q01, Q11)                 (ewa.conic_inverse)
     radius = ceil(3 sqrt(lambda_max)),  lambda_max = h + sqrt(max(f, h^2 - det)), h = (a1 + c1)/2,
         f = 0.1 ("3dgs") or 0.01 ("gsplat"); culled when the mode's tile rectangle of the square
@@ -63,7 +63,7 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.sh import sh_basis, sh_basis_grad
 from kernels.splat.camera import SplatCamera
-from kernels.splat.modes import DEFAULT_MODE, RADIUS_FLOOR_OF, mode_id
+from kernels.splat.modes import DEFAULT_MODE, RADIUS_FLOOR_OF, dilation_of, mode_id
 from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
                                dilate_cov2d_vjp, persp_intrinsics_vjp, persp_proj, persp_proj_vjp, pose_vjp,
                                quat_scale_to_covar,
@@ -110,12 +110,12 @@ def _camera_frame(view: wp.array2d(dtype=Any), means: wp.array2d(dtype=Any), log
 
 @wp.func
 def _conic_chain(Wr: Any, q: Any, l: Any, p: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int, height: int,
-                 mode: int):
+                 mode: int, dilation: wp.float64):
     """The forward from the camera-frame mean p to the conic (module docstring): (cov_c, u, v, the
     undilated a, b, c and det0, the dilated a1, c1, and det, qa, qb, qc of the conic inverse)."""
     cov_c = transform_cov(Wr, quat_scale_to_covar(q, l))
     u, v, cov2d = persp_proj(p, cov_c, fx, fy, cx, cy, width, height, mode)
-    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d)
+    a, b, c, det0, a1, c1 = dilate_cov2d(cov2d, dilation)
     det, qa, qb, qc = conic_inverse(a1, b, c1)
     return cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc
 
@@ -159,10 +159,10 @@ def _load_splat_f64(means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=A
 
 @wp.func
 def _screen_conic(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int,
-                  height: int, mode: int):
+                  height: int, mode: int, dilation: wp.float64):
     """(u, v, det0, det, Q00, Q01, Q11, unclamped radius) of one splat (module docstring)."""
     cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _conic_chain(Wr, q, l, Wr * mu + tv, fx, fy, cx, cy,
-                                                                       width, height, mode)
+                                                                       width, height, mode, dilation)
     half = type(det)(0.5)
     bb = half * (a1 + c1)
     floor = type(det)(RADIUS_FLOOR_GSPLAT)
@@ -175,8 +175,8 @@ def _screen_conic(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, c
 
 @wp.func
 def _projection_vjp(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, cx: Any, cy: Any, width: int,
-                    height: int, mode: int, antialiased: int, g_comp: Any, gQa: Any, gQb: Any, gQc: Any, gu: Any,
-                    gv: Any,
+                    height: int, mode: int, dilation: wp.float64, antialiased: int, g_comp: Any, gQa: Any, gQb: Any,
+                    gQc: Any, gu: Any, gv: Any,
                     g_depth: Any):
     """(dL/dmu, dL/dq, dL/dl, opacity factor c, det, dL/drho, dL/dphi, dL/d(fx, fy, cx, cy)) of the
     projection's geometry, for the cotangents of the conic, mean2d and depth and dL/dc = g_comp (c = 1
@@ -184,7 +184,7 @@ def _projection_vjp(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any,
     zero = type(g_comp)(0.0)
     p = Wr * mu + tv
     cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _conic_chain(Wr, q, l, p, fx, fy, cx, cy, width, height,
-                                                                       mode)
+                                                                       mode, dilation)
 
     # Opacity o = sigmoid(a) comp.
     g_det0 = zero
@@ -251,7 +251,8 @@ def clamp_radius(r: Any, u: Any, v: Any, width: int, height: int):
 def _project_kernel(
     means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
     opacity_logits: wp.array(dtype=Any), sh: wp.array3d(dtype=Any), view: wp.array2d(dtype=Any),
-    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, mode: int, antialiased: int,
+    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, mode: int, dilation: wp.float64,
+    antialiased: int,
     means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), depths: wp.array(dtype=Any),
     radii: wp.array(dtype=wp.int32), colors: wp.array2d(dtype=Any), opacities: wp.array(dtype=Any), offset: int,
 ):
@@ -269,7 +270,7 @@ def _project_kernel(
     if tz < cam[4] or tz > cam[5]:
         return
     u, v, det0, det, qa, qb, qc, r = _screen_conic(mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height,
-                                                   mode)
+                                                   mode, dilation)
     comp = means.dtype(1.0)
     if wp.isnan(det) or wp.isinf(det):
         # Past float32's range (module docstring): the conic, radius and compensation in float64.
@@ -277,7 +278,7 @@ def _project_kernel(
         mu64, q64, l64 = _load_splat_f64(means, log_scales, quats, i)
         u64, v64, det0_64, det64, qa64, qb64, qc64, r64 = _screen_conic(
             mu64, q64, l64, W64, t64, wp.float64(cam[0]), wp.float64(cam[1]), wp.float64(cam[2]),
-            wp.float64(cam[3]), width, height, mode)
+            wp.float64(cam[3]), width, height, mode, dilation)
         if det64 <= wp.float64(0.0) or wp.isnan(det64) or wp.isinf(det64):
             return
         qa = means.dtype(qa64)
@@ -317,7 +318,8 @@ def _project_kernel(
 def _project_backward_kernel(
     means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
     opacity_logits: wp.array(dtype=Any), sh: wp.array3d(dtype=Any), view: wp.array2d(dtype=Any),
-    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, mode: int, antialiased: int,
+    cam: wp.array(dtype=Any), width: int, height: int, sh_degree: int, mode: int, dilation: wp.float64,
+    antialiased: int,
     radii: wp.array(dtype=wp.int32),
     g_means2d: wp.array2d(dtype=Any), g_conics: wp.array2d(dtype=Any), g_depths: wp.array(dtype=Any),
     g_colors: wp.array2d(dtype=Any), g_opacities: wp.array(dtype=Any),
@@ -351,17 +353,17 @@ def _project_backward_kernel(
     sig = sigmoid(opacity_logits[i])
     g_o = g_opacities[i]
     g_mu, g_q, g_l, comp, det, g_rho, g_phi, g_intr = _projection_vjp(
-        mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height, mode, antialiased, g_o * sig, g_conics[i, 0],
-        g_conics[i, 1],
+        mu, q, l, Wr, tv, cam[0], cam[1], cam[2], cam[3], width, height, mode, dilation, antialiased, g_o * sig,
+        g_conics[i, 0], g_conics[i, 1],
                                                 g_conics[i, 2], g_means2d[i, 0], g_means2d[i, 1], g_depths[i])
     if wp.isnan(det) or wp.isinf(det):
         W64, t64 = _load_view_f64(view)
         mu64, q64, l64 = _load_splat_f64(means, log_scales, quats, i)
         g_mu64, g_q64, g_l64, comp64, det64, g_rho64, g_phi64, g_intr64 = _projection_vjp(
             mu64, q64, l64, W64, t64, wp.float64(cam[0]), wp.float64(cam[1]), wp.float64(cam[2]),
-            wp.float64(cam[3]), width, height, mode, antialiased, wp.float64(g_o * sig), wp.float64(g_conics[i, 0]),
-            wp.float64(g_conics[i, 1]), wp.float64(g_conics[i, 2]), wp.float64(g_means2d[i, 0]),
-            wp.float64(g_means2d[i, 1]), wp.float64(g_depths[i]))
+            wp.float64(cam[3]), width, height, mode, dilation, antialiased, wp.float64(g_o * sig),
+            wp.float64(g_conics[i, 0]), wp.float64(g_conics[i, 1]), wp.float64(g_conics[i, 2]),
+            wp.float64(g_means2d[i, 0]), wp.float64(g_means2d[i, 1]), wp.float64(g_depths[i]))
         g_mu = wp.vector(means.dtype(g_mu64[0]), means.dtype(g_mu64[1]), means.dtype(g_mu64[2]), length=3,
                          dtype=means.dtype)
         g_l = wp.vector(means.dtype(g_l64[0]), means.dtype(g_l64[1]), means.dtype(g_l64[2]), length=3,
@@ -541,9 +543,10 @@ def _camera_arrays(a: A.Inputs, camera: SplatCamera) -> tuple[wp.array, wp.array
 
 
 def project_wp(g: GaussianInputs, camera: SplatCamera, sh_degree: int, antialiased: bool,
-               mode: str = DEFAULT_MODE) -> Projection:
+               mode: str = DEFAULT_MODE, dilation: float | None = None) -> Projection:
     """`project` with wp.array results on g's device (the render chain's first stage)."""
     mid = mode_id(mode)
+    s = dilation_of(mode, dilation, antialiased)
     a = g.inputs()
     view, cam = _camera_arrays(a, camera)
     n = g.n
@@ -551,25 +554,27 @@ def project_wp(g: GaussianInputs, camera: SplatCamera, sh_degree: int, antialias
                      a.zeros(n))
     a.launch(_project_kernel, n,
              [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, camera.width, camera.height,
-              sh_degree, mid, int(bool(antialiased)), out.means2d, out.conics, out.depths, out.radii, out.colors,
-              out.opacities], min_chunk=MIN_CHUNK)
+              sh_degree, mid, wp.float64(s), int(bool(antialiased)), out.means2d, out.conics, out.depths, out.radii,
+              out.colors, out.opacities], min_chunk=MIN_CHUNK)
     return out
 
 
 def project(g: GaussianInputs, camera: SplatCamera, *, sh_degree: int | None = None,
-            antialiased: bool = False, mode: str = DEFAULT_MODE) -> Projection:
+            antialiased: bool = False, mode: str = DEFAULT_MODE, dilation: float | None = None) -> Projection:
     """Project every splat into `camera` (module docstring) following `mode` ("3dgs" or "gsplat",
-    kernels/splat/modes.py); arrays in the kind of g's inputs."""
+    kernels/splat/modes.py), with the low-pass `dilation` (px^2; None: the mode's, 0.3); arrays in the
+    kind of g's inputs."""
     mode_id(mode)
+    dilation_of(mode, dilation, antialiased)
     deg = sh_degree_of(tuple(g.sh.shape), sh_degree)
-    return project_wp(g, camera, deg, antialiased, mode).out(g.inputs())
+    return project_wp(g, camera, deg, antialiased, mode, dilation).out(g.inputs())
 
 
 def project_backward(g: GaussianInputs, camera: SplatCamera, radii: Any, grad_means2d: Any, grad_conics: Any,
                      grad_depths: Any, grad_colors: Any, grad_opacities: Any, *, sh_degree: int | None = None,
-                     antialiased: bool = False, mode: str = DEFAULT_MODE,
+                     antialiased: bool = False, mode: str = DEFAULT_MODE, dilation: float | None = None,
                      want_camera: bool = False) -> dict[str, Any]:
-    """Vector-Jacobian product of `project` (with the same `mode` and `antialiased`).
+    """Vector-Jacobian product of `project` (with the same `mode`, `antialiased` and `dilation`).
 
     Returns a dict with the gradients of "means", "log_scales", "quats", "opacity_logits" and
     "sh", each shaped like the parameter, in the kind of g's inputs (NumPy or wp.array). With
@@ -580,6 +585,7 @@ def project_backward(g: GaussianInputs, camera: SplatCamera, radii: Any, grad_me
     (docs/warp.md, section 2).
     """
     mid = mode_id(mode)
+    s = dilation_of(mode, dilation, antialiased)
     deg = sh_degree_of(tuple(g.sh.shape), sh_degree)
     n = g.n
     a = g.inputs()
@@ -595,8 +601,8 @@ def project_backward(g: GaussianInputs, camera: SplatCamera, radii: Any, grad_me
     rows = a.zeros((max(n, 1) if want_camera else 1, 10))
     a.launch(_project_backward_kernel, n,
              [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, camera.width, camera.height, deg,
-              mid, int(bool(antialiased)), r, gm, gc, gd, gcol, go, out["means"], out["log_scales"], out["quats"],
-              out["opacity_logits"], out["sh"], int(bool(want_camera)), rows], min_chunk=MIN_CHUNK)
+              mid, wp.float64(s), int(bool(antialiased)), r, gm, gc, gd, gcol, go, out["means"], out["log_scales"],
+              out["quats"], out["opacity_logits"], out["sh"], int(bool(want_camera)), rows], min_chunk=MIN_CHUNK)
     result = {k: a.out(v) for k, v in out.items()}
     if want_camera:
         total = rows.numpy()[:n].sum(axis=0, dtype=np.float64).astype(a.np_dtype)

@@ -19,7 +19,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.splat.camera import SplatCamera
-from kernels.splat.modes import DEFAULT_MODE, mode_id
+from kernels.splat.modes import DEFAULT_MODE, dilation_of, mode_id
 from kernels.splat.projection import GaussianInputs, Projection, project_backward, project_wp, sh_degree_of
 from kernels.splat.raster import Raster, background_array, rasterize_backward_wp, rasterize_wp
 from kernels.splat.tiles import Splats2D, Tiles
@@ -44,6 +44,7 @@ class Render:
     sh_degree: int
     antialiased: bool
     mode: str = DEFAULT_MODE
+    dilation: float | None = None  # the low-pass dilation (px^2); None: the mode's (kernels/splat/modes.py)
 
 
 def _splats_2d(g: GaussianInputs, proj: Projection) -> Splats2D:
@@ -52,11 +53,13 @@ def _splats_2d(g: GaussianInputs, proj: Projection) -> Splats2D:
 
 
 def render(g: GaussianInputs, camera: SplatCamera, background: Any = None, *, sh_degree: int | None = None,
-           antialiased: bool = False, mode: str = DEFAULT_MODE) -> Render:
+           antialiased: bool = False, mode: str = DEFAULT_MODE, dilation: float | None = None) -> Render:
     """Project, bin, sort and rasterise: rgb (H, W, 3), alpha (H, W), depth (H, W), following `mode`
     ("3dgs" or "gsplat", kernels/splat/modes.py); `antialiased` multiplies the opacities by that
-    mode's Mip-Splatting compensation."""
+    mode's Mip-Splatting compensation; `dilation` replaces the mode's low-pass dilation 0.3 px^2 of every
+    projected covariance (None keeps it)."""
     mode_id(mode)
+    dilation_of(mode, dilation, antialiased)
     if not isinstance(g, GaussianInputs):
         raise ValueError(f"g: expected GaussianInputs (kernels.splat.gaussian_inputs), got {type(g).__name__}")
     if not isinstance(camera, SplatCamera):
@@ -64,10 +67,10 @@ def render(g: GaussianInputs, camera: SplatCamera, background: Any = None, *, sh
     deg = sh_degree_of(tuple(g.sh.shape), sh_degree)
     a = g.inputs()
     bg = background_array(a, background)
-    proj = project_wp(g, camera, deg, antialiased, mode)
+    proj = project_wp(g, camera, deg, antialiased, mode, dilation)
     raster, tiles = rasterize_wp(_splats_2d(g, proj), camera.width, camera.height, bg, None, mode)
     return Render(a.out(raster.rgb), a.out(raster.alpha), a.out(raster.depth), proj, tiles, raster, camera, bg, deg,
-                  bool(antialiased), mode)
+                  bool(antialiased), mode, dilation)
 
 
 def render_backward(g: GaussianInputs, result: Render, grad_rgb: Any, grad_alpha: Any = None,
@@ -90,7 +93,7 @@ def render_backward(g: GaussianInputs, result: Render, grad_rgb: Any, grad_alpha
     with A.value_checks(False):  # the screen-space gradients were computed here from checked inputs
         g3 = project_backward(g, cam, proj.radii, g2["means2d"], g2["conics"], g2["depths"], g2["colors"],
                               g2["opacities"], sh_degree=result.sh_degree, antialiased=result.antialiased,
-                              mode=result.mode, want_camera=want_camera)
+                              mode=result.mode, dilation=result.dilation, want_camera=want_camera)
     g3["background"] = a.out(g2["background"])
     g3["means2d"] = a.out(g2["means2d"])
     return g3

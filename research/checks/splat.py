@@ -137,10 +137,10 @@ def _pixel_margins(m2: np.ndarray, conic: np.ndarray, opac: np.ndarray, order: l
 
 
 def discontinuity_margins(scene: Scene, sh_degree: int | None = None, antialiased: bool = False,
-                          mode: str = ks.DEFAULT_MODE) -> dict[str, float]:
+                          mode: str = ks.DEFAULT_MODE, dilation: float | None = None) -> dict[str, float]:
     """Distances of `scene` from every discontinuity of the forward (module docstring)."""
     g = ks.gaussian_inputs(*(scene.params[k] for k in PARAMS))
-    proj = ks.project(g, scene.camera, sh_degree=sh_degree, antialiased=antialiased, mode=mode)
+    proj = ks.project(g, scene.camera, sh_degree=sh_degree, antialiased=antialiased, mode=mode, dilation=dilation)
     m2, conic, depth = proj.means2d, proj.conics, proj.depths
     radii, opac = proj.radii, proj.opacities
     cam = scene.camera
@@ -238,13 +238,13 @@ def margins_ok(m: dict[str, float], require_events: bool = False, mode: str = ks
 
 
 def smooth_scene(seed: int, *, antialiased: bool = False, sh_degree: int | None = None, require_events: bool = False,
-                 mode: str = ks.DEFAULT_MODE, **kwargs) -> Scene:
+                 mode: str = ks.DEFAULT_MODE, dilation: float | None = None, **kwargs) -> Scene:
     """The first scene from `seed`'s stream that is at least the margins away from every discontinuity
     (and, with `require_events`, blends a splat at the 0.99 clamp and stops some pixel at T < 1e-4)."""
     rng = np.random.default_rng(seed)
     for _ in range(MAX_REDRAWS):
         scene = random_scene(rng, **kwargs)
-        if margins_ok(discontinuity_margins(scene, sh_degree, antialiased, mode), require_events, mode):
+        if margins_ok(discontinuity_margins(scene, sh_degree, antialiased, mode, dilation), require_events, mode):
             return scene
     raise RuntimeError(f"no scene clear of the discontinuities in {MAX_REDRAWS} draws (seed {seed})")
 
@@ -252,18 +252,20 @@ def smooth_scene(seed: int, *, antialiased: bool = False, sh_degree: int | None 
 # ----------------------------------------------------------------------------- stage functions
 
 
-def project_fn(camera: ks.SplatCamera, sh_degree: int | None, antialiased: bool, mode: str = ks.DEFAULT_MODE):
+def project_fn(camera: ks.SplatCamera, sh_degree: int | None, antialiased: bool, mode: str = ks.DEFAULT_MODE,
+               dilation: float | None = None):
     def f(means, log_scales, quats, opacity_logits, sh):
         g = ks.gaussian_inputs(means, log_scales, quats, opacity_logits, sh)
-        p = ks.project(g, camera, sh_degree=sh_degree, antialiased=antialiased, mode=mode)
+        p = ks.project(g, camera, sh_degree=sh_degree, antialiased=antialiased, mode=mode, dilation=dilation)
         return {"means2d": p.means2d, "conics": p.conics, "depths": p.depths, "colors": p.colors,
                 "opacities": p.opacities}
 
     def vjp(inputs, cot):
         g = ks.gaussian_inputs(*(inputs[k] for k in PARAMS))
-        p = ks.project(g, camera, sh_degree=sh_degree, antialiased=antialiased, mode=mode)
+        p = ks.project(g, camera, sh_degree=sh_degree, antialiased=antialiased, mode=mode, dilation=dilation)
         grads = ks.project_backward(g, camera, p.radii, cot["means2d"], cot["conics"], cot["depths"], cot["colors"],
-                                    cot["opacities"], sh_degree=sh_degree, antialiased=antialiased, mode=mode)
+                                    cot["opacities"], sh_degree=sh_degree, antialiased=antialiased, mode=mode,
+                                    dilation=dilation)
         return grads
 
     return f, vjp
@@ -285,15 +287,18 @@ def rasterize_fn(radii: np.ndarray, width: int, height: int, mode: str = ks.DEFA
     return f, vjp
 
 
-def render_fn(camera: ks.SplatCamera, sh_degree: int | None, antialiased: bool, mode: str = ks.DEFAULT_MODE):
+def render_fn(camera: ks.SplatCamera, sh_degree: int | None, antialiased: bool, mode: str = ks.DEFAULT_MODE,
+              dilation: float | None = None):
     def f(means, log_scales, quats, opacity_logits, sh, background):
         g = ks.gaussian_inputs(means, log_scales, quats, opacity_logits, sh)
-        r = ks.render(g, camera, background, sh_degree=sh_degree, antialiased=antialiased, mode=mode)
+        r = ks.render(g, camera, background, sh_degree=sh_degree, antialiased=antialiased, mode=mode,
+                      dilation=dilation)
         return {"rgb": r.rgb, "alpha": r.alpha, "depth": r.depth}
 
     def vjp(inputs, cot):
         g = ks.gaussian_inputs(*(inputs[k] for k in PARAMS))
-        r = ks.render(g, camera, inputs["background"], sh_degree=sh_degree, antialiased=antialiased, mode=mode)
+        r = ks.render(g, camera, inputs["background"], sh_degree=sh_degree, antialiased=antialiased, mode=mode,
+                      dilation=dilation)
         grads = ks.render_backward(g, r, cot["rgb"], cot["alpha"], cot["depth"])
         return {k: v for k, v in grads.items() if k != "means2d"}
 
@@ -303,15 +308,17 @@ def render_fn(camera: ks.SplatCamera, sh_degree: int | None, antialiased: bool, 
 # ----------------------------------------------------------------------------- checks
 
 
-def _tag(mode: str, antialiased: bool) -> str:
-    return f"{mode},{'aa' if antialiased else 'classic'}"
+def _tag(mode: str, antialiased: bool, dilation: float | None = None) -> str:
+    return f"{mode},{'aa' if antialiased else 'classic'}{'' if dilation is None else f',dilation={dilation:g}'}"
 
 
 def check_project(seed: int, antialiased: bool, sh_degree: int | None = None, off_frustum: bool = False,
-                  mode: str = ks.DEFAULT_MODE) -> list[GradcheckResult]:
-    scene = smooth_scene(seed, antialiased=antialiased, sh_degree=sh_degree, off_frustum=off_frustum, mode=mode)
-    f, vjp = project_fn(scene.camera, sh_degree, antialiased, mode)
-    name = f"splat.project[{_tag(mode, antialiased)},deg={sh_degree},seed={seed}{',off' if off_frustum else ''}]"
+                  mode: str = ks.DEFAULT_MODE, dilation: float | None = None) -> list[GradcheckResult]:
+    scene = smooth_scene(seed, antialiased=antialiased, sh_degree=sh_degree, off_frustum=off_frustum, mode=mode,
+                         dilation=dilation)
+    f, vjp = project_fn(scene.camera, sh_degree, antialiased, mode, dilation)
+    name = (f"splat.project[{_tag(mode, antialiased, dilation)},deg={sh_degree},seed={seed}"
+            f"{',off' if off_frustum else ''}]")
     return check_vjp(f, vjp, scene.params, seed=seed, name=name)
 
 
@@ -326,12 +333,12 @@ def check_rasterize(seed: int, mode: str = ks.DEFAULT_MODE) -> list[GradcheckRes
 
 
 def check_render(seed: int, antialiased: bool, big: int = 0, mode: str = ks.DEFAULT_MODE,
-                 off_frustum: bool = False) -> list[GradcheckResult]:
+                 off_frustum: bool = False, dilation: float | None = None) -> list[GradcheckResult]:
     scene = smooth_scene(seed, antialiased=antialiased, require_events=not antialiased, big=big, mode=mode,
-                         off_frustum=off_frustum)
-    f, vjp = render_fn(scene.camera, None, antialiased, mode)
+                         off_frustum=off_frustum, dilation=dilation)
+    f, vjp = render_fn(scene.camera, None, antialiased, mode, dilation)
     inputs = dict(scene.params, background=scene.background)
-    name = (f"splat.render[{_tag(mode, antialiased)},seed={seed}{f',big={big}' if big else ''}"
+    name = (f"splat.render[{_tag(mode, antialiased, dilation)},seed={seed}{f',big={big}' if big else ''}"
             f"{',off' if off_frustum else ''}]")
     return check_vjp(f, vjp, inputs, seed=seed, name=name)
 
@@ -347,6 +354,10 @@ def project_checks() -> list[GradcheckResult]:
     # gsplat's conventions (kernels/splat/modes.py), both with a splat beyond the frustum clamp.
     out += check_project(4, antialiased=False, off_frustum=True, mode="gsplat")
     out += check_project(5, antialiased=True, off_frustum=True, mode="gsplat")
+    # A non-default low-pass dilation (the `dilation` parameter, kernels/splat/modes.py), with and without
+    # the compensation that compares the covariance before and after it.
+    out += check_project(6, antialiased=True, dilation=0.1)
+    out += check_project(7, antialiased=False, dilation=0.0)
     return out
 
 
@@ -366,7 +377,7 @@ def render_checks() -> list[GradcheckResult]:
 # ----------------------------------------------------------------------------- camera gradients
 
 
-def camera_render_fn(scene: Scene, mode: str, antialiased: bool):
+def camera_render_fn(scene: Scene, mode: str, antialiased: bool, dilation: float | None = None):
     """The render as a function of the splats, a pose twist xi (6,) and the intrinsics (4,):
     camera = scene.camera with intrinsics (fx, fy, cx, cy), then viewmat <- exp(xi^) viewmat. Its
     VJP is render_backward(want_camera=True), the gradient at xi = 0: the checks pass xi = 0, where
@@ -376,13 +387,13 @@ def camera_render_fn(scene: Scene, mode: str, antialiased: bool):
     def f(means, log_scales, quats, opacity_logits, sh, xi, intrinsics):
         g = ks.gaussian_inputs(means, log_scales, quats, opacity_logits, sh)
         r = ks.render(g, base.with_intrinsics(*intrinsics).perturbed(xi), scene.background, mode=mode,
-                      antialiased=antialiased)
+                      antialiased=antialiased, dilation=dilation)
         return {"rgb": r.rgb, "alpha": r.alpha, "depth": r.depth}
 
     def vjp(inputs, cot):
         g = ks.gaussian_inputs(*(inputs[k] for k in PARAMS))
         cam = base.with_intrinsics(*inputs["intrinsics"]).perturbed(inputs["xi"])
-        r = ks.render(g, cam, scene.background, mode=mode, antialiased=antialiased)
+        r = ks.render(g, cam, scene.background, mode=mode, antialiased=antialiased, dilation=dilation)
         grads = ks.render_backward(g, r, cot["rgb"], cot["alpha"], cot["depth"], want_camera=True)
         return {**{k: grads[k] for k in PARAMS}, "xi": grads["pose"], "intrinsics": grads["intrinsics"]}
 
@@ -393,11 +404,12 @@ def _camera_inputs(scene: Scene) -> dict[str, np.ndarray]:
     return dict(scene.params, xi=np.zeros(6), intrinsics=scene.camera.params()[:4].copy())
 
 
-def check_camera(seed: int, mode: str, antialiased: bool, near_clamp: bool = True) -> list[GradcheckResult]:
+def check_camera(seed: int, mode: str, antialiased: bool, near_clamp: bool = True,
+                 dilation: float | None = None) -> list[GradcheckResult]:
     scene = smooth_scene(seed, antialiased=antialiased, require_events=not antialiased, mode=mode,
-                         near_clamp=mode if near_clamp else None)
-    f, vjp = camera_render_fn(scene, mode, antialiased)
-    name = f"splat.camera[{_tag(mode, antialiased)},seed={seed}{',near_clamp' if near_clamp else ''}]"
+                         near_clamp=mode if near_clamp else None, dilation=dilation)
+    f, vjp = camera_render_fn(scene, mode, antialiased, dilation)
+    name = f"splat.camera[{_tag(mode, antialiased, dilation)},seed={seed}{',near_clamp' if near_clamp else ''}]"
     return check_vjp(f, vjp, _camera_inputs(scene), seed=seed, name=name)
 
 
@@ -465,7 +477,9 @@ def check_depth_loss(seed: int, mode: str, kind: str) -> list[GradcheckResult]:
 def camera_checks() -> list[GradcheckResult]:
     # Pose (left se(3) twist) and intrinsics gradients of rgb, alpha and depth, beside the splats'.
     return (check_camera(0, "3dgs", False) + check_camera(1, "3dgs", True) + check_camera(2, "gsplat", False)
-            + check_camera(3, "gsplat", True, near_clamp=False))
+            + check_camera(3, "gsplat", True, near_clamp=False)
+            # The pose refinement's path with a non-default low-pass dilation (kernels/splat/modes.py).
+            + check_camera(4, "3dgs", True, dilation=0.1))
 
 
 @register_check("splat.depth_loss")

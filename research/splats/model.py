@@ -150,11 +150,13 @@ def splat_camera(camera: Camera, near: float = ks.DEFAULT_NEAR) -> ks.SplatCamer
 
 
 def render(model: GaussianModel, camera: Camera, *, sh_degree: int = 3, background=(0.0, 0.0, 0.0),
-           antialiased: bool = False, mode: str = ks.DEFAULT_MODE, device: Any = None) -> ks.Render:
+           antialiased: bool = False, mode: str = ks.DEFAULT_MODE, device: Any = None,
+           dilation: float | None = None) -> ks.Render:
     """Render `model` from a research Camera (float32) on `device` (None: the CPU); wp.array results.
-    `mode` picks the reference conventions ("3dgs", the default, or "gsplat"; kernels/splat/modes.py)."""
+    `mode` picks the reference conventions ("3dgs", the default, or "gsplat"; kernels/splat/modes.py),
+    `dilation` the low-pass dilation (None: the mode's)."""
     return ks.render(model.inputs(device), splat_camera(camera), np.asarray(background, dtype=np.float32),
-                     sh_degree=sh_degree, antialiased=antialiased, mode=mode)
+                     sh_degree=sh_degree, antialiased=antialiased, mode=mode, dilation=dilation)
 
 
 def scene_extent(cameras: list[Camera]) -> float:

@@ -152,17 +152,18 @@ class Evaluation:
 
 def evaluate(model: GaussianModel, cameras: list[Camera], images: np.ndarray, sh_degree: int,
              background=(0.0, 0.0, 0.0), antialiased: bool = False, device: Any = None,
-             mode: str = ks.DEFAULT_MODE) -> Evaluation:
+             mode: str = ks.DEFAULT_MODE, dilation: float | None = None) -> Evaluation:
     """PSNR and SSIM (research.metrics) of renders against `images` (linear RGB, premultiplied on black).
 
     Both images are compared as research.metrics.EVAL_PROTOCOL says (clipped to [0, 1], then
-    sRGB-encoded); the linear-space PSNR is reported beside it. Renders run on `device`.
+    sRGB-encoded); the linear-space PSNR is reported beside it. Renders run on `device`, with the low-pass
+    `dilation` of kernels.splat.render (None: the mode's).
     """
     _check_views(cameras, images)
     renders, per_view = [], []
     for cam, gt in zip(cameras, images):
         img = render(model, cam, sh_degree=sh_degree, background=background, antialiased=antialiased,
-                     mode=mode, device=device).rgb.numpy()
+                     mode=mode, device=device, dilation=dilation).rgb.numpy()
         a, b = metrics.srgb_on_black(img), metrics.srgb_on_black(gt)
         per_view.append({"psnr": metrics.psnr(a, b), "ssim": metrics.ssim(a, b),
                          "psnr_linear": metrics.psnr(np.clip(img, 0, 1), np.clip(gt, 0, 1))})

@@ -125,6 +125,13 @@ BAD_CALLS = {
     "tiles_of_another_mode": (lambda: ks.rasterize(_splats_2d()(), W, H, tiles=ks.bin_tiles(_splats_2d()(), W, H,
                                                                                             "gsplat")),
                               r"^tiles: binned with mode='gsplat', expected mode='3dgs'"),
+    "dilation_negative": (_render_call(dilation=-0.1), r"^dilation: expected a finite number >= 0"),
+    "dilation_nan": (_render_call(dilation=float("nan")), r"^dilation: expected a finite number >= 0"),
+    "dilation_string": (_render_call(dilation="0.3"), r"^dilation: expected a finite number >= 0"),
+    "dilation_0_antialiased": (_render_call(dilation=0.0, antialiased=True), r"^dilation: expected > 0 with "
+                                                                             r"antialiased=True"),
+    "project_dilation_inf": (lambda: ks.project(ks.gaussian_inputs(**_params()), _camera(), dilation=float("inf")),
+                             r"^dilation"),
     "camera_width_0": (lambda: _camera(width=0), r"^width"),
     "camera_near_negative": (lambda: _camera(near=-1.0), r"^near, far: expected 0 < near < far"),
     "camera_skew": (lambda: _camera(K=np.array([[40.0, 1.0, 16], [0, 40.0, 12], [0, 0, 1]])), r"^K: expected"),

@@ -39,6 +39,46 @@ def test_project_matches_reference(dtype, antialiased):
         np.testing.assert_allclose(got, want[key], **TOL[dtype], err_msg=key)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("mode, antialiased, dilation", [("3dgs", True, 0.1), ("3dgs", False, 0.0),
+                                                          ("gsplat", True, 0.05)])
+def test_project_and_render_match_reference_with_another_dilation(dtype, mode, antialiased, dilation):
+    """The `dilation` parameter replaces the 0.3 px^2 low-pass in the conic, the radius and the
+    compensation, as the NumPy reference does; and it changes them (not a no-op)."""
+    scene = cs.smooth_scene(9, antialiased=antialiased, mode=mode, dilation=dilation)
+    params = as_dtype(scene.params, dtype)
+    p64 = {k: v.astype(np.float64) for k, v in params.items()}
+    want = ref.project(p64, scene.camera, antialiased=antialiased, mode=mode, dilation=dilation)
+    g = ks.gaussian_inputs(*(params[k] for k in PARAMS))
+    p = ks.project(g, scene.camera, antialiased=antialiased, mode=mode, dilation=dilation)
+    np.testing.assert_array_equal(p.radii, want["radii"])
+    assert (want["radii"] > 0).sum() >= 10
+    for key in ("means2d", "conics", "depths", "colors", "opacities"):
+        np.testing.assert_allclose(getattr(p, key), want[key], **TOL[dtype], err_msg=key)
+    default = ref.project(p64, scene.camera, antialiased=antialiased, mode=mode)
+    vis = want["radii"] > 0
+    trace = want["conics"][vis][:, [0, 2]].sum(axis=1)  # a smaller dilation: a larger inverse covariance
+    assert np.all(trace > default["conics"][vis][:, [0, 2]].sum(axis=1) * (1 + 1e-4))
+    r = ks.render(g, scene.camera, scene.background.astype(dtype), antialiased=antialiased, mode=mode,
+                  dilation=dilation)
+    want_img = ref.render(p64, scene.camera, scene.background, antialiased=antialiased, mode=mode,
+                          dilation=dilation)
+    for got, w in zip((r.rgb, r.alpha, r.depth), want_img):
+        np.testing.assert_allclose(got, w, **TOL[dtype])
+
+
+def test_default_dilation_is_the_modes():
+    """dilation=None and dilation=0.3 give bit-identical projections (the default is unchanged)."""
+    scene = cs.smooth_scene(5, antialiased=True, off_frustum=True)
+    g = ks.gaussian_inputs(*(as_dtype(scene.params, np.float32)[k] for k in PARAMS))
+    for mode in ks.MODES:
+        assert ks.DILATION_OF[mode] == ks.DILATION == 0.3
+        a = ks.project(g, scene.camera, antialiased=True, mode=mode)
+        b = ks.project(g, scene.camera, antialiased=True, mode=mode, dilation=0.3)
+        for key in ("means2d", "conics", "depths", "radii", "colors", "opacities"):
+            np.testing.assert_array_equal(getattr(a, key), getattr(b, key), err_msg=key)
+
+
 def test_project_sh_degree_and_culling():
     rng = np.random.default_rng(3)
     scene = cs.random_scene(rng)

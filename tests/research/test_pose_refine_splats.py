@@ -113,8 +113,12 @@ def test_bad_inputs_one_line(kw, message):
 @pytest.mark.parametrize("kw,message", [({"iterations": 0}, "iterations: expected an integer >= 1"),
                                         ({"blur_until": 2.0}, r"blur_until: expected a fraction in \[0, 1\]"),
                                         ({"pose_lr_rot": -1.0}, "pose_lr_rot: expected a finite value >= 0"),
-                                        ({"depth_weight": float("nan")}, "depth_weight: expected a finite value")],
-                         ids=["iterations-zero", "blur-until-2", "pose-lr-negative", "depth-weight-nan"])
+                                        ({"depth_weight": float("nan")}, "depth_weight: expected a finite value"),
+                                        ({"dilation": -0.1}, "dilation: expected a finite number >= 0"),
+                                        ({"dilation": 0.0, "antialiased": True},
+                                         "dilation: expected > 0 with antialiased=True")],
+                         ids=["iterations-zero", "blur-until-2", "pose-lr-negative", "depth-weight-nan",
+                              "dilation-negative", "dilation-0-antialiased"])
 def test_bad_config_one_line(kw, message):
     with pytest.raises(ValueError, match=message):
         SplatJointConfig(**kw)
@@ -136,6 +140,7 @@ def test_experiment_smoke_splats(tmp_path):
     # is already 1.2e-6 deg, and the Sim(3) alignment's SVD rounds at that level
     assert m["runs"]["gt"]["errors"]["rot_max_deg"] < 1e-5
     assert m["model"] == "splats" and m["joint"]["refine_poses"]  # the default model
+    assert m["joint"]["dilation"] == pose_refinement.SPLAT_DILATION and m["joint"]["antialiased"]
     for run in ("refined", "refined_rgbd"):  # the poses moved
         assert m["runs"][run]["errors"]["rot_max_deg"] != m["errors_before"]["rot_max_deg"]
     assert m["depth_weight_rgbd"] > 0 and m["runs"]["refined"]["final_loss"] != m["runs"]["refined_rgbd"]["final_loss"]

@@ -1,4 +1,4 @@
-"""Reliability of `python -m experiments.pose_refinement`: bad perturbation sizes and depth weights exit 2 with
+"""Reliability of `python -m experiments.pose_refinement`: bad perturbation sizes, depth weights and dilations exit 2 with
 one line naming the option, before any dataset is rendered or results folder created."""
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ CASES = [
     ("depth-negative", ["--depth-weight", "-1"], r"--depth-weight: expected a finite value >= 0"),
     ("depth-inf", ["--depth-weight", "inf"], r"--depth-weight: expected a finite value >= 0"),
     ("model-unknown", ["--model", "nerf"], r"--model: invalid choice: 'nerf'"),
+    ("dilation-zero", ["--dilation", "0"], r"--dilation: expected a finite value > 0 px\^2, got 0.0"),
+    ("dilation-nan", ["--dilation", "nan"], r"--dilation: expected a finite value > 0 px\^2"),
 ]
 
 
