@@ -157,8 +157,9 @@ register_experiment(
 
 register_experiment(
     "pose_refinement",
-    "BARF-style pose refinement: a voxel grid and the training poses (perturbed 5 degrees, 5% of the radius) "
-    "fitted jointly from the volume renderer's camera gradients: pose errors before/after, test PSNR vs fixed poses.",
+    "BARF-style pose refinement: Gaussian splats (default; or a voxel grid) and the training poses (perturbed "
+    "5 degrees, 5% of the radius) fitted jointly from the renderer's camera gradients, RGB and RGB-D: pose errors "
+    "before/after, test PSNR vs fixed and ground-truth poses.",
     quick_budget_s=600,
 )
 
