@@ -200,6 +200,9 @@ def add_options(p) -> None:
                    help="splat iterations per fit (default 600; quick 300; smoke 30)")
     p.add_argument("--matcher", choices=["exhaustive", "sequential"], default="exhaustive",
                    help="SfM matching (default exhaustive; sequential matches each view with the next 10)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="SfM threads (default 1: reproducible; -1, every core, is faster but COLMAP's matching and "
+                        "mapping then vary from run to run)")
 
 
 def run(ctx: Context) -> int:
@@ -218,13 +221,15 @@ def run(ctx: Context) -> int:
     if cfg.res % cfg.fit_factor or cfg.res < 16 * cfg.fit_factor:  # splats fit at res / fit_factor >= 16 (SSIM)
         raise ValueError(f"--res: expected a multiple of {cfg.fit_factor}, at least {16 * cfg.fit_factor}, got "
                          f"{cfg.res}")
+    # built (and so checked) before any render or folder
+    opts = sfm.SfmOptions(matcher=args.matcher, shared_camera=True, camera_model="SIMPLE_PINHOLE",
+                          seed=ctx.seed % 2**31, threads=args.threads,
+                          min_registered=max(8, cfg.views // 2))
+    opts.validate()
     suffix = "" if ctx.mode == "full" else "-" + ctx.mode
     root = (ctx.data / f"sfm_poses-{SCENE}{suffix}").absolute()
 
     gt_all = render_capture(cfg, root, ctx.seed, ctx)
-    opts = sfm.SfmOptions(matcher=args.matcher, shared_camera=True, camera_model="SIMPLE_PINHOLE",
-                          seed=ctx.seed % 2**31,
-                          min_registered=max(8, cfg.views // 2))
     result = sfm.run_sfm(root / "images", root / "sfm", opts, force=True, progress=ctx.progress)
     ds = load_colmap(root / "sfm", factor=1)
     index = {f"v_{k:03d}.png": k for k in range(cfg.views)}

@@ -523,7 +523,8 @@ def build_parser() -> argparse.ArgumentParser:
     sf.add_argument("--min-registered", type=int, default=None,
                     help="fewest registered images accepted (default: half of them, at least 3)")
     sf.add_argument("--max-features", type=int, default=8192, help="SIFT features per image (default 8192)")
-    sf.add_argument("--threads", type=int, default=-1, help="CPU threads (default -1: every core)")
+    sf.add_argument("--threads", type=int, default=-1,
+                    help="CPU threads (default -1: every core; COLMAP's matching and mapping then vary from run to run, 1 thread is reproducible)")
     sf.add_argument("--seed", type=seed_value, default=0, help="the mapper's random seed (default 0)")
     sf.add_argument("--force", action="store_true", help="replace --out when it is a previous `drlab sfm` output")
     sf.add_argument("--verbose", action="store_true", help="show COLMAP's own log (hidden by default)")

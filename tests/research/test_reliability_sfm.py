@@ -81,10 +81,11 @@ EXPERIMENT_CASES = [
     (["--views", "4"], "--views: expected an integer >= 8, got 4"),
     (["--res", "100"], "--res: expected a multiple of 8, at least 128, got 100"),
     (["--iterations", "0"], "--iterations: expected an integer >= 1, got 0"),
+    (["--threads", "0"], "--threads: expected -1 (every core) or an integer >= 1, got 0"),
 ]
 
 
-@pytest.mark.parametrize("extra, message", EXPERIMENT_CASES, ids=["views", "res", "iterations"])
+@pytest.mark.parametrize("extra, message", EXPERIMENT_CASES, ids=["views", "res", "iterations", "threads"])
 def test_sfm_poses_bad_options_before_any_render(tmp_path, capsys, monkeypatch, extra, message):
     from experiments import sfm_poses
 
