@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -183,6 +185,31 @@ def _local_instance_on_loopback() -> None:
         ray_constants.ENABLE_RAY_CLUSTER = False
 
 
+def _remove_after_exit(folder: str, wait_s: float = 20.0) -> None:
+    """Remove a local instance's session folder once no process names it (raylet, GCS server and
+    workers exit shortly after ray.shutdown returns), waiting at most `wait_s`."""
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline and _processes_naming(folder):
+        time.sleep(0.2)
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+def _processes_naming(text: str) -> bool:
+    """Whether a process other than this one has `text` in its command line (Linux /proc; elsewhere False)."""
+    proc = Path("/proc")
+    if not proc.is_dir():
+        return False
+    for entry in proc.iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if text.encode() in (entry / "cmdline").read_bytes():
+                return True
+        except OSError:
+            continue
+    return False
+
+
 def ray_session(opts: RayOptions):
     """Context manager: connect to `opts.address` or start a bounded local Ray instance; shut down after.
 
@@ -211,10 +238,17 @@ def ray_session(opts: RayOptions):
             saved = os.environ.get("PYTHONPATH")
             if registry.in_checkout():
                 os.environ["PYTHONPATH"] = os.pathsep.join([str(registry.REPO_ROOT)] + ([saved] if saved else []))
+            # Without a session folder of the caller's, the instance gets its own, removed after it stops
+            # (Ray's default, /tmp/ray, keeps every session's logs and sockets).
+            own_folder = None if opts.temp_dir else tempfile.mkdtemp(prefix="drlab-ray-", dir="/tmp")
             try:
                 ray.init(num_cpus=opts.num_cpus, include_dashboard=False, _node_ip_address="127.0.0.1",
-                         log_to_driver=False, logging_level="ERROR", _temp_dir=opts.temp_dir,
+                         log_to_driver=False, logging_level="ERROR", _temp_dir=opts.temp_dir or own_folder,
                          configure_logging=True)
+            except BaseException:
+                if own_folder:
+                    shutil.rmtree(own_folder, ignore_errors=True)
+                raise
             finally:
                 if saved is None:
                     os.environ.pop("PYTHONPATH", None)
@@ -224,6 +258,8 @@ def ray_session(opts: RayOptions):
             yield ray
         finally:
             ray.shutdown()
+            if not opts.address and own_folder:
+                _remove_after_exit(own_folder)
 
     return session()
 

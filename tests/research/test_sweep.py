@@ -430,3 +430,18 @@ def test_local_ray_instance_listens_on_the_loopback_address_only(ray_instance):
     assert sockets, "found no listening socket of the Ray instance (GCS server, raylet)"
     assert all(addr in _LOOPBACK_HEX for _, addr in sockets), \
         f"Ray listens beyond the loopback interface: {sorted(set(a for _, a in sockets) - _LOOPBACK_HEX)}"
+
+
+def test_command_line_ray_sweep_leaves_no_session_folder_or_process(tmp_path):
+    """`drlab sweep --ray` starts its instance in a session folder of its own and removes it once the
+    instance's processes have exited (Ray's default, /tmp/ray, would keep every session)."""
+    pytest.importorskip("ray")
+    before = set(Path("/tmp").glob("drlab-ray-*"))
+    ray_default = set(Path("/tmp/ray").glob("session_2*")) if Path("/tmp/ray").is_dir() else set()
+    proc = subprocess.run([sys.executable, "-m", "research.cli", "sweep", str(_spec(tmp_path, "kr")), "--ray",
+                           "--jobs", "2", "--results", str(tmp_path / "results"), "--no-progress"],
+                          env=_env(), cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    new = set(Path("/tmp").glob("drlab-ray-*")) - before
+    assert not new, f"session folders left: {sorted(new)}"
+    assert (set(Path("/tmp/ray").glob("session_2*")) if Path("/tmp/ray").is_dir() else set()) <= ray_default
