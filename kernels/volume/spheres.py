@@ -229,6 +229,25 @@ def _spheres_forward_kernel(
     out_rgb[i, 2] = nb
 
 
+@wp.func
+def _blend_sample(T: typing.Any, cr: typing.Any, cg: typing.Any, cb: typing.Any, dep: typing.Any, sig: typing.Any,
+                  nr: typing.Any, ng: typing.Any, nb: typing.Any, tk: typing.Any, dk: typing.Any):
+    """One front-to-back step of the dense renders: alpha = 1 - exp(-sigma delta), weight T alpha."""
+    e = wp.exp(-sig * dk)
+    w = T * (type(T)(1.0) - e)
+    return T * e, cr + w * nr, cg + w * ng, cb + w * nb, dep + w * tk
+
+
+@wp.func
+def _write_pixel(out_rgb: wp.array(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
+                 out_opacity: wp.array(dtype=typing.Any), r: int, background: wp.array(dtype=typing.Any),
+                 T: typing.Any, cr: typing.Any, cg: typing.Any, cb: typing.Any, dep: typing.Any):
+    bg = background[0]
+    out_rgb[r] = type(bg)(cr + T * bg[0], cg + T * bg[1], cb + T * bg[2])
+    out_depth[r] = dep
+    out_opacity[r] = type(T)(1.0) - T
+
+
 @wp.kernel
 def _spheres_render_dense_kernel(
     origins: wp.array(dtype=typing.Any), dirs: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
@@ -257,17 +276,8 @@ def _spheres_render_dense_kernel(
         sy = tk * dr[1]
         sz = tk * dr[2]
         sig, nr, ng, nb = spheres_at_packed(o[0] + sx, o[1] + sy, o[2] + sz, geometry, appearance)
-        e = wp.exp(-sig * delta[r, j])
-        w = T * (one - e)
-        cr += w * nr
-        cg += w * ng
-        cb += w * nb
-        dep += w * tk
-        T = T * e
-    bg = background[0]
-    out_rgb[r] = type(bg)(cr + T * bg[0], cg + T * bg[1], cb + T * bg[2])
-    out_depth[r] = dep
-    out_opacity[r] = one - T
+        T, cr, cg, cb, dep = _blend_sample(T, cr, cg, cb, dep, sig, nr, ng, nb, tk, delta[r, j])
+    _write_pixel(out_rgb, out_depth, out_opacity, r, background, T, cr, cg, cb, dep)
 
 
 @wp.kernel
@@ -312,18 +322,8 @@ def _spheres_dense_composite_kernel(
         if T < t_threshold:
             break
         sig, nr, ng, nb = spheres_from_falloff(falloff, (q * n_s + j) * appearance.shape[0], appearance)
-        tk = t[r, j]
-        e = wp.exp(-sig * delta[r, j])
-        w = T * (one - e)
-        cr += w * nr
-        cg += w * ng
-        cb += w * nb
-        dep += w * tk
-        T = T * e
-    bg = background[0]
-    out_rgb[r] = type(bg)(cr + T * bg[0], cg + T * bg[1], cb + T * bg[2])
-    out_depth[r] = dep
-    out_opacity[r] = one - T
+        T, cr, cg, cb, dep = _blend_sample(T, cr, cg, cb, dep, sig, nr, ng, nb, t[r, j], delta[r, j])
+    _write_pixel(out_rgb, out_depth, out_opacity, r, background, T, cr, cg, cb, dep)
 
 
 @wp.kernel
