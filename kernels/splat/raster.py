@@ -45,8 +45,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
-from kernels.splat.tiles import (TILE, TILE_PIXELS, Splats2D, Tiles, band_columns, bin_tiles, ceil_in, floor_in,
-                                 span_rows)
+from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles, pixel_span
 
 wp.set_module_options({"enable_backward": False})
 
@@ -107,17 +106,8 @@ def _raster_forward_kernel(
         c1 = packed[g, 9]
         c2 = packed[g, 10]
         # The splat's rows inside its widened 1/255 ellipse in this tile, and the columns of any of
-        # those rows (tiles.py: span_rows, band_columns).
-        row0 = y_lo
-        row1 = y_hi
-        col0 = x_lo
-        col1 = x_hi
-        if packed[g, 14] >= zero:
-            row0, row1 = span_rows(packed, g, y_lo, y_hi)
-            if row1 > row0:
-                left, right = band_columns(packed, g, row0, row1 - 1)
-                col0 = ceil_in(left, x_lo, x_hi)
-                col1 = floor_in(right, x_lo - 1, x_hi - 1) + 1
+        # those rows (tiles.py: pixel_span).
+        row0, row1, col0, col1 = pixel_span(packed, g, x_lo, x_hi, y_lo, y_hi)
         for py in range(row0, row1):
             pyf = packed.dtype(float(py)) + half
             for px in range(col0, col1):
@@ -295,16 +285,7 @@ def _raster_backward_tile_kernel(
         a7 = zero
         a8 = zero
         a9 = zero
-        row0 = y_lo
-        row1 = y_hi
-        col0 = x_lo
-        col1 = x_hi
-        if packed[g, 14] >= zero:
-            row0, row1 = span_rows(packed, g, y_lo, y_hi)
-            if row1 > row0:
-                left, right = band_columns(packed, g, row0, row1 - 1)
-                col0 = ceil_in(left, x_lo, x_hi)
-                col1 = floor_in(right, x_lo - 1, x_hi - 1) + 1
+        row0, row1, col0, col1 = pixel_span(packed, g, x_lo, x_hi, y_lo, y_hi)
         for py in range(row0, row1):
             pyf = packed.dtype(float(py)) + half
             for px in range(col0, col1):

@@ -131,6 +131,24 @@ def span_rows(packed: wp.array2d(dtype=Any), i: int, lo: int, hi: int):
     return ceil_in(v - hy - h, lo, hi), floor_in(v + hy - h, lo - 1, hi - 1) + 1
 
 
+
+@wp.func
+def pixel_span(packed: wp.array2d(dtype=Any), i: int, x_lo: int, x_hi: int, y_lo: int, y_hi: int):
+    """The pixel box [col0, col1) x [row0, row1) of the tile [x_lo, x_hi) x [y_lo, y_hi) that splat i can
+    reach: the rows of its spans and the columns of any of those rows (span_rows, band_columns); the
+    whole tile when the splat has no spans (packed[i, 14] < 0)."""
+    row0 = y_lo
+    row1 = y_hi
+    col0 = x_lo
+    col1 = x_hi
+    if packed[i, 14] >= packed.dtype(0.0):
+        row0, row1 = span_rows(packed, i, y_lo, y_hi)
+        if row1 > row0:
+            left, right = band_columns(packed, i, row0, row1 - 1)
+            col0 = ceil_in(left, x_lo, x_hi)
+            col1 = floor_in(right, x_lo - 1, x_hi - 1) + 1
+    return row0, row1, col0, col1
+
 @wp.kernel
 def _tile_counts_kernel(
     means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), colors: wp.array2d(dtype=Any),
