@@ -57,7 +57,6 @@ def _wta_pixel(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing
                subpixel: int, uniqueness: wp.float64):
     """(disparity, valid) of the left pixel (x, y): the first minimum, its checks and its parabola, in
     `disp`'s float type (a uint16 volume's costs are converted exactly)."""
-    W = cost.shape[1]
     D = cost.shape[2]
     best = int(0)
     cbest = disp.dtype(cost[y, x, 0])
@@ -66,6 +65,16 @@ def _wta_pixel(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing
         if c < cbest:
             cbest = c
             best = k
+    return _left_pixel(cost, disp, y, x, best, cbest, D, dmin, subpixel, uniqueness)
+
+
+@wp.func
+def _left_pixel(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing.Any), y: int, x: int, best: int,
+                cbest: typing.Any, D: int, dmin: int, subpixel: int, uniqueness: wp.float64):
+    """(disparity, valid) of the left pixel (x, y) whose first minimum is hypothesis `best`, of cost `cbest`
+    in `disp`'s float type: the range test, the uniqueness test and the parabola, over the first D
+    hypotheses of `cost` (a padded volume holds more)."""
+    W = cost.shape[1]
     ok = int(1)
     d = dmin + best
     if x - d < 0 or x - d >= W:
@@ -83,10 +92,10 @@ def _wta_pixel(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing
 
 @wp.func
 def _right_pixel(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing.Any), y: int, xr: int, best: int,
-                 cbest: typing.Any, dmin: int, subpixel: int):
-    """(disparity, valid) of the right pixel xr whose first minimum is hypothesis `best` (-1: none in range)."""
+                 cbest: typing.Any, D: int, dmin: int, subpixel: int):
+    """(disparity, valid) of the right pixel xr whose first minimum is hypothesis `best` (-1: none in range),
+    over the first D hypotheses of `cost` (a padded volume holds more)."""
     W = cost.shape[1]
-    D = cost.shape[2]
     out = disp.dtype(0.0)
     ok = int(0)
     if best >= 0:
@@ -124,7 +133,7 @@ def _wta_right(cost: wp.array3d(dtype=typing.Any), disp: wp.array2d(dtype=typing
             if best < 0 or c < cbest:
                 cbest = c
                 best = k
-    d, ok = _right_pixel(cost, disp, y, xr, best, cbest, dmin, subpixel)
+    d, ok = _right_pixel(cost, disp, y, xr, best, cbest, D, dmin, subpixel)
     disp[y, xr] = d
     valid[y, xr] = wp.uint8(ok)
 
@@ -155,7 +164,7 @@ def _wta_rows(cost: wp.array3d(dtype=typing.Any), disp_l: wp.array2d(dtype=typin
         disp_l[y, x] = d
         valid_l[y, x] = wp.uint8(ok)
     for xr in range(W):
-        d, ok = _right_pixel(cost, disp_r, y, xr, best_r[y, xr], disp_r[y, xr], dmin, subpixel)
+        d, ok = _right_pixel(cost, disp_r, y, xr, best_r[y, xr], disp_r[y, xr], cost.shape[2], dmin, subpixel)
         disp_r[y, xr] = d
         valid_r[y, xr] = wp.uint8(ok)
 
@@ -197,12 +206,12 @@ def _soft_argmin_backward(cost: wp.array3d(dtype=typing.Any), grad_disp: wp.arra
         grad_cost[y, x, k] = g * e * (d - cost.dtype(dmin + k))
 
 
-@wp.kernel
-def _left_right_check(disp_l: wp.array2d(dtype=typing.Any), valid_l: wp.array2d(dtype=wp.uint8),
-                      disp_r: wp.array2d(dtype=typing.Any), valid_r: wp.array2d(dtype=wp.uint8),
-                      out: wp.array2d(dtype=wp.uint8), max_diff: wp.float64, offset: int):
+@wp.func
+def _consistent(disp_l: wp.array2d(dtype=typing.Any), valid_l: wp.array2d(dtype=wp.uint8),
+                disp_r: wp.array2d(dtype=typing.Any), valid_r: wp.array2d(dtype=wp.uint8), y: int, x: int,
+                max_diff: wp.float64):
+    """1 if the left pixel (x, y) passes the left-right check (module docstring), else 0."""
     W = disp_l.shape[1]
-    y, x = pixel(wp.tid() + offset, W)
     dl = disp_l[y, x]
     ok = int(0)
     if valid_l[y, x] != wp.uint8(0):
@@ -211,7 +220,15 @@ def _left_right_check(disp_l: wp.array2d(dtype=typing.Any), valid_l: wp.array2d(
             if valid_r[y, xr] != wp.uint8(0):
                 if wp.abs(wp.float64(dl) - wp.float64(disp_r[y, xr])) <= max_diff:
                     ok = 1
-    out[y, x] = wp.uint8(ok)
+    return ok
+
+
+@wp.kernel
+def _left_right_check(disp_l: wp.array2d(dtype=typing.Any), valid_l: wp.array2d(dtype=wp.uint8),
+                      disp_r: wp.array2d(dtype=typing.Any), valid_r: wp.array2d(dtype=wp.uint8),
+                      out: wp.array2d(dtype=wp.uint8), max_diff: wp.float64, offset: int):
+    y, x = pixel(wp.tid() + offset, disp_l.shape[1])
+    out[y, x] = wp.uint8(_consistent(disp_l, valid_l, disp_r, valid_r, y, x, max_diff))
 
 
 @wp.kernel

@@ -41,7 +41,7 @@ import warp as wp
 from kernels._arrays import Inputs, check_float, check_int
 from kernels.stereo import disparity, sweep
 from kernels.stereo._common import check_dmin
-from kernels.stereo.disparity import _parabola
+from kernels.stereo.disparity import _consistent, _left_pixel, _right_pixel
 from kernels.stereo.sgm import _sweep_cpu, checked, sgm
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -87,49 +87,24 @@ def _rows(agg_v: wp.array(dtype=sweep.AGG_U16_VEC), agg: wp.array3d(dtype=wp.uin
         q = 4 * y
         kl = wp.min(wp.min(wp.min(lk4_v[q], lk4_v[q + 1]), wp.min(lk4_v[q + 2], lk4_v[q + 3])))
         best = int(kl % wp.uint32(65536))
-        # As disparity._wta_pixel: the range test, the uniqueness test, the parabola.
-        cbest = wp.float32(kl / wp.uint32(65536))
-        ok = int(1)
-        d = dmin + best
-        if x - d < 0 or x - d >= W:
-            ok = 0
-        if uniqueness > wp.float64(0.0):
-            keep = wp.float32(wp.float64(1.0) - uniqueness)
-            for k in range(D):
-                if (k < best - 1 or k > best + 1) and wp.float32(agg[y, x, k]) * keep < cbest:
-                    ok = 0
-        out = wp.float32(d)
-        if subpixel != 0 and best > 0 and best + 1 < D:
-            out = out + _parabola(wp.float32(agg[y, x, best - 1]), cbest, wp.float32(agg[y, x, best + 1]))
+        out, ok = _left_pixel(agg, disp_l, y, x, best, wp.float32(kl / wp.uint32(65536)), D, dmin, subpixel,
+                              uniqueness)
         disp_l[y, x] = out
         valid_l[y, x] = wp.uint8(ok)
     for xr in range(W):
-        # As disparity._right_pixel.
         kr = rk[r0 + M + W - 1 - xr]
-        out = wp.float32(0.0)
-        ok = int(0)
+        best = int(-1)
+        cbest = wp.float32(0.0)
         if kr != KEY_NONE_U32:
             best = int(kr % wp.uint32(65536))
             cbest = wp.float32(kr / wp.uint32(65536))
-            ok = 1
-            out = wp.float32(dmin + best)
-            xm = xr + dmin + best - 1
-            xp = xr + dmin + best + 1
-            if subpixel != 0 and best > 0 and best + 1 < D and xm >= 0 and xp < W:
-                out = out + _parabola(wp.float32(agg[y, xm, best - 1]), cbest, wp.float32(agg[y, xp, best + 1]))
+        out, ok = _right_pixel(agg, disp_r, y, xr, best, cbest, D, dmin, subpixel)
         disp_r[y, xr] = out
         valid_r[y, xr] = wp.uint8(ok)
     for x in range(W):
-        # As disparity._left_right_check.
         ok = int(valid_l[y, x])
-        if check != 0 and ok != 0:
-            dl = disp_l[y, x]
-            ok = 0
-            xr = int(wp.floor(wp.float64(x) - wp.float64(dl) + wp.float64(0.5)))
-            if xr >= 0 and xr < W:
-                if valid_r[y, xr] != wp.uint8(0):
-                    if wp.abs(wp.float64(dl) - wp.float64(disp_r[y, xr])) <= max_diff:
-                        ok = 1
+        if check != 0:
+            ok = _consistent(disp_l, valid_l, disp_r, valid_r, y, x, max_diff)
         valid[y, x] = wp.uint8(ok)
 
 
@@ -171,48 +146,25 @@ def _rows_float(agg_v: wp.array(dtype=typing.Any), agg: wp.array3d(dtype=typing.
         while agg[y, x, best] != cbest:
             best += 1
         cbest = agg[y, x, best]  # the first minimum's own value (-0.0 and 0.0 compare equal)
-        ok = int(1)
-        d = dmin + best
-        if x - d < 0 or x - d >= W:
-            ok = 0
-        if uniqueness > wp.float64(0.0):
-            keep = agg.dtype(wp.float64(1.0) - uniqueness)
-            for k in range(D):
-                if (k < best - 1 or k > best + 1) and agg[y, x, k] * keep < cbest:
-                    ok = 0
-        out = agg.dtype(d)
-        if subpixel != 0 and best > 0 and best + 1 < D:
-            out = out + _parabola(agg[y, x, best - 1], cbest, agg[y, x, best + 1])
+        out, ok = _left_pixel(agg, disp_l, y, x, best, cbest, D, dmin, subpixel, uniqueness)
         disp_l[y, x] = out
         valid_l[y, x] = wp.uint8(ok)
     for xr in range(W):
         cr = rv[r0 + M + W - 1 - xr]
-        out = agg.dtype(0.0)
-        ok = int(0)
+        best = int(-1)
         if cr != inf:
             # The first in-range k holding the minimum: x = xr + dmin + k >= 0.
             best = wp.max(0, -xr - dmin)
             while agg[y, xr + dmin + best, best] != cr:
                 best += 1
             cr = agg[y, xr + dmin + best, best]
-            ok = 1
-            out = agg.dtype(dmin + best)
-            xm = xr + dmin + best - 1
-            xp = xr + dmin + best + 1
-            if subpixel != 0 and best > 0 and best + 1 < D and xm >= 0 and xp < W:
-                out = out + _parabola(agg[y, xm, best - 1], cr, agg[y, xp, best + 1])
+        out, ok = _right_pixel(agg, disp_r, y, xr, best, cr, D, dmin, subpixel)
         disp_r[y, xr] = out
         valid_r[y, xr] = wp.uint8(ok)
     for x in range(W):
         ok = int(valid_l[y, x])
-        if check != 0 and ok != 0:
-            dl = disp_l[y, x]
-            ok = 0
-            xr = int(wp.floor(wp.float64(x) - wp.float64(dl) + wp.float64(0.5)))
-            if xr >= 0 and xr < W:
-                if valid_r[y, xr] != wp.uint8(0):
-                    if wp.abs(wp.float64(dl) - wp.float64(disp_r[y, xr])) <= max_diff:
-                        ok = 1
+        if check != 0:
+            ok = _consistent(disp_l, valid_l, disp_r, valid_r, y, x, max_diff)
         valid[y, x] = wp.uint8(ok)
 
 
