@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from kernels._arrays import Inputs, check_float, check_int
+from kernels._arrays import Inputs, check_float
 from kernels.stereo import disparity, sweep
 from kernels.stereo._common import check_dmin
 from kernels.stereo.disparity import _consistent, _left_pixel, _right_pixel

@@ -40,7 +40,6 @@ skip and stop tests are masks, so the gradient is that of the branch each pixel 
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
