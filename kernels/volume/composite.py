@@ -34,12 +34,13 @@ samples). Samples after the termination point get zero gradient; a ray with no s
 the background with zero gradient.
 
 One thread per ray: every thread writes only its own ray's outputs and its own samples'
-gradients, so both kernels run through kernels.launch.launch_split on the CPU. The loops take
-the samples four at a time where four consecutive ones start at a multiple of 4 (vec4 loads of
-the factors and depths, vec3 loads of the colours) and none of the four terminates the ray, one
-at a time elsewhere: the same operations in the same order, so the outputs are bit for bit those
-of a one-at-a-time loop, with a quarter of the loop and index arithmetic (Warp's CPU code
-computes and wraps every index, docs/performance.md).
+gradients, so both kernels run through kernels.launch.launch_split on the CPU, in chunks of at
+least _CHUNK_SAMPLES samples on average (each chunk is a launch costing tens of microseconds of
+Python). The loops take the samples four at a time where four consecutive ones start at a
+multiple of 4 (vec4 loads of the factors and depths, vec3 loads of the colours) and none of the
+four terminates the ray, one at a time elsewhere: the same operations in the same order, so the
+outputs are bit for bit those of a one-at-a-time loop, with a quarter of the loop and index
+arithmetic (Warp's CPU code computes and wraps every index, docs/performance.md).
 
 Factors on the CPU. Warp's scalar exp costs 3.7 ns a sample on one core, more than the rest of
 the forward loop (3.0 ns): on the CPU the factors exp(-sigma_k delta_k) of all N samples are
@@ -306,6 +307,17 @@ _MAX_FINITE_BITS = {np.dtype(np.float32): (np.uint32, np.uint32(0x7F7FFFFF)),
                     np.dtype(np.float64): (np.uint64, np.uint64(0x7FEFFFFFFFFFFFFF))}
 
 
+# Split launches (kernels.launch): a chunk of rays holds at least _CHUNK_SAMPLES samples on average
+# (~0.2 ms of kernel on a core, against ~40-80 us of Python a launch) and at least _CHUNK_RAYS rays.
+_CHUNK_SAMPLES = 1 << 17
+_CHUNK_RAYS = 256
+
+
+def _min_chunk(n_rays: int, n: int) -> int:
+    """Smallest chunk of rays for a split launch: _CHUNK_SAMPLES samples on average, at least _CHUNK_RAYS."""
+    return max(_CHUNK_RAYS, _CHUNK_SAMPLES * n_rays // max(n, 1))
+
+
 def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, check: bool) -> int:
     """On the CPU, factor = exp(-sigma delta) for every sample with NumPy's vectorised exp, in
     cache-sized blocks split over the launch threads; returns 1 (the kernel then reads the
@@ -432,7 +444,7 @@ def composite_forward(
     a.launch(_FORWARD[a.scalar], n_rays,
              [s, _vec_view(c, 3), d, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth, res.opacity,
               res.transmittance, res.n_used, res.factor, factor_given, _vec_view(res.factor, 4), _vec_view(zz, 4),
-              int(check), bad], min_chunk=256)
+              int(check), bad], min_chunk=_min_chunk(n_rays, n))
     if check and n_rays and bad.numpy().any():  # a NaN or inf in rgb or z, or a false alarm (module docstring)
         A.check_finite("rgb", c)
         A.check_finite("z", zz)
@@ -491,7 +503,7 @@ def composite_backward(
              [res["factor"], _vec_view(c, 3), d, zz, offsets, bg, per_ray, res["rgb"], res["depth"],
               res["transmittance"], res["n_used"], *grads, grad_sigma, _vec_view(grad_sample_rgb, 3),
               _vec_view(res["factor"], 4), _vec_view(zz, 4), _vec_view(d, 4), _vec_view(grad_sigma, 4)],
-             min_chunk=256)
+             min_chunk=_min_chunk(n_rays, n))
     if out is not None:
         return grad_sigma, grad_sample_rgb
     return a.out(grad_sigma), a.out(grad_sample_rgb)
