@@ -53,12 +53,19 @@ def time_medians(
     repeats: int = 3,
     warmup: int = 1,
     sync: Callable[[], Any] | None = None,
+    settle_s: float = 0.0,
 ) -> dict[str, float]:
     """`time_median` of several functions, run interleaved (a, b, a, b, ...).
 
     Interleaving exposes every function to the same drift in machine speed
     (clock boost, neighbours on the host), so their ratio is steadier than
     timing one after the other.
+
+    `settle_s` > 0 sleeps that long, untimed, before every timed run, so that
+    what the previous function left running does not count against the next
+    one: PyTorch's OpenMP workers (GNU libgomp) spin-wait after each parallel
+    op -- measured ~2 ms of a core after every op on the 2-core host -- and a
+    2-thread drlab call that starts right after one shares the cores with them.
     """
     if repeats < 3:
         raise ValueError(f"time_median: repeats must be >= 3, got {repeats}")
@@ -72,6 +79,8 @@ def time_medians(
     times: dict[str, list[float]] = {name: [] for name in fns}
     for _ in range(repeats):
         for name, fn in fns.items():
+            if settle_s > 0:
+                time.sleep(settle_s)
             t0 = time.perf_counter()
             fn()
             if sync is not None:

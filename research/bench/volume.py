@@ -22,7 +22,9 @@ with the same keys, for the test suite):
                           float32, dense_samples + render_samples + the image back in NumPy (`render_s`),
                           as experiments/volume_render_spheres times it, and the same image through the
                           fused SphereField.render_dense (`render_fused_s`).
-Each figure is the median of 3 runs (5 for compositing) after a warm-up (research.bench.time_median).
+Each figure is the median of 3 runs (5 for compositing) after a warm-up (research.bench.time_median);
+each compositing run starts after 20 ms idle (`SETTLE_S`), so that PyTorch's OpenMP workers, which
+spin-wait after every op, are not timed as part of the drlab call that follows the reference.
 
 `bound_s` (volume.composite) is the memory-bandwidth bound measured here: reading sigma, rgb and
 delta once (20 bytes a sample in float32) with a NumPy sum split over the same threads;
@@ -51,6 +53,8 @@ from research.bench import time_median, time_medians
 
 COMPOSITE_RAYS, COMPOSITE_SAMPLES = 65536, 128
 COMPOSITE_FWD_RAYS = 16384
+# Untimed idle before each timed compositing run (research.bench.time_medians, `settle_s`).
+SETTLE_S = 0.02
 FIELD_POINTS = 1 << 20
 TINY_RAYS, TINY_SAMPLES, TINY_POINTS, TINY_GRID, TINY_LOG2_TABLE = 512, 32, 4096, 16, 12
 BOX = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
@@ -162,9 +166,11 @@ def _composite_case(dev, threads: int, rays: int, samples: int, rng, sync, compa
     phases = ("fwd", "fwd_bwd") if full else ("fwd",)
     if ref is not None:
         fns.update({f"ref_{p}": ref[p] for p in phases})
-    # Interleaved (research.bench.time_medians), so all see the same drift in machine speed. The
+    # Interleaved (research.bench.time_medians), so all see the same drift in machine speed, each
+    # run after SETTLE_S idle: PyTorch's OpenMP workers spin for ~2 ms of a core after each op, which
+    # fell on the drlab call timed next (the 16384-ray forward, ~4 ms on 2 threads, lost most). The
     # fresh-buffer variant runs on its own: the memory it releases slows whatever runs next.
-    times = time_medians(fns, repeats=5, sync=sync)
+    times = time_medians(fns, repeats=5, sync=sync, settle_s=SETTLE_S)
     row["fwd_s"] = times["fwd"]
     if full:
         row.update(fwd_bwd_s=times["fwd_bwd"], samples_per_s=n / times["fwd_bwd"],

@@ -53,6 +53,20 @@ def test_time_medians_interleaves():
     assert order == ["a", "b"] * 4
 
 
+def test_time_medians_settles_before_each_timed_run_only(monkeypatch):
+    import research.bench as bench
+
+    events = []
+    monkeypatch.setattr(bench.time, "sleep", lambda s: events.append(("sleep", s)))
+    time_medians({"a": lambda: events.append("a"), "b": lambda: events.append("b")}, repeats=3, warmup=1,
+                 settle_s=0.02)
+    # warm-up runs without idling; every timed run follows one idle of settle_s
+    assert events == ["a", "b"] + [("sleep", 0.02), "a", ("sleep", 0.02), "b"] * 3
+    events.clear()
+    time_medians({"a": lambda: events.append("a")}, repeats=3)
+    assert events == ["a"] * 4
+
+
 def test_cli_bench_help_documents_compare():
     from research.cli import build_parser
 
