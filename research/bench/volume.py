@@ -168,7 +168,7 @@ def _composite_case(dev, threads: int, rays: int, samples: int, rng, sync, compa
         fns.update({f"ref_{p}": ref[p] for p in phases})
     # Interleaved (research.bench.time_medians), so all see the same drift in machine speed, each
     # run after SETTLE_S idle: PyTorch's OpenMP workers spin for ~2 ms of a core after each op, which
-    # fell on the drlab call timed next (the 16384-ray forward, ~4 ms on 2 threads, lost most). The
+    # fell on the drlab call timed next (the 16384-ray forward, ~4 ms on 2 threads, lost the most). The
     # fresh-buffer variant runs on its own: the memory it releases slows whatever runs next.
     times = time_medians(fns, repeats=5, sync=sync, settle_s=SETTLE_S)
     row["fwd_s"] = times["fwd"]
