@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import math
+import threading
 import typing
 from typing import Any, Iterator, Sequence
 
@@ -292,6 +293,77 @@ def check_out(name: str, x: Any, shape: Sequence[int], dtype: Any, device: wp.De
     return x
 
 
+# =========================================================================== recycled host memory
+
+
+class HostPool:
+    """Host blocks of freed CPU arrays kept for the next array of the same byte size.
+
+    A fresh host array of megabytes comes from the OS: every 4 KB page faults (and is zeroed) on
+    first touch, and glibc returns a large freed block at the top of its heap to the OS again, so a
+    call that allocates its outputs afresh pays the faults on every call. For the textbook spheres'
+    packed render (dense_samples + render_samples, ~20 MB of samples, field outputs and factors a
+    call) the faults were about as much CPU time as the kernels (docs/performance.md). `Inputs.empty`
+    takes host blocks of at least MIN_BYTES from here: a block whose array is freed goes back into
+    the pool (the array's deleter) and the next request of the same byte size gets it, its pages
+    already mapped. At most `limit` bytes are kept; beyond that the oldest blocks are freed. The
+    contents of a block are undefined, as wp.empty's are. Thread-safe (arrays are freed on any
+    thread, by the garbage collector too).
+    """
+
+    MIN_BYTES = 1 << 16
+
+    def __init__(self, limit: int = 256 << 20):
+        self.limit = int(limit)
+        self._free: dict[int, list[int]] = {}
+        self._order: list[tuple[int, int]] = []  # (nbytes, ptr) of the kept blocks, oldest first
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def empty(self, shape: tuple[int, ...], dtype: Any, device: wp.Device) -> wp.array:
+        """A contiguous host wp.array of `shape` and `dtype` whose block returns here when it is freed."""
+        nbytes = wp.types.type_size_in_bytes(dtype) * math.prod(shape)
+        with self._lock:
+            kept = self._free.get(nbytes)
+            ptr = kept.pop() if kept else None
+            if ptr is not None:
+                self._order.remove((nbytes, ptr))
+                self._bytes -= nbytes
+        if ptr is None:
+            ptr = wp._src.context.runtime.core.wp_alloc_host(nbytes, None)
+            if not ptr:
+                raise MemoryError(f"could not allocate {nbytes} bytes on the host")
+        return wp.array(ptr=ptr, dtype=dtype, shape=shape, device=device, capacity=nbytes, deleter=self._release)
+
+    def _release(self, ptr: int, nbytes: int) -> None:
+        evicted = []
+        with self._lock:
+            self._free.setdefault(nbytes, []).append(ptr)
+            self._order.append((nbytes, ptr))
+            self._bytes += nbytes
+            while self._bytes > self.limit:
+                size, old = self._order.pop(0)
+                self._free[size].remove(old)
+                self._bytes -= size
+                evicted.append(old)
+        for old in evicted:
+            wp._src.context.runtime.core.wp_free_host(old)
+
+    def nbytes(self) -> int:
+        """Bytes kept for reuse now."""
+        return self._bytes
+
+    def clear(self) -> None:
+        """Free every kept block."""
+        with self._lock:
+            blocks, self._free, self._order, self._bytes = [p for _, p in self._order], {}, [], 0
+        for p in blocks:
+            wp._src.context.runtime.core.wp_free_host(p)
+
+
+HOST_POOL = HostPool()
+
+
 # =========================================================================== one entry point's inputs
 
 
@@ -418,8 +490,13 @@ class Inputs:
         return wp.zeros(shape, dtype=dtype or self.scalar, device=self.device)
 
     def empty(self, shape: Any, dtype: Any = None) -> wp.array:
-        """An array the caller overwrites entirely."""
-        return wp.empty(shape, dtype=dtype or self.scalar, device=self.device)
+        """An array the caller overwrites entirely (on the CPU, large ones recycle freed blocks: HostPool)."""
+        dtype = dtype or self.scalar
+        if self.device.is_cpu:
+            shape = (int(shape),) if isinstance(shape, (int, np.integer)) else tuple(int(s) for s in shape)
+            if shape and wp.types.type_size_in_bytes(dtype) * math.prod(shape) >= HostPool.MIN_BYTES:
+                return HOST_POOL.empty(shape, dtype, self.device)
+        return wp.empty(shape, dtype=dtype, device=self.device)
 
     def out(self, x: wp.array) -> ArrayLike:
         """A result in the primary input's kind: NumPy (a host copy) or the wp.array itself."""
