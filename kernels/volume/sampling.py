@@ -142,27 +142,30 @@ def _march_kernel(
 
 @wp.kernel
 def _dense_kernel(
-    origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
+    origins: wp.array(dtype=typing.Any), dirs: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
     delta: wp.array2d(dtype=typing.Any), z_scale: wp.array(dtype=typing.Any),
-    out_points: wp.array2d(dtype=typing.Any), out_dirs: wp.array2d(dtype=typing.Any), out_t: wp.array(dtype=typing.Any),
+    out_points: wp.array(dtype=typing.Any), out_dirs: wp.array(dtype=typing.Any), out_t: wp.array(dtype=typing.Any),
     out_delta: wp.array(dtype=typing.Any), out_z: wp.array(dtype=typing.Any), out_ray: wp.array(dtype=wp.int32),
     offset: int,
 ):
     # One thread per ray: its S samples x = o + t d (the product, then the sum: NumPy's two roundings).
+    # origins, dirs, out_points and out_dirs are (N, 3) arrays viewed as N vec3s: one load or store
+    # per point instead of three indexed ones.
     r = wp.tid() + offset
     n_s = t.shape[1]
     zs = z_scale[r]
+    o = origins[r]
+    dr = dirs[r]
+    k = r * n_s
     for j in range(n_s):
-        k = r * n_s + j
         tk = t[r, j]
-        for a in range(3):
-            step = tk * dirs[r, a]
-            out_points[k, a] = origins[r, a] + step
-            out_dirs[k, a] = dirs[r, a]
+        out_points[k] = type(o)(o[0] + tk * dr[0], o[1] + tk * dr[1], o[2] + tk * dr[2])
+        out_dirs[k] = dr
         out_t[k] = tk
         out_delta[k] = delta[r, j]
         out_z[k] = tk * zs
         out_ray[k] = r
+        k += 1
 
 
 @dataclass
@@ -334,18 +337,32 @@ def dense_samples(
     # Packed by one kernel (one thread per ray, split over the launch threads) rather than NumPy
     # broadcasting, repeats and copies: 22-23 -> 16 ms on the textbook's 4096 x 64 float32 samples
     # on a busy host (docs/performance.md), with the same roundings (bit for bit, tested).
-    args = [a.floats(name, x, finite=False) for name, x in (("origins", o), ("dirs", d), ("t", t), ("delta", delta),
-                                                ("z_scale", zs))]
+    # On the CPU the kernel reads the NumPy inputs in place (zero-copy views of contiguous arrays,
+    # which `inputs` keeps alive until the launch returns); elsewhere they are copied to the device.
+    named = (("origins", o), ("dirs", d), ("t", t), ("delta", delta), ("z_scale", zs))
+    if a.device.is_cpu:
+        inputs = [wp.array(np.ascontiguousarray(x), dtype=a.scalar, device=a.device, copy=False) for _, x in named]
+    else:
+        inputs = [a.floats(name, x, finite=False) for name, x in named]
+    args = list(inputs)
     out = Samples(points=a.empty((n, 3)), dirs=a.empty((n, 3)), t=a.empty(n), delta=a.empty(n), z=a.empty(n),
                   ray_index=a.empty(n, wp.int32),
                   ray_offsets=wp.array((np.arange(n_rays + 1) * n_s).astype(np.int32), dtype=wp.int32,
                                        device=a.device))
     if n:
-        a.launch(_dense_kernel, n_rays, args + [out.points, out.dirs, out.t, out.delta, out.z, out.ray_index],
+        v3 = _VEC3[a.scalar]
+        args[0], args[1] = (wp.array(ptr=x.ptr, dtype=v3, shape=(x.shape[0],), device=a.device) for x in args[:2])
+        points3, dirs3 = (wp.array(ptr=x.ptr, dtype=v3, shape=(n,), device=a.device) for x in (out.points, out.dirs))
+        a.launch(_DENSE[a.scalar], n_rays, args + [points3, dirs3, out.t, out.delta, out.z, out.ray_index],
                  min_chunk=64)
     return out
 
 
 A.declare_float_overloads(_ray_aabb_kernel)
 A.declare_float_overloads(_march_kernel)
-A.declare_float_overloads(_dense_kernel)
+_VEC3 = {wp.float32: wp.vec3f, wp.float64: wp.vec3d}
+_DENSE = {s: wp.overload(_dense_kernel, {
+    "origins": wp.array(dtype=_VEC3[s]), "dirs": wp.array(dtype=_VEC3[s]), "t": wp.array2d(dtype=s),
+    "delta": wp.array2d(dtype=s), "z_scale": wp.array(dtype=s), "out_points": wp.array(dtype=_VEC3[s]),
+    "out_dirs": wp.array(dtype=_VEC3[s]), "out_t": wp.array(dtype=s), "out_delta": wp.array(dtype=s),
+    "out_z": wp.array(dtype=s)}) for s in A.FLOATS}
