@@ -80,6 +80,9 @@ _FUSED_ON_CPU = False
 _QUADS_ON_CPU = True
 # Falloff values per block of the CPU passes (8 MB in float32): their memory stays bounded at any size.
 _FALLOFF_BLOCK = 1 << 21
+# The CPU passes' split launches: no chunk of fewer items than hold this many falloff values (tens of
+# microseconds of work, about the Python cost of launching a chunk).
+_CHUNK_VALUES = 1 << 14
 
 # The chapter's scene: (centre, radius, colour, sharpness).
 TEXTBOOK_SPHERES = (
@@ -562,11 +565,12 @@ class SphereField(Field):
         falloff = a.empty(block * per_item)
         f = falloff.numpy()
         values = _vec_view(falloff, _VEC4, (block * per_item // 4,)) if quads else falloff
+        min_chunk = max(1, _CHUNK_VALUES // max(per_item, 1))
         for base in range(0, n_items, block):
             nb = min(block, n_items - base)
-            a.launch(pass1, nb, [*pass1_inputs, geometry, appearance, values, base], min_chunk=16)
+            a.launch(pass1, nb, [*pass1_inputs, geometry, appearance, values, base], min_chunk=min_chunk)
             parallel_ranges(lambda lo, hi: np.exp(f[lo:hi], out=f[lo:hi]), nb * per_item)
-            a.launch(pass2, nb, [values, *pass2_inputs, base], min_chunk=16)
+            a.launch(pass2, nb, [values, *pass2_inputs, base], min_chunk=min_chunk)
 
     def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
         a, p, _ = self._inputs(points, dirs)
