@@ -209,13 +209,15 @@ def test_device_value_checks_count_like_the_host_checks():
         assert count(_checks._count_zero_rows, dirs) == 2
 
 
+@pytest.mark.parametrize("s", [17, 16, 4], ids=["S17", "S16_quads", "S4_quads"])
 @pytest.mark.parametrize("layout", ["contiguous", "strided"])
 @pytest.mark.parametrize("np_t", [np.float32, np.float64], ids=["float32", "float64"])
-def test_dense_samples_match_numpy_broadcasting_bit_for_bit(np_t, layout):
-    # The packing kernel rounds as NumPy does: x = o + (t d), z = t z_scale. On the CPU it reads
-    # the inputs in place; strided and Fortran-ordered inputs are made contiguous first.
+def test_dense_samples_match_numpy_broadcasting_bit_for_bit(np_t, layout, s):
+    # The packing kernel rounds as NumPy does: x = o + (t d), z = t z_scale (four samples at a
+    # time when S % 4 == 0). On the CPU it reads the inputs in place; strided and Fortran-ordered
+    # inputs are made contiguous first.
     rng = np.random.default_rng(7)
-    r, s = 300, 17
+    r = 300
     o = rng.normal(size=(r, 3)).astype(np_t)
     d = rng.normal(size=(r, 3)).astype(np_t)
     t = np.sort(rng.uniform(0.5, 6.0, (r, s)), axis=1).astype(np_t)
