@@ -455,15 +455,24 @@ def _spheres_exponent4_kernel(points: wp.array(dtype=typing.Any), n: int, geomet
 @wp.kernel
 def _spheres_from_falloff4_kernel(f4: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any), n: int,
                                   out_sigma: wp.array(dtype=typing.Any), out_rgb: wp.array(dtype=typing.Any),
+                                  out_sigma4: wp.array(dtype=typing.Any), out_rgb4: wp.array(dtype=typing.Any),
                                   base: int, offset: int):
-    # CPU field forward, pass 2 over quads of points (out_rgb (N, 3) viewed as N vec3).
+    # CPU field forward, pass 2 over quads of points (out_rgb (N, 3) viewed as N vec3; out_sigma4 and
+    # out_rgb4 view the whole quads' sigma and rgb as vec4s: one store of sigma and three of rgb).
     q = wp.tid() + offset
     i = 4 * (base + q)
     sig, nr, ng, nb = _spheres_from_falloff4(f4, q * appearance.shape[0], 1, appearance)
-    for l in range(4):
-        if i + l < n:
-            out_sigma[i + l] = sig[l]
-            out_rgb[i + l] = type(out_rgb[0])(nr[l], ng[l], nb[l])
+    if i + 4 <= n:
+        out_sigma4[base + q] = sig
+        b = 3 * (base + q)
+        out_rgb4[b] = type(sig)(nr[0], ng[0], nb[0], nr[1])
+        out_rgb4[b + 1] = type(sig)(ng[1], nb[1], nr[2], ng[2])
+        out_rgb4[b + 2] = type(sig)(nb[2], nr[3], ng[3], nb[3])
+    else:
+        for l in range(4):
+            if i + l < n:
+                out_sigma[i + l] = sig[l]
+                out_rgb[i + l] = type(out_rgb[0])(nr[l], ng[l], nb[l])
 
 
 @wp.kernel
@@ -583,8 +592,9 @@ class SphereField(Field):
         if n:
             k1, k2 = _FIELD_PASSES[self.dtype]
             geometry, appearance = self._packed()
-            self._two_passes(a, (n + 3) // 4, 4, k1, [_vec_view3(p), n], k2, [appearance, n, sigma, _vec_view3(rgb)],
-                             geometry, appearance, quads=True)
+            sigma4, rgb4 = _vec_view(sigma, _VEC4, (n // 4,)), _vec_view(rgb, _VEC4, (3 * (n // 4),))
+            self._two_passes(a, (n + 3) // 4, 4, k1, [_vec_view3(p), n], k2,
+                             [appearance, n, sigma, _vec_view3(rgb), sigma4, rgb4], geometry, appearance, quads=True)
         return self._result(a, sigma, rgb)
 
     def render_dense(self, origins: A.ArrayLike, dirs: A.ArrayLike, t: A.ArrayLike, delta: A.ArrayLike,
@@ -696,7 +706,8 @@ _FIELD_PASSES = {s: (wp.overload(_spheres_exponent4_kernel, {
     "points": wp.array(dtype=_VEC3[s]), "geometry": wp.array(dtype=_VEC4[s]), "appearance": wp.array(dtype=_VEC4[s]),
     "out4": wp.array(dtype=_VEC4[s])}), wp.overload(_spheres_from_falloff4_kernel, {
         "f4": wp.array(dtype=_VEC4[s]), "appearance": wp.array(dtype=_VEC4[s]), "out_sigma": wp.array(dtype=s),
-        "out_rgb": wp.array(dtype=_VEC3[s])})) for s in A.FLOATS}
+        "out_rgb": wp.array(dtype=_VEC3[s]), "out_sigma4": wp.array(dtype=_VEC4[s]),
+        "out_rgb4": wp.array(dtype=_VEC4[s])})) for s in A.FLOATS}
 _RENDER_DENSE4 = {s: (wp.overload(_spheres_dense_exponent4_kernel, {
     "origins": wp.array(dtype=_VEC3[s]), "dirs": wp.array(dtype=_VEC3[s]), "t4": wp.array2d(dtype=_VEC4[s]),
     "geometry": wp.array(dtype=_VEC4[s]), "appearance": wp.array(dtype=_VEC4[s]), "out4": wp.array(dtype=_VEC4[s])}),
