@@ -297,7 +297,7 @@ def check_out(name: str, x: Any, shape: Sequence[int], dtype: Any, device: wp.De
 
 
 class HostPool:
-    """Host blocks of freed CPU arrays kept for the next array of the same byte size.
+    """Host blocks of freed CPU arrays kept for the next array of the same size class.
 
     A fresh host array of megabytes comes from the OS: every 4 KB page faults (and is zeroed) on
     first touch, and glibc returns a large freed block at the top of its heap to the OS again, so a
@@ -305,46 +305,58 @@ class HostPool:
     packed render (dense_samples + render_samples, ~20 MB of samples, field outputs and factors a
     call) the faults were about as much CPU time as the kernels (docs/performance.md). `Inputs.empty`
     takes host blocks of at least MIN_BYTES from here: a block whose array is freed goes back into
-    the pool (the array's deleter) and the next request of the same byte size gets it, its pages
-    already mapped. At most `limit` bytes are kept; beyond that the oldest blocks are freed. The
-    contents of a block are undefined, as wp.empty's are. Thread-safe (arrays are freed on any
-    thread, by the garbage collector too).
+    the pool (the array's deleter) and the next request of the same size class gets it, its pages
+    already mapped. Sizes are rounded up to 8 classes per octave (at most 12.5% more memory), so
+    that arrays whose sizes vary a little from call to call (occupancy-skipped samples in
+    training) still find a block. At most `limit` bytes are kept; beyond that the oldest blocks are
+    freed. The contents of a block are undefined, as wp.empty's are. Thread-safe (arrays are freed
+    on any thread, by the garbage collector too).
     """
 
     MIN_BYTES = 1 << 16
 
     def __init__(self, limit: int = 256 << 20):
         self.limit = int(limit)
-        self._free: dict[int, list[int]] = {}
-        self._order: list[tuple[int, int]] = []  # (nbytes, ptr) of the kept blocks, oldest first
+        self._free: dict[int, list[int]] = {}  # size class -> kept blocks
+        self._order: dict[int, int] = {}  # ptr -> size class of every kept block, oldest first
         self._bytes = 0
         self._lock = threading.Lock()
+
+    @staticmethod
+    def size_class(nbytes: int) -> int:
+        """nbytes rounded up to a multiple of 2^(e-3), where 2^e <= nbytes < 2^(e+1)."""
+        step = 1 << max(nbytes.bit_length() - 4, 0)
+        return -(-nbytes // step) * step
 
     def empty(self, shape: tuple[int, ...], dtype: Any, device: wp.Device) -> wp.array:
         """A contiguous host wp.array of `shape` and `dtype` whose block returns here when it is freed."""
         nbytes = wp.types.type_size_in_bytes(dtype) * math.prod(shape)
+        size = self.size_class(nbytes)
         with self._lock:
-            kept = self._free.get(nbytes)
+            kept = self._free.get(size)
             ptr = kept.pop() if kept else None
             if ptr is not None:
-                self._order.remove((nbytes, ptr))
-                self._bytes -= nbytes
+                del self._order[ptr]
+                self._bytes -= size
         if ptr is None:
-            ptr = wp._src.context.runtime.core.wp_alloc_host(nbytes, None)
+            ptr = wp._src.context.runtime.core.wp_alloc_host(size, None)
             if not ptr:
-                raise MemoryError(f"could not allocate {nbytes} bytes on the host")
+                raise MemoryError(f"could not allocate {size} bytes on the host")
+        # capacity: the array's own bytes, as wp.empty's (the deleter maps it to the block's class)
         return wp.array(ptr=ptr, dtype=dtype, shape=shape, device=device, capacity=nbytes, deleter=self._release)
 
     def _release(self, ptr: int, nbytes: int) -> None:
+        size = self.size_class(nbytes)
         evicted = []
         with self._lock:
-            self._free.setdefault(nbytes, []).append(ptr)
-            self._order.append((nbytes, ptr))
-            self._bytes += nbytes
+            self._free.setdefault(size, []).append(ptr)
+            self._order[ptr] = size
+            self._bytes += size
             while self._bytes > self.limit:
-                size, old = self._order.pop(0)
-                self._free[size].remove(old)
-                self._bytes -= size
+                old = next(iter(self._order))
+                old_size = self._order.pop(old)
+                self._free[old_size].remove(old)
+                self._bytes -= old_size
                 evicted.append(old)
         for old in evicted:
             wp._src.context.runtime.core.wp_free_host(old)
@@ -356,7 +368,7 @@ class HostPool:
     def clear(self) -> None:
         """Free every kept block."""
         with self._lock:
-            blocks, self._free, self._order, self._bytes = [p for _, p in self._order], {}, [], 0
+            blocks, self._free, self._order, self._bytes = list(self._order), {}, {}, 0
         for p in blocks:
             wp._src.context.runtime.core.wp_free_host(p)
 

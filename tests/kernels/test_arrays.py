@@ -219,3 +219,19 @@ def test_host_pool_limit_frees_the_oldest_blocks():
     del again
     pool.clear()
     assert pool.nbytes() == 0
+
+
+def test_host_pool_size_classes():
+    # 8 classes per octave: at most 12.5% more than asked, and sizes a little apart share a block.
+    for n in (1 << 16, (1 << 16) + 1, 70000, 3 << 20, 12345678, (1 << 30) - 1):
+        c = A.HostPool.size_class(n)
+        assert n <= c <= n * 1.125 and c % (1 << max(n.bit_length() - 4, 0)) == 0
+    pool = A.HostPool()
+    dev = wp.get_device("cpu")
+    x = pool.empty((100000,), wp.float32, dev)
+    ptr = x.ptr
+    del x
+    y = pool.empty((100500,), wp.float32, dev)  # 400 000 and 402 000 bytes: one class
+    assert y.ptr == ptr and y.shape == (100500,) and y.capacity == 402000  # capacity: the array's bytes
+    del y
+    pool.clear()
