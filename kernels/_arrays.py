@@ -14,6 +14,9 @@ the one place that converts, checks and sets up dtypes, so every family behaves 
   `declare_float_overloads`, so its module compiles once.
 * **Errors.** Every check raises `ValueError` whose message starts with the argument's name and
   says what was expected, before any kernel is launched.
+* **Host memory.** `Inputs.empty` on the CPU takes blocks of 64 KB and more from `HOST_POOL`,
+  which keeps the blocks of freed arrays (up to 256 MB) for the next array of their size class:
+  their pages are mapped already, where a fresh block faults every page on first touch.
 * **Value checks** (NaN, inf, sign, ranges) read the data where it lives: on the CPU through a
   zero-copy NumPy view, on CUDA with a reduction kernel that returns one integer (no copy of the
   array to the host). `value_checks(False)` turns them off for a hot loop whose inputs are known
