@@ -387,31 +387,34 @@ def dense_samples(
     # broadcasting, repeats and copies: 22-23 -> 16 ms on the textbook's 4096 x 64 float32 samples
     # on a busy host (docs/performance.md), with the same roundings (bit for bit, tested); four
     # samples at a time with vec4 stores when S % 4 == 0.
-    # On the CPU the kernel reads the NumPy inputs in place (zero-copy views of contiguous arrays,
-    # which `inputs` keeps alive until the launch returns); elsewhere they are copied to the device.
-    named = (("origins", o), ("dirs", d), ("t", t), ("delta", delta), ("z_scale", zs))
-    if a.device.is_cpu:
-        inputs = [wp.array(np.ascontiguousarray(x), dtype=a.scalar, device=a.device, copy=False) for _, x in named]
-    else:
-        inputs = [a.floats(name, x, finite=False) for name, x in named]
-    args = list(inputs)
     out = Samples(points=a.empty((n, 3)), dirs=a.empty((n, 3)), t=a.empty(n), delta=a.empty(n), z=a.empty(n),
                   ray_index=a.empty(n, wp.int32),
                   ray_offsets=wp.array((np.arange(n_rays + 1) * n_s).astype(np.int32), dtype=wp.int32,
                                        device=a.device))
-    if n:
-        v3, v4 = _VEC3[a.scalar], _VEC4[a.scalar]
-        view = lambda x, dtype, shape: wp.array(ptr=x.ptr, dtype=dtype, shape=shape, device=a.device)  # noqa: E731
-        args[0], args[1] = (view(x, v3, (n_rays,)) for x in args[:2])
-        if n_s % 4 == 0:  # four samples at a time (bit for bit the same arrays)
-            args[2], args[3] = (view(x, v4, (n_rays, n_s // 4)) for x in args[2:4])
-            outs = [view(x, v4, (3 * n // 4,)) for x in (out.points, out.dirs)]
-            outs += [view(x, v4, (n // 4,)) for x in (out.t, out.delta, out.z)] + [view(out.ray_index, wp.vec4i, (n // 4,))]
-            a.launch(_DENSE4[a.scalar], n_rays, args + outs, min_chunk=64)
-        else:
-            points3, dirs3 = (view(x, v3, (n,)) for x in (out.points, out.dirs))
-            a.launch(_DENSE[a.scalar], n_rays, args + [points3, dirs3, out.t, out.delta, out.z, out.ray_index],
-                     min_chunk=64)
+    if not n:
+        return out
+    v3, v4 = _VEC3[a.scalar], _VEC4[a.scalar]
+    quads = n_s % 4 == 0  # four samples at a time (bit for bit the same arrays)
+    shapes = [(n_rays,), (n_rays,)] + ([(n_rays, n_s // 4)] * 2 if quads else [t.shape] * 2) + [(n_rays,)]
+    dtypes = [v3, v3] + ([v4, v4] if quads else [a.scalar, a.scalar]) + [a.scalar]
+    if a.device.is_cpu:
+        # The kernel reads the NumPy inputs in place: views of contiguous arrays (`host` keeps them
+        # alive until the launch returns), seen directly as the vectors the kernel takes.
+        host = [np.ascontiguousarray(x) for x in (o, d, t, delta, zs)]
+        args = [wp.array(ptr=x.ctypes.data, dtype=dt, shape=sh, device=a.device)
+                for x, dt, sh in zip(host, dtypes, shapes)]
+    else:
+        inputs = [a.floats(name, x, finite=False) for name, x in
+                  (("origins", o), ("dirs", d), ("t", t), ("delta", delta), ("z_scale", zs))]
+        args = [wp.array(ptr=x.ptr, dtype=dt, shape=sh, device=a.device) for x, dt, sh in zip(inputs, dtypes, shapes)]
+    view = lambda x, dtype, shape: wp.array(ptr=x.ptr, dtype=dtype, shape=shape, device=a.device)  # noqa: E731
+    if quads:
+        outs = [view(x, v4, (3 * n // 4,)) for x in (out.points, out.dirs)]
+        outs += [view(x, v4, (n // 4,)) for x in (out.t, out.delta, out.z)] + [view(out.ray_index, wp.vec4i, (n // 4,))]
+        a.launch(_DENSE4[a.scalar], n_rays, args + outs, min_chunk=64)
+    else:
+        outs = [view(x, v3, (n,)) for x in (out.points, out.dirs)] + [out.t, out.delta, out.z, out.ray_index]
+        a.launch(_DENSE[a.scalar], n_rays, args + outs, min_chunk=64)
     return out
 
 

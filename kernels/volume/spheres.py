@@ -548,13 +548,24 @@ class SphereField(Field):
         P = self.params
         return [P["centers"], P["radii"], P["colors"], P["sharpness"]]
 
+    # (the parameters' bytes, geometry, appearance) of the last CPU packing (_packed)
+    _packed_host: tuple[bytes, wp.array, wp.array] | None = None
+
     def _packed(self) -> tuple[wp.array, wp.array]:
         """(geometry, appearance): the parameters as K vec4s (c_k, r_k) and (col_k, s_k)."""
         v4 = _VEC4[self.dtype]
         if self.device.is_cpu:  # K rows packed on the host from zero-copy views
             P = {k: v.numpy() for k, v in self.params.items()}
-            return (wp.array(np.concatenate([P["centers"], P["radii"][:, None]], axis=1), dtype=v4),
-                    wp.array(np.concatenate([P["colors"], P["sharpness"][:, None]], axis=1), dtype=v4))
+            # Packed again only when a parameter's value changed (an optimiser updates them in place):
+            # the K rows' bytes are compared, a few microseconds against two new arrays a call.
+            key = b"".join(P[k].tobytes() for k in ("centers", "radii", "colors", "sharpness"))
+            cached = self._packed_host
+            if cached is not None and cached[0] == key:
+                return cached[1], cached[2]
+            geometry = wp.array(np.concatenate([P["centers"], P["radii"][:, None]], axis=1), dtype=v4)
+            appearance = wp.array(np.concatenate([P["colors"], P["sharpness"][:, None]], axis=1), dtype=v4)
+            self._packed_host = (key, geometry, appearance)
+            return geometry, appearance
         k = self.params["radii"].shape[0]
         geometry = wp.empty(k, dtype=v4, device=self.device)
         appearance = wp.empty(k, dtype=v4, device=self.device)

@@ -430,3 +430,23 @@ def test_sphere_forward_cpu_passes_equal_numpy_bit_for_bit(monkeypatch, np_t, wp
         assert out.sigma.dtype == np_t
         np.testing.assert_array_equal(out.sigma, sig)
         np.testing.assert_array_equal(out.rgb, col)
+
+
+def test_sphere_packed_parameters_follow_in_place_updates():
+    # The CPU passes reuse the packed (vec4) parameters while the parameters' values are unchanged;
+    # an in-place update (what an optimiser does) must be seen by the next call.
+    field = SphereField.textbook(wp.float32)
+    pts = np.random.default_rng(13).uniform([-2.0, -1.5, 2.5], [2.5, 1.5, 6.0], (257, 3)).astype(np.float32)
+    first = field.forward(pts)
+    for name, delta in (("radii", 0.05), ("centers", 0.1), ("colors", -0.1), ("sharpness", 0.5)):
+        field.params[name].numpy()[0] += delta  # in place, as an optimiser step
+        fresh = SphereField(*(field.params_numpy()[k] for k in ("centers", "radii", "colors", "sharpness")),
+                            dtype=wp.float32)
+        got, want = field.forward(pts), fresh.forward(pts)
+        np.testing.assert_array_equal(got.sigma, want.sigma)
+        np.testing.assert_array_equal(got.rgb, want.rgb)
+        o, d = np.zeros((3, 3), np.float32), np.tile(np.array([0, 0, 1], np.float32), (3, 1))
+        t = np.tile(np.linspace(1, 6, 8, dtype=np.float32), (3, 1))
+        for a, b in zip(field.render_dense(o, d, t, np.full_like(t, 0.5)), fresh.render_dense(o, d, t, np.full_like(t, 0.5))):
+            np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(first.sigma, field.forward(pts).sigma)
