@@ -320,8 +320,11 @@ class HostPool:
 
     def __init__(self, limit: int = 256 << 20):
         self.limit = int(limit)
-        self._free: dict[int, list[int]] = {}  # size class -> kept blocks
+        self._free: dict[int, list[int]] = {}  # size class -> pointers of the kept blocks
         self._order: dict[int, int] = {}  # ptr -> size class of every kept block, oldest first
+        # ptr -> the NumPy byte buffer that owns the block, for every block in use or kept: the memory
+        # is NumPy's (public API only), and a block is freed when its buffer is dropped from here.
+        self._owners: dict[int, np.ndarray] = {}
         self._bytes = 0
         self._lock = threading.Lock()
 
@@ -342,9 +345,11 @@ class HostPool:
                 del self._order[ptr]
                 self._bytes -= size
         if ptr is None:
-            ptr = wp._src.context.runtime.core.wp_alloc_host(size, None)
-            if not ptr:
-                raise MemoryError(f"could not allocate {size} bytes on the host")
+            # 64 bytes of slack so that the block can start on a cache line (NumPy aligns to 16)
+            owner = np.empty(size + 64, dtype=np.uint8)
+            ptr = owner.ctypes.data + (-owner.ctypes.data) % 64
+            with self._lock:
+                self._owners[ptr] = owner
         # capacity: the array's own bytes, as wp.empty's (the deleter maps it to the block's class)
         return wp.array(ptr=ptr, dtype=dtype, shape=shape, device=device, capacity=nbytes, deleter=self._release)
 
@@ -360,9 +365,8 @@ class HostPool:
                 old_size = self._order.pop(old)
                 self._free[old_size].remove(old)
                 self._bytes -= old_size
-                evicted.append(old)
-        for old in evicted:
-            wp._src.context.runtime.core.wp_free_host(old)
+                evicted.append(self._owners.pop(old))
+        del evicted  # the owners' buffers, freed here, outside the lock
 
     def nbytes(self) -> int:
         """Bytes kept for reuse now."""
@@ -371,9 +375,9 @@ class HostPool:
     def clear(self) -> None:
         """Free every kept block."""
         with self._lock:
-            blocks, self._free, self._order, self._bytes = list(self._order), {}, {}, 0
-        for p in blocks:
-            wp._src.context.runtime.core.wp_free_host(p)
+            owners = [self._owners.pop(p) for p in self._order]
+            self._free, self._order, self._bytes = {}, {}, 0
+        del owners
 
 
 HOST_POOL = HostPool()
