@@ -63,8 +63,9 @@ def run(ctx: Context) -> int:
         field = SphereField.textbook(wp_t, device=ctx.device)
 
         def run():
-            s = dense_samples(origins.astype(np_t), dirs.astype(np_t), np.tile(t, (n_rays, 1)).astype(np_t),
-                              np.tile(delta, (n_rays, 1)).astype(np_t), device=ctx.device)
+            # (cast, then tiled: the same arrays as tiling in float64 and casting, with half the work)
+            s = dense_samples(origins.astype(np_t), dirs.astype(np_t), np.tile(t.astype(np_t), (n_rays, 1)),
+                              np.tile(delta.astype(np_t), (n_rays, 1)), device=ctx.device)
             return render_samples(field, s, background=(0.0, 0.0, 0.0), t_threshold=0.0).rgb.numpy()
 
         img = run().reshape(h, w, 3).astype(np.float64)

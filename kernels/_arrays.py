@@ -14,6 +14,9 @@ the one place that converts, checks and sets up dtypes, so every family behaves 
   `declare_float_overloads`, so its module compiles once.
 * **Errors.** Every check raises `ValueError` whose message starts with the argument's name and
   says what was expected, before any kernel is launched.
+* **Host memory.** `Inputs.empty` on the CPU takes blocks of 64 KB and more from `HOST_POOL`,
+  which keeps the blocks of freed arrays (up to 256 MB) for the next array of their size class:
+  their pages are mapped already, where a fresh block faults every page on first touch.
 * **Value checks** (NaN, inf, sign, ranges) read the data where it lives: on the CPU through a
   zero-copy NumPy view, on CUDA with a reduction kernel that returns one integer (no copy of the
   array to the host). `value_checks(False)` turns them off for a hot loop whose inputs are known
@@ -26,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import math
+import threading
 import typing
 from typing import Any, Iterator, Sequence
 
@@ -292,6 +296,93 @@ def check_out(name: str, x: Any, shape: Sequence[int], dtype: Any, device: wp.De
     return x
 
 
+# =========================================================================== recycled host memory
+
+
+class HostPool:
+    """Host blocks of freed CPU arrays kept for the next array of the same size class.
+
+    A fresh host array of megabytes comes from the OS: every 4 KB page faults (and is zeroed) on
+    first touch, and glibc returns a large freed block at the top of its heap to the OS again, so a
+    call that allocates its outputs afresh pays the faults on every call. For the textbook spheres'
+    packed render (dense_samples + render_samples, ~20 MB of samples, field outputs and factors a
+    call) the faults were about as much CPU time as the kernels (docs/performance.md). `Inputs.empty`
+    takes host blocks of at least MIN_BYTES from here: a block whose array is freed goes back into
+    the pool (the array's deleter) and the next request of the same size class gets it, its pages
+    already mapped. Sizes are rounded up to 8 classes per octave (at most 12.5% more memory), so
+    that arrays whose sizes vary a little from call to call (occupancy-skipped samples in
+    training) still find a block. At most `limit` bytes are kept; beyond that the oldest blocks are
+    freed. The contents of a block are undefined, as wp.empty's are. Thread-safe (arrays are freed
+    on any thread, by the garbage collector too).
+    """
+
+    MIN_BYTES = 1 << 16
+
+    def __init__(self, limit: int = 256 << 20):
+        self.limit = int(limit)
+        self._free: dict[int, list[int]] = {}  # size class -> pointers of the kept blocks
+        self._order: dict[int, int] = {}  # ptr -> size class of every kept block, oldest first
+        # ptr -> the NumPy byte buffer that owns the block, for every block in use or kept: the memory
+        # is NumPy's (public API only), and a block is freed when its buffer is dropped from here.
+        self._owners: dict[int, np.ndarray] = {}
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def size_class(nbytes: int) -> int:
+        """nbytes rounded up to a multiple of 2^(e-3), where 2^e <= nbytes < 2^(e+1)."""
+        step = 1 << max(nbytes.bit_length() - 4, 0)
+        return -(-nbytes // step) * step
+
+    def empty(self, shape: tuple[int, ...], dtype: Any, device: wp.Device) -> wp.array:
+        """A contiguous host wp.array of `shape` and `dtype` whose block returns here when it is freed."""
+        nbytes = wp.types.type_size_in_bytes(dtype) * math.prod(shape)
+        size = self.size_class(nbytes)
+        with self._lock:
+            kept = self._free.get(size)
+            ptr = kept.pop() if kept else None
+            if ptr is not None:
+                del self._order[ptr]
+                self._bytes -= size
+        if ptr is None:
+            # 64 bytes of slack so that the block can start on a cache line (NumPy aligns to 16)
+            owner = np.empty(size + 64, dtype=np.uint8)
+            ptr = owner.ctypes.data + (-owner.ctypes.data) % 64
+            with self._lock:
+                self._owners[ptr] = owner
+        # capacity: the array's own bytes, as wp.empty's (the deleter maps it to the block's class)
+        return wp.array(ptr=ptr, dtype=dtype, shape=shape, device=device, capacity=nbytes, deleter=self._release)
+
+    def _release(self, ptr: int, nbytes: int) -> None:
+        size = self.size_class(nbytes)
+        evicted = []
+        with self._lock:
+            self._free.setdefault(size, []).append(ptr)
+            self._order[ptr] = size
+            self._bytes += size
+            while self._bytes > self.limit:
+                old = next(iter(self._order))
+                old_size = self._order.pop(old)
+                self._free[old_size].remove(old)
+                self._bytes -= old_size
+                evicted.append(self._owners.pop(old))
+        del evicted  # the owners' buffers, freed here, outside the lock
+
+    def nbytes(self) -> int:
+        """Bytes kept for reuse now."""
+        return self._bytes
+
+    def clear(self) -> None:
+        """Free every kept block."""
+        with self._lock:
+            owners = [self._owners.pop(p) for p in self._order]
+            self._free, self._order, self._bytes = {}, {}, 0
+        del owners
+
+
+HOST_POOL = HostPool()
+
+
 # =========================================================================== one entry point's inputs
 
 
@@ -418,8 +509,13 @@ class Inputs:
         return wp.zeros(shape, dtype=dtype or self.scalar, device=self.device)
 
     def empty(self, shape: Any, dtype: Any = None) -> wp.array:
-        """An array the caller overwrites entirely."""
-        return wp.empty(shape, dtype=dtype or self.scalar, device=self.device)
+        """An array the caller overwrites entirely (on the CPU, large ones recycle freed blocks: HostPool)."""
+        dtype = dtype or self.scalar
+        if self.device.is_cpu:
+            shape = (int(shape),) if isinstance(shape, (int, np.integer)) else tuple(int(s) for s in shape)
+            if shape and wp.types.type_size_in_bytes(dtype) * math.prod(shape) >= HostPool.MIN_BYTES:
+                return HOST_POOL.empty(shape, dtype, self.device)
+        return wp.empty(shape, dtype=dtype, device=self.device)
 
     def out(self, x: wp.array) -> ArrayLike:
         """A result in the primary input's kind: NumPy (a host copy) or the wp.array itself."""

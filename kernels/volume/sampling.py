@@ -142,27 +142,79 @@ def _march_kernel(
 
 @wp.kernel
 def _dense_kernel(
-    origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
+    origins: wp.array(dtype=typing.Any), dirs: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
     delta: wp.array2d(dtype=typing.Any), z_scale: wp.array(dtype=typing.Any),
-    out_points: wp.array2d(dtype=typing.Any), out_dirs: wp.array2d(dtype=typing.Any), out_t: wp.array(dtype=typing.Any),
+    out_points: wp.array(dtype=typing.Any), out_dirs: wp.array(dtype=typing.Any), out_t: wp.array(dtype=typing.Any),
     out_delta: wp.array(dtype=typing.Any), out_z: wp.array(dtype=typing.Any), out_ray: wp.array(dtype=wp.int32),
     offset: int,
 ):
     # One thread per ray: its S samples x = o + t d (the product, then the sum: NumPy's two roundings).
+    # origins, dirs, out_points and out_dirs are (N, 3) arrays viewed as N vec3s: one load or store
+    # per point instead of three indexed ones.
     r = wp.tid() + offset
     n_s = t.shape[1]
     zs = z_scale[r]
+    o = origins[r]
+    dr = dirs[r]
+    k = r * n_s
     for j in range(n_s):
-        k = r * n_s + j
         tk = t[r, j]
-        for a in range(3):
-            step = tk * dirs[r, a]
-            out_points[k, a] = origins[r, a] + step
-            out_dirs[k, a] = dirs[r, a]
+        out_points[k] = type(o)(o[0] + tk * dr[0], o[1] + tk * dr[1], o[2] + tk * dr[2])
+        out_dirs[k] = dr
         out_t[k] = tk
         out_delta[k] = delta[r, j]
         out_z[k] = tk * zs
         out_ray[k] = r
+        k += 1
+
+
+@wp.kernel
+def _dense4_kernel(
+    origins: wp.array(dtype=typing.Any), dirs: wp.array(dtype=typing.Any), t4: wp.array2d(dtype=typing.Any),
+    delta4: wp.array2d(dtype=typing.Any), z_scale: wp.array(dtype=typing.Any),
+    out_points4: wp.array(dtype=typing.Any), out_dirs4: wp.array(dtype=typing.Any), out_t4: wp.array(dtype=typing.Any),
+    out_delta4: wp.array(dtype=typing.Any), out_z4: wp.array(dtype=typing.Any), out_ray4: wp.array(dtype=wp.vec4i),
+    offset: int,
+):
+    # _dense_kernel with S % 4 == 0, four samples at a time: every array is seen as vec4s (t4 and
+    # delta4 as (R, S/4); the points' and directions' 12 coordinates of four samples as 3 vec4s),
+    # so four samples take 10 stores instead of 24. The same roundings, lane by lane.
+    r = wp.tid() + offset
+    n_q = t4.shape[1]
+    zs = z_scale[r]
+    o = origins[r]
+    dr = dirs[r]
+    d4a = type(t4[r, 0])(dr[0], dr[1], dr[2], dr[0])
+    d4b = type(t4[r, 0])(dr[1], dr[2], dr[0], dr[1])
+    d4c = type(t4[r, 0])(dr[2], dr[0], dr[1], dr[2])
+    ray4 = wp.vec4i(r, r, r, r)
+    q = r * n_q
+    for jq in range(n_q):
+        tq = t4[r, jq]
+        x0 = o[0] + tq[0] * dr[0]
+        y0 = o[1] + tq[0] * dr[1]
+        z0 = o[2] + tq[0] * dr[2]
+        x1 = o[0] + tq[1] * dr[0]
+        y1 = o[1] + tq[1] * dr[1]
+        z1 = o[2] + tq[1] * dr[2]
+        x2 = o[0] + tq[2] * dr[0]
+        y2 = o[1] + tq[2] * dr[1]
+        z2 = o[2] + tq[2] * dr[2]
+        x3 = o[0] + tq[3] * dr[0]
+        y3 = o[1] + tq[3] * dr[1]
+        z3 = o[2] + tq[3] * dr[2]
+        b = 3 * q
+        out_points4[b] = type(tq)(x0, y0, z0, x1)
+        out_points4[b + 1] = type(tq)(y1, z1, x2, y2)
+        out_points4[b + 2] = type(tq)(z2, x3, y3, z3)
+        out_dirs4[b] = d4a
+        out_dirs4[b + 1] = d4b
+        out_dirs4[b + 2] = d4c
+        out_t4[q] = tq
+        out_delta4[q] = delta4[r, jq]
+        out_z4[q] = tq * zs
+        out_ray4[q] = ray4
+        q += 1
 
 
 @dataclass
@@ -333,19 +385,50 @@ def dense_samples(
     n = n_rays * n_s
     # Packed by one kernel (one thread per ray, split over the launch threads) rather than NumPy
     # broadcasting, repeats and copies: 22-23 -> 16 ms on the textbook's 4096 x 64 float32 samples
-    # on a busy host (docs/performance.md), with the same roundings (bit for bit, tested).
-    args = [a.floats(name, x, finite=False) for name, x in (("origins", o), ("dirs", d), ("t", t), ("delta", delta),
-                                                ("z_scale", zs))]
+    # on a busy host (docs/performance.md), with the same roundings (bit for bit, tested); four
+    # samples at a time with vec4 stores when S % 4 == 0.
     out = Samples(points=a.empty((n, 3)), dirs=a.empty((n, 3)), t=a.empty(n), delta=a.empty(n), z=a.empty(n),
                   ray_index=a.empty(n, wp.int32),
                   ray_offsets=wp.array((np.arange(n_rays + 1) * n_s).astype(np.int32), dtype=wp.int32,
                                        device=a.device))
-    if n:
-        a.launch(_dense_kernel, n_rays, args + [out.points, out.dirs, out.t, out.delta, out.z, out.ray_index],
-                 min_chunk=64)
+    if not n:
+        return out
+    v3, v4 = _VEC3[a.scalar], _VEC4[a.scalar]
+    quads = n_s % 4 == 0  # four samples at a time (bit for bit the same arrays)
+    shapes = [(n_rays,), (n_rays,)] + ([(n_rays, n_s // 4)] * 2 if quads else [t.shape] * 2) + [(n_rays,)]
+    dtypes = [v3, v3] + ([v4, v4] if quads else [a.scalar, a.scalar]) + [a.scalar]
+    if a.device.is_cpu:
+        # The kernel reads the NumPy inputs in place: views of contiguous arrays (`host` keeps them
+        # alive until the launch returns), seen directly as the vectors the kernel takes.
+        host = [np.ascontiguousarray(x) for x in (o, d, t, delta, zs)]
+        args = [wp.array(ptr=x.ctypes.data, dtype=dt, shape=sh, device=a.device)
+                for x, dt, sh in zip(host, dtypes, shapes)]
+    else:
+        inputs = [a.floats(name, x, finite=False) for name, x in
+                  (("origins", o), ("dirs", d), ("t", t), ("delta", delta), ("z_scale", zs))]
+        args = [wp.array(ptr=x.ptr, dtype=dt, shape=sh, device=a.device) for x, dt, sh in zip(inputs, dtypes, shapes)]
+    view = lambda x, dtype, shape: wp.array(ptr=x.ptr, dtype=dtype, shape=shape, device=a.device)  # noqa: E731
+    if quads:
+        outs = [view(x, v4, (3 * n // 4,)) for x in (out.points, out.dirs)]
+        outs += [view(x, v4, (n // 4,)) for x in (out.t, out.delta, out.z)] + [view(out.ray_index, wp.vec4i, (n // 4,))]
+        a.launch(_DENSE4[a.scalar], n_rays, args + outs, min_chunk=64)
+    else:
+        outs = [view(x, v3, (n,)) for x in (out.points, out.dirs)] + [out.t, out.delta, out.z, out.ray_index]
+        a.launch(_DENSE[a.scalar], n_rays, args + outs, min_chunk=64)
     return out
 
 
 A.declare_float_overloads(_ray_aabb_kernel)
 A.declare_float_overloads(_march_kernel)
-A.declare_float_overloads(_dense_kernel)
+_VEC3 = {wp.float32: wp.vec3f, wp.float64: wp.vec3d}
+_DENSE = {s: wp.overload(_dense_kernel, {
+    "origins": wp.array(dtype=_VEC3[s]), "dirs": wp.array(dtype=_VEC3[s]), "t": wp.array2d(dtype=s),
+    "delta": wp.array2d(dtype=s), "z_scale": wp.array(dtype=s), "out_points": wp.array(dtype=_VEC3[s]),
+    "out_dirs": wp.array(dtype=_VEC3[s]), "out_t": wp.array(dtype=s), "out_delta": wp.array(dtype=s),
+    "out_z": wp.array(dtype=s)}) for s in A.FLOATS}
+_VEC4 = {wp.float32: wp.vec4f, wp.float64: wp.vec4d}
+_DENSE4 = {s: wp.overload(_dense4_kernel, {
+    "origins": wp.array(dtype=_VEC3[s]), "dirs": wp.array(dtype=_VEC3[s]), "t4": wp.array2d(dtype=_VEC4[s]),
+    "delta4": wp.array2d(dtype=_VEC4[s]), "z_scale": wp.array(dtype=s), "out_points4": wp.array(dtype=_VEC4[s]),
+    "out_dirs4": wp.array(dtype=_VEC4[s]), "out_t4": wp.array(dtype=_VEC4[s]), "out_delta4": wp.array(dtype=_VEC4[s]),
+    "out_z4": wp.array(dtype=_VEC4[s])}) for s in A.FLOATS}

@@ -204,14 +204,14 @@ def _spheres_case(dev, threads: int, tiny: bool, sync, compare: bool) -> dict:
 
     def render():  # as experiments/volume_render_spheres times it
         s = dense_samples(origins.astype(np.float32), dirs.astype(np.float32),
-                          np.tile(t, (n_rays, 1)).astype(np.float32), np.tile(delta, (n_rays, 1)).astype(np.float32),
+                          np.tile(t.astype(np.float32), (n_rays, 1)), np.tile(delta.astype(np.float32), (n_rays, 1)),
                           device=dev)
         return render_samples(field, s, background=(0.0, 0.0, 0.0), t_threshold=0.0).rgb.numpy()
 
     def render_fused():  # the same image through SphereField.render_dense (one kernel per ray)
         rgb, _, _ = field.render_dense(origins.astype(np.float32), dirs.astype(np.float32),
-                                       np.tile(t, (n_rays, 1)).astype(np.float32),
-                                       np.tile(delta, (n_rays, 1)).astype(np.float32), t_threshold=0.0)
+                                       np.tile(t.astype(np.float32), (n_rays, 1)),
+                                       np.tile(delta.astype(np.float32), (n_rays, 1)), t_threshold=0.0)
         return rgb
 
     fns = {"render": render, "render_fused": render_fused}

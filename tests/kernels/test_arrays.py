@@ -169,3 +169,69 @@ def test_like_carries_device_scalar_and_kind():
     assert a.scalar == wp.float64 and not a.as_numpy and a.device == wp.get_device("cpu")
     with pytest.raises(ValueError, match="y: expected dtype float64 like the other inputs"):
         a.floats("y", np.zeros(2, np.float32))
+
+
+def test_host_pool_recycles_freed_blocks_of_the_same_size():
+    x0 = np.zeros(3, np.float32)
+    a = A.Inputs("cpu", x0)
+    a.floats("x0", x0)  # sets the call's scalar type
+    n = A.HostPool.MIN_BYTES // 4 + 17  # float32 elements: above the pooling threshold
+    x = a.empty((n,))
+    ptr = x.ptr
+    x.numpy()[:] = 1.5
+    del x  # back into the pool
+    y = a.empty(n)
+    assert y.ptr == ptr and y.shape == (n,) and y.dtype == wp.float32
+    assert np.all(y.numpy() == 1.5)  # the same block (contents undefined in general)
+    z = a.empty((n // 3, 3))  # another byte size: a new block
+    assert z.ptr != ptr
+    # Small arrays stay with Warp's allocator.
+    assert a.empty(4).deleter is not None and a.empty(4).deleter != A.HOST_POOL._release
+
+
+def test_host_pool_keeps_blocks_alive_while_a_numpy_view_exists():
+    x0 = np.zeros(3, np.float64)
+    a = A.Inputs("cpu", x0)
+    a.floats("x0", x0)
+    n = A.HostPool.MIN_BYTES // 8 + 5
+    x = a.empty(n)
+    view = a.out(x)  # what an entry point hands back for NumPy inputs
+    view[:] = 2.0
+    ptr = x.ptr
+    del x
+    y = a.empty(n)  # must not reuse the block the view still reads
+    assert y.ptr != ptr
+    y.numpy()[:] = -1.0
+    assert np.all(view == 2.0)
+
+
+def test_host_pool_limit_frees_the_oldest_blocks():
+    pool = A.HostPool(limit=3 * A.HostPool.MIN_BYTES)
+    dev = wp.get_device("cpu")
+    n = A.HostPool.MIN_BYTES // 4
+    arrays = [pool.empty((n,), wp.float32, dev) for _ in range(5)]
+    ptrs = [x.ptr for x in arrays]
+    while arrays:  # five blocks freed in allocation order, three kept: the last three freed
+        arrays.pop(0)
+    assert pool.nbytes() == 3 * A.HostPool.MIN_BYTES
+    again = [pool.empty((n,), wp.float32, dev) for _ in range(3)]
+    assert sorted(x.ptr for x in again) == sorted(ptrs[2:])
+    del again
+    pool.clear()
+    assert pool.nbytes() == 0
+
+
+def test_host_pool_size_classes():
+    # 8 classes per octave: at most 12.5% more than asked, and sizes a little apart share a block.
+    for n in (1 << 16, (1 << 16) + 1, 70000, 3 << 20, 12345678, (1 << 30) - 1):
+        c = A.HostPool.size_class(n)
+        assert n <= c <= n * 1.125 and c % (1 << max(n.bit_length() - 4, 0)) == 0
+    pool = A.HostPool()
+    dev = wp.get_device("cpu")
+    x = pool.empty((100000,), wp.float32, dev)
+    ptr = x.ptr
+    del x
+    y = pool.empty((100500,), wp.float32, dev)  # 400 000 and 402 000 bytes: one class
+    assert y.ptr == ptr and y.shape == (100500,) and y.capacity == 402000  # capacity: the array's bytes
+    del y
+    pool.clear()

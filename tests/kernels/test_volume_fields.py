@@ -400,3 +400,53 @@ def test_sphere_cpu_passes_give_the_same_values_in_any_block_size(monkeypatch, b
     np.testing.assert_array_equal(got_field.rgb, ref_field.rgb)
     for a, b in zip(got_render, ref_render):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("n", [1, 3, 4, 5, 4999])
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_sphere_forward_cpu_passes_equal_numpy_bit_for_bit(monkeypatch, np_t, wp_t, n):
+    # The CPU forward (quads of points in vec4 lanes, NumPy's exp between the passes) against the
+    # same formula written in NumPy with the same operations in the same order: equal bit for bit,
+    # for point counts that are and are not multiples of 4, and in blocks of a few quads.
+    import kernels.volume.spheres as spheres_module
+
+    field = SphereField.textbook(wp_t)
+    pts = np.random.default_rng(12).uniform([-2.0, -1.5, 2.5], [2.5, 1.5, 6.0], (n, 3)).astype(np_t)
+    pts[0] = (0.0, 0.0, 4.0)  # inside a sphere: m = 0
+    P = field.params_numpy()
+    sig = np.zeros(n, np_t)
+    col = np.zeros((n, 3), np_t)
+    for c, r, k, s in zip(P["centers"], P["radii"], P["colors"], P["sharpness"]):
+        dx, dy, dz = (pts[:, a] - c[a] for a in range(3))
+        dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+        dk = s * np.exp(-s * np.maximum(np_t(0), dist - r))
+        sig = sig + dk
+        col = col + dk[:, None] * k
+    norm = sig > np_t(1e-6)
+    col[norm] = col[norm] / sig[norm, None]
+    for block in (10 ** 9, 2 * 4 * 3):
+        monkeypatch.setattr(spheres_module, "_FALLOFF_BLOCK", block)
+        out = field.forward(pts)
+        assert out.sigma.dtype == np_t
+        np.testing.assert_array_equal(out.sigma, sig)
+        np.testing.assert_array_equal(out.rgb, col)
+
+
+def test_sphere_packed_parameters_follow_in_place_updates():
+    # The CPU passes reuse the packed (vec4) parameters while the parameters' values are unchanged;
+    # an in-place update (what an optimiser does) must be seen by the next call.
+    field = SphereField.textbook(wp.float32)
+    pts = np.random.default_rng(13).uniform([-2.0, -1.5, 2.5], [2.5, 1.5, 6.0], (257, 3)).astype(np.float32)
+    first = field.forward(pts)
+    for name, delta in (("radii", 0.05), ("centers", 0.1), ("colors", -0.1), ("sharpness", 0.5)):
+        field.params[name].numpy()[0] += delta  # in place, as an optimiser step
+        fresh = SphereField(*(field.params_numpy()[k] for k in ("centers", "radii", "colors", "sharpness")),
+                            dtype=wp.float32)
+        got, want = field.forward(pts), fresh.forward(pts)
+        np.testing.assert_array_equal(got.sigma, want.sigma)
+        np.testing.assert_array_equal(got.rgb, want.rgb)
+        o, d = np.zeros((3, 3), np.float32), np.tile(np.array([0, 0, 1], np.float32), (3, 1))
+        t = np.tile(np.linspace(1, 6, 8, dtype=np.float32), (3, 1))
+        for a, b in zip(field.render_dense(o, d, t, np.full_like(t, 0.5)), fresh.render_dense(o, d, t, np.full_like(t, 0.5))):
+            np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(first.sigma, field.forward(pts).sigma)

@@ -202,3 +202,32 @@ def test_sphere_render_dense_fused_kernel_agrees_with_cpu_two_pass_path(monkeypa
     fused = field.render_dense(*args, background=(0.1, 0.2, 0.3), t_threshold=thr)
     for a, b in zip(two_pass, fused):
         np.testing.assert_allclose(a, b, rtol=tol, atol=tol)
+
+
+@pytest.mark.parametrize("n_s", [4, 24, 64])
+@pytest.mark.parametrize("thr", [0.0, 1e-3, 0.3], ids=["no_termination", "late_termination", "early_termination"])
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_sphere_render_dense_quads_equal_the_one_at_a_time_passes(monkeypatch, np_t, wp_t, thr, n_s):
+    # With S % 4 == 0 the CPU passes take four samples at a time (vec4 lanes): the same operations
+    # per sample in the same order, so the image, depth and opacity are those of one sample at a
+    # time bit for bit, whatever the termination point and the block size.
+    import kernels.volume.spheres as spheres_module
+
+    rng = np.random.default_rng(11)
+    field = SphereField.textbook(wp_t)
+    n_rays = 45
+    o = rng.normal(0.0, 0.2, (n_rays, 3))
+    d = rng.normal([0, 0, 1], 0.3, (n_rays, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = np.sort(rng.uniform(1.0, 6.0, (n_rays, n_s)), axis=1)
+    delta = np.diff(t, axis=1, append=t[:, -1:] + 1e-3)
+    args = [x.astype(np_t) for x in (o, d, t, delta)]
+    quads = field.render_dense(*args, background=(0.1, 0.2, 0.3), t_threshold=thr)
+    monkeypatch.setattr(spheres_module, "_FALLOFF_BLOCK", 7 * n_s * 3)  # 7 rays a block
+    blocked = field.render_dense(*args, background=(0.1, 0.2, 0.3), t_threshold=thr)
+    monkeypatch.setattr(spheres_module, "_QUADS_ON_CPU", False)
+    single = field.render_dense(*args, background=(0.1, 0.2, 0.3), t_threshold=thr)
+    for a, b, c in zip(quads, blocked, single):
+        assert a.dtype == np_t
+        np.testing.assert_array_equal(a, c)
+        np.testing.assert_array_equal(b, c)

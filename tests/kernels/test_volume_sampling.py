@@ -209,17 +209,29 @@ def test_device_value_checks_count_like_the_host_checks():
         assert count(_checks._count_zero_rows, dirs) == 2
 
 
+@pytest.mark.parametrize("s", [17, 16, 4], ids=["S17", "S16_quads", "S4_quads"])
+@pytest.mark.parametrize("layout", ["contiguous", "strided"])
 @pytest.mark.parametrize("np_t", [np.float32, np.float64], ids=["float32", "float64"])
-def test_dense_samples_match_numpy_broadcasting_bit_for_bit(np_t):
-    # The packing kernel rounds as NumPy does: x = o + (t d), z = t z_scale.
+def test_dense_samples_match_numpy_broadcasting_bit_for_bit(np_t, layout, s):
+    # The packing kernel rounds as NumPy does: x = o + (t d), z = t z_scale (four samples at a
+    # time when S % 4 == 0). On the CPU it reads the inputs in place; strided and Fortran-ordered
+    # inputs are made contiguous first.
     rng = np.random.default_rng(7)
-    r, s = 300, 17
+    r = 300
     o = rng.normal(size=(r, 3)).astype(np_t)
     d = rng.normal(size=(r, 3)).astype(np_t)
     t = np.sort(rng.uniform(0.5, 6.0, (r, s)), axis=1).astype(np_t)
     delta = rng.uniform(0.0, 0.3, (r, s)).astype(np_t)
     zs = rng.uniform(0.5, 1.0, r).astype(np_t)
+    if layout == "strided":
+        o = np.asfortranarray(o)
+        d = np.repeat(d, 2, axis=1)[:, ::2]
+        t = np.repeat(t, 2, axis=0)[::2]
+        zs = np.repeat(zs, 3)[::3]
+    inputs = [x.copy() for x in (o, d, t, delta, zs)]
     got = dense_samples(o, d, t, delta, z_scale=zs)
+    for x, x0 in zip((o, d, t, delta, zs), inputs):  # read, never written
+        np.testing.assert_array_equal(x, x0)
     np.testing.assert_array_equal(got.points.numpy(), (o[:, None, :] + t[:, :, None] * d[:, None, :]).reshape(-1, 3))
     np.testing.assert_array_equal(got.dirs.numpy(), np.repeat(d, s, axis=0))
     np.testing.assert_array_equal(got.t.numpy(), t.reshape(-1))
