@@ -14,7 +14,7 @@ import pytest
 from kernels import splat as ks
 from kernels.reference import splat as ref
 from kernels.splat.raster import _rasterize_wp, background_array
-from kernels.splat.tiles import _bin_tiles
+from kernels.splat.tiles import SERIAL_SORT_MAX, _bin_tiles
 from research.bench.splat import bench_scene
 from research.checks import splat as cs
 
@@ -87,18 +87,23 @@ def _scenes():
 
 @pytest.mark.parametrize("mode", ks.MODES)
 def test_counting_sort_lists_equal_the_radix_sort(mode):
+    """The CPU's two counting sorts (one serial kernel for few entries, the chunked one) and CUDA's
+    radix sort, all run on the CPU, give the same lists."""
     for name, g, cam in _scenes():
         p = ks.project(g, cam, mode=mode)
         s = ks.splats_2d(p.means2d, p.conics, p.colors, p.opacities, p.depths, p.radii)
-        a = _bin_tiles(s, cam.width, cam.height, mode, counting_sort=True)
         b = _bin_tiles(s, cam.width, cam.height, mode, counting_sort=False)
-        assert a.n_entries == b.n_entries > 0, name
-        e = a.n_entries
-        for k in ("starts", "counts", "ranges", "packed"):
-            np.testing.assert_array_equal(getattr(a, k).numpy(), getattr(b, k).numpy(), err_msg=f"{name} {k}")
-        for k in ("sorted_gid", "sorted_entry"):
-            np.testing.assert_array_equal(getattr(a, k).numpy()[:e], getattr(b, k).numpy()[:e], err_msg=f"{name} {k}")
-        assert len(np.unique(a.ranges.numpy()[:, 0])) > 4, name  # many non-empty tiles
+        assert 0 < b.n_entries <= SERIAL_SORT_MAX, name  # bin_tiles takes the serial kernel here
+        for serial_max in (SERIAL_SORT_MAX, 0):
+            a = _bin_tiles(s, cam.width, cam.height, mode, counting_sort=True, serial_max=serial_max)
+            assert a.n_entries == b.n_entries, name
+            e = a.n_entries
+            for k in ("starts", "counts", "ranges", "packed"):
+                np.testing.assert_array_equal(getattr(a, k).numpy(), getattr(b, k).numpy(), err_msg=f"{name} {k}")
+            for k in ("sorted_gid", "sorted_entry"):
+                np.testing.assert_array_equal(getattr(a, k).numpy()[:e], getattr(b, k).numpy()[:e],
+                                              err_msg=f"{name} {k}")
+        assert len(np.unique(b.ranges.numpy()[:, 0])) > 4, name  # many non-empty tiles
 
 
 @pytest.mark.parametrize("mode", ks.MODES)
