@@ -51,6 +51,9 @@ wp.set_module_options({"enable_backward": False})
 
 TILE = 16
 TILE_PIXELS = TILE * TILE
+# The largest image side: pixel centres px + 1/2 are exact in float32 below 2^23 (the rasteriser steps
+# them by one).
+MAX_SIDE = 1 << 23
 MIN_CHUNK = 1024
 # Columns of a splat's packed row, all the rasteriser reads of it (16 float32 = one 64-byte cache
 # line): 0-1 mean2d u, v; 2-4 conic Q00, Q01, Q11; 5 opacity o; 6 -ln(255 o); 7 depth; 8-10 colour;
@@ -488,8 +491,8 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     would skip.
     """
     mode_id(mode)
-    width = A.check_int("width", width, minimum=1)
-    height = A.check_int("height", height, minimum=1)
+    width = A.check_int("width", width, minimum=1, maximum=MAX_SIDE)
+    height = A.check_int("height", height, minimum=1, maximum=MAX_SIDE)
     return _bin_tiles(s, width, height, mode, counting_sort=s.device.is_cpu)
 
 

@@ -121,3 +121,30 @@ def test_tile_and_pixel_layouts_agree_bit_for_bit(dtype, mode):
     assert np.count_nonzero(a.alpha.numpy()) > 0.9 * W * H
     for k in ("rgb", "alpha", "depth", "final_T", "n_contrib"):
         assert getattr(a, k).numpy().tobytes() == getattr(b, k).numpy().tobytes(), k
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_stop_threshold_is_each_modes_comparison(dtype):
+    """The rasterisers' one comparison next_t < stop_below(mode) is "3dgs"'s next_t < T_MIN and
+    "gsplat"'s next_t <= T_MIN, on T_MIN itself and the floats around it."""
+    from kernels.splat.raster import T_MIN, stop_below
+
+    t = dtype(T_MIN)
+    xs = [t, np.nextafter(t, dtype(0)), np.nextafter(t, dtype(1)), np.nextafter(np.nextafter(t, dtype(1)), dtype(1)),
+          dtype(0), dtype(1), dtype(np.nan)]
+    t3, tg = dtype(stop_below("3dgs", np.dtype(dtype))), dtype(stop_below("gsplat", np.dtype(dtype)))
+    for x in xs:
+        assert (x < t3) == (x < t)
+        assert (x < tg) == (x <= t)
+
+
+def test_image_side_limit():
+    """Pixel centres step by one in float32 in the rasteriser: sides above 2^23 are refused up front."""
+    from kernels.splat.tiles import MAX_SIDE
+
+    K = np.array([[100.0, 0, 10], [0, 100.0, 10], [0, 0, 1]])
+    with pytest.raises(ValueError, match="width"):
+        ks.SplatCamera(np.eye(4), K, MAX_SIDE + 1, 4)
+    with pytest.raises(ValueError, match="height"):
+        ks.SplatCamera(np.eye(4), K, 4, MAX_SIDE + 1)
+    ks.SplatCamera(np.eye(4), K, MAX_SIDE, 4)
