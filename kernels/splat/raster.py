@@ -296,12 +296,17 @@ def _raster_backward_tile_kernel(
         a8 = zero
         a9 = zero
         row0, row1, col0, col1 = pixel_span(packed, g, x_lo, x_hi, y_lo, y_hi)
-        for py in range(row0, row1):
+        py = row0 - 1
+        while py < row1 - 1:  # while loops and a stepped pixel centre, as in the forward
+            py += 1
             pyf = packed.dtype(float(py)) + half
-            for px in range(col0, col1):
+            px = col0 - 1
+            pxf = packed.dtype(float(px)) + half
+            while px < col1 - 1:
+                px += 1
+                pxf += one
                 if s >= n_contrib[py, px]:
                     continue
-                pxf = packed.dtype(float(px)) + half
                 dx = u - pxf
                 dy = v - pyf
                 power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
