@@ -34,6 +34,9 @@ the rows and columns inside its alpha >= 1/255 ellipse, widened for rounding; ev
 would skip it). Each pixel's running T and sums live in arrays between splats; the forward marks
 a stopped pixel (n_contrib < 0 until the end) and ends the tile once all its pixels stopped.
 On CUDA the forward runs a thread per pixel over its tile's whole list (the same results).
+The per-tile loops are while loops with the pixel centre stepped by one (exact for image sides up
+to MAX_SIDE = 2^23), and both modes' stop is one comparison next_t < stop_below(mode): Warp's
+range() iterator and the compound test cost more per pixel.
 """
 
 from __future__ import annotations
