@@ -86,8 +86,9 @@ _pool_size = 0
 _pool_lock = threading.Lock()
 # (kernel, device, argument types) already launched here: their module is compiled and loaded.
 _loaded: set[tuple] = set()
-# (kernel, device, argument types) -> the kernel to launch: a generic kernel's overload for those types.
-_resolved: dict[tuple, Any] = {}
+# (kernel, device, argument types) -> (the kernel, its overload for those types). Holding the kernel keeps
+# its id, part of the key, from being reused by another kernel while the entry exists.
+_resolved: dict[tuple, tuple[Any, Any]] = {}
 
 
 def default_threads() -> int:
@@ -230,11 +231,11 @@ def _resolve(kernel: Any, key: tuple, args: list[Any]) -> Any:
     """
     if not kernel.is_generic:
         return kernel
-    resolved = _resolved.get(key)
-    if resolved is None:
-        resolved = kernel.add_overload(kernel.infer_argument_types(args))
-        _resolved[key] = resolved
-    return resolved
+    entry = _resolved.get(key)
+    if entry is None or entry[0] is not kernel:
+        entry = (kernel, kernel.add_overload(kernel.infer_argument_types(args)))
+        _resolved[key] = entry
+    return entry[1]
 
 
 def launch_split(

@@ -198,8 +198,8 @@ def test_generic_kernel_launches_the_overload_of_its_argument_types():
             np.testing.assert_array_equal(hits, np.ones(3000, dtype=np.int32))
     resolved = {k: v for k, v in kl._resolved.items() if k[0] == id(affine_offset)}
     assert len(resolved) >= 2
-    for key, kernel in resolved.items():
-        assert not kernel.is_generic
+    for key, (generic, kernel) in resolved.items():
+        assert generic is affine_offset and not kernel.is_generic
         assert kernel.adj.args[0].type.dtype == key[2][0][1]  # x's dtype
 
 
