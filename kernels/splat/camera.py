@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kernels import _arrays as A
-from kernels.splat.tiles import TILE
+from kernels.splat.tiles import MAX_SIDE, TILE
 
 DEFAULT_NEAR = 0.01
 DEFAULT_FAR = 1e10
@@ -54,8 +54,8 @@ class SplatCamera:
             raise ValueError(f"K: expected a finite 3x3 matrix, got shape {K.shape}")
         if K[0, 0] <= 0 or K[1, 1] <= 0 or K[0, 1] != 0 or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
             raise ValueError("K: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 and no skew")
-        width = A.check_int("width", self.width, minimum=1)
-        height = A.check_int("height", self.height, minimum=1)
+        width = A.check_int("width", self.width, minimum=1, maximum=MAX_SIDE)
+        height = A.check_int("height", self.height, minimum=1, maximum=MAX_SIDE)
         if not (0 < self.near < self.far):
             raise ValueError(f"near, far: expected 0 < near < far, got {self.near}, {self.far}")
         object.__setattr__(self, "viewmat", view)

@@ -34,6 +34,9 @@ the rows and columns inside its alpha >= 1/255 ellipse, widened for rounding; ev
 would skip it). Each pixel's running T and sums live in arrays between splats; the forward marks
 a stopped pixel (n_contrib < 0 until the end) and ends the tile once all its pixels stopped.
 On CUDA the forward runs a thread per pixel over its tile's whole list (the same results).
+The per-tile loops are while loops with the pixel centre stepped by one (exact for image sides up
+to MAX_SIDE = 2^23), and both modes' stop is one comparison next_t < stop_below(mode): Warp's
+range() iterator and the compound test cost more per pixel.
 """
 
 from __future__ import annotations
@@ -41,11 +44,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
-from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles, pixel_span
+from kernels.splat.tiles import MAX_SIDE, TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles, pixel_span
 
 wp.set_module_options({"enable_backward": False})
 
@@ -61,7 +65,7 @@ _GRAD_COLS = 10
 def _raster_forward_kernel(
     packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
     sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
-    width: int, height: int, tiles_x: int, alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any),
+    width: int, height: int, tiles_x: int, alpha_max: Any, t_stop: Any, out_rgb: wp.array3d(dtype=Any),
     out_alpha: wp.array2d(dtype=Any), out_depth: wp.array2d(dtype=Any),
     final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32), offset: int,
 ):
@@ -69,7 +73,9 @@ def _raster_forward_kernel(
     # in the inner one. Each pixel sees the same splats in the same order, with the same arithmetic,
     # as a loop over the tile's list per pixel; its running sums live in the output arrays
     # (final_T = T, out_rgb and out_depth the blended sums), and n_contrib < 0 marks a stopped pixel
-    # (-1 - its count).
+    # (-1 - its count). The loops over splats, rows and pixels are while loops, and the pixel centre
+    # px + 1/2 steps by one (exact: image sides < 2^23, MAX_SIDE): Warp's range() iterator costs
+    # more per pixel than these.
     tile = wp.tid() + offset
     zero = packed.dtype(0.0)
     one = packed.dtype(1.0)
@@ -91,7 +97,9 @@ def _raster_forward_kernel(
             n_contrib[py, px] = start
     n_pix = (x_hi - x_lo) * (y_hi - y_lo)
     stopped = int(0)
-    for s in range(start, end):
+    s = start - 1
+    while s < end - 1:
+        s += 1
         g = sorted_gid[s]
         u = packed[g, 0]
         v = packed[g, 1]
@@ -108,13 +116,18 @@ def _raster_forward_kernel(
         # The splat's rows inside its widened 1/255 ellipse in this tile, and the columns of any of
         # those rows (tiles.py: pixel_span).
         row0, row1, col0, col1 = pixel_span(packed, g, x_lo, x_hi, y_lo, y_hi)
-        for py in range(row0, row1):
+        py = row0 - 1
+        while py < row1 - 1:
+            py += 1
             pyf = packed.dtype(float(py)) + half
-            for px in range(col0, col1):
+            px = col0 - 1
+            pxf = packed.dtype(float(px)) + half
+            while px < col1 - 1:
+                px += 1
+                pxf += one
                 nc = n_contrib[py, px]
                 if nc < 0:
                     continue
-                pxf = packed.dtype(float(px)) + half
                 dx = u - pxf
                 dy = v - pyf
                 power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
@@ -125,7 +138,7 @@ def _raster_forward_kernel(
                     continue
                 tr = final_T[py, px]
                 next_t = tr * (one - alpha)
-                if next_t < packed.dtype(T_MIN) or (stop_inclusive != 0 and next_t == packed.dtype(T_MIN)):
+                if next_t < t_stop:
                     n_contrib[py, px] = -1 - nc
                     stopped += 1
                     continue
@@ -154,7 +167,7 @@ def _raster_forward_kernel(
 def _raster_forward_pixel_kernel(
     packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
     sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32), width: int, height: int, tiles_x: int,
-    alpha_max: Any, stop_inclusive: int, out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any),
+    alpha_max: Any, t_stop: Any, out_rgb: wp.array3d(dtype=Any), out_alpha: wp.array2d(dtype=Any),
     out_depth: wp.array2d(dtype=Any), final_T: wp.array2d(dtype=Any), n_contrib: wp.array2d(dtype=wp.int32),
     offset: int,
 ):
@@ -192,7 +205,7 @@ def _raster_forward_pixel_kernel(
         if alpha < packed.dtype(ALPHA_MIN):
             continue
         next_t = tr * (one - alpha)
-        if next_t < packed.dtype(T_MIN) or (stop_inclusive != 0 and next_t == packed.dtype(T_MIN)):
+        if next_t < t_stop:
             break
         wgt = alpha * tr
         cr += wgt * packed[g, 8]
@@ -286,12 +299,17 @@ def _raster_backward_tile_kernel(
         a8 = zero
         a9 = zero
         row0, row1, col0, col1 = pixel_span(packed, g, x_lo, x_hi, y_lo, y_hi)
-        for py in range(row0, row1):
+        py = row0 - 1
+        while py < row1 - 1:  # while loops and a stepped pixel centre, as in the forward
+            py += 1
             pyf = packed.dtype(float(py)) + half
-            for px in range(col0, col1):
+            px = col0 - 1
+            pxf = packed.dtype(float(px)) + half
+            while px < col1 - 1:
+                px += 1
+                pxf += one
                 if s >= n_contrib[py, px]:
                     continue
-                pxf = packed.dtype(float(px)) + half
                 dx = u - pxf
                 dy = v - pyf
                 power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
@@ -389,6 +407,16 @@ class Raster:
 
 
 
+def stop_below(mode: str, np_dtype: Any) -> float:
+    """The kernels' stop threshold t: a pixel stops before a splat with T (1 - alpha) < t. "3dgs" stops
+    below T_MIN, "gsplat" at or below it: t is T_MIN in the dtype, or the next float above it (for
+    floats x <= T_MIN exactly when x < nextafter(T_MIN, inf)), so one comparison serves both modes."""
+    t = np_dtype.type(T_MIN)
+    if mode_id(mode) == 1:
+        t = np.nextafter(t, np_dtype.type(np.inf))
+    return float(t)
+
+
 def background_array(a: A.Inputs, background: Any) -> wp.array:
     """The (3,) background as a wp.array (None: black)."""
     if background is None:
@@ -410,7 +438,7 @@ def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
 def _rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array, tiles: Tiles | None, mode: str,
                   per_tile: bool) -> tuple[Raster, Tiles]:
     """`rasterize_wp` with the forward's layout chosen: a thread per tile (the CPU's) or per pixel (CUDA's)."""
-    mid = mode_id(mode)
+    mode_id(mode)
     a = s.inputs()
     if tiles is None:
         tiles = bin_tiles(s, width, height, mode)
@@ -424,7 +452,7 @@ def _rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array, tiles: Til
                  wp.empty((height, width), dtype=wp.int32, device=dev))
     n_tiles = tiles.tiles_x * tiles.tiles_y
     args = [tiles.packed, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]),
-            mid, out.rgb, out.alpha, out.depth, out.final_T, out.n_contrib]
+            a.s(stop_below(mode, a.np_dtype)), out.rgb, out.alpha, out.depth, out.final_T, out.n_contrib]
     if per_tile:
         a.launch(_raster_forward_kernel, n_tiles, args, min_chunk=1)
     else:
@@ -440,8 +468,8 @@ def rasterize(s: Splats2D, width: int, height: int, background: Any = None,
     The Raster's arrays are in the kind of the splats' inputs; the Tiles stay wp.arrays (state).
     """
     mode_id(mode)
-    width = A.check_int("width", width, minimum=1)
-    height = A.check_int("height", height, minimum=1)
+    width = A.check_int("width", width, minimum=1, maximum=MAX_SIDE)
+    height = A.check_int("height", height, minimum=1, maximum=MAX_SIDE)
     a = s.inputs()
     raster, tiles = rasterize_wp(s, width, height, background_array(a, background), tiles, mode)
     return Raster(*(a.out(x) for x in (raster.rgb, raster.alpha, raster.depth, raster.final_T,
@@ -457,8 +485,8 @@ def rasterize_backward(s: Splats2D, width: int, height: int, background: Any, ti
     (shaped like the splats' arrays) and "background" (3,), in the kind of the splats' inputs.
     """
     mode_id(mode)
-    width = A.check_int("width", width, minimum=1)
-    height = A.check_int("height", height, minimum=1)
+    width = A.check_int("width", width, minimum=1, maximum=MAX_SIDE)
+    height = A.check_int("height", height, minimum=1, maximum=MAX_SIDE)
     a = s.inputs()
     return {k: a.out(v) for k, v in rasterize_backward_wp(
         a, s, width, height, background_array(a, background), tiles, raster, grad_rgb, grad_alpha,

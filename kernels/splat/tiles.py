@@ -28,8 +28,10 @@ The (tile, splat) pairs are listed sorted by (tile, depth rank): the splats are 
 order, and a stable sort by tile alone then lists every tile's splats front to back; per-tile
 ranges [start, end) index the sorted list, and each sorted entry keeps its emitted index (the
 backward's gradient row) and its splat. On the CPU the sort is a counting sort by tile
-(_counting_sort: per-chunk histograms, a scan, a scatter); on CUDA a radix sort
-(wp.utils.radix_sort_pairs, ceil(log2 tiles) bits); both give the same lists. Every kernel writes
+(_counting_sort: per-chunk histograms, a scan, a scatter; up to SERIAL_SORT_MAX entries, where it
+would run one chunk, _serial_sort does the same in one single-threaded kernel straight from the
+splats' tile boxes, without the emitted arrays and the host scans); on CUDA a radix sort
+(wp.utils.radix_sort_pairs, ceil(log2 tiles) bits); all give the same lists. Every kernel writes
 only its own slots (the emit kernel splat i's slice, a sort chunk its histogram row and slots),
 so all run split over CPU threads.
 """
@@ -49,6 +51,9 @@ wp.set_module_options({"enable_backward": False})
 
 TILE = 16
 TILE_PIXELS = TILE * TILE
+# The largest image side: pixel centres px + 1/2 are exact in float32 below 2^23 (the rasteriser steps
+# them by one).
+MAX_SIDE = 1 << 23
 MIN_CHUNK = 1024
 # Columns of a splat's packed row, all the rasteriser reads of it (16 float32 = one 64-byte cache
 # line): 0-1 mean2d u, v; 2-4 conic Q00, Q01, Q11; 5 opacity o; 6 -ln(255 o); 7 depth; 8-10 colour;
@@ -57,6 +62,9 @@ PACKED_COLS = 16
 # The CPU's counting sort by tile: at most SORT_CHUNKS chunks of at least SORT_CHUNK_MIN entries.
 SORT_CHUNKS = 32
 SORT_CHUNK_MIN = 1 << 16
+# Up to this many entries (where the chunked counting sort would run one chunk anyway) the CPU lists
+# them with one serial kernel (_serial_sort), without the emitted entries and the host scans.
+SERIAL_SORT_MAX = 2 * SORT_CHUNK_MIN
 # Unit roundoff of each float dtype (the margin of the pixel spans, _span_widening).
 UNIT_ROUNDOFF = {wp.float32: 2.0 ** -24, wp.float64: 2.0 ** -53}
 
@@ -317,6 +325,53 @@ def _tile_scatter_kernel(
 
 
 @wp.kernel
+def _serial_sort_kernel(
+    rects: wp.array2d(dtype=wp.int32), counts: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), n: int,
+    tiles_x: int, n_tiles: int, starts: wp.array(dtype=wp.int32), next_slot: wp.array(dtype=wp.int32),
+    ranges: wp.array2d(dtype=wp.int32), sorted_gid: wp.array(dtype=wp.int32), sorted_entry: wp.array(dtype=wp.int32),
+    offset: int,
+):
+    # The counting sort of _counting_sort as one chunk, on one thread, straight from the splats' tile
+    # boxes: the slices' starts (a scan of the counts in depth order), the per-tile histogram, its
+    # scan (the ranges), and every splat's entries placed in depth order (the emitted order).
+    e = int(0)
+    for j in range(n):
+        i = order[j]
+        starts[i] = e
+        e += counts[i]
+    for t in range(n_tiles):
+        next_slot[t] = 0
+    for i in range(n):
+        if counts[i] > 0:
+            for ty in range(rects[i, 2], rects[i, 3]):
+                for tx in range(rects[i, 0], rects[i, 1]):
+                    t = ty * tiles_x + tx
+                    next_slot[t] = next_slot[t] + 1
+    first = int(0)
+    for t in range(n_tiles):
+        c = next_slot[t]
+        ranges[t, 0] = 0
+        ranges[t, 1] = 0
+        if c > 0:
+            ranges[t, 0] = first
+            ranges[t, 1] = first + c
+        next_slot[t] = first
+        first += c
+    for j in range(n):
+        i = order[j]
+        if counts[i] > 0:
+            e = starts[i]
+            for ty in range(rects[i, 2], rects[i, 3]):
+                for tx in range(rects[i, 0], rects[i, 1]):
+                    t = ty * tiles_x + tx
+                    pos = next_slot[t]
+                    next_slot[t] = pos + 1
+                    sorted_gid[pos] = i
+                    sorted_entry[pos] = e
+                    e += 1
+
+
+@wp.kernel
 def _ranges_kernel(
     keys: wp.array(dtype=wp.int32), values: wp.array(dtype=wp.int64), n: int,
     sorted_gid: wp.array(dtype=wp.int32), sorted_entry: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
@@ -436,13 +491,15 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     would skip.
     """
     mode_id(mode)
-    width = A.check_int("width", width, minimum=1)
-    height = A.check_int("height", height, minimum=1)
+    width = A.check_int("width", width, minimum=1, maximum=MAX_SIDE)
+    height = A.check_int("height", height, minimum=1, maximum=MAX_SIDE)
     return _bin_tiles(s, width, height, mode, counting_sort=s.device.is_cpu)
 
 
-def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: bool) -> Tiles:
-    """`bin_tiles` with the entry sort chosen: the counting sort (the CPU's) or the radix sort (CUDA's)."""
+def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: bool,
+               serial_max: int = SERIAL_SORT_MAX) -> Tiles:
+    """`bin_tiles` with the entry sort chosen: the counting sort (the CPU's; one serial kernel up to
+    `serial_max` entries) or the radix sort (CUDA's)."""
     mid = mode_id(mode)
     a = s.inputs()
     dev = s.device
@@ -465,6 +522,10 @@ def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: b
 
     # Depth order by a stable sort of the depths (culled splats last).
     wp.utils.radix_sort_pairs(dkeys, order, n)
+    if counting_sort:
+        n_entries = int(counts.numpy().sum(dtype=np.int64))  # a zero-copy view on the CPU
+        if 0 < n_entries <= serial_max:
+            return _serial_sort(a, rects, packed, counts, order, n, n_entries, tiles_x, tiles_y, mode)
     # Each splat's entries are the slice [starts[i], starts[i] + counts[i)), its tiles in row-major
     # order; the slices follow one another in depth order, so that the entries come out depth-ordered.
     starts = wp.empty(n, dtype=wp.int32, device=dev)
@@ -501,6 +562,21 @@ def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: b
     sorted_entry = wp.empty(n_entries, dtype=wp.int32, device=dev)
     a.launch(_ranges_kernel, n_entries, [keys, values, n_entries, sorted_gid, sorted_entry, ranges],
              min_chunk=MIN_CHUNK)
+    return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)
+
+
+def _serial_sort(a: A.Inputs, rects: wp.array, packed: wp.array, counts: wp.array, order: wp.array, n: int,
+                 n_entries: int, tiles_x: int, tiles_y: int, mode: str) -> Tiles:
+    """The CPU's lists for few entries: _counting_sort's, from one serial kernel (_serial_sort_kernel)."""
+    dev = a.device
+    n_tiles = tiles_x * tiles_y
+    starts = wp.empty(n, dtype=wp.int32, device=dev)
+    next_slot = wp.empty(n_tiles, dtype=wp.int32, device=dev)
+    ranges = wp.empty((n_tiles, 2), dtype=wp.int32, device=dev)
+    sorted_gid = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    sorted_entry = wp.empty(n_entries, dtype=wp.int32, device=dev)
+    a.launch(_serial_sort_kernel, 1, [rects, counts, order, n, tiles_x, n_tiles, starts, next_slot, ranges, sorted_gid,
+                                      sorted_entry], min_chunk=1)
     return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)
 
 

@@ -187,6 +187,22 @@ def test_first_launch_of_an_overload_is_split_safely(dtype):
     np.testing.assert_array_equal(x.numpy(), (np.arange(10_000) * 0.5).astype(x.numpy().dtype))
 
 
+def test_generic_kernel_launches_the_overload_of_its_argument_types():
+    """launch_split resolves a generic kernel's overload once per argument types (wp.launch's own
+    inference) and launches that: alternating dtypes each get theirs."""
+    for dtype in (wp.float32, wp.float64, wp.float32):
+        for threads in (1, 2):
+            ref, _ = _run(dtype, 3000, split=False)
+            got, hits = _run(dtype, 3000, split=True, threads=threads, min_chunk=64)
+            np.testing.assert_array_equal(got, ref)
+            np.testing.assert_array_equal(hits, np.ones(3000, dtype=np.int32))
+    resolved = {k: v for k, v in kl._resolved.items() if k[0] == id(affine_offset)}
+    assert len(resolved) >= 2
+    for key, (generic, kernel) in resolved.items():
+        assert generic is affine_offset and not kernel.is_generic
+        assert kernel.adj.args[0].type.dtype == key[2][0][1]  # x's dtype
+
+
 @pytest.mark.parametrize("n, threads, min_chunk", [(0, 2, 4), (5, 2, 4), (1000, 2, 16), (1001, 3, 7), (10, 1, 1)],
                          ids=["empty", "one_range", "two_threads", "three_threads_uneven", "one_thread"])
 def test_parallel_ranges_covers_every_index_once(n, threads, min_chunk):

@@ -14,7 +14,7 @@ import pytest
 from kernels import splat as ks
 from kernels.reference import splat as ref
 from kernels.splat.raster import _rasterize_wp, background_array
-from kernels.splat.tiles import _bin_tiles
+from kernels.splat.tiles import SERIAL_SORT_MAX, _bin_tiles
 from research.bench.splat import bench_scene
 from research.checks import splat as cs
 
@@ -87,18 +87,23 @@ def _scenes():
 
 @pytest.mark.parametrize("mode", ks.MODES)
 def test_counting_sort_lists_equal_the_radix_sort(mode):
+    """The CPU's two counting sorts (one serial kernel for few entries, the chunked one) and CUDA's
+    radix sort, all run on the CPU, give the same lists."""
     for name, g, cam in _scenes():
         p = ks.project(g, cam, mode=mode)
         s = ks.splats_2d(p.means2d, p.conics, p.colors, p.opacities, p.depths, p.radii)
-        a = _bin_tiles(s, cam.width, cam.height, mode, counting_sort=True)
         b = _bin_tiles(s, cam.width, cam.height, mode, counting_sort=False)
-        assert a.n_entries == b.n_entries > 0, name
-        e = a.n_entries
-        for k in ("starts", "counts", "ranges", "packed"):
-            np.testing.assert_array_equal(getattr(a, k).numpy(), getattr(b, k).numpy(), err_msg=f"{name} {k}")
-        for k in ("sorted_gid", "sorted_entry"):
-            np.testing.assert_array_equal(getattr(a, k).numpy()[:e], getattr(b, k).numpy()[:e], err_msg=f"{name} {k}")
-        assert len(np.unique(a.ranges.numpy()[:, 0])) > 4, name  # many non-empty tiles
+        assert 0 < b.n_entries <= SERIAL_SORT_MAX, name  # bin_tiles takes the serial kernel here
+        for serial_max in (SERIAL_SORT_MAX, 0):
+            a = _bin_tiles(s, cam.width, cam.height, mode, counting_sort=True, serial_max=serial_max)
+            assert a.n_entries == b.n_entries, name
+            e = a.n_entries
+            for k in ("starts", "counts", "ranges", "packed"):
+                np.testing.assert_array_equal(getattr(a, k).numpy(), getattr(b, k).numpy(), err_msg=f"{name} {k}")
+            for k in ("sorted_gid", "sorted_entry"):
+                np.testing.assert_array_equal(getattr(a, k).numpy()[:e], getattr(b, k).numpy()[:e],
+                                              err_msg=f"{name} {k}")
+        assert len(np.unique(b.ranges.numpy()[:, 0])) > 4, name  # many non-empty tiles
 
 
 @pytest.mark.parametrize("mode", ks.MODES)
@@ -116,3 +121,30 @@ def test_tile_and_pixel_layouts_agree_bit_for_bit(dtype, mode):
     assert np.count_nonzero(a.alpha.numpy()) > 0.9 * W * H
     for k in ("rgb", "alpha", "depth", "final_T", "n_contrib"):
         assert getattr(a, k).numpy().tobytes() == getattr(b, k).numpy().tobytes(), k
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_stop_threshold_is_each_modes_comparison(dtype):
+    """The rasterisers' one comparison next_t < stop_below(mode) is "3dgs"'s next_t < T_MIN and
+    "gsplat"'s next_t <= T_MIN, on T_MIN itself and the floats around it."""
+    from kernels.splat.raster import T_MIN, stop_below
+
+    t = dtype(T_MIN)
+    xs = [t, np.nextafter(t, dtype(0)), np.nextafter(t, dtype(1)), np.nextafter(np.nextafter(t, dtype(1)), dtype(1)),
+          dtype(0), dtype(1), dtype(np.nan)]
+    t3, tg = dtype(stop_below("3dgs", np.dtype(dtype))), dtype(stop_below("gsplat", np.dtype(dtype)))
+    for x in xs:
+        assert (x < t3) == (x < t)
+        assert (x < tg) == (x <= t)
+
+
+def test_image_side_limit():
+    """Pixel centres step by one in float32 in the rasteriser: sides above 2^23 are refused up front."""
+    from kernels.splat.tiles import MAX_SIDE
+
+    K = np.array([[100.0, 0, 10], [0, 100.0, 10], [0, 0, 1]])
+    with pytest.raises(ValueError, match="width"):
+        ks.SplatCamera(np.eye(4), K, MAX_SIDE + 1, 4)
+    with pytest.raises(ValueError, match="height"):
+        ks.SplatCamera(np.eye(4), K, 4, MAX_SIDE + 1)
+    ks.SplatCamera(np.eye(4), K, MAX_SIDE, 4)
