@@ -343,7 +343,9 @@ def post_process(disp: np.ndarray, valid: np.ndarray, dmax: int, cfg: StereoConf
             valid[:, :k] &= ~(np.arange(k)[None, :] < d_b[:, None] + 1.0)
         else:
             valid[:, :] = False
-    if cfg.median:
+    if cfg.median == 3:  # kernels.stereo.post: the same fill and median, exactly, in one row pass and one pixel pass
+        disp = np.asarray(stereo.fill_median3(np.ascontiguousarray(disp, dtype=np.float32), valid), dtype=np.float32)
+    elif cfg.median:
         from scipy.ndimage import median_filter
 
         disp = median_filter(fill_invalid(disp, valid), size=cfg.median, mode="nearest").astype(np.float32)
