@@ -20,9 +20,10 @@ the filled map (`fill_invalid`; scipy.ndimage.median_filter, border replicated),
 drlab's default configuration, DEFAULT_CONFIG: "adcensus" (census 7x9, l_census 30 bits; x-gradient
 clipped at 0.25 with BT radius 2, l_grad 0.04; intensity BT with weight 0.3, l_bt 0.04) + SGM-8
 (P1 0.8, P2 6.4) + winner-take-all with the parabola, the left-right check (1 px), border
-invalidation and a 3x3 median; it runs in compact mode at every size (fast_compact: uint8 costs with step 1 / 110,
-the BT terms' rho by kernels.stereo.adcensus' vector polynomial, the uint16 SGM of kernels.stereo.sweep;
-replace(DEFAULT_CONFIG, fast_compact=False) is the float32 path, exact to the scalar exp). **Which data chose it**: the real Middlebury 2001 pairs tsukuba and
+invalidation and a 3x3 median, on float32 volumes below FLOAT_VOLUME_BUDGET. FAST_DEFAULT_CONFIG is the same
+pipeline in compact mode at every size (fast_compact: uint8 costs with step 1 / 110, the BT terms' rho by
+kernels.stereo.adcensus' vector polynomial, the int16 SGM of kernels.stereo.sweep): 1.5-1.7x faster, not
+the default because its D1 is a little worse on the Mitsuba pairs (docs/performance.md, Stereo, third round). **Which data chose it**: the real Middlebury 2001 pairs tsukuba and
 venus and the Mitsuba tuning pairs p_000 of the scenes objects and cornell (at 256x256 and at the
 quick run's 128x128), clean and radiometrically stressed; the score: the mean D1 of the two real pairs
 plus the mean D1 of the eight Mitsuba ones (the last round; earlier rounds used the four 256x256 ones),
@@ -72,7 +73,7 @@ StereoConfig's field defaults (P1 = 8, P2 = 64) are census units.
 
 Memory: every configuration holds float32 volumes (`peak_volume_bytes`: the cost and SGM's
 aggregate, 8 bytes per cell), except SGM + winner-take-all on census costs with integer penalties,
-at every size, on "adcensus" costs with `fast_compact` (DEFAULT_CONFIG) at every size, and on other
+at every size, on "adcensus" costs with `fast_compact` (FAST_DEFAULT_CONFIG) at every size, and on other
 "adcensus" costs once float32 volumes would exceed FLOAT_VOLUME_BUDGET (1 GiB):
 they run in compact mode (`uses_compact`: uint8 costs, a uint16 aggregate, 3 bytes per cell; census
 gives the same results and is the faster path on the CPU, adcensus quantises its cost to steps of
@@ -192,7 +193,9 @@ class StereoConfig:
 # drlab's default configuration (module docstring: which data chose it).
 DEFAULT_CONFIG = StereoConfig(cost="adcensus", aggregation="sgm8", p1=0.8, p2=6.4, radius=2, census_radii=(3, 4),
                               grad_cap=0.25, lambda_census=30.0, lambda_grad=0.04, bt_weight=0.3, lambda_bt=0.04,
-                              border_invalid=True, median=3, fast_compact=True)
+                              border_invalid=True, median=3)
+# The same pipeline in compact mode at every size, with the vector rho (module docstring).
+FAST_DEFAULT_CONFIG = replace(DEFAULT_CONFIG, fast_compact=True)
 
 
 @dataclass
@@ -258,7 +261,7 @@ def uses_compact(cfg: StereoConfig, height: int, width: int, disparities: int) -
     within the uint8 volume's bound (kernels.stereo.sgm: P2 <= 7936, in cost units):
       * census with integer P1 and P2, at every size: the same results as the float32 pipeline, exactly,
         and on the CPU the faster path (compact SGM runs in int16 vectors, kernels.stereo.sweep);
-      * "adcensus" with `fast_compact` (DEFAULT_CONFIG) at every size, the others once its float32 volumes would
+      * "adcensus" with `fast_compact` (FAST_DEFAULT_CONFIG) at every size, the others once its float32 volumes would
         exceed FLOAT_VOLUME_BUDGET: its cost quantised to uint8
         with step 1 / q (q = compact_levels(bt_weight), 110 for DEFAULT_CONFIG: at most 0.0045 off,
         against terms in [0, 1)) and P1, P2 rounded to that step (`compact_penalties`); not
