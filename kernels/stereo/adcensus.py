@@ -100,22 +100,28 @@ wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_
                        "cpu_compiler_flags": "-march=native -mllvm=-inline-threshold=9000"})
 
 
+# The per-image passes below (_sobel_x, _half_ranges, _reverse_planar) run one thread per row: a thread per pixel
+# spent most of its time in the launch's per-thread overhead, the work per pixel being a few loads and min / max.
+
+
 @wp.kernel
 def _sobel_x(img: wp.array3d(dtype=typing.Any), out: wp.array3d(dtype=typing.Any), cap: wp.float64,
              offset: int):
     H = img.shape[0]
     W = img.shape[1]
-    y, x = pixel(wp.tid() + offset, W)
-    xm = wp.max(x - 1, 0)
-    xp = wp.min(x + 1, W - 1)
+    y = wp.tid() + offset
     ym = wp.max(y - 1, 0)
     yp = wp.min(y + 1, H - 1)
     c_ = img.dtype(cap)
     two = img.dtype(2.0)
-    for c in range(img.shape[2]):
-        g = (img[ym, xp, c] - img[ym, xm, c]) + two * (img[y, xp, c] - img[y, xm, c]) + (img[yp, xp, c] - img[yp, xm, c])
-        g = wp.min(wp.max(g, -c_), c_)
-        out[y, x, c] = (g + c_) / (two * c_)
+    for x in range(W):
+        xm = wp.max(x - 1, 0)
+        xp = wp.min(x + 1, W - 1)
+        for c in range(img.shape[2]):
+            g = (img[ym, xp, c] - img[ym, xm, c]) + two * (img[y, xp, c] - img[y, xm, c]) + \
+                (img[yp, xp, c] - img[yp, xm, c])
+            g = wp.min(wp.max(g, -c_), c_)
+            out[y, x, c] = (g + c_) / (two * c_)
 
 
 @wp.kernel
@@ -140,11 +146,12 @@ def _census_eps(img: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=wp.uint
 def _half_ranges(img: wp.array3d(dtype=typing.Any), lo: wp.array3d(dtype=typing.Any),
                  hi: wp.array3d(dtype=typing.Any), offset: int):
     # (I_min, I_max) of every pixel's half-pixel neighbourhood per channel (kernels.stereo.bt's _half_range).
-    y, x = pixel(wp.tid() + offset, img.shape[1])
-    for c in range(img.shape[2]):
-        a, b = _half_range(img, y, x, c)
-        lo[y, x, c] = a
-        hi[y, x, c] = b
+    y = wp.tid() + offset
+    for x in range(img.shape[1]):
+        for c in range(img.shape[2]):
+            a, b = _half_range(img, y, x, c)
+            lo[y, x, c] = a
+            hi[y, x, c] = b
 
 
 @wp.func
@@ -192,9 +199,10 @@ def _reverse_planar(img: wp.array3d(dtype=typing.Any), out: wp.array(dtype=typin
     # consecutive d is a run of consecutive scalars; the margins (pad each side) stay zero.
     H = img.shape[0]
     W = img.shape[1]
-    y, x = pixel(wp.tid() + offset, W)
-    for c in range(img.shape[2]):
-        out[(c * H + y) * row + pad + W - 1 - x] = img[y, x, c]
+    y = wp.tid() + offset
+    for x in range(W):
+        for c in range(img.shape[2]):
+            out[(c * H + y) * row + pad + W - 1 - x] = img[y, x, c]
 
 
 @wp.func
@@ -536,7 +544,7 @@ def sobel_x_clipped(image: Any, cap: float = 0.25, *, device: Any = None) -> Any
     H, W = img.shape[:2]
     src = img.contiguous().reshape((H, W, 1)) if ndim == 2 else img
     out = a.empty(src.shape)
-    a.launch(_sobel_x, H * W, [src, out, wp.float64(cap)], min_chunk=1024)
+    a.launch(_sobel_x, H, [src, out, wp.float64(cap)], min_chunk=8)
     return a.out(out.reshape((H, W)) if ndim == 2 else out)
 
 
@@ -614,12 +622,12 @@ def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[An
     images, invalid, keep = [], [], []  # keep: the mirrored arrays the vector views (no owners) point into
     for j, img in enumerate(terms):
         lo, hi = a.empty(img.shape), a.empty(img.shape)
-        a.launch(_half_ranges, H * W, [img, lo, hi], min_chunk=1024)
+        a.launch(_half_ranges, H, [img, lo, hi], min_chunk=8)
         if j % 2:  # right images: mirrored planar rows, read as vectors over d (kernels' _fill_row)
             views = []
             for arr in (img, lo, hi):
                 flat = a.zeros((img.shape[2] * H * row,))
-                a.launch(_reverse_planar, H * W, [arr, flat, row, pad], min_chunk=1024)
+                a.launch(_reverse_planar, H, [arr, flat, row, pad], min_chunk=8)
                 keep.append(flat)
                 views.append(_vector_view(flat, lanes))
             images += views
