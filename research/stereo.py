@@ -22,7 +22,7 @@ clipped at 0.25 with BT radius 2, l_grad 0.04; intensity BT with weight 0.3, l_b
 (P1 0.8, P2 6.4) + winner-take-all with the parabola, the left-right check (1 px), border
 invalidation and a 3x3 median, on float32 volumes below FLOAT_VOLUME_BUDGET. FAST_DEFAULT_CONFIG is the same
 pipeline in compact mode at every size (fast_compact: uint8 costs with step 1 / 110, the BT terms' rho by
-kernels.stereo.adcensus' vector polynomial, the int16 SGM of kernels.stereo.sweep): 1.5-1.7x faster, not
+kernels.stereo.adcensus' vector polynomial, the int16 SGM of kernels.stereo.sweep): 1.3-1.5x faster, not
 the default because its D1 is a little worse on the Mitsuba pairs (docs/performance.md, Stereo, third round). **Which data chose it**: the real Middlebury 2001 pairs tsukuba and
 venus and the Mitsuba tuning pairs p_000 of the scenes objects and cornell (at 256x256 and at the
 quick run's 128x128), clean and radiometrically stressed; the score: the mean D1 of the two real pairs
