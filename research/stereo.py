@@ -15,7 +15,8 @@ disparity of the row's first valid pixel at x >= dmax - 1 (the full range), the 
 marked invalid, since the surface there, continued leftwards, would match outside the right image
 and any winner is forced (StereoSGBM leaves every such column invalid); the fill below then extends
 d_b from the right; `median` (an odd size k >= 3) replaces the disparity by the k x k median of
-the filled map (`fill_invalid`; scipy.ndimage.median_filter, border replicated), the valid mask kept.
+the filled map (`fill_invalid`; scipy.ndimage.median_filter, border replicated; for k = 3 the same values from
+kernels.stereo.fill_median3's two Warp passes), the valid mask kept.
 
 drlab's default configuration, DEFAULT_CONFIG: "adcensus" (census 7x9, l_census 30 bits; x-gradient
 clipped at 0.25 with BT radius 2, l_grad 0.04; intensity BT with weight 0.3, l_bt 0.04) + SGM-8
