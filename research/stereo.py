@@ -15,12 +15,16 @@ disparity of the row's first valid pixel at x >= dmax - 1 (the full range), the 
 marked invalid, since the surface there, continued leftwards, would match outside the right image
 and any winner is forced (StereoSGBM leaves every such column invalid); the fill below then extends
 d_b from the right; `median` (an odd size k >= 3) replaces the disparity by the k x k median of
-the filled map (`fill_invalid`; scipy.ndimage.median_filter, border replicated), the valid mask kept.
+the filled map (`fill_invalid`; scipy.ndimage.median_filter, border replicated; for k = 3 the same values from
+kernels.stereo.fill_median3's two Warp passes), the valid mask kept.
 
 drlab's default configuration, DEFAULT_CONFIG: "adcensus" (census 7x9, l_census 30 bits; x-gradient
 clipped at 0.25 with BT radius 2, l_grad 0.04; intensity BT with weight 0.3, l_bt 0.04) + SGM-8
 (P1 0.8, P2 6.4) + winner-take-all with the parabola, the left-right check (1 px), border
-invalidation and a 3x3 median. **Which data chose it**: the real Middlebury 2001 pairs tsukuba and
+invalidation and a 3x3 median, on float32 volumes below FLOAT_VOLUME_BUDGET. FAST_DEFAULT_CONFIG is the same
+pipeline in compact mode at every size (fast_compact: uint8 costs with step 1 / 110, the BT terms' rho by
+kernels.stereo.adcensus' vector polynomial, the int16 SGM of kernels.stereo.sweep): 1.3-1.5x faster, not
+the default because its D1 is a little worse on the Mitsuba pairs (docs/performance.md, Stereo, third round). **Which data chose it**: the real Middlebury 2001 pairs tsukuba and
 venus and the Mitsuba tuning pairs p_000 of the scenes objects and cornell (at 256x256 and at the
 quick run's 128x128), clean and radiometrically stressed; the score: the mean D1 of the two real pairs
 plus the mean D1 of the eight Mitsuba ones (the last round; earlier rounds used the four 256x256 ones),
@@ -70,7 +74,8 @@ StereoConfig's field defaults (P1 = 8, P2 = 64) are census units.
 
 Memory: every configuration holds float32 volumes (`peak_volume_bytes`: the cost and SGM's
 aggregate, 8 bytes per cell), except SGM + winner-take-all on census costs with integer penalties,
-at every size, and on "adcensus" costs once float32 volumes would exceed FLOAT_VOLUME_BUDGET (1 GiB):
+at every size, on "adcensus" costs with `fast_compact` (FAST_DEFAULT_CONFIG) at every size, and on other
+"adcensus" costs once float32 volumes would exceed FLOAT_VOLUME_BUDGET (1 GiB):
 they run in compact mode (`uses_compact`: uint8 costs, a uint16 aggregate, 3 bytes per cell; census
 gives the same results and is the faster path on the CPU, adcensus quantises its cost to steps of
 1 / 110 and its penalties to that step).
@@ -144,6 +149,7 @@ class StereoConfig:
     census_eps: float = 0.0  # adcensus: census tolerance, bit [I(q) < I(p) - eps], [0, 1] intensity units
     border_invalid: bool = False
     median: int = 0  # 0: none; else an odd size >= 3
+    fast_compact: bool = False  # adcensus + SGM: compact mode at every size, vector rho (module docstring: Memory)
 
     def __post_init__(self) -> None:
         for name, value, allowed in (("cost", self.cost, COSTS), ("aggregation", self.aggregation, AGGREGATIONS),
@@ -163,8 +169,9 @@ class StereoConfig:
         for name in ("grad_cap", "lambda_census", "lambda_grad", "lambda_bt"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: expected a finite number > 0, got {getattr(self, name)!r}")
-        if not isinstance(self.border_invalid, bool):
-            raise ValueError(f"border_invalid: expected True or False, got {self.border_invalid!r}")
+        for name in ("border_invalid", "fast_compact"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name}: expected True or False, got {getattr(self, name)!r}")
         if isinstance(self.median, bool) or not isinstance(self.median, (int, np.integer)) or \
                 not (self.median == 0 or (self.median >= 3 and self.median % 2 == 1)):
             raise ValueError(f"median: expected 0 (off) or an odd size >= 3, got {self.median!r}")
@@ -188,6 +195,8 @@ class StereoConfig:
 DEFAULT_CONFIG = StereoConfig(cost="adcensus", aggregation="sgm8", p1=0.8, p2=6.4, radius=2, census_radii=(3, 4),
                               grad_cap=0.25, lambda_census=30.0, lambda_grad=0.04, bt_weight=0.3, lambda_bt=0.04,
                               border_invalid=True, median=3)
+# The same pipeline in compact mode at every size, with the vector rho (module docstring).
+FAST_DEFAULT_CONFIG = replace(DEFAULT_CONFIG, fast_compact=True)
 
 
 @dataclass
@@ -215,11 +224,12 @@ def cost_volume(left: np.ndarray, right: np.ndarray, dmin: int, dmax: int, cfg: 
         grey = tuple(wp.array(x, device=device) for x in unit_grey_pair(left, right))
         l_img, r_img = (wp.array(x, device=device) for x in colour)
         levels = stereo.compact_levels(cfg.bt_weight) if uses_compact(cfg, *grey[0].shape, dmax - dmin) else 0
+        vector_rho = bool(levels) and cfg.fast_compact and l_img.device.is_cpu
         return stereo.adcensus_cost(l_img, r_img, dmin, dmax, grey=grey if colour[0].ndim == 3 else None,
                                     census_radii=cfg.census_radii, radius=cfg.radius, grad_cap=cfg.grad_cap,
                                     lambda_census=cfg.lambda_census, lambda_grad=cfg.lambda_grad,
                                     bt_weight=cfg.bt_weight, lambda_bt=cfg.lambda_bt, census_eps=cfg.census_eps,
-                                    levels=levels, device=device)
+                                    levels=levels, vector_rho=vector_rho, device=device)
     left, right = unit_grey_pair(left, right)
     _check_range_args(dmin, dmax)
     if cfg.cost == "corr":
@@ -252,17 +262,20 @@ def uses_compact(cfg: StereoConfig, height: int, width: int, disparities: int) -
     within the uint8 volume's bound (kernels.stereo.sgm: P2 <= 7936, in cost units):
       * census with integer P1 and P2, at every size: the same results as the float32 pipeline, exactly,
         and on the CPU the faster path (compact SGM runs in int16 vectors, kernels.stereo.sweep);
-      * "adcensus" once its float32 volumes would exceed FLOAT_VOLUME_BUDGET: its cost quantised to uint8
+      * "adcensus" with `fast_compact` (FAST_DEFAULT_CONFIG) at every size, the others once its float32 volumes would
+        exceed FLOAT_VOLUME_BUDGET: its cost quantised to uint8
         with step 1 / q (q = compact_levels(bt_weight), 110 for DEFAULT_CONFIG: at most 0.0045 off,
         against terms in [0, 1)) and P1, P2 rounded to that step (`compact_penalties`); not
-        bit-identical, D1 unchanged within noise (docs/performance.md), so it is kept for sizes where
-        memory runs out (Middlebury at half resolution, 1482x994x256)."""
+        bit-identical, D1 unchanged within noise (docs/performance.md); without `fast_compact` it is kept for
+        sizes where memory runs out (Middlebury at half resolution, 1482x994x256). On the CPU `fast_compact`
+        computes the cost with the vector rho (kernels.stereo.adcensus), a level off in rare cells."""
     if cfg.cost not in ("census", "adcensus") or cfg.aggregation == "none" or cfg.disparity != "wta" or \
             disparities % 8:
         return False
     if cfg.cost == "census":
         return cfg.p1 == int(cfg.p1) and cfg.p2 == int(cfg.p2) and cfg.p2 <= 7936
-    return compact_penalties(cfg)[1] <= 7936 and 8 * int(height) * int(width) * int(disparities) > FLOAT_VOLUME_BUDGET
+    return compact_penalties(cfg)[1] <= 7936 and (cfg.fast_compact or
+                                                  8 * int(height) * int(width) * int(disparities) > FLOAT_VOLUME_BUDGET)
 
 
 def peak_volume_bytes(cfg: StereoConfig, height: int, width: int, disparities: int) -> int:
@@ -343,7 +356,9 @@ def post_process(disp: np.ndarray, valid: np.ndarray, dmax: int, cfg: StereoConf
             valid[:, :k] &= ~(np.arange(k)[None, :] < d_b[:, None] + 1.0)
         else:
             valid[:, :] = False
-    if cfg.median:
+    if cfg.median == 3:  # kernels.stereo.post: the same fill and median, exactly, in one row pass and one pixel pass
+        disp = np.asarray(stereo.fill_median3(np.ascontiguousarray(disp, dtype=np.float32), valid), dtype=np.float32)
+    elif cfg.median:
         from scipy.ndimage import median_filter
 
         disp = median_filter(fill_invalid(disp, valid), size=cfg.median, mode="nearest").astype(np.float32)

@@ -27,6 +27,7 @@ Stages, one module each
   the SGM aggregate as uint16 (3 bytes per cell instead of float32's 8; on the CPU also the faster
   path, kernels.stereo.sweep).
 * `fused`: `sgm_disparity`, SGM + both views' winners + the left-right check in one call.
+* `post`: the row fill of invalid pixels and a 3x3 median of the filled map (`fill_median3`).
 * `disparity`: winner-take-all with a sub-pixel parabola and a uniqueness test, the right view's
   winner from the same volume, soft-argmin d = sum_k d_k softmax_k(-C / T) with its backward, the
   left-right consistency check, and depth Z = f b / d.
@@ -51,6 +52,7 @@ from kernels.stereo.costs import (CENSUS_MAX_BITS, census_cost, census_transform
 from kernels.stereo.disparity import (depth_from_disparity, left_right_check, soft_argmin, soft_argmin_backward,
                                       wta, wta_left_right, wta_right)
 from kernels.stereo.fused import sgm_disparity
+from kernels.stereo.post import fill_median3
 from kernels.stereo.sgm import SGM_AXES, SGM_DIRECTIONS, SGM_LANES, sgm
 
 __all__ = [
@@ -59,5 +61,5 @@ __all__ = [
     "feature_correlation_backward",
     "sgm", "sgm_disparity",
     "wta", "wta_right", "wta_left_right", "soft_argmin", "soft_argmin_backward", "left_right_check",
-    "depth_from_disparity",
+    "depth_from_disparity", "fill_median3",
 ]

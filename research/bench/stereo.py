@@ -34,10 +34,13 @@ which are not that pipeline:
 
   * cost_s: research.stereo.cost_volume with DEFAULT_CONFIG (float32 below its float budget, as
     `match` runs it at these sizes: `compact` says which), images to the volume;
-  * aggregate_s: SGM-8 of that volume with the configuration's penalties (kernels.stereo.sgm);
+  * aggregate_s: SGM-8 of that volume with the configuration's penalties (kernels.stereo.sgm; in compact
+    mode the int16 two-sweep SGM of kernels.stereo.sweep, penalties in the volume's units);
   * backend_s: research.stereo.disparity_from_cost, everything after the cost (SGM, both winners, the
     left-right check, the post-processing, the maps on the host);
   * total_s: research.stereo.match with DEFAULT_CONFIG; `speedup_total` against StereoSGBM as above;
+  * total_fast_s: research.stereo.match with FAST_DEFAULT_CONFIG, the same pipeline in compact mode at every
+    size (uint8 costs by the vector rho of kernels.stereo.adcensus, the int16 SGM); `speedup_total_fast`;
   * peak_mb: research.stereo.peak_volume_bytes (the cost volume and SGM's aggregate; the adcensus
     kernel's band buffers are not counted).
 
@@ -177,8 +180,8 @@ def _reference(fns: dict, row: dict, cv2: Any, compare: bool, disparities: int, 
 def _default_case(device: str, threads: int, height: int, width: int, disparities: int, cv2: Any,
                   compare: bool) -> dict:
     """Case `stereo.default`: research.stereo.DEFAULT_CONFIG's pipeline (module docstring)."""
-    from research.stereo import (DEFAULT_CONFIG, compact_penalties, cost_volume, disparity_from_cost, match,
-                                 peak_volume_bytes, uses_compact)
+    from research.stereo import (DEFAULT_CONFIG, FAST_DEFAULT_CONFIG, compact_penalties, cost_volume,
+                                 disparity_from_cost, match, peak_volume_bytes, uses_compact)
 
     cfg = DEFAULT_CONFIG
     left_np, right_np = _pair(height, width)
@@ -193,7 +196,8 @@ def _default_case(device: str, threads: int, height: int, width: int, disparitie
     fns = {"cost": cost,
            "aggregate": lambda: stereo.sgm(volume, float(p1), float(p2), paths=paths, device=device),
            "backend": lambda: disparity_from_cost(volume, 0, cfg, device),
-           "total": lambda: match(left_np, right_np, 0, disparities, cfg, device)}
+           "total": lambda: match(left_np, right_np, 0, disparities, cfg, device),
+           "total_fast": lambda: match(left_np, right_np, 0, disparities, FAST_DEFAULT_CONFIG, device)}
     row: dict[str, Any] = {}
     _reference(fns, row, cv2, compare, disparities, left_np, right_np)
     t = time_medians(fns, sync=lambda: wp.synchronize_device(device))
@@ -212,9 +216,11 @@ def _default_case(device: str, threads: int, height: int, width: int, disparitie
         "aggregate_s": t["aggregate"],
         "backend_s": t["backend"],
         "total_s": t["total"],
+        "total_fast_s": t["total_fast"],
         "peak_mb": peak_volume_bytes(cfg, height, width, disparities) / 2**20,
         **row,
-        **({"ref_total_s": t["ref_total"], "speedup_total": t["ref_total"] / t["total"]}
+        **({"ref_total_s": t["ref_total"], "speedup_total": t["ref_total"] / t["total"],
+            "ref_total_fast_s": t["ref_total"], "speedup_total_fast": t["ref_total"] / t["total_fast"]}
            if "ref_total" in t else {}),
     }
 

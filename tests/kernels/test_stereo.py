@@ -483,8 +483,9 @@ def test_adcensus_fused_equals_its_terms_composed(dtype, channels, drange, radiu
     np.testing.assert_allclose(got, _rho_sum(terms, dtype), rtol=0, atol=5e-7 if dtype == np.float32 else 1e-15)
 
 
-@pytest.mark.parametrize("dtype,channels,levels", [(d, c, 0) for d in DTYPES for c in (0, 3)] + [(np.float32, 0, 110)])
-def test_adcensus_vector_and_scalar_hypotheses_agree_bit_for_bit(dtype, channels, levels):
+@pytest.mark.parametrize("dtype,channels,levels,vector_rho", [(d, c, 0, False) for d in DTYPES for c in (0, 3)] +
+                         [(np.float32, 0, 110, False), (np.float32, 0, 110, True), (np.float32, 3, 110, True)])
+def test_adcensus_vector_and_scalar_hypotheses_agree_bit_for_bit(dtype, channels, levels, vector_rho):
     """The fused kernel computes whole vectors of hypotheses (16 float32 or 8 float64 lanes) where every lane's
     window is in range and a lane at a time elsewhere (a partial last vector). A cell's value depends only on
     (x, y, d), so the range [o, o + n) (n = the vector width: all in vectors) and [0, o + n) (the last o
@@ -496,8 +497,8 @@ def test_adcensus_vector_and_scalar_hypotheses_agree_bit_for_bit(dtype, channels
     R = np.clip(np.roll(L, -4, axis=1) + 0.05 * rng.standard_normal(shape), 0, 1).astype(dtype)
     grey = (L.mean(axis=2), R.mean(axis=2)) if channels else None
     for o in (1, n // 2 + 1, n - 1):
-        vec = stereo.adcensus_cost(L, R, o, o + n, grey=grey, bt_weight=0.3, levels=levels)
-        mixed = stereo.adcensus_cost(L, R, 0, o + n, grey=grey, bt_weight=0.3, levels=levels)
+        vec = stereo.adcensus_cost(L, R, o, o + n, grey=grey, bt_weight=0.3, levels=levels, vector_rho=vector_rho)
+        mixed = stereo.adcensus_cost(L, R, 0, o + n, grey=grey, bt_weight=0.3, levels=levels, vector_rho=vector_rho)
         np.testing.assert_array_equal(vec, mixed[:, :, o:])
 
 
@@ -512,6 +513,39 @@ def test_adcensus_compact_is_the_rounded_float_cost(bt_weight):
     expected = np.floor(full * np.float32(q) + np.float32(0.5))
     np.testing.assert_array_equal(got, expected.astype(np.uint8))
     assert np.abs(got / q - full).max() <= 0.5 / q + 1e-6
+
+
+@pytest.mark.parametrize("bt_weight,channels,drange", [(0.0, 0, (0, 8)), (0.3, 0, (0, 37)), (0.3, 3, (-5, 20)),
+                                                       (1.0, 3, (2, 34))])
+def test_adcensus_vector_rho_is_the_rounded_float_cost_within_its_bound(bt_weight, channels, drange):
+    """Compact mode with the vector rho (the BT terms' 1 - exp(-z) by a polynomial and squarings, z clipped at 24):
+    every cell is round(C q) of the float cost C, or one level off where C q lies within the polynomial's error
+    (under 1e-4 levels per term, so such cells are rare) of a rounding boundary; the scalar-exp volume otherwise."""
+    rng = np.random.default_rng(8)
+    shape = (30, 45, channels) if channels else (30, 45)
+    L = rng.uniform(0.0, 1.0, shape).astype(np.float32)
+    R = np.clip(np.roll(L, -6, axis=1) + 0.05 * rng.standard_normal(shape), 0, 1).astype(np.float32)
+    grey = (L.mean(axis=2), R.mean(axis=2)) if channels else None
+    q = stereo.compact_levels(bt_weight)
+    full = stereo.adcensus_cost(L, R, *drange, grey=grey, bt_weight=bt_weight)
+    scalar = stereo.adcensus_cost(L, R, *drange, grey=grey, bt_weight=bt_weight, levels=q)
+    got = stereo.adcensus_cost(L, R, *drange, grey=grey, bt_weight=bt_weight, levels=q, vector_rho=True)
+    assert got.dtype == np.uint8 and got.shape == full.shape
+    x = full.astype(np.float64) * q
+    diff = got.astype(np.int64) - scalar.astype(np.int64)
+    assert np.abs(diff).max() <= 1
+    # a cell may differ only where C q is within 1e-3 (a generous bound of the polynomial's error) of k + 1/2
+    near = np.abs(x - np.floor(x) - 0.5) < 1e-3
+    assert not np.any((diff != 0) & ~near)
+    assert np.mean(diff != 0) < 1e-3
+
+
+def test_adcensus_vector_rho_needs_compact_mode():
+    L, R = (x.astype(np.float32) for x in _images(6, shape=(12, 20)))
+    with pytest.raises(ValueError, match="vector_rho"):
+        stereo.adcensus_cost(L, R, 0, 8, vector_rho=True)
+    with pytest.raises(ValueError, match="vector_rho"):
+        stereo.adcensus_cost(L, R, 0, 8, levels=110, vector_rho=1)
 
 
 def test_adcensus_is_unchanged_by_an_intensity_offset_where_no_clip_binds():

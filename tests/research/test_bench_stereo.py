@@ -23,6 +23,7 @@ def test_tiny_rows_include_the_default_pipeline_case():
     assert (default["height"], default["width"], default["disparities"]) == bench.TINY_SIZES[0]
     assert default["config"] == DEFAULT_CONFIG.label and default["config"] != rows[0]["cost"]
     assert default["compact"] is False and default["paths"] == 8
+    assert default["total_fast_s"] > 0  # FAST_DEFAULT_CONFIG's match, beside it
     for key in ("cost_s", "aggregate_s", "backend_s", "total_s"):
         assert default[key] > 0
     assert not any(k.startswith("ref") or k.startswith("speedup") for k in default)

@@ -3,6 +3,8 @@ disparity and depth metrics, patch features, and the pipeline end to end."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import warp as wp
 import pytest
@@ -118,15 +120,18 @@ def test_compact_mode_gives_the_float32_result():
 
 def test_adcensus_compact_mode_quantises_the_cost_and_the_penalties(monkeypatch):
     """Above the budget, adcensus + SGM runs on its uint8 cost (step 1 / 110 for the default's weights) with P1, P2
-    rounded to that step; on a textured pair with a known shift the disparities barely move."""
+    rounded to that step; on a textured pair with a known shift the disparities barely move. FAST_DEFAULT_CONFIG
+    (fast_compact) runs so at every size, with the vector rho."""
     import research.stereo as rs
 
-    DEFAULT_CONFIG = rs.DEFAULT_CONFIG
+    DEFAULT_CONFIG, fast_cfg = rs.DEFAULT_CONFIG, rs.FAST_DEFAULT_CONFIG
+    assert not DEFAULT_CONFIG.fast_compact and fast_cfg == replace(DEFAULT_CONFIG, fast_compact=True)
     assert rs.compact_penalties(DEFAULT_CONFIG) == (88, 704)
     rng = np.random.default_rng(4)
     left = rng.uniform(0.0, 1.0, (24, 64, 3)).astype(np.float32)
     right = np.roll(left, -5, axis=1)
     want = match(left, right, 0, 16)
+    assert rs.cost_volume(left, right, 0, 16, DEFAULT_CONFIG).dtype == wp.float32
     monkeypatch.setattr(rs, "FLOAT_VOLUME_BUDGET", 0)
     assert rs.uses_compact(DEFAULT_CONFIG, 24, 64, 16) and not rs.uses_compact(DEFAULT_CONFIG, 24, 64, 12)
     assert not rs.uses_compact(StereoConfig("adcensus", "sgm8", p1=0.8, p2=100.0), 24, 64, 16)  # 8 (255 + P2 q)
@@ -140,6 +145,16 @@ def test_adcensus_compact_mode_quantises_the_cost_and_the_penalties(monkeypatch)
     # Middlebury at half resolution: compact by the real budget (3.0 GB of float32 volumes > 1 GiB).
     assert rs.uses_compact(DEFAULT_CONFIG, 994, 1482, 256) and not rs.uses_compact(DEFAULT_CONFIG, 375, 450, 64)
     assert rs.peak_volume_bytes(DEFAULT_CONFIG, 994, 1482, 256) == 3 * 994 * 1482 * 256
+    # fast_compact: compact at every size (D a multiple of 8), its cost by the vector rho.
+    assert rs.uses_compact(fast_cfg, 375, 450, 64) and rs.uses_compact(fast_cfg, 24, 64, 16)
+    assert not rs.uses_compact(fast_cfg, 24, 64, 12)
+    assert rs.cost_volume(left, right, 0, 16, fast_cfg).dtype == wp.uint8
+    assert rs.peak_volume_bytes(fast_cfg, 375, 450, 64) == 3 * 375 * 450 * 64
+    fast = match(left, right, 0, 16, fast_cfg)
+    assert np.mean(np.abs(fast.disparity - want.disparity)[:, 16:] <= 0.25) > 0.98
+    assert np.mean(fast.valid == want.valid) > 0.98
+    with pytest.raises(ValueError, match="fast_compact"):
+        StereoConfig("adcensus", "sgm8", fast_compact=1)
 
 
 def test_config_rejects_unknown_names():
