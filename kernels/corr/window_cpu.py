@@ -1,0 +1,152 @@
+"""The dense lookup's window sampling (3)-(4) on the CPU, in C++ with the window's side fixed at compile time.
+
+Same math and the same operations as `_common.sample_window`, on the same values,
+so the same outputs bit for bit. For pixel p at level l with window origin
+(j0, i0) and fractions (fx, fy) (`_common.pixel_window`), gx = 1 - fx, gy = 1 - fy,
+and tap rows t = 0 .. 2r+1 of S = V^l[p] (taps outside S reading 0):
+
+    row sample   R[t, a] = gx S[j0 + t, i0 + a] + fx S[j0 + t, i0 + a + 1],      a = 0 .. 2r
+    output       out[l (2r+1)^2 + a (2r+1) + b, p] = gy R[b, a] + fy R[b + 1, a],  b = 0 .. 2r
+
+each product and each sum a separate C++ statement (so the compiler fuses no
+multiply-add, exactly as Warp's generated code computes `sample_window`).
+
+Why C++. Warp's generated code reads every tap through a runtime-strided, 3-index
+array access that also wraps negative indices, and with the side a runtime value
+keeps the window's loops generic: about 29 instructions an output sample at radius
+4. Here the slice's rows are plain pointers, a window wholly inside the slice (most
+of levels 0-1) reads each of its 2r + 2 tap rows once, contiguously, with no tests,
+and a window overhanging it (most of levels 2-3) tests each tap row and tap column
+once and reads clamped positions. `sample_levels_cpu(radius, scalar)` builds one
+kernel per radius and float type (its own Warp module, compiled on first use, under
+a second) with the side a literal, so the compiler unrolls and schedules it.
+
+The kernel samples up to four levels a launch, one thread per pixel, as
+`_common.sample_levels` does (its arguments minus `radius`); it is launched on the
+CPU only (CUDA keeps `_common.sample_levels`). The adjoint is unchanged
+(`_common.sample_windows_adjoint`).
+"""
+
+import threading
+from typing import Any
+
+import warp as wp
+
+from kernels.corr._common import pixel_window
+
+_WINDOW_CPP = r"""
+    typedef decltype(fx) T;
+    const int side = SIDE;
+    const T one = T(1);
+    const T zero = T(0);
+    const T gx = one - fx;
+    const T gy = one - fy;
+    const int height = s.shape[1];
+    const int width = s.shape[2];
+    const char* slice = reinterpret_cast<const char*>(s.data) + (long long)p * s.strides[0];
+    const long long row_stride = s.strides[1];
+    const long long col_stride = s.strides[2];
+    const long long out_stride = out.strides[0];
+    // out[channel0 + a side + b, h, w] lies at first + b out_stride + a column_step
+    char* first = reinterpret_cast<char*>(out.data) + (long long)h * out.strides[1]
+                  + (long long)w * out.strides[2] + (long long)channel0 * out_stride;
+    const long long column_step = (long long)side * out_stride;
+    // every tap inside s[p] and its columns contiguous: rows of taps read without tests
+    const bool inside = row0 >= 0 && col0 >= 0 && row0 + side < height && col0 + side < width
+                        && col_stride == (long long)sizeof(T);
+    long long col_offset[SIDE + 1];
+    bool col_ok[SIDE + 1];
+    if (!inside) {
+        // taps outside s[p] read 0: each tap column's test and clamped offset, once
+        for (int c = 0; c <= side; ++c) {
+            const int col = col0 + c;
+            col_ok[c] = col >= 0 && col < width;
+            col_offset[c] = (long long)(col < 0 ? 0 : (col >= width ? width - 1 : col)) * col_stride;
+        }
+    }
+    T taps[SIDE + 1];
+    T top[SIDE];     // row samples R[t - 1, .]
+    T bottom[SIDE];  // row samples R[t, .]
+    for (int t = 0; t <= side; ++t) {
+        const int row = row0 + t;
+        if (inside) {
+            const T* taps_row = reinterpret_cast<const T*>(slice + (long long)row * row_stride) + col0;
+            for (int c = 0; c <= side; ++c)
+                taps[c] = taps_row[c];
+        } else {
+            const bool row_ok = row >= 0 && row < height;
+            const char* taps_row = slice + (long long)(row < 0 ? 0 : (row >= height ? height - 1 : row)) * row_stride;
+            for (int c = 0; c <= side; ++c) {
+                const T tap = *reinterpret_cast<const T*>(taps_row + col_offset[c]);
+                taps[c] = (row_ok && col_ok[c]) ? tap : zero;
+            }
+        }
+        for (int a = 0; a < side; ++a) {
+            const T left = gx * taps[a];
+            const T right = fx * taps[a + 1];
+            bottom[a] = left + right;
+        }
+        if (t > 0) {
+            char* o = first + (long long)(t - 1) * out_stride;
+            for (int a = 0; a < side; ++a) {
+                const T upper = gy * top[a];
+                const T lower = fy * bottom[a];
+                *reinterpret_cast<T*>(o) = upper + lower;
+                o += column_step;
+            }
+        }
+        for (int a = 0; a < side; ++a)
+            top[a] = bottom[a];
+    }
+"""
+
+_kernels: dict[tuple[int, Any], Any] = {}
+_lock = threading.Lock()
+
+
+def _build(radius: int, scalar: Any) -> Any:
+    # No `from __future__ import annotations` in this module: Warp reads the stub's and the
+    # kernel's annotations as objects, and these name the closure's types.
+    side = 2 * radius + 1
+    array3 = wp.array3d(dtype=scalar)
+
+    def window(s: array3, p: int, row0: int, col0: int, fx: scalar, fy: scalar, out: array3, channel0: int,
+               h: int, w: int): ...
+
+    # A name of its own per radius and type: Warp keys native functions by name.
+    window.__name__ = window.__qualname__ = f"sample_window_cpu_r{radius}_{scalar.__name__}"
+    window = wp.func_native(_WINDOW_CPP.replace("SIDE", str(side)))(window)
+
+    @wp.kernel(module="unique", module_options={"enable_backward": False, "optimization_level": 3})
+    def sample_levels_cpu(v0: array3, v1: array3, v2: array3, v3: array3, n_levels: int, coords: array3,
+                          out: array3, scale0: scalar, channel0: int, offset: int):
+        p = wp.tid() + offset
+        half = scalar(0.5)
+        scale = scale0
+        for k in range(n_levels):  # one call site: the window's code once, not once a level
+            v = v0
+            if k == 1:
+                v = v1
+            if k == 2:
+                v = v2
+            if k == 3:
+                v = v3
+            h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+            window(v, p, j0, i0, fx, fy, out, channel0 + k * side * side, h, w)
+            scale = scale * half
+
+    return sample_levels_cpu
+
+
+def sample_levels_cpu(radius: int, scalar: Any) -> Any:
+    """The CPU kernel sampling up to four levels for this radius and float type (built once, cached).
+
+    Arguments: (v0, v1, v2, v3, n_levels, coords, out, scale0, channel0, offset), those of
+    `_common.sample_levels` without `radius`.
+    """
+    key = (radius, scalar)
+    with _lock:
+        kernel = _kernels.get(key)
+        if kernel is None:
+            kernel = _kernels[key] = _build(radius, scalar)
+    return kernel
