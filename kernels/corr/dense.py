@@ -26,7 +26,7 @@ import warp as wp
 from kernels._arrays import Inputs
 from kernels.corr._common import (LEVELS_PER_LAUNCH, Array, check_levels, check_list, check_radius, coords_in,
                                   levels_in, sample_levels, sample_windows_adjoint, volume_in)
-from kernels.corr.window_cpu import sample_levels_cpu
+from kernels.corr import window_cpu
 
 
 # --------------------------------------------------------------------------- entry points
@@ -50,13 +50,13 @@ def lookup(pyramid: Sequence[Array], coords: Array, radius: int, *, device: str 
     side = 2 * radius + 1
     n = height * width
     out = a.empty((len(levels) * side * side, height, width))  # every element is written
-    cpu_kernel = sample_levels_cpu(radius, a.scalar) if a.device.is_cpu else None
+    cpu_kernel = window_cpu.sample_levels_cpu(radius, a.scalar) if a.device.is_cpu else None
     for lvl0 in range(0, len(levels), LEVELS_PER_LAUNCH):
         group = levels[lvl0:lvl0 + LEVELS_PER_LAUNCH]
         padded = group + [group[0]] * (LEVELS_PER_LAUNCH - len(group))  # unused slots: never read
         head = [*padded, len(group), xy, out, a.s(0.5 ** lvl0)]
         if cpu_kernel is not None:
-            a.launch(cpu_kernel, n, [*head, lvl0 * side * side], min_chunk=256)
+            a.launch(cpu_kernel, window_cpu.blocks(n), [*head, lvl0 * side * side], min_chunk=32)
         else:
             a.launch(sample_levels, n, [*head, radius, lvl0 * side * side], min_chunk=256)
     return a.out(out)

@@ -105,7 +105,8 @@ def test_lookup_more_levels_than_one_launch_covers():
 def test_lookup_cpu_kernel_is_the_warp_kernel_bit_for_bit(dtype, radius):
     """The CPU's forward (window_cpu, C++) equals `_common.sample_levels` (the Warp kernel CUDA runs) bit
     for bit: windows inside level 0 (positions near each pixel) and overhanging or outside every level
-    (positions past the borders), a NaN position, and a strided (non-contiguous) level."""
+    (positions past the borders), a NaN position, a strided (non-contiguous) level and output, and a
+    frame whose last block of pixels is partial."""
     from kernels.corr import _common, window_cpu
 
     rng = np.random.default_rng(50 + radius)
@@ -127,15 +128,18 @@ def test_lookup_cpu_kernel_is_the_warp_kernel_bit_for_bit(dtype, radius):
     nan = np.isnan(want)
     assert nan.any() and np.array_equal(np.isnan(got), nan)
     assert got[~nan].tobytes() == want[~nan].tobytes()
-    # A level read through strides (every other column of a wider array): the tested, clamped reads.
+    # A level read through strides (every other column of a wider array): the tested, clamped reads;
+    # written through strides too (lane by lane instead of a vector a channel).
     wide = wp.array(np.repeat(pyramid[1].reshape(h * w, h // 2, w // 2), 2, axis=2))
     strided = wide[:, :, ::2]
     assert not strided.is_contiguous
     kernel = window_cpu.sample_levels_cpu(radius, scalar)
     xy = wp.array(coords)
-    out_a = wp.zeros((side * side, h, w), dtype=scalar)
+    out_a = wp.zeros((side * side, h, 2 * w), dtype=scalar)[:, :, ::2]
     out_b = wp.zeros((side * side, h, w), dtype=scalar)
-    wp.launch(kernel, h * w, [strided, strided, strided, strided, 1, xy, out_a, scalar(0.5), 0, 0], device="cpu")
+    assert (h * w) % window_cpu.LANES  # a last, partial block: the one-pixel path
+    wp.launch(kernel, window_cpu.blocks(h * w), [strided, strided, strided, strided, 1, xy, out_a, scalar(0.5), 0, 0],
+              device="cpu")
     wp.launch(_common.sample_levels, h * w, [levels[1], levels[1], levels[1], levels[1], 1, xy, out_b,
                                              scalar(0.5), radius, 0, 0], device="cpu")
     a, b = out_a.numpy(), out_b.numpy()
