@@ -56,7 +56,8 @@ def lookup(pyramid: Sequence[Array], coords: Array, radius: int, *, device: str 
         padded = group + [group[0]] * (LEVELS_PER_LAUNCH - len(group))  # unused slots: never read
         head = [*padded, len(group), xy, out, a.s(0.5 ** lvl0)]
         if cpu_kernel is not None:
-            a.launch(cpu_kernel, window_cpu.blocks(n), [*head, lvl0 * side * side], min_chunk=32)
+            a.launch(cpu_kernel, window_cpu.blocks(n), [*head, lvl0 * side * side],
+                     min_chunk=256 // window_cpu.LANES)
         else:
             a.launch(sample_levels, n, [*head, radius, lvl0 * side * side], min_chunk=256)
     return a.out(out)
