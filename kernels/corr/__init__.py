@@ -47,6 +47,8 @@ Stages, one module each (each opens with its own math, adjoints and layout):
     product is a GEMM, by BLAS on the CPU (`backend="numpy"`, the default there)
     or by a blocked Warp kernel (`backend="warp"`, the default on CUDA);
   * `dense`: the lookup (4) in a stored pyramid, with its adjoint;
+  * `window_cpu`: the dense lookup's window sampling on the CPU, in C++ (one kernel per
+    radius and float type, 8 pixels a thread), bit-identical to `_common`'s;
   * `onthefly`: the same lookup from f1 and the pooled features P^l(f2) without
     storing V, with its adjoint;
   * `stored`: f1 and P^l(f2) stored for repeated on-the-fly lookups, in float32 or,

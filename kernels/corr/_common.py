@@ -7,7 +7,8 @@ the window's taps start at column i0 = floor(u0) with fraction fx = u0 - i0
 by (3) one window column a at a time (`sample_window`: sample b's lower taps are
 sample b + 1's upper taps), taps outside s[p] reading 0. The dense lookup samples
 V^l[p] from (j0, i0), up to four levels a launch (`sample_levels`, one thread per
-pixel); the on-the-fly lookup samples its tap patch from (0, 0), or blocks of
+pixel; on the CPU `window_cpu.sample_levels_cpu` does the same in C++, bit for
+bit); the on-the-fly lookup samples its tap patch from (0, 0), or blocks of
 rows of V^l (`sample_windows`, one level a launch).
 
 Adjoint of a window (`sample_windows_adjoint`), with g = d loss / d out:

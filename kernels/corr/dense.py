@@ -12,7 +12,9 @@ per launch, the adjoint one level per launch, adding into row p of the level's
 gradient and pixel p of the coordinates' only. The kernels are
 `_common.sample_levels` and `_common.sample_windows_adjoint` (the window
 sampling is shared with the on-the-fly lookup), where the adjoint's formulas are
-written out.
+written out; on the CPU the forward runs `window_cpu.sample_levels_cpu`, the same
+sampling in C++ with the window's side fixed at compile time (same outputs, bit
+for bit).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import warp as wp
 from kernels._arrays import Inputs
 from kernels.corr._common import (LEVELS_PER_LAUNCH, Array, check_levels, check_list, check_radius, coords_in,
                                   levels_in, sample_levels, sample_windows_adjoint, volume_in)
+from kernels.corr import window_cpu
 
 
 # --------------------------------------------------------------------------- entry points
@@ -47,11 +50,16 @@ def lookup(pyramid: Sequence[Array], coords: Array, radius: int, *, device: str 
     side = 2 * radius + 1
     n = height * width
     out = a.empty((len(levels) * side * side, height, width))  # every element is written
+    cpu_kernel = window_cpu.sample_levels_cpu(radius, a.scalar) if a.device.is_cpu else None
     for lvl0 in range(0, len(levels), LEVELS_PER_LAUNCH):
         group = levels[lvl0:lvl0 + LEVELS_PER_LAUNCH]
         padded = group + [group[0]] * (LEVELS_PER_LAUNCH - len(group))  # unused slots: never read
-        a.launch(sample_levels, n, [*padded, len(group), xy, out, a.s(0.5 ** lvl0), radius, lvl0 * side * side],
-                 min_chunk=256)
+        head = [*padded, len(group), xy, out, a.s(0.5 ** lvl0)]
+        if cpu_kernel is not None:
+            a.launch(cpu_kernel, window_cpu.blocks(n), [*head, lvl0 * side * side],
+                     min_chunk=256 // window_cpu.LANES)
+        else:
+            a.launch(sample_levels, n, [*head, radius, lvl0 * side * side], min_chunk=256)
     return a.out(out)
 
 

@@ -100,6 +100,52 @@ def test_lookup_more_levels_than_one_launch_covers():
     assert np.count_nonzero(out[4 * 9:]) > 0  # the last level's channels were written
 
 
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("radius", [0, 1, 4, 8])
+def test_lookup_cpu_kernel_is_the_warp_kernel_bit_for_bit(dtype, radius):
+    """The CPU's forward (window_cpu, C++) equals `_common.sample_levels` (the Warp kernel CUDA runs) bit
+    for bit: windows inside level 0 (positions near each pixel) and overhanging or outside every level
+    (positions past the borders), a NaN position, a strided (non-contiguous) level and output, and a
+    frame whose last block of pixels is partial."""
+    from kernels.corr import _common, window_cpu
+
+    rng = np.random.default_rng(50 + radius)
+    c, h, w = 4, 26, 29  # 754 pixels: a last, partial block of LANES
+    f1, f2, coords = random_case(rng, dtype, shape=(c, h, w))
+    near = np.stack(np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)) + rng.uniform(-2, 2, (2, h, w))
+    coords[:, : h // 2] = near[:, : h // 2]  # the top half: windows inside level 0 at small radii
+    coords[0, 3, 4] = np.nan
+    pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 4)
+    with value_checks(False):  # a NaN position (checked positions raise before any kernel runs)
+        got = corr.lookup(pyramid, coords, radius)
+    levels = [wp.array(v.reshape(h * w, *v.shape[2:])) for v in pyramid]
+    scalar = levels[0].dtype
+    side = 2 * radius + 1
+    want = wp.zeros((4 * side * side, h, w), dtype=scalar)
+    wp.launch(_common.sample_levels, h * w, [*levels, 4, wp.array(coords), want, scalar(1.0), radius, 0, 0],
+              device="cpu")
+    want = want.numpy()
+    nan = np.isnan(want)
+    assert nan.any() and np.array_equal(np.isnan(got), nan)
+    assert got[~nan].tobytes() == want[~nan].tobytes()
+    # A level read through strides (every other column of a wider array): the tested, clamped reads;
+    # written through strides too (lane by lane instead of a vector a channel).
+    wide = wp.array(np.repeat(pyramid[1].reshape(h * w, h // 2, w // 2), 2, axis=2))
+    strided = wide[:, :, ::2]
+    assert not strided.is_contiguous
+    kernel = window_cpu.sample_levels_cpu(radius, scalar)
+    xy = wp.array(coords)
+    out_a = wp.zeros((side * side, h, 2 * w), dtype=scalar)[:, :, ::2]
+    out_b = wp.zeros((side * side, h, w), dtype=scalar)
+    assert (h * w) % window_cpu.LANES  # a last, partial block: the one-pixel path
+    wp.launch(kernel, window_cpu.blocks(h * w), [strided, strided, strided, strided, 1, xy, out_a, scalar(0.5), 0, 0],
+              device="cpu")
+    wp.launch(_common.sample_levels, h * w, [levels[1], levels[1], levels[1], levels[1], 1, xy, out_b,
+                                             scalar(0.5), radius, 0, 0], device="cpu")
+    a, b = out_a.numpy(), out_b.numpy()
+    assert np.array_equal(np.isnan(a), np.isnan(b)) and a[~np.isnan(a)].tobytes() == b[~np.isnan(b)].tobytes()
+
+
 def test_lookup_channel_order_is_rafts():
     """One bright cell at frame-2 offset (+1, -2) from a pixel: it appears in channel (r + 1)(2r + 1) + (r - 2)."""
     h, w, radius = 6, 7, 2
