@@ -115,3 +115,54 @@ def test_held_bytes_exact(c):
     assert features.feature_dtype == "float16" and features.nbytes == 2 * c8 * pixels
     if c == 256:  # RAFT's size: the volume pyramid against the float16 store
         assert corr.dense_bytes(h, w, levels) / features.nbytes > 12.6
+
+
+@pytest.mark.parametrize("storage", ["float32", "float64", "float16"])
+@pytest.mark.parametrize("radius", [0, 1, 4])
+def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius):
+    """The CPU's patches (patch_cpu, C++, reading the stored dtype) equal `onthefly._patch_sample_level`
+    (the Warp kernel, on the widened vectors) bit for bit, patches and samples: windows inside level 0
+    and overhanging or outside the coarser levels, a NaN position, padded channels (C = 12)."""
+    from kernels._arrays import value_checks
+    from kernels.corr import onthefly, patch_cpu
+    from kernels.corr._common import level_shapes
+
+    rng = np.random.default_rng(60 + radius)
+    c, h, w, n_levels = 12, 23, 26, 3
+    dtype = np.float64 if storage == "float64" else np.float32
+    f1, f2_pyramid, coords = case(rng, c, h, w, n_levels)
+    near = np.stack(np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)) + rng.uniform(-2, 2, (2, h, w))
+    coords[:, : h // 2] = near[:, : h // 2]
+    coords[0, 3, 4] = np.nan
+    f1, coords = f1.astype(dtype), coords.astype(dtype)
+    f2_pyramid = [x.astype(dtype) for x in f2_pyramid]
+    features = corr.onthefly_features(f1, f2_pyramid, feature_dtype="float16" if storage == "float16" else "float32")
+    a = Inputs("cpu")
+    a.scalar = wp.float64 if storage == "float64" else wp.float32
+    xy = wp.array(coords, device="cpu")
+    n, side = h * w, 2 * radius + 1
+    inv = a.s(1.0 / np.sqrt(c))
+    kernel = patch_cpu.patch_sample_cpu(radius, a.scalar, features.f1.dtype)
+    assert features.f1.dtype == {"float32": wp.float32, "float64": wp.float64, "float16": wp.float16}[storage]
+    f1_v = stored.widen(features.f1, a)
+    for lvl, (hl, wl) in enumerate(level_shapes(h, w, n_levels)):
+        results = []
+        for cpp in (True, False):
+            patch = wp.full((n, side + 1, side + 1), 7.0, dtype=a.scalar, device="cpu")
+            out = wp.full((side * side, h, w), 7.0, dtype=a.scalar, device="cpu")
+            if cpp:
+                inputs = [features.f1, features.levels[lvl], xy, patch, out, hl, wl, a.s(0.5 ** lvl), inv, 0, 0]
+            else:
+                inputs = [f1_v, stored.widen(features.levels[lvl], a), xy, patch, out, hl, wl, a.s(0.5 ** lvl),
+                          radius, inv, 0, 0]
+            with value_checks(False):
+                wp.launch(kernel if cpp else onthefly._patch_sample_level, n, inputs, device="cpu")
+            results.append((patch.numpy(), out.numpy()))
+        (patch_cpp, out_cpp), (patch_warp, out_warp) = results
+        nan = np.isnan(out_warp)
+        assert nan.any() and np.array_equal(np.isnan(out_cpp), nan)
+        assert out_cpp[~nan].tobytes() == out_warp[~nan].tobytes()
+        valid = np.ones(n, dtype=bool)
+        valid[3 * w + 4] = False  # the NaN position's window origin is undefined
+        assert patch_cpp[valid].tobytes() == patch_warp[valid].tobytes()
+        assert (patch_cpp[valid] == 0).any() and (patch_cpp[valid] != 0).any()

@@ -1,0 +1,149 @@
+"""The on-the-fly lookup's patches on the CPU, in C++, read from the stored features' own dtype.
+
+Same math, same operations and the same order as `onthefly._patch_row` (then
+`_common.sample_window`, by `window_cpu`'s one-pixel C++ window), so the same outputs
+bit for bit. For pixel p at level l, window origin (j0, i0) (`_common.pixel_window`),
+tap row ty and tap column tx (0 .. 2r+1), with x = f1[:, p] and y = P^l(f2)[:, (j0 + ty, i0 + tx)]
+channels-last in 8-lane vectors x_k, y_k (k = 0 .. C8/8 - 1, channels zero-padded to C8):
+
+    acc    = x_0 * y_0;   acc = acc + x_k * y_k  (k = 1, 2, ...; a product, then a sum, per lane)
+    T[ty, tx] = (((acc[0] + acc[1]) + acc[2]) + ... + acc[7]) * (1 / sqrt(C)),   0 outside the level
+
+each product and each sum a separate C++ statement (no fused multiply-add), as Warp's generated
+code computes `_dot_v`. The (2r + 2)^2 taps go into patch[p] and the window is sampled from it
+at once (`window_cpu.window_func`), while it is in cache.
+
+Why C++. Warp's kernel reads a tap's vectors through runtime-strided array accesses, with the
+taps of a row taken five, four, two or one at a time; here a patch row's 2r + 2 taps are one
+pass over the channels with 2r + 2 accumulators held in registers (the side is a literal, the
+loops unrolled), each f1 vector loaded once for the row. Taps whose column lies outside the level
+are computed on a clamped column and replaced by 0 (the order of every in-frame tap's sum is
+unchanged); rows outside are 0.
+
+Storage. The features are read in their stored dtype, S = float32, float64 or float16
+(`kernels.corr.stored`), and widened in registers (`__builtin_convertvector`: F16C conversions for
+float16, exact), so a float16 lookup needs no widened copy of f1 or of the level: it computes on
+exactly the values the widened copy held, hence the same outputs bit for bit.
+
+The kernel runs on the CPU only (CUDA keeps `onthefly._patch_level` and `sample_windows`); one
+kernel per (radius, working dtype, storage dtype), its own Warp module, compiled on first use.
+"""
+
+import threading
+from typing import Any
+
+import warp as wp
+
+from kernels.corr._common import pixel_window
+from kernels.corr.window_cpu import window_func
+
+_PATCH_CPP = r"""
+    typedef decltype(inv) T;
+    typedef STORE S;
+    typedef T V __attribute__((ext_vector_type(8)));
+    typedef S SV __attribute__((ext_vector_type(8), aligned(sizeof(S))));
+    const int side = SIDE;  // taps a patch row: 2r + 2
+    const int n_vec = f1.shape[1] / 8;
+    const int height = height_l;
+    const int width = width_l;
+    const char* x_row = reinterpret_cast<const char*>(f1.data) + (long long)p * f1.strides[0];
+    const char* level = reinterpret_cast<const char*>(f2l.data);
+    const long long tap_stride = f2l.strides[0];
+    char* patch_p = reinterpret_cast<char*>(patch.data) + (long long)p * patch.strides[0];
+    const T zero = T(0.0);
+    const T outside = inv * zero;  // `_tap_or_zero`'s 0
+    long long col_offset[SIDE];
+    bool col_ok[SIDE];
+    _Pragma("unroll") for (int c = 0; c < side; ++c) {
+        const int col = col0 + c;
+        col_ok[c] = col >= 0 && col < width;
+        col_offset[c] = (long long)(col < 0 ? 0 : (col >= width ? width - 1 : col)) * tap_stride;
+    }
+    const SV* xs = reinterpret_cast<const SV*>(x_row);
+    for (int ty = 0; ty < side; ++ty) {
+        const int row = row0 + ty;
+        T* out_row = reinterpret_cast<T*>(patch_p + (long long)ty * patch.strides[1]);
+        const long long col_step = patch.strides[2] / (long long)sizeof(T);
+        if (row < 0 || row >= height) {
+            _Pragma("unroll") for (int c = 0; c < side; ++c)
+                out_row[c * col_step] = zero;
+            continue;
+        }
+        const char* base = level + (long long)row * width * tap_stride;
+        const SV* ys[SIDE];
+        _Pragma("unroll") for (int c = 0; c < side; ++c)
+            ys[c] = reinterpret_cast<const SV*>(base + col_offset[c]);
+        V acc[SIDE];
+        {
+            const V x = __builtin_convertvector(xs[0], V);
+            _Pragma("unroll") for (int c = 0; c < side; ++c) {
+                const V y = __builtin_convertvector(ys[c][0], V);
+                acc[c] = x * y;
+            }
+        }
+        for (int k = 1; k < n_vec; ++k) {
+            const V x = __builtin_convertvector(xs[k], V);
+            _Pragma("unroll") for (int c = 0; c < side; ++c) {
+                const V y = __builtin_convertvector(ys[c][k], V);
+                const V prod = x * y;
+                acc[c] = acc[c] + prod;
+            }
+        }
+        _Pragma("unroll") for (int c = 0; c < side; ++c) {
+            T s = acc[c][0];
+            _Pragma("unroll") for (int q = 1; q < 8; ++q)
+                s = s + acc[c][q];
+            const T tap = s * inv;
+            out_row[c * col_step] = col_ok[c] ? tap : outside;
+        }
+    }
+"""
+
+_STORE_CPP = {wp.float32: "float", wp.float64: "double", wp.float16: "_Float16"}
+
+_kernels: dict[tuple[int, Any, Any], Any] = {}
+_lock = threading.Lock()
+
+
+def _build(radius: int, scalar: Any, storage: Any) -> Any:
+    # No `from __future__ import annotations` in this module: Warp reads the stub's and the
+    # kernel's annotations as objects, and these name the closure's types.
+    side = 2 * radius + 1
+    rows = wp.array2d(dtype=storage)
+    array3 = wp.array3d(dtype=scalar)
+    window = window_func(radius, scalar)
+
+    def patch_func(f1: rows, f2l: rows, p: int, row0: int, col0: int, height_l: int, width_l: int, inv: scalar,
+                   patch: array3): ...
+
+    # A name of its own per radius and types: Warp keys native functions by name.
+    patch_func.__name__ = patch_func.__qualname__ = f"onthefly_patch_cpu_r{radius}_{scalar.__name__}_{storage.__name__}"
+    patch_func = wp.func_native(_PATCH_CPP.replace("SIDE", str(side + 1)).replace("STORE", _STORE_CPP[storage]))(
+        patch_func)
+
+    @wp.kernel(module="unique", module_options={"enable_backward": False, "optimization_level": 3})
+    def patch_sample_cpu(f1: rows, f2l: rows, coords: array3, patch: array3, out: array3, height_l: int,
+                         width_l: int, scale: scalar, inv: scalar, channel0: int, offset: int):
+        # thread = pixel: its patch, then its window sampled from the patch
+        p = wp.tid() + offset
+        h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+        patch_func(f1, f2l, p, j0, i0, height_l, width_l, inv, patch)
+        window(patch, p, 0, 0, fx, fy, out, channel0, h, w)
+
+    return patch_sample_cpu
+
+
+def patch_sample_cpu(radius: int, scalar: Any, storage: Any) -> Any:
+    """The CPU kernel computing a level's patches and sampling them, for this radius, working dtype
+    `scalar` and storage dtype `storage` (built once, cached).
+
+    Arguments: (f1, f2l, coords, patch, out, height_l, width_l, scale, inv, channel0, offset), with
+    f1 (N, C8) and f2l (H_l W_l, C8) channels-last rows of `storage` (C8 a multiple of 8, rows
+    contiguous), patch (N, 2r+2, 2r+2) and out as `onthefly._patch_sample_level`'s; thread = pixel.
+    """
+    key = (radius, scalar, storage)
+    with _lock:
+        kernel = _kernels.get(key)
+        if kernel is None:
+            kernel = _kernels[key] = _build(radius, scalar, storage)
+    return kernel
