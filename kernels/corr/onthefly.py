@@ -360,7 +360,9 @@ def _sample_full_product(x1_rows: np.ndarray, f2s: np.ndarray, height_l: int, wi
 
         with _one_blas_thread():
             parallel_ranges(products, len(starts), min_chunk=1)
-        a.launch(sample_windows, rows, [buf, xy, out, scale, radius, lvl * side * side, 0, p0], min_chunk=256)
+        # `sample_windows`' windows by window_cpu's C++ window, bit for bit (full products are CPU-only)
+        a.launch(patch_cpu.full_sample_cpu(radius, a.scalar), rows, [buf, xy, out, scale, lvl * side * side, p0],
+                 min_chunk=256)
 
 
 def _channels_first(x_v: wp.array, channels: int, a: Inputs) -> wp.array:

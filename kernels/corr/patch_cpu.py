@@ -27,6 +27,10 @@ exactly the values the widened copy held, hence the same outputs bit for bit.
 
 The kernel runs on the CPU only (CUDA keeps `onthefly._patch_level` and `sample_windows`); one
 kernel per (radius, working dtype, storage dtype), its own Warp module, compiled on first use.
+
+`full_sample_cpu`: the windows of a full-product level (`onthefly._sample_full_product`, rows of
+V^l formed by BLAS) sampled by the same one-pixel C++ window in place of `_common.sample_windows`
+(the same values bit for bit).
 """
 
 import threading
@@ -102,6 +106,7 @@ _PATCH_CPP = r"""
 _STORE_CPP = {wp.float32: "float", wp.float64: "double", wp.float16: "_Float16"}
 
 _kernels: dict[tuple[int, Any, Any], Any] = {}
+_full_kernels: dict[tuple[int, Any], Any] = {}
 _lock = threading.Lock()
 
 
@@ -146,4 +151,32 @@ def patch_sample_cpu(radius: int, scalar: Any, storage: Any) -> Any:
         kernel = _kernels.get(key)
         if kernel is None:
             kernel = _kernels[key] = _build(radius, scalar, storage)
+    return kernel
+
+
+def _build_full(radius: int, scalar: Any) -> Any:
+    array3 = wp.array3d(dtype=scalar)
+    window = window_func(radius, scalar)
+
+    @wp.kernel(module="unique", module_options={"enable_backward": False, "optimization_level": 3})
+    def full_sample_cpu(s: array3, coords: array3, out: array3, scale: scalar, channel0: int, block0: int,
+                        offset: int):
+        # thread = pixel p = block0 + row: its window sampled from s[row], the rows of V^l of the block
+        row = wp.tid() + offset
+        p = row + block0
+        h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+        window(s, row, j0, i0, fx, fy, out, channel0, h, w)
+
+    return full_sample_cpu
+
+
+def full_sample_cpu(radius: int, scalar: Any) -> Any:
+    """The CPU kernel sampling a full-product level's block of rows of V^l: `_common.sample_windows`
+    with `from_patch` = 0 (arguments (s, coords, out, scale, channel0, block0, offset), its own less
+    `radius` and `from_patch`), by `window_cpu`'s one-pixel C++ window (bit-identical); built once, cached."""
+    key = (radius, scalar)
+    with _lock:
+        kernel = _full_kernels.get(key)
+        if kernel is None:
+            kernel = _full_kernels[key] = _build_full(radius, scalar)
     return kernel
