@@ -10,7 +10,12 @@ channels-last in 8-lane vectors x_k, y_k (k = 0 .. C8/8 - 1, channels zero-padde
     T[ty, tx] = (((acc[0] + acc[1]) + acc[2]) + ... + acc[7]) * (1 / sqrt(C)),   0 outside the level
 
 each product and each sum a separate C++ statement (no fused multiply-add), as Warp's generated
-code computes `_dot_v`. The (2r + 2)^2 taps go into patch[p] and the window is sampled from it
+code computes `_dot_v`. Except for float16 storage with float32 work, where each step is one fused
+multiply-add, fma(x_k, y_k, acc) = round(acc + x_k y_k): the same value, because the product of
+two float16 values is exact in float32 (two 11-bit significands make at most 22 bits, of float32's
+24; |x y| <= 65504^2 < 2^32, and a nonzero |x y| >= 2^-48, far above float32's smallest normal
+2^-126), so round(x y) = x y and the separate product and sum round once, as the fused one does.
+(Measured: 18-20% less time for a level's patches, one thread.) The (2r + 2)^2 taps go into patch[p] and the window is sampled from it
 at once (`window_cpu.window_func`), while it is in cache.
 
 Why C++. Warp's kernel reads a tap's vectors through runtime-strided array accesses, with the
@@ -89,8 +94,7 @@ _PATCH_CPP = r"""
             const V x = __builtin_convertvector(xs[k], V);
             _Pragma("unroll") for (int c = 0; c < side; ++c) {
                 const V y = __builtin_convertvector(ys[c][k], V);
-                const V prod = x * y;
-                acc[c] = acc[c] + prod;
+                MULTIPLY_ADD
             }
         }
         _Pragma("unroll") for (int c = 0; c < side; ++c) {
@@ -104,6 +108,10 @@ _PATCH_CPP = r"""
 """
 
 _STORE_CPP = {wp.float32: "float", wp.float64: "double", wp.float16: "_Float16"}
+# acc + x * y, a product then a sum; with float16 storage and float32 work the product is exact, so one
+# fused multiply-add rounds the same sum (module docstring) in one instruction.
+_SEPARATE = "const V prod = x * y;\n                acc[c] = acc[c] + prod;"
+_FUSED = "acc[c] = __builtin_elementwise_fma(x, y, acc[c]);"
 
 _kernels: dict[tuple[int, Any, Any], Any] = {}
 _full_kernels: dict[tuple[int, Any], Any] = {}
@@ -123,8 +131,9 @@ def _build(radius: int, scalar: Any, storage: Any) -> Any:
 
     # A name of its own per radius and types: Warp keys native functions by name.
     patch_func.__name__ = patch_func.__qualname__ = f"onthefly_patch_cpu_r{radius}_{scalar.__name__}_{storage.__name__}"
-    patch_func = wp.func_native(_PATCH_CPP.replace("SIDE", str(side + 1)).replace("STORE", _STORE_CPP[storage]))(
-        patch_func)
+    fused = storage == wp.float16 and scalar == wp.float32
+    source = _PATCH_CPP.replace("SIDE", str(side + 1)).replace("STORE", _STORE_CPP[storage])
+    patch_func = wp.func_native(source.replace("MULTIPLY_ADD", _FUSED if fused else _SEPARATE))(patch_func)
 
     @wp.kernel(module="unique", module_options={"enable_backward": False, "optimization_level": 3})
     def patch_sample_cpu(f1: rows, f2l: rows, coords: array3, patch: array3, out: array3, height_l: int,

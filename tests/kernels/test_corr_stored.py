@@ -117,12 +117,14 @@ def test_held_bytes_exact(c):
         assert corr.dense_bytes(h, w, levels) / features.nbytes > 12.6
 
 
-@pytest.mark.parametrize("storage", ["float32", "float64", "float16"])
+@pytest.mark.parametrize("storage", ["float32", "float64", "float16", "float16_wide"])
 @pytest.mark.parametrize("radius", [0, 1, 4])
 def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius):
     """The CPU's patches (patch_cpu, C++, reading the stored dtype) equal `onthefly._patch_sample_level`
     (the Warp kernel, on the widened vectors) bit for bit, patches and samples: windows inside level 0
-    and overhanging or outside the coarser levels, a NaN position, padded channels (C = 12)."""
+    and overhanging or outside the coarser levels, a NaN position, padded channels (C = 12).
+    "float16_wide": features from float16 subnormals to ~2^13, so the fused multiply-adds of the
+    float16 kernel meet tiny and large products (exact in float32 all the same)."""
     from kernels._arrays import value_checks
     from kernels.corr import onthefly, patch_cpu
     from kernels.corr._common import level_shapes
@@ -131,6 +133,11 @@ def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius):
     c, h, w, n_levels = 12, 23, 26, 3
     dtype = np.float64 if storage == "float64" else np.float32
     f1, f2_pyramid, coords = case(rng, c, h, w, n_levels)
+    if storage == "float16_wide":
+        storage = "float16"
+        f1 = f1 * np.exp2(rng.integers(-26, 13, f1.shape)).astype(np.float32)
+        f2_pyramid = [x * np.exp2(rng.integers(-26, 13, x.shape)).astype(np.float32) for x in f2_pyramid]
+        assert np.abs(f1).max() < 65504 and (np.abs(f1.astype(np.float16)) < 2.0 ** -14).any()
     near = np.stack(np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)) + rng.uniform(-2, 2, (2, h, w))
     coords[:, : h // 2] = near[:, : h // 2]
     coords[0, 3, 4] = np.nan
