@@ -118,7 +118,7 @@ def test_held_bytes_exact(c):
 
 
 @pytest.mark.parametrize("storage", ["float32", "float64", "float16", "float16_wide"])
-@pytest.mark.parametrize("radius", [0, 1, 4])
+@pytest.mark.parametrize("radius", [0, 1, 3, 4])  # patch rows of 2, 4, 8 and 10 taps
 def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius):
     """The CPU's patches (patch_cpu, C++, reading the stored dtype) equal `onthefly._patch_sample_level`
     (the Warp kernel, on the widened vectors) bit for bit, patches and samples: windows inside level 0
