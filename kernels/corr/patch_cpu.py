@@ -226,3 +226,44 @@ def full_sample_cpu(radius: int, scalar: Any) -> Any:
         if kernel is None:
             kernel = _full_kernels[key] = _build_full(radius, scalar)
     return kernel
+
+
+_WIDEN_CPP = r"""
+    typedef _Float16 S;
+    typedef float T;
+    typedef S SV __attribute__((ext_vector_type(8), aligned(sizeof(S))));
+    typedef T V __attribute__((ext_vector_type(8), aligned(sizeof(T))));
+    const int n_vec = x.shape[1] / 8;
+    const SV* in = reinterpret_cast<const SV*>(reinterpret_cast<const char*>(x.data) + (long long)n * x.strides[0]);
+    V* o = reinterpret_cast<V*>(reinterpret_cast<char*>(out.data) + (long long)n * out.strides[0]);
+    for (int k = 0; k < n_vec; ++k)
+        o[k] = __builtin_convertvector(in[k], V);
+"""
+
+_widen_kernel = None
+
+
+def _build_widen() -> Any:
+    rows16 = wp.array2d(dtype=wp.float16)
+    rows32 = wp.array2d(dtype=wp.float32)
+
+    def widen_row(x: rows16, out: rows32, n: int): ...
+
+    widen_row.__name__ = widen_row.__qualname__ = "widen_row_float16_cpu"
+    widen_row = wp.func_native(_WIDEN_CPP)(widen_row)
+
+    @wp.kernel(module="unique", module_options={"enable_backward": False, "optimization_level": 3})
+    def widen_rows_cpu(x: rows16, out: rows32, offset: int):
+        widen_row(x, out, wp.tid() + offset)
+
+    return widen_rows_cpu
+
+
+def widen_rows_cpu() -> Any:
+    """The CPU kernel widening float16 rows (N, C8) to float32 rows, exactly (a row a thread, 8-lane
+    vector conversions; arguments (x, out, offset), both rows contiguous); built once, cached."""
+    global _widen_kernel
+    with _lock:
+        if _widen_kernel is None:
+            _widen_kernel = _build_widen()
+    return _widen_kernel

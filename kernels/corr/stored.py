@@ -13,8 +13,9 @@ or 2 (`stored_bytes`), in place of the volume pyramid's 4 H W sum_l H_l W_l.
 
 Dequantisation. Every float16 is a float32, so widening is exact. On the CPU the patch kernel
 (`patch_cpu`) reads the float16 rows themselves and widens each 8-channel vector in registers
-(F16C conversions); the full-product levels widen f1 once per call on the host (`widen`, by
-integer operations on the bits, `float16_to_float32`) for BLAS. Off the CPU, `widen` copies f1
+(F16C conversions); the full-product levels widen f1 once per call (`widen`: on the CPU a C++
+kernel of 8-lane conversions, `patch_cpu.widen_rows_cpu`, half the time of the host conversion
+by integer operations on the bits, `float16_to_float32`, which float64 work still uses) for BLAS. Off the CPU, `widen` copies f1
 and one level at a time into the channels-last vectors the float32 path builds in each call.
 Everything after the widening, the patch dot products, the BLAS products and their sums, is the
 float32 path's arithmetic: the float16 lookup
@@ -50,6 +51,7 @@ import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs
+from kernels.corr import patch_cpu
 from kernels.corr._common import VEC, VEC_OF, full_product_level, level_shapes
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -172,6 +174,12 @@ def widen(x: wp.array, a: Inputs) -> wp.array:
     if x.dtype == a.scalar:
         return wp.array(ptr=x.ptr, shape=(n, c8 // VEC), dtype=vec, device=x.device)  # x outlives the call
     if a.device.is_cpu:
+        if a.scalar == wp.float32 and x.strides[1] == 2:
+            # the rows converted in C++ (`patch_cpu.widen_rows_cpu`, 8-lane conversions), into the vectors' memory
+            out_v = a.empty((n, c8 // VEC), vec)
+            out = wp.array(ptr=out_v.ptr, shape=(n, c8), dtype=wp.float32, device=a.device)  # out_v outlives it
+            a.launch(patch_cpu.widen_rows_cpu(), n, [x, out], min_chunk=256)
+            return out_v
         if a.scalar == wp.float32:
             rows = float16_to_float32(x.numpy()).reshape(n, c8 // VEC, VEC)
         else:

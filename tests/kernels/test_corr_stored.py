@@ -84,6 +84,21 @@ def test_float16_to_float32_exact_for_every_finite_half():
     np.testing.assert_array_equal(got.view(np.uint32), finite.astype(np.float32).view(np.uint32))
 
 
+def test_widen_cpu_exact_for_every_finite_half():
+    # `widen` on the CPU (patch_cpu.widen_rows_cpu, C++ vector conversions) against NumPy, bit for bit.
+    bits = np.arange(2 ** 16, dtype=np.uint32).astype(np.uint16)
+    halves = bits.view(np.float16)
+    finite = halves[np.isfinite(halves)]  # 63490 values: -0, subnormals, normals up to 65504
+    rows = np.zeros(-(-finite.size // 64) * 64, dtype=np.float16)
+    rows[:finite.size] = finite
+    rows = rows.reshape(-1, 64)
+    a = Inputs("cpu")
+    a.scalar = wp.float32
+    got = stored.widen(wp.array(rows, dtype=wp.float16, device="cpu"), a).numpy().reshape(rows.shape)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got.view(np.uint32), rows.astype(np.float32).view(np.uint32))
+
+
 def test_widen_kernel_matches_host_conversion():
     # The device path (`_widen_rows_v`, used off the CPU) run on the CPU against the host conversion.
     rng = np.random.default_rng(6)
