@@ -35,6 +35,9 @@ exactly the values the widened copy held, hence the same outputs bit for bit.
 The kernel runs on the CPU only (CUDA keeps `onthefly._patch_level` and `sample_windows`); one
 kernel per (radius, working dtype, storage dtype), its own Warp module, compiled on first use.
 
+`widen_rows_cpu`: float16 rows (N, C8) widened to float32 by the same vector conversions (exact;
+`stored.widen` on the CPU, for f1 at the full-product levels).
+
 `full_sample_cpu`: the windows of a full-product level (`onthefly._sample_full_product`, rows of
 V^l formed by BLAS) sampled by the same one-pixel C++ window in place of `_common.sample_windows`
 (the same values bit for bit).
