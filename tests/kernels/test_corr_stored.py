@@ -218,3 +218,20 @@ def test_full_sample_cpu_kernel_is_sample_windows_bit_for_bit(dtype, radius):
     assert nan.any() and np.array_equal(np.isnan(got), nan)
     assert got[~nan].tobytes() == want[~nan].tobytes()
     assert (got[side * side:].reshape(side * side, -1)[:, block0:block0 + rows] != 7.0).all()
+
+
+@pytest.mark.parametrize("feature_dtype", ["float32", "float16"])
+def test_lookup_without_patch_cpu_is_bit_identical(monkeypatch, feature_dtype):
+    """The forward's other branch (features widened per call, the Warp patch kernel: the path off the
+    CPU, here on the CPU) gives the C++ path's lookup bit for bit, stored and direct."""
+    from kernels.corr import onthefly
+
+    f1, f2_pyramid, coords = case(np.random.default_rng(8), 16, 12, 16, 3)
+    features = corr.onthefly_features(f1, f2_pyramid, feature_dtype=feature_dtype)
+    want = [corr.lookup_onthefly_features(features, coords, 2),
+            corr.lookup_onthefly(f1, f2_pyramid, coords, 2, feature_dtype=feature_dtype)]
+    monkeypatch.setattr(onthefly, "_cpu_patches", lambda a, f1_rows: False)
+    got = [corr.lookup_onthefly_features(features, coords, 2),
+           corr.lookup_onthefly(f1, f2_pyramid, coords, 2, feature_dtype=feature_dtype)]
+    for g, w in zip(got, want):
+        assert g.tobytes() == w.tobytes()
