@@ -15,8 +15,9 @@ multiply-add, fma(x_k, y_k, acc) = round(acc + x_k y_k): the same value, because
 two float16 values is exact in float32 (two 11-bit significands make at most 22 bits, of float32's
 24; |x y| <= 65504^2 < 2^32, and a nonzero |x y| >= 2^-48, far above float32's smallest normal
 2^-126), so round(x y) = x y and the separate product and sum round once, as the fused one does.
-(Measured: 18-20% less time for a level's patches, one thread.) The (2r + 2)^2 taps go into patch[p] and the window is sampled from it
-at once (`window_cpu.window_func`), while it is in cache.
+(Measured: 18-20% less time for a level's patches, one thread.) The (2r + 2)^2 taps go into
+patch[p] and the window is sampled from it at once (`window_cpu.window_func`), while it is in
+cache.
 
 Why C++. Warp's kernel reads a tap's vectors through runtime-strided array accesses, with the
 taps of a row taken five, four, two or one at a time; here a patch row's 2r + 2 taps are one

@@ -15,8 +15,9 @@ Dequantisation. Every float16 is a float32, so widening is exact. On the CPU the
 (`patch_cpu`) reads the float16 rows themselves and widens each 8-channel vector in registers
 (F16C conversions); the full-product levels widen f1 once per call (`widen`: on the CPU a C++
 kernel of 8-lane conversions, `patch_cpu.widen_rows_cpu`, half the time of the host conversion
-by integer operations on the bits, `float16_to_float32`, which float64 work still uses) for BLAS. Off the CPU, `widen` copies f1
-and one level at a time into the channels-last vectors the float32 path builds in each call.
+by integer operations on the bits, `float16_to_float32`, which float64 work still uses) for BLAS.
+Off the CPU, `widen` copies f1 and one level at a time into the channels-last vectors the
+float32 path builds in each call.
 Everything after the widening, the patch dot products, the BLAS products and their sums, is the
 float32 path's arithmetic: the float16 lookup
 equals, bit for bit, the float32 lookup of the float16-rounded features. Its difference from the
