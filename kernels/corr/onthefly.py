@@ -24,7 +24,13 @@ memory the full-product levels reuse (both counts in kernels.corr.stored).
 
 Stored features (`onthefly_features`, `lookup_onthefly_features`; kernels.corr.stored):
 f1 and P^l(f2) kept channels-last between lookups, in float32 or float16 (half the
-bytes held; widened exactly per call, so the arithmetic below is float32's, forward-only).
+bytes held; widened exactly, so the arithmetic below is float32's, forward-only).
+
+The patches on the CPU: `patch_cpu` (C++, `wp.func_native`) forms a pixel's patch row by
+row, the 2r + 2 taps of a row in one pass over the channels, reading f1 and P^l(f2) in their
+stored dtype (float16 widened in registers), then samples the window from it (`window_cpu`'s
+one-pixel window): the same operations in the same order as `_patch_sample_level` (the Warp
+kernel, which CUDA keeps, with `_patch_level`), so the same values bit for bit.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -52,6 +58,7 @@ import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
+from kernels.corr import patch_cpu
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
                                   features_in, full_product_level, level_shapes, levels_in, pack_rows, pixel_window,
                                   pool_levels, pool_levels_adjoint, sample_window, sample_windows,
@@ -353,7 +360,9 @@ def _sample_full_product(x1_rows: np.ndarray, f2s: np.ndarray, height_l: int, wi
 
         with _one_blas_thread():
             parallel_ranges(products, len(starts), min_chunk=1)
-        a.launch(sample_windows, rows, [buf, xy, out, scale, radius, lvl * side * side, 0, p0], min_chunk=256)
+        # `sample_windows`' windows by window_cpu's C++ window, bit for bit (full products are CPU-only)
+        a.launch(patch_cpu.full_sample_cpu(radius, a.scalar), rows, [buf, xy, out, scale, lvl * side * side, p0],
+                 min_chunk=256)
 
 
 def _channels_first(x_v: wp.array, channels: int, a: Inputs) -> wp.array:
@@ -427,33 +436,61 @@ def _scaled_level(level_rows: np.ndarray, channels: int, inv: float, a: Inputs) 
     return f2s
 
 
-def _forward(a: Inputs, f1_v: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
-             level_v: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray]) -> wp.array:
-    """Equation (4) from f1 channels-last vectors (N, C8 / 8), one level at a time: `level_v(l)` gives
-    P^l(f2) channels-last (N_l, C8 / 8), `level_scaled(l)` P^l(f2) / sqrt(C) as (C, N_l) on the host."""
-    n = f1_v.shape[0]
+def _rows(x_v: wp.array) -> wp.array:
+    """Channels-last vectors (N, C8 / 8) viewed as their rows of scalars (N, C8) (no copy; x_v outlives the view)."""
+    n, n_vec = x_v.shape
+    return wp.array(ptr=x_v.ptr, shape=(n, n_vec * VEC), dtype=x_v.dtype._wp_scalar_type_, device=x_v.device)
+
+
+def _cpu_patches(a: Inputs, f1_rows: wp.array) -> bool:
+    """Whether the patches go through `patch_cpu` (its C++ kernel): on the CPU, rows contiguous, stored in
+    the working dtype or in float16 with float32 work."""
+    if not a.device.is_cpu or f1_rows.strides[1] != wp.types.type_size_in_bytes(f1_rows.dtype):
+        return False
+    return f1_rows.dtype == a.scalar or (f1_rows.dtype == wp.float16 and a.scalar == wp.float32)
+
+
+def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
+             level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray]) -> wp.array:
+    """Equation (4) from f1's channels-last rows (N, C8) in the storage dtype (the working dtype or
+    float16), one level at a time: `level_rows(l)` gives P^l(f2)'s rows (N_l, C8) in the same dtype,
+    `level_scaled(l)` P^l(f2) / sqrt(C) as (C, N_l) on the host in the working dtype.
+
+    On the CPU the patches of a level are formed and sampled by `patch_cpu` from the stored rows
+    themselves; elsewhere f1 and each level are widened (`widen`, exact) for `_patch_sample_level` /
+    `_patch_level`. Either way the values are the same, bit for bit.
+    """
+    n = f1_rows.shape[0]
     _, height, width = xy.shape
     side = 2 * radius + 1
     inv = a.s(1.0 / math.sqrt(channels))
     out = a.empty((n_levels * side * side, height, width))  # every element is written
     # Every tap is written by _patch_level; a full-product level reuses the memory for its blocks.
     patch = a.empty((n, side + 1, side + 1))
+    cpu_kernel = (patch_cpu.patch_sample_cpu(radius, a.scalar, f1_rows.dtype) if _cpu_patches(a, f1_rows)
+                  else None)
+    f1_v = None  # f1 widened to the working dtype, where needed
     for lvl, (hl, wl) in enumerate(level_shapes(height, width, n_levels)):
+        scale = a.s(0.5 ** lvl)
         if full_product_level(hl, wl, radius, a.device) and channels % VEC == 0:
+            f1_v = widen(f1_rows, a) if f1_v is None else f1_v
             x1_rows = f1_v.numpy().reshape(n, channels)  # f1 channels-last: the vectors' own memory
             _sample_full_product(x1_rows, level_scaled(lvl), hl, wl, xy, out, lvl, radius, patch, a)
-            continue
-        f2l_v = level_v(lvl)
-        scale = a.s(0.5 ** lvl)
-        if a.device.is_cpu:
-            # One launch: each pixel's window sampled while its patch is in cache (8% less time than two
-            # launches). On CUDA a thread per patch row keeps more threads busy.
-            a.launch(_patch_sample_level, n, [f1_v, f2l_v, xy, patch, out, hl, wl, scale, radius, inv,
-                                              lvl * side * side], min_chunk=64)
+        elif cpu_kernel is not None:
+            # One launch: each pixel's patch formed, then its window sampled while the patch is in cache.
+            a.launch(cpu_kernel, n, [f1_rows, level_rows(lvl), xy, patch, out, hl, wl, scale, inv,
+                                     lvl * side * side], min_chunk=64)
         else:
-            a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
-            a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1, 0])
-        del f2l_v  # one level's copy at a time (`onthefly_bytes`)
+            f1_v = widen(f1_rows, a) if f1_v is None else f1_v
+            f2l_v = widen(level_rows(lvl), a)
+            if a.device.is_cpu:
+                a.launch(_patch_sample_level, n, [f1_v, f2l_v, xy, patch, out, hl, wl, scale, radius, inv,
+                                                  lvl * side * side], min_chunk=64)
+            else:
+                # On CUDA a thread per patch row keeps more threads busy.
+                a.launch(_patch_level, n * (side + 1), [f1_v, f2l_v, xy, patch, hl, wl, scale, radius, inv])
+                a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1, 0])
+            del f2l_v  # one level's copy at a time (`onthefly_bytes`)
     return out
 
 
@@ -474,8 +511,15 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
     if feature_dtype != "float32":
         _, height, width = xy.shape
         return _lookup_stored(_store(a, x1, levels, height, width, feature_dtype), xy, radius, a)
-    out = _forward(a, _channels_last_v(x1, a), channels, xy, radius, len(levels),
-                   lambda lvl: _channels_last_v(levels[lvl], a),
+    x1_v = _channels_last_v(x1, a)
+    level_v: list[wp.array] = []  # the level's vectors live while its rows are used
+
+    def level_rows(lvl: int) -> wp.array:
+        level_v.clear()  # one level's copy at a time (`onthefly_bytes`)
+        level_v.append(_channels_last_v(levels[lvl], a))
+        return _rows(level_v[0])
+
+    out = _forward(a, _rows(x1_v), channels, xy, radius, len(levels), level_rows,
                    lambda lvl: levels[lvl].numpy().reshape(channels, -1) * a.np_dtype.type(inv))
     return a.out(out)
 
@@ -521,8 +565,7 @@ def lookup_onthefly_features(features: OnTheFlyFeatures, coords: Array, radius: 
 def _lookup_stored(features: OnTheFlyFeatures, xy: wp.array, radius: int, a: Inputs) -> Array:
     channels = features.channels
     inv = 1.0 / math.sqrt(channels)
-    out = _forward(a, widen(features.f1, a), channels, xy, radius, len(features.levels),
-                   lambda lvl: widen(features.levels[lvl], a),
+    out = _forward(a, features.f1, channels, xy, radius, len(features.levels), lambda lvl: features.levels[lvl],
                    lambda lvl: _scaled_level(features.levels[lvl].numpy(), channels, inv, a))
     return a.out(out)
 

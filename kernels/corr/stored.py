@@ -11,11 +11,15 @@ multiple of 8 (the extra channels zero), in the storage dtype `feature_dtype`:
 Between lookups the path keeps these arrays alone: s C8 (H W + sum_l H_l W_l) bytes with s = 4
 or 2 (`stored_bytes`), in place of the volume pyramid's 4 H W sum_l H_l W_l.
 
-Dequantisation (`widen`). A lookup widens f1 and one level at a time back to the working dtype
-(float32, or float64 for float64 inputs), which is exact (every float16 is a float32; on the CPU by
-integer operations on the bits, `float16_to_float32`), into the
-channels-last vectors the float32 path builds in each call. Everything after that, the patch dot
-products, the BLAS products and their sums, is the float32 path's arithmetic: the float16 lookup
+Dequantisation. Every float16 is a float32, so widening is exact. On the CPU the patch kernel
+(`patch_cpu`) reads the float16 rows themselves and widens each 8-channel vector in registers
+(F16C conversions); the full-product levels widen f1 once per call (`widen`: on the CPU a C++
+kernel of 8-lane conversions, `patch_cpu.widen_rows_cpu`, half the time of the host conversion
+by integer operations on the bits, `float16_to_float32`, which float64 work still uses) for BLAS.
+Off the CPU, `widen` copies f1 and one level at a time into the channels-last vectors the
+float32 path builds in each call.
+Everything after the widening, the patch dot products, the BLAS products and their sums, is the
+float32 path's arithmetic: the float16 lookup
 equals, bit for bit, the float32 lookup of the float16-rounded features. Its difference from the
 float32 lookup is the rounding of the features alone; for a tap,
 
@@ -24,11 +28,12 @@ float32 lookup is the rounding of the features alone; for a tap,
 and the window sampling (3) is a convex combination of taps, so a sample's error is at most its
 taps' largest.
 
-Why widen per call instead of reading float16 in the patch kernel: on this CPU (x86-64 with F16C,
-Warp's kernels compiled with -march=native) a 256-channel tap read as float16 and converted in
-the kernel took 41.5 ns against 17.4 ns read as float32 (a micro-benchmark of the five-tap dot
-product, 2852 pixels x 100 taps, one thread, interleaved): Warp converts a vector of 8 halves
-lane by lane, which costs more than the halved bytes save. bfloat16 was slower still (58.2 ns).
+Reading float16 in the patch kernel: in Warp it was slower than widening per call (a
+micro-benchmark of the five-tap dot product, 2852 pixels x 100 taps, one thread, interleaved: 41.5
+ns a 256-channel tap read as float16 and converted in the kernel against 17.4 ns as float32; Warp
+converts a vector of 8 halves lane by lane; bfloat16 58.2 ns). In C++ with vector conversions
+(`patch_cpu`) a float16 patch costs about what a float32 one does (docs/performance.md), and the
+per-call widened copies of f1 and the patched levels are gone.
 
 Byte counts (`onthefly_held_bytes`, `onthefly_bytes`, `stored_bytes`): what the on-the-fly
 path holds between lookups and at the peak of a forward call, for either storage.
@@ -47,6 +52,7 @@ import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs
+from kernels.corr import patch_cpu
 from kernels.corr._common import VEC, VEC_OF, full_product_level, level_shapes
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -169,6 +175,12 @@ def widen(x: wp.array, a: Inputs) -> wp.array:
     if x.dtype == a.scalar:
         return wp.array(ptr=x.ptr, shape=(n, c8 // VEC), dtype=vec, device=x.device)  # x outlives the call
     if a.device.is_cpu:
+        if a.scalar == wp.float32 and x.strides[1] == 2:
+            # the rows converted in C++ (`patch_cpu.widen_rows_cpu`, 8-lane conversions), into the vectors' memory
+            out_v = a.empty((n, c8 // VEC), vec)
+            out = wp.array(ptr=out_v.ptr, shape=(n, c8), dtype=wp.float32, device=a.device)  # out_v outlives it
+            a.launch(patch_cpu.widen_rows_cpu(), n, [x, out], min_chunk=256)
+            return out_v
         if a.scalar == wp.float32:
             rows = float16_to_float32(x.numpy()).reshape(n, c8 // VEC, VEC)
         else:
@@ -201,7 +213,9 @@ def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: 
     to 8), one level's channels-last copy at a time (the largest level sampled through patches),
     the patch buffer (whose memory a full-product level reuses for its blocks of V^l) and at a
     full-product level the scaled P^l(f2). With float16 features (`lookup_onthefly_features`) the
-    working copies are the widened f1 and level, of the same sizes, in the working dtype.
+    working copies are the widened f1 and level, of the same sizes, in the working dtype; on the CPU
+    the patch kernel reads the stored rows in place, so there the count is an upper bound (no level
+    copy is made, and f1 is widened only for the full-product levels).
     """
     c_pad = -(-channels // VEC) * VEC
     n = height * width

@@ -248,10 +248,20 @@ _PREFETCH_CPP = r"""
 """
 
 _kernels: dict[tuple[int, Any], Any] = {}
-_lock = threading.Lock()
+_windows: dict[tuple[int, Any], Any] = {}
+_lock = threading.RLock()  # window_func runs under it, also from within _build
 
 
-def _build(radius: int, scalar: Any) -> Any:
+def window_func(radius: int, scalar: Any) -> Any:
+    """The one-pixel C++ window (`_WINDOW_CPP`) for this radius and float type, a Warp native function
+    (s, p, row0, col0, fx, fy, out, channel0, h, w) with `_common.sample_window`'s arguments less the
+    side; built once (also used by `patch_cpu`, on the on-the-fly path's patches)."""
+    key = (radius, scalar)
+    with _lock:
+        return _windows.get(key) or _window(radius, scalar)
+
+
+def _window(radius: int, scalar: Any) -> Any:
     # No `from __future__ import annotations` in this module: Warp reads the stub's and the
     # kernel's annotations as objects, and these name the closure's types.
     side = 2 * radius + 1
@@ -262,7 +272,14 @@ def _build(radius: int, scalar: Any) -> Any:
 
     # A name of its own per radius and type: Warp keys native functions by name.
     window.__name__ = window.__qualname__ = f"sample_window_cpu_r{radius}_{scalar.__name__}"
-    window = wp.func_native(_WINDOW_CPP.replace("SIDE", str(side)))(window)
+    window = _windows[(radius, scalar)] = wp.func_native(_WINDOW_CPP.replace("SIDE", str(side)))(window)
+    return window
+
+
+def _build(radius: int, scalar: Any) -> Any:
+    side = 2 * radius + 1
+    array3 = wp.array3d(dtype=scalar)
+    window = window_func(radius, scalar)
 
     def prefetch(s: array3, p: int, row0: int, col0: int): ...
 

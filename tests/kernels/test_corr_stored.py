@@ -84,6 +84,21 @@ def test_float16_to_float32_exact_for_every_finite_half():
     np.testing.assert_array_equal(got.view(np.uint32), finite.astype(np.float32).view(np.uint32))
 
 
+def test_widen_cpu_exact_for_every_finite_half():
+    # `widen` on the CPU (patch_cpu.widen_rows_cpu, C++ vector conversions) against NumPy, bit for bit.
+    bits = np.arange(2 ** 16, dtype=np.uint32).astype(np.uint16)
+    halves = bits.view(np.float16)
+    finite = halves[np.isfinite(halves)]  # 63490 values: -0, subnormals, normals up to 65504
+    rows = np.zeros(-(-finite.size // 64) * 64, dtype=np.float16)
+    rows[:finite.size] = finite
+    rows = rows.reshape(-1, 64)
+    a = Inputs("cpu")
+    a.scalar = wp.float32
+    got = stored.widen(wp.array(rows, dtype=wp.float16, device="cpu"), a).numpy().reshape(rows.shape)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got.view(np.uint32), rows.astype(np.float32).view(np.uint32))
+
+
 def test_widen_kernel_matches_host_conversion():
     # The device path (`_widen_rows_v`, used off the CPU) run on the CPU against the host conversion.
     rng = np.random.default_rng(6)
@@ -115,3 +130,108 @@ def test_held_bytes_exact(c):
     assert features.feature_dtype == "float16" and features.nbytes == 2 * c8 * pixels
     if c == 256:  # RAFT's size: the volume pyramid against the float16 store
         assert corr.dense_bytes(h, w, levels) / features.nbytes > 12.6
+
+
+@pytest.mark.parametrize("storage", ["float32", "float64", "float16", "float16_wide"])
+@pytest.mark.parametrize("radius", [0, 1, 3, 4])  # patch rows of 2, 4, 8 and 10 taps
+def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius):
+    """The CPU's patches (patch_cpu, C++, reading the stored dtype) equal `onthefly._patch_sample_level`
+    (the Warp kernel, on the widened vectors) bit for bit, patches and samples: windows inside level 0
+    and overhanging or outside the coarser levels, a NaN position, padded channels (C = 12).
+    "float16_wide": features from float16 subnormals to ~2^13, so the fused multiply-adds of the
+    float16 kernel meet tiny and large products (exact in float32 all the same)."""
+    from kernels._arrays import value_checks
+    from kernels.corr import onthefly, patch_cpu
+    from kernels.corr._common import level_shapes
+
+    rng = np.random.default_rng(60 + radius)
+    c, h, w, n_levels = 12, 23, 26, 3
+    dtype = np.float64 if storage == "float64" else np.float32
+    f1, f2_pyramid, coords = case(rng, c, h, w, n_levels)
+    if storage == "float16_wide":
+        storage = "float16"
+        f1 = f1 * np.exp2(rng.integers(-26, 13, f1.shape)).astype(np.float32)
+        f2_pyramid = [x * np.exp2(rng.integers(-26, 13, x.shape)).astype(np.float32) for x in f2_pyramid]
+        assert np.abs(f1).max() < 65504 and (np.abs(f1.astype(np.float16)) < 2.0 ** -14).any()
+    near = np.stack(np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)) + rng.uniform(-2, 2, (2, h, w))
+    coords[:, : h // 2] = near[:, : h // 2]
+    coords[0, 3, 4] = np.nan
+    f1, coords = f1.astype(dtype), coords.astype(dtype)
+    f2_pyramid = [x.astype(dtype) for x in f2_pyramid]
+    features = corr.onthefly_features(f1, f2_pyramid, feature_dtype="float16" if storage == "float16" else "float32")
+    a = Inputs("cpu")
+    a.scalar = wp.float64 if storage == "float64" else wp.float32
+    xy = wp.array(coords, device="cpu")
+    n, side = h * w, 2 * radius + 1
+    inv = a.s(1.0 / np.sqrt(c))
+    kernel = patch_cpu.patch_sample_cpu(radius, a.scalar, features.f1.dtype)
+    assert features.f1.dtype == {"float32": wp.float32, "float64": wp.float64, "float16": wp.float16}[storage]
+    f1_v = stored.widen(features.f1, a)
+    for lvl, (hl, wl) in enumerate(level_shapes(h, w, n_levels)):
+        results = []
+        for cpp in (True, False):
+            patch = wp.full((n, side + 1, side + 1), 7.0, dtype=a.scalar, device="cpu")
+            out = wp.full((side * side, h, w), 7.0, dtype=a.scalar, device="cpu")
+            if cpp:
+                inputs = [features.f1, features.levels[lvl], xy, patch, out, hl, wl, a.s(0.5 ** lvl), inv, 0, 0]
+            else:
+                inputs = [f1_v, stored.widen(features.levels[lvl], a), xy, patch, out, hl, wl, a.s(0.5 ** lvl),
+                          radius, inv, 0, 0]
+            with value_checks(False):
+                wp.launch(kernel if cpp else onthefly._patch_sample_level, n, inputs, device="cpu")
+            results.append((patch.numpy(), out.numpy()))
+        (patch_cpp, out_cpp), (patch_warp, out_warp) = results
+        nan = np.isnan(out_warp)
+        assert nan.any() and np.array_equal(np.isnan(out_cpp), nan)
+        assert out_cpp[~nan].tobytes() == out_warp[~nan].tobytes()
+        valid = np.ones(n, dtype=bool)
+        valid[3 * w + 4] = False  # the NaN position's window origin is undefined
+        assert patch_cpp[valid].tobytes() == patch_warp[valid].tobytes()
+        assert (patch_cpp[valid] == 0).any() and (patch_cpp[valid] != 0).any()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("radius", [1, 4])
+def test_full_sample_cpu_kernel_is_sample_windows_bit_for_bit(dtype, radius):
+    """The full-product levels' sampling on the CPU (patch_cpu.full_sample_cpu, C++) equals
+    `_common.sample_windows` bit for bit: a block of rows of V^l from pixel block0 on, windows inside,
+    overhanging and outside the level, a NaN position."""
+    from kernels._arrays import value_checks
+    from kernels.corr import _common, patch_cpu
+
+    rng = np.random.default_rng(70 + radius)
+    h, w, hl, wl, block0, rows = 13, 17, 7, 9, 40, 150
+    coords = np.stack([rng.uniform(-6, w + 6, (h, w)), rng.uniform(-6, h + 6, (h, w))]).astype(dtype)
+    coords[1, 4, 3] = np.nan  # pixel 71, inside the block
+    s = wp.array(rng.standard_normal((rows, hl, wl)).astype(dtype), device="cpu")
+    xy = wp.array(coords, device="cpu")
+    scalar = s.dtype
+    side = 2 * radius + 1
+    outs = [wp.full((2 * side * side, h, w), 7.0, dtype=scalar, device="cpu") for _ in range(2)]
+    with value_checks(False):
+        wp.launch(patch_cpu.full_sample_cpu(radius, scalar), rows, [s, xy, outs[0], scalar(0.5), side * side,
+                                                                       block0, 0], device="cpu")
+        wp.launch(_common.sample_windows, rows, [s, xy, outs[1], scalar(0.5), radius, side * side, 0, block0, 0],
+                  device="cpu")
+    got, want = outs[0].numpy(), outs[1].numpy()
+    nan = np.isnan(want)
+    assert nan.any() and np.array_equal(np.isnan(got), nan)
+    assert got[~nan].tobytes() == want[~nan].tobytes()
+    assert (got[side * side:].reshape(side * side, -1)[:, block0:block0 + rows] != 7.0).all()
+
+
+@pytest.mark.parametrize("feature_dtype", ["float32", "float16"])
+def test_lookup_without_patch_cpu_is_bit_identical(monkeypatch, feature_dtype):
+    """The forward's other branch (features widened per call, the Warp patch kernel: the path off the
+    CPU, here on the CPU) gives the C++ path's lookup bit for bit, stored and direct."""
+    from kernels.corr import onthefly
+
+    f1, f2_pyramid, coords = case(np.random.default_rng(8), 16, 12, 16, 3)
+    features = corr.onthefly_features(f1, f2_pyramid, feature_dtype=feature_dtype)
+    want = [corr.lookup_onthefly_features(features, coords, 2),
+            corr.lookup_onthefly(f1, f2_pyramid, coords, 2, feature_dtype=feature_dtype)]
+    monkeypatch.setattr(onthefly, "_cpu_patches", lambda a, f1_rows: False)
+    got = [corr.lookup_onthefly_features(features, coords, 2),
+           corr.lookup_onthefly(f1, f2_pyramid, coords, 2, feature_dtype=feature_dtype)]
+    for g, w in zip(got, want):
+        assert g.tobytes() == w.tobytes()
