@@ -86,7 +86,9 @@ def plans(quick: bool, bbox: np.ndarray, smoke: bool = False) -> dict[str, dict[
         "hashgrid": dict(
             make=lambda seed: HashGridField(bbox, n_levels=12, n_features=2, log2_table_size=15, base_resolution=16,
                                             max_resolution=256 if quick else 512, density_bias=-1.0, seed=seed),
-            stages=[Stage(mlp_iters or (400 if quick else 1200))],
+            # 1300 full-size iterations: what the cheaper iteration of 6bb3ded buys in the time 1200 took
+            # (docs/performance.md, fit_nerf's hash-grid fit, third round; chosen on --seed 1).
+            stages=[Stage(mlp_iters or (400 if quick else 1300))],
             config=dict(common, lr=1e-2, batch_rays=mlp_batch)),
         "pe_mlp": dict(
             make=lambda seed: PEMLPField(bbox, n_freqs=8, density_bias=-1.0, seed=seed),

@@ -7,8 +7,8 @@ its own (1-based after the first step):
     p <- p - lr (m / (1 - b1^t)) / (sqrt(v / (1 - b2^t)) + eps).
 
 This is PyTorch's Adam (which NeRF codebases and 3DGS use): PyTorch writes the denominator
-sqrt(v) / sqrt(1 - b2^t) + eps, the same number up to rounding. One thread per element, and
-every thread writes only its own element, so the launch splits across CPU threads
+sqrt(v) / sqrt(1 - b2^t) + eps, the same number up to rounding. One thread per run of BLOCK
+consecutive elements, and every thread writes only its own elements, so the launch splits across CPU threads
 (kernels.launch). The hyper-parameters reach the kernel as float64 (a Python float passed to a
 Warp `float` parameter would be rounded to float32, which costs float64 groups about 1e-7 of
 relative accuracy) and are rounded once to the group's dtype. Groups are float32 or float64
@@ -27,25 +27,38 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.launch import launch_split
+from kernels.launch import DEFAULT_MIN_CHUNK, launch_split
 
 wp.set_module_options({"enable_backward": False})
+
+
+# Elements per CPU kernel thread (1 on CUDA): a thread updates a run of BLOCK consecutive elements, so the per-thread
+# cost of a Warp CPU launch (the kernel function called once per thread, every argument reloaded and
+# the hyper-parameters converted again) is paid once per run (docs/performance.md, fit_nerf's
+# hash-grid fit). Each element's arithmetic is unchanged.
+BLOCK = 16
 
 
 @wp.kernel
 def _adam_kernel(param: wp.array(dtype=typing.Any), grad: wp.array(dtype=typing.Any),
                  m: wp.array(dtype=typing.Any), v: wp.array(dtype=typing.Any),
                  lr: wp.float64, b1: wp.float64, b2: wp.float64, eps: wp.float64,
-                 bias1: wp.float64, bias2: wp.float64, offset: int):
-    i = wp.tid() + offset
-    g = grad[i]
+                 bias1: wp.float64, bias2: wp.float64, block: int, offset: int):
+    run = wp.tid() + offset
     one = param.dtype(1.0)
-    mi = param.dtype(b1) * m[i] + (one - param.dtype(b1)) * g
-    vi = param.dtype(b2) * v[i] + (one - param.dtype(b2)) * g * g
-    m[i] = mi
-    v[i] = vi
-    param[i] = param[i] - param.dtype(lr) * (mi / param.dtype(bias1)) / (wp.sqrt(vi / param.dtype(bias2))
-                                                                        + param.dtype(eps))
+    b1_t = param.dtype(b1)
+    b2_t = param.dtype(b2)
+    lr_t = param.dtype(lr)
+    bias1_t = param.dtype(bias1)
+    bias2_t = param.dtype(bias2)
+    eps_t = param.dtype(eps)
+    for i in range(run * block, wp.min(param.shape[0], (run + 1) * block)):
+        g = grad[i]
+        mi = b1_t * m[i] + (one - b1_t) * g
+        vi = b2_t * v[i] + (one - b2_t) * g * g
+        m[i] = mi
+        v[i] = vi
+        param[i] = param[i] - lr_t * (mi / bias1_t) / (wp.sqrt(vi / bias2_t) + eps_t)
 
 
 def _flat_view(name: str, x: Any) -> wp.array:
@@ -121,7 +134,9 @@ class Adam:
             bias2 = 1.0 - self.b2 ** self.t[k]
             if pv.size:
                 hyper = (self.lr[k], self.b1, self.b2, self.eps, bias1, bias2)
-                launch_split(_adam_kernel, pv.size, [pv, gv, mv, vv, *map(wp.float64, hyper)], device=pv.device)
+                block = 1 if pv.device.is_cuda else BLOCK  # a GPU thread per element (coalesced accesses)
+                launch_split(_adam_kernel, -(-pv.size // block), [pv, gv, mv, vv, *map(wp.float64, hyper), block],
+                             device=pv.device, min_chunk=max(1, DEFAULT_MIN_CHUNK // block))
 
     def select(self, index: Any) -> None:
         """Keep the moments of rows `index` (a boolean mask or indices over the first axis)."""

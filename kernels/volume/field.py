@@ -131,8 +131,9 @@ class Field(ABC):
         """Gradient of <grad_sigma, sigma> + <grad_rgb, rgb> for every parameter: a dict name ->
         wp.array of the parameter's shape, on the field's device.
 
-        With a `workspace`, fields whose gradients are large (grid, spheres) return views into it,
-        valid until its next use; the neural fields' gradients are small and always new arrays.
+        With a `workspace`, fields whose gradients are large (grid, spheres, the hash grid's table)
+        return views into it, valid until its next use; the MLP's gradients are small and always new
+        arrays.
         """
 
     def density(self, points: A.ArrayLike) -> A.ArrayLike:

@@ -22,8 +22,11 @@ Backward, for a cotangent G (N, L F): dL/dtable_l[h_l(i + b)] += w_b G[n, l F : 
 points -- a scatter, done with atomic adds in one launch PER LEVEL (no Warp atomic is atomic
 between concurrent CPU launches, docs/warp.md, but each level writes only its own rows, so the
 levels' launches run concurrently on the CPU threads; the order of the additions into each row is
-that of a single launch). The forward runs one thread per (point, level) through launch_split. There is no gradient to the points. `encode` and `backward` take wp.arrays (the
-neural fields' intermediate values) and return wp.arrays on the points' device.
+that of a single launch). The forward runs one thread per (level, run of BLOCK consecutive points)
+through launch_split, the backward one per run of points of its level. There is no gradient to the
+points. `encode` and `backward` take wp.arrays (the neural fields' intermediate values) and return
+wp.arrays on the points' device; `backward` may write into a given zeroed-on-entry buffer instead
+of a new array (a training loop's workspace: no fresh pages to fault in every iteration).
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.launch import launch_split, parallel_items
+from kernels.launch import DEFAULT_MIN_CHUNK, launch_split, parallel_items
 from kernels.volume._checks import check_bbox
 from kernels.volume.grid import trilinear_weight
 
@@ -80,72 +83,91 @@ def corner_row(c: int, l: int, ix: int, iy: int, iz: int, res: int, dense: int, 
                                        table_size)
 
 
+# Points per CPU kernel thread in the encode and the scatter (1 on CUDA, whose threads are cheap and whose
+# memory accesses coalesce over consecutive points): a thread walks a run of BLOCK consecutive
+# points of one level, so the per-thread cost of a Warp CPU launch (its loop calls the kernel function
+# once per thread, which reloads every argument) is paid once per run; 32 -> 26 ms for 57k points x 12
+# levels on one thread (docs/performance.md). The points and their order are unchanged, so are the results.
+BLOCK = 16
+
+
+def _block(device: wp.Device) -> int:
+    return 1 if device.is_cuda else BLOCK
+
+
 @wp.kernel
 def _hash_forward_kernel(
     points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
     dense: wp.array(dtype=wp.int32), table_size: int,
-    table: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), offset: int,
+    table: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), block: int, offset: int,
 ):
     # out (L F, N): feature-major, so consecutive threads (points of one level) write consecutively.
-    # Level-major threads (t = l N + n): a chunk of consecutive threads reads one level's table (T F
-    # values, 4 MB at T = 2^19, F = 2 in float32) instead of all L levels' at once, so its random
-    # reads stay in the cache (point-major: 1.6x slower at 131072 points, docs/performance.md).
+    # Level-major threads (t = l B + b over the B = ceil(N / block) runs of `block` points): a chunk of
+    # consecutive threads reads one level's table (T F values, 4 MB at T = 2^19, F = 2 in float32)
+    # instead of all L levels' at once, so its random reads stay in the cache (point-major: 1.6x slower
+    # at 131072 points, docs/performance.md).
     t = wp.tid() + offset
     n_points = points.shape[0]
-    l = t / n_points
-    n = t - l * n_points
+    n_runs = (n_points + block - 1) / block
+    l = t / n_runs
+    run = t - l * n_runs
     res = resolutions[l]
-    ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
+    d = dense[l]
     F = table.shape[1]
-    # Summed in registers, corners in the order c = 0..7 (a `+=` on out[...] would be a
-    # read-modify-write of memory per corner).
-    if F == 2:  # the usual case: both features from one pass over the corners
-        s0 = points.dtype(0.0)
-        s1 = points.dtype(0.0)
-        for c in range(8):
-            w = trilinear_weight(c, fx, fy, fz)
-            row = corner_row(c, l, ix, iy, iz, res, dense[l], table_size)
-            s0 += w * table[row, 0]
-            s1 += w * table[row, 1]
-        out[l * 2, n] = s0
-        out[l * 2 + 1, n] = s1
-    else:
-        for f in range(F):
-            s = points.dtype(0.0)
+    for n in range(run * block, wp.min(n_points, (run + 1) * block)):
+        ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
+        # Summed in registers, corners in the order c = 0..7 (a `+=` on out[...] would be a
+        # read-modify-write of memory per corner).
+        if F == 2:  # the usual case: both features from one pass over the corners
+            s0 = points.dtype(0.0)
+            s1 = points.dtype(0.0)
             for c in range(8):
                 w = trilinear_weight(c, fx, fy, fz)
-                s += w * table[corner_row(c, l, ix, iy, iz, res, dense[l], table_size), f]
-            out[l * F + f, n] = s
+                row = corner_row(c, l, ix, iy, iz, res, d, table_size)
+                s0 += w * table[row, 0]
+                s1 += w * table[row, 1]
+            out[l * 2, n] = s0
+            out[l * 2 + 1, n] = s1
+        else:
+            for f in range(F):
+                s = points.dtype(0.0)
+                for c in range(8):
+                    w = trilinear_weight(c, fx, fy, fz)
+                    s += w * table[corner_row(c, l, ix, iy, iz, res, d, table_size), f]
+                out[l * F + f, n] = s
 
 
 @wp.kernel
 def _hash_backward_kernel(
     points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
     dense: wp.array(dtype=wp.int32), table_size: int,
-    grad_out: wp.array2d(dtype=typing.Any), grad_table: wp.array2d(dtype=typing.Any), level: int,
+    grad_out: wp.array2d(dtype=typing.Any), grad_table: wp.array2d(dtype=typing.Any), level: int, block: int,
 ):
-    # One launch per level (thread n = point n): a level's rows l T .. l T + T - 1 are its own, so the
-    # levels' launches run concurrently and each launch's atomics are exact (docs/warp.md).
-    n = wp.tid()
+    # One launch per level (thread b = the run of points b block .. (b + 1) block - 1, in order, so the
+    # additions into every row happen in point order, as with one thread per point): a level's rows
+    # l T .. l T + T - 1 are its own, so the levels' launches run concurrently and each launch's atomics
+    # are exact (docs/warp.md).
+    b = wp.tid()
     l = level
     res = resolutions[l]
-    ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
     F = grad_table.shape[1]
     d = dense[l]
-    if F == 2:  # the usual case: the point's two cotangents read once, into registers
-        g0 = grad_out[n, l * 2]
-        g1 = grad_out[n, l * 2 + 1]
-        for c in range(8):
-            w = trilinear_weight(c, fx, fy, fz)
-            row = corner_row(c, l, ix, iy, iz, res, d, table_size)
-            wp.atomic_add(grad_table, row, 0, w * g0)
-            wp.atomic_add(grad_table, row, 1, w * g1)
-    else:
-        for c in range(8):
-            w = trilinear_weight(c, fx, fy, fz)
-            row = corner_row(c, l, ix, iy, iz, res, d, table_size)
-            for f in range(F):
-                wp.atomic_add(grad_table, row, f, w * grad_out[n, l * F + f])
+    for n in range(b * block, wp.min(points.shape[0], (b + 1) * block)):
+        ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
+        if F == 2:  # the usual case: the point's two cotangents read once, into registers
+            g0 = grad_out[n, l * 2]
+            g1 = grad_out[n, l * 2 + 1]
+            for c in range(8):
+                w = trilinear_weight(c, fx, fy, fz)
+                row = corner_row(c, l, ix, iy, iz, res, d, table_size)
+                wp.atomic_add(grad_table, row, 0, w * g0)
+                wp.atomic_add(grad_table, row, 1, w * g1)
+        else:
+            for c in range(8):
+                w = trilinear_weight(c, fx, fy, fz)
+                row = corner_row(c, l, ix, iy, iz, res, d, table_size)
+                for f in range(F):
+                    wp.atomic_add(grad_table, row, f, w * grad_out[n, l * F + f])
 
 
 def level_resolutions(n_levels: int, base_resolution: int, max_resolution: int) -> np.ndarray:
@@ -208,23 +230,40 @@ class HashEncoding:
         n = points.shape[0]
         out = wp.empty((self.n_outputs, n), dtype=points.dtype, device=points.device)
         if n:
-            launch_split(_hash_forward_kernel, n * self.n_levels,
-                         [points, *self._static(points.dtype, points.device), table, out], device=points.device)
+            block = _block(points.device)
+            launch_split(_hash_forward_kernel, -(-n // block) * self.n_levels,
+                         [points, *self._static(points.dtype, points.device), table, out, block], device=points.device,
+                         min_chunk=max(1, DEFAULT_MIN_CHUNK // block))
         return out.transpose()
 
-    def backward(self, points: wp.array, table: wp.array, grad_enc: wp.array) -> wp.array:
+    def backward(self, points: wp.array, table: wp.array, grad_enc: wp.array, out: wp.array | None = None
+                 ) -> wp.array:
         """dL/dtable (L T, F) for the cotangent grad_enc (N, L F), any strides (fastest as the transposed
-        view of a contiguous (L F, N) array, which each level's launch reads contiguously)."""
+        view of a contiguous (L F, N) array, which each level's launch reads contiguously). With `out`
+        (a contiguous (L T, F) wp.array of the table's dtype and device, its contents overwritten) the
+        gradient is written there and `out` is returned."""
         self._check(points, table)
         A.check_shape("grad_enc", grad_enc, (points.shape[0], self.n_outputs))
         if not isinstance(grad_enc, wp.array) or grad_enc.dtype != points.dtype or grad_enc.device != points.device:
             raise ValueError(f"grad_enc: expected a wp.array of {A.type_name(points.dtype)} on {points.device}")
-        grad = wp.zeros(self.table_shape, dtype=points.dtype, device=points.device)
+        if out is None:
+            grad = wp.zeros(self.table_shape, dtype=points.dtype, device=points.device)
+        else:
+            if (not isinstance(out, wp.array) or out.dtype != points.dtype or out.device != points.device
+                    or not out.is_contiguous):
+                raise ValueError(f"out: expected a contiguous wp.array of {A.type_name(points.dtype)} on "
+                                 f"{points.device}")
+            A.check_shape("out", out, self.table_shape)
+            grad = out
+            grad.zero_()
         if points.shape[0]:
             static = self._static(points.dtype, points.device)
 
+            block = _block(points.device)
+            runs = -(-points.shape[0] // block)
+
             def level(l: int) -> None:
-                wp.launch(_hash_backward_kernel, dim=points.shape[0], inputs=[points, *static, grad_enc, grad, l],
+                wp.launch(_hash_backward_kernel, dim=runs, inputs=[points, *static, grad_enc, grad, l, block],
                           device=points.device)
 
             if points.device.is_cuda:

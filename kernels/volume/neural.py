@@ -32,7 +32,7 @@ from kernels.volume.encoding import PositionalEncoding
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.hashgrid import HashEncoding
 from kernels.volume.mlp import MLP, init_mlp_params
-from kernels.volume.workspace import Workspace
+from kernels.volume.workspace import Workspace, check_workspace
 
 wp.set_module_options({"enable_backward": False})
 
@@ -104,7 +104,8 @@ class NeuralField(Field):
     def _encode(self, p: wp.array) -> wp.array:
         raise NotImplementedError
 
-    def _encode_backward(self, p: wp.array, grad_enc: wp.array) -> dict[str, wp.array]:
+    def _encode_backward(self, p: wp.array, grad_enc: wp.array,
+                         workspace: Workspace | None) -> dict[str, wp.array]:
         raise NotImplementedError
 
     def _head_static(self, a: A.Inputs) -> list:
@@ -122,6 +123,7 @@ class NeuralField(Field):
                  grad_sigma: A.ArrayLike | None, grad_rgb: A.ArrayLike | None,
                  workspace: Workspace | None = None) -> dict[str, wp.array]:
         a, p, _, _, rgb, gs, gr = self._backward_inputs(points, dirs, out, grad_sigma, grad_rgb)
+        check_workspace(workspace, self.device)
         n = p.shape[0]
         raw = out.cache["raw"]
         grad_raw = a.empty((n, 4))
@@ -130,7 +132,7 @@ class NeuralField(Field):
         grads, grad_enc = self._mlp().backward(out.cache["mlp"], grad_raw, need_input_grad=needs_enc_grad,
                                                input_grad_feature_major=True)
         if needs_enc_grad:
-            grads.update(self._encode_backward(p, grad_enc))
+            grads.update(self._encode_backward(p, grad_enc, workspace))
         return {k: grads[k] for k in self.params}
 
     def _mlp_names(self) -> set[str]:
@@ -157,8 +159,12 @@ class HashGridField(NeuralField):
     def _encode(self, p: wp.array) -> wp.array:
         return self.encoding.encode(p, self.params["table"])
 
-    def _encode_backward(self, p: wp.array, grad_enc: wp.array) -> dict[str, wp.array]:
-        return {"table": self.encoding.backward(p, self.params["table"], grad_enc)}
+    def _encode_backward(self, p: wp.array, grad_enc: wp.array,
+                         workspace: Workspace | None) -> dict[str, wp.array]:
+        # With a workspace the table's gradient (the largest one) is a view into it, as for the grid fields.
+        out = None if workspace is None else workspace.array(f"{self.name}.grad.table", self.encoding.table_shape,
+                                                             self.dtype)
+        return {"table": self.encoding.backward(p, self.params["table"], grad_enc, out=out)}
 
 
 class PEMLPField(NeuralField):
@@ -178,7 +184,8 @@ class PEMLPField(NeuralField):
     def _encode(self, p: wp.array) -> wp.array:
         return self.encoding.encode(p)
 
-    def _encode_backward(self, p: wp.array, grad_enc: wp.array) -> dict[str, wp.array]:
+    def _encode_backward(self, p: wp.array, grad_enc: wp.array,
+                         workspace: Workspace | None) -> dict[str, wp.array]:
         return {}
 
 

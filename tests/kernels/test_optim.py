@@ -82,3 +82,22 @@ def test_more_bad_inputs_name_the_argument():
         opt.append(-1)
     with pytest.raises(ValueError, match="name: expected one of \\['x'\\]"):
         opt.reset("y")
+
+
+def test_adam_float32_is_the_elementwise_float32_update_bit_for_bit():
+    # 70001 elements: many runs of BLOCK elements split over the launch threads and a short last run;
+    # each element's update is the float32 arithmetic of the module docstring, in its order.
+    rng = np.random.default_rng(5)
+    p0 = rng.normal(size=70001).astype(np.float32)
+    grads = [rng.normal(size=p0.shape).astype(np.float32) for _ in range(3)]
+    p = wp.array(p0, device="cpu")
+    opt = Adam({"x": p}, lr=0.01, betas=(0.9, 0.99), eps=1e-15)
+    f = np.float32
+    b1, b2, one, lr, eps = f(0.9), f(0.99), f(1.0), f(0.01), f(1e-15)
+    ref, m, v = p0.copy(), np.zeros_like(p0), np.zeros_like(p0)
+    for t, g in enumerate(grads, start=1):
+        opt.step({"x": wp.array(g, device="cpu")})
+        m = b1 * m + (one - b1) * g
+        v = b2 * v + (one - b2) * g * g
+        ref = ref - lr * (m / f(1.0 - 0.9**t)) / (np.sqrt(v / f(1.0 - 0.99**t)) + eps)
+    np.testing.assert_array_equal(p.numpy(), ref)

@@ -155,6 +155,57 @@ def test_hash_encoding_backward_is_the_adjoint_of_the_forward(n_features, layout
         assert grad[row, f] == pytest.approx(np.sum(m * g), rel=1e-12, abs=1e-12)
 
 
+def test_hash_encoding_runs_of_points_split_over_threads_match_the_reference():
+    # 5001 points = 312 runs of BLOCK points and a short one, x 4 levels: launched as several chunks,
+    # the last run of each level shorter than the others.
+    from kernels.volume.hashgrid import BLOCK
+    enc = HashEncoding(BOX, n_levels=4, n_features=2, log2_table_size=7, base_resolution=2, max_resolution=20)
+    rng = np.random.default_rng(11)
+    table = rng.normal(size=enc.table_shape)
+    n = 312 * BLOCK + 9
+    p = rng.uniform(BOX[0] - 0.1, BOX[1] + 0.1, (n, 3))
+    got = enc.encode(wp.array(p, dtype=wp.float64), wp.array(table, dtype=wp.float64)).numpy()
+    np.testing.assert_allclose(got, hash_reference(enc, p, table), rtol=1e-12, atol=1e-12)
+
+
+def test_hash_encoding_backward_into_a_buffer():
+    # `out` is overwritten (not added to), gives the fresh array's gradient bit for bit, and a wrong
+    # buffer is refused before any launch.
+    enc = HashEncoding(BOX, n_levels=4, n_features=2, log2_table_size=7, base_resolution=2, max_resolution=20)
+    rng = np.random.default_rng(12)
+    table = wp.array(rng.normal(size=enc.table_shape), dtype=wp.float32)
+    p = wp.array(rng.uniform(BOX[0], BOX[1], (700, 3)), dtype=wp.float32)
+    g = wp.array(rng.normal(size=(700, enc.n_outputs)), dtype=wp.float32)
+    fresh = enc.backward(p, table, g).numpy()
+    buf = wp.array(np.full(enc.table_shape, np.nan), dtype=wp.float32)
+    assert enc.backward(p, table, g, out=buf) is buf
+    np.testing.assert_array_equal(buf.numpy(), fresh)
+    for bad in (wp.zeros(enc.table_shape, dtype=wp.float64), wp.zeros((enc.table_shape[0], 3), dtype=wp.float32),
+                np.zeros(enc.table_shape, np.float32)):
+        with pytest.raises(ValueError, match="out"):
+            enc.backward(p, table, g, out=bad)
+
+
+def test_hash_grid_field_backward_with_a_workspace():
+    # The table's gradient is a view into the workspace (reused by the next call), equal bit for bit to
+    # the gradient without one; the MLP's gradients are unaffected.
+    from kernels.volume import Workspace
+    field = HashGridField(BOX, n_levels=4, log2_table_size=8, base_resolution=2, max_resolution=16, seed=3)
+    rng = np.random.default_rng(13)
+    p = rng.uniform(BOX[0], BOX[1], (500, 3)).astype(np.float32)
+    out = field.forward(p)
+    gs, gr = rng.normal(size=500).astype(np.float32), rng.normal(size=(500, 3)).astype(np.float32)
+    ref = {k: v.numpy().copy() for k, v in field.backward(p, None, out, gs, gr).items()}
+    ws = Workspace()
+    for _ in range(2):  # the second call reuses the buffer, which then holds the first call's values
+        got = field.backward(p, None, out, gs, gr, workspace=ws)
+        for k in ref:
+            np.testing.assert_array_equal(got[k].numpy(), ref[k])
+    assert ws.nbytes() >= field.params["table"].capacity
+    with pytest.raises(ValueError, match="workspace"):
+        field.backward(p, None, out, gs, gr, workspace=object())
+
+
 def test_level_resolutions_follow_the_geometric_progression():
     enc = HashEncoding(BOX, n_levels=16, base_resolution=16, max_resolution=2048)
     b = np.exp((np.log(2048) - np.log(16)) / 15)
