@@ -109,6 +109,7 @@ ANTIALIASED = True  # Mip-Splatting opacity compensation in every fit and render
 # The splat renderer's low-pass dilation of every projected covariance (px^2; --dilation) in every fit and
 # render; 0.3 is both reference codes' (kernels/splat/modes.py). 0.1 chosen on --seed 1 (module docstring).
 SPLAT_DILATION = 0.1
+TARGET_DEG = 0.5  # issue 17: refinement recovers 5-degree perturbations to under 0.5 degrees
 TEST_TIME_ITERATIONS = 10  # Levenberg-Marquardt iterations of the test views' pose optimisation (splats)
 
 
@@ -288,7 +289,7 @@ def figure(c2w_gt: np.ndarray, c2w_noisy: np.ndarray, c2w_refined: np.ndarray, e
     for k, (key, colour, label) in enumerate(bars):
         ax.bar(idx + (k - (len(bars) - 1) / 2) * width, errors[key]["rot_deg"], width=width, color=colour,
                label=label)
-    ax.axhline(0.5, color="k", lw=0.8, ls="--", label="0.5 degree target")
+    ax.axhline(TARGET_DEG, color="k", lw=0.8, ls="--", label=f"{TARGET_DEG:g} degree target")
     ax.set_xlabel("training view")
     ax.set_ylabel("rotation error (degrees, aligned)")
     ax.legend(fontsize=8)
@@ -440,8 +441,15 @@ def run(ctx: Context) -> int:
     headers = ["poses", "rotation error mean (deg)", "max (deg)", "centre error mean", "% of radius",
                "test PSNR (dB)", "test SSIM"] + (["test PSNR, TTO (dB)"] if args.model == "splats" else []) \
         + ["train s"]
-    target = "; ".join(f"{k}: {'met' if results[k]['errors']['rot_max_deg'] < 0.5 else 'NOT met'} (max "
-                       f"{results[k]['errors']['rot_max_deg']:.3f} deg)" for k in runs if k.startswith("refined"))
+    refined_runs = [k for k in runs if k.startswith("refined")]
+
+    def verdict(stat: str) -> str:
+        return "; ".join(f"{k} {results[k]['errors'][stat]:.3f} deg, "
+                         f"{'met' if results[k]['errors'][stat] < TARGET_DEG else 'NOT met'}" for k in refined_runs)
+
+    target = (f"Target: rotation error under {TARGET_DEG:g} deg (perturbed: mean {before['rot_mean_deg']:.2f}, max "
+              f"{before['rot_max_deg']:.2f} deg). Mean over the training views (the metric BARF reports): "
+              f"{verdict('rot_mean_deg')}. Every view (the max): {verdict('rot_max_deg')}.")
     table = (f"`objects` from `drlab dataset` ({cfg.views} views, {cfg.res}x{cfg.res}, {cfg.spp} spp): "
              f"{len(c2w_gt)} training and {len(test_split.cameras)} test views, device `{ctx.device}`. Training "
              f"poses perturbed by {args.rot_deg:g} degrees and {args.trans_frac:g} x the scene radius "
@@ -451,8 +459,7 @@ def run(ctx: Context) -> int:
              + ("Sim(3), as BARF). " if sim["with_scale"] else "SE(3)). ")
              + model_text + "\n\n"
              + markdown_table(headers, rows)
-             + f"\nTarget (every refined rotation error < 0.5 deg; perturbed max {before['rot_max_deg']:.2f} deg): "
-               f"{target}.\n")
+             + f"\n{target}\n")
     record = provenance(data)
     if args.model == "splats":
         model_record = {"model": "splats", **sizes,
@@ -471,9 +478,12 @@ def run(ctx: Context) -> int:
                             "per_view": v["eval"]["per_view"], "train_s": v["train_s"], "errors": v["errors"],
                             "final_loss": v["final_loss"]} for k, v in results.items()},
                **model_record,
-               "target_rot_max_deg": 0.5, "target_met": bool(after["rot_max_deg"] < 0.5),
-               "target_met_rgbd": (bool(results["refined_rgbd"]["errors"]["rot_max_deg"] < 0.5)
-                                   if "refined_rgbd" in results else None)}
+               "target_rot_max_deg": TARGET_DEG, "target_met": bool(after["rot_max_deg"] < TARGET_DEG),
+               "target_met_rgbd": (bool(results["refined_rgbd"]["errors"]["rot_max_deg"] < TARGET_DEG)
+                                   if "refined_rgbd" in results else None),
+               "target_mean_met": bool(after["rot_mean_deg"] < TARGET_DEG),
+               "target_mean_met_rgbd": (bool(results["refined_rgbd"]["errors"]["rot_mean_deg"] < TARGET_DEG)
+                                        if "refined_rgbd" in results else None)}
     ctx.write_results(config={"quick": ctx.quick, "model": args.model, "rot_deg": args.rot_deg,
                               "trans_frac": args.trans_frac, "depth_weight": args.depth_weight,
                               "dilation": args.dilation},
