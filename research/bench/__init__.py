@@ -47,6 +47,11 @@ def time_median(
     return time_medians({"fn": fn}, repeats=repeats, warmup=warmup, sync=sync)["fn"]
 
 
+# Untimed idle before each timed run of a case that interleaves drlab with a reference library
+# (`time_medians(settle_s=SETTLE_S)`): see time_medians.
+SETTLE_S = 0.02
+
+
 def time_medians(
     fns: dict[str, Callable[[], Any]],
     *,

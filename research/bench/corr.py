@@ -57,7 +57,7 @@ import numpy as np
 import warp as wp
 
 from kernels import corr
-from research.bench import time_medians
+from research.bench import SETTLE_S, time_medians
 
 FULL = dict(height=46, width=62, channels=256, levels=4, radius=4)
 TINY = dict(height=12, width=16, channels=16, levels=3, radius=2)
@@ -137,7 +137,7 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
     fns = {"drlab": build}
     if ref is not None:
         fns["ref"] = ref[0]
-    t = time_medians(fns, repeats=repeats, sync=sync)
+    t = time_medians(fns, repeats=repeats, sync=sync, settle_s=SETTLE_S)
     row = {"bench": "corr.build", **head, "build_s": t["drlab"], **missing}
     if ref is not None:
         row.update(ref=REF_BUILD, ref_build_s=t["ref"], speedup_build=t["ref"] / t["drlab"])
@@ -167,7 +167,7 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
         fns["ref"] = lambda: ref[1](t_pyramid)
         ref_row = {"ref": REF_LOOKUP, "ref_max_abs_diff": float(np.abs(ref[1](t_pyramid).numpy()
                                                                           - dense_fwd().numpy()).max())}
-    t = time_medians(fns, repeats=repeats, sync=sync)
+    t = time_medians(fns, repeats=repeats, sync=sync, settle_s=SETTLE_S)
     t_bwd = time_medians({"dense": dense_fwd_bwd, "otf": otf_fwd_bwd}, repeats=repeats, sync=sync)
     channels = sizes["channels"]
     sintel_dense = corr.dense_bytes(*SINTEL_FEATURES, levels)

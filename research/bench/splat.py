@@ -46,7 +46,7 @@ import warp as wp
 
 from kernels import splat as ks
 from kernels.launch import default_threads
-from research.bench import time_medians
+from research.bench import SETTLE_S, time_medians
 
 CASES = ((2000, 128, 128, True), (100_000, 512, 512, True), (1_000_000, 1080, 1920, False))
 QUICK_CASES = ((2000, 128, 128, True),)
@@ -149,7 +149,7 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
                     row["ref_missing"] = "torch (pip install drlab[bench])"
                 else:
                     fns["ref_rasterize"] = ref
-        t = time_medians(fns, repeats=REPEATS, sync=sync)
+        t = time_medians(fns, repeats=REPEATS, sync=sync, settle_s=SETTLE_S)
         r = ks.render(g, camera)
         out = {"bench": "splat.render", "device": str(dev), "threads": threads, "gaussians": n, "height": h,
                "width": w, **{f"{k}_s": v for k, v in t.items() if not k.startswith("ref_")},

@@ -73,7 +73,7 @@ import warp as wp
 
 from kernels import stereo
 from kernels.launch import default_threads
-from research.bench import time_medians
+from research.bench import SETTLE_S, time_medians
 
 SIZES = ((256, 256, 64), (500, 741, 64), (375, 1242, 128))
 QUICK_SIZES = SIZES[:2]
@@ -134,7 +134,7 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
         fns = {"cost": cost, "aggregate": aggregate, "backend": backend, "total": total}
         row: dict[str, Any] = {}
         _reference(fns, row, cv2, compare, disparities, left_np, right_np)
-        t = time_medians(fns, sync=lambda: wp.synchronize_device(device))
+        t = time_medians(fns, sync=lambda: wp.synchronize_device(device), settle_s=SETTLE_S)
         yield {
             "bench": "stereo.sgm",
             "device": str(dev),
@@ -200,7 +200,7 @@ def _default_case(device: str, threads: int, height: int, width: int, disparitie
            "total_fast": lambda: match(left_np, right_np, 0, disparities, FAST_DEFAULT_CONFIG, device)}
     row: dict[str, Any] = {}
     _reference(fns, row, cv2, compare, disparities, left_np, right_np)
-    t = time_medians(fns, sync=lambda: wp.synchronize_device(device))
+    t = time_medians(fns, sync=lambda: wp.synchronize_device(device), settle_s=SETTLE_S)
     del volume
     return {
         "bench": "stereo.default",

@@ -23,7 +23,7 @@ with the same keys, for the test suite):
                           as experiments/volume_render_spheres times it, and the same image through the
                           fused SphereField.render_dense (`render_fused_s`).
 Each figure is the median of 3 runs (5 for compositing) after a warm-up (research.bench.time_median);
-each compositing run starts after 20 ms idle (`SETTLE_S`), so that PyTorch's OpenMP workers, which
+each run starts after 20 ms idle (`research.bench.SETTLE_S`), so that PyTorch's OpenMP workers, which
 spin-wait after every op, are not timed as part of the drlab call that follows the reference.
 
 `bound_s` (volume.composite) is the memory-bandwidth bound measured here: reading sigma, rgb and
@@ -49,12 +49,10 @@ from typing import Callable, Iterator
 import numpy as np
 import warp as wp
 
-from research.bench import time_median, time_medians
+from research.bench import SETTLE_S, time_median, time_medians
 
 COMPOSITE_RAYS, COMPOSITE_SAMPLES = 65536, 128
 COMPOSITE_FWD_RAYS = 16384
-# Untimed idle before each timed compositing run (research.bench.time_medians, `settle_s`).
-SETTLE_S = 0.02
 FIELD_POINTS = 1 << 20
 TINY_RAYS, TINY_SAMPLES, TINY_POINTS, TINY_GRID, TINY_LOG2_TABLE = 512, 32, 4096, 16, 12
 BOX = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
@@ -217,7 +215,7 @@ def _spheres_case(dev, threads: int, tiny: bool, sync, compare: bool) -> dict:
     fns = {"render": render, "render_fused": render_fused}
     if compare:
         fns["ref_render"] = lambda: tb.render_image_vectorized(h, w, focal)
-    times = time_medians(fns, repeats=5, sync=sync)
+    times = time_medians(fns, repeats=5, sync=sync, settle_s=SETTLE_S)
     row = {"bench": "volume.spheres_render", "device": str(dev), "threads": threads, "rays": n_rays,
            "samples": tb.N_SAMPLES, "render_s": times["render"], "render_fused_s": times["render_fused"]}
     if compare:  # one reference, timed once per round, against both drlab paths
