@@ -236,6 +236,23 @@ def _fill_row(L: wp.array3d(dtype=typing.Any), l_lo: wp.array3d(dtype=typing.Any
 
 
 @wp.func
+def _fill_terms(gl: wp.array3d(dtype=typing.Any), gl_lo: wp.array3d(dtype=typing.Any),
+                gl_hi: wp.array3d(dtype=typing.Any), gr_v: wp.array(dtype=typing.Any),
+                gr_lo_v: wp.array(dtype=typing.Any), gr_hi_v: wp.array(dtype=typing.Any),
+                il: wp.array3d(dtype=typing.Any), il_lo: wp.array3d(dtype=typing.Any),
+                il_hi: wp.array3d(dtype=typing.Any), ir_v: wp.array(dtype=typing.Any),
+                ir_lo_v: wp.array(dtype=typing.Any), ir_hi_v: wp.array(dtype=typing.Any),
+                ring_v: wp.array(dtype=typing.Any), b: int, terms: int, v: int, dmin: int, D: int, nb: int,
+                lanes: int, slots: int, row: int, pad: int):
+    """Band b's ring rows v of its terms (_fill_row): slot 2 b the gradient term, 2 b + 1 the intensity term
+    when `terms` > 1."""
+    _fill_row(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, ring_v, 2 * b, v, dmin, D, nb, lanes, slots, row, pad)
+    if terms > 1:
+        _fill_row(il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v, 2 * b + 1, v, dmin, D, nb, lanes, slots, row, pad)
+    return 0
+
+
+@wp.func
 def _row_sums(ring_v: wp.array(dtype=typing.Any), rowsum_v: wp.array(dtype=typing.Any), t: int, v0: int, v1: int,
               W: int, nb: int, slots: int):
     """rowsum[t, x, k] = sum over v in [v0, v1] of bt(x, v, d_k), rows added in ascending order (bt's _sum_rows;
@@ -314,17 +331,12 @@ def _fused_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64)
     y0 = b * band
     y1 = wp.min(y0 + band, H)
     for v in range(wp.max(y0 - r, 0), wp.min(y0 + r, H - 1) + 1):
-        _fill_row(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, ring_v, 2 * b, v, dmin, D, nb, lanes, S, row, pad)
-        if T > 1:
-            _fill_row(il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v, 2 * b + 1, v, dmin, D, nb, lanes, S, row,
-                      pad)
+        _fill_terms(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v, b, T, v,
+                    dmin, D, nb, lanes, S, row, pad)
     for y in range(y0, y1):
         if y > y0 and y + r < H:
-            _fill_row(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, ring_v, 2 * b, y + r, dmin, D, nb, lanes, S, row,
-                      pad)
-            if T > 1:
-                _fill_row(il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v, 2 * b + 1, y + r, dmin, D, nb, lanes, S,
-                          row, pad)
+            _fill_terms(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v, b,
+                        T, y + r, dmin, D, nb, lanes, S, row, pad)
         v0 = wp.max(y - r, 0)
         v1 = wp.min(y + r, H - 1)
         rows = v1 - v0 + 1
@@ -445,10 +457,8 @@ def _fused_cost_vrho(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.ui
     y0 = b * band
     y1 = wp.min(y0 + band, H)
     for v in range(wp.max(y0 - r, 0), wp.min(y0 + r, H - 1) + 1):
-        _fill_row(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, ring_v, 2 * b, v, dmin, D, nb, lanes, S, row, pad)
-        if T > 1:
-            _fill_row(il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v, 2 * b + 1, v, dmin, D, nb, lanes, S, row,
-                      pad)
+        _fill_terms(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v, b, T, v,
+                    dmin, D, nb, lanes, S, row, pad)
     for y in range(y0, y1):
         v0 = wp.max(y - r, 0)
         v1 = wp.min(y + r, H - 1)
@@ -462,11 +472,8 @@ def _fused_cost_vrho(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.ui
                 for t in range(T):
                     _row_update(ring_v, rowsum_v, 2 * b + t, y - r - 1, W, nb, S, 0)
             if y + r < H:
-                _fill_row(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, ring_v, 2 * b, y + r, dmin, D, nb, lanes, S, row,
-                          pad)
-                if T > 1:
-                    _fill_row(il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v, 2 * b + 1, y + r, dmin, D, nb, lanes,
-                              S, row, pad)
+                _fill_terms(gl, gl_lo, gl_hi, gr_v, gr_lo_v, gr_hi_v, il, il_lo, il_hi, ir_v, ir_lo_v, ir_hi_v, ring_v,
+                            b, T, y + r, dmin, D, nb, lanes, S, row, pad)
                 for t in range(T):
                     _row_update(ring_v, rowsum_v, 2 * b + t, y + r, W, nb, S, 1)
         for x in range(W):
