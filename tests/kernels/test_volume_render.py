@@ -181,6 +181,16 @@ def test_sphere_render_dense_matches_reference_and_general_path(np_t, wp_t, tol,
     np.testing.assert_array_equal(rgb_wp.numpy(), rgb)
 
 
+def _sphere_rays(rng, n_rays, n_s, np_t):
+    """Rays through the textbook spheres' box with sorted random samples: origins, directions, t, delta."""
+    o = rng.normal(0.0, 0.2, (n_rays, 3))
+    d = rng.normal([0, 0, 1], 0.3, (n_rays, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = np.sort(rng.uniform(1.0, 6.0, (n_rays, n_s)), axis=1)
+    delta = np.diff(t, axis=1, append=t[:, -1:] + 1e-3)
+    return [x.astype(np_t) for x in (o, d, t, delta)]
+
+
 @pytest.mark.parametrize("thr", [0.0, 0.3], ids=["no_termination", "early_termination"])
 @pytest.mark.parametrize("np_t, wp_t, tol", [(np.float32, wp.float32, 2e-6), (np.float64, wp.float64, 1e-14)])
 def test_sphere_render_dense_fused_kernel_agrees_with_cpu_two_pass_path(monkeypatch, np_t, wp_t, tol, thr):
@@ -191,12 +201,7 @@ def test_sphere_render_dense_fused_kernel_agrees_with_cpu_two_pass_path(monkeypa
     rng = np.random.default_rng(6)
     field = SphereField.textbook(wp_t)
     n_rays, n_s = 50, 29
-    o = rng.normal(0.0, 0.2, (n_rays, 3))
-    d = rng.normal([0, 0, 1], 0.3, (n_rays, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    t = np.sort(rng.uniform(1.0, 6.0, (n_rays, n_s)), axis=1)
-    delta = np.diff(t, axis=1, append=t[:, -1:] + 1e-3)
-    args = [x.astype(np_t) for x in (o, d, t, delta)]
+    args = _sphere_rays(rng, n_rays, n_s, np_t)
     two_pass = field.render_dense(*args, background=(0.1, 0.2, 0.3), t_threshold=thr)
     monkeypatch.setattr(spheres_module, "_FUSED_ON_CPU", True)
     fused = field.render_dense(*args, background=(0.1, 0.2, 0.3), t_threshold=thr)
@@ -216,12 +221,7 @@ def test_sphere_render_dense_quads_equal_the_one_at_a_time_passes(monkeypatch, n
     rng = np.random.default_rng(11)
     field = SphereField.textbook(wp_t)
     n_rays = 45
-    o = rng.normal(0.0, 0.2, (n_rays, 3))
-    d = rng.normal([0, 0, 1], 0.3, (n_rays, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    t = np.sort(rng.uniform(1.0, 6.0, (n_rays, n_s)), axis=1)
-    delta = np.diff(t, axis=1, append=t[:, -1:] + 1e-3)
-    args = [x.astype(np_t) for x in (o, d, t, delta)]
+    args = _sphere_rays(rng, n_rays, n_s, np_t)
     quads = field.render_dense(*args, background=(0.1, 0.2, 0.3), t_threshold=thr)
     monkeypatch.setattr(spheres_module, "_FALLOFF_BLOCK", 7 * n_s * 3)  # 7 rays a block
     blocked = field.render_dense(*args, background=(0.1, 0.2, 0.3), t_threshold=thr)
