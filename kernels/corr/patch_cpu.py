@@ -44,13 +44,12 @@ V^l formed by BLAS) sampled by the same one-pixel C++ window in place of `_commo
 (the same values bit for bit).
 """
 
-import threading
 from typing import Any
 
 import warp as wp
 
 from kernels.corr._common import pixel_window
-from kernels.corr.window_cpu import window_func
+from kernels.corr.window_cpu import built_once, window_func
 
 _PATCH_CPP = r"""
     typedef decltype(inv) T;
@@ -156,7 +155,6 @@ _FUSED = "acc[c] = __builtin_elementwise_fma(x, y, acc[c]);"
 
 _kernels: dict[tuple[int, Any, Any], Any] = {}
 _full_kernels: dict[tuple[int, Any], Any] = {}
-_lock = threading.Lock()
 
 
 def _build(radius: int, scalar: Any, storage: Any) -> Any:
@@ -196,12 +194,7 @@ def patch_sample_cpu(radius: int, scalar: Any, storage: Any) -> Any:
     f1 (N, C8) and f2l (H_l W_l, C8) channels-last rows of `storage` (C8 a multiple of 8, rows
     contiguous), patch (N, 2r+2, 2r+2) and out as `onthefly._patch_sample_level`'s; thread = pixel.
     """
-    key = (radius, scalar, storage)
-    with _lock:
-        kernel = _kernels.get(key)
-        if kernel is None:
-            kernel = _kernels[key] = _build(radius, scalar, storage)
-    return kernel
+    return built_once(_kernels, (radius, scalar, storage), lambda: _build(radius, scalar, storage))
 
 
 def _build_full(radius: int, scalar: Any) -> Any:
@@ -224,12 +217,7 @@ def full_sample_cpu(radius: int, scalar: Any) -> Any:
     """The CPU kernel sampling a full-product level's block of rows of V^l: `_common.sample_windows`
     with `from_patch` = 0 (arguments (s, coords, out, scale, channel0, block0, offset), its own less
     `radius` and `from_patch`), by `window_cpu`'s one-pixel C++ window (bit-identical); built once, cached."""
-    key = (radius, scalar)
-    with _lock:
-        kernel = _full_kernels.get(key)
-        if kernel is None:
-            kernel = _full_kernels[key] = _build_full(radius, scalar)
-    return kernel
+    return built_once(_full_kernels, (radius, scalar), lambda: _build_full(radius, scalar))
 
 
 _WIDEN_CPP = r"""
@@ -244,7 +232,7 @@ _WIDEN_CPP = r"""
         o[k] = __builtin_convertvector(in[k], V);
 """
 
-_widen_kernel = None
+_widen_kernels: dict[None, Any] = {}  # one kernel, under the key None
 
 
 def _build_widen() -> Any:
@@ -266,8 +254,4 @@ def _build_widen() -> Any:
 def widen_rows_cpu() -> Any:
     """The CPU kernel widening float16 rows (N, C8) to float32 rows, exactly (a row a thread, 8-lane
     vector conversions; arguments (x, out, offset), both rows contiguous); built once, cached."""
-    global _widen_kernel
-    with _lock:
-        if _widen_kernel is None:
-            _widen_kernel = _build_widen()
-    return _widen_kernel
+    return built_once(_widen_kernels, None, _build_widen)

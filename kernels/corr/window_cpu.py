@@ -37,7 +37,7 @@ CPU only (CUDA keeps `_common.sample_levels`). The adjoint is unchanged
 """
 
 import threading
-from typing import Any
+from typing import Any, Callable
 
 import warp as wp
 
@@ -249,16 +249,24 @@ _PREFETCH_CPP = r"""
 
 _kernels: dict[tuple[int, Any], Any] = {}
 _windows: dict[tuple[int, Any], Any] = {}
-_lock = threading.RLock()  # window_func runs under it, also from within _build
+_lock = threading.RLock()  # built_once holds it while building; a build may ask for a window
+
+
+def built_once(cache: dict, key: Any, build: Callable[[], Any]) -> Any:
+    """cache[key], made by build() on first use: one build per key even when threads ask at once (under
+    the module's lock, re-entrant because a build may ask for a window). Shared with `patch_cpu`."""
+    with _lock:
+        value = cache.get(key)
+        if value is None:
+            value = cache[key] = build()
+    return value
 
 
 def window_func(radius: int, scalar: Any) -> Any:
     """The one-pixel C++ window (`_WINDOW_CPP`) for this radius and float type, a Warp native function
     (s, p, row0, col0, fx, fy, out, channel0, h, w) with `_common.sample_window`'s arguments less the
     side; built once (also used by `patch_cpu`, on the on-the-fly path's patches)."""
-    key = (radius, scalar)
-    with _lock:
-        return _windows.get(key) or _window(radius, scalar)
+    return built_once(_windows, (radius, scalar), lambda: _window(radius, scalar))
 
 
 def _window(radius: int, scalar: Any) -> Any:
@@ -272,7 +280,7 @@ def _window(radius: int, scalar: Any) -> Any:
 
     # A name of its own per radius and type: Warp keys native functions by name.
     window.__name__ = window.__qualname__ = f"sample_window_cpu_r{radius}_{scalar.__name__}"
-    window = _windows[(radius, scalar)] = wp.func_native(_WINDOW_CPP.replace("SIDE", str(side)))(window)
+    window = wp.func_native(_WINDOW_CPP.replace("SIDE", str(side)))(window)
     return window
 
 
@@ -329,12 +337,7 @@ def sample_levels_cpu(radius: int, scalar: Any) -> Any:
     `_common.sample_levels` without `radius`; launched over `blocks(H W)` threads (blocks of LANES
     pixels), not one a pixel.
     """
-    key = (radius, scalar)
-    with _lock:
-        kernel = _kernels.get(key)
-        if kernel is None:
-            kernel = _kernels[key] = _build(radius, scalar)
-    return kernel
+    return built_once(_kernels, (radius, scalar), lambda: _build(radius, scalar))
 
 
 def blocks(n_pixels: int) -> int:
