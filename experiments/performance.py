@@ -23,6 +23,13 @@ on its own lines; splat rasteriser >= 100x the dense
 PyTorch rasteriser at 2000 Gaussians, 128x128, and the splat forward <= 1 s at 1M Gaussians,
 1920x1080. (The stereo memory and accuracy targets have no single number and are not checked here.)
 
+Repeats (--repeats, default 3 at full size, 1 otherwise): every family runs that many times in turn
+(family by family, then again), and each timed figure and ratio in the table is the median over the
+runs, with the lowest and highest run beside it. A host whose speed drifts between runs (the Intel VM
+this table was last made on disagreed with itself by up to 2x between back-to-back runs) then shows
+its spread instead of one draw. A target is judged on the median and also counted run by run
+("met in k of n runs").
+
 Writes results/performance/{table.md, metrics.json (every bench row), figure.png}. A full run
 into the default folder of a checkout (what `make reproduce` does) then copies table.md into
 README.md between the markers README_START and README_END (the README's performance table).
@@ -32,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import operator
+import statistics
 from pathlib import Path
 from typing import Any
 
@@ -86,6 +94,9 @@ def add_options(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--families", nargs="+", default=None, metavar="FAMILY",
                    help=f"bench families to run (default: all of {', '.join(BENCH_MODULES)})")
+    p.add_argument("--repeats", type=int, default=None, metavar="N",
+                   help="run every family N times and report per-figure medians with the lowest and highest run "
+                        "(default: 3 at full size, 1 for --quick / --smoke)")
 
 
 def _sizes(row: dict) -> str:
@@ -107,19 +118,63 @@ def _lines(row: dict) -> list[dict]:
         else:
             reference = f"not installed: {row['ref_missing'].split()[0]}" if "ref_missing" in row else ""
         out.append({"case": row["bench"], "sizes": _sizes(row), "phase": phase, "drlab_s": value,
-                    "reference": reference, "ref_s": ref_s, "speedup": row.get(f"speedup_{phase}")})
+                    "reference": reference, "ref_s": ref_s, "speedup": row.get(f"speedup_{phase}"),
+                    "runs": row.get("runs", {})})
     return out
 
 
+def _merge_runs(runs: list[list[dict]]) -> list[dict]:
+    """One row per bench row of the repeated runs: every float is the median over the runs, and
+    `runs` holds each float key's values run by run (for the spread and the per-run target count).
+
+    The runs must list the same cases in the same order with the same integer sizes (the bench
+    families are deterministic in their inputs); a mismatch raises rather than pairing wrong rows.
+    """
+    if not runs:
+        return []
+    if any(len(r) != len(runs[0]) for r in runs):
+        raise ValueError(f"--repeats: the runs returned different numbers of rows {[len(r) for r in runs]}")
+    merged = []
+    for rows in zip(*runs):
+        first = rows[0]
+        for other in rows[1:]:
+            same = {k: v for k, v in other.items() if not isinstance(v, float)}
+            if same != {k: v for k, v in first.items() if not isinstance(v, float)}:
+                raise ValueError(f"--repeats: run rows differ: {first.get('bench')} vs {other.get('bench')}")
+        row = dict(first)
+        per_run = {}
+        for key, value in first.items():
+            if isinstance(value, float):
+                values = [r[key] for r in rows]
+                row[key] = statistics.median(values)
+                per_run[key] = values
+        if len(rows) > 1:
+            row["runs"] = per_run
+        merged.append(row)
+    return merged
+
+
+def _shown(key: str, value: float) -> str:
+    return f"{1e3 * value:.3g} ms" if key.endswith("_s") else f"{value:.3g}x" if "speedup" in key else f"{value:.3g}"
+
+
 def _target_status(row: dict, full: bool) -> list[tuple[str, str, Any, str]]:
-    """(case, target text, measured value, met / NOT met / n/a) for every target of this row."""
+    """(case, target text, measured value, met / NOT met / n/a) for every target of this row.
+
+    With repeated runs (a merged row's `runs`), the value is the median with the range beside it, the
+    status is judged on the median, and the runs that met the target are counted."""
     found = []
     for (case, key, where), (op, bound, text) in TARGETS.items():
         if row["bench"] != case or key not in row or any(row.get(k) != v for k, v in where):
             continue
         value = row[key]
         status = ("met" if op(value, bound) else "NOT met") if full else "n/a (not full size)"
-        shown = f"{1e3 * value:.3g} ms" if key.endswith("_s") else f"{value:.3g}x" if "speedup" in key else f"{value:.3g}"
+        shown = _shown(key, value)
+        values = row.get("runs", {}).get(key)
+        if values:
+            shown += f" (runs {_shown(key, min(values))} to {_shown(key, max(values))})"
+            if full:
+                status += f", met in {sum(bool(op(v, bound)) for v in values)} of {len(values)} runs"
         found.append((case, text, shown, status))
     return found
 
@@ -133,25 +188,47 @@ def run(ctx: Context) -> int:
     unknown = [f for f in families if f not in BENCH_MODULES]
     if unknown:
         raise ValueError(f"--families: unknown {unknown}; registered: {', '.join(BENCH_MODULES)}")
-    rows: list[dict] = []
-    for family in ctx.tqdm(families, desc="bench families", disable=None):
-        rows += run_bench([family], ctx.device, quick=ctx.quick, compare=True, tiny=ctx.smoke)
+    full = ctx.mode == "full"
+    repeats = ctx.args.repeats if ctx.args.repeats is not None else (3 if full else 1)
+    if repeats < 1:
+        raise ValueError(f"--repeats: expected a positive count, got {repeats}")
+    runs: list[list[dict]] = []
+    with ctx.tqdm(total=repeats * len(families), desc="bench families", disable=None) as bar:
+        for _ in range(repeats):
+            rows: list[dict] = []
+            for family in families:
+                rows += run_bench([family], ctx.device, quick=ctx.quick, compare=True, tiny=ctx.smoke)
+                bar.update(1)
+            runs.append(rows)
+    rows = _merge_runs(runs)
 
     lines = [line for row in rows for line in _lines(row)]
     ms = lambda s: None if s is None else 1e3 * s  # noqa: E731
+
+    def spread(ln: dict, key: str, fmt) -> str:
+        values = ln["runs"].get(key)
+        return f"{fmt(min(values))}-{fmt(max(values))}" if values else "-"
+
     table_rows = [[ln["case"], ln["sizes"], ln["phase"],
                    ms(ln["drlab_s"]), ln["reference"] or "-", "-" if ln["ref_s"] is None else ms(ln["ref_s"]),
-                   "-" if ln["speedup"] is None else f"{ln['speedup']:.2f}x"] for ln in lines]
-    full = ctx.mode == "full"
+                   "-" if ln["speedup"] is None else f"{ln['speedup']:.2f}x"]
+                  + ([spread(ln, f"{ln['phase']}_s", lambda v: f"{1e3 * v:.3g}"),
+                      spread(ln, f"speedup_{ln['phase']}", lambda v: f"{v:.2f}x")] if repeats > 1 else [])
+                  for ln in lines]
+    headers = ["case", "sizes", "phase", "drlab ms", "reference", "reference ms", "ratio"]
+    if repeats > 1:
+        headers += ["drlab ms, runs (min-max)", "ratio, runs (min-max)"]
     targets = [t for row in rows for t in _target_status(row, full)]
     cpu = host()
     threads = sorted({r["threads"] for r in rows})
     table = (f"Host: {cpu['cpu']}, {cpu['cpus']} logical CPUs; drlab threads {threads}; device `{ctx.device}`; "
              f"sizes: {ctx.mode}. Times in ms, medians of 3-5 runs after a warm-up; the reference ran "
              "interleaved with drlab on the same inputs and thread count. Ratio = reference / drlab "
-             "(> 1: drlab is faster).\n\n"
-             + markdown_table(["case", "sizes", "phase", "drlab ms", "reference", "reference ms", "ratio"],
-                              table_rows, floatfmt=".3g")
+             "(> 1: drlab is faster)."
+             + (f" Every family ran {repeats} times in turn: each figure is the median over those runs "
+                "(ratios: the median of the runs' own interleaved ratios), with the lowest and highest run "
+                "beside it." if repeats > 1 else "") + "\n\n"
+             + markdown_table(headers, table_rows, floatfmt=".3g")
              + "\n\nTargets:\n\n"
              + markdown_table(["case", "target", "measured", "status"],
                               [[c, t, v, s] for c, t, v, s in targets], floatfmt=".3g") + "\n")
@@ -160,7 +237,7 @@ def run(ctx: Context) -> int:
                                          for c, t, v, s in targets],
                "host": cpu,
                "n_with_reference": sum(ln["ref_s"] is not None for ln in lines)}
-    config = {"quick": ctx.quick, "smoke": ctx.smoke, "families": families, "compare": True}
+    config = {"quick": ctx.quick, "smoke": ctx.smoke, "families": families, "compare": True, "repeats": repeats}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
     if full and registry.in_checkout() and ctx.final_out.resolve() == registry.default_out("performance").resolve():
         ctx.after_commit(lambda: refresh_readme(registry.REPO_ROOT / "README.md", table))

@@ -11,3 +11,34 @@ def test_each_line_carries_its_own_rows_sizes():
     assert [ln["sizes"] for ln in lines] == ["height=256, width=256, disparities=64",
                                              "height=500, width=741, disparities=64"]
     assert [ln["ref_s"] for ln in lines] == [0.005, 0.05]
+
+
+def test_repeated_runs_merge_to_medians_with_spread_and_count_runs_per_target():
+    from experiments.performance import _merge_runs, _target_status
+
+    def run(fwd_bwd_s, speedup):
+        return [{"bench": "volume.composite", "threads": 2, "rays": 65536, "samples": 128, "fwd_bwd_s": fwd_bwd_s,
+                 "ref": "torch", "ref_fwd_bwd_s": fwd_bwd_s * speedup, "speedup_fwd_bwd": speedup}]
+
+    merged = _merge_runs([run(0.050, 9.0), run(0.060, 11.0), run(0.040, 10.5)])
+    assert len(merged) == 1
+    row = merged[0]
+    assert row["fwd_bwd_s"] == 0.050 and row["speedup_fwd_bwd"] == 10.5  # medians, key by key
+    assert row["runs"]["speedup_fwd_bwd"] == [9.0, 11.0, 10.5] and row["rays"] == 65536
+    (case, text, shown, status), = _target_status(row, full=True)
+    assert shown == "10.5x (runs 9x to 11x)" and status == "met, met in 2 of 3 runs"
+    line, = _lines(row)
+    assert line["runs"]["fwd_bwd_s"] == [0.050, 0.060, 0.040]
+
+
+def test_repeated_runs_that_do_not_pair_up_raise():
+    import pytest
+
+    from experiments.performance import _merge_runs
+
+    a = [{"bench": "corr.build", "height": 46, "build_s": 0.04}]
+    b = [{"bench": "corr.build", "height": 47, "build_s": 0.04}]
+    with pytest.raises(ValueError, match="run rows differ"):
+        _merge_runs([a, b])
+    with pytest.raises(ValueError, match="different numbers of rows"):
+        _merge_runs([a, a + a])
