@@ -300,15 +300,41 @@ def _spheres_dense_exponent_kernel(
                          out_exponent, (q * n_s + j) * geometry.shape[0])
 
 
+@wp.func
+def sigma_from_falloff(falloff: wp.array(dtype=typing.Any), i: int, appearance: wp.array(dtype=typing.Any)):
+    """The sigma of spheres_from_falloff alone: the same products and sums in the same order."""
+    sig = falloff.dtype(0.0)
+    for k in range(appearance.shape[0]):
+        d = appearance[k][3] * falloff[i + k]
+        sig += d
+    return sig
+
+
+@wp.kernel
+def _spheres_dense_factor_kernel(
+    falloff: wp.array(dtype=typing.Any), delta: wp.array2d(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
+    out_exponent: wp.array(dtype=typing.Any), base: int, offset: int,
+):
+    # CPU render_dense, pass 2 over the block from `base`: the compositing exponents -(sigma delta) of
+    # every sample (NumPy's exp turns them into the factors, as kernels.volume.composite does).
+    q = wp.tid() + offset
+    r = base + q
+    n_s = delta.shape[1]
+    for j in range(n_s):
+        sig = sigma_from_falloff(falloff, (q * n_s + j) * appearance.shape[0], appearance)
+        out_exponent[q * n_s + j] = -(sig * delta[r, j])
+
+
 @wp.kernel
 def _spheres_dense_composite_kernel(
-    falloff: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any), delta: wp.array2d(dtype=typing.Any),
+    falloff: wp.array(dtype=typing.Any), factor: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
     appearance: wp.array(dtype=typing.Any), background: wp.array(dtype=typing.Any), t_threshold: typing.Any,
     out_rgb: wp.array(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_opacity: wp.array(dtype=typing.Any), base: int, offset: int,
 ):
-    # CPU render_dense, pass 2 over the block from `base`: the spheres from the falloffs, composited
-    # as the fused kernel does.
+    # CPU render_dense, pass 3 over the block from `base`: the spheres from the falloffs, composited
+    # as the fused kernel does with the factors exp(-sigma delta) of pass 2 (sample (r, j) at
+    # (r - base) S + j).
     q = wp.tid() + offset
     r = base + q
     one = t.dtype(1.0)
@@ -322,7 +348,7 @@ def _spheres_dense_composite_kernel(
         if T < t_threshold:
             break
         sig, nr, ng, nb = spheres_from_falloff(falloff, (q * n_s + j) * appearance.shape[0], appearance)
-        T, cr, cg, cb, dep = _blend_sample(T, cr, cg, cb, dep, sig, nr, ng, nb, t[r, j], delta[r, j])
+        T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, factor[q * n_s + j], nr, ng, nb, t[r, j])
     _write_pixel(out_rgb, out_depth, out_opacity, r, background, T, cr, cg, cb, dep)
 
 
@@ -399,16 +425,42 @@ def _spheres_dense_exponent4_kernel(
                            q * geometry.shape[0] * n_q + jq, n_q)
 
 
+@wp.func
+def _sigma_from_falloff4(f4: wp.array(dtype=typing.Any), i: int, stride: int, appearance: wp.array(dtype=typing.Any)):
+    """The sigma of _spheres_from_falloff4 alone (vec4): the same products and sums in the same order."""
+    sig = type(f4[i])()
+    for k in range(appearance.shape[0]):
+        d = appearance[k][3] * f4[i + k * stride]
+        sig = sig + d
+    return sig
+
+
+@wp.kernel
+def _spheres_dense_factor4_kernel(
+    f4: wp.array(dtype=typing.Any), delta4: wp.array2d(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
+    out4: wp.array(dtype=typing.Any), base: int, offset: int,
+):
+    # CPU render_dense, pass 2 with S % 4 == 0: the compositing exponents -(sigma delta) of samples
+    # 4 jq .. 4 jq + 3 of ray r = base + q at out4[q S/4 + jq], lane by lane.
+    q = wp.tid() + offset
+    r = base + q
+    n_q = delta4.shape[1]
+    for jq in range(n_q):
+        sig = _sigma_from_falloff4(f4, q * appearance.shape[0] * n_q + jq, n_q, appearance)
+        out4[q * n_q + jq] = -wp.cw_mul(sig, delta4[r, jq])
+
+
 @wp.kernel
 def _spheres_dense_composite4_kernel(
-    f4: wp.array(dtype=typing.Any), t4: wp.array2d(dtype=typing.Any), delta4: wp.array2d(dtype=typing.Any),
+    f4: wp.array(dtype=typing.Any), e4: wp.array(dtype=typing.Any), t4: wp.array2d(dtype=typing.Any),
     appearance: wp.array(dtype=typing.Any), background: wp.array(dtype=typing.Any), t_threshold: typing.Any,
     out_rgb: wp.array(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_opacity: wp.array(dtype=typing.Any), base: int, offset: int,
 ):
-    # CPU render_dense, pass 2 with S % 4 == 0: the spheres of four samples at a time from the
-    # falloffs, their four exponentials exp(-sigma delta), then the four blend steps one after the
-    # other (early termination as the fused kernel: the steps after it are not taken).
+    # CPU render_dense, pass 3 with S % 4 == 0: the spheres of four samples at a time from the
+    # falloffs, their four factors exp(-sigma delta) from pass 2 (e4[q S/4 + jq]), then the four
+    # blend steps one after the other (early termination as the fused kernel: the steps after it
+    # are not taken).
     q = wp.tid() + offset
     r = base + q
     T = type(t_threshold)(1.0)
@@ -423,9 +475,7 @@ def _spheres_dense_composite4_kernel(
             break
         sig, nr, ng, nb = _spheres_from_falloff4(f4, q * appearance.shape[0] * n_q + jq, n_q, appearance)
         tq = t4[r, jq]
-        dq = delta4[r, jq]
-        e = type(sig)(wp.exp(-sig[0] * dq[0]), wp.exp(-sig[1] * dq[1]), wp.exp(-sig[2] * dq[2]),
-                      wp.exp(-sig[3] * dq[3]))
+        e = e4[q * n_q + jq]
         for l in range(4):
             if T < t_threshold:
                 done = 1
@@ -574,23 +624,36 @@ class SphereField(Field):
 
     def _two_passes(self, a: A.Inputs, n_items: int, samples_per_item: int, pass1: Any, pass1_inputs: list[Any],
                     pass2: Any, pass2_inputs: list[Any], geometry: wp.array, appearance: wp.array,
-                    quads: bool = False) -> None:
+                    quads: bool = False, factor_pass: tuple[Any, list[Any]] | None = None) -> None:
         """The CPU passes (module docstring) over n_items points, rays or quads of samples_per_item
         samples, in blocks of at most _FALLOFF_BLOCK falloff values (bounded memory, and a block is
         still in cache when pass 2 reads it): `pass1` writes the exponents -s_k m_k of a block,
         NumPy's exp (split over the launch threads) turns them into falloffs in place, `pass2`
-        consumes them. With `quads` the kernels see the block's values as vec4s."""
+        consumes them. With `quads` the kernels see the block's values as vec4s.
+
+        `factor_pass` (kernel, inputs), for render_dense: between the two, that kernel writes the
+        compositing exponents -(sigma delta) of the block's samples, NumPy's exp turns them into the
+        factors in place, and `pass2` takes them as its second argument."""
         per_item = samples_per_item * geometry.shape[0]
         block = max(1, min(n_items, _FALLOFF_BLOCK // max(per_item, 1)))
         falloff = a.empty(block * per_item)
         f = falloff.numpy()
         values = _vec_view(falloff, _VEC4, (block * per_item // 4,)) if quads else falloff
+        if factor_pass is not None:
+            factor = a.empty(block * samples_per_item)
+            e = factor.numpy()
+            factors = [_vec_view(factor, _VEC4, (block * samples_per_item // 4,)) if quads else factor]
+        else:
+            factors = []
         min_chunk = max(1, _CHUNK_VALUES // max(per_item, 1))
         for base in range(0, n_items, block):
             nb = min(block, n_items - base)
             a.launch(pass1, nb, [*pass1_inputs, geometry, appearance, values, base], min_chunk=min_chunk)
             parallel_ranges(lambda lo, hi: np.exp(f[lo:hi], out=f[lo:hi]), nb * per_item)
-            a.launch(pass2, nb, [values, *pass2_inputs, base], min_chunk=min_chunk)
+            if factor_pass is not None:
+                a.launch(factor_pass[0], nb, [values, *factor_pass[1], *factors, base], min_chunk=min_chunk)
+                parallel_ranges(lambda lo, hi: np.exp(e[lo:hi], out=e[lo:hi]), nb * samples_per_item)
+            a.launch(pass2, nb, [values, *factors, *pass2_inputs, base], min_chunk=min_chunk)
 
     def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
         a, p, _ = self._inputs(points, dirs)
@@ -616,14 +679,15 @@ class SphereField(Field):
         dense_samples; depth is sum_k w_k t_k). Arrays in the field's dtype; outputs in the kind of
         `origins`."""
         a = A.Inputs(self.device, origins, dirs, t, delta)
-        o = a.floats("origins", origins, (None, 3))
+        keep: list[np.ndarray] = []  # NumPy inputs the kernels read in place (_floats_in_place)
+        o = _floats_in_place(a, keep, "origins", origins, (None, 3))
         if a.scalar != self.dtype:
             raise ValueError(f"origins: expected dtype {A.type_name(self.dtype)} (the field's), "
                              f"got {A.type_name(a.scalar)}")
         n_rays = o.shape[0]
-        d = a.floats("dirs", dirs, (n_rays, 3))
-        tt = a.floats("t", t, (n_rays, None))
-        dl = a.floats("delta", delta, tuple(tt.shape), finite=False)
+        d = _floats_in_place(a, keep, "dirs", dirs, (n_rays, 3))
+        tt = _floats_in_place(a, keep, "t", t, (n_rays, None))
+        dl = _floats_in_place(a, keep, "delta", delta, tuple(tt.shape), finite=False)
         A.check_at_least("delta", dl, 0.0)
         t_threshold = A.check_float("t_threshold", t_threshold, nonnegative=True)
         if not t_threshold < 1.0:
@@ -636,23 +700,25 @@ class SphereField(Field):
         geometry, appearance = self._packed()
         bg_v = wp.array(bg[None], dtype=_VEC3[self.dtype], device=self.device)
         o3, d3, rgb3 = _vec_view3(o), _vec_view3(d), _vec_view3(rgb)
-        fused, k1, k2 = _RENDER_DENSE[self.dtype]
+        fused, k1, kf, k2 = _RENDER_DENSE[self.dtype]
         if not self.device.is_cpu or _FUSED_ON_CPU:
             a.launch(fused, n_rays, [o3, d3, tt, dl, geometry, appearance, bg_v, a.s(t_threshold), rgb3, depth,
                                      opacity], min_chunk=16)
             return a.out(rgb), a.out(depth), a.out(opacity)
-        # CPU: the sphere falloffs by NumPy's exp between two split launches (module docstring), four
-        # samples at a time where the samples of a ray come in fours.
+        # CPU: the sphere falloffs and then the compositing factors by NumPy's exp between three
+        # split launches (module docstring), four samples at a time where the samples of a ray come
+        # in fours.
         n_s = tt.shape[1]
         if n_s % 4 == 0 and _QUADS_ON_CPU:  # (a.floats: t and delta are contiguous)
-            k1, k2 = _RENDER_DENSE4[self.dtype]
+            k1, kf, k2 = _RENDER_DENSE4[self.dtype]
             t4, dl4 = (_vec_view(x, _VEC4, (n_rays, n_s // 4)) for x in (tt, dl))
             self._two_passes(a, n_rays, n_s, k1, [o3, d3, t4], k2,
-                             [t4, dl4, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity], geometry, appearance,
-                             quads=True)
+                             [t4, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity], geometry, appearance,
+                             quads=True, factor_pass=(kf, [dl4, appearance]))
         else:
             self._two_passes(a, n_rays, n_s, k1, [o3, d3, tt], k2,
-                             [tt, dl, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity], geometry, appearance)
+                             [tt, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity], geometry, appearance,
+                             factor_pass=(kf, [dl, appearance]))
         return a.out(rgb), a.out(depth), a.out(opacity)
 
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
@@ -688,10 +754,10 @@ def _pack_spheres_kernel(centers: wp.array2d(dtype=typing.Any), radii: wp.array(
     appearance[k] = a
 
 
-def _render_dense_overloads() -> dict[Any, tuple[Any, Any, Any]]:
-    """{scalar: concrete overloads of (the fused kernel, CPU pass 1, CPU pass 2)} (launching a
-    concrete overload spares Warp inferring the argument types on every launch); also declares
-    _pack_spheres_kernel's."""
+def _render_dense_overloads() -> dict[Any, tuple[Any, Any, Any, Any]]:
+    """{scalar: concrete overloads of (the fused kernel, CPU pass 1, CPU pass 2 (factors), CPU pass 3)}
+    (launching a concrete overload spares Warp inferring the argument types on every launch); also
+    declares _pack_spheres_kernel's."""
     out = {}
     for s in A.FLOATS:
         v3, v4 = _VEC3[s], _VEC4[s]
@@ -703,8 +769,11 @@ def _render_dense_overloads() -> dict[Any, tuple[Any, Any, Any]]:
             wp.overload(_spheres_render_dense_kernel,
                         {**rays, "delta": wp.array2d(dtype=s), **params, **outputs}),
             wp.overload(_spheres_dense_exponent_kernel, {**rays, **params, "out_exponent": wp.array(dtype=s)}),
+            wp.overload(_spheres_dense_factor_kernel,
+                        {"falloff": wp.array(dtype=s), "delta": wp.array2d(dtype=s), "appearance": wp.array(dtype=v4),
+                         "out_exponent": wp.array(dtype=s)}),
             wp.overload(_spheres_dense_composite_kernel,
-                        {"falloff": wp.array(dtype=s), "t": wp.array2d(dtype=s), "delta": wp.array2d(dtype=s),
+                        {"falloff": wp.array(dtype=s), "factor": wp.array(dtype=s), "t": wp.array2d(dtype=s),
                          "appearance": wp.array(dtype=v4), **outputs}))
         wp.overload(_pack_spheres_kernel, {
             "centers": wp.array2d(dtype=s), "radii": wp.array(dtype=s), "colors": wp.array2d(dtype=s),
@@ -722,11 +791,37 @@ _FIELD_PASSES = {s: (wp.overload(_spheres_exponent4_kernel, {
 _RENDER_DENSE4 = {s: (wp.overload(_spheres_dense_exponent4_kernel, {
     "origins": wp.array(dtype=_VEC3[s]), "dirs": wp.array(dtype=_VEC3[s]), "t4": wp.array2d(dtype=_VEC4[s]),
     "geometry": wp.array(dtype=_VEC4[s]), "appearance": wp.array(dtype=_VEC4[s]), "out4": wp.array(dtype=_VEC4[s])}),
+    wp.overload(_spheres_dense_factor4_kernel, {
+        "f4": wp.array(dtype=_VEC4[s]), "delta4": wp.array2d(dtype=_VEC4[s]), "appearance": wp.array(dtype=_VEC4[s]),
+        "out4": wp.array(dtype=_VEC4[s])}),
     wp.overload(_spheres_dense_composite4_kernel, {
-        "f4": wp.array(dtype=_VEC4[s]), "t4": wp.array2d(dtype=_VEC4[s]), "delta4": wp.array2d(dtype=_VEC4[s]),
+        "f4": wp.array(dtype=_VEC4[s]), "e4": wp.array(dtype=_VEC4[s]), "t4": wp.array2d(dtype=_VEC4[s]),
         "appearance": wp.array(dtype=_VEC4[s]), "background": wp.array(dtype=_VEC3[s]), "t_threshold": s,
         "out_rgb": wp.array(dtype=_VEC3[s]), "out_depth": wp.array(dtype=s), "out_opacity": wp.array(dtype=s)}))
     for s in A.FLOATS}
+
+
+def _floats_in_place(a: A.Inputs, keep: list[np.ndarray], name: str, x: Any, shape: tuple[Any, ...],
+                     finite: bool = True) -> wp.array:
+    """a.floats(name, x, shape, finite=finite) (the same checks and errors), except that a non-empty
+    NumPy argument of a CPU call is not copied: the result is a non-owning wp.array over its
+    contiguous data (the copies and their first-touch page faults were ~0.9 ms of a 64x64 x 64
+    render_dense, docs/performance.md). `keep` holds the NumPy array; the caller keeps `keep` alive
+    while the kernels run."""
+    if not (isinstance(x, np.ndarray) and a.device.is_cpu and x.size):
+        return a.floats(name, x, shape, finite=finite)
+    dtype = A.float_dtype(name, x)
+    if a.scalar is None:
+        a.scalar = dtype
+    elif dtype != a.scalar:
+        raise ValueError(f"{name}: expected dtype {A.type_name(a.scalar)} like the other inputs, "
+                         f"got {A.type_name(dtype)}")
+    A.check_shape(name, x, shape)
+    if finite:
+        A.check_finite(name, x)
+    h = np.ascontiguousarray(x)
+    keep.append(h)
+    return wp.array(ptr=h.ctypes.data, dtype=dtype, shape=h.shape, device=a.device)
 
 
 def _vec_view3(x: wp.array) -> wp.array:

@@ -172,9 +172,11 @@ def test_sphere_render_dense_matches_reference_and_general_path(np_t, wp_t, tol,
     np.testing.assert_allclose(rgb, ref_rgb, rtol=tol * 10, atol=tol * 10)
     np.testing.assert_allclose(depth, ref_depth, rtol=tol * 10, atol=tol * 10 * 6)
     np.testing.assert_allclose(opacity, ref_op, rtol=tol * 10, atol=tol * 10)
+    # On the CPU the general path's numbers bit for bit (test_sphere_render_dense_equals_the_general_path_bitwise).
     general = render_samples(field, dense_samples(o, d, t, delta), background=bg, t_threshold=thr)
-    np.testing.assert_allclose(rgb, general.rgb, rtol=tol, atol=tol)
-    np.testing.assert_allclose(depth, general.depth, rtol=tol, atol=tol * 6)
+    np.testing.assert_array_equal(rgb, general.rgb)
+    np.testing.assert_array_equal(depth, general.depth)
+    np.testing.assert_array_equal(opacity, general.opacity)
     # wp.array rays give wp.array results with the same numbers.
     rgb_wp, _, _ = field.render_dense(*(wp.array(a) for a in (o, d, t, delta)), background=bg, t_threshold=thr)
     assert isinstance(rgb_wp, wp.array)
@@ -189,6 +191,40 @@ def _sphere_rays(rng, n_rays, n_s, np_t):
     t = np.sort(rng.uniform(1.0, 6.0, (n_rays, n_s)), axis=1)
     delta = np.diff(t, axis=1, append=t[:, -1:] + 1e-3)
     return [x.astype(np_t) for x in (o, d, t, delta)]
+
+
+@pytest.mark.parametrize("quads", [True, False], ids=["quads", "single"])
+@pytest.mark.parametrize("n_s", [1, 4, 37, 64])
+@pytest.mark.parametrize("thr", [0.0, 1e-3, 0.3], ids=["no_termination", "late_termination", "early_termination"])
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_sphere_render_dense_equals_the_general_path_bitwise(monkeypatch, np_t, wp_t, thr, n_s, quads):
+    # On the CPU render_dense evaluates the sphere falloffs and the compositing factors
+    # exp(-(sigma delta)) with NumPy's exp, as SphereField.forward and composite_forward do, with the
+    # same operations in the same order: its image, depth and opacity are those of render_samples on
+    # dense_samples bit for bit (what experiments/volume_render_spheres relies on), with NumPy inputs
+    # (read in place, contiguous or not) and wp.array inputs, in one block or several.
+    import kernels.volume.spheres as spheres_module
+    from kernels.volume.sampling import dense_samples
+
+    monkeypatch.setattr(spheres_module, "_QUADS_ON_CPU", quads)
+    rng = np.random.default_rng(12)
+    field = SphereField.textbook(wp_t)
+    n_rays = 45
+    o, d, t, delta = _sphere_rays(rng, n_rays, n_s, np_t)
+    for bg in ((0.0, 0.0, 0.0), (0.1, 0.2, 0.3)):
+        general = render_samples(field, dense_samples(o, d, t, delta), background=bg, t_threshold=thr)
+        want = tuple(x.numpy() for x in (general.rgb, general.depth, general.opacity))  # (wp.arrays)
+        got = field.render_dense(o, d, t, delta, background=bg, t_threshold=thr)
+        strided = field.render_dense(np.asfortranarray(o), d, np.asfortranarray(t), delta, background=bg,
+                                     t_threshold=thr)
+        on_device = field.render_dense(*(wp.array(x) for x in (o, d, t, delta)), background=bg, t_threshold=thr)
+        for w, g, s, dv in zip(want, got, strided, on_device):
+            assert g.dtype == np_t
+            assert w.tobytes() == g.tobytes() == s.tobytes() == dv.numpy().tobytes()
+    monkeypatch.setattr(spheres_module, "_FALLOFF_BLOCK", 7 * n_s * 3)  # 7 rays a block
+    blocked = field.render_dense(o, d, t, delta, background=bg, t_threshold=thr)
+    for w, b in zip(want, blocked):
+        assert w.tobytes() == b.tobytes()
 
 
 @pytest.mark.parametrize("thr", [0.0, 0.3], ids=["no_termination", "early_termination"])
