@@ -25,23 +25,30 @@ dense_samples(o, d, t, delta)) fused into one kernel, one thread per ray: x_k = 
 field at x_k, and the compositing of kernels.volume.composite (z_k = t_k, early termination as
 there), without the packed sample, field-output and factor arrays of the general path (their
 allocation, first-touch page faults and memory traffic were most of the textbook task's time,
-docs/performance.md). Forward only. It evaluates exp(-sigma_k delta_k) with Warp's exp, so it
-agrees with the general path on the CPU (NumPy's exp there) to float rounding. Its sphere loop
+docs/performance.md). Forward only. The one kernel evaluates exp(-sigma_k delta_k) with Warp's
+exp (on the CPU the passes below run instead, equal to the general path bit for bit). Its sphere loop
 reads the parameters packed per sphere as two vec4s (spheres_at_packed; the same arithmetic as
 spheres_at) and the rays' origins, directions and colours as vec3s: fewer indexed loads, whose
 address arithmetic Warp's CPU code repeats for every one.
 
-On the CPU forward and render_dense run in two passes around NumPy instead, over blocks of
-points (or rays) of at most _FALLOFF_BLOCK values: pass 1 writes the exponents -s_k m_k of every
-point (or sample) and sphere of the block, NumPy's vectorised exp turns them into the falloffs
-exp(-s_k m_k) in place (split over the launch threads), and pass 2
-does the rest of spheres_at (spheres_from_falloff) and, for render_dense, the compositing per
-ray. Warp's scalar expf is a library call per sphere and point (every live float register saved
-around it); the one-kernel versions spent most of their time there. The only change is the
-exponential's rounding: NumPy's float32 exp is within 2.4 ulp (Warp's 0.5), so on the textbook
-scene float32 images differ from the fused kernel's by at most 3.0e-7 (depth 9.5e-7), float64 by
-3.4e-16 (depth 1.0e-15). The backward evaluates its own exponentials, as before. On CUDA the
-one-kernel versions run.
+On the CPU forward and render_dense run in passes around NumPy instead, over blocks of points
+(or rays) of at most _FALLOFF_BLOCK values: pass 1 writes the exponents -s_k m_k of every point
+(or sample) and sphere of the block, NumPy's vectorised exp turns them into the falloffs
+exp(-s_k m_k) in place (split over the launch threads), and the last pass does the rest of
+spheres_at (spheres_from_falloff). render_dense has a pass between them: it writes the
+compositing exponents -(sigma_k delta_k) of the block's samples (sigma from the falloffs, the
+same sums), NumPy's exp turns them into the factors exp(-(sigma_k delta_k)) in place, as
+kernels.volume.composite's CPU factor pass does, and the last pass composites each ray with them.
+Warp's scalar expf is a library call per sphere and point (every live float register saved
+around it); the one-kernel versions spent most of their time there. So on the CPU render_dense
+forms every sample, field value, factor and sum as dense_samples, SphereField.forward and
+composite_forward do, in the same order with the same exponentials: its image, depth and opacity
+are those of render_samples on dense_samples bit for bit (tested), without the packed sample,
+field-output and factor arrays. Against the one-kernel versions the only change is the
+exponentials' rounding: NumPy's float32 exp is within 2.4 ulp (Warp's 0.5), so on the textbook
+scene float32 images differ from the fused kernel's by about 1e-6 (depth 4e-6), float64 by
+about 1e-15. The backward evaluates its own exponentials, as before. On CUDA the one-kernel
+versions run.
 
 Quads. The CPU passes take four samples at a time as the lanes of vec4s: the forward's quads are
 points 4q .. 4q+3 (the last quad repeats the last point in its missing lanes and writes only the
@@ -50,8 +57,9 @@ otherwise), with a block's exponents stored sphere by sphere for each quad. Ever
 operations of one sample in the same order (the squares and sums, the square root lane by lane,
 the colour divided where sigma > 1e-6), so the results are bit for bit those of one sample at a
 time; the compiler turns the lane-wise arithmetic into SIMD instructions and the loop and index
-arithmetic is paid once per four samples. render_dense's pass 2 evaluates the four compositing
-exponentials of a quad before its four blend steps (the ones past early termination are unused).
+arithmetic is paid once per four samples. render_dense's last pass takes a quad's four factors
+and, unless the ray terminates inside the quad, runs its four blend steps as straight-line code
+(the transmittances it checks are the products the steps form); else one step at a time.
 """
 
 from __future__ import annotations
@@ -476,11 +484,22 @@ def _spheres_dense_composite4_kernel(
         sig, nr, ng, nb = _spheres_from_falloff4(f4, q * appearance.shape[0] * n_q + jq, n_q, appearance)
         tq = t4[r, jq]
         e = e4[q * n_q + jq]
-        for l in range(4):
-            if T < t_threshold:
-                done = 1
-                break
-            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[l], nr[l], ng[l], nb[l], tq[l])
+        # The transmittances before the four steps (each the product the step itself forms): when
+        # none is below the threshold the four steps run straight, else one at a time up to it.
+        T1 = T * e[0]
+        T2 = T1 * e[1]
+        T3 = T2 * e[2]
+        if T < t_threshold or T1 < t_threshold or T2 < t_threshold or T3 < t_threshold:
+            for l in range(4):
+                if T < t_threshold:
+                    done = 1
+                    break
+                T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[l], nr[l], ng[l], nb[l], tq[l])
+        else:
+            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[0], nr[0], ng[0], nb[0], tq[0])
+            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[1], nr[1], ng[1], nb[1], tq[1])
+            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[2], nr[2], ng[2], nb[2], tq[2])
+            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[3], nr[3], ng[3], nb[3], tq[3])
     _write_pixel(out_rgb, out_depth, out_opacity, r, background, T, cr, cg, cb, dep)
 
 

@@ -231,7 +231,8 @@ def test_sphere_render_dense_equals_the_general_path_bitwise(monkeypatch, np_t, 
 @pytest.mark.parametrize("np_t, wp_t, tol", [(np.float32, wp.float32, 2e-6), (np.float64, wp.float64, 1e-14)])
 def test_sphere_render_dense_fused_kernel_agrees_with_cpu_two_pass_path(monkeypatch, np_t, wp_t, tol, thr):
     # The fused kernel (what runs on CUDA), forced on the CPU, against the CPU path (NumPy's exp of
-    # the sphere falloffs between two launches): the same image to the rounding of the exponentials.
+    # the sphere falloffs and compositing factors between the passes): the same image to the rounding
+    # of the exponentials.
     import kernels.volume.spheres as spheres_module
 
     rng = np.random.default_rng(6)
