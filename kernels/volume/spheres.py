@@ -88,9 +88,10 @@ _FUSED_ON_CPU = False
 _QUADS_ON_CPU = True
 # Falloff values per block of the CPU passes (8 MB in float32): their memory stays bounded at any size.
 _FALLOFF_BLOCK = 1 << 21
-# The CPU passes' split launches: no chunk of fewer items than hold this many falloff values (tens of
-# microseconds of work, about the Python cost of launching a chunk).
-_CHUNK_VALUES = 1 << 14
+# The CPU passes' split launches: no chunk of fewer items than hold this many falloff values (~0.1-0.2 ms
+# of kernel a pass, against 20-40 us of Python a launch; 2^14 made 13 chunks a pass of a 64x64 x 64
+# render_dense, now 6).
+_CHUNK_VALUES = 1 << 17
 
 # The chapter's scene: (centre, radius, colour, sharpness).
 TEXTBOOK_SPHERES = (
@@ -717,7 +718,7 @@ class SphereField(Field):
         A.check_finite("background", bg)
         rgb, depth, opacity = a.empty((n_rays, 3)), a.empty(n_rays), a.empty(n_rays)
         geometry, appearance = self._packed()
-        bg_v = wp.array(bg[None], dtype=_VEC3[self.dtype], device=self.device)
+        bg_v = _background_vec3(bg, self.dtype, self.device)
         o3, d3, rgb3 = _vec_view3(o), _vec_view3(d), _vec_view3(rgb)
         fused, k1, kf, k2 = _RENDER_DENSE[self.dtype]
         if not self.device.is_cpu or _FUSED_ON_CPU:
@@ -840,15 +841,48 @@ def _floats_in_place(a: A.Inputs, keep: list[np.ndarray], name: str, x: Any, sha
         A.check_finite(name, x)
     h = np.ascontiguousarray(x)
     keep.append(h)
-    return wp.array(ptr=h.ctypes.data, dtype=dtype, shape=h.shape, device=a.device)
+    return _view(h.ctypes.data, dtype, h.shape, a.device)
+
+
+_BACKGROUNDS: dict[tuple, wp.array] = {}  # (bytes, dtype, device) -> the checked background as one vec3
+
+
+def _background_vec3(bg: np.ndarray, dtype: Any, device: wp.Device) -> wp.array:
+    """The checked background colour bg (3,) as a one-vec3 array, kept for the next call with the same colour."""
+    key = (bg.tobytes(), dtype, device.alias)
+    arr = _BACKGROUNDS.get(key)
+    if arr is None:
+        if len(_BACKGROUNDS) >= 64:
+            _BACKGROUNDS.clear()
+        arr = _BACKGROUNDS[key] = wp.array(bg[None], dtype=_VEC3[dtype], device=device)
+    return arr
+
+
+# Non-owning views kept by (address, dtype, shape, device). A view is nothing but those four, so a
+# kept one is the same as a new one; a call's arrays come from the host pool (or NumPy's allocator)
+# at the same addresses call after call, and a new wp.array costs ~10 us of Python (about a dozen a
+# render_dense call). Bounded: cleared when full.
+_VIEWS: dict[tuple, wp.array] = {}
+_VIEWS_MAX = 256
+
+
+def _view(ptr: int, dtype: Any, shape: tuple[int, ...], device: wp.Device) -> wp.array:
+    """wp.array(ptr=ptr, dtype=dtype, shape=shape, device=device), kept in _VIEWS."""
+    key = (ptr, dtype, tuple(shape), device.alias)
+    v = _VIEWS.get(key)
+    if v is None:
+        if len(_VIEWS) >= _VIEWS_MAX:
+            _VIEWS.clear()
+        v = _VIEWS[key] = wp.array(ptr=ptr, dtype=dtype, shape=shape, device=device)
+    return v
 
 
 def _vec_view3(x: wp.array) -> wp.array:
     """A contiguous (N, 3) float array seen as N vec3s (zero-copy)."""
-    return wp.array(ptr=x.ptr, dtype=_VEC3[x.dtype], shape=(x.shape[0],), device=x.device)
+    return _view(x.ptr, _VEC3[x.dtype], (x.shape[0],), x.device)
 
 
 def _vec_view(x: wp.array, vec: dict[Any, Any], shape: tuple[int, ...]) -> wp.array:
     """A contiguous float array seen as an array of `shape` of vec[x.dtype] vectors (zero-copy; x
     must stay alive while the view is used)."""
-    return wp.array(ptr=x.ptr, dtype=vec[x.dtype], shape=shape, device=x.device)
+    return _view(x.ptr, vec[x.dtype], shape, x.device)
