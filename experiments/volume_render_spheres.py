@@ -64,9 +64,10 @@ def run(ctx: Context) -> int:
     vec_s = time_median(lambda: tb.render_image_vectorized(h, w, focal), repeats=repeats)
 
     def inputs(np_t):
-        # (cast, then tiled: the same arrays as tiling in float64 and casting, with half the work)
-        return (origins.astype(np_t), dirs.astype(np_t), np.tile(t.astype(np_t), (n_rays, 1)),
-                np.tile(delta.astype(np_t), (n_rays, 1)))
+        # t and delta are the same on every ray: one row each, broadcast to (R, S) without a copy
+        # (render_dense reads the row in place; the same values as tiling it)
+        return (origins.astype(np_t), dirs.astype(np_t), np.broadcast_to(t.astype(np_t), (n_rays, t.shape[0])),
+                np.broadcast_to(delta.astype(np_t), (n_rays, delta.shape[0])))
 
     def warp_render(np_t, wp_t):
         field = SphereField.textbook(wp_t, device=ctx.device)

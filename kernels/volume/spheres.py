@@ -697,7 +697,9 @@ class SphereField(Field):
         """(rgb (R, 3), depth (R,), opacity (R,)) of rays o + t d with explicit samples t (R, S) and
         interval lengths delta (R, S) >= 0 (module docstring: the fused forward of render_samples on
         dense_samples; depth is sum_k w_k t_k). Arrays in the field's dtype; outputs in the kind of
-        `origins`."""
+        `origins`. On the CPU, NumPy t and delta whose rows are one row broadcast
+        (np.broadcast_to(row, (R, S)), the same samples on every ray) are read as that row, without
+        a copy."""
         a = A.Inputs(self.device, origins, dirs, t, delta)
         keep: list[np.ndarray] = []  # NumPy inputs the kernels read in place (_floats_in_place)
         o = _floats_in_place(a, keep, "origins", origins, (None, 3))
@@ -708,7 +710,7 @@ class SphereField(Field):
         d = _floats_in_place(a, keep, "dirs", dirs, (n_rays, 3))
         tt = _floats_in_place(a, keep, "t", t, (n_rays, None))
         dl = _floats_in_place(a, keep, "delta", delta, tuple(tt.shape), finite=False)
-        A.check_at_least("delta", dl, 0.0)
+        A.check_at_least("delta", delta[0] if _broadcast_rows(delta, a) else dl, 0.0)
         t_threshold = A.check_float("t_threshold", t_threshold, nonnegative=True)
         if not t_threshold < 1.0:
             raise ValueError(f"t_threshold: expected a value in [0, 1), got {t_threshold}")
@@ -729,7 +731,7 @@ class SphereField(Field):
         # split launches (module docstring), four samples at a time where the samples of a ray come
         # in fours.
         n_s = tt.shape[1]
-        if n_s % 4 == 0 and _QUADS_ON_CPU:  # (a.floats: t and delta are contiguous)
+        if n_s % 4 == 0 and _QUADS_ON_CPU:  # (t and delta: rows contiguous, _floats_in_place)
             k1, kf, k2 = _RENDER_DENSE4[self.dtype]
             t4, dl4 = (_vec_view(x, _VEC4, (n_rays, n_s // 4)) for x in (tt, dl))
             self._two_passes(a, n_rays, n_s, k1, [o3, d3, t4], k2,
@@ -837,11 +839,24 @@ def _floats_in_place(a: A.Inputs, keep: list[np.ndarray], name: str, x: Any, sha
         raise ValueError(f"{name}: expected dtype {A.type_name(a.scalar)} like the other inputs, "
                          f"got {A.type_name(dtype)}")
     A.check_shape(name, x, shape)
+    if _broadcast_rows(x, a):
+        # every row is row 0: checked once, and read through a zero row stride
+        if finite:
+            A.check_finite(name, x[0])
+        keep.append(x)
+        return _view(x.ctypes.data, dtype, x.shape, a.device, (0, x.strides[1]))
     if finite:
         A.check_finite(name, x)
     h = np.ascontiguousarray(x)
     keep.append(h)
     return _view(h.ctypes.data, dtype, h.shape, a.device)
+
+
+def _broadcast_rows(x: Any, a: A.Inputs) -> bool:
+    """Whether x is a 2-D NumPy array of a CPU call whose rows are all its first row (row stride 0,
+    np.broadcast_to) with contiguous entries."""
+    return (isinstance(x, np.ndarray) and a.device.is_cpu and x.ndim == 2 and x.size > 0 and x.strides[0] == 0
+            and x.strides[1] == x.itemsize)
 
 
 _BACKGROUNDS: dict[tuple, wp.array] = {}  # (bytes, dtype, device) -> the checked background as one vec3
@@ -866,14 +881,15 @@ _VIEWS: dict[tuple, wp.array] = {}
 _VIEWS_MAX = 256
 
 
-def _view(ptr: int, dtype: Any, shape: tuple[int, ...], device: wp.Device) -> wp.array:
-    """wp.array(ptr=ptr, dtype=dtype, shape=shape, device=device), kept in _VIEWS."""
-    key = (ptr, dtype, tuple(shape), device.alias)
+def _view(ptr: int, dtype: Any, shape: tuple[int, ...], device: wp.Device,
+          strides: tuple[int, ...] | None = None) -> wp.array:
+    """wp.array(ptr=ptr, dtype=dtype, shape=shape, strides=strides, device=device), kept in _VIEWS."""
+    key = (ptr, dtype, tuple(shape), strides, device.alias)
     v = _VIEWS.get(key)
     if v is None:
         if len(_VIEWS) >= _VIEWS_MAX:
             _VIEWS.clear()
-        v = _VIEWS[key] = wp.array(ptr=ptr, dtype=dtype, shape=shape, device=device)
+        v = _VIEWS[key] = wp.array(ptr=ptr, dtype=dtype, shape=shape, strides=strides, device=device)
     return v
 
 
@@ -884,5 +900,9 @@ def _vec_view3(x: wp.array) -> wp.array:
 
 def _vec_view(x: wp.array, vec: dict[Any, Any], shape: tuple[int, ...]) -> wp.array:
     """A contiguous float array seen as an array of `shape` of vec[x.dtype] vectors (zero-copy; x
-    must stay alive while the view is used)."""
-    return _view(x.ptr, vec[x.dtype], shape, x.device)
+    must stay alive while the view is used). A 2-D x whose rows are one row (row stride 0) gives
+    rows that are that row's vectors."""
+    v = vec[x.dtype]
+    if x.ndim == 2 and x.strides[0] == 0:
+        return _view(x.ptr, v, shape, x.device, (0, wp.types.type_size_in_bytes(v)))
+    return _view(x.ptr, v, shape, x.device)

@@ -208,9 +208,11 @@ def _spheres_case(dev, threads: int, tiny: bool, sync, compare: bool) -> dict:
         return render_samples(field, s, background=(0.0, 0.0, 0.0), t_threshold=0.0).rgb.numpy()
 
     def render_fused():  # the same image through SphereField.render_dense, as experiments/volume_render_spheres
+        # (t and delta: one row broadcast to every ray, as the experiment passes them)
         rgb, _, _ = field.render_dense(origins.astype(np.float32), dirs.astype(np.float32),
-                                       np.tile(t.astype(np.float32), (n_rays, 1)),
-                                       np.tile(delta.astype(np.float32), (n_rays, 1)), t_threshold=0.0)
+                                       np.broadcast_to(t.astype(np.float32), (n_rays, t.shape[0])),
+                                       np.broadcast_to(delta.astype(np.float32), (n_rays, delta.shape[0])),
+                                       t_threshold=0.0)
         return rgb
 
     fns = {"render": render, "render_fused": render_fused}

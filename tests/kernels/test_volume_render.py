@@ -227,6 +227,36 @@ def test_sphere_render_dense_equals_the_general_path_bitwise(monkeypatch, np_t, 
         assert w.tobytes() == b.tobytes()
 
 
+@pytest.mark.parametrize("n_s", [5, 64])
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_sphere_render_dense_reads_broadcast_rows_of_t_and_delta_in_place(monkeypatch, np_t, wp_t, n_s):
+    # t and delta given as one row broadcast to every ray (np.broadcast_to: row stride 0) are read
+    # without a copy, with the same outputs bit for bit as the tiled arrays, and checked as them.
+    import kernels.volume.spheres as spheres_module
+
+    rng = np.random.default_rng(13)
+    field = SphereField.textbook(wp_t)
+    n_rays = 33
+    o, d, _, _ = _sphere_rays(rng, n_rays, n_s, np_t)
+    t_row = np.sort(rng.uniform(1.0, 6.0, n_s)).astype(np_t)
+    dl_row = np.diff(t_row, append=t_row[-1] + 1e-3).astype(np_t)
+    tiled = [np.tile(x, (n_rays, 1)) for x in (t_row, dl_row)]
+    broadcast = [np.broadcast_to(x, (n_rays, n_s)) for x in (t_row, dl_row)]
+    for fused in (False, True):  # the CPU passes, and the one-kernel version (CUDA's) forced on the CPU
+        monkeypatch.setattr(spheres_module, "_FUSED_ON_CPU", fused)
+        for thr in (0.0, 0.3):
+            want = field.render_dense(o, d, *tiled, background=(0.1, 0.2, 0.3), t_threshold=thr)
+            got = field.render_dense(o, d, *broadcast, background=(0.1, 0.2, 0.3), t_threshold=thr)
+            for w, g in zip(want, got):
+                assert w.tobytes() == g.tobytes()
+    bad_t, bad_dl = t_row.copy(), dl_row.copy()
+    bad_t[2], bad_dl[1] = np.nan, -0.5
+    with pytest.raises(ValueError, match="^t: expected finite values"):
+        field.render_dense(o, d, np.broadcast_to(bad_t, (n_rays, n_s)), broadcast[1])
+    with pytest.raises(ValueError, match="^delta: "):
+        field.render_dense(o, d, broadcast[0], np.broadcast_to(bad_dl, (n_rays, n_s)))
+
+
 @pytest.mark.parametrize("thr", [0.0, 0.3], ids=["no_termination", "early_termination"])
 @pytest.mark.parametrize("np_t, wp_t, tol", [(np.float32, wp.float32, 2e-6), (np.float64, wp.float64, 1e-14)])
 def test_sphere_render_dense_fused_kernel_agrees_with_cpu_two_pass_path(monkeypatch, np_t, wp_t, tol, thr):
