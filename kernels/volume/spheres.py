@@ -74,7 +74,7 @@ from kernels import _arrays as A
 from kernels.volume._checks import check_dtype
 from kernels.volume.composite import DEFAULT_T_THRESHOLD
 from kernels.volume.field import Field, FieldOutput
-from kernels.launch import parallel_ranges
+from kernels.launch import default_threads, guided_bounds, parallel_items
 from kernels.volume.workspace import Workspace
 
 wp.set_module_options({"enable_backward": False})
@@ -88,9 +88,9 @@ _FUSED_ON_CPU = False
 _QUADS_ON_CPU = True
 # Falloff values per block of the CPU passes (8 MB in float32): their memory stays bounded at any size.
 _FALLOFF_BLOCK = 1 << 21
-# The CPU passes' split launches: no chunk of fewer items than hold this many falloff values (~0.1-0.2 ms
-# of kernel a pass, against 20-40 us of Python a launch; 2^14 made 13 chunks a pass of a 64x64 x 64
-# render_dense, now 6).
+# The CPU passes' chunks (SphereField._two_passes): no chunk of fewer items than hold this many falloff
+# values (~0.1-0.2 ms of kernel a pass, against 20-40 us of Python a launch; a 64x64 x 64 render_dense is
+# cut into 6 chunks at 2 threads).
 _CHUNK_VALUES = 1 << 17
 
 # The chapter's scene: (centre, radius, colour, sharpness).
@@ -646,14 +646,20 @@ class SphereField(Field):
                     pass2: Any, pass2_inputs: list[Any], geometry: wp.array, appearance: wp.array,
                     quads: bool = False, factor_pass: tuple[Any, list[Any]] | None = None) -> None:
         """The CPU passes (module docstring) over n_items points, rays or quads of samples_per_item
-        samples, in blocks of at most _FALLOFF_BLOCK falloff values (bounded memory, and a block is
-        still in cache when pass 2 reads it): `pass1` writes the exponents -s_k m_k of a block,
-        NumPy's exp (split over the launch threads) turns them into falloffs in place, `pass2`
-        consumes them. With `quads` the kernels see the block's values as vec4s.
+        samples, in blocks of at most _FALLOFF_BLOCK falloff values (bounded memory): `pass1` writes
+        the exponents -s_k m_k, NumPy's exp turns them into falloffs in place, `pass2` consumes
+        them. With `quads` the kernels see the values as vec4s.
 
         `factor_pass` (kernel, inputs), for render_dense: between the two, that kernel writes the
-        compositing exponents -(sigma delta) of the block's samples, NumPy's exp turns them into the
-        factors in place, and `pass2` takes them as its second argument."""
+        compositing exponents -(sigma delta) of the samples, NumPy's exp turns them into the
+        factors in place, and `pass2` takes them as its second argument.
+
+        A block is cut into chunks of items (guided, kernels.launch.guided_bounds, none smaller than
+        _CHUNK_VALUES falloff values; one chunk on one thread) and the launch threads take the
+        chunks one at a time, each running every pass and exp over its chunk in turn: the items are
+        independent, so the outputs are those of pass after pass over the whole block, with one
+        hand-off between threads a block instead of one a pass and a chunk's values still in the
+        core's cache for the next pass."""
         per_item = samples_per_item * geometry.shape[0]
         block = max(1, min(n_items, _FALLOFF_BLOCK // max(per_item, 1)))
         falloff = a.empty(block * per_item)
@@ -666,14 +672,30 @@ class SphereField(Field):
         else:
             factors = []
         min_chunk = max(1, _CHUNK_VALUES // max(per_item, 1))
+        threads = default_threads()
+        lanes = 4 if quads else 1
+        dev = a.device
         for base in range(0, n_items, block):
             nb = min(block, n_items - base)
-            a.launch(pass1, nb, [*pass1_inputs, geometry, appearance, values, base], min_chunk=min_chunk)
-            parallel_ranges(lambda lo, hi: np.exp(f[lo:hi], out=f[lo:hi]), nb * per_item)
-            if factor_pass is not None:
-                a.launch(factor_pass[0], nb, [values, *factor_pass[1], *factors, base], min_chunk=min_chunk)
-                parallel_ranges(lambda lo, hi: np.exp(e[lo:hi], out=e[lo:hi]), nb * samples_per_item)
-            a.launch(pass2, nb, [values, *factors, *pass2_inputs, base], min_chunk=min_chunk)
+            bounds = guided_bounds(nb, threads, min_chunk) if threads > 1 and nb >= 2 * min_chunk else [(0, nb)]
+
+            def chunk(j: int, base: int = base, bounds: list[tuple[int, int]] = bounds) -> None:
+                # every pass over the chunk's items [lo, lo + n) of the block, one after the other on this
+                # thread; the kernels see the chunk's falloffs (and factors) from their start
+                lo, n = bounds[j]
+                v0, v1 = lo * per_item, (lo + n) * per_item
+                fv = _view(falloff.ptr + v0 * f.itemsize, values.dtype, ((v1 - v0) // lanes,), dev)
+                wp.launch(pass1, dim=n, inputs=[*pass1_inputs, geometry, appearance, fv, base + lo, 0], device=dev)
+                np.exp(f[v0:v1], out=f[v0:v1])
+                ev = []
+                if factor_pass is not None:
+                    e0, e1 = lo * samples_per_item, (lo + n) * samples_per_item
+                    ev = [_view(factor.ptr + e0 * e.itemsize, factors[0].dtype, ((e1 - e0) // lanes,), dev)]
+                    wp.launch(factor_pass[0], dim=n, inputs=[fv, *factor_pass[1], *ev, base + lo, 0], device=dev)
+                    np.exp(e[e0:e1], out=e[e0:e1])
+                wp.launch(pass2, dim=n, inputs=[fv, *ev, *pass2_inputs, base + lo, 0], device=dev)
+
+            parallel_items(chunk, len(bounds), threads=threads)
 
     def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
         a, p, _ = self._inputs(points, dirs)

@@ -227,6 +227,36 @@ def test_sphere_render_dense_equals_the_general_path_bitwise(monkeypatch, np_t, 
         assert w.tobytes() == b.tobytes()
 
 
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_sphere_cpu_passes_are_the_same_in_any_chunks(monkeypatch, np_t, wp_t):
+    # The CPU passes of render_dense and SphereField.forward cut their items into chunks, each run
+    # through every pass by one launch thread: one chunk, many small chunks on 1 to 3 threads and
+    # several blocks give the same outputs bit for bit.
+    import kernels.volume.spheres as spheres_module
+
+    rng = np.random.default_rng(14)
+    field = SphereField.textbook(wp_t)
+    pts = rng.uniform([-2.0, -1.5, 2.5], [2.5, 1.5, 6.0], (4999, 3)).astype(np_t)
+    renders = {n_s: _sphere_rays(rng, 61, n_s, np_t) for n_s in (8, 37)}
+
+    def outputs():
+        out = field.forward(pts)
+        res = [np.asarray(out.sigma).tobytes(), np.asarray(out.rgb).tobytes()]
+        for thr in (0.0, 0.3):
+            res += [x.tobytes() for n_s in renders
+                    for x in field.render_dense(*renders[n_s], background=(0.1, 0.2, 0.3), t_threshold=thr)]
+        return res
+
+    monkeypatch.setattr(spheres_module, "default_threads", lambda: 1)
+    want = outputs()
+    monkeypatch.setattr(spheres_module, "_CHUNK_VALUES", 64)  # chunks of 2 or 1 rays (24 or 111 values a ray), 5 quads of points
+    for threads in (1, 2, 3):
+        monkeypatch.setattr(spheres_module, "default_threads", lambda threads=threads: threads)
+        assert outputs() == want
+    monkeypatch.setattr(spheres_module, "_FALLOFF_BLOCK", 4 * 8 * 3 * 5)  # blocks of 5 rays (of 8 samples), 40 quads
+    assert outputs() == want
+
+
 @pytest.mark.parametrize("n_s", [5, 64])
 @pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
 def test_sphere_render_dense_reads_broadcast_rows_of_t_and_delta_in_place(monkeypatch, np_t, wp_t, n_s):
