@@ -249,7 +249,8 @@ def test_sphere_cpu_passes_are_the_same_in_any_chunks(monkeypatch, np_t, wp_t):
 
     monkeypatch.setattr(spheres_module, "default_threads", lambda: 1)
     want = outputs()
-    monkeypatch.setattr(spheres_module, "_CHUNK_VALUES", 64)  # chunks of 2 or 1 rays (24 or 111 values a ray), 5 quads of points
+    # chunks of 2 or 1 rays (24 or 111 values a ray), and of 5 quads of points
+    monkeypatch.setattr(spheres_module, "_CHUNK_VALUES", 64)
     for threads in (1, 2, 3):
         monkeypatch.setattr(spheres_module, "default_threads", lambda threads=threads: threads)
         assert outputs() == want
