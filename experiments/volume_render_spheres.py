@@ -10,8 +10,12 @@ Renders, all from the same rays and samples:
   * numpy_loop   a plain NumPy port of the textbook's render_ray (loops over pixels, samples and
                  spheres, as the snippet does; research/nerf/textbook.py) -- the reference;
   * numpy_vec    the same formula vectorised over rays and samples;
-  * warp         kernels.volume (SphereField + compositing kernel) in float64 and float32.
-The float64 Warp image must agree with the loop port to 1e-5 (the script fails otherwise).
+  * warp         kernels.volume in float64 and float32: SphereField.render_dense, which places the
+                 samples, evaluates the spheres and composites per ray (the timed render), and the
+                 general path (dense_samples, SphereField.forward, the compositing kernel), untimed,
+                 which on the CPU gives the same image bit for bit.
+The float64 Warp image must agree with the loop port to 1e-5, and on the CPU the two Warp paths
+must give identical images (the script fails otherwise).
 A fourth image renders the same scene through research.nerf.render_image with the project's
 camera convention (OpenCV, pixel centres at +0.5, 64 midpoint strata on [1, 6]) with its
 z-depth and opacity maps; the textbook's frame (y up, z forward) is the mirror image of a real
@@ -59,20 +63,34 @@ def run(ctx: Context) -> int:
     vec_img = tb.render_image_vectorized(h, w, focal)
     vec_s = time_median(lambda: tb.render_image_vectorized(h, w, focal), repeats=repeats)
 
+    def inputs(np_t):
+        # t and delta are the same on every ray: one row each, broadcast to (R, S) without a copy
+        # (render_dense reads the row in place; the same values as tiling it)
+        return (origins.astype(np_t), dirs.astype(np_t), np.broadcast_to(t.astype(np_t), (n_rays, t.shape[0])),
+                np.broadcast_to(delta.astype(np_t), (n_rays, delta.shape[0])))
+
     def warp_render(np_t, wp_t):
         field = SphereField.textbook(wp_t, device=ctx.device)
 
         def run():
-            # (cast, then tiled: the same arrays as tiling in float64 and casting, with half the work)
-            s = dense_samples(origins.astype(np_t), dirs.astype(np_t), np.tile(t.astype(np_t), (n_rays, 1)),
-                              np.tile(delta.astype(np_t), (n_rays, 1)), device=ctx.device)
-            return render_samples(field, s, background=(0.0, 0.0, 0.0), t_threshold=0.0).rgb.numpy()
+            # SphereField.render_dense: samples, field and compositing per ray, the fused forward of
+            # render_samples on dense_samples
+            rgb, _, _ = field.render_dense(*inputs(np_t), background=(0.0, 0.0, 0.0), t_threshold=0.0)
+            return rgb
 
-        img = run().reshape(h, w, 3).astype(np.float64)
-        return img, time_median(run, repeats=repeats, sync=lambda: wp.synchronize_device(ctx.device))
+        img = run()
+        # The general path (packed samples, the field's forward, the compositing kernel), untimed: on
+        # the CPU the same image bit for bit (kernels.volume.spheres), elsewhere to float rounding.
+        general = render_samples(field, dense_samples(*inputs(np_t), device=ctx.device), background=(0.0, 0.0, 0.0),
+                                 t_threshold=0.0).rgb.numpy()
+        diff = {"bitwise_equal": bool(general.tobytes() == img.tobytes()),
+                "max_abs_diff": float(np.abs(general.astype(np.float64) - img).max())}
+        secs = time_median(run, repeats=repeats, sync=lambda: wp.synchronize_device(ctx.device))
+        return img.reshape(h, w, 3).astype(np.float64), secs, diff
 
-    warp64, warp64_s = warp_render(np.float64, wp.float64)
-    warp32, warp32_s = warp_render(np.float32, wp.float32)
+    warp64, warp64_s, general64 = warp_render(np.float64, wp.float64)
+    warp32, warp32_s, general32 = warp_render(np.float32, wp.float32)
+    vs_general = {"warp_float64": general64, "warp_float32": general32}
     err = {name: float(np.abs(img - ref).max()) for name, img in
            (("numpy_vec", vec_img), ("warp_float64", warp64), ("warp_float32", warp32))}
 
@@ -101,11 +119,17 @@ def run(ctx: Context) -> int:
              + f"\nWarp float64 agrees with the NumPy port to {err['warp_float64']:.1e} "
              f"(required: {AGREEMENT_TOL:g}). Speed-up of Warp float64 over the loop port: "
              f"{loop_s / warp64_s:.0f}x; over vectorised NumPy: {vec_s / warp64_s:.1f}x.\n"
+             "\nThe Warp renders run SphereField.render_dense (samples, field and compositing per ray). The general "
+             "path (dense_samples, the field's forward, the compositing kernel) renders the same image"
+             + ("" if all(v["bitwise_equal"] for v in vs_general.values()) else " to float rounding")
+             + ": max |difference| " + ", ".join(f"{k} {v['max_abs_diff']:.1e}" for k, v in vs_general.items())
+             + ".\n"
              f"\nThe OpenCV-convention render (pixel centres, y down) has mean opacity {cv.opacity.mean():.3f} and "
              f"z-depth range [{cv.depth[cv.opacity > 0.5].min():.3f}, {cv.depth[cv.opacity > 0.5].max():.3f}] "
              "where opacity > 0.5.\n")
     metrics = {"numpy_loop_s": loop_s, "numpy_vectorized_s": vec_s, "warp_float64_s": warp64_s,
                "warp_float32_s": warp32_s, "max_abs_err": err, "agreement_tol": AGREEMENT_TOL,
+               "render_dense_vs_general_path": vs_general,
                "image_min": float(ref.min()), "image_max": float(ref.max()),
                "opencv_render": {"mean_opacity": float(cv.opacity.mean()), "n_samples": cv.n_samples}}
     config = {"quick": ctx.quick, "height": h, "width": w, "focal": focal,
@@ -113,6 +137,9 @@ def run(ctx: Context) -> int:
     ctx.write_results(config=config, metrics=metrics, table_md=table)
     if not err["warp_float64"] <= AGREEMENT_TOL:
         print(f"FAIL: Warp float64 differs from the NumPy port by {err['warp_float64']:.3g}", file=sys.stderr)
+        return 1
+    if wp.get_device(ctx.device).is_cpu and not all(v["bitwise_equal"] for v in vs_general.values()):
+        print(f"FAIL: render_dense and the general path differ on the CPU: {vs_general}", file=sys.stderr)
         return 1
     return 0
 

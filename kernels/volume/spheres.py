@@ -25,23 +25,30 @@ dense_samples(o, d, t, delta)) fused into one kernel, one thread per ray: x_k = 
 field at x_k, and the compositing of kernels.volume.composite (z_k = t_k, early termination as
 there), without the packed sample, field-output and factor arrays of the general path (their
 allocation, first-touch page faults and memory traffic were most of the textbook task's time,
-docs/performance.md). Forward only. It evaluates exp(-sigma_k delta_k) with Warp's exp, so it
-agrees with the general path on the CPU (NumPy's exp there) to float rounding. Its sphere loop
+docs/performance.md). Forward only. The one kernel evaluates exp(-sigma_k delta_k) with Warp's
+exp (on the CPU the passes below run instead, equal to the general path bit for bit). Its sphere loop
 reads the parameters packed per sphere as two vec4s (spheres_at_packed; the same arithmetic as
 spheres_at) and the rays' origins, directions and colours as vec3s: fewer indexed loads, whose
 address arithmetic Warp's CPU code repeats for every one.
 
-On the CPU forward and render_dense run in two passes around NumPy instead, over blocks of
-points (or rays) of at most _FALLOFF_BLOCK values: pass 1 writes the exponents -s_k m_k of every
-point (or sample) and sphere of the block, NumPy's vectorised exp turns them into the falloffs
-exp(-s_k m_k) in place (split over the launch threads), and pass 2
-does the rest of spheres_at (spheres_from_falloff) and, for render_dense, the compositing per
-ray. Warp's scalar expf is a library call per sphere and point (every live float register saved
-around it); the one-kernel versions spent most of their time there. The only change is the
-exponential's rounding: NumPy's float32 exp is within 2.4 ulp (Warp's 0.5), so on the textbook
-scene float32 images differ from the fused kernel's by at most 3.0e-7 (depth 9.5e-7), float64 by
-3.4e-16 (depth 1.0e-15). The backward evaluates its own exponentials, as before. On CUDA the
-one-kernel versions run.
+On the CPU forward and render_dense run in passes around NumPy instead, over blocks of points
+(or rays) of at most _FALLOFF_BLOCK values: pass 1 writes the exponents -s_k m_k of every point
+(or sample) and sphere of the block, NumPy's vectorised exp turns them into the falloffs
+exp(-s_k m_k) in place (split over the launch threads), and the last pass does the rest of
+spheres_at (spheres_from_falloff). render_dense has a pass between them: it writes the
+compositing exponents -(sigma_k delta_k) of the block's samples (sigma from the falloffs, the
+same sums), NumPy's exp turns them into the factors exp(-(sigma_k delta_k)) in place, as
+kernels.volume.composite's CPU factor pass does, and the last pass composites each ray with them.
+Warp's scalar expf is a library call per sphere and point (every live float register saved
+around it); the one-kernel versions spent most of their time there. So on the CPU render_dense
+forms every sample, field value, factor and sum as dense_samples, SphereField.forward and
+composite_forward do, in the same order with the same exponentials: its image, depth and opacity
+are those of render_samples on dense_samples bit for bit (tested), without the packed sample,
+field-output and factor arrays. Against the one-kernel versions the only change is the
+exponentials' rounding: NumPy's float32 exp is within 2.4 ulp (Warp's 0.5), so on the textbook
+scene float32 images differ from the fused kernel's by about 1e-6 (depth 4e-6), float64 by
+about 1e-15. The backward evaluates its own exponentials, as before. On CUDA the one-kernel
+versions run.
 
 Quads. The CPU passes take four samples at a time as the lanes of vec4s: the forward's quads are
 points 4q .. 4q+3 (the last quad repeats the last point in its missing lanes and writes only the
@@ -50,8 +57,9 @@ otherwise), with a block's exponents stored sphere by sphere for each quad. Ever
 operations of one sample in the same order (the squares and sums, the square root lane by lane,
 the colour divided where sigma > 1e-6), so the results are bit for bit those of one sample at a
 time; the compiler turns the lane-wise arithmetic into SIMD instructions and the loop and index
-arithmetic is paid once per four samples. render_dense's pass 2 evaluates the four compositing
-exponentials of a quad before its four blend steps (the ones past early termination are unused).
+arithmetic is paid once per four samples. render_dense's last pass takes a quad's four factors
+and, unless the ray terminates inside the quad, runs its four blend steps as straight-line code
+(the transmittances it checks are the products the steps form); else one step at a time.
 """
 
 from __future__ import annotations
@@ -66,7 +74,7 @@ from kernels import _arrays as A
 from kernels.volume._checks import check_dtype
 from kernels.volume.composite import DEFAULT_T_THRESHOLD
 from kernels.volume.field import Field, FieldOutput
-from kernels.launch import parallel_ranges
+from kernels.launch import default_threads, guided_bounds, parallel_items
 from kernels.volume.workspace import Workspace
 
 wp.set_module_options({"enable_backward": False})
@@ -80,9 +88,10 @@ _FUSED_ON_CPU = False
 _QUADS_ON_CPU = True
 # Falloff values per block of the CPU passes (8 MB in float32): their memory stays bounded at any size.
 _FALLOFF_BLOCK = 1 << 21
-# The CPU passes' split launches: no chunk of fewer items than hold this many falloff values (tens of
-# microseconds of work, about the Python cost of launching a chunk).
-_CHUNK_VALUES = 1 << 14
+# The CPU passes' chunks (SphereField._two_passes): no chunk of fewer items than hold this many falloff
+# values (~0.1-0.2 ms of kernel a pass, against 20-40 us of Python a launch; a 64x64 x 64 render_dense is
+# cut into 6 chunks at 2 threads).
+_CHUNK_VALUES = 1 << 17
 
 # The chapter's scene: (centre, radius, colour, sharpness).
 TEXTBOOK_SPHERES = (
@@ -300,15 +309,41 @@ def _spheres_dense_exponent_kernel(
                          out_exponent, (q * n_s + j) * geometry.shape[0])
 
 
+@wp.func
+def sigma_from_falloff(falloff: wp.array(dtype=typing.Any), i: int, appearance: wp.array(dtype=typing.Any)):
+    """The sigma of spheres_from_falloff alone: the same products and sums in the same order."""
+    sig = falloff.dtype(0.0)
+    for k in range(appearance.shape[0]):
+        d = appearance[k][3] * falloff[i + k]
+        sig += d
+    return sig
+
+
+@wp.kernel
+def _spheres_dense_factor_kernel(
+    falloff: wp.array(dtype=typing.Any), delta: wp.array2d(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
+    out_exponent: wp.array(dtype=typing.Any), base: int, offset: int,
+):
+    # CPU render_dense, pass 2 over the block from `base`: the compositing exponents -(sigma delta) of
+    # every sample (NumPy's exp turns them into the factors, as kernels.volume.composite does).
+    q = wp.tid() + offset
+    r = base + q
+    n_s = delta.shape[1]
+    for j in range(n_s):
+        sig = sigma_from_falloff(falloff, (q * n_s + j) * appearance.shape[0], appearance)
+        out_exponent[q * n_s + j] = -(sig * delta[r, j])
+
+
 @wp.kernel
 def _spheres_dense_composite_kernel(
-    falloff: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any), delta: wp.array2d(dtype=typing.Any),
+    falloff: wp.array(dtype=typing.Any), factor: wp.array(dtype=typing.Any), t: wp.array2d(dtype=typing.Any),
     appearance: wp.array(dtype=typing.Any), background: wp.array(dtype=typing.Any), t_threshold: typing.Any,
     out_rgb: wp.array(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_opacity: wp.array(dtype=typing.Any), base: int, offset: int,
 ):
-    # CPU render_dense, pass 2 over the block from `base`: the spheres from the falloffs, composited
-    # as the fused kernel does.
+    # CPU render_dense, pass 3 over the block from `base`: the spheres from the falloffs, composited
+    # as the fused kernel does with the factors exp(-sigma delta) of pass 2 (sample (r, j) at
+    # (r - base) S + j).
     q = wp.tid() + offset
     r = base + q
     one = t.dtype(1.0)
@@ -322,7 +357,7 @@ def _spheres_dense_composite_kernel(
         if T < t_threshold:
             break
         sig, nr, ng, nb = spheres_from_falloff(falloff, (q * n_s + j) * appearance.shape[0], appearance)
-        T, cr, cg, cb, dep = _blend_sample(T, cr, cg, cb, dep, sig, nr, ng, nb, t[r, j], delta[r, j])
+        T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, factor[q * n_s + j], nr, ng, nb, t[r, j])
     _write_pixel(out_rgb, out_depth, out_opacity, r, background, T, cr, cg, cb, dep)
 
 
@@ -399,16 +434,42 @@ def _spheres_dense_exponent4_kernel(
                            q * geometry.shape[0] * n_q + jq, n_q)
 
 
+@wp.func
+def _sigma_from_falloff4(f4: wp.array(dtype=typing.Any), i: int, stride: int, appearance: wp.array(dtype=typing.Any)):
+    """The sigma of _spheres_from_falloff4 alone (vec4): the same products and sums in the same order."""
+    sig = type(f4[i])()
+    for k in range(appearance.shape[0]):
+        d = appearance[k][3] * f4[i + k * stride]
+        sig = sig + d
+    return sig
+
+
+@wp.kernel
+def _spheres_dense_factor4_kernel(
+    f4: wp.array(dtype=typing.Any), delta4: wp.array2d(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
+    out4: wp.array(dtype=typing.Any), base: int, offset: int,
+):
+    # CPU render_dense, pass 2 with S % 4 == 0: the compositing exponents -(sigma delta) of samples
+    # 4 jq .. 4 jq + 3 of ray r = base + q at out4[q S/4 + jq], lane by lane.
+    q = wp.tid() + offset
+    r = base + q
+    n_q = delta4.shape[1]
+    for jq in range(n_q):
+        sig = _sigma_from_falloff4(f4, q * appearance.shape[0] * n_q + jq, n_q, appearance)
+        out4[q * n_q + jq] = -wp.cw_mul(sig, delta4[r, jq])
+
+
 @wp.kernel
 def _spheres_dense_composite4_kernel(
-    f4: wp.array(dtype=typing.Any), t4: wp.array2d(dtype=typing.Any), delta4: wp.array2d(dtype=typing.Any),
+    f4: wp.array(dtype=typing.Any), e4: wp.array(dtype=typing.Any), t4: wp.array2d(dtype=typing.Any),
     appearance: wp.array(dtype=typing.Any), background: wp.array(dtype=typing.Any), t_threshold: typing.Any,
     out_rgb: wp.array(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
     out_opacity: wp.array(dtype=typing.Any), base: int, offset: int,
 ):
-    # CPU render_dense, pass 2 with S % 4 == 0: the spheres of four samples at a time from the
-    # falloffs, their four exponentials exp(-sigma delta), then the four blend steps one after the
-    # other (early termination as the fused kernel: the steps after it are not taken).
+    # CPU render_dense, pass 3 with S % 4 == 0: the spheres of four samples at a time from the
+    # falloffs, their four factors exp(-sigma delta) from pass 2 (e4[q S/4 + jq]), then the four
+    # blend steps one after the other (early termination as the fused kernel: the steps after it
+    # are not taken).
     q = wp.tid() + offset
     r = base + q
     T = type(t_threshold)(1.0)
@@ -423,14 +484,23 @@ def _spheres_dense_composite4_kernel(
             break
         sig, nr, ng, nb = _spheres_from_falloff4(f4, q * appearance.shape[0] * n_q + jq, n_q, appearance)
         tq = t4[r, jq]
-        dq = delta4[r, jq]
-        e = type(sig)(wp.exp(-sig[0] * dq[0]), wp.exp(-sig[1] * dq[1]), wp.exp(-sig[2] * dq[2]),
-                      wp.exp(-sig[3] * dq[3]))
-        for l in range(4):
-            if T < t_threshold:
-                done = 1
-                break
-            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[l], nr[l], ng[l], nb[l], tq[l])
+        e = e4[q * n_q + jq]
+        # The transmittances before the four steps (each the product the step itself forms): when
+        # none is below the threshold the four steps run straight, else one at a time up to it.
+        T1 = T * e[0]
+        T2 = T1 * e[1]
+        T3 = T2 * e[2]
+        if T < t_threshold or T1 < t_threshold or T2 < t_threshold or T3 < t_threshold:
+            for l in range(4):
+                if T < t_threshold:
+                    done = 1
+                    break
+                T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[l], nr[l], ng[l], nb[l], tq[l])
+        else:
+            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[0], nr[0], ng[0], nb[0], tq[0])
+            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[1], nr[1], ng[1], nb[1], tq[1])
+            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[2], nr[2], ng[2], nb[2], tq[2])
+            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[3], nr[3], ng[3], nb[3], tq[3])
     _write_pixel(out_rgb, out_depth, out_opacity, r, background, T, cr, cg, cb, dep)
 
 
@@ -574,23 +644,58 @@ class SphereField(Field):
 
     def _two_passes(self, a: A.Inputs, n_items: int, samples_per_item: int, pass1: Any, pass1_inputs: list[Any],
                     pass2: Any, pass2_inputs: list[Any], geometry: wp.array, appearance: wp.array,
-                    quads: bool = False) -> None:
+                    quads: bool = False, factor_pass: tuple[Any, list[Any]] | None = None) -> None:
         """The CPU passes (module docstring) over n_items points, rays or quads of samples_per_item
-        samples, in blocks of at most _FALLOFF_BLOCK falloff values (bounded memory, and a block is
-        still in cache when pass 2 reads it): `pass1` writes the exponents -s_k m_k of a block,
-        NumPy's exp (split over the launch threads) turns them into falloffs in place, `pass2`
-        consumes them. With `quads` the kernels see the block's values as vec4s."""
+        samples, in blocks of at most _FALLOFF_BLOCK falloff values (bounded memory): `pass1` writes
+        the exponents -s_k m_k, NumPy's exp turns them into falloffs in place, `pass2` consumes
+        them. With `quads` the kernels see the values as vec4s.
+
+        `factor_pass` (kernel, inputs), for render_dense: between the two, that kernel writes the
+        compositing exponents -(sigma delta) of the samples, NumPy's exp turns them into the
+        factors in place, and `pass2` takes them as its second argument.
+
+        A block is cut into chunks of items (guided, kernels.launch.guided_bounds, none smaller than
+        _CHUNK_VALUES falloff values; one chunk on one thread) and the launch threads take the
+        chunks one at a time, each running every pass and exp over its chunk in turn: the items are
+        independent, so the outputs are those of pass after pass over the whole block, with one
+        hand-off between threads a block instead of one a pass and a chunk's values still in the
+        core's cache for the next pass."""
         per_item = samples_per_item * geometry.shape[0]
         block = max(1, min(n_items, _FALLOFF_BLOCK // max(per_item, 1)))
         falloff = a.empty(block * per_item)
         f = falloff.numpy()
         values = _vec_view(falloff, _VEC4, (block * per_item // 4,)) if quads else falloff
+        if factor_pass is not None:
+            factor = a.empty(block * samples_per_item)
+            e = factor.numpy()
+            factors = [_vec_view(factor, _VEC4, (block * samples_per_item // 4,)) if quads else factor]
+        else:
+            factors = []
         min_chunk = max(1, _CHUNK_VALUES // max(per_item, 1))
+        threads = default_threads()
+        lanes = 4 if quads else 1
+        dev = a.device
         for base in range(0, n_items, block):
             nb = min(block, n_items - base)
-            a.launch(pass1, nb, [*pass1_inputs, geometry, appearance, values, base], min_chunk=min_chunk)
-            parallel_ranges(lambda lo, hi: np.exp(f[lo:hi], out=f[lo:hi]), nb * per_item)
-            a.launch(pass2, nb, [values, *pass2_inputs, base], min_chunk=min_chunk)
+            bounds = guided_bounds(nb, threads, min_chunk) if threads > 1 and nb >= 2 * min_chunk else [(0, nb)]
+
+            def chunk(j: int, base: int = base, bounds: list[tuple[int, int]] = bounds) -> None:
+                # every pass over the chunk's items [lo, lo + n) of the block, one after the other on this
+                # thread; the kernels see the chunk's falloffs (and factors) from their start
+                lo, n = bounds[j]
+                v0, v1 = lo * per_item, (lo + n) * per_item
+                fv = _view(falloff.ptr + v0 * f.itemsize, values.dtype, ((v1 - v0) // lanes,), dev)
+                wp.launch(pass1, dim=n, inputs=[*pass1_inputs, geometry, appearance, fv, base + lo, 0], device=dev)
+                np.exp(f[v0:v1], out=f[v0:v1])
+                ev = []
+                if factor_pass is not None:
+                    e0, e1 = lo * samples_per_item, (lo + n) * samples_per_item
+                    ev = [_view(factor.ptr + e0 * e.itemsize, factors[0].dtype, ((e1 - e0) // lanes,), dev)]
+                    wp.launch(factor_pass[0], dim=n, inputs=[fv, *factor_pass[1], *ev, base + lo, 0], device=dev)
+                    np.exp(e[e0:e1], out=e[e0:e1])
+                wp.launch(pass2, dim=n, inputs=[fv, *ev, *pass2_inputs, base + lo, 0], device=dev)
+
+            parallel_items(chunk, len(bounds), threads=threads)
 
     def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
         a, p, _ = self._inputs(points, dirs)
@@ -614,17 +719,20 @@ class SphereField(Field):
         """(rgb (R, 3), depth (R,), opacity (R,)) of rays o + t d with explicit samples t (R, S) and
         interval lengths delta (R, S) >= 0 (module docstring: the fused forward of render_samples on
         dense_samples; depth is sum_k w_k t_k). Arrays in the field's dtype; outputs in the kind of
-        `origins`."""
+        `origins`. On the CPU, NumPy t and delta whose rows are one row broadcast
+        (np.broadcast_to(row, (R, S)), the same samples on every ray) are read as that row, without
+        a copy."""
         a = A.Inputs(self.device, origins, dirs, t, delta)
-        o = a.floats("origins", origins, (None, 3))
+        keep: list[np.ndarray] = []  # NumPy inputs the kernels read in place (_floats_in_place)
+        o = _floats_in_place(a, keep, "origins", origins, (None, 3))
         if a.scalar != self.dtype:
             raise ValueError(f"origins: expected dtype {A.type_name(self.dtype)} (the field's), "
                              f"got {A.type_name(a.scalar)}")
         n_rays = o.shape[0]
-        d = a.floats("dirs", dirs, (n_rays, 3))
-        tt = a.floats("t", t, (n_rays, None))
-        dl = a.floats("delta", delta, tuple(tt.shape), finite=False)
-        A.check_at_least("delta", dl, 0.0)
+        d = _floats_in_place(a, keep, "dirs", dirs, (n_rays, 3))
+        tt = _floats_in_place(a, keep, "t", t, (n_rays, None))
+        dl = _floats_in_place(a, keep, "delta", delta, tuple(tt.shape), finite=False)
+        A.check_at_least("delta", delta[0] if _broadcast_rows(delta, a) else dl, 0.0)
         t_threshold = A.check_float("t_threshold", t_threshold, nonnegative=True)
         if not t_threshold < 1.0:
             raise ValueError(f"t_threshold: expected a value in [0, 1), got {t_threshold}")
@@ -634,25 +742,27 @@ class SphereField(Field):
         A.check_finite("background", bg)
         rgb, depth, opacity = a.empty((n_rays, 3)), a.empty(n_rays), a.empty(n_rays)
         geometry, appearance = self._packed()
-        bg_v = wp.array(bg[None], dtype=_VEC3[self.dtype], device=self.device)
+        bg_v = _background_vec3(bg, self.dtype, self.device)
         o3, d3, rgb3 = _vec_view3(o), _vec_view3(d), _vec_view3(rgb)
-        fused, k1, k2 = _RENDER_DENSE[self.dtype]
+        fused, k1, kf, k2 = _RENDER_DENSE[self.dtype]
         if not self.device.is_cpu or _FUSED_ON_CPU:
             a.launch(fused, n_rays, [o3, d3, tt, dl, geometry, appearance, bg_v, a.s(t_threshold), rgb3, depth,
                                      opacity], min_chunk=16)
             return a.out(rgb), a.out(depth), a.out(opacity)
-        # CPU: the sphere falloffs by NumPy's exp between two split launches (module docstring), four
-        # samples at a time where the samples of a ray come in fours.
+        # CPU: the sphere falloffs and then the compositing factors by NumPy's exp between three
+        # split launches (module docstring), four samples at a time where the samples of a ray come
+        # in fours.
         n_s = tt.shape[1]
-        if n_s % 4 == 0 and _QUADS_ON_CPU:  # (a.floats: t and delta are contiguous)
-            k1, k2 = _RENDER_DENSE4[self.dtype]
+        if n_s % 4 == 0 and _QUADS_ON_CPU:  # (t and delta: rows contiguous, _floats_in_place)
+            k1, kf, k2 = _RENDER_DENSE4[self.dtype]
             t4, dl4 = (_vec_view(x, _VEC4, (n_rays, n_s // 4)) for x in (tt, dl))
             self._two_passes(a, n_rays, n_s, k1, [o3, d3, t4], k2,
-                             [t4, dl4, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity], geometry, appearance,
-                             quads=True)
+                             [t4, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity], geometry, appearance,
+                             quads=True, factor_pass=(kf, [dl4, appearance]))
         else:
             self._two_passes(a, n_rays, n_s, k1, [o3, d3, tt], k2,
-                             [tt, dl, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity], geometry, appearance)
+                             [tt, appearance, bg_v, a.s(t_threshold), rgb3, depth, opacity], geometry, appearance,
+                             factor_pass=(kf, [dl, appearance]))
         return a.out(rgb), a.out(depth), a.out(opacity)
 
     def backward(self, points: A.ArrayLike, dirs: A.ArrayLike | None, out: FieldOutput,
@@ -688,10 +798,10 @@ def _pack_spheres_kernel(centers: wp.array2d(dtype=typing.Any), radii: wp.array(
     appearance[k] = a
 
 
-def _render_dense_overloads() -> dict[Any, tuple[Any, Any, Any]]:
-    """{scalar: concrete overloads of (the fused kernel, CPU pass 1, CPU pass 2)} (launching a
-    concrete overload spares Warp inferring the argument types on every launch); also declares
-    _pack_spheres_kernel's."""
+def _render_dense_overloads() -> dict[Any, tuple[Any, Any, Any, Any]]:
+    """{scalar: concrete overloads of (the fused kernel, CPU pass 1, CPU pass 2 (factors), CPU pass 3)}
+    (launching a concrete overload spares Warp inferring the argument types on every launch); also
+    declares _pack_spheres_kernel's."""
     out = {}
     for s in A.FLOATS:
         v3, v4 = _VEC3[s], _VEC4[s]
@@ -703,8 +813,11 @@ def _render_dense_overloads() -> dict[Any, tuple[Any, Any, Any]]:
             wp.overload(_spheres_render_dense_kernel,
                         {**rays, "delta": wp.array2d(dtype=s), **params, **outputs}),
             wp.overload(_spheres_dense_exponent_kernel, {**rays, **params, "out_exponent": wp.array(dtype=s)}),
+            wp.overload(_spheres_dense_factor_kernel,
+                        {"falloff": wp.array(dtype=s), "delta": wp.array2d(dtype=s), "appearance": wp.array(dtype=v4),
+                         "out_exponent": wp.array(dtype=s)}),
             wp.overload(_spheres_dense_composite_kernel,
-                        {"falloff": wp.array(dtype=s), "t": wp.array2d(dtype=s), "delta": wp.array2d(dtype=s),
+                        {"falloff": wp.array(dtype=s), "factor": wp.array(dtype=s), "t": wp.array2d(dtype=s),
                          "appearance": wp.array(dtype=v4), **outputs}))
         wp.overload(_pack_spheres_kernel, {
             "centers": wp.array2d(dtype=s), "radii": wp.array(dtype=s), "colors": wp.array2d(dtype=s),
@@ -722,19 +835,96 @@ _FIELD_PASSES = {s: (wp.overload(_spheres_exponent4_kernel, {
 _RENDER_DENSE4 = {s: (wp.overload(_spheres_dense_exponent4_kernel, {
     "origins": wp.array(dtype=_VEC3[s]), "dirs": wp.array(dtype=_VEC3[s]), "t4": wp.array2d(dtype=_VEC4[s]),
     "geometry": wp.array(dtype=_VEC4[s]), "appearance": wp.array(dtype=_VEC4[s]), "out4": wp.array(dtype=_VEC4[s])}),
+    wp.overload(_spheres_dense_factor4_kernel, {
+        "f4": wp.array(dtype=_VEC4[s]), "delta4": wp.array2d(dtype=_VEC4[s]), "appearance": wp.array(dtype=_VEC4[s]),
+        "out4": wp.array(dtype=_VEC4[s])}),
     wp.overload(_spheres_dense_composite4_kernel, {
-        "f4": wp.array(dtype=_VEC4[s]), "t4": wp.array2d(dtype=_VEC4[s]), "delta4": wp.array2d(dtype=_VEC4[s]),
+        "f4": wp.array(dtype=_VEC4[s]), "e4": wp.array(dtype=_VEC4[s]), "t4": wp.array2d(dtype=_VEC4[s]),
         "appearance": wp.array(dtype=_VEC4[s]), "background": wp.array(dtype=_VEC3[s]), "t_threshold": s,
         "out_rgb": wp.array(dtype=_VEC3[s]), "out_depth": wp.array(dtype=s), "out_opacity": wp.array(dtype=s)}))
     for s in A.FLOATS}
 
 
+def _floats_in_place(a: A.Inputs, keep: list[np.ndarray], name: str, x: Any, shape: tuple[Any, ...],
+                     finite: bool = True) -> wp.array:
+    """a.floats(name, x, shape, finite=finite) (the same checks and errors), except that a non-empty
+    NumPy argument of a CPU call is not copied: the result is a non-owning wp.array over its
+    contiguous data (the copies and their first-touch page faults were ~0.9 ms of a 64x64 x 64
+    render_dense, docs/performance.md). `keep` holds the NumPy array; the caller keeps `keep` alive
+    while the kernels run."""
+    if not (isinstance(x, np.ndarray) and a.device.is_cpu and x.size):
+        return a.floats(name, x, shape, finite=finite)
+    dtype = A.float_dtype(name, x)
+    if a.scalar is None:
+        a.scalar = dtype
+    elif dtype != a.scalar:
+        raise ValueError(f"{name}: expected dtype {A.type_name(a.scalar)} like the other inputs, "
+                         f"got {A.type_name(dtype)}")
+    A.check_shape(name, x, shape)
+    if _broadcast_rows(x, a):
+        # every row is row 0: checked once, and read through a zero row stride
+        if finite:
+            A.check_finite(name, x[0])
+        keep.append(x)
+        return _view(x.ctypes.data, dtype, x.shape, a.device, (0, x.strides[1]))
+    if finite:
+        A.check_finite(name, x)
+    h = np.ascontiguousarray(x)
+    keep.append(h)
+    return _view(h.ctypes.data, dtype, h.shape, a.device)
+
+
+def _broadcast_rows(x: Any, a: A.Inputs) -> bool:
+    """Whether x is a 2-D NumPy array of a CPU call whose rows are all its first row (row stride 0,
+    np.broadcast_to) with contiguous entries."""
+    return (isinstance(x, np.ndarray) and a.device.is_cpu and x.ndim == 2 and x.size > 0 and x.strides[0] == 0
+            and x.strides[1] == x.itemsize)
+
+
+_BACKGROUNDS: dict[tuple, wp.array] = {}  # (bytes, dtype, device) -> the checked background as one vec3
+
+
+def _background_vec3(bg: np.ndarray, dtype: Any, device: wp.Device) -> wp.array:
+    """The checked background colour bg (3,) as a one-vec3 array, kept for the next call with the same colour."""
+    key = (bg.tobytes(), dtype, device.alias)
+    arr = _BACKGROUNDS.get(key)
+    if arr is None:
+        if len(_BACKGROUNDS) >= 64:
+            _BACKGROUNDS.clear()
+        arr = _BACKGROUNDS[key] = wp.array(bg[None], dtype=_VEC3[dtype], device=device)
+    return arr
+
+
+# Non-owning views kept by (address, dtype, shape, device). A view is nothing but those four, so a
+# kept one is the same as a new one; a call's arrays come from the host pool (or NumPy's allocator)
+# at the same addresses call after call, and a new wp.array costs ~10 us of Python (about a dozen a
+# render_dense call). Bounded: cleared when full.
+_VIEWS: dict[tuple, wp.array] = {}
+_VIEWS_MAX = 256
+
+
+def _view(ptr: int, dtype: Any, shape: tuple[int, ...], device: wp.Device,
+          strides: tuple[int, ...] | None = None) -> wp.array:
+    """wp.array(ptr=ptr, dtype=dtype, shape=shape, strides=strides, device=device), kept in _VIEWS."""
+    key = (ptr, dtype, tuple(shape), strides, device.alias)
+    v = _VIEWS.get(key)
+    if v is None:
+        if len(_VIEWS) >= _VIEWS_MAX:
+            _VIEWS.clear()
+        v = _VIEWS[key] = wp.array(ptr=ptr, dtype=dtype, shape=shape, strides=strides, device=device)
+    return v
+
+
 def _vec_view3(x: wp.array) -> wp.array:
     """A contiguous (N, 3) float array seen as N vec3s (zero-copy)."""
-    return wp.array(ptr=x.ptr, dtype=_VEC3[x.dtype], shape=(x.shape[0],), device=x.device)
+    return _view(x.ptr, _VEC3[x.dtype], (x.shape[0],), x.device)
 
 
 def _vec_view(x: wp.array, vec: dict[Any, Any], shape: tuple[int, ...]) -> wp.array:
     """A contiguous float array seen as an array of `shape` of vec[x.dtype] vectors (zero-copy; x
-    must stay alive while the view is used)."""
-    return wp.array(ptr=x.ptr, dtype=vec[x.dtype], shape=shape, device=x.device)
+    must stay alive while the view is used). A 2-D x whose rows are one row (row stride 0) gives
+    rows that are that row's vectors."""
+    v = vec[x.dtype]
+    if x.ndim == 2 and x.strides[0] == 0:
+        return _view(x.ptr, v, shape, x.device, (0, wp.types.type_size_in_bytes(v)))
+    return _view(x.ptr, v, shape, x.device)

@@ -19,9 +19,10 @@ with the same keys, for the test suite):
   * volume.composite_fwd  rays 16384 x 128 samples, forward only (`fwd_s`, checks on): the size at which
                           per-call overhead (checks, launch set-up) shows.
   * volume.spheres_render the textbook task: 64x64 rays x 64 samples through SphereField.textbook in
-                          float32, dense_samples + render_samples + the image back in NumPy (`render_s`),
-                          as experiments/volume_render_spheres times it, and the same image through the
-                          fused SphereField.render_dense (`render_fused_s`).
+                          float32: the general path, dense_samples + render_samples + the image back in
+                          NumPy (`render_s`), and the same image through the fused SphereField.render_dense
+                          (`render_fused_s`), which is what experiments/volume_render_spheres times (on the
+                          CPU the two give the image bit for bit, kernels.volume.spheres).
 Each figure is the median of 3 runs (5 for compositing) after a warm-up (research.bench.time_median);
 each run starts after 20 ms idle (`research.bench.SETTLE_S`), so that PyTorch's OpenMP workers, which
 spin-wait after every op, are not timed as part of the drlab call that follows the reference.
@@ -200,16 +201,18 @@ def _spheres_case(dev, threads: int, tiny: bool, sync, compare: bool) -> dict:
     n_rays = origins.shape[0]
     field = SphereField.textbook(wp.float32, device=dev)
 
-    def render():  # as experiments/volume_render_spheres times it
+    def render():  # the general path (packed samples, the field's forward, the compositing kernel)
         s = dense_samples(origins.astype(np.float32), dirs.astype(np.float32),
                           np.tile(t.astype(np.float32), (n_rays, 1)), np.tile(delta.astype(np.float32), (n_rays, 1)),
                           device=dev)
         return render_samples(field, s, background=(0.0, 0.0, 0.0), t_threshold=0.0).rgb.numpy()
 
-    def render_fused():  # the same image through SphereField.render_dense (one kernel per ray)
+    def render_fused():  # the same image through SphereField.render_dense, as experiments/volume_render_spheres
+        # (t and delta: one row broadcast to every ray, as the experiment passes them)
         rgb, _, _ = field.render_dense(origins.astype(np.float32), dirs.astype(np.float32),
-                                       np.tile(t.astype(np.float32), (n_rays, 1)),
-                                       np.tile(delta.astype(np.float32), (n_rays, 1)), t_threshold=0.0)
+                                       np.broadcast_to(t.astype(np.float32), (n_rays, t.shape[0])),
+                                       np.broadcast_to(delta.astype(np.float32), (n_rays, delta.shape[0])),
+                                       t_threshold=0.0)
         return rgb
 
     fns = {"render": render, "render_fused": render_fused}

@@ -172,9 +172,11 @@ def test_sphere_render_dense_matches_reference_and_general_path(np_t, wp_t, tol,
     np.testing.assert_allclose(rgb, ref_rgb, rtol=tol * 10, atol=tol * 10)
     np.testing.assert_allclose(depth, ref_depth, rtol=tol * 10, atol=tol * 10 * 6)
     np.testing.assert_allclose(opacity, ref_op, rtol=tol * 10, atol=tol * 10)
+    # On the CPU the general path's numbers bit for bit (test_sphere_render_dense_equals_the_general_path_bitwise).
     general = render_samples(field, dense_samples(o, d, t, delta), background=bg, t_threshold=thr)
-    np.testing.assert_allclose(rgb, general.rgb, rtol=tol, atol=tol)
-    np.testing.assert_allclose(depth, general.depth, rtol=tol, atol=tol * 6)
+    np.testing.assert_array_equal(rgb, general.rgb)
+    np.testing.assert_array_equal(depth, general.depth)
+    np.testing.assert_array_equal(opacity, general.opacity)
     # wp.array rays give wp.array results with the same numbers.
     rgb_wp, _, _ = field.render_dense(*(wp.array(a) for a in (o, d, t, delta)), background=bg, t_threshold=thr)
     assert isinstance(rgb_wp, wp.array)
@@ -191,11 +193,107 @@ def _sphere_rays(rng, n_rays, n_s, np_t):
     return [x.astype(np_t) for x in (o, d, t, delta)]
 
 
+@pytest.mark.parametrize("quads", [True, False], ids=["quads", "single"])
+@pytest.mark.parametrize("n_s", [1, 4, 37, 64])
+@pytest.mark.parametrize("thr", [0.0, 1e-3, 0.3], ids=["no_termination", "late_termination", "early_termination"])
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_sphere_render_dense_equals_the_general_path_bitwise(monkeypatch, np_t, wp_t, thr, n_s, quads):
+    # On the CPU render_dense evaluates the sphere falloffs and the compositing factors
+    # exp(-(sigma delta)) with NumPy's exp, as SphereField.forward and composite_forward do, with the
+    # same operations in the same order: its image, depth and opacity are those of render_samples on
+    # dense_samples bit for bit (what experiments/volume_render_spheres relies on), with NumPy inputs
+    # (read in place, contiguous or not) and wp.array inputs, in one block or several.
+    import kernels.volume.spheres as spheres_module
+    from kernels.volume.sampling import dense_samples
+
+    monkeypatch.setattr(spheres_module, "_QUADS_ON_CPU", quads)
+    rng = np.random.default_rng(12)
+    field = SphereField.textbook(wp_t)
+    n_rays = 45
+    o, d, t, delta = _sphere_rays(rng, n_rays, n_s, np_t)
+    for bg in ((0.0, 0.0, 0.0), (0.1, 0.2, 0.3)):
+        general = render_samples(field, dense_samples(o, d, t, delta), background=bg, t_threshold=thr)
+        want = tuple(x.numpy() for x in (general.rgb, general.depth, general.opacity))  # (wp.arrays)
+        got = field.render_dense(o, d, t, delta, background=bg, t_threshold=thr)
+        strided = field.render_dense(np.asfortranarray(o), d, np.asfortranarray(t), delta, background=bg,
+                                     t_threshold=thr)
+        on_device = field.render_dense(*(wp.array(x) for x in (o, d, t, delta)), background=bg, t_threshold=thr)
+        for w, g, s, dv in zip(want, got, strided, on_device):
+            assert g.dtype == np_t
+            assert w.tobytes() == g.tobytes() == s.tobytes() == dv.numpy().tobytes()
+    monkeypatch.setattr(spheres_module, "_FALLOFF_BLOCK", 7 * n_s * 3)  # 7 rays a block
+    blocked = field.render_dense(o, d, t, delta, background=bg, t_threshold=thr)
+    for w, b in zip(want, blocked):
+        assert w.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_sphere_cpu_passes_are_the_same_in_any_chunks(monkeypatch, np_t, wp_t):
+    # The CPU passes of render_dense and SphereField.forward cut their items into chunks, each run
+    # through every pass by one launch thread: one chunk, many small chunks on 1 to 3 threads and
+    # several blocks give the same outputs bit for bit.
+    import kernels.volume.spheres as spheres_module
+
+    rng = np.random.default_rng(14)
+    field = SphereField.textbook(wp_t)
+    pts = rng.uniform([-2.0, -1.5, 2.5], [2.5, 1.5, 6.0], (4999, 3)).astype(np_t)
+    renders = {n_s: _sphere_rays(rng, 61, n_s, np_t) for n_s in (8, 37)}
+
+    def outputs():
+        out = field.forward(pts)
+        res = [np.asarray(out.sigma).tobytes(), np.asarray(out.rgb).tobytes()]
+        for thr in (0.0, 0.3):
+            res += [x.tobytes() for n_s in renders
+                    for x in field.render_dense(*renders[n_s], background=(0.1, 0.2, 0.3), t_threshold=thr)]
+        return res
+
+    monkeypatch.setattr(spheres_module, "default_threads", lambda: 1)
+    want = outputs()
+    # chunks of 2 or 1 rays (24 or 111 values a ray), and of 5 quads of points
+    monkeypatch.setattr(spheres_module, "_CHUNK_VALUES", 64)
+    for threads in (1, 2, 3):
+        monkeypatch.setattr(spheres_module, "default_threads", lambda threads=threads: threads)
+        assert outputs() == want
+    monkeypatch.setattr(spheres_module, "_FALLOFF_BLOCK", 4 * 8 * 3 * 5)  # blocks of 5 rays (of 8 samples), 40 quads
+    assert outputs() == want
+
+
+@pytest.mark.parametrize("n_s", [5, 64])
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_sphere_render_dense_reads_broadcast_rows_of_t_and_delta_in_place(monkeypatch, np_t, wp_t, n_s):
+    # t and delta given as one row broadcast to every ray (np.broadcast_to: row stride 0) are read
+    # without a copy, with the same outputs bit for bit as the tiled arrays, and checked as them.
+    import kernels.volume.spheres as spheres_module
+
+    rng = np.random.default_rng(13)
+    field = SphereField.textbook(wp_t)
+    n_rays = 33
+    o, d, _, _ = _sphere_rays(rng, n_rays, n_s, np_t)
+    t_row = np.sort(rng.uniform(1.0, 6.0, n_s)).astype(np_t)
+    dl_row = np.diff(t_row, append=t_row[-1] + 1e-3).astype(np_t)
+    tiled = [np.tile(x, (n_rays, 1)) for x in (t_row, dl_row)]
+    broadcast = [np.broadcast_to(x, (n_rays, n_s)) for x in (t_row, dl_row)]
+    for fused in (False, True):  # the CPU passes, and the one-kernel version (CUDA's) forced on the CPU
+        monkeypatch.setattr(spheres_module, "_FUSED_ON_CPU", fused)
+        for thr in (0.0, 0.3):
+            want = field.render_dense(o, d, *tiled, background=(0.1, 0.2, 0.3), t_threshold=thr)
+            got = field.render_dense(o, d, *broadcast, background=(0.1, 0.2, 0.3), t_threshold=thr)
+            for w, g in zip(want, got):
+                assert w.tobytes() == g.tobytes()
+    bad_t, bad_dl = t_row.copy(), dl_row.copy()
+    bad_t[2], bad_dl[1] = np.nan, -0.5
+    with pytest.raises(ValueError, match="^t: expected finite values"):
+        field.render_dense(o, d, np.broadcast_to(bad_t, (n_rays, n_s)), broadcast[1])
+    with pytest.raises(ValueError, match="^delta: "):
+        field.render_dense(o, d, broadcast[0], np.broadcast_to(bad_dl, (n_rays, n_s)))
+
+
 @pytest.mark.parametrize("thr", [0.0, 0.3], ids=["no_termination", "early_termination"])
 @pytest.mark.parametrize("np_t, wp_t, tol", [(np.float32, wp.float32, 2e-6), (np.float64, wp.float64, 1e-14)])
 def test_sphere_render_dense_fused_kernel_agrees_with_cpu_two_pass_path(monkeypatch, np_t, wp_t, tol, thr):
     # The fused kernel (what runs on CUDA), forced on the CPU, against the CPU path (NumPy's exp of
-    # the sphere falloffs between two launches): the same image to the rounding of the exponentials.
+    # the sphere falloffs and compositing factors between the passes): the same image to the rounding
+    # of the exponentials.
     import kernels.volume.spheres as spheres_module
 
     rng = np.random.default_rng(6)

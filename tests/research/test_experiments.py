@@ -115,6 +115,9 @@ def _check_nerf(m):
 def _check_volume(m):
     assert m["max_abs_err"]["warp_float64"] <= m["agreement_tol"]
     assert m["max_abs_err"]["warp_float32"] < 1e-3
+    # the timed render_dense and the general path: one image bit for bit on the CPU
+    for v in m["render_dense_vs_general_path"].values():
+        assert v["bitwise_equal"] and v["max_abs_diff"] == 0.0
 
 
 def _check_performance(m):
