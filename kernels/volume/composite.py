@@ -34,13 +34,14 @@ samples). Samples after the termination point get zero gradient; a ray with no s
 the background with zero gradient.
 
 One thread per ray: every thread writes only its own ray's outputs and its own samples'
-gradients, so both kernels run through kernels.launch.launch_split on the CPU, in chunks of at
-least _CHUNK_SAMPLES samples on average (each chunk is a launch costing tens of microseconds of
-Python). The loops take the samples four at a time where four consecutive ones start at a
-multiple of 4 (vec4 loads of the factors and depths, vec3 loads of the colours) and none of the
-four terminates the ray, one at a time elsewhere: the same operations in the same order, so the
-outputs are bit for bit those of a one-at-a-time loop, with a quarter of the loop and index
-arithmetic (Warp's CPU code computes and wraps every index, docs/performance.md).
+gradients, so both kernels run as split launches on the CPU (kernels.launch's guided chunks, at
+least _CHUNK_SAMPLES samples on average), each launch thread packing the arguments once into a
+recorded launch whose size and offset it then sets chunk by chunk (_launch). The loops take the
+samples four at a time where four consecutive ones start at a multiple of 4 (vec4 loads of the
+factors and depths, vec3 loads of the colours) and none of the four terminates the ray, one at a
+time elsewhere: the same operations in the same order, so the outputs are bit for bit those of a
+one-at-a-time loop, with a quarter of the loop and index arithmetic (Warp's CPU code computes
+and wraps every index, docs/performance.md).
 
 Factors on the CPU. Warp's scalar exp costs 3.7 ns a sample on one core, more than the rest of
 the forward loop (3.0 ns): on the CPU the factors exp(-sigma_k delta_k) of all N samples are
@@ -66,6 +67,7 @@ wp.arrays on their device; inside `value_checks(False)` only shapes and dtypes a
 
 from __future__ import annotations
 
+import threading
 import typing
 from dataclasses import dataclass
 from typing import Any
@@ -74,7 +76,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.launch import parallel_ranges
+from kernels.launch import default_threads, guided_bounds, parallel_items, parallel_ranges
 from kernels.volume._checks import check_ray_offsets
 from kernels.volume.workspace import Workspace
 
@@ -318,6 +320,45 @@ def _min_chunk(n_rays: int, n: int) -> int:
     return max(_CHUNK_RAYS, _CHUNK_SAMPLES * n_rays // max(n, 1))
 
 
+_LOADED: set[tuple] = set()  # (kernel, dtype) launched here once: its module is compiled and loaded
+
+
+def _launch(a: A.Inputs, kernel: Any, dim: int, inputs: list[Any], min_chunk: int) -> None:
+    """Launch a kernel of this module (last parameter `offset`) over [0, dim) as a split launch.
+
+    On the CPU with several threads, the chunks are kernels.launch's guided chunks, pulled in order by
+    the launch threads as in launch_split, but each thread packs the arguments once into a recorded
+    launch (wp.Launch) and a chunk only sets its size and offset: ~10 us of Python a chunk instead
+    of the ~40-100 us of a wp.launch, which holds the GIL that the other threads' launches wait for.
+    """
+    threads = default_threads()
+    if dim <= 0 or not a.device.is_cpu or threads == 1 or dim < 2 * min_chunk:
+        a.launch(kernel, dim, inputs, min_chunk=min_chunk)
+        return
+    bounds = guided_bounds(dim, threads, min_chunk)
+    n_args = len(kernel.adj.args)
+    launches: dict[int, Any] = {}
+
+    def run(j: int) -> None:
+        lo, size = bounds[j]
+        tid = threading.get_ident()
+        rec = launches.get(tid)
+        if rec is None:
+            launches[tid] = wp.launch(kernel, dim=size, inputs=[*inputs, lo], device=a.device, record_cmd=True)
+            rec = launches[tid]
+        else:
+            rec.set_dim(size)
+            rec.set_param_at_index_from_ctype(n_args - 1, lo)
+        rec.launch()
+
+    first = 0
+    if id(kernel) not in _LOADED:  # one chunk alone compiles and loads the module first
+        run(0)
+        _LOADED.add(id(kernel))
+        first = 1
+    parallel_items(lambda i: run(first + i), len(bounds) - first)
+
+
 def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, check: bool) -> int:
     """On the CPU, factor = exp(-sigma delta) for every sample with NumPy's vectorised exp, in
     cache-sized blocks split over the launch threads; returns 1 (the kernel then reads the
@@ -441,10 +482,10 @@ def composite_forward(
     check = A.values_checked() and a.device.is_cpu  # on CUDA _samples checked the values
     factor_given = _fill_factor(s, d, res.factor, check)
     bad = a.empty(n_rays if check else 1, wp.int32)
-    a.launch(_FORWARD[a.scalar], n_rays,
-             [s, _vec_view(c, 3), d, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth, res.opacity,
-              res.transmittance, res.n_used, res.factor, factor_given, _vec_view(res.factor, 4), _vec_view(zz, 4),
-              int(check), bad], min_chunk=_min_chunk(n_rays, n))
+    _launch(a, _FORWARD[a.scalar], n_rays,
+            [s, _vec_view(c, 3), d, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth, res.opacity,
+             res.transmittance, res.n_used, res.factor, factor_given, _vec_view(res.factor, 4), _vec_view(zz, 4),
+             int(check), bad], min_chunk=_min_chunk(n_rays, n))
     if check and n_rays and bad.numpy().any():  # a NaN or inf in rgb or z, or a false alarm (module docstring)
         A.check_finite("rgb", c)
         A.check_finite("z", zz)
@@ -499,11 +540,11 @@ def composite_backward(
             raise ValueError("out: expected a pair (grad_sigma (N,), grad_rgb (N, 3)) of wp.arrays")
         grad_sigma = A.check_out("out[0]", out[0], (n,), a.scalar, a.device)
         grad_sample_rgb = A.check_out("out[1]", out[1], (n, 3), a.scalar, a.device)
-    a.launch(_BACKWARD[a.scalar], n_rays,
-             [res["factor"], _vec_view(c, 3), d, zz, offsets, bg, per_ray, res["rgb"], res["depth"],
-              res["transmittance"], res["n_used"], *grads, grad_sigma, _vec_view(grad_sample_rgb, 3),
-              _vec_view(res["factor"], 4), _vec_view(zz, 4), _vec_view(d, 4), _vec_view(grad_sigma, 4)],
-             min_chunk=_min_chunk(n_rays, n))
+    _launch(a, _BACKWARD[a.scalar], n_rays,
+            [res["factor"], _vec_view(c, 3), d, zz, offsets, bg, per_ray, res["rgb"], res["depth"],
+             res["transmittance"], res["n_used"], *grads, grad_sigma, _vec_view(grad_sample_rgb, 3),
+             _vec_view(res["factor"], 4), _vec_view(zz, 4), _vec_view(d, 4), _vec_view(grad_sigma, 4)],
+            min_chunk=_min_chunk(n_rays, n))
     if out is not None:
         return grad_sigma, grad_sample_rgb
     return a.out(grad_sigma), a.out(grad_sample_rgb)
