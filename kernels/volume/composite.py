@@ -320,7 +320,7 @@ def _min_chunk(n_rays: int, n: int) -> int:
     return max(_CHUNK_RAYS, _CHUNK_SAMPLES * n_rays // max(n, 1))
 
 
-_LOADED: set[tuple] = set()  # (kernel, dtype) launched here once: its module is compiled and loaded
+_LOADED: set[int] = set()  # id() of the kernels (one per dtype) launched here once: module compiled and loaded
 
 
 def _launch(a: A.Inputs, kernel: Any, dim: int, inputs: list[Any], min_chunk: int) -> None:

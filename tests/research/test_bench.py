@@ -93,6 +93,8 @@ def test_volume_compare_rows_carry_reference_or_ref_missing():
             assert "torch" in row["ref_missing"] and not any(k.startswith(("ref_", "speedup_")) and k != "ref_missing"
                                                              for k in row)
     assert rows["volume.composite"]["bound_s"] > 0
+    comp = rows["volume.composite"]
+    assert comp["bound_max_s"] > 0 and comp["fwd_over_bound_max"] == comp["fwd_s"] / comp["bound_max_s"]
     sph = rows["volume.spheres_render"]
     for phase in ("render", "render_fused"):
         assert sph[f"speedup_{phase}"] == sph[f"ref_{phase}_s"] / sph[f"{phase}_s"]
