@@ -26,11 +26,13 @@ Stored features (`onthefly_features`, `lookup_onthefly_features`; kernels.corr.s
 f1 and P^l(f2) kept channels-last between lookups, in float32 or float16 (half the
 bytes held; widened exactly, so the arithmetic below is float32's, forward-only).
 
-The patches on the CPU: `patch_cpu` (C++, `wp.func_native`) forms a pixel's patch row by
-row, the 2r + 2 taps of a row in one pass over the channels, reading f1 and P^l(f2) in their
-stored dtype (float16 widened in registers), then samples the window from it (`window_cpu`'s
-one-pixel window): the same operations in the same order as `_patch_sample_level` (the Warp
-kernel, which CUDA keeps, with `_patch_level`), so the same values bit for bit.
+The patches on the CPU: `patch_cpu` (C++, `wp.func_native`) groups the pixels by their window's
+column origin (`_group_pixels`), then forms each group's patches level row by level row, the
+pixels whose windows hold a row sharing its tap vectors, reading P^l(f2) in its stored dtype
+(float16 widened in registers) and f1 widened once a call (exact), then samples each pixel's
+window from its patch (`window_cpu`'s one-pixel window): every tap the same operations in the same
+order as `_patch_sample_level` (the Warp kernel, which CUDA keeps, with `_patch_level`), so the
+same values bit for bit.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -443,11 +445,25 @@ def _rows(x_v: wp.array) -> wp.array:
 
 
 def _cpu_patches(a: Inputs, f1_rows: wp.array) -> bool:
-    """Whether the patches go through `patch_cpu` (its C++ kernel): on the CPU, rows contiguous, stored in
+    """Whether the patches go through `patch_cpu` (its C++ kernels): on the CPU, rows contiguous, stored in
     the working dtype or in float16 with float32 work."""
     if not a.device.is_cpu or f1_rows.strides[1] != wp.types.type_size_in_bytes(f1_rows.dtype):
         return False
     return f1_rows.dtype == a.scalar or (f1_rows.dtype == wp.float16 and a.scalar == wp.float32)
+
+
+def _group_pixels(a: Inputs, xy: wp.array, scale: Any, radius: int, height_l: int,
+                  width_l: int) -> tuple[int, wp.array, wp.array, wp.array]:
+    """The pixels grouped for `patch_cpu.patch_groups_cpu` at one level (`patch_cpu.group_pixels_cpu`):
+    (number of groups, pixel order, each ordered pixel's window row origin, each group's first position)."""
+    n = xy.shape[1] * xy.shape[2]
+    side = 2 * radius + 2
+    n_groups = width_l + side + 1
+    ints = [a.empty(n, wp.int32) for _ in range(4)]  # i0, j0, order, sorted j0
+    starts = a.empty(n_groups + 1, wp.int32)
+    counts = a.empty(n_groups * (height_l + side + 1) + 1, wp.int32)
+    a.launch(patch_cpu.group_pixels_cpu(radius, a.scalar), 1, [xy, scale, *ints, starts, counts, height_l, width_l])
+    return n_groups, ints[2], ints[3], starts
 
 
 def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
@@ -457,7 +473,7 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
     `level_scaled(l)` P^l(f2) / sqrt(C) as (C, N_l) on the host in the working dtype.
 
     On the CPU the patches of a level are formed and sampled by `patch_cpu` from the stored rows
-    themselves; elsewhere f1 and each level are widened (`widen`, exact) for `_patch_sample_level` /
+    themselves (f1 widened once); elsewhere f1 and each level are widened (`widen`, exact) for `_patch_sample_level` /
     `_patch_level`. Either way the values are the same, bit for bit.
     """
     n = f1_rows.shape[0]
@@ -467,7 +483,7 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
     out = a.empty((n_levels * side * side, height, width))  # every element is written
     # Every tap is written by _patch_level; a full-product level reuses the memory for its blocks.
     patch = a.empty((n, side + 1, side + 1))
-    cpu_kernel = (patch_cpu.patch_sample_cpu(radius, a.scalar, f1_rows.dtype) if _cpu_patches(a, f1_rows)
+    cpu_kernel = (patch_cpu.patch_groups_cpu(radius, a.scalar, f1_rows.dtype) if _cpu_patches(a, f1_rows)
                   else None)
     f1_v = None  # f1 widened to the working dtype, where needed
     for lvl, (hl, wl) in enumerate(level_shapes(height, width, n_levels)):
@@ -477,9 +493,12 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
             x1_rows = f1_v.numpy().reshape(n, channels)  # f1 channels-last: the vectors' own memory
             _sample_full_product(x1_rows, level_scaled(lvl), hl, wl, xy, out, lvl, radius, patch, a)
         elif cpu_kernel is not None:
-            # One launch: each pixel's patch formed, then its window sampled while the patch is in cache.
-            a.launch(cpu_kernel, n, [f1_rows, level_rows(lvl), xy, patch, out, hl, wl, scale, inv,
-                                     lvl * side * side], min_chunk=64)
+            # The pixels grouped by window column origin, then a launch over the groups: each group's
+            # patches, row by row, its pixels sharing each tap row's vectors, then their windows sampled.
+            f1_v = widen(f1_rows, a) if f1_v is None else f1_v
+            n_groups, order, sorted_j0, starts = _group_pixels(a, xy, scale, radius, hl, wl)
+            a.launch(cpu_kernel, n_groups, [_rows(f1_v), level_rows(lvl), order, sorted_j0, starts, hl, wl, inv,
+                                            patch, xy, out, scale, lvl * side * side], min_chunk=2)
         else:
             f1_v = widen(f1_rows, a) if f1_v is None else f1_v
             f2l_v = widen(level_rows(lvl), a)

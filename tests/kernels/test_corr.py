@@ -210,9 +210,13 @@ def test_memory_accounting():
     assert corr.dense_bytes(46, 62, 4) == 4 * 46 * 62 * pixels
     assert corr.onthefly_held_bytes(46, 62, 256, 4) == 4 * 256 * (46 * 62 + pixels)  # f1 and the pooled f2
     # The peak adds f1 and level 0 channels-last, the patch buffer (whose memory the full-product levels
-    # 2 and 3, 11x15 and 5x7 <= 2 * 10^2 taps, reuse for their blocks of V^l) and the scaled level 2.
+    # 2 and 3, 11x15 and 5x7 <= 2 * 10^2 taps, reuse for their blocks of V^l) and the scaled level 2;
+    # the patch kernel's grouping: four int32 a pixel, and at level 0 the counting sort's
+    # (62 + 11) (46 + 11) + 1 counts and 62 + 12 group starts.
     work = 256 * 46 * 62 * 2 + 46 * 62 * 10 ** 2 + 256 * 11 * 15
-    assert corr.onthefly_bytes(46, 62, 256, 4, 4) == corr.onthefly_held_bytes(46, 62, 256, 4) + 4 * work
+    grouping = 4 * 46 * 62 + 73 * 57 + 1 + 74
+    assert corr.onthefly_bytes(46, 62, 256, 4, 4) == (corr.onthefly_held_bytes(46, 62, 256, 4) + 4 * work
+                                                      + 4 * grouping)
 
 
 # (shape, levels, radius, which levels take the full product). Level 0 of the first case (130 taps)
