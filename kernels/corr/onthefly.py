@@ -9,8 +9,8 @@ pixel p and level l the (2r + 2)^2 tap patch of its window
 is computed, then sampled by (3) exactly as the dense lookup samples V^l (the
 same kernels `sample_windows` and `sample_windows_adjoint`, on the patch).
 
-Coarse levels on the CPU. Where a level has few pixels (H_l W_l <= 2 (2r + 2)^2,
-`full_product_level`; RAFT's two coarsest at 1/8 resolution), the forward takes
+Coarse levels on the CPU. Where a level has few pixels (2 H_l W_l <= (2r + 2)^2,
+`full_product_level`; RAFT's coarsest at 1/8 resolution), the forward takes
 every tap from the rows of the full product V^l = f1^T P^l(f2) / sqrt(C) instead,
 by BLAS, for blocks of pixels at a time (each block's rows no larger than the
 patch buffer), and samples them as the dense lookup samples V^l. The values are

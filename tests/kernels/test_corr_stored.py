@@ -12,7 +12,7 @@ from kernels.corr import stored
 from kernels.reference import corr as ref
 
 # (C, H, W, levels, radius): C a multiple of 8 and not (padded channels), levels through patches
-# and (on the CPU) through the full product (H_l W_l <= 2 (2r + 2)^2).
+# and (on the CPU) through the full product (2 H_l W_l <= (2r + 2)^2).
 CASES = [(16, 12, 16, 3, 2), (12, 9, 11, 2, 1), (24, 20, 22, 4, 1)]
 
 
