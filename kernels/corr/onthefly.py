@@ -473,8 +473,8 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
     `level_scaled(l)` P^l(f2) / sqrt(C) as (C, N_l) on the host in the working dtype.
 
     On the CPU the patches of a level are formed and sampled by `patch_cpu` from the stored rows
-    themselves (f1 widened once); elsewhere f1 and each level are widened (`widen`, exact) for `_patch_sample_level` /
-    `_patch_level`. Either way the values are the same, bit for bit.
+    themselves (f1 widened once); elsewhere f1 and each level are widened (`widen`, exact) for
+    `_patch_sample_level` / `_patch_level`. Either way the values are the same, bit for bit.
     """
     n = f1_rows.shape[0]
     _, height, width = xy.shape

@@ -246,8 +246,9 @@ _GROUP_CPP = r"""
             }
             _Pragma("unroll") for (int i = 0; i < P; ++i)
                 _Pragma("unroll") for (int c = 0; c < half; ++c) {
-                    acc[2 * i][h * half + c] = __builtin_shufflevector(a[i][c], a[i][c], 0, 1, 2, 3, 4, 5, 6, 7);
-                    acc[2 * i + 1][h * half + c] = __builtin_shufflevector(a[i][c], a[i][c], 8, 9, 10, 11, 12, 13, 14, 15);
+                    const W2 pair = a[i][c];
+                    acc[2 * i][h * half + c] = __builtin_shufflevector(pair, pair, 0, 1, 2, 3, 4, 5, 6, 7);
+                    acc[2 * i + 1][h * half + c] = __builtin_shufflevector(pair, pair, 8, 9, 10, 11, 12, 13, 14, 15);
                 }
         }
         _Pragma("unroll") for (int i = 0; i < 2 * P; ++i) {
