@@ -30,7 +30,7 @@ The patches on the CPU: `patch_cpu` (C++, `wp.func_native`) groups the pixels by
 column origin (`_group_pixels`), then forms each group's patches level row by level row, the
 pixels whose windows hold a row sharing its tap vectors, reading P^l(f2) in its stored dtype
 (float16 widened in registers) and f1 widened once a call (exact), then samples each pixel's
-window from its patch (`window_cpu`'s one-pixel window): every tap the same operations in the same
+window from its patch (`window_cpu.sample_patches_cpu`): every tap the same operations in the same
 order as `_patch_sample_level` (the Warp kernel, which CUDA keeps, with `_patch_level`), so the
 same values bit for bit.
 
@@ -60,7 +60,7 @@ import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
-from kernels.corr import patch_cpu
+from kernels.corr import patch_cpu, window_cpu
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
                                   features_in, full_product_level, level_shapes, levels_in, pack_rows, pixel_window,
                                   pool_levels, pool_levels_adjoint, sample_window, sample_windows,
@@ -494,11 +494,13 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
             _sample_full_product(x1_rows, level_scaled(lvl), hl, wl, xy, out, lvl, radius, patch, a)
         elif cpu_kernel is not None:
             # The pixels grouped by window column origin, then a launch over the groups: each group's
-            # patches, row by row, its pixels sharing each tap row's vectors, then their windows sampled.
+            # patches, row by row, its pixels sharing each tap row's vectors; then the windows sampled.
             f1_v = widen(f1_rows, a) if f1_v is None else f1_v
             n_groups, order, sorted_j0, starts = _group_pixels(a, xy, scale, radius, hl, wl)
             a.launch(cpu_kernel, n_groups, [_rows(f1_v), level_rows(lvl), order, sorted_j0, starts, hl, wl, inv,
-                                            patch, xy, out, scale, lvl * side * side], min_chunk=2)
+                                            patch], min_chunk=2)
+            a.launch(window_cpu.sample_patches_cpu(radius, a.scalar), window_cpu.blocks(n),
+                     [patch, xy, out, scale, lvl * side * side], min_chunk=64)
         else:
             f1_v = widen(f1_rows, a) if f1_v is None else f1_v
             f2l_v = widen(level_rows(lvl), a)

@@ -1,8 +1,7 @@
 """The on-the-fly lookup's patches on the CPU, in C++, read from the stored features' own dtype.
 
 Same math, same operations and the same order per tap as `onthefly._patch_row` (then
-`_common.sample_window`, by `window_cpu`'s one-pixel C++ window), so the same outputs bit for
-bit. For pixel p at level l, window origin (j0, i0) (`_common.pixel_window`), tap row ty and tap
+`_common.sample_window`, by `window_cpu.sample_patches_cpu`), so the same outputs bit for bit. For pixel p at level l, window origin (j0, i0) (`_common.pixel_window`), tap row ty and tap
 column tx (0 .. 2r+1), with x = f1[:, p] and y = P^l(f2)[:, (j0 + ty, i0 + tx)] channels-last in
 8-lane vectors x_k, y_k (k = 0 .. C8/8 - 1, channels zero-padded to C8):
 
@@ -27,8 +26,9 @@ each row j the group's pixels with j0 <= j <= j0 + 2r + 1 (consecutive in the so
 their tap rows ty = j - j0 together, up to 8 pixels at a time: each tap vector y_k is converted
 and loaded once for them, and pairs of pixels share a 16-lane vector (lanes 0-7 one pixel's
 x_k * y_k, lanes 8-15 the other's: per lane the same operations as above). A row's taps run in
-two halves of r + 1, so 8 pixels' accumulators (20 16-lane vectors) stay in registers. Each
-pixel's patch is then sampled (`window_cpu.window_func`) while the group's patches are in cache.
+two halves of r + 1, so 8 pixels' accumulators (20 16-lane vectors) stay in registers. The
+windows are then sampled from the patches by `window_cpu.sample_patches_cpu` (4 pixels a thread, in
+pixel order: 10% less time a level than sampling each group's pixels one by one after its patches).
 With one pixel a tap row, each converted tap vector fed one multiply-add, and the
 conversions and the multiply-adds shared the same two vector ports (docs/performance.md, "Fifth
 round"); with eight, one conversion feeds eight lanes-worth of multiply-adds in four 16-lane
@@ -312,35 +312,28 @@ def _build_group(radius: int, scalar: Any, storage: Any) -> Any:
     source = _GROUP_CPP.replace("SIDE", str(side + 1)).replace("STORE", _STORE_CPP[storage])
     source = source.replace("MULTIPLY_ADD2", _FUSED if fused else _SEPARATE_PAIR)
     group_func = wp.func_native(source.replace("MULTIPLY_ADD", _FUSED if fused else _SEPARATE))(group_func)
-    window = window_func(radius, scalar)
     # Warp's default flags (or the configured ones), asking for whole 16-lane vectors (module docstring)
     base_flags = wp.config.cpu_compiler_flags if wp.config.cpu_compiler_flags is not None else "-march=native"
 
     @wp.kernel(module="unique", module_options={"enable_backward": False, "optimization_level": 3,
                                                 "cpu_compiler_flags": base_flags + " -mprefer-vector-width=512"})
     def patch_groups_cpu(f1: wrows, f2l: rows, order: ints, j0s: ints, starts: ints, height_l: int,
-                         width_l: int, inv: scalar, patch: array3, coords: array3, out: array3, scale: scalar,
-                         channel0: int, offset: int):
-        # thread = group g: its pixels' patches, then their windows sampled from them
-        g = wp.tid() + offset
-        group_func(f1, f2l, order, j0s, starts, g, height_l, width_l, inv, patch)
-        for q in range(starts[g], starts[g + 1]):
-            p = order[q]
-            h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-            window(patch, p, 0, 0, fx, fy, out, channel0, h, w)
+                         width_l: int, inv: scalar, patch: array3, offset: int):
+        # thread = group g: its pixels' patches
+        group_func(f1, f2l, order, j0s, starts, wp.tid() + offset, height_l, width_l, inv, patch)
 
     return patch_groups_cpu
 
 
 def patch_groups_cpu(radius: int, scalar: Any, storage: Any) -> Any:
-    """The CPU kernel computing a level's patches group by group and sampling them, for this radius,
-    working dtype `scalar` and storage dtype `storage` (built once, cached).
+    """The CPU kernel computing a level's patches group by group, for this radius, working dtype
+    `scalar` and storage dtype `storage` (built once, cached); `window_cpu.sample_patches_cpu` then
+    samples the windows from them.
 
-    Arguments: (f1, f2l, order, sorted_j0, starts, height_l, width_l, inv, patch, coords, out, scale,
-    channel0, offset), with f1 (N, C8) rows of `scalar` (f1 widened), f2l (H_l W_l, C8) rows of
-    `storage` (C8 a multiple of 8, rows contiguous), (order, sorted_j0, starts) from
-    `group_pixels_cpu`, patch (N, 2r+2, 2r+2) and out as `onthefly._patch_sample_level`'s; thread =
-    group, over W_l + 2r + 3 groups.
+    Arguments: (f1, f2l, order, sorted_j0, starts, height_l, width_l, inv, patch, offset), with f1
+    (N, C8) rows of `scalar` (f1 widened), f2l (H_l W_l, C8) rows of `storage` (C8 a multiple of 8,
+    rows contiguous), (order, sorted_j0, starts) from `group_pixels_cpu`, patch (N, 2r+2, 2r+2) as
+    `onthefly._patch_level`'s; thread = group, over W_l + 2r + 3 groups.
     """
     return built_once(_group_kernels, (radius, scalar, storage), lambda: _build_group(radius, scalar, storage))
 

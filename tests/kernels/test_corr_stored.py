@@ -137,7 +137,8 @@ def test_held_bytes_exact(c):
 @pytest.mark.parametrize("spread", ["mixed", "crowded"])
 def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius, spread):
     """The CPU's patches (patch_cpu: pixels grouped by window column, C++, reading the stored dtype)
-    equal `onthefly._patch_sample_level` (the Warp kernel, on the widened vectors) bit for bit, patches
+    and their windows (window_cpu.sample_patches_cpu, 4 pixels a thread; 598 pixels, so a last block of
+    2) equal `onthefly._patch_sample_level` (the Warp kernel, on the widened vectors) bit for bit, patches
     and samples: windows inside level 0 and overhanging or outside the coarser levels, a NaN position,
     padded channels (C = 12). "crowded": every window near one point, so the groups hold up to
     hundreds of pixels and a tap row is shared by 8 pixels at a time (the 16-lane pairs), then the
@@ -145,7 +146,7 @@ def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius, spread
     fused multiply-adds of the float16 kernel meet tiny and large products (exact in float32 all the
     same)."""
     from kernels._arrays import value_checks
-    from kernels.corr import onthefly, patch_cpu
+    from kernels.corr import onthefly, patch_cpu, window_cpu
     from kernels.corr._common import level_shapes
 
     rng = np.random.default_rng(60 + radius)
@@ -187,7 +188,9 @@ def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius, spread
                     sizes = np.diff(starts.numpy())
                     assert sizes.max() > (100 if spread == "crowded" else 8)
                     wp.launch(kernel, n_groups, [f1_rows, features.levels[lvl], order, sorted_j0, starts, hl, wl,
-                                                 inv, patch, xy, out, a.s(0.5 ** lvl), 0, 0], device="cpu")
+                                                 inv, patch, 0], device="cpu")
+                    wp.launch(window_cpu.sample_patches_cpu(radius, a.scalar), window_cpu.blocks(n),
+                              [patch, xy, out, a.s(0.5 ** lvl), 0, 0], device="cpu")
                 else:
                     wp.launch(onthefly._patch_sample_level, n, [f1_v, stored.widen(features.levels[lvl], a), xy,
                                                                 patch, out, hl, wl, a.s(0.5 ** lvl), radius, inv, 0,
