@@ -12,8 +12,8 @@ same kernels `sample_windows` and `sample_windows_adjoint`, on the patch).
 Coarse levels on the CPU. Where a level has few pixels (2 H_l W_l <= (2r + 2)^2,
 `full_product_level`; RAFT's coarsest at 1/8 resolution), the forward takes
 every tap from the rows of the full product V^l = f1^T P^l(f2) / sqrt(C) instead,
-by BLAS, for blocks of pixels at a time (each block's rows no larger than the
-patch buffer), and samples them as the dense lookup samples V^l. The values are
+by BLAS (its rows held in the patch buffer's memory), and samples them as the dense
+lookup samples V^l. The values are
 those of (1) summed in BLAS's order (float rounding apart from the patches).
 
 Memory: the path keeps f1 and the pooled f2 pyramid between lookups, C (H W +
@@ -336,35 +336,35 @@ def _one_blas_thread() -> Any:
 
 def _sample_full_product(x1_rows: np.ndarray, f2s: np.ndarray, height_l: int, width_l: int, xy: wp.array,
                          out: wp.array, lvl: int, radius: int, scratch: wp.array, a: Inputs) -> None:
-    """Level `lvl` of (4) from V^l = f1^T P^l(f2) / sqrt(C), formed by BLAS for blocks of pixels.
+    """Level `lvl` of (4) from V^l = f1^T P^l(f2) / sqrt(C), formed by BLAS.
 
     x1_rows: f1 channels-last (N, C) on the host; f2s: P^l(f2) / sqrt(C) as (C, H_l W_l), C-ordered
-    (`_scaled_level`). Each block of B pixels gets its rows of V^l ((B, H_l W_l), in the memory of
-    `scratch`, the patch buffer, so B H_l W_l <= its size) and is sampled like a dense level.
+    (`_scaled_level`). The rows of V^l ((N, H_l W_l), in the memory of `scratch`, the patch buffer:
+    a full-product level holds at most half a patch's taps, `full_product_level`) are formed, then
+    sampled like a dense level.
     """
     n = x1_rows.shape[0]
     taps = height_l * width_l
-    block = max(1, min(n, scratch.size // taps))
-    flat = scratch.numpy().reshape(-1)[:block * taps].reshape(block, taps)
-    buf = wp.array(flat.reshape(block, height_l, width_l), dtype=a.scalar, device=a.device, copy=False)
+    if n * taps > scratch.size:
+        raise AssertionError(f"full-product level of {taps} taps a pixel exceeds the patch buffer")
+    flat = scratch.numpy().reshape(-1)[:n * taps].reshape(n, taps)
+    buf = wp.array(flat.reshape(n, height_l, width_l), dtype=a.scalar, device=a.device, copy=False)
     side = 2 * radius + 1
-    scale = a.s(0.5 ** lvl)
-    for p0 in range(0, n, block):
-        rows = min(block, n - p0)
-        starts = range(0, rows, _BLAS_ROWS)
+    starts = range(0, n, _BLAS_ROWS)
 
-        def products(lo: int, hi: int) -> None:
-            # The same BLAS calls (row chunks of _BLAS_ROWS) whatever the thread count, so the
-            # values do not depend on it (BLAS may round a product's edge rows differently).
-            for r0 in starts[lo:hi]:
-                r1 = min(r0 + _BLAS_ROWS, rows)
-                np.matmul(x1_rows[p0 + r0:p0 + r1], f2s, out=flat[r0:r1])
+    def products(lo: int, hi: int) -> None:
+        # The same BLAS calls (row chunks of _BLAS_ROWS) whatever the thread count, so the
+        # values do not depend on it (BLAS may round a product's edge rows differently).
+        for r0 in starts[lo:hi]:
+            r1 = min(r0 + _BLAS_ROWS, n)
+            np.matmul(x1_rows[r0:r1], f2s, out=flat[r0:r1])
 
-        with _one_blas_thread():
-            parallel_ranges(products, len(starts), min_chunk=1)
-        # `sample_windows`' windows by window_cpu's C++ window, bit for bit (full products are CPU-only)
-        a.launch(patch_cpu.full_sample_cpu(radius, a.scalar), rows, [buf, xy, out, scale, lvl * side * side, p0],
-                 min_chunk=256)
+    with _one_blas_thread():
+        parallel_ranges(products, len(starts), min_chunk=1)
+    # `sample_windows`' windows (full products are CPU-only), bit for bit: the dense lookup's C++
+    # kernel on this one level
+    a.launch(window_cpu.sample_levels_cpu(radius, a.scalar), window_cpu.blocks(n),
+             [buf, buf, buf, buf, 1, xy, out, a.s(0.5 ** lvl), lvl * side * side], min_chunk=64)
 
 
 def _channels_first(x_v: wp.array, channels: int, a: Inputs) -> wp.array:

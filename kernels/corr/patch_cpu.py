@@ -47,10 +47,6 @@ kernel per (radius, working dtype, storage dtype), its own Warp module, compiled
 
 `widen_rows_cpu`: float16 rows (N, C8) widened to float32 by the same vector conversions (exact;
 `stored.widen` on the CPU).
-
-`full_sample_cpu`: the windows of a full-product level (`onthefly._sample_full_product`, rows of
-V^l formed by BLAS) sampled by the same one-pixel C++ window in place of `_common.sample_windows`
-(the same values bit for bit).
 """
 
 from typing import Any
@@ -58,7 +54,7 @@ from typing import Any
 import warp as wp
 
 from kernels.corr._common import pixel_window
-from kernels.corr.window_cpu import built_once, window_func
+from kernels.corr.window_cpu import built_once
 
 # A group's patches (`patch_groups_cpu`; module docstring): thread = group g.
 _GROUP_CPP = r"""
@@ -291,7 +287,6 @@ _FUSED = "a[i][c] = __builtin_elementwise_fma(x, y[c], a[i][c]);"
 
 _group_kernels: dict[tuple[int, Any, Any], Any] = {}
 _grouping_kernels: dict[tuple[int, Any], Any] = {}
-_full_kernels: dict[tuple[int, Any], Any] = {}
 
 
 def _build_group(radius: int, scalar: Any, storage: Any) -> Any:
@@ -408,30 +403,6 @@ def group_pixels_cpu(radius: int, scalar: Any) -> Any:
     N at the end; counts (G (H_l + 2r + 3) + 1,) scratch, G the number of groups. Built once, cached.
     """
     return built_once(_grouping_kernels, (radius, scalar), lambda: _build_grouping(radius, scalar))
-
-
-def _build_full(radius: int, scalar: Any) -> Any:
-    array3 = wp.array3d(dtype=scalar)
-    window = window_func(radius, scalar)
-
-    @wp.kernel(module="unique", module_options={"enable_backward": False, "optimization_level": 3})
-    def full_sample_cpu(s: array3, coords: array3, out: array3, scale: scalar, channel0: int, block0: int,
-                        offset: int):
-        # thread = pixel p = block0 + row: its window sampled from s[row], the rows of V^l of the block
-        row = wp.tid() + offset
-        p = row + block0
-        h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
-        window(s, row, j0, i0, fx, fy, out, channel0, h, w)
-
-    return full_sample_cpu
-
-
-def full_sample_cpu(radius: int, scalar: Any) -> Any:
-    """The CPU kernel sampling a full-product level's block of rows of V^l: `_common.sample_windows`
-    with `from_patch` = 0 (arguments (s, coords, out, scale, channel0, block0, offset), its own less
-    `radius` and `from_patch`), by `window_cpu`'s one-pixel C++ window (bit-identical); built once, cached."""
-    return built_once(_full_kernels, (radius, scalar), lambda: _build_full(radius, scalar))
-
 
 
 _WIDEN_CPP = r"""

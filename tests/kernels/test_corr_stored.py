@@ -208,36 +208,6 @@ def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius, spread
             assert (patch_cpp[valid] == 0).any()
 
 
-@pytest.mark.parametrize("dtype", [np.float32, np.float64])
-@pytest.mark.parametrize("radius", [1, 4])
-def test_full_sample_cpu_kernel_is_sample_windows_bit_for_bit(dtype, radius):
-    """The full-product levels' sampling on the CPU (patch_cpu.full_sample_cpu, C++) equals
-    `_common.sample_windows` bit for bit: a block of rows of V^l from pixel block0 on, windows inside,
-    overhanging and outside the level, a NaN position."""
-    from kernels._arrays import value_checks
-    from kernels.corr import _common, patch_cpu
-
-    rng = np.random.default_rng(70 + radius)
-    h, w, hl, wl, block0, rows = 13, 17, 7, 9, 40, 150
-    coords = np.stack([rng.uniform(-6, w + 6, (h, w)), rng.uniform(-6, h + 6, (h, w))]).astype(dtype)
-    coords[1, 4, 3] = np.nan  # pixel 71, inside the block
-    s = wp.array(rng.standard_normal((rows, hl, wl)).astype(dtype), device="cpu")
-    xy = wp.array(coords, device="cpu")
-    scalar = s.dtype
-    side = 2 * radius + 1
-    outs = [wp.full((2 * side * side, h, w), 7.0, dtype=scalar, device="cpu") for _ in range(2)]
-    with value_checks(False):
-        wp.launch(patch_cpu.full_sample_cpu(radius, scalar), rows, [s, xy, outs[0], scalar(0.5), side * side,
-                                                                       block0, 0], device="cpu")
-        wp.launch(_common.sample_windows, rows, [s, xy, outs[1], scalar(0.5), radius, side * side, 0, block0, 0],
-                  device="cpu")
-    got, want = outs[0].numpy(), outs[1].numpy()
-    nan = np.isnan(want)
-    assert nan.any() and np.array_equal(np.isnan(got), nan)
-    assert got[~nan].tobytes() == want[~nan].tobytes()
-    assert (got[side * side:].reshape(side * side, -1)[:, block0:block0 + rows] != 7.0).all()
-
-
 @pytest.mark.parametrize("feature_dtype", ["float32", "float16"])
 def test_lookup_without_patch_cpu_is_bit_identical(monkeypatch, feature_dtype):
     """The forward's other branch (features widened per call, the Warp patch kernel: the path off the
