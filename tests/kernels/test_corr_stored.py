@@ -140,8 +140,8 @@ def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius, spread
     and their windows (window_cpu.sample_patches_cpu, 4 pixels a thread; 598 pixels, so a last block of
     2) equal `onthefly._patch_sample_level` (the Warp kernel, on the widened vectors) bit for bit, patches
     and samples: windows inside level 0 and overhanging or outside the coarser levels, a NaN position,
-    padded channels (C = 12). "crowded": every window near one point, so the groups hold up to
-    hundreds of pixels and a tap row is shared by 8 pixels at a time (the 16-lane pairs), then the
+    padded channels (C = 12), windows far outside. "crowded": every window near one point, so the groups
+    hold up to hundreds of pixels and a tap row is shared by 8 pixels at a time (the 16-lane pairs), then the
     4-, 2- and 1-pixel remainders. "float16_wide": features from float16 subnormals to ~2^13, so the
     fused multiply-adds of the float16 kernel meet tiny and large products (exact in float32 all the
     same)."""
@@ -163,6 +163,8 @@ def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius, spread
     else:
         near = np.stack(np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)) + rng.uniform(-2, 2, (2, h, w))
         coords[:, : h // 2] = near[:, : h // 2]
+        # windows far outside every level (the grouping clamps their origins): left, right, above, below
+        coords[:, 20, 1:5] = [[-1e4, w + 1e4, 3.0, 5.0], [2.0, 4.0, -1e5, h + 1e5]]
     coords[0, 3, 4] = np.nan
     f1, coords = f1.astype(dtype), coords.astype(dtype)
     f2_pyramid = [x.astype(dtype) for x in f2_pyramid]
