@@ -51,8 +51,9 @@ Stages, one module each (each opens with its own math, adjoints and layout):
     radius and float type, 4 pixels a thread), bit-identical to `_common`'s;
   * `onthefly`: the same lookup from f1 and the pooled features P^l(f2) without
     storing V, with its adjoint;
-  * `patch_cpu`: the on-the-fly forward's patches on the CPU, in C++ (one kernel per
-    radius, float type and storage dtype), bit-identical to `onthefly`'s Warp kernel;
+  * `patch_cpu`: the on-the-fly forward's patches on the CPU, in C++ (pixels grouped by
+    window column so that up to 8 share each tap row's vectors; one kernel per radius,
+    float type and storage dtype), bit-identical to `onthefly`'s Warp kernel;
   * `stored`: f1 and P^l(f2) stored for repeated on-the-fly lookups, in float32 or,
     halving what is held, float16 (forward-only; the arithmetic stays float32);
   * `_common`: what they share: the window sampling (3)-(4) and its adjoint, the

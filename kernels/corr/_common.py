@@ -350,13 +350,14 @@ def pool_levels_adjoint(grads: list[wp.array], a: Inputs) -> wp.array:
 def full_product_level(height_l: int, width_l: int, radius: int, device: wp.Device) -> bool:
     """Whether level l's taps come from the full product f1^T P^l(f2) by BLAS (CPU only).
 
-    The patch kernel forms at most (2r + 2)^2 dot products a pixel; BLAS forms all H_l W_l of
-    them, about 4x faster each (measured: 66-99 GFLOP/s for one BLAS thread against ~22 for the
-    patch kernel, 46x62 frames, C = 256). So the full product pays when H_l W_l is at most twice
-    the patch (the margin covers smaller C, where BLAS is less efficient): RAFT's two coarsest
-    levels at 1/8 resolution.
+    The patch kernel (`patch_cpu`, pixels grouped so that up to 8 share each tap row's vectors)
+    forms at most (2r + 2)^2 dot products a pixel, at ~35-43 GMAC/s on one thread; BLAS forms all
+    H_l W_l of them at ~32-52 GMAC/s, plus per-level host work (46x62 frames, C = 256, radius 4:
+    the 11x15 level took 0.6 ms more through BLAS, the 5x7 level the same either way;
+    docs/performance.md, "Fifth round"). So the full product is kept where H_l W_l is at most
+    half the patch: RAFT's coarsest level at 1/8 resolution.
     """
-    return device.is_cpu and height_l * width_l <= 2 * (2 * radius + 2) ** 2
+    return device.is_cpu and 2 * height_l * width_l <= (2 * radius + 2) ** 2
 
 
 

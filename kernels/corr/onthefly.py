@@ -9,11 +9,11 @@ pixel p and level l the (2r + 2)^2 tap patch of its window
 is computed, then sampled by (3) exactly as the dense lookup samples V^l (the
 same kernels `sample_windows` and `sample_windows_adjoint`, on the patch).
 
-Coarse levels on the CPU. Where a level has few pixels (H_l W_l <= 2 (2r + 2)^2,
-`full_product_level`; RAFT's two coarsest at 1/8 resolution), the forward takes
+Coarse levels on the CPU. Where a level has few pixels (2 H_l W_l <= (2r + 2)^2,
+`full_product_level`; RAFT's coarsest at 1/8 resolution), the forward takes
 every tap from the rows of the full product V^l = f1^T P^l(f2) / sqrt(C) instead,
-by BLAS, for blocks of pixels at a time (each block's rows no larger than the
-patch buffer), and samples them as the dense lookup samples V^l. The values are
+by BLAS (its rows held in the patch buffer's memory), and samples them as the dense
+lookup samples V^l. The values are
 those of (1) summed in BLAS's order (float rounding apart from the patches).
 
 Memory: the path keeps f1 and the pooled f2 pyramid between lookups, C (H W +
@@ -26,11 +26,13 @@ Stored features (`onthefly_features`, `lookup_onthefly_features`; kernels.corr.s
 f1 and P^l(f2) kept channels-last between lookups, in float32 or float16 (half the
 bytes held; widened exactly, so the arithmetic below is float32's, forward-only).
 
-The patches on the CPU: `patch_cpu` (C++, `wp.func_native`) forms a pixel's patch row by
-row, the 2r + 2 taps of a row in one pass over the channels, reading f1 and P^l(f2) in their
-stored dtype (float16 widened in registers), then samples the window from it (`window_cpu`'s
-one-pixel window): the same operations in the same order as `_patch_sample_level` (the Warp
-kernel, which CUDA keeps, with `_patch_level`), so the same values bit for bit.
+The patches on the CPU: `patch_cpu` (C++, `wp.func_native`) groups the pixels by their window's
+column origin (`_group_pixels`), then forms each group's patches level row by level row, the
+pixels whose windows hold a row sharing its tap vectors, reading P^l(f2) in its stored dtype
+(float16 widened in registers) and f1 widened once a call (exact), then samples each pixel's
+window from its patch (`window_cpu.sample_patches_cpu`): every tap the same operations in the same
+order as `_patch_sample_level` (the Warp kernel, which CUDA keeps, with `_patch_level`), so the
+same values bit for bit.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -58,7 +60,7 @@ import numpy as np
 import warp as wp
 
 from kernels._arrays import Inputs, declare_float_overloads
-from kernels.corr import patch_cpu
+from kernels.corr import patch_cpu, window_cpu
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
                                   features_in, full_product_level, level_shapes, levels_in, pack_rows, pixel_window,
                                   pool_levels, pool_levels_adjoint, sample_window, sample_windows,
@@ -334,35 +336,35 @@ def _one_blas_thread() -> Any:
 
 def _sample_full_product(x1_rows: np.ndarray, f2s: np.ndarray, height_l: int, width_l: int, xy: wp.array,
                          out: wp.array, lvl: int, radius: int, scratch: wp.array, a: Inputs) -> None:
-    """Level `lvl` of (4) from V^l = f1^T P^l(f2) / sqrt(C), formed by BLAS for blocks of pixels.
+    """Level `lvl` of (4) from V^l = f1^T P^l(f2) / sqrt(C), formed by BLAS.
 
     x1_rows: f1 channels-last (N, C) on the host; f2s: P^l(f2) / sqrt(C) as (C, H_l W_l), C-ordered
-    (`_scaled_level`). Each block of B pixels gets its rows of V^l ((B, H_l W_l), in the memory of
-    `scratch`, the patch buffer, so B H_l W_l <= its size) and is sampled like a dense level.
+    (`_scaled_level`). The rows of V^l ((N, H_l W_l), in the memory of `scratch`, the patch buffer:
+    a full-product level holds at most half a patch's taps, `full_product_level`) are formed, then
+    sampled like a dense level.
     """
     n = x1_rows.shape[0]
     taps = height_l * width_l
-    block = max(1, min(n, scratch.size // taps))
-    flat = scratch.numpy().reshape(-1)[:block * taps].reshape(block, taps)
-    buf = wp.array(flat.reshape(block, height_l, width_l), dtype=a.scalar, device=a.device, copy=False)
+    if n * taps > scratch.size:
+        raise AssertionError(f"full-product level of {taps} taps a pixel exceeds the patch buffer")
+    flat = scratch.numpy().reshape(-1)[:n * taps].reshape(n, taps)
+    buf = wp.array(flat.reshape(n, height_l, width_l), dtype=a.scalar, device=a.device, copy=False)
     side = 2 * radius + 1
-    scale = a.s(0.5 ** lvl)
-    for p0 in range(0, n, block):
-        rows = min(block, n - p0)
-        starts = range(0, rows, _BLAS_ROWS)
+    starts = range(0, n, _BLAS_ROWS)
 
-        def products(lo: int, hi: int) -> None:
-            # The same BLAS calls (row chunks of _BLAS_ROWS) whatever the thread count, so the
-            # values do not depend on it (BLAS may round a product's edge rows differently).
-            for r0 in starts[lo:hi]:
-                r1 = min(r0 + _BLAS_ROWS, rows)
-                np.matmul(x1_rows[p0 + r0:p0 + r1], f2s, out=flat[r0:r1])
+    def products(lo: int, hi: int) -> None:
+        # The same BLAS calls (row chunks of _BLAS_ROWS) whatever the thread count, so the
+        # values do not depend on it (BLAS may round a product's edge rows differently).
+        for r0 in starts[lo:hi]:
+            r1 = min(r0 + _BLAS_ROWS, n)
+            np.matmul(x1_rows[r0:r1], f2s, out=flat[r0:r1])
 
-        with _one_blas_thread():
-            parallel_ranges(products, len(starts), min_chunk=1)
-        # `sample_windows`' windows by window_cpu's C++ window, bit for bit (full products are CPU-only)
-        a.launch(patch_cpu.full_sample_cpu(radius, a.scalar), rows, [buf, xy, out, scale, lvl * side * side, p0],
-                 min_chunk=256)
+    with _one_blas_thread():
+        parallel_ranges(products, len(starts), min_chunk=1)
+    # `sample_windows`' windows (full products are CPU-only), bit for bit: the dense lookup's C++
+    # kernel on this one level
+    a.launch(window_cpu.sample_levels_cpu(radius, a.scalar), window_cpu.blocks(n),
+             [buf, buf, buf, buf, 1, xy, out, a.s(0.5 ** lvl), lvl * side * side], min_chunk=64)
 
 
 def _channels_first(x_v: wp.array, channels: int, a: Inputs) -> wp.array:
@@ -443,11 +445,25 @@ def _rows(x_v: wp.array) -> wp.array:
 
 
 def _cpu_patches(a: Inputs, f1_rows: wp.array) -> bool:
-    """Whether the patches go through `patch_cpu` (its C++ kernel): on the CPU, rows contiguous, stored in
+    """Whether the patches go through `patch_cpu` (its C++ kernels): on the CPU, rows contiguous, stored in
     the working dtype or in float16 with float32 work."""
     if not a.device.is_cpu or f1_rows.strides[1] != wp.types.type_size_in_bytes(f1_rows.dtype):
         return False
     return f1_rows.dtype == a.scalar or (f1_rows.dtype == wp.float16 and a.scalar == wp.float32)
+
+
+def _group_pixels(a: Inputs, xy: wp.array, scale: Any, radius: int, height_l: int,
+                  width_l: int) -> tuple[int, wp.array, wp.array, wp.array]:
+    """The pixels grouped for `patch_cpu.patch_groups_cpu` at one level (`patch_cpu.group_pixels_cpu`):
+    (number of groups, pixel order, each ordered pixel's window row origin, each group's first position)."""
+    n = xy.shape[1] * xy.shape[2]
+    side = 2 * radius + 2
+    n_groups = width_l + side + 1
+    ints = [a.empty(n, wp.int32) for _ in range(4)]  # i0, j0, order, sorted j0
+    starts = a.empty(n_groups + 1, wp.int32)
+    counts = a.empty(n_groups * (height_l + side + 1) + 1, wp.int32)
+    a.launch(patch_cpu.group_pixels_cpu(radius, a.scalar), 1, [xy, scale, *ints, starts, counts, height_l, width_l])
+    return n_groups, ints[2], ints[3], starts
 
 
 def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
@@ -457,8 +473,8 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
     `level_scaled(l)` P^l(f2) / sqrt(C) as (C, N_l) on the host in the working dtype.
 
     On the CPU the patches of a level are formed and sampled by `patch_cpu` from the stored rows
-    themselves; elsewhere f1 and each level are widened (`widen`, exact) for `_patch_sample_level` /
-    `_patch_level`. Either way the values are the same, bit for bit.
+    themselves (f1 widened once); elsewhere f1 and each level are widened (`widen`, exact) for
+    `_patch_sample_level` / `_patch_level`. Either way the values are the same, bit for bit.
     """
     n = f1_rows.shape[0]
     _, height, width = xy.shape
@@ -467,7 +483,7 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
     out = a.empty((n_levels * side * side, height, width))  # every element is written
     # Every tap is written by _patch_level; a full-product level reuses the memory for its blocks.
     patch = a.empty((n, side + 1, side + 1))
-    cpu_kernel = (patch_cpu.patch_sample_cpu(radius, a.scalar, f1_rows.dtype) if _cpu_patches(a, f1_rows)
+    cpu_kernel = (patch_cpu.patch_groups_cpu(radius, a.scalar, f1_rows.dtype) if _cpu_patches(a, f1_rows)
                   else None)
     f1_v = None  # f1 widened to the working dtype, where needed
     for lvl, (hl, wl) in enumerate(level_shapes(height, width, n_levels)):
@@ -477,9 +493,14 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
             x1_rows = f1_v.numpy().reshape(n, channels)  # f1 channels-last: the vectors' own memory
             _sample_full_product(x1_rows, level_scaled(lvl), hl, wl, xy, out, lvl, radius, patch, a)
         elif cpu_kernel is not None:
-            # One launch: each pixel's patch formed, then its window sampled while the patch is in cache.
-            a.launch(cpu_kernel, n, [f1_rows, level_rows(lvl), xy, patch, out, hl, wl, scale, inv,
-                                     lvl * side * side], min_chunk=64)
+            # The pixels grouped by window column origin, then a launch over the groups: each group's
+            # patches, row by row, its pixels sharing each tap row's vectors; then the windows sampled.
+            f1_v = widen(f1_rows, a) if f1_v is None else f1_v
+            n_groups, order, sorted_j0, starts = _group_pixels(a, xy, scale, radius, hl, wl)
+            a.launch(cpu_kernel, n_groups, [_rows(f1_v), level_rows(lvl), order, sorted_j0, starts, hl, wl, inv,
+                                            patch], min_chunk=2)
+            a.launch(window_cpu.sample_patches_cpu(radius, a.scalar), window_cpu.blocks(n),
+                     [patch, xy, out, scale, lvl * side * side], min_chunk=64)
         else:
             f1_v = widen(f1_rows, a) if f1_v is None else f1_v
             f2l_v = widen(level_rows(lvl), a)

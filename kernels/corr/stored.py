@@ -12,10 +12,11 @@ Between lookups the path keeps these arrays alone: s C8 (H W + sum_l H_l W_l) by
 or 2 (`stored_bytes`), in place of the volume pyramid's 4 H W sum_l H_l W_l.
 
 Dequantisation. Every float16 is a float32, so widening is exact. On the CPU the patch kernel
-(`patch_cpu`) reads the float16 rows themselves and widens each 8-channel vector in registers
-(F16C conversions); the full-product levels widen f1 once per call (`widen`: on the CPU a C++
-kernel of 8-lane conversions, `patch_cpu.widen_rows_cpu`, half the time of the host conversion
-by integer operations on the bits, `float16_to_float32`, which float64 work still uses) for BLAS.
+(`patch_cpu`) reads the levels' float16 rows themselves and widens each 8-channel vector in
+registers (F16C conversions); f1 is widened once per call (`widen`: on the CPU a C++ kernel of
+8-lane conversions, `patch_cpu.widen_rows_cpu`, half the time of the host conversion by integer
+operations on the bits, `float16_to_float32`, which float64 work still uses), for the patch
+kernel and the full-product levels' BLAS.
 Off the CPU, `widen` copies f1 and one level at a time into the channels-last vectors the
 float32 path builds in each call.
 Everything after the widening, the patch dot products, the BLAS products and their sums, is the
@@ -211,11 +212,13 @@ def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: 
 
     `onthefly_held_bytes` plus the working buffers of one call: f1 channels-last (channels padded
     to 8), one level's channels-last copy at a time (the largest level sampled through patches),
-    the patch buffer (whose memory a full-product level reuses for its blocks of V^l) and at a
-    full-product level the scaled P^l(f2). With float16 features (`lookup_onthefly_features`) the
-    working copies are the widened f1 and level, of the same sizes, in the working dtype; on the CPU
-    the patch kernel reads the stored rows in place, so there the count is an upper bound (no level
-    copy is made, and f1 is widened only for the full-product levels).
+    the patch buffer (whose memory a full-product level reuses for its blocks of V^l), at a
+    full-product level the scaled P^l(f2), and on the CPU the pixels' grouping for the patch kernel
+    (`onthefly._group_pixels`: four int32 of N and the counting sort's (W_l + 2r + 3)(H_l + 2r + 3)
+    + 1 + W_l + 2r + 4 at the largest patched level). With float16 features
+    (`lookup_onthefly_features`) the working copies are the widened f1 and level, of the same sizes,
+    in the working dtype; on the CPU the patch kernel reads the stored level rows in place, so there
+    the count is an upper bound (no level copy is made).
     """
     c_pad = -(-channels // VEC) * VEC
     n = height * width
@@ -225,4 +228,7 @@ def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: 
     patched = [hl * wl for hl, wl in shapes if not full_product_level(hl, wl, radius, wp.get_device("cpu"))]
     work = c_pad * n + c_pad * max(patched, default=0) + patch + channels * max(full, default=0)
     held = onthefly_held_bytes(height, width, channels, levels, itemsize, feature_dtype=feature_dtype)
-    return held + itemsize * work
+    side = 2 * radius + 2
+    grouping = max(((wl + side + 1) * (hl + side + 1) + 1 + wl + side + 2 for hl, wl in shapes
+                    if not full_product_level(hl, wl, radius, wp.get_device("cpu"))), default=0)
+    return held + itemsize * work + 4 * (4 * n + grouping if grouping else 0)

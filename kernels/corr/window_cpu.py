@@ -33,7 +33,9 @@ features) each window otherwise waits about one cache-miss latency.
 The kernel samples up to four levels a launch, as `_common.sample_levels` does
 (its arguments minus `radius`, over `blocks(H W)` threads); it is launched on the
 CPU only (CUDA keeps `_common.sample_levels`). The adjoint is unchanged
-(`_common.sample_windows_adjoint`).
+(`_common.sample_windows_adjoint`). `sample_patches_cpu` is the same 4-lane window
+reading each pixel's on-the-fly patch (its origin 0, 0) instead of a level slice: the
+on-the-fly forward's sampling on the CPU (`_common.sample_windows` with `from_patch` = 1).
 """
 
 import threading
@@ -343,3 +345,43 @@ def sample_levels_cpu(radius: int, scalar: Any) -> Any:
 def blocks(n_pixels: int) -> int:
     """Threads of a `sample_levels_cpu` launch over n_pixels pixels: one a block of LANES."""
     return -(-n_pixels // LANES)
+
+
+# The on-the-fly lookup's windows, sampled from each pixel's (2r + 2)^2 patch of taps (origin 0, 0)
+# instead of its level slice at the window's origin; the fractions are the same.
+_PATCH_LANES_CPP = _LANES_CPP.replace("col0[l] = (int)i;", "col0[l] = 0;").replace("row0[l] = (int)j;", "row0[l] = 0;")
+assert _PATCH_LANES_CPP.count("col0[l] = 0;") == 1 and _PATCH_LANES_CPP.count("row0[l] = 0;") == 1
+_patch_kernels: dict[tuple[int, Any], Any] = {}
+
+
+def _build_patches(radius: int, scalar: Any) -> Any:
+    side = 2 * radius + 1
+    array3 = wp.array3d(dtype=scalar)
+    window = window_func(radius, scalar)
+
+    def lanes(s: array3, p0: int, coords: array3, scale: scalar, out: array3, channel0: int): ...
+
+    lanes.__name__ = lanes.__qualname__ = f"sample_patch_lanes_cpu_r{radius}_{scalar.__name__}"
+    lanes = wp.func_native(_PATCH_LANES_CPP.replace("SIDE", str(side)).replace("LANES", str(LANES)))(lanes)
+
+    @wp.kernel(module="unique", module_options={"enable_backward": False, "optimization_level": 3})
+    def sample_patches_cpu(patch: array3, coords: array3, out: array3, scale: scalar, channel0: int, offset: int):
+        # thread = a block of LANES consecutive pixels (the last block may hold fewer)
+        p0 = (wp.tid() + offset) * LANES
+        n_pixels = coords.shape[1] * coords.shape[2]
+        if p0 + LANES <= n_pixels:
+            lanes(patch, p0, coords, scale, out, channel0)
+        else:
+            for p in range(p0, n_pixels):
+                h, w, i0, fx, j0, fy = pixel_window(coords, p, scale, radius)
+                window(patch, p, 0, 0, fx, fy, out, channel0, h, w)
+
+    return sample_patches_cpu
+
+
+def sample_patches_cpu(radius: int, scalar: Any) -> Any:
+    """The CPU kernel sampling every pixel's window from its patch (the on-the-fly lookup's (3)), for this
+    radius and float type: `_common.sample_windows` with `from_patch` = 1, LANES pixels a thread as
+    `sample_levels_cpu` (bit-identical). Arguments (patch, coords, out, scale, channel0, offset), over
+    `blocks(H W)` threads; built once, cached."""
+    return built_once(_patch_kernels, (radius, scalar), lambda: _build_patches(radius, scalar))

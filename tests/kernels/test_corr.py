@@ -80,14 +80,15 @@ def test_lookup_matches_reference(dtype, radius):
 
 def test_onthefly_independent_of_thread_count(monkeypatch):
     """The full-product levels run BLAS on row chunks fixed in advance, the patches in race-free split
-    launches: the same bytes with 1 and 3 launch threads (576 pixels: three BLAS chunks per level)."""
+    launches: the same bytes with 1 and 3 launch threads (576 pixels: three BLAS chunks at the 6x6 level,
+    radius 4)."""
     f1, f2, coords = random_case(np.random.default_rng(13), np.float32, shape=(16, 24, 24))
     f2_pyramid = corr.pool_features(f2, 3)
-    assert corr.full_product_level(6, 6, 2, wp.get_device("cpu"))
+    assert corr.full_product_level(6, 6, 4, wp.get_device("cpu"))
     outs = []
     for threads in ("1", "3"):
         monkeypatch.setenv("DRLAB_THREADS", threads)
-        outs.append(corr.lookup_onthefly(f1, f2_pyramid, coords, 2))
+        outs.append(corr.lookup_onthefly(f1, f2_pyramid, coords, 4))
     assert outs[0].tobytes() == outs[1].tobytes()
 
 
@@ -209,20 +210,25 @@ def test_memory_accounting():
     pixels = 46 * 62 + 23 * 31 + 11 * 15 + 5 * 7
     assert corr.dense_bytes(46, 62, 4) == 4 * 46 * 62 * pixels
     assert corr.onthefly_held_bytes(46, 62, 256, 4) == 4 * 256 * (46 * 62 + pixels)  # f1 and the pooled f2
-    # The peak adds f1 and level 0 channels-last, the patch buffer (whose memory the full-product levels
-    # 2 and 3, 11x15 and 5x7 <= 2 * 10^2 taps, reuse for their blocks of V^l) and the scaled level 2.
-    work = 256 * 46 * 62 * 2 + 46 * 62 * 10 ** 2 + 256 * 11 * 15
-    assert corr.onthefly_bytes(46, 62, 256, 4, 4) == corr.onthefly_held_bytes(46, 62, 256, 4) + 4 * work
+    # The peak adds f1 and level 0 channels-last, the patch buffer (whose memory the full-product level
+    # 3, 2 * 5x7 <= 10^2 taps, reuses for its block of V^l) and the scaled level 3;
+    # the patch kernel's grouping: four int32 a pixel, and at level 0 the counting sort's
+    # (62 + 11) (46 + 11) + 1 counts and 62 + 12 group starts.
+    work = 256 * 46 * 62 * 2 + 46 * 62 * 10 ** 2 + 256 * 5 * 7
+    grouping = 4 * 46 * 62 + 73 * 57 + 1 + 74
+    assert corr.onthefly_bytes(46, 62, 256, 4, 4) == (corr.onthefly_held_bytes(46, 62, 256, 4) + 4 * work
+                                                      + 4 * grouping)
 
 
-# (shape, levels, radius, which levels take the full product). Level 0 of the first case (130 taps)
-# goes through patches, levels 1 and 2 (30 and 6 taps <= 2 * 6^2) through the product in one block;
-# the second case's level 1 (6x8 = 48 taps) needs two blocks (192 pixels x 48 > the 192 x 36 patch).
-FULL_PRODUCT_CASES = [((16, 10, 13), 3, 2, [False, True, True]), ((8, 12, 16), 2, 2, [False, True])]
+# (shape, levels, radius, which levels take the full product). Levels 0 and 1 of the first case (130
+# and 30 taps) go through patches, level 2 (6 taps, 2 * 6 <= 6^2) through the product; the second
+# case's level 2 (3x4, 2 * 12 <= 8^2) likewise, at radius 3. (A full-product level holds at most half
+# the patch's taps, so its rows fit the patch buffer in one block.)
+FULL_PRODUCT_CASES = [((16, 10, 13), 3, 2, [False, False, True]), ((8, 12, 16), 3, 3, [False, False, True])]
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
-@pytest.mark.parametrize("shape,levels,radius,full", FULL_PRODUCT_CASES, ids=["one_block", "two_blocks"])
+@pytest.mark.parametrize("shape,levels,radius,full", FULL_PRODUCT_CASES, ids=["radius2", "radius3"])
 def test_onthefly_full_product_levels(dtype, shape, levels, radius, full):
     """Levels small enough for the full product f1^T P^l(f2) by BLAS (CPU, C a multiple of 8) give the
     reference lookup, as the patch levels of the same call do."""

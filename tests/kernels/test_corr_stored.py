@@ -12,7 +12,7 @@ from kernels.corr import stored
 from kernels.reference import corr as ref
 
 # (C, H, W, levels, radius): C a multiple of 8 and not (padded channels), levels through patches
-# and (on the CPU) through the full product (H_l W_l <= 2 (2r + 2)^2).
+# and (on the CPU) through the full product (2 H_l W_l <= (2r + 2)^2).
 CASES = [(16, 12, 16, 3, 2), (12, 9, 11, 2, 1), (24, 20, 22, 4, 1)]
 
 
@@ -134,14 +134,19 @@ def test_held_bytes_exact(c):
 
 @pytest.mark.parametrize("storage", ["float32", "float64", "float16", "float16_wide"])
 @pytest.mark.parametrize("radius", [0, 1, 3, 4])  # patch rows of 2, 4, 8 and 10 taps
-def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius):
-    """The CPU's patches (patch_cpu, C++, reading the stored dtype) equal `onthefly._patch_sample_level`
-    (the Warp kernel, on the widened vectors) bit for bit, patches and samples: windows inside level 0
-    and overhanging or outside the coarser levels, a NaN position, padded channels (C = 12).
-    "float16_wide": features from float16 subnormals to ~2^13, so the fused multiply-adds of the
-    float16 kernel meet tiny and large products (exact in float32 all the same)."""
+@pytest.mark.parametrize("spread", ["mixed", "crowded"])
+def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius, spread):
+    """The CPU's patches (patch_cpu: pixels grouped by window column, C++, reading the stored dtype)
+    and their windows (window_cpu.sample_patches_cpu, 4 pixels a thread; 598 pixels, so a last block of
+    2) equal `onthefly._patch_sample_level` (the Warp kernel, on the widened vectors) bit for bit, patches
+    and samples: windows inside level 0 and overhanging or outside the coarser levels, a NaN position,
+    padded channels (C = 12), windows far outside. "crowded": every window near one point, so the groups
+    hold up to hundreds of pixels and a tap row is shared by 8 pixels at a time (the 16-lane pairs), then the
+    4-, 2- and 1-pixel remainders. "float16_wide": features from float16 subnormals to ~2^13, so the
+    fused multiply-adds of the float16 kernel meet tiny and large products (exact in float32 all the
+    same)."""
     from kernels._arrays import value_checks
-    from kernels.corr import onthefly, patch_cpu
+    from kernels.corr import onthefly, patch_cpu, window_cpu
     from kernels.corr._common import level_shapes
 
     rng = np.random.default_rng(60 + radius)
@@ -153,8 +158,13 @@ def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius):
         f1 = f1 * np.exp2(rng.integers(-26, 13, f1.shape)).astype(np.float32)
         f2_pyramid = [x * np.exp2(rng.integers(-26, 13, x.shape)).astype(np.float32) for x in f2_pyramid]
         assert np.abs(f1).max() < 65504 and (np.abs(f1.astype(np.float16)) < 2.0 ** -14).any()
-    near = np.stack(np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)) + rng.uniform(-2, 2, (2, h, w))
-    coords[:, : h // 2] = near[:, : h // 2]
+    if spread == "crowded":
+        coords = np.stack([rng.uniform(9, 11.5, (h, w)), rng.uniform(8, 14, (h, w))])
+    else:
+        near = np.stack(np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)) + rng.uniform(-2, 2, (2, h, w))
+        coords[:, : h // 2] = near[:, : h // 2]
+        # windows far outside every level (the grouping clamps their origins): left, right, above, below
+        coords[:, 20, 1:5] = [[-1e4, w + 1e4, 3.0, 5.0], [2.0, 4.0, -1e5, h + 1e5]]
     coords[0, 3, 4] = np.nan
     f1, coords = f1.astype(dtype), coords.astype(dtype)
     f2_pyramid = [x.astype(dtype) for x in f2_pyramid]
@@ -164,21 +174,29 @@ def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius):
     xy = wp.array(coords, device="cpu")
     n, side = h * w, 2 * radius + 1
     inv = a.s(1.0 / np.sqrt(c))
-    kernel = patch_cpu.patch_sample_cpu(radius, a.scalar, features.f1.dtype)
+    kernel = patch_cpu.patch_groups_cpu(radius, a.scalar, features.f1.dtype)
     assert features.f1.dtype == {"float32": wp.float32, "float64": wp.float64, "float16": wp.float16}[storage]
     f1_v = stored.widen(features.f1, a)
+    f1_rows = wp.array(ptr=f1_v.ptr, shape=(n, f1_v.shape[1] * 8), dtype=a.scalar, device="cpu")
     for lvl, (hl, wl) in enumerate(level_shapes(h, w, n_levels)):
         results = []
         for cpp in (True, False):
             patch = wp.full((n, side + 1, side + 1), 7.0, dtype=a.scalar, device="cpu")
             out = wp.full((side * side, h, w), 7.0, dtype=a.scalar, device="cpu")
-            if cpp:
-                inputs = [features.f1, features.levels[lvl], xy, patch, out, hl, wl, a.s(0.5 ** lvl), inv, 0, 0]
-            else:
-                inputs = [f1_v, stored.widen(features.levels[lvl], a), xy, patch, out, hl, wl, a.s(0.5 ** lvl),
-                          radius, inv, 0, 0]
             with value_checks(False):
-                wp.launch(kernel if cpp else onthefly._patch_sample_level, n, inputs, device="cpu")
+                if cpp:
+                    n_groups, order, sorted_j0, starts = onthefly._group_pixels(a, xy, a.s(0.5 ** lvl), radius, hl, wl)
+                    assert sorted(order.numpy()) == list(range(n))  # every pixel once
+                    sizes = np.diff(starts.numpy())
+                    assert sizes.max() > (100 if spread == "crowded" else 8)
+                    wp.launch(kernel, n_groups, [f1_rows, features.levels[lvl], order, sorted_j0, starts, hl, wl,
+                                                 inv, patch, 0], device="cpu")
+                    wp.launch(window_cpu.sample_patches_cpu(radius, a.scalar), window_cpu.blocks(n),
+                              [patch, xy, out, a.s(0.5 ** lvl), 0, 0], device="cpu")
+                else:
+                    wp.launch(onthefly._patch_sample_level, n, [f1_v, stored.widen(features.levels[lvl], a), xy,
+                                                                patch, out, hl, wl, a.s(0.5 ** lvl), radius, inv, 0,
+                                                                0], device="cpu")
             results.append((patch.numpy(), out.numpy()))
         (patch_cpp, out_cpp), (patch_warp, out_warp) = results
         nan = np.isnan(out_warp)
@@ -187,37 +205,9 @@ def test_patch_cpu_kernel_is_the_warp_kernel_bit_for_bit(storage, radius):
         valid = np.ones(n, dtype=bool)
         valid[3 * w + 4] = False  # the NaN position's window origin is undefined
         assert patch_cpp[valid].tobytes() == patch_warp[valid].tobytes()
-        assert (patch_cpp[valid] == 0).any() and (patch_cpp[valid] != 0).any()
-
-
-@pytest.mark.parametrize("dtype", [np.float32, np.float64])
-@pytest.mark.parametrize("radius", [1, 4])
-def test_full_sample_cpu_kernel_is_sample_windows_bit_for_bit(dtype, radius):
-    """The full-product levels' sampling on the CPU (patch_cpu.full_sample_cpu, C++) equals
-    `_common.sample_windows` bit for bit: a block of rows of V^l from pixel block0 on, windows inside,
-    overhanging and outside the level, a NaN position."""
-    from kernels._arrays import value_checks
-    from kernels.corr import _common, patch_cpu
-
-    rng = np.random.default_rng(70 + radius)
-    h, w, hl, wl, block0, rows = 13, 17, 7, 9, 40, 150
-    coords = np.stack([rng.uniform(-6, w + 6, (h, w)), rng.uniform(-6, h + 6, (h, w))]).astype(dtype)
-    coords[1, 4, 3] = np.nan  # pixel 71, inside the block
-    s = wp.array(rng.standard_normal((rows, hl, wl)).astype(dtype), device="cpu")
-    xy = wp.array(coords, device="cpu")
-    scalar = s.dtype
-    side = 2 * radius + 1
-    outs = [wp.full((2 * side * side, h, w), 7.0, dtype=scalar, device="cpu") for _ in range(2)]
-    with value_checks(False):
-        wp.launch(patch_cpu.full_sample_cpu(radius, scalar), rows, [s, xy, outs[0], scalar(0.5), side * side,
-                                                                       block0, 0], device="cpu")
-        wp.launch(_common.sample_windows, rows, [s, xy, outs[1], scalar(0.5), radius, side * side, 0, block0, 0],
-                  device="cpu")
-    got, want = outs[0].numpy(), outs[1].numpy()
-    nan = np.isnan(want)
-    assert nan.any() and np.array_equal(np.isnan(got), nan)
-    assert got[~nan].tobytes() == want[~nan].tobytes()
-    assert (got[side * side:].reshape(side * side, -1)[:, block0:block0 + rows] != 7.0).all()
+        assert (patch_cpp[valid] != 0).any()
+        if spread == "mixed":  # (crowded windows lie inside level 0 at small radii)
+            assert (patch_cpp[valid] == 0).any()
 
 
 @pytest.mark.parametrize("feature_dtype", ["float32", "float16"])
