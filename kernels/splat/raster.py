@@ -444,12 +444,9 @@ def _rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array, tiles: Til
         tiles = bin_tiles(s, width, height, mode)
     _check_tiles_mode(tiles, mode)
     # Every pixel belongs to one tile, whose thread writes all its outputs: no zero fill needed.
-    dev = a.device
-    out = Raster(wp.empty((height, width, 3), dtype=a.scalar, device=dev),
-                 wp.empty((height, width), dtype=a.scalar, device=dev),
-                 wp.empty((height, width), dtype=a.scalar, device=dev),
-                 wp.empty((height, width), dtype=a.scalar, device=dev),
-                 wp.empty((height, width), dtype=wp.int32, device=dev))
+    # (On the CPU the large ones recycle freed blocks: kernels/_arrays.py, HostPool.)
+    out = Raster(a.empty((height, width, 3)), a.empty((height, width)), a.empty((height, width)),
+                 a.empty((height, width)), a.empty((height, width), wp.int32))
     n_tiles = tiles.tiles_x * tiles.tiles_y
     args = [tiles.packed, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]),
             a.s(stop_below(mode, a.np_dtype)), out.rgb, out.alpha, out.depth, out.final_T, out.n_contrib]
