@@ -550,8 +550,10 @@ def project_wp(g: GaussianInputs, camera: SplatCamera, sh_degree: int, antialias
     a = g.inputs()
     view, cam = _camera_arrays(a, camera)
     n = g.n
-    out = Projection(a.zeros((n, 2)), a.zeros((n, 3)), a.zeros(n), a.zeros(n, wp.int32), a.zeros((n, 3)),
-                     a.zeros(n))
+    # Every row is written by its thread (zeros first, for a culled splat): no zero fill; on the CPU the
+    # large arrays recycle freed blocks (kernels/_arrays.py, HostPool).
+    out = Projection(a.empty((n, 2)), a.empty((n, 3)), a.empty(n), a.empty(n, wp.int32), a.empty((n, 3)),
+                     a.empty(n))
     a.launch(_project_kernel, n,
              [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, camera.width, camera.height,
               sh_degree, mid, wp.float64(s), int(bool(antialiased)), out.means2d, out.conics, out.depths, out.radii,

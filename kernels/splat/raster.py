@@ -33,7 +33,10 @@ and for each splat only the pixels of its spans in the tile (kernels/splat/tiles
 the rows and columns inside its alpha >= 1/255 ellipse, widened for rounding; every other pixel
 would skip it). Each pixel's running T and sums live in arrays between splats; the forward marks
 a stopped pixel (n_contrib < 0 until the end) and ends the tile once all its pixels stopped.
-On CUDA the forward runs a thread per pixel over its tile's whole list (the same results).
+On CUDA the forward runs a thread per pixel over its tile's whole list (the same results). On a CPU
+with AVX2 and FMA the float32 forward blends each splat's span rows 16 pixels at once
+(kernels/splat/rowblend.py: the same arithmetic per lane, glibc's expf in float64 lanes; the same
+bits), the tile's per-pixel state in a scratch array and each row's running pixels in a bit mask.
 The per-tile loops are while loops with the pixel centre stepped by one (exact for image sides up
 to MAX_SIDE = 2^23), and both modes' stop is one comparison next_t < stop_below(mode): Warp's
 range() iterator and the compound test cost more per pixel.
@@ -49,6 +52,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
+from kernels.splat.rowblend import blend_row, rowblend_available
 from kernels.splat.tiles import MAX_SIDE, TILE, TILE_PIXELS, Splats2D, Tiles, bin_tiles, pixel_span
 
 wp.set_module_options({"enable_backward": False})
@@ -161,6 +165,84 @@ def _raster_forward_kernel(
             nc = n_contrib[py, px]
             if nc < 0:
                 n_contrib[py, px] = -1 - nc
+
+
+@wp.kernel
+def _raster_forward_rows_kernel(
+    packed: wp.array2d(dtype=wp.float32), background: wp.array(dtype=wp.float32),
+    sorted_gid: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
+    width: int, height: int, tiles_x: int, alpha_max: wp.float32, t_stop: wp.float32,
+    out_rgb: wp.array3d(dtype=wp.float32), out_alpha: wp.array2d(dtype=wp.float32),
+    out_depth: wp.array2d(dtype=wp.float32), final_T: wp.array2d(dtype=wp.float32),
+    n_contrib: wp.array2d(dtype=wp.int32), state: wp.array2d(dtype=wp.float32), nc: wp.array2d(dtype=wp.int32),
+    live: wp.array2d(dtype=wp.int32), offset: int,
+):
+    # _raster_forward_kernel for float32 on a CPU with AVX2 and FMA: the same walk over the tile's
+    # splats, each splat's span rows blended 16 pixels at once (kernels/splat/rowblend.py, the same
+    # bits); the tile's per-pixel state lives in `state` / `nc` until the end, and `live` holds
+    # each row's running pixels, so stopped pixels cost nothing.
+    tile = wp.tid() + offset
+    half = wp.float32(0.5)
+    one = wp.float32(1.0)
+    tile_y = tile / tiles_x
+    x_lo = (tile - tile_y * tiles_x) * TILE
+    y_lo = tile_y * TILE
+    x_hi = wp.min(x_lo + TILE, width)
+    y_hi = wp.min(y_lo + TILE, height)
+    start = ranges[tile, 0]
+    end = ranges[tile, 1]
+    for k in range(TILE_PIXELS):
+        state[tile, k] = one
+        state[tile, TILE_PIXELS + k] = wp.float32(0.0)
+        state[tile, 2 * TILE_PIXELS + k] = wp.float32(0.0)
+        state[tile, 3 * TILE_PIXELS + k] = wp.float32(0.0)
+        state[tile, 4 * TILE_PIXELS + k] = wp.float32(0.0)
+        nc[tile, k] = start
+    row_bits = (int(1) << (x_hi - x_lo)) - 1
+    for r in range(TILE):
+        live[tile, r] = 0
+        if r < y_hi - y_lo:
+            live[tile, r] = row_bits
+    n_pix = (x_hi - x_lo) * (y_hi - y_lo)
+    stopped = int(0)
+    s = start - 1
+    while s < end - 1:
+        s += 1
+        g = sorted_gid[s]
+        row0, row1, col0, col1 = pixel_span(packed, g, x_lo, x_hi, y_lo, y_hi)
+        if col1 <= col0 or row1 <= row0:
+            continue
+        cols = ((int(1) << (col1 - col0)) - 1) << (col0 - x_lo)
+        u = packed[g, 0]
+        v = packed[g, 1]
+        qa = packed[g, 2]
+        qb = packed[g, 3]
+        qc = packed[g, 4]
+        o = packed[g, 5]
+        thr = packed[g, 6]
+        z = packed[g, 7]
+        c0 = packed[g, 8]
+        c1 = packed[g, 9]
+        c2 = packed[g, 10]
+        py = row0 - 1
+        while py < row1 - 1:
+            py += 1
+            dy = v - (wp.float32(float(py)) + half)
+            stopped += blend_row(state, nc, live, tile, py - y_lo, cols, x_lo, dy, u, qa, qb, qc, o, thr, z, c0, c1,
+                                 c2, alpha_max, t_stop, s + 1)
+        if stopped == n_pix:
+            break
+    for py in range(y_lo, y_hi):
+        for px in range(x_lo, x_hi):
+            k = (py - y_lo) * TILE + (px - x_lo)
+            tr = state[tile, k]
+            out_rgb[py, px, 0] = state[tile, TILE_PIXELS + k] + tr * background[0]
+            out_rgb[py, px, 1] = state[tile, 2 * TILE_PIXELS + k] + tr * background[1]
+            out_rgb[py, px, 2] = state[tile, 3 * TILE_PIXELS + k] + tr * background[2]
+            out_depth[py, px] = state[tile, 4 * TILE_PIXELS + k]
+            out_alpha[py, px] = one - tr
+            final_T[py, px] = tr
+            n_contrib[py, px] = nc[tile, k]
 
 
 @wp.kernel
@@ -435,8 +517,18 @@ def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
     return _rasterize_wp(s, width, height, bg, tiles, mode, per_tile=s.device.is_cpu)
 
 
+_ROWS_OK: list[bool] = []
+
+
+def _rows_ok() -> bool:
+    """Whether the CPU kernels have the 16-lane row blend (AVX2 and FMA; kernels/splat/rowblend.py)."""
+    if not _ROWS_OK:
+        _ROWS_OK.append(rowblend_available())
+    return _ROWS_OK[0]
+
+
 def _rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array, tiles: Tiles | None, mode: str,
-                  per_tile: bool) -> tuple[Raster, Tiles]:
+                  per_tile: bool, rows: bool = True) -> tuple[Raster, Tiles]:
     """`rasterize_wp` with the forward's layout chosen: a thread per tile (the CPU's) or per pixel (CUDA's)."""
     mode_id(mode)
     a = s.inputs()
@@ -444,16 +536,17 @@ def _rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array, tiles: Til
         tiles = bin_tiles(s, width, height, mode)
     _check_tiles_mode(tiles, mode)
     # Every pixel belongs to one tile, whose thread writes all its outputs: no zero fill needed.
-    dev = a.device
-    out = Raster(wp.empty((height, width, 3), dtype=a.scalar, device=dev),
-                 wp.empty((height, width), dtype=a.scalar, device=dev),
-                 wp.empty((height, width), dtype=a.scalar, device=dev),
-                 wp.empty((height, width), dtype=a.scalar, device=dev),
-                 wp.empty((height, width), dtype=wp.int32, device=dev))
+    # (On the CPU the large ones recycle freed blocks: kernels/_arrays.py, HostPool.)
+    out = Raster(a.empty((height, width, 3)), a.empty((height, width)), a.empty((height, width)),
+                 a.empty((height, width)), a.empty((height, width), wp.int32))
     n_tiles = tiles.tiles_x * tiles.tiles_y
     args = [tiles.packed, bg, tiles.sorted_gid, tiles.ranges, width, height, tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]),
             a.s(stop_below(mode, a.np_dtype)), out.rgb, out.alpha, out.depth, out.final_T, out.n_contrib]
-    if per_tile:
+    if per_tile and rows and a.scalar == wp.float32 and _rows_ok():
+        scratch = [a.empty((n_tiles, 5 * TILE_PIXELS)), a.empty((n_tiles, TILE_PIXELS), wp.int32),
+                   a.empty((n_tiles, TILE), wp.int32)]
+        a.launch(_raster_forward_rows_kernel, n_tiles, [*args, *scratch], min_chunk=1)
+    elif per_tile:
         a.launch(_raster_forward_kernel, n_tiles, args, min_chunk=1)
     else:
         a.launch(_raster_forward_pixel_kernel, n_tiles * TILE_PIXELS, args, min_chunk=TILE_PIXELS)

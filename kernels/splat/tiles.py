@@ -27,10 +27,11 @@ The (tile, splat) pairs are listed sorted by (tile, depth rank): the splats are 
 [starts[i], starts[i] + counts[i]) (its tiles in row-major order), the slices laid out in depth
 order, and a stable sort by tile alone then lists every tile's splats front to back; per-tile
 ranges [start, end) index the sorted list, and each sorted entry keeps its emitted index (the
-backward's gradient row) and its splat. On the CPU the sort is a counting sort by tile
-(_counting_sort: per-chunk histograms, a scan, a scatter; up to SERIAL_SORT_MAX entries, where it
-would run one chunk, _serial_sort does the same in one single-threaded kernel straight from the
-splats' tile boxes, without the emitted arrays and the host scans); on CUDA a radix sort
+backward's gradient row) and its splat. On the CPU the sort is a counting sort by tile straight
+from the splats' tile boxes, without writing the emitted entries (_counting_sort: the boxes gathered
+into depth order, per-chunk histograms, a scan, a scatter; up to SERIAL_SORT_MAX entries, where it
+would run one chunk, _serial_sort does the same in one single-threaded kernel, without the host
+scans); on CUDA the emitted entries' radix sort
 (wp.utils.radix_sort_pairs, ceil(log2 tiles) bits); all give the same lists. Every kernel writes
 only its own slots (the emit kernel splat i's slice, a sort chunk its histogram row and slots),
 so all run split over CPU threads.
@@ -282,46 +283,54 @@ def _emit_kernel(
 
 
 @wp.kernel
-def _emit_gid_kernel(
-    rects: wp.array2d(dtype=wp.int32), starts: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
-    tiles_x: int, keys: wp.array(dtype=wp.int32), gids: wp.array(dtype=wp.int32), offset: int,
-):
-    # _emit_kernel's entries, for the counting sort: the tile and the splat of each emitted index.
-    i = wp.tid() + offset
-    if counts[i] == 0:
-        return
-    e = starts[i]
-    for ty in range(rects[i, 2], rects[i, 3]):
-        for tx in range(rects[i, 0], rects[i, 1]):
-            keys[e] = ty * tiles_x + tx
-            gids[e] = i
-            e += 1
+def _rank_rects_kernel(order: wp.array(dtype=wp.int32), rects: wp.array2d(dtype=wp.int32),
+                       ranked_rects: wp.array2d(dtype=wp.int32), offset: int):
+    # The splats' tile boxes in depth order (one gather), so that the sort's chunks read them in sequence.
+    j = wp.tid() + offset
+    i = order[j]
+    ranked_rects[j, 0] = rects[i, 0]
+    ranked_rects[j, 1] = rects[i, 1]
+    ranked_rects[j, 2] = rects[i, 2]
+    ranked_rects[j, 3] = rects[i, 3]
 
 
 @wp.kernel
-def _tile_hist_kernel(keys: wp.array(dtype=wp.int32), n: int, chunk: int, hist: wp.array2d(dtype=wp.int32),
-                      offset: int):
-    # Chunk c of the emitted entries counts its entries per tile into its own histogram row.
+def _rank_hist_kernel(ranked_rects: wp.array2d(dtype=wp.int32), bounds: wp.array(dtype=wp.int32), tiles_x: int,
+                      n_tiles: int, hist: wp.array2d(dtype=wp.int32), offset: int):
+    # Chunk c (the splats of depth ranks bounds[c] .. bounds[c + 1] - 1) counts its entries per tile
+    # into its own histogram row, straight from their tile boxes.
     c = wp.tid() + offset
-    for e in range(c * chunk, wp.min(n, c * chunk + chunk)):
-        t = keys[e]
-        hist[c, t] = hist[c, t] + 1
+    for t in range(n_tiles):
+        hist[c, t] = 0
+    for j in range(bounds[c], bounds[c + 1]):
+        for ty in range(ranked_rects[j, 2], ranked_rects[j, 3]):
+            row = ty * tiles_x
+            for tx in range(ranked_rects[j, 0], ranked_rects[j, 1]):
+                hist[c, row + tx] = hist[c, row + tx] + 1
 
 
 @wp.kernel
-def _tile_scatter_kernel(
-    keys: wp.array(dtype=wp.int32), gids: wp.array(dtype=wp.int32), n: int, chunk: int,
+def _rank_scatter_kernel(
+    ranked_rects: wp.array2d(dtype=wp.int32), order: wp.array(dtype=wp.int32),
+    ranked_starts: wp.array(dtype=wp.int32), bounds: wp.array(dtype=wp.int32), tiles_x: int,
     next_slot: wp.array2d(dtype=wp.int32), sorted_gid: wp.array(dtype=wp.int32),
     sorted_entry: wp.array(dtype=wp.int32), offset: int,
 ):
-    # Chunk c places its entries, in emitted (depth) order, at its own run of slots in each tile's list.
+    # Chunk c places its splats' entries, in depth order and each splat's tiles in row-major order (the
+    # emitted order), at its own run of slots in each tile's list.
     c = wp.tid() + offset
-    for e in range(c * chunk, wp.min(n, c * chunk + chunk)):
-        t = keys[e]
-        pos = next_slot[c, t]
-        next_slot[c, t] = pos + 1
-        sorted_gid[pos] = gids[e]
-        sorted_entry[pos] = e
+    for j in range(bounds[c], bounds[c + 1]):
+        i = order[j]
+        e = ranked_starts[j]
+        for ty in range(ranked_rects[j, 2], ranked_rects[j, 3]):
+            row = ty * tiles_x
+            for tx in range(ranked_rects[j, 0], ranked_rects[j, 1]):
+                t = row + tx
+                pos = next_slot[c, t]
+                next_slot[c, t] = pos + 1
+                sorted_gid[pos] = i
+                sorted_entry[pos] = e
+                e += 1
 
 
 @wp.kernel
@@ -497,20 +506,21 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
 
 
 def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: bool,
-               serial_max: int = SERIAL_SORT_MAX) -> Tiles:
+               serial_max: int = SERIAL_SORT_MAX, chunk_min: int = SORT_CHUNK_MIN) -> Tiles:
     """`bin_tiles` with the entry sort chosen: the counting sort (the CPU's; one serial kernel up to
-    `serial_max` entries) or the radix sort (CUDA's)."""
+    `serial_max` entries, else chunks of at least `chunk_min` entries) or the radix sort (CUDA's)."""
     mid = mode_id(mode)
     a = s.inputs()
     dev = s.device
     n = s.n
     tiles_x, tiles_y = (width + TILE - 1) // TILE, (height + TILE - 1) // TILE
     n_tiles = tiles_x * tiles_y
-    rects = wp.empty((n, 4), dtype=wp.int32, device=dev)
-    counts = wp.empty(n, dtype=wp.int32, device=dev)
-    packed = wp.empty((n, PACKED_COLS), dtype=s.scalar, device=dev)
-    dkeys = wp.empty(2 * n, dtype=s.scalar, device=dev)  # the radix sort's keys and values take 2n slots
-    order = wp.empty(2 * n, dtype=wp.int32, device=dev)
+    # Fully written arrays; on the CPU the large ones recycle freed blocks (kernels/_arrays.py: HostPool).
+    rects = a.empty((n, 4), wp.int32)
+    counts = a.empty(n, wp.int32)
+    packed = a.empty((n, PACKED_COLS), s.scalar)
+    dkeys = a.empty(2 * n, s.scalar)  # the radix sort's keys and values take 2n slots
+    order = a.empty(2 * n, wp.int32)
     a.launch(_tile_counts_kernel, n, [s.means2d, s.conics, s.colors, s.opacities, s.depths, s.radii,
                                      tiles_x, tiles_y, mid, wp.float64(UNIT_ROUNDOFF[s.scalar]), rects, counts, packed,
                                      dkeys, order],
@@ -528,7 +538,7 @@ def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: b
             return _serial_sort(a, rects, packed, counts, order, n, n_entries, tiles_x, tiles_y, mode)
     # Each splat's entries are the slice [starts[i], starts[i] + counts[i)), its tiles in row-major
     # order; the slices follow one another in depth order, so that the entries come out depth-ordered.
-    starts = wp.empty(n, dtype=wp.int32, device=dev)
+    starts = a.empty(n, wp.int32)
     if counting_sort:  # the CPU: the same scan through zero-copy NumPy views, without three launches
         rank_order = order.numpy()[:n]
         ranked_counts_np = counts.numpy()[rank_order]
@@ -547,7 +557,8 @@ def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: b
                      wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev),
                      packed, mode)
     if counting_sort:
-        return _counting_sort(a, rects, packed, starts, counts, n, n_entries, tiles_x, tiles_y, mode)
+        return _counting_sort(a, rects, packed, starts, counts, order, ranked_starts_np, n, n_entries, tiles_x,
+                              tiles_y, mode, chunk_min)
     ranges = wp.zeros((n_tiles, 2), dtype=wp.int32, device=dev)
 
     # Keys are the tiles; values the emitted indices. The radix sort is stable, so a tile's entries keep
@@ -580,36 +591,42 @@ def _serial_sort(a: A.Inputs, rects: wp.array, packed: wp.array, counts: wp.arra
     return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry, ranges, packed, mode)
 
 
-def _counting_sort(a: A.Inputs, rects: wp.array, packed: wp.array, starts: wp.array, counts: wp.array, n: int,
-                   n_entries: int, tiles_x: int, tiles_y: int, mode: str) -> Tiles:
-    """The CPU's (tile, depth) order: a stable counting sort of the emitted entries by tile.
+def _counting_sort(a: A.Inputs, rects: wp.array, packed: wp.array, starts: wp.array, counts: wp.array,
+                   order: wp.array, ranked_starts_np: np.ndarray, n: int, n_entries: int, tiles_x: int, tiles_y: int,
+                   mode: str, chunk_min: int = SORT_CHUNK_MIN) -> Tiles:
+    """The CPU's (tile, depth) order: a stable counting sort of the entries by tile, straight from the
+    splats' tile boxes.
 
-    The emitted entries (in depth order) are cut into chunks; each chunk counts its entries per
-    tile (one histogram row per chunk); a scan of the histogram in (tile, chunk) order gives every
-    chunk its first slot in every tile's list, and each chunk writes its entries there in emitted
-    order. The lists are the radix sort's (stable, by tile) for any number of chunks, from two
-    sequential passes over the entries and no key/value copies; every chunk writes only its own
-    histogram row and slots, so both kernels run split over the CPU threads.
+    The splats in depth order (their boxes gathered once into that order) are cut into chunks of
+    about equal entry counts; each chunk counts its entries per tile (one histogram row per chunk);
+    a scan of the histogram in (tile, chunk) order gives every chunk its first slot in every tile's
+    list, and each chunk writes its splats' entries there in emitted order (depth rank, then each
+    splat's tiles in row-major order). The lists are the radix sort's of the emitted entries (stable,
+    by tile) for any cut into chunks, without writing the emitted keys and splats first; every chunk
+    writes only its own histogram row and slots, so both kernels run split over the CPU threads.
     """
     dev = a.device
     n_tiles = tiles_x * tiles_y
-    keys = wp.empty(n_entries, dtype=wp.int32, device=dev)
-    gids = wp.empty(n_entries, dtype=wp.int32, device=dev)
-    a.launch(_emit_gid_kernel, n, [rects, starts, counts, tiles_x, keys, gids],
-             min_chunk=MIN_CHUNK)
-    n_chunks = max(1, min(SORT_CHUNKS, n_entries // SORT_CHUNK_MIN))
-    chunk = -(-n_entries // n_chunks)
-    hist = wp.zeros((n_chunks, n_tiles), dtype=wp.int32, device=dev)
-    a.launch(_tile_hist_kernel, n_chunks, [keys, n_entries, chunk, hist], min_chunk=1)
+    ranked_rects = a.empty((n, 4), wp.int32)
+    a.launch(_rank_rects_kernel, n, [order, rects, ranked_rects], min_chunk=MIN_CHUNK)
+    n_chunks = max(1, min(SORT_CHUNKS, n_entries // max(1, chunk_min)))
+    # Chunk c takes the splats whose first entry lies in [c E / n_chunks, (c + 1) E / n_chunks).
+    targets = (np.arange(n_chunks + 1, dtype=np.int64) * n_entries) // n_chunks
+    bounds_np = np.searchsorted(ranked_starts_np, targets, side="left").astype(np.int32)
+    bounds_np[-1] = n
+    bounds = wp.array(bounds_np, dtype=wp.int32, device=dev)
+    ranked_starts = wp.array(ranked_starts_np.astype(np.int32), dtype=wp.int32, device=dev)
+    hist = a.empty((n_chunks, n_tiles), wp.int32)
+    a.launch(_rank_hist_kernel, n_chunks, [ranked_rects, bounds, tiles_x, n_tiles, hist], min_chunk=1)
     h = hist.numpy().T  # (tiles, chunks), a zero-copy view on the CPU
     first = (np.cumsum(h, dtype=np.int64).reshape(h.shape) - h).astype(np.int32)  # scan in (tile, chunk) order
     total = h.sum(axis=1)
     ranges = np.stack([first[:, 0], first[:, 0] + total], axis=1).astype(np.int32)
     ranges[total == 0] = 0
     next_slot = wp.array(np.ascontiguousarray(first.T), dtype=wp.int32, device=dev)
-    sorted_gid = wp.empty(n_entries, dtype=wp.int32, device=dev)
-    sorted_entry = wp.empty(n_entries, dtype=wp.int32, device=dev)
-    a.launch(_tile_scatter_kernel, n_chunks, [keys, gids, n_entries, chunk, next_slot, sorted_gid, sorted_entry],
-             min_chunk=1)
+    sorted_gid = a.empty(n_entries, wp.int32)
+    sorted_entry = a.empty(n_entries, wp.int32)
+    a.launch(_rank_scatter_kernel, n_chunks, [ranked_rects, order, ranked_starts, bounds, tiles_x, next_slot,
+                                              sorted_gid, sorted_entry], min_chunk=1)
     return Tiles(tiles_x, tiles_y, n_entries, starts, counts, sorted_gid, sorted_entry,
                  wp.array(ranges, dtype=wp.int32, device=dev), packed, mode)

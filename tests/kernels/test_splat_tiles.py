@@ -14,7 +14,7 @@ import pytest
 from kernels import splat as ks
 from kernels.reference import splat as ref
 from kernels.splat.raster import _rasterize_wp, background_array
-from kernels.splat.tiles import SERIAL_SORT_MAX, _bin_tiles
+from kernels.splat.tiles import SERIAL_SORT_MAX, SORT_CHUNK_MIN, _bin_tiles
 from research.bench.splat import bench_scene
 from research.checks import splat as cs
 
@@ -87,15 +87,17 @@ def _scenes():
 
 @pytest.mark.parametrize("mode", ks.MODES)
 def test_counting_sort_lists_equal_the_radix_sort(mode):
-    """The CPU's two counting sorts (one serial kernel for few entries, the chunked one) and CUDA's
-    radix sort, all run on the CPU, give the same lists."""
+    """The CPU's two counting sorts (one serial kernel for few entries, the chunked one, cut into any
+    number of chunks) and CUDA's radix sort, all run on the CPU, give the same lists."""
     for name, g, cam in _scenes():
         p = ks.project(g, cam, mode=mode)
         s = ks.splats_2d(p.means2d, p.conics, p.colors, p.opacities, p.depths, p.radii)
         b = _bin_tiles(s, cam.width, cam.height, mode, counting_sort=False)
         assert 0 < b.n_entries <= SERIAL_SORT_MAX, name  # bin_tiles takes the serial kernel here
-        for serial_max in (SERIAL_SORT_MAX, 0):
-            a = _bin_tiles(s, cam.width, cam.height, mode, counting_sort=True, serial_max=serial_max)
+        # the serial kernel; the chunked sort as one chunk, as SORT_CHUNKS chunks and as a few uneven ones
+        for serial_max, chunk_min in ((SERIAL_SORT_MAX, SORT_CHUNK_MIN), (0, SORT_CHUNK_MIN), (0, 1), (0, 977)):
+            a = _bin_tiles(s, cam.width, cam.height, mode, counting_sort=True, serial_max=serial_max,
+                           chunk_min=chunk_min)
             assert a.n_entries == b.n_entries, name
             e = a.n_entries
             for k in ("starts", "counts", "ranges", "packed"):
