@@ -42,6 +42,7 @@ from kernels import _arrays as A
 from kernels.launch import DEFAULT_MIN_CHUNK, launch_split, parallel_items
 from kernels.volume._checks import check_bbox
 from kernels.volume.grid import trilinear_weight
+from kernels.volume.mlp import empty_array
 
 wp.set_module_options({"enable_backward": False})
 
@@ -224,11 +225,12 @@ class HashEncoding:
             raise ValueError(f"table: expected {A.type_name(points.dtype)} on {points.device} (the points'), "
                              f"got {A.type_name(table.dtype)} on {table.device}")
 
-    def encode(self, points: wp.array, table: wp.array) -> wp.array:
-        """enc (N, L F) for points (N, 3): the transposed view of a contiguous (L F, N) array."""
+    def encode(self, points: wp.array, table: wp.array, pool: A.HostPool | None = None) -> wp.array:
+        """enc (N, L F) for points (N, 3): the transposed view of a contiguous (L F, N) array (a block of
+        `pool` on the CPU when given: kernels.volume.mlp.empty_array)."""
         self._check(points, table)
         n = points.shape[0]
-        out = wp.empty((self.n_outputs, n), dtype=points.dtype, device=points.device)
+        out = empty_array((self.n_outputs, n), points.dtype, points.device, pool)
         if n:
             block = _block(points.device)
             launch_split(_hash_forward_kernel, -(-n // block) * self.n_levels,
@@ -236,18 +238,20 @@ class HashEncoding:
                          min_chunk=max(1, DEFAULT_MIN_CHUNK // block))
         return out.transpose()
 
-    def backward(self, points: wp.array, table: wp.array, grad_enc: wp.array, out: wp.array | None = None
-                 ) -> wp.array:
+    def backward(self, points: wp.array, table: wp.array, grad_enc: wp.array, out: wp.array | None = None,
+                 pool: A.HostPool | None = None) -> wp.array:
         """dL/dtable (L T, F) for the cotangent grad_enc (N, L F), any strides (fastest as the transposed
         view of a contiguous (L F, N) array, which each level's launch reads contiguously). With `out`
         (a contiguous (L T, F) wp.array of the table's dtype and device, its contents overwritten) the
-        gradient is written there and `out` is returned."""
+        gradient is written there and `out` is returned; without it, the new array is a block of `pool` when
+        given (kernels.volume.mlp.empty_array)."""
         self._check(points, table)
         A.check_shape("grad_enc", grad_enc, (points.shape[0], self.n_outputs))
         if not isinstance(grad_enc, wp.array) or grad_enc.dtype != points.dtype or grad_enc.device != points.device:
             raise ValueError(f"grad_enc: expected a wp.array of {A.type_name(points.dtype)} on {points.device}")
         if out is None:
-            grad = wp.zeros(self.table_shape, dtype=points.dtype, device=points.device)
+            grad = empty_array(self.table_shape, points.dtype, points.device, pool)
+            grad.zero_()
         else:
             if (not isinstance(out, wp.array) or out.dtype != points.dtype or out.device != points.device
                     or not out.is_contiguous):

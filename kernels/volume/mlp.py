@@ -112,6 +112,20 @@ _SUB_ROWS = 2048
 _blas_controller = None
 
 
+def empty_array(shape: tuple[int, ...], dtype: Any, device: wp.Device, pool: A.HostPool | None = None) -> wp.array:
+    """wp.empty(shape), or, given a pool (kernels._arrays.HostPool) and a CPU device, a recycled block of it
+    for an array of at least HostPool.MIN_BYTES (contents undefined either way).
+
+    The neural fields' intermediate arrays (encodings, activations, their gradients: 1.4 GB a forward
+    + backward at 1M points) come from the field's own pool: fresh, every page of them faulted on first
+    touch, ~30% of the CPU time of a hash-grid forward + backward (docs/performance.md)."""
+    shape = tuple(int(s) for s in shape)
+    if pool is not None and device.is_cpu and wp.types.type_size_in_bytes(dtype) * int(np.prod(shape)) >= \
+            A.HostPool.MIN_BYTES:
+        return pool.empty(shape, dtype, device)
+    return wp.empty(shape, dtype=dtype, device=device)
+
+
 def _one_blas_thread():
     """A context in which BLAS runs on the calling thread alone (threadpoolctl).
 
@@ -242,7 +256,8 @@ def init_mlp_params(sizes: Sequence[int], seed: int, dtype: Any, device: wp.Devi
 class MLP:
     """ReLU MLP with layer sizes `sizes` = [n_in, hidden..., n_out] (module docstring)."""
 
-    def __init__(self, sizes: Sequence[int], params: dict[str, wp.array], backend: str | None = None) -> None:
+    def __init__(self, sizes: Sequence[int], params: dict[str, wp.array], backend: str | None = None,
+                 pool: A.HostPool | None = None) -> None:
         if len(sizes) < 2:
             raise ValueError(f"sizes: expected at least [n_in, n_out], got {list(sizes)}")
         self.sizes = [A.check_int("sizes", s, minimum=1) for s in sizes]
@@ -261,13 +276,14 @@ class MLP:
         if backend == "numpy" and self.device.is_cuda:
             raise ValueError("backend: 'numpy' needs CPU arrays; use 'warp' on CUDA")
         self.backend = backend
+        self.pool = pool  # where the activations and gradients come from on the CPU (empty_array)
 
     @property
     def n_layers(self) -> int:
         return len(self.sizes) - 1
 
     def _empty(self, shape: tuple[int, ...]) -> wp.array:
-        return wp.empty(shape, dtype=self.dtype, device=self.device)
+        return empty_array(shape, self.dtype, self.device, self.pool)
 
     def forward(self, x: wp.array) -> tuple[wp.array, MLPCache]:
         """y = MLP(x) for x (N, n_in) on the MLP's device and dtype; the cache feeds `backward`."""

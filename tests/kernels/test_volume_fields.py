@@ -352,6 +352,33 @@ def test_neural_field_gradients(kind, backend):
     assert_gradcheck(check_neural(kind, seeds=(0, 1), backend=backend))
 
 
+@pytest.mark.parametrize("kind", ["hashgrid", "pe_mlp"])
+def test_neural_field_recycles_its_intermediate_blocks(kind):
+    # The encoding, activations and their gradients come from the field's pool (kernels.volume.mlp.empty_array):
+    # after a call whose results are dropped, the next call takes the same blocks back, and every value is
+    # overwritten (blocks filled with NaN bytes in between change nothing, bit for bit).
+    field = (HashGridField(BOX, log2_table_size=12, seed=2) if kind == "hashgrid" else PEMLPField(BOX, seed=2))
+    rng = np.random.default_rng(21)
+    n = 5000  # (n, 64) float32 activations: above HostPool.MIN_BYTES
+    p = rng.uniform(BOX[0] - 0.1, BOX[1] + 0.1, (n, 3)).astype(np.float32)
+    gs, gr = rng.normal(size=n).astype(np.float32), rng.normal(size=(n, 3)).astype(np.float32)
+
+    def run():
+        out = field.forward(p)
+        g = field.backward(p, None, out, gs, gr)
+        return [out.sigma.copy(), out.rgb.copy()] + [g[k].numpy().copy() for k in sorted(g)]
+
+    first = run()
+    kept = field.pool.nbytes()
+    assert kept >= n * 64 * 4 * 2  # at least the two hidden layers' activations
+    for owner in field.pool._owners.values():
+        owner[:] = 0xFF  # NaN in every float
+    second = run()
+    assert field.pool.nbytes() == kept
+    for a, b in zip(first, second):
+        np.testing.assert_array_equal(a, b)
+
+
 # --------------------------------------------------------------------------- bad input
 
 def test_field_bad_input():
