@@ -12,6 +12,10 @@ vertices fit in T (dense level, no collisions), else the spatial hash of the pap
 
     h(v) = (v_x * 1  XOR  v_y * 2654435761  XOR  v_z * 805459861)  mod T   (uint32 arithmetic).
 
+The normalised coordinates x do not depend on the level: one pass computes them into a (3, N) array
+(feature-major) before the encode or the scatter, whose kernels then start from x (the same float
+operations as computing x per (point, level), so the same values).
+
 The encoding is the concatenation enc(p) = [enc_0, ..., enc_{L-1}] (N, L F); tables are stored
 as one (L T, F) array, level l in rows l T .. l T + T - 1. `encode` returns enc as the transposed
 view of a contiguous (L F, N) array (feature-major): the forward's threads run level by level, and
@@ -60,20 +64,33 @@ def hash_index(ix: int, iy: int, iz: int, res: int, dense: int, table_size: int)
     return int(h & wp.uint32(table_size - 1))
 
 
+@wp.kernel
+def _normalise_kernel(
+    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), x: wp.array2d(dtype=typing.Any),
+    offset: int,
+):
+    # x (3, N), feature-major: x[a, n] = clamp((p_a - lo_a) / (hi_a - lo_a), 0, 1), the same for every level, so
+    # computed once a call instead of once per (point, level).
+    n = wp.tid() + offset
+    for a in range(3):
+        lo = bbox[0, a]
+        x[a, n] = wp.clamp((points[n, a] - lo) / (bbox[1, a] - lo), x.dtype(0.0), x.dtype(1.0))
+
+
 @wp.func
-def level_axis(p: typing.Any, lo: typing.Any, hi: typing.Any, res: int):
-    x = wp.clamp((p - lo) / (hi - lo), type(p)(0.0), type(p)(1.0))
-    u = x * type(p)(res)
+def level_axis(x: typing.Any, res: int):
+    u = x * type(x)(res)
     i = wp.clamp(int(wp.floor(u)), 0, res - 1)
-    return i, u - type(p)(i)
+    return i, u - type(x)(i)
 
 
 @wp.func
-def level_cell(points: wp.array2d(dtype=typing.Any), n: int, bbox: wp.array2d(dtype=typing.Any), res: int):
-    """Cell (i_x, i_y, i_z) and fractions (f_x, f_y, f_z) of point n on a level of resolution res."""
-    ix, fx = level_axis(points[n, 0], bbox[0, 0], bbox[1, 0], res)
-    iy, fy = level_axis(points[n, 1], bbox[0, 1], bbox[1, 1], res)
-    iz, fz = level_axis(points[n, 2], bbox[0, 2], bbox[1, 2], res)
+def level_cell(x: wp.array2d(dtype=typing.Any), n: int, res: int):
+    """Cell (i_x, i_y, i_z) and fractions (f_x, f_y, f_z) of point n (normalised coordinates x[:, n]) on a
+    level of resolution res."""
+    ix, fx = level_axis(x[0, n], res)
+    iy, fy = level_axis(x[1, n], res)
+    iz, fz = level_axis(x[2, n], res)
     return ix, iy, iz, fx, fy, fz
 
 
@@ -98,7 +115,7 @@ def _block(device: wp.Device) -> int:
 
 @wp.kernel
 def _hash_forward_kernel(
-    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
+    x: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
     dense: wp.array(dtype=wp.int32), table_size: int,
     table: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), block: int, offset: int,
 ):
@@ -108,7 +125,7 @@ def _hash_forward_kernel(
     # instead of all L levels' at once, so its random reads stay in the cache (point-major: 1.6x slower
     # at 131072 points, docs/performance.md).
     t = wp.tid() + offset
-    n_points = points.shape[0]
+    n_points = x.shape[1]
     n_runs = (n_points + block - 1) / block
     l = t / n_runs
     run = t - l * n_runs
@@ -116,12 +133,12 @@ def _hash_forward_kernel(
     d = dense[l]
     F = table.shape[1]
     for n in range(run * block, wp.min(n_points, (run + 1) * block)):
-        ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
+        ix, iy, iz, fx, fy, fz = level_cell(x, n, res)
         # Summed in registers, corners in the order c = 0..7 (a `+=` on out[...] would be a
         # read-modify-write of memory per corner).
         if F == 2:  # the usual case: both features from one pass over the corners
-            s0 = points.dtype(0.0)
-            s1 = points.dtype(0.0)
+            s0 = x.dtype(0.0)
+            s1 = x.dtype(0.0)
             for c in range(8):
                 w = trilinear_weight(c, fx, fy, fz)
                 row = corner_row(c, l, ix, iy, iz, res, d, table_size)
@@ -131,7 +148,7 @@ def _hash_forward_kernel(
             out[l * 2 + 1, n] = s1
         else:
             for f in range(F):
-                s = points.dtype(0.0)
+                s = x.dtype(0.0)
                 for c in range(8):
                     w = trilinear_weight(c, fx, fy, fz)
                     s += w * table[corner_row(c, l, ix, iy, iz, res, d, table_size), f]
@@ -140,7 +157,7 @@ def _hash_forward_kernel(
 
 @wp.kernel
 def _hash_backward_kernel(
-    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
+    x: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
     dense: wp.array(dtype=wp.int32), table_size: int,
     grad_out: wp.array2d(dtype=typing.Any), grad_table: wp.array2d(dtype=typing.Any), level: int, block: int,
 ):
@@ -153,8 +170,8 @@ def _hash_backward_kernel(
     res = resolutions[l]
     F = grad_table.shape[1]
     d = dense[l]
-    for n in range(b * block, wp.min(points.shape[0], (b + 1) * block)):
-        ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
+    for n in range(b * block, wp.min(x.shape[1], (b + 1) * block)):
+        ix, iy, iz, fx, fy, fz = level_cell(x, n, res)
         if F == 2:  # the usual case: the point's two cotangents read once, into registers
             g0 = grad_out[n, l * 2]
             g1 = grad_out[n, l * 2 + 1]
@@ -210,9 +227,15 @@ class HashEncoding:
                         dtype=dtype, device=device)
 
     def _static(self, dtype: Any, device: wp.Device) -> list:
-        return [wp.array(self.bbox, dtype=dtype, device=device),
-                wp.array(self.resolutions, dtype=wp.int32, device=device),
+        return [wp.array(self.resolutions, dtype=wp.int32, device=device),
                 wp.array(self.dense, dtype=wp.int32, device=device), self.table_size]
+
+    def _normalised(self, points: wp.array, pool: A.HostPool | None) -> wp.array:
+        """x (3, N): the points' coordinates in the box, clamped to [0, 1] (module docstring)."""
+        x = empty_array((3, points.shape[0]), points.dtype, points.device, pool)
+        launch_split(_normalise_kernel, points.shape[0],
+                     [points, wp.array(self.bbox, dtype=points.dtype, device=points.device), x], device=points.device)
+        return x
 
     def _check(self, points: wp.array, table: wp.array) -> None:
         """points (N, 3) and the table as wp.arrays of one dtype on one device."""
@@ -234,7 +257,8 @@ class HashEncoding:
         if n:
             block = _block(points.device)
             launch_split(_hash_forward_kernel, -(-n // block) * self.n_levels,
-                         [points, *self._static(points.dtype, points.device), table, out, block], device=points.device,
+                         [self._normalised(points, pool), *self._static(points.dtype, points.device), table, out,
+                          block], device=points.device,
                          min_chunk=max(1, DEFAULT_MIN_CHUNK // block))
         return out.transpose()
 
@@ -262,12 +286,13 @@ class HashEncoding:
             grad.zero_()
         if points.shape[0]:
             static = self._static(points.dtype, points.device)
+            x = self._normalised(points, pool)
 
             block = _block(points.device)
             runs = -(-points.shape[0] // block)
 
             def level(l: int) -> None:
-                wp.launch(_hash_backward_kernel, dim=runs, inputs=[points, *static, grad_enc, grad, l, block],
+                wp.launch(_hash_backward_kernel, dim=runs, inputs=[x, *static, grad_enc, grad, l, block],
                           device=points.device)
 
             if points.device.is_cuda:
@@ -278,5 +303,6 @@ class HashEncoding:
         return grad
 
 
+A.declare_float_overloads(_normalise_kernel)
 A.declare_float_overloads(_hash_forward_kernel)
 A.declare_float_overloads(_hash_backward_kernel)
