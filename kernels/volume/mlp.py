@@ -21,7 +21,8 @@ Two backends compute the same thing:
     da = dz W) are NumPy/BLAS products written straight into the Warp arrays' memory, with the
     per-sample parts (+ bias and ReLU after z, the ReLU mask after da) applied by NumPy to each
     block of 2048 rows right after its product, while it is in the cache; the forward takes each
-    block through every layer before the next block. A Warp CPU launch runs
+    block through every layer before the next block, and so does the backward's chain of input
+    gradients (then dW and db of each layer from the stored dz). A Warp CPU launch runs
     on one thread (docs/warp.md), so a (N x 64) x (64 x 64) product is tens of times faster in BLAS.
 The tests check both backends against a NumPy reference and against each other. The MLP works on
 wp.arrays (the neural fields' intermediate values) and returns wp.arrays.
@@ -190,24 +191,31 @@ def _forward_blas(x: np.ndarray, weights: list[np.ndarray], biases: list[np.ndar
     _row_blocks(block, x.shape[0])
 
 
-def _layer_input_grad_blas(dz: np.ndarray, w: np.ndarray, act: np.ndarray | None, out: np.ndarray) -> None:
-    """out = dz W, then multiplied by [act > 0] (the ReLU of the layer below: act = relu(z) > 0
-    exactly where z > 0) when `act` is given, one row block at a time. `out` may be the transpose
-    of a C-contiguous (n_in, N) array: its row blocks are then written as (W^T dz_block^T).
+def _input_grads_blas(dz: np.ndarray, weights: list[np.ndarray], acts: list[np.ndarray | None],
+                      outs: list[np.ndarray]) -> None:
+    """The input-gradient chain from the top layer down, one row block at a time through every layer:
+    outs[0] = dz W[0], then outs[k] = outs[k-1] W[k], each multiplied by [acts[k] > 0] (the ReLU of the
+    layer below: act = relu(z) > 0 exactly where z > 0) when acts[k] is given. A block of outs[k-1] is
+    still in the cache when the next product reads it; each product is the same BLAS call on the same
+    block as one layer at a time would make. An `out` may be the transpose of a C-contiguous (n_in, N)
+    array: its row blocks are then written as (W^T dz_block^T).
 
     Multiplying by 0 gives the same value as setting 0 for every finite entry (a negative one
     becomes -0.0, equal to 0.0); an infinite or NaN entry of dz W under an inactive unit would
     become NaN instead of 0."""
-    feature_major = not out.flags.c_contiguous and out.T.flags.c_contiguous
+    feature_major = [not out.flags.c_contiguous and out.T.flags.c_contiguous for out in outs]
 
     def block(lo: int, hi: int) -> None:
-        if feature_major:
-            np.matmul(w.T, dz[lo:hi].T, out=out[lo:hi].T)
-        else:
-            np.matmul(dz[lo:hi], w, out=out[lo:hi])
-        if act is not None:  # times the mask as 0/1: 15x faster than a masked copy (np.copyto where=)
+        src = dz[lo:hi]
+        for w, act, out, fm in zip(weights, acts, outs, feature_major):
             ob = out[lo:hi]
-            np.multiply(ob, act[lo:hi] > 0, out=ob)
+            if fm:
+                np.matmul(w.T, src.T, out=ob.T)
+            else:
+                np.matmul(src, w, out=ob)
+            if act is not None:  # times the mask as 0/1: 15x faster than a masked copy (np.copyto where=)
+                np.multiply(ob, act[lo:hi] > 0, out=ob)
+            src = ob
 
     _row_blocks(block, dz.shape[0])
 
@@ -328,6 +336,8 @@ class MLP:
         if not isinstance(grad_out, wp.array) or grad_out.dtype != self.dtype or grad_out.device != self.device:
             raise ValueError(f"grad_out: expected a wp.array of {A.type_name(self.dtype)} on {self.device}")
         grads: dict[str, wp.array] = {}
+        if self.backend == "numpy":
+            return self._backward_numpy(cache, grad_out, need_input_grad, input_grad_feature_major)
         dz = grad_out
         grad_x = None
         for l in reversed(range(self.n_layers)):
@@ -335,31 +345,44 @@ class MLP:
             dW = self._empty(tuple(W.shape))
             db = self._empty((W.shape[0],))
             need_da = l > 0 or need_input_grad
-            da = None
+            da = self._empty((n, W.shape[1])) if need_da else None
+            _matmul(dz.transpose(), a, dW, min_chunk=64)
+            launch_split(_grad_bias_kernel, W.shape[0], [dz, db], device=self.device, min_chunk=16)
             if need_da:
-                if l == 0 and input_grad_feature_major and self.backend == "numpy":
-                    da = self._empty((W.shape[1], n)).transpose()
-                else:
-                    da = self._empty((n, W.shape[1]))
-            if self.backend == "numpy":
-                dz_np = dz.numpy()
-                _weight_grad_blas(dz_np, a.numpy(), dW.numpy())
-                db.numpy()[:] = dz_np.sum(axis=0)
-                if need_da and n:  # with the ReLU mask of the layer below (a_l > 0) applied per block
-                    _layer_input_grad_blas(dz_np, W.numpy(), a.numpy() if l > 0 else None, da.numpy())
-            else:
-                _matmul(dz.transpose(), a, dW, min_chunk=64)
-                launch_split(_grad_bias_kernel, W.shape[0], [dz, db], device=self.device, min_chunk=16)
-                if need_da:
-                    _matmul(dz, W, da)
+                _matmul(dz, W, da)
             grads[f"W{l}"], grads[f"b{l}"] = dW, db
             if l > 0:
-                if n and self.backend != "numpy":
+                if n:
                     launch_split(_relu_backward_kernel, n, [da, a], device=self.device, min_chunk=256)
                 dz = da
             else:
                 grad_x = da
         return grads, grad_x
+
+    def _backward_numpy(self, cache: MLPCache, grad_out: wp.array, need_input_grad: bool,
+                        input_grad_feature_major: bool) -> tuple[dict[str, wp.array], wp.array | None]:
+        """`backward` with BLAS: first the input gradients da_l (masked: dz_{l-1}) of every layer, block by
+        block through the layers (_input_grads_blas), then each layer's dW_l and db_l from dz_l."""
+        n = cache.inputs[0].shape[0]
+        da: dict[int, wp.array] = {}  # da_l (l > 0: times the mask [a_l > 0], i.e. dz_{l-1}), layers top down
+        for l in reversed(range(self.n_layers)):
+            if l > 0 or need_input_grad:
+                n_in = self.sizes[l]
+                da[l] = (self._empty((n_in, n)).transpose() if l == 0 and input_grad_feature_major
+                         else self._empty((n, n_in)))
+        if n and da:
+            _input_grads_blas(grad_out.numpy(), [self.params[f"W{l}"].numpy() for l in da],
+                              [cache.inputs[l].numpy() if l > 0 else None for l in da], [d.numpy() for d in da.values()])
+        grads: dict[str, wp.array] = {}
+        for l in reversed(range(self.n_layers)):
+            W = self.params[f"W{l}"]
+            dz_np = (grad_out if l == self.n_layers - 1 else da[l + 1]).numpy()
+            dW = self._empty(tuple(W.shape))
+            db = self._empty((W.shape[0],))
+            _weight_grad_blas(dz_np, cache.inputs[l].numpy(), dW.numpy())
+            db.numpy()[:] = dz_np.sum(axis=0)
+            grads[f"W{l}"], grads[f"b{l}"] = dW, db
+        return grads, da.get(0)
 
 
 for _kernel in (_matmul_kernel, _relu_backward_kernel, _grad_bias_kernel):
