@@ -28,8 +28,9 @@ between concurrent CPU launches, docs/warp.md, but each level writes only its ow
 levels' launches run concurrently on the CPU threads; the order of the additions into each row is
 that of a single launch). The forward runs one thread per (level, run of BLOCK consecutive points)
 through launch_split, the backward one per run of points of its level. There is no gradient to the
-points. `encode` and `backward` take wp.arrays (the neural fields' intermediate values) and return
-wp.arrays on the points' device; `backward` may write into a given zeroed-on-entry buffer instead
+points. On the CPU with F = 2 the forward's sums run in C++, 8 points at a time
+(kernels.volume.hashgrid_cpu: the same operations, the same values). `encode` and `backward` take
+wp.arrays (the neural fields' intermediate values) and return wp.arrays on the points' device; `backward` may write into a given zeroed-on-entry buffer instead
 of a new array (a training loop's workspace: no fresh pages to fault in every iteration).
 """
 
@@ -46,6 +47,7 @@ from kernels import _arrays as A
 from kernels.launch import DEFAULT_MIN_CHUNK, launch_split, parallel_items
 from kernels.volume._checks import check_bbox
 from kernels.volume.grid import trilinear_weight
+from kernels.volume.hashgrid_cpu import forward_kernel
 from kernels.volume.mlp import empty_array
 
 wp.set_module_options({"enable_backward": False})
@@ -256,7 +258,10 @@ class HashEncoding:
         out = empty_array((self.n_outputs, n), points.dtype, points.device, pool)
         if n:
             block = _block(points.device)
-            launch_split(_hash_forward_kernel, -(-n // block) * self.n_levels,
+            # F = 2 on the CPU: the same sums in C++, 8 points at a time (kernels.volume.hashgrid_cpu)
+            kernel = (forward_kernel(points.dtype) if points.device.is_cpu and self.n_features == 2
+                      else _hash_forward_kernel)
+            launch_split(kernel, -(-n // block) * self.n_levels,
                          [self._normalised(points, pool), *self._static(points.dtype, points.device), table, out,
                           block], device=points.device,
                          min_chunk=max(1, DEFAULT_MIN_CHUNK // block))

@@ -168,6 +168,26 @@ def test_hash_encoding_runs_of_points_split_over_threads_match_the_reference():
     np.testing.assert_allclose(got, hash_reference(enc, p, table), rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_hash_encoding_cpu_cpp_forward_equals_the_warp_kernel(np_t, wp_t):
+    # The CPU encode with F = 2 runs kernels.volume.hashgrid_cpu (C++, 8 points at a time): bit for bit the
+    # sums of the Warp kernel, on dense and hashed levels, with points outside the box (clamped) and runs
+    # whose last group of points is short (n = 8 k + 5 points, runs of BLOCK).
+    from kernels.launch import launch_split
+    from kernels.volume.hashgrid import BLOCK, _hash_forward_kernel
+    enc = HashEncoding(BOX, n_levels=6, n_features=2, log2_table_size=9, base_resolution=3, max_resolution=40)
+    assert 0 < enc.dense.sum() < enc.n_levels
+    rng = np.random.default_rng(17)
+    n = 8 * 611 + 5
+    p = wp.array(rng.uniform(BOX[0] - 0.2, BOX[1] + 0.2, (n, 3)).astype(np_t), dtype=wp_t)
+    table = wp.array(rng.normal(size=enc.table_shape).astype(np_t), dtype=wp_t)
+    got = enc.encode(p, table).numpy()
+    want = wp.empty((enc.n_outputs, n), dtype=wp_t)
+    launch_split(_hash_forward_kernel, -(-n // BLOCK) * enc.n_levels,
+                 [enc._normalised(p, None), *enc._static(wp_t, p.device), table, want, BLOCK], device=p.device)
+    np.testing.assert_array_equal(got, want.numpy().T)
+
+
 def test_hash_encoding_backward_into_a_buffer():
     # `out` is overwritten (not added to), gives the fresh array's gradient bit for bit, and a wrong
     # buffer is refused before any launch.
