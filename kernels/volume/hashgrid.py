@@ -28,8 +28,8 @@ between concurrent CPU launches, docs/warp.md, but each level writes only its ow
 levels' launches run concurrently on the CPU threads; the order of the additions into each row is
 that of a single launch). The forward runs one thread per (level, run of BLOCK consecutive points)
 through launch_split, the backward one per run of points of its level. There is no gradient to the
-points. On the CPU with F = 2 the forward's sums run in C++, 8 points at a time
-(kernels.volume.hashgrid_cpu: the same operations, the same values). `encode` and `backward` take
+points. On the CPU with F = 2 the forward's sums and the scatter's additions run in C++, 8 points
+at a time (kernels.volume.hashgrid_cpu: the same operations in the same order, the same values). `encode` and `backward` take
 wp.arrays (the neural fields' intermediate values) and return wp.arrays on the points' device; `backward` may write into a given zeroed-on-entry buffer instead
 of a new array (a training loop's workspace: no fresh pages to fault in every iteration).
 """
@@ -47,7 +47,7 @@ from kernels import _arrays as A
 from kernels.launch import DEFAULT_MIN_CHUNK, launch_split, parallel_items
 from kernels.volume._checks import check_bbox
 from kernels.volume.grid import trilinear_weight
-from kernels.volume.hashgrid_cpu import forward_kernel
+from kernels.volume.hashgrid_cpu import backward_kernel, forward_kernel
 from kernels.volume.mlp import empty_array
 
 wp.set_module_options({"enable_backward": False})
@@ -296,8 +296,12 @@ class HashEncoding:
             block = _block(points.device)
             runs = -(-points.shape[0] // block)
 
+            # F = 2 on the CPU: the same additions in the same order in C++ (kernels.volume.hashgrid_cpu)
+            kernel = (backward_kernel(points.dtype) if points.device.is_cpu and self.n_features == 2
+                      else _hash_backward_kernel)
+
             def level(l: int) -> None:
-                wp.launch(_hash_backward_kernel, dim=runs, inputs=[x, *static, grad_enc, grad, l, block],
+                wp.launch(kernel, dim=runs, inputs=[x, *static, grad_enc, grad, l, block],
                           device=points.device)
 
             if points.device.is_cuda:

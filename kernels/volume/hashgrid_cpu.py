@@ -1,4 +1,4 @@
-"""The hash encoding's forward on the CPU in C++, several points at a time (kernels.volume.hashgrid).
+"""The hash encoding's forward and scatter on the CPU in C++, several points at a time (kernels.volume.hashgrid).
 
 Same math and the same operations as `hashgrid._hash_forward_kernel` (F = 2), on the same values, so
 the same outputs bit for bit. For the normalised coordinates x (3, N) and level l of resolution N_l:
@@ -20,9 +20,15 @@ sums), which the compiler turns into vector instructions; only the 16 table read
 scalar loads. A last group of fewer than 8 points repeats its first point in the unused lanes and
 stores only its own.
 
-`forward_kernel(scalar)` builds the kernel once per float type (its own Warp module, compiled on
-first use), with the arguments of `_hash_forward_kernel`; it is launched on the CPU only, for F = 2
-(CUDA and other F keep the Warp kernel).
+The scatter (`_hash_backward_kernel`, F = 2) computes the cells, rows and weights of 8 points the same
+way, then adds w_c G[n, 2 l + j] into the table's gradient one point after the other, corners
+c = 0 .. 7, feature 0 then 1: the Warp kernel's additions in its order (a CPU atomic add is a plain
+read-modify-write, docs/warp.md), so the same gradient bit for bit, collisions included.
+
+`forward_kernel(scalar)` and `backward_kernel(scalar)` build the kernels once per float type (their
+own Warp module, compiled on first use), with the arguments of `_hash_forward_kernel` and
+`_hash_backward_kernel`; they are launched on the CPU only, for F = 2 (CUDA and other F keep the
+Warp kernels).
 """
 
 import threading
@@ -30,7 +36,7 @@ from typing import Any
 
 import warp as wp
 
-_ENCODE_CPP = r"""
+_HEAD = r"""
     typedef decltype(zero) T;
     const int K = 8;
     const char* xb = reinterpret_cast<const char*>(x.data);
@@ -39,14 +45,14 @@ _ENCODE_CPP = r"""
     const char* tb = reinterpret_cast<const char*>(table.data);
     const long long ts0 = table.strides[0];
     const long long ts1 = table.strides[1];
-    char* ob = reinterpret_cast<char*>(out.data);
-    const long long os0 = out.strides[0];
-    const long long os1 = out.strides[1];
     const T rf = T(res);
     const int r1 = res + 1;
     const unsigned int mask = (unsigned int)(table_size - 1);
     const int base = l * table_size;
-    for (int n0 = lo; n0 < hi; n0 += K) {
+"""
+
+# The cells, fractions and table rows of the points n0 .. n0 + m - 1 (K lanes).
+_CELLS = r"""
         const int m = hi - n0 < K ? hi - n0 : K;
         int ix[K], iy[K], iz[K];
         T fx[K], fy[K], fz[K];
@@ -83,7 +89,11 @@ _ENCODE_CPP = r"""
                 }
             }
         }
-        T s0[K], s1[K];
+"""
+
+_ENCODE_CPP = _HEAD + r"""
+    for (int n0 = lo; n0 < hi; n0 += K) {
+""" + _CELLS + r"""        T s0[K], s1[K];
         _Pragma("unroll") for (int k = 0; k < K; ++k) {
             s0[k] = T(0);
             s1[k] = T(0);
@@ -104,11 +114,49 @@ _ENCODE_CPP = r"""
                 s1[k] = s1[k] + p1;
             }
         }
-        char* o0 = ob + (long long)(2 * l) * os0;
-        char* o1 = o0 + os0;
+        char* ob = reinterpret_cast<char*>(out.data);
+        const long long os1 = out.strides[1];
+        char* o0 = ob + (long long)(2 * l) * out.strides[0];
+        char* o1 = o0 + out.strides[0];
         for (int k = 0; k < m; ++k) {
             *reinterpret_cast<T*>(o0 + (long long)(n0 + k) * os1) = s0[k];
             *reinterpret_cast<T*>(o1 + (long long)(n0 + k) * os1) = s1[k];
+        }
+    }
+"""
+
+# The scatter: the rows and weights of 8 points at a time, then the additions one point after the other,
+# corners c = 0 .. 7, feature 0 then 1 (the Warp kernel's order; `table` is the table's gradient).
+_SCATTER_CPP = _HEAD + r"""
+    char* gb = reinterpret_cast<char*>(table.data);
+    const char* gob = reinterpret_cast<const char*>(grad_out.data);
+    const long long g0 = (long long)(2 * l) * grad_out.strides[1];
+    const long long g1 = g0 + grad_out.strides[1];
+    const long long gs0 = grad_out.strides[0];
+    for (int n0 = lo; n0 < hi; n0 += K) {
+""" + _CELLS + r"""        T w[8][K];
+        _Pragma("unroll") for (int c = 0; c < 8; ++c) {
+            _Pragma("unroll") for (int k = 0; k < K; ++k) {
+                const T wx = (c & 1) ? fx[k] : T(1) - fx[k];
+                const T wy = ((c >> 1) & 1) ? fy[k] : T(1) - fy[k];
+                const T wz = ((c >> 2) & 1) ? fz[k] : T(1) - fz[k];
+                const T wxy = wx * wy;
+                w[c][k] = wxy * wz;
+            }
+        }
+        for (int k = 0; k < m; ++k) {
+            const char* go = gob + (long long)(n0 + k) * gs0;
+            const T a0 = *reinterpret_cast<const T*>(go + g0);
+            const T a1 = *reinterpret_cast<const T*>(go + g1);
+            _Pragma("unroll") for (int c = 0; c < 8; ++c) {
+                char* r = gb + (long long)row[c][k] * ts0;
+                T* t0 = reinterpret_cast<T*>(r);
+                T* t1 = reinterpret_cast<T*>(r + ts1);
+                const T p0 = w[c][k] * a0;
+                *t0 = *t0 + p0;
+                const T p1 = w[c][k] * a1;
+                *t1 = *t1 + p1;
+            }
         }
     }
 """
@@ -119,11 +167,20 @@ _kernels: dict = {}
 
 def forward_kernel(scalar: Any) -> Any:
     """The C++ encode kernel for float type `scalar` (module docstring), built once."""
+    return _built(scalar)[0]
+
+
+def backward_kernel(scalar: Any) -> Any:
+    """The C++ scatter kernel for float type `scalar` (module docstring), built once."""
+    return _built(scalar)[1]
+
+
+def _built(scalar: Any) -> Any:
     with _lock:
-        kernel = _kernels.get(scalar)
-        if kernel is None:
-            kernel = _kernels[scalar] = _build(scalar)
-    return kernel
+        kernels = _kernels.get(scalar)
+        if kernels is None:
+            kernels = _kernels[scalar] = _build(scalar)
+    return kernels
 
 
 def _build(scalar: Any) -> Any:
@@ -150,4 +207,18 @@ def _build(scalar: Any) -> Any:
         encode_run(x, table, out, l, resolutions[l], dense[l], table_size, run * block,
                    wp.min(n_points, (run + 1) * block), scalar(0.0))
 
-    return hash_forward_cpu
+    def scatter_run(x: array2, grad_out: array2, table: array2, l: int, res: int, dense: int, table_size: int,
+                    lo: int, hi: int, zero: scalar): ...
+
+    scatter_run.__name__ = scatter_run.__qualname__ = f"hash_scatter_run_cpu_{scalar.__name__}"
+    scatter_run = wp.func_native(_SCATTER_CPP)(scatter_run)
+
+    @wp.kernel(module="unique", module_options={"enable_backward": False})
+    def hash_backward_cpu(x: array2, resolutions: wp.array(dtype=wp.int32), dense: wp.array(dtype=wp.int32),
+                          table_size: int, grad_out: array2, grad_table: array2, level: int, block: int):
+        # one launch per level; thread b = the run of points b block .. (b + 1) block - 1, in order
+        b = wp.tid()
+        scatter_run(x, grad_out, grad_table, level, resolutions[level], dense[level], table_size, b * block,
+                    wp.min(x.shape[1], (b + 1) * block), scalar(0.0))
+
+    return hash_forward_cpu, hash_backward_cpu

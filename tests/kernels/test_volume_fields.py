@@ -188,6 +188,27 @@ def test_hash_encoding_cpu_cpp_forward_equals_the_warp_kernel(np_t, wp_t):
     np.testing.assert_array_equal(got, want.numpy().T)
 
 
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_hash_encoding_cpu_cpp_scatter_equals_the_warp_kernel(np_t, wp_t):
+    # The CPU scatter with F = 2 runs kernels.volume.hashgrid_cpu: the same additions in the same order as
+    # the Warp kernel, so the same table gradient bit for bit, with a table small enough (2^5 rows a level)
+    # that many points, and corners of one point, add into the same rows.
+    from kernels.volume.hashgrid import BLOCK, _hash_backward_kernel
+    enc = HashEncoding(BOX, n_levels=5, n_features=2, log2_table_size=5, base_resolution=2, max_resolution=30)
+    assert 0 < enc.dense.sum() < enc.n_levels
+    rng = np.random.default_rng(19)
+    n = 8 * 377 + 3
+    p = wp.array(rng.uniform(BOX[0] - 0.2, BOX[1] + 0.2, (n, 3)).astype(np_t), dtype=wp_t)
+    table = wp.array(rng.normal(size=enc.table_shape).astype(np_t), dtype=wp_t)
+    g = wp.array(rng.normal(size=(enc.n_outputs, n)).astype(np_t), dtype=wp_t).transpose()
+    got = enc.backward(p, table, g).numpy()
+    want = wp.zeros(enc.table_shape, dtype=wp_t)
+    x = enc._normalised(p, None)
+    for l in range(enc.n_levels):
+        wp.launch(_hash_backward_kernel, dim=-(-n // BLOCK), inputs=[x, *enc._static(wp_t, p.device), g, want, l, BLOCK])
+    np.testing.assert_array_equal(got, want.numpy())
+
+
 def test_hash_encoding_backward_into_a_buffer():
     # `out` is overwritten (not added to), gives the fresh array's gradient bit for bit, and a wrong
     # buffer is refused before any launch.
