@@ -20,6 +20,7 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.launch import launch_split
 from kernels.volume._checks import check_bbox
+from kernels.volume.mlp import empty_array
 
 wp.set_module_options({"enable_backward": False})
 
@@ -49,14 +50,14 @@ class PositionalEncoding:
     def n_outputs(self) -> int:
         return 3 + 6 * self.n_freqs
 
-    def encode(self, points: wp.array) -> wp.array:
+    def encode(self, points: wp.array, pool: A.HostPool | None = None) -> wp.array:
         """gamma (N, 3 + 6K) for points (N, 3), a wp.array on the points' device."""
         if not isinstance(points, wp.array):
             raise ValueError(f"points: expected a wp.array, got {type(points).__name__}")
         A.check_shape("points", points, (None, 3))
         A.float_dtype("points", points)
         n = points.shape[0]
-        out = wp.empty((n, self.n_outputs), dtype=points.dtype, device=points.device)
+        out = empty_array((n, self.n_outputs), points.dtype, points.device, pool)  # a block of `pool` if given
         if n:
             launch_split(_pe_kernel, n, [points, wp.array(self.bbox, dtype=points.dtype, device=points.device),
                                          self.n_freqs, out], device=points.device)

@@ -12,6 +12,10 @@ vertices fit in T (dense level, no collisions), else the spatial hash of the pap
 
     h(v) = (v_x * 1  XOR  v_y * 2654435761  XOR  v_z * 805459861)  mod T   (uint32 arithmetic).
 
+The normalised coordinates x do not depend on the level: one pass computes them into a (3, N) array
+(feature-major) before the encode or the scatter, whose kernels then start from x (the same float
+operations as computing x per (point, level), so the same values).
+
 The encoding is the concatenation enc(p) = [enc_0, ..., enc_{L-1}] (N, L F); tables are stored
 as one (L T, F) array, level l in rows l T .. l T + T - 1. `encode` returns enc as the transposed
 view of a contiguous (L F, N) array (feature-major): the forward's threads run level by level, and
@@ -24,8 +28,9 @@ between concurrent CPU launches, docs/warp.md, but each level writes only its ow
 levels' launches run concurrently on the CPU threads; the order of the additions into each row is
 that of a single launch). The forward runs one thread per (level, run of BLOCK consecutive points)
 through launch_split, the backward one per run of points of its level. There is no gradient to the
-points. `encode` and `backward` take wp.arrays (the neural fields' intermediate values) and return
-wp.arrays on the points' device; `backward` may write into a given zeroed-on-entry buffer instead
+points. On the CPU with F = 2 the forward's sums and the scatter's additions run in C++, 8 points
+at a time (kernels.volume.hashgrid_cpu: the same operations in the same order, the same values). `encode` and `backward` take
+wp.arrays (the neural fields' intermediate values) and return wp.arrays on the points' device; `backward` may write into a given zeroed-on-entry buffer instead
 of a new array (a training loop's workspace: no fresh pages to fault in every iteration).
 """
 
@@ -42,6 +47,8 @@ from kernels import _arrays as A
 from kernels.launch import DEFAULT_MIN_CHUNK, launch_split, parallel_items
 from kernels.volume._checks import check_bbox
 from kernels.volume.grid import trilinear_weight
+from kernels.volume.hashgrid_cpu import backward_kernel, forward_kernel
+from kernels.volume.mlp import empty_array
 
 wp.set_module_options({"enable_backward": False})
 
@@ -59,20 +66,33 @@ def hash_index(ix: int, iy: int, iz: int, res: int, dense: int, table_size: int)
     return int(h & wp.uint32(table_size - 1))
 
 
+@wp.kernel
+def _normalise_kernel(
+    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), x: wp.array2d(dtype=typing.Any),
+    offset: int,
+):
+    # x (3, N), feature-major: x[a, n] = clamp((p_a - lo_a) / (hi_a - lo_a), 0, 1), the same for every level, so
+    # computed once a call instead of once per (point, level).
+    n = wp.tid() + offset
+    for a in range(3):
+        lo = bbox[0, a]
+        x[a, n] = wp.clamp((points[n, a] - lo) / (bbox[1, a] - lo), x.dtype(0.0), x.dtype(1.0))
+
+
 @wp.func
-def level_axis(p: typing.Any, lo: typing.Any, hi: typing.Any, res: int):
-    x = wp.clamp((p - lo) / (hi - lo), type(p)(0.0), type(p)(1.0))
-    u = x * type(p)(res)
+def level_axis(x: typing.Any, res: int):
+    u = x * type(x)(res)
     i = wp.clamp(int(wp.floor(u)), 0, res - 1)
-    return i, u - type(p)(i)
+    return i, u - type(x)(i)
 
 
 @wp.func
-def level_cell(points: wp.array2d(dtype=typing.Any), n: int, bbox: wp.array2d(dtype=typing.Any), res: int):
-    """Cell (i_x, i_y, i_z) and fractions (f_x, f_y, f_z) of point n on a level of resolution res."""
-    ix, fx = level_axis(points[n, 0], bbox[0, 0], bbox[1, 0], res)
-    iy, fy = level_axis(points[n, 1], bbox[0, 1], bbox[1, 1], res)
-    iz, fz = level_axis(points[n, 2], bbox[0, 2], bbox[1, 2], res)
+def level_cell(x: wp.array2d(dtype=typing.Any), n: int, res: int):
+    """Cell (i_x, i_y, i_z) and fractions (f_x, f_y, f_z) of point n (normalised coordinates x[:, n]) on a
+    level of resolution res."""
+    ix, fx = level_axis(x[0, n], res)
+    iy, fy = level_axis(x[1, n], res)
+    iz, fz = level_axis(x[2, n], res)
     return ix, iy, iz, fx, fy, fz
 
 
@@ -97,7 +117,7 @@ def _block(device: wp.Device) -> int:
 
 @wp.kernel
 def _hash_forward_kernel(
-    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
+    x: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
     dense: wp.array(dtype=wp.int32), table_size: int,
     table: wp.array2d(dtype=typing.Any), out: wp.array2d(dtype=typing.Any), block: int, offset: int,
 ):
@@ -107,7 +127,7 @@ def _hash_forward_kernel(
     # instead of all L levels' at once, so its random reads stay in the cache (point-major: 1.6x slower
     # at 131072 points, docs/performance.md).
     t = wp.tid() + offset
-    n_points = points.shape[0]
+    n_points = x.shape[1]
     n_runs = (n_points + block - 1) / block
     l = t / n_runs
     run = t - l * n_runs
@@ -115,12 +135,12 @@ def _hash_forward_kernel(
     d = dense[l]
     F = table.shape[1]
     for n in range(run * block, wp.min(n_points, (run + 1) * block)):
-        ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
+        ix, iy, iz, fx, fy, fz = level_cell(x, n, res)
         # Summed in registers, corners in the order c = 0..7 (a `+=` on out[...] would be a
         # read-modify-write of memory per corner).
         if F == 2:  # the usual case: both features from one pass over the corners
-            s0 = points.dtype(0.0)
-            s1 = points.dtype(0.0)
+            s0 = x.dtype(0.0)
+            s1 = x.dtype(0.0)
             for c in range(8):
                 w = trilinear_weight(c, fx, fy, fz)
                 row = corner_row(c, l, ix, iy, iz, res, d, table_size)
@@ -130,7 +150,7 @@ def _hash_forward_kernel(
             out[l * 2 + 1, n] = s1
         else:
             for f in range(F):
-                s = points.dtype(0.0)
+                s = x.dtype(0.0)
                 for c in range(8):
                     w = trilinear_weight(c, fx, fy, fz)
                     s += w * table[corner_row(c, l, ix, iy, iz, res, d, table_size), f]
@@ -139,7 +159,7 @@ def _hash_forward_kernel(
 
 @wp.kernel
 def _hash_backward_kernel(
-    points: wp.array2d(dtype=typing.Any), bbox: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
+    x: wp.array2d(dtype=typing.Any), resolutions: wp.array(dtype=wp.int32),
     dense: wp.array(dtype=wp.int32), table_size: int,
     grad_out: wp.array2d(dtype=typing.Any), grad_table: wp.array2d(dtype=typing.Any), level: int, block: int,
 ):
@@ -152,8 +172,8 @@ def _hash_backward_kernel(
     res = resolutions[l]
     F = grad_table.shape[1]
     d = dense[l]
-    for n in range(b * block, wp.min(points.shape[0], (b + 1) * block)):
-        ix, iy, iz, fx, fy, fz = level_cell(points, n, bbox, res)
+    for n in range(b * block, wp.min(x.shape[1], (b + 1) * block)):
+        ix, iy, iz, fx, fy, fz = level_cell(x, n, res)
         if F == 2:  # the usual case: the point's two cotangents read once, into registers
             g0 = grad_out[n, l * 2]
             g1 = grad_out[n, l * 2 + 1]
@@ -209,9 +229,15 @@ class HashEncoding:
                         dtype=dtype, device=device)
 
     def _static(self, dtype: Any, device: wp.Device) -> list:
-        return [wp.array(self.bbox, dtype=dtype, device=device),
-                wp.array(self.resolutions, dtype=wp.int32, device=device),
+        return [wp.array(self.resolutions, dtype=wp.int32, device=device),
                 wp.array(self.dense, dtype=wp.int32, device=device), self.table_size]
+
+    def _normalised(self, points: wp.array, pool: A.HostPool | None) -> wp.array:
+        """x (3, N): the points' coordinates in the box, clamped to [0, 1] (module docstring)."""
+        x = empty_array((3, points.shape[0]), points.dtype, points.device, pool)
+        launch_split(_normalise_kernel, points.shape[0],
+                     [points, wp.array(self.bbox, dtype=points.dtype, device=points.device), x], device=points.device)
+        return x
 
     def _check(self, points: wp.array, table: wp.array) -> None:
         """points (N, 3) and the table as wp.arrays of one dtype on one device."""
@@ -224,30 +250,37 @@ class HashEncoding:
             raise ValueError(f"table: expected {A.type_name(points.dtype)} on {points.device} (the points'), "
                              f"got {A.type_name(table.dtype)} on {table.device}")
 
-    def encode(self, points: wp.array, table: wp.array) -> wp.array:
-        """enc (N, L F) for points (N, 3): the transposed view of a contiguous (L F, N) array."""
+    def encode(self, points: wp.array, table: wp.array, pool: A.HostPool | None = None) -> wp.array:
+        """enc (N, L F) for points (N, 3): the transposed view of a contiguous (L F, N) array (a block of
+        `pool` on the CPU when given: kernels.volume.mlp.empty_array)."""
         self._check(points, table)
         n = points.shape[0]
-        out = wp.empty((self.n_outputs, n), dtype=points.dtype, device=points.device)
+        out = empty_array((self.n_outputs, n), points.dtype, points.device, pool)
         if n:
             block = _block(points.device)
-            launch_split(_hash_forward_kernel, -(-n // block) * self.n_levels,
-                         [points, *self._static(points.dtype, points.device), table, out, block], device=points.device,
+            # F = 2 on the CPU: the same sums in C++, 8 points at a time (kernels.volume.hashgrid_cpu)
+            kernel = (forward_kernel(points.dtype) if points.device.is_cpu and self.n_features == 2
+                      else _hash_forward_kernel)
+            launch_split(kernel, -(-n // block) * self.n_levels,
+                         [self._normalised(points, pool), *self._static(points.dtype, points.device), table, out,
+                          block], device=points.device,
                          min_chunk=max(1, DEFAULT_MIN_CHUNK // block))
         return out.transpose()
 
-    def backward(self, points: wp.array, table: wp.array, grad_enc: wp.array, out: wp.array | None = None
-                 ) -> wp.array:
+    def backward(self, points: wp.array, table: wp.array, grad_enc: wp.array, out: wp.array | None = None,
+                 pool: A.HostPool | None = None) -> wp.array:
         """dL/dtable (L T, F) for the cotangent grad_enc (N, L F), any strides (fastest as the transposed
         view of a contiguous (L F, N) array, which each level's launch reads contiguously). With `out`
         (a contiguous (L T, F) wp.array of the table's dtype and device, its contents overwritten) the
-        gradient is written there and `out` is returned."""
+        gradient is written there and `out` is returned; without it, the new array is a block of `pool` when
+        given (kernels.volume.mlp.empty_array)."""
         self._check(points, table)
         A.check_shape("grad_enc", grad_enc, (points.shape[0], self.n_outputs))
         if not isinstance(grad_enc, wp.array) or grad_enc.dtype != points.dtype or grad_enc.device != points.device:
             raise ValueError(f"grad_enc: expected a wp.array of {A.type_name(points.dtype)} on {points.device}")
         if out is None:
-            grad = wp.zeros(self.table_shape, dtype=points.dtype, device=points.device)
+            grad = empty_array(self.table_shape, points.dtype, points.device, pool)
+            grad.zero_()
         else:
             if (not isinstance(out, wp.array) or out.dtype != points.dtype or out.device != points.device
                     or not out.is_contiguous):
@@ -258,12 +291,17 @@ class HashEncoding:
             grad.zero_()
         if points.shape[0]:
             static = self._static(points.dtype, points.device)
+            x = self._normalised(points, pool)
 
             block = _block(points.device)
             runs = -(-points.shape[0] // block)
 
+            # F = 2 on the CPU: the same additions in the same order in C++ (kernels.volume.hashgrid_cpu)
+            kernel = (backward_kernel(points.dtype) if points.device.is_cpu and self.n_features == 2
+                      else _hash_backward_kernel)
+
             def level(l: int) -> None:
-                wp.launch(_hash_backward_kernel, dim=runs, inputs=[points, *static, grad_enc, grad, l, block],
+                wp.launch(kernel, dim=runs, inputs=[x, *static, grad_enc, grad, l, block],
                           device=points.device)
 
             if points.device.is_cuda:
@@ -274,5 +312,6 @@ class HashEncoding:
         return grad
 
 
+A.declare_float_overloads(_normalise_kernel)
 A.declare_float_overloads(_hash_forward_kernel)
 A.declare_float_overloads(_hash_backward_kernel)

@@ -20,7 +20,9 @@ Two backends compute the same thing:
   * "numpy" (the default on the CPU): the three matrix products (z = a W^T, dW = dz^T a,
     da = dz W) are NumPy/BLAS products written straight into the Warp arrays' memory, with the
     per-sample parts (+ bias and ReLU after z, the ReLU mask after da) applied by NumPy to each
-    block of 2048 rows right after its product, while it is in the cache. A Warp CPU launch runs
+    block of 2048 rows right after its product, while it is in the cache; the forward takes each
+    block through every layer before the next block, and so does the backward's chain of input
+    gradients (then dW and db of each layer from the stored dz). A Warp CPU launch runs
     on one thread (docs/warp.md), so a (N x 64) x (64 x 64) product is tens of times faster in BLAS.
 The tests check both backends against a NumPy reference and against each other. The MLP works on
 wp.arrays (the neural fields' intermediate values) and returns wp.arrays.
@@ -112,6 +114,20 @@ _SUB_ROWS = 2048
 _blas_controller = None
 
 
+def empty_array(shape: tuple[int, ...], dtype: Any, device: wp.Device, pool: A.HostPool | None = None) -> wp.array:
+    """wp.empty(shape), or, given a pool (kernels._arrays.HostPool) and a CPU device, a recycled block of it
+    for an array of at least HostPool.MIN_BYTES (contents undefined either way).
+
+    The neural fields' intermediate arrays (encodings, activations, their gradients: 1.4 GB a forward
+    + backward at 1M points) come from the field's own pool: fresh, every page of them faulted on first
+    touch, ~30% of the CPU time of a hash-grid forward + backward (docs/performance.md)."""
+    shape = tuple(int(s) for s in shape)
+    if pool is not None and device.is_cpu and wp.types.type_size_in_bytes(dtype) * int(np.prod(shape)) >= \
+            A.HostPool.MIN_BYTES:
+        return pool.empty(shape, dtype, device)
+    return wp.empty(shape, dtype=dtype, device=device)
+
+
 def _one_blas_thread():
     """A context in which BLAS runs on the calling thread alone (threadpoolctl).
 
@@ -149,42 +165,57 @@ def _row_blocks(fn, n: int) -> None:
         parallel_items(block, n_blocks)
 
 
-def _layer_forward_blas(a: np.ndarray, w: np.ndarray, b: np.ndarray, relu: bool, out: np.ndarray) -> None:
-    """out = a W^T + b, then relu(out) in place when `relu`, one row sub-block at a time.
+def _forward_blas(x: np.ndarray, weights: list[np.ndarray], biases: list[np.ndarray], outs: list[np.ndarray]
+                  ) -> None:
+    """outs[l] = z_l = a_l W_l^T + b_l for every layer, then relu(z_l) in place but for the last layer
+    (a_0 = x, a_{l+1} = outs[l]), one row block at a time through all the layers: a block's activations
+    are still in the cache when the next layer's product reads them (2048 x 64 float32 = 512 kB).
 
     The sum z + b and the maximum are the same single IEEE operations as the Warp kernels', so only
-    the product's rounding is BLAS's. `a` may be a strided view (a feature-major encoding, whose
-    row blocks are column-major blocks that BLAS reads as transposed)."""
-    wt = w.T
+    the products' rounding is BLAS's, and each product is the same BLAS call on the same block as one
+    layer at a time would make. `x` may be a strided view (a feature-major encoding, whose row blocks
+    are column-major blocks that BLAS reads as transposed)."""
+    wts = [w.T for w in weights]
+    last = len(weights) - 1
 
     def block(lo: int, hi: int) -> None:
-        zb = out[lo:hi]
-        np.matmul(a[lo:hi], wt, out=zb)
-        zb += b
-        if relu:
-            np.maximum(zb, zb.dtype.type(0.0), out=zb)
+        a = x[lo:hi]
+        for l, (wt, b, out) in enumerate(zip(wts, biases, outs)):
+            zb = out[lo:hi]
+            np.matmul(a, wt, out=zb)
+            zb += b
+            if l < last:
+                np.maximum(zb, zb.dtype.type(0.0), out=zb)
+            a = zb
 
-    _row_blocks(block, a.shape[0])
+    _row_blocks(block, x.shape[0])
 
 
-def _layer_input_grad_blas(dz: np.ndarray, w: np.ndarray, act: np.ndarray | None, out: np.ndarray) -> None:
-    """out = dz W, then multiplied by [act > 0] (the ReLU of the layer below: act = relu(z) > 0
-    exactly where z > 0) when `act` is given, one row block at a time. `out` may be the transpose
-    of a C-contiguous (n_in, N) array: its row blocks are then written as (W^T dz_block^T).
+def _input_grads_blas(dz: np.ndarray, weights: list[np.ndarray], acts: list[np.ndarray | None],
+                      outs: list[np.ndarray]) -> None:
+    """The input-gradient chain from the top layer down, one row block at a time through every layer:
+    outs[0] = dz W[0], then outs[k] = outs[k-1] W[k], each multiplied by [acts[k] > 0] (the ReLU of the
+    layer below: act = relu(z) > 0 exactly where z > 0) when acts[k] is given. A block of outs[k-1] is
+    still in the cache when the next product reads it; each product is the same BLAS call on the same
+    block as one layer at a time would make. An `out` may be the transpose of a C-contiguous (n_in, N)
+    array: its row blocks are then written as (W^T dz_block^T).
 
     Multiplying by 0 gives the same value as setting 0 for every finite entry (a negative one
     becomes -0.0, equal to 0.0); an infinite or NaN entry of dz W under an inactive unit would
     become NaN instead of 0."""
-    feature_major = not out.flags.c_contiguous and out.T.flags.c_contiguous
+    feature_major = [not out.flags.c_contiguous and out.T.flags.c_contiguous for out in outs]
 
     def block(lo: int, hi: int) -> None:
-        if feature_major:
-            np.matmul(w.T, dz[lo:hi].T, out=out[lo:hi].T)
-        else:
-            np.matmul(dz[lo:hi], w, out=out[lo:hi])
-        if act is not None:  # times the mask as 0/1: 15x faster than a masked copy (np.copyto where=)
+        src = dz[lo:hi]
+        for w, act, out, fm in zip(weights, acts, outs, feature_major):
             ob = out[lo:hi]
-            np.multiply(ob, act[lo:hi] > 0, out=ob)
+            if fm:
+                np.matmul(w.T, src.T, out=ob.T)
+            else:
+                np.matmul(src, w, out=ob)
+            if act is not None:  # times the mask as 0/1: 15x faster than a masked copy (np.copyto where=)
+                np.multiply(ob, act[lo:hi] > 0, out=ob)
+            src = ob
 
     _row_blocks(block, dz.shape[0])
 
@@ -242,7 +273,8 @@ def init_mlp_params(sizes: Sequence[int], seed: int, dtype: Any, device: wp.Devi
 class MLP:
     """ReLU MLP with layer sizes `sizes` = [n_in, hidden..., n_out] (module docstring)."""
 
-    def __init__(self, sizes: Sequence[int], params: dict[str, wp.array], backend: str | None = None) -> None:
+    def __init__(self, sizes: Sequence[int], params: dict[str, wp.array], backend: str | None = None,
+                 pool: A.HostPool | None = None) -> None:
         if len(sizes) < 2:
             raise ValueError(f"sizes: expected at least [n_in, n_out], got {list(sizes)}")
         self.sizes = [A.check_int("sizes", s, minimum=1) for s in sizes]
@@ -261,13 +293,14 @@ class MLP:
         if backend == "numpy" and self.device.is_cuda:
             raise ValueError("backend: 'numpy' needs CPU arrays; use 'warp' on CUDA")
         self.backend = backend
+        self.pool = pool  # where the activations and gradients come from on the CPU (empty_array)
 
     @property
     def n_layers(self) -> int:
         return len(self.sizes) - 1
 
     def _empty(self, shape: tuple[int, ...]) -> wp.array:
-        return wp.empty(shape, dtype=self.dtype, device=self.device)
+        return empty_array(shape, self.dtype, self.device, self.pool)
 
     def forward(self, x: wp.array) -> tuple[wp.array, MLPCache]:
         """y = MLP(x) for x (N, n_in) on the MLP's device and dtype; the cache feeds `backward`."""
@@ -277,19 +310,18 @@ class MLP:
         if x.dtype != self.dtype or x.device != self.device:
             raise ValueError(f"x: expected a wp.array of {self.dtype} on {self.device}")
         n = x.shape[0]
-        inputs = []
-        a = x
-        for l in range(self.n_layers):
-            W, b = self.params[f"W{l}"], self.params[f"b{l}"]
-            relu = l < self.n_layers - 1
-            z = self._empty((n, self.sizes[l + 1]))  # relu(z) overwrites z: the backward needs only a_{l+1}
-            if n:
-                if self.backend == "numpy":
-                    _layer_forward_blas(a.numpy(), W.numpy(), b.numpy(), relu, z.numpy())
-                else:
-                    _matmul(a, W.transpose(), z, b, z if relu else None)
-            inputs.append(a)
-            a = z
+        # relu(z_l) overwrites z_l: the backward needs only a_{l+1}
+        outs = [self._empty((n, self.sizes[l + 1])) for l in range(self.n_layers)]
+        inputs = [x, *outs[:-1]]
+        if n and self.backend == "numpy":
+            _forward_blas(x.numpy(), [self.params[f"W{l}"].numpy() for l in range(self.n_layers)],
+                          [self.params[f"b{l}"].numpy() for l in range(self.n_layers)], [z.numpy() for z in outs])
+        elif n:
+            for l in range(self.n_layers):
+                relu = l < self.n_layers - 1
+                _matmul(inputs[l], self.params[f"W{l}"].transpose(), outs[l], self.params[f"b{l}"],
+                        outs[l] if relu else None)
+        a = outs[-1]
         return a, MLPCache(inputs, a, self.params)
 
     def backward(self, cache: MLPCache, grad_out: wp.array, need_input_grad: bool = False,
@@ -304,6 +336,8 @@ class MLP:
         if not isinstance(grad_out, wp.array) or grad_out.dtype != self.dtype or grad_out.device != self.device:
             raise ValueError(f"grad_out: expected a wp.array of {A.type_name(self.dtype)} on {self.device}")
         grads: dict[str, wp.array] = {}
+        if self.backend == "numpy":
+            return self._backward_numpy(cache, grad_out, need_input_grad, input_grad_feature_major)
         dz = grad_out
         grad_x = None
         for l in reversed(range(self.n_layers)):
@@ -311,31 +345,44 @@ class MLP:
             dW = self._empty(tuple(W.shape))
             db = self._empty((W.shape[0],))
             need_da = l > 0 or need_input_grad
-            da = None
+            da = self._empty((n, W.shape[1])) if need_da else None
+            _matmul(dz.transpose(), a, dW, min_chunk=64)
+            launch_split(_grad_bias_kernel, W.shape[0], [dz, db], device=self.device, min_chunk=16)
             if need_da:
-                if l == 0 and input_grad_feature_major and self.backend == "numpy":
-                    da = self._empty((W.shape[1], n)).transpose()
-                else:
-                    da = self._empty((n, W.shape[1]))
-            if self.backend == "numpy":
-                dz_np = dz.numpy()
-                _weight_grad_blas(dz_np, a.numpy(), dW.numpy())
-                db.numpy()[:] = dz_np.sum(axis=0)
-                if need_da and n:  # with the ReLU mask of the layer below (a_l > 0) applied per block
-                    _layer_input_grad_blas(dz_np, W.numpy(), a.numpy() if l > 0 else None, da.numpy())
-            else:
-                _matmul(dz.transpose(), a, dW, min_chunk=64)
-                launch_split(_grad_bias_kernel, W.shape[0], [dz, db], device=self.device, min_chunk=16)
-                if need_da:
-                    _matmul(dz, W, da)
+                _matmul(dz, W, da)
             grads[f"W{l}"], grads[f"b{l}"] = dW, db
             if l > 0:
-                if n and self.backend != "numpy":
+                if n:
                     launch_split(_relu_backward_kernel, n, [da, a], device=self.device, min_chunk=256)
                 dz = da
             else:
                 grad_x = da
         return grads, grad_x
+
+    def _backward_numpy(self, cache: MLPCache, grad_out: wp.array, need_input_grad: bool,
+                        input_grad_feature_major: bool) -> tuple[dict[str, wp.array], wp.array | None]:
+        """`backward` with BLAS: first the input gradients da_l (masked: dz_{l-1}) of every layer, block by
+        block through the layers (_input_grads_blas), then each layer's dW_l and db_l from dz_l."""
+        n = cache.inputs[0].shape[0]
+        da: dict[int, wp.array] = {}  # da_l (l > 0: times the mask [a_l > 0], i.e. dz_{l-1}), layers top down
+        for l in reversed(range(self.n_layers)):
+            if l > 0 or need_input_grad:
+                n_in = self.sizes[l]
+                da[l] = (self._empty((n_in, n)).transpose() if l == 0 and input_grad_feature_major
+                         else self._empty((n, n_in)))
+        if n and da:
+            _input_grads_blas(grad_out.numpy(), [self.params[f"W{l}"].numpy() for l in da],
+                              [cache.inputs[l].numpy() if l > 0 else None for l in da], [d.numpy() for d in da.values()])
+        grads: dict[str, wp.array] = {}
+        for l in reversed(range(self.n_layers)):
+            W = self.params[f"W{l}"]
+            dz_np = (grad_out if l == self.n_layers - 1 else da[l + 1]).numpy()
+            dW = self._empty(tuple(W.shape))
+            db = self._empty((W.shape[0],))
+            _weight_grad_blas(dz_np, cache.inputs[l].numpy(), dW.numpy())
+            db.numpy()[:] = dz_np.sum(axis=0)
+            grads[f"W{l}"], grads[f"b{l}"] = dW, db
+        return grads, da.get(0)
 
 
 for _kernel in (_matmul_kernel, _relu_backward_kernel, _grad_bias_kernel):

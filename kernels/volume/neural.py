@@ -15,6 +15,11 @@ Backward: the head's adjoint dy_0 = g_sigma act'(y_0 + bias), dy_c = g_c s_c (1 
 kernel, one thread per point), then the MLP backward (kernels.volume.mlp), then -- for the hash
 grid -- the encoding's scatter into the table with dL/denc = dL/dx of the MLP. Points follow the
 array contract of kernels.volume.field.
+
+On the CPU the intermediate arrays of a call (the encoding, the MLP's activations and gradients, the
+table's gradient) are blocks of the field's own HostPool (`field.pool`, at most POOL_BYTES kept): a
+block returns there when its array is dropped and the next call of a similar size takes it back with
+its pages mapped, instead of faulting in fresh memory (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -97,9 +102,16 @@ class NeuralField(Field):
         params.update(init_mlp_params(self.sizes, seed + 1, dtype, device))
         super().__init__(params, dtype, device)
         self.backend = MLP(self.sizes, self.params, backend).backend
+        # The blocks of the intermediate arrays (encoding, MLP activations and gradients) of earlier calls,
+        # recycled by the next ones (kernels.volume.mlp.empty_array): no first-touch page faults.
+        self.pool = A.HostPool(limit=self.POOL_BYTES)
+
+    # Bytes of freed intermediate blocks the field keeps for its next calls (a 1M-point hash-grid
+    # forward + backward uses ~1.4 GB of them); they are freed with the field.
+    POOL_BYTES = 2 << 30
 
     def _mlp(self) -> MLP:
-        return MLP(self.sizes, self.params, self.backend)
+        return MLP(self.sizes, self.params, self.backend, pool=self.pool)
 
     def _encode(self, p: wp.array) -> wp.array:
         raise NotImplementedError
@@ -157,14 +169,14 @@ class HashGridField(NeuralField):
                          seed, dtype, device, backend)
 
     def _encode(self, p: wp.array) -> wp.array:
-        return self.encoding.encode(p, self.params["table"])
+        return self.encoding.encode(p, self.params["table"], pool=self.pool)
 
     def _encode_backward(self, p: wp.array, grad_enc: wp.array,
                          workspace: Workspace | None) -> dict[str, wp.array]:
         # With a workspace the table's gradient (the largest one) is a view into it, as for the grid fields.
         out = None if workspace is None else workspace.array(f"{self.name}.grad.table", self.encoding.table_shape,
                                                              self.dtype)
-        return {"table": self.encoding.backward(p, self.params["table"], grad_enc, out=out)}
+        return {"table": self.encoding.backward(p, self.params["table"], grad_enc, out=out, pool=self.pool)}
 
 
 class PEMLPField(NeuralField):
@@ -182,7 +194,7 @@ class PEMLPField(NeuralField):
                          device, backend)
 
     def _encode(self, p: wp.array) -> wp.array:
-        return self.encoding.encode(p)
+        return self.encoding.encode(p, pool=self.pool)
 
     def _encode_backward(self, p: wp.array, grad_enc: wp.array,
                          workspace: Workspace | None) -> dict[str, wp.array]:

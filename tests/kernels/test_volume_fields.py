@@ -168,6 +168,47 @@ def test_hash_encoding_runs_of_points_split_over_threads_match_the_reference():
     np.testing.assert_allclose(got, hash_reference(enc, p, table), rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_hash_encoding_cpu_cpp_forward_equals_the_warp_kernel(np_t, wp_t):
+    # The CPU encode with F = 2 runs kernels.volume.hashgrid_cpu (C++, 8 points at a time): bit for bit the
+    # sums of the Warp kernel, on dense and hashed levels, with points outside the box (clamped) and runs
+    # whose last group of points is short (n = 8 k + 5 points, runs of BLOCK).
+    from kernels.launch import launch_split
+    from kernels.volume.hashgrid import BLOCK, _hash_forward_kernel
+    enc = HashEncoding(BOX, n_levels=6, n_features=2, log2_table_size=9, base_resolution=3, max_resolution=40)
+    assert 0 < enc.dense.sum() < enc.n_levels
+    rng = np.random.default_rng(17)
+    n = 8 * 611 + 5
+    p = wp.array(rng.uniform(BOX[0] - 0.2, BOX[1] + 0.2, (n, 3)).astype(np_t), dtype=wp_t)
+    table = wp.array(rng.normal(size=enc.table_shape).astype(np_t), dtype=wp_t)
+    got = enc.encode(p, table).numpy()
+    want = wp.empty((enc.n_outputs, n), dtype=wp_t)
+    launch_split(_hash_forward_kernel, -(-n // BLOCK) * enc.n_levels,
+                 [enc._normalised(p, None), *enc._static(wp_t, p.device), table, want, BLOCK], device=p.device)
+    np.testing.assert_array_equal(got, want.numpy().T)
+
+
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_hash_encoding_cpu_cpp_scatter_equals_the_warp_kernel(np_t, wp_t):
+    # The CPU scatter with F = 2 runs kernels.volume.hashgrid_cpu: the same additions in the same order as
+    # the Warp kernel, so the same table gradient bit for bit, with a table small enough (2^5 rows a level)
+    # that many points, and corners of one point, add into the same rows.
+    from kernels.volume.hashgrid import BLOCK, _hash_backward_kernel
+    enc = HashEncoding(BOX, n_levels=5, n_features=2, log2_table_size=5, base_resolution=2, max_resolution=30)
+    assert 0 < enc.dense.sum() < enc.n_levels
+    rng = np.random.default_rng(19)
+    n = 8 * 377 + 3
+    p = wp.array(rng.uniform(BOX[0] - 0.2, BOX[1] + 0.2, (n, 3)).astype(np_t), dtype=wp_t)
+    table = wp.array(rng.normal(size=enc.table_shape).astype(np_t), dtype=wp_t)
+    g = wp.array(rng.normal(size=(enc.n_outputs, n)).astype(np_t), dtype=wp_t).transpose()
+    got = enc.backward(p, table, g).numpy()
+    want = wp.zeros(enc.table_shape, dtype=wp_t)
+    x = enc._normalised(p, None)
+    for l in range(enc.n_levels):
+        wp.launch(_hash_backward_kernel, dim=-(-n // BLOCK), inputs=[x, *enc._static(wp_t, p.device), g, want, l, BLOCK])
+    np.testing.assert_array_equal(got, want.numpy())
+
+
 def test_hash_encoding_backward_into_a_buffer():
     # `out` is overwritten (not added to), gives the fresh array's gradient bit for bit, and a wrong
     # buffer is refused before any launch.
@@ -350,6 +391,33 @@ def test_neural_field_forward(kind, np_t, wp_t, tol):
 @pytest.mark.parametrize("kind, backend", [("hashgrid", "numpy"), ("hashgrid", "warp"), ("pe_mlp", "numpy")])
 def test_neural_field_gradients(kind, backend):
     assert_gradcheck(check_neural(kind, seeds=(0, 1), backend=backend))
+
+
+@pytest.mark.parametrize("kind", ["hashgrid", "pe_mlp"])
+def test_neural_field_recycles_its_intermediate_blocks(kind):
+    # The encoding, activations and their gradients come from the field's pool (kernels.volume.mlp.empty_array):
+    # after a call whose results are dropped, the next call takes the same blocks back, and every value is
+    # overwritten (blocks filled with NaN bytes in between change nothing, bit for bit).
+    field = (HashGridField(BOX, log2_table_size=12, seed=2) if kind == "hashgrid" else PEMLPField(BOX, seed=2))
+    rng = np.random.default_rng(21)
+    n = 5000  # (n, 64) float32 activations: above HostPool.MIN_BYTES
+    p = rng.uniform(BOX[0] - 0.1, BOX[1] + 0.1, (n, 3)).astype(np.float32)
+    gs, gr = rng.normal(size=n).astype(np.float32), rng.normal(size=(n, 3)).astype(np.float32)
+
+    def run():
+        out = field.forward(p)
+        g = field.backward(p, None, out, gs, gr)
+        return [out.sigma.copy(), out.rgb.copy()] + [g[k].numpy().copy() for k in sorted(g)]
+
+    first = run()
+    kept = field.pool.nbytes()
+    assert kept >= n * 64 * 4 * 2  # at least the two hidden layers' activations
+    for owner in field.pool._owners.values():
+        owner[:] = 0xFF  # NaN in every float
+    second = run()
+    assert field.pool.nbytes() == kept
+    for a, b in zip(first, second):
+        np.testing.assert_array_equal(a, b)
 
 
 # --------------------------------------------------------------------------- bad input
