@@ -385,3 +385,70 @@ def test_split_launches_match_one_thread_bit_for_bit(monkeypatch, dtype):
     for threads in ("2", "3", "2"):
         for a, b in zip(run(threads), ref):
             np.testing.assert_array_equal(a, b)
+
+
+# --------------------------------------------------------------------------- the CPU SIMD forward
+
+def _simd_case(kind, n_rays, seed=0):
+    rng = np.random.default_rng(seed)
+    if kind == "packed":
+        lens = rng.integers(0, 201, size=n_rays)
+    elif kind == "odd":
+        lens = rng.choice([0, 1, 3, 5, 7, 63, 65, 127], size=n_rays)
+    else:
+        lens = np.full(n_rays, 64)
+    off = np.concatenate([[0], np.cumsum(lens)]).astype(np.int32)
+    n = int(off[-1])
+    sigma = (rng.exponential(2.0, n) * (rng.random(n) < 0.8)).astype(np.float32)
+    rgb = rng.random((n, 3)).astype(np.float32)
+    delta = (rng.random(n) * 0.1).astype(np.float32)
+    z = np.cumsum(delta).astype(np.float32)
+    return sigma, rgb, delta, z, off
+
+
+@pytest.mark.skipif(not wp.get_device("cpu").is_cpu, reason="CPU only")
+@pytest.mark.parametrize("threads", ["1", "2"])
+@pytest.mark.parametrize("kind,n_rays", [("packed", 3001), ("odd", 2003), ("dense", 5)])
+def test_cpu_simd_forward_equals_the_warp_kernel_bitwise(monkeypatch, threads, kind, n_rays):
+    from kernels.volume import composite as cm
+    from kernels.volume import composite_cpu
+
+    monkeypatch.setenv("DRLAB_THREADS", threads)
+    used = []
+    built = composite_cpu.forward_kernel
+    monkeypatch.setattr(composite_cpu, "forward_kernel", lambda: used.append(1) or built())
+    sigma, rgb, delta, z, off = _simd_case(kind, n_rays)
+    per_ray_bg = np.random.default_rng(1).random((n_rays, 3)).astype(np.float32)
+    for t_threshold in (0.0, 1e-4, 0.3):
+        for bg in ((0.2, 0.5, 0.9), per_ray_bg):
+            for checks in (True, False):
+                got = {}
+                for simd in (False, True):
+                    monkeypatch.setattr(cm, "SIMD_FORWARD", simd)
+                    n_calls = len(used)
+                    with value_checks(checks):
+                        got[simd] = composite_forward(sigma, rgb, delta, z, off, bg, t_threshold)
+                    assert len(used) == n_calls + int(simd)  # the SIMD kernel ran exactly when asked
+                a, b = got[False], got[True]
+                for k in ("rgb", "depth", "opacity", "transmittance", "n_used"):
+                    assert getattr(a, k).tobytes() == getattr(b, k).tobytes(), (k, t_threshold, checks)
+                for r in range(n_rays):  # factors: only the processed entries are defined
+                    s = slice(off[r], off[r] + a.n_used[r])
+                    assert a.factor[s].tobytes() == b.factor[s].tobytes()
+    assert np.any(a.n_used < np.diff(off))  # termination happened
+
+
+@pytest.mark.parametrize("which", ["rgb", "z"])
+def test_cpu_simd_forward_flags_a_bad_value_after_termination(which):
+    n = 1000
+    sigma, rgb = np.ones(n, np.float32), np.ones((n, 3), np.float32)
+    delta, z = np.full(n, 0.01, np.float32), np.ones(n, np.float32)
+    if which == "rgb":
+        rgb[997, 1] = np.nan
+    else:
+        z[998] = np.inf
+    off = np.array([0, 3, 500, 1000], np.int32)
+    res = None
+    with pytest.raises(ValueError, match=which):
+        res = composite_forward(sigma, rgb, delta, z, off, t_threshold=0.3)
+    assert res is None
