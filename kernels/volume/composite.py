@@ -51,10 +51,11 @@ and the kernel reads them. NumPy's float32 exp is within 2 ulp of the exact valu
 factor (relative 2.4e-7); float64 is within 1 ulp either way. Samples after early termination
 get factors too (unused). On CUDA the kernel evaluates the exponential itself.
 
-SIMD forward on the CPU. In float32 the CPU forward runs kernels.volume.composite_cpu instead of
-the Warp kernel: eight rays a thread in vector lanes, each lane the same float32 operations in the
-same order as one thread here, so the same outputs bit for bit (tests compare the two);
-`SIMD_FORWARD = False` keeps the Warp kernel. float64 and CUDA always run the Warp kernel.
+SIMD kernels on the CPU. In float32 the CPU forward and backward run kernels.volume.composite_cpu
+instead of the Warp kernels: eight rays a thread in vector lanes, each lane the same float32
+operations in the same order as one thread here, so the same outputs bit for bit (tests compare
+the two); `SIMD_FORWARD = False` / `SIMD_BACKWARD = False` keep the Warp kernels. float64 and CUDA
+always run the Warp kernels.
 
 Value checks on the CPU ride on passes the forward makes anyway instead of six separate
 single-threaded passes over the samples. sigma and delta: while a block of them is in cache for
@@ -92,6 +93,7 @@ DEFAULT_T_THRESHOLD = 1e-4
 # On the CPU in float32, the forward runs kernels.volume.composite_cpu (eight rays a thread in vector
 # lanes, bit for bit the Warp kernel); False keeps the Warp kernel (tests compare the two).
 SIMD_FORWARD = True
+SIMD_BACKWARD = True  # the same for composite_backward
 
 
 @wp.func
@@ -558,11 +560,19 @@ def composite_backward(
             raise ValueError("out: expected a pair (grad_sigma (N,), grad_rgb (N, 3)) of wp.arrays")
         grad_sigma = A.check_out("out[0]", out[0], (n,), a.scalar, a.device)
         grad_sample_rgb = A.check_out("out[1]", out[1], (n, 3), a.scalar, a.device)
-    _launch(a, _BACKWARD[a.scalar], n_rays,
-            [res["factor"], _vec_view(c, 3), d, zz, offsets, bg, per_ray, res["rgb"], res["depth"],
-             res["transmittance"], res["n_used"], *grads, grad_sigma, _vec_view(grad_sample_rgb, 3),
-             _vec_view(res["factor"], 4), _vec_view(zz, 4), _vec_view(d, 4), _vec_view(grad_sigma, 4)],
-            min_chunk=_min_chunk(n_rays, n))
+    simd = (a.device.is_cpu and a.scalar == wp.float32 and SIMD_BACKWARD and 3 * n < 2**31
+            and all(x.is_contiguous for x in (res["factor"], c, d, zz, offsets, grad_sigma, grad_sample_rgb)))
+    if simd:  # CPU, float32: eight rays a thread in vector lanes, bit for bit the Warp kernel (composite_cpu)
+        _launch(a, composite_cpu.backward_kernel(), (n_rays + composite_cpu.LANES - 1) // composite_cpu.LANES,
+                [res["factor"], c, d, zz, offsets, bg, per_ray, res["rgb"], res["depth"], res["transmittance"],
+                 res["n_used"], *grads, grad_sigma, grad_sample_rgb],
+                min_chunk=max(1, _min_chunk(n_rays, n) // composite_cpu.LANES))
+    else:
+        _launch(a, _BACKWARD[a.scalar], n_rays,
+                [res["factor"], _vec_view(c, 3), d, zz, offsets, bg, per_ray, res["rgb"], res["depth"],
+                 res["transmittance"], res["n_used"], *grads, grad_sigma, _vec_view(grad_sample_rgb, 3),
+                 _vec_view(res["factor"], 4), _vec_view(zz, 4), _vec_view(d, 4), _vec_view(grad_sigma, 4)],
+                min_chunk=_min_chunk(n_rays, n))
     if out is not None:
         return grad_sigma, grad_sample_rgb
     return a.out(grad_sigma), a.out(grad_sample_rgb)

@@ -406,35 +406,44 @@ def _simd_case(kind, n_rays, seed=0):
     return sigma, rgb, delta, z, off
 
 
-@pytest.mark.skipif(not wp.get_device("cpu").is_cpu, reason="CPU only")
 @pytest.mark.parametrize("threads", ["1", "2"])
 @pytest.mark.parametrize("kind,n_rays", [("packed", 3001), ("odd", 2003), ("dense", 5)])
-def test_cpu_simd_forward_equals_the_warp_kernel_bitwise(monkeypatch, threads, kind, n_rays):
+def test_cpu_simd_kernels_equal_the_warp_kernels_bitwise(monkeypatch, threads, kind, n_rays):
     from kernels.volume import composite as cm
     from kernels.volume import composite_cpu
 
     monkeypatch.setenv("DRLAB_THREADS", threads)
-    used = []
-    built = composite_cpu.forward_kernel
-    monkeypatch.setattr(composite_cpu, "forward_kernel", lambda: used.append(1) or built())
+    used = {"forward": 0, "backward": 0}
+    for name in used:
+        built = getattr(composite_cpu, f"{name}_kernel")
+        monkeypatch.setattr(composite_cpu, f"{name}_kernel",
+                            lambda name=name, built=built: used.__setitem__(name, used[name] + 1) or built())
     sigma, rgb, delta, z, off = _simd_case(kind, n_rays)
-    per_ray_bg = np.random.default_rng(1).random((n_rays, 3)).astype(np.float32)
+    rng = np.random.default_rng(1)
+    per_ray_bg = rng.random((n_rays, 3)).astype(np.float32)
+    cot = (rng.normal(size=(n_rays, 3)).astype(np.float32), rng.normal(size=n_rays).astype(np.float32),
+           rng.normal(size=n_rays).astype(np.float32))
     for t_threshold in (0.0, 1e-4, 0.3):
         for bg in ((0.2, 0.5, 0.9), per_ray_bg):
             for checks in (True, False):
-                got = {}
+                got, grads = {}, {}
                 for simd in (False, True):
                     monkeypatch.setattr(cm, "SIMD_FORWARD", simd)
-                    n_calls = len(used)
+                    monkeypatch.setattr(cm, "SIMD_BACKWARD", simd)
+                    before = dict(used)
                     with value_checks(checks):
                         got[simd] = composite_forward(sigma, rgb, delta, z, off, bg, t_threshold)
-                    assert len(used) == n_calls + int(simd)  # the SIMD kernel ran exactly when asked
+                        grads[simd] = composite_backward(sigma, rgb, delta, z, off, got[simd], *cot, bg)
+                    # the SIMD kernels ran exactly when asked
+                    assert used == {k: v + int(simd) for k, v in before.items()}
                 a, b = got[False], got[True]
                 for k in ("rgb", "depth", "opacity", "transmittance", "n_used"):
                     assert getattr(a, k).tobytes() == getattr(b, k).tobytes(), (k, t_threshold, checks)
                 for r in range(n_rays):  # factors: only the processed entries are defined
                     s = slice(off[r], off[r] + a.n_used[r])
                     assert a.factor[s].tobytes() == b.factor[s].tobytes()
+                for ga, gb in zip(grads[False], grads[True]):
+                    assert ga.tobytes() == gb.tobytes(), (t_threshold, checks)
     assert np.any(a.n_used < np.diff(off))  # termination happened
 
 
