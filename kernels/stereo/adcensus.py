@@ -89,6 +89,7 @@ from typing import Any
 import warp as wp
 
 from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
+from kernels._vexp import EXP16, TYPES
 from kernels.launch import default_threads
 from kernels.stereo._common import check_range, image_pair, pixel
 from kernels.stereo.bt import _half_range
@@ -190,6 +191,63 @@ def _bt_cell(L: wp.array3d(dtype=typing.Any), l_lo: wp.array3d(dtype=typing.Any)
 # scalar loop's value bit for bit (module docstring: Vector form).
 LANES = {wp.float32: 16, wp.float64: 8}
 VEC = {s: wp.types.vector(length=n, dtype=s) for s, n in LANES.items()}
+
+
+_V32 = VEC[wp.float32]
+_V64 = VEC[wp.float64]
+
+# w rho(c) = w (1 - exp(-c inv)) on 16 float32 lanes: _robust_term's operations in its order on each lane, with
+# kernels._vexp's exp (glibc expf's bits, wp.exp's on the CPU); no contraction, one operation per statement. Where
+# the lanes' exp is not compiled (CUDA, CPUs without AVX2 / FMA), wp.exp lane by lane.
+_RHO16 = r"""
+#if defined(__CUDA_ARCH__) || !defined(__AVX2__) || !defined(__FMA__)
+    wp::vec_t<16, float> res;
+    for (int l = 0; l < 16; ++l) {
+        const float nc = -c.c[l];
+        const float p = nc * inv;
+        const float e = wp::exp(p);
+        const float om = 1.0f - e;
+        res.c[l] = weight * om;
+    }
+    return res;
+#else
+    {
+#pragma clang fp contract(off)
+""" + TYPES + r"""
+    v16f cv;
+    __builtin_memcpy(&cv, &c, 64);
+    const v16f nc = -cv;
+    const v16f power = nc * inv;
+    const v16i run = -1;
+""" + EXP16 + r"""
+    const v16f one16 = 1.0f;
+    const v16f om = one16 - e;
+    const v16f w16 = weight * om;
+    wp::vec_t<16, float> res;
+    __builtin_memcpy(&res, &w16, 64);
+    return res;
+    }
+#endif
+"""
+
+
+@wp.func_native(_RHO16)
+def _rho16(c: _V32, inv: wp.float32, weight: wp.float32) -> _V32: ...
+
+
+@wp.func
+def _rho_lanes(c: _V32, inv: wp.float32, weight: wp.float32):
+    """_robust_term of every lane with 1 / lambda = inv (_RHO16)."""
+    return _rho16(c, inv, weight)
+
+
+@wp.func
+def _rho_lanes(c: _V64, inv: wp.float64, weight: wp.float64):
+    """_robust_term of every lane with 1 / lambda = inv, a lane at a time."""
+    res = _V64()
+    for i in range(8):
+        res[i] = weight * (wp.float64(1.0) - wp.exp(-c[i] * inv))
+    return res
 
 
 @wp.kernel
@@ -328,6 +386,11 @@ def _fused_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64)
     S = 2 * r + 1
     T = 1 + wp.where(bt_weight > wp.float64(0.0), 1, 0)
     zero = gl.dtype(0.0)
+    # _robust_term's 1 / lambda and weights in the images' type
+    one = gl.dtype(1.0)
+    inv_grad = gl.dtype(wp.float64(1.0) / lambda_grad)
+    inv_bt = gl.dtype(wp.float64(1.0) / lambda_bt)
+    w_bt = gl.dtype(bt_weight)
     y0 = b * band
     y1 = wp.min(y0 + band, H)
     for v in range(wp.max(y0 - r, 0), wp.min(y0 + r, H - 1) + 1):
@@ -351,15 +414,17 @@ def _fused_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64)
                 d0 = dmin + k0
                 # Every lane in range with the window [lo, hi] (_col_mean's bounds do not depend on d): vector means.
                 if k0 + lanes <= D and d0 + lanes - 1 <= lo and d0 >= hi - (W - 1) and d0 > x - W:
-                    m_grad = _col_mean_v(rowsum_v, 2 * b, W, nb, j, lo, hi, rows, zero)
-                    m_bt = m_grad
+                    # rho on the vector (_rho_lanes: _robust_term's operations on each lane), then lane by lane.
+                    rho_grad = _rho_lanes(_col_mean_v(rowsum_v, 2 * b, W, nb, j, lo, hi, rows, zero), inv_grad, one)
+                    rho_bt = rho_grad
                     if T > 1:
-                        m_bt = _col_mean_v(rowsum_v, 2 * b + 1, W, nb, j, lo, hi, rows, zero)
+                        rho_bt = _rho_lanes(_col_mean_v(rowsum_v, 2 * b + 1, W, nb, j, lo, hi, rows, zero), inv_bt,
+                                            w_bt)
                     for i in range(lanes):
                         total = rho_census[int(wp.bit_count(a ^ cr[y, x - d0 - i]))]
-                        total = total + _robust_term(m_grad[i], lambda_grad, wp.float64(1.0))
+                        total = total + rho_grad[i]
                         if T > 1:
-                            total = total + _robust_term(m_bt[i], lambda_bt, bt_weight)
+                            total = total + rho_bt[i]
                         _store(out, y, x, k0 + i, total, levels)
                 else:
                     for k in range(k0, wp.min(k0 + lanes, D)):
