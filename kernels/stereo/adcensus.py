@@ -250,6 +250,68 @@ def _rho_lanes(c: _V64, inv: wp.float64, weight: wp.float64):
     return res
 
 
+# The 16 cells (x, d0 + i) of a vector whose lanes are all in range, float32 volume: census table + rho_grad
+# (+ rho_bt), stored; the fused kernel's lane loop in C++ (the same operations in its order, contraction off), so
+# the sums and stores run on the vector.
+_CELLS16 = r"""
+#if !defined(__CUDA_ARCH__)
+#pragma clang fp contract(off)
+#endif
+    float total[16];
+    for (int l = 0; l < 16; ++l)
+        total[l] = wp::index(rho, (int)wp::bit_count(a ^ wp::index(cr, y, u - l)));
+    for (int l = 0; l < 16; ++l)
+        total[l] = total[l] + rg.c[l];
+    if (terms > 1)
+        for (int l = 0; l < 16; ++l)
+            total[l] = total[l] + rb.c[l];
+    for (int l = 0; l < 16; ++l)
+        wp::index(out, y, x, k0 + l) = total[l];
+    return 0;
+"""
+
+
+@wp.func_native(_CELLS16)
+def _cells16(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho: wp.array(dtype=wp.float32), y: int, u: int,
+             rg: _V32, rb: _V32, terms: int, out: wp.array3d(dtype=wp.float32), x: int, k0: int) -> int: ...
+
+
+@wp.func
+def _cells(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(dtype=wp.float32), y: int, x: int,
+           d0: int, rho_grad: _V32, rho_bt: _V32, T: int, out: wp.array3d(dtype=wp.float32), k0: int,
+           levels: wp.float64):
+    """out[y, x, k0 + i] = rho_census[popcount(a ^ cr[y, x - d0 - i])] + rho_grad[i] (+ rho_bt[i]) (_CELLS16)."""
+    return _cells16(a, cr, rho_census, y, x - d0, rho_grad, rho_bt, T, out, x, k0)
+
+
+@wp.func
+def _cells(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(dtype=wp.float32), y: int, x: int,
+           d0: int, rho_grad: _V32, rho_bt: _V32, T: int, out: wp.array3d(dtype=wp.uint8), k0: int,
+           levels: wp.float64):
+    """_cells of a compact volume, a lane at a time."""
+    for i in range(16):
+        total = rho_census[int(wp.bit_count(a ^ cr[y, x - d0 - i]))]
+        total = total + rho_grad[i]
+        if T > 1:
+            total = total + rho_bt[i]
+        _store(out, y, x, k0 + i, total, levels)
+    return 0
+
+
+@wp.func
+def _cells(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(dtype=wp.float64), y: int, x: int,
+           d0: int, rho_grad: _V64, rho_bt: _V64, T: int, out: wp.array3d(dtype=wp.float64), k0: int,
+           levels: wp.float64):
+    """_cells of a float64 volume, a lane at a time."""
+    for i in range(8):
+        total = rho_census[int(wp.bit_count(a ^ cr[y, x - d0 - i]))]
+        total = total + rho_grad[i]
+        if T > 1:
+            total = total + rho_bt[i]
+        _store(out, y, x, k0 + i, total, levels)
+    return 0
+
+
 @wp.kernel
 def _reverse_planar(img: wp.array3d(dtype=typing.Any), out: wp.array(dtype=typing.Any), row: int, pad: int,
                     offset: int):
@@ -420,12 +482,7 @@ def _fused_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64)
                     if T > 1:
                         rho_bt = _rho_lanes(_col_mean_v(rowsum_v, 2 * b + 1, W, nb, j, lo, hi, rows, zero), inv_bt,
                                             w_bt)
-                    for i in range(lanes):
-                        total = rho_census[int(wp.bit_count(a ^ cr[y, x - d0 - i]))]
-                        total = total + rho_grad[i]
-                        if T > 1:
-                            total = total + rho_bt[i]
-                        _store(out, y, x, k0 + i, total, levels)
+                    _cells(a, cr, rho_census, y, x, d0, rho_grad, rho_bt, T, out, k0, levels)
                 else:
                     for k in range(k0, wp.min(k0 + lanes, D)):
                         d = dmin + k
