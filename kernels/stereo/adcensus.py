@@ -50,11 +50,13 @@ vector width on each side cover the lanes past the image). A ring row is filled 
 holding an in-range cell of the row; its other lanes hold finite values that are never read), the row sums are
 vector sums, and where a vector's 16 cells all lie in range with the same window [max(x - r, 0), min(x + r,
 W - 1)] (the window bounds of kernels.stereo.bt's mean then do not depend on d) the window mean is a vector sum
-divided by the cell count; the census lookup, rho (one scalar exp per term: there is no vector exp whose values
-equal the scalar one) and the store then run lane by lane. Other vectors (near the image's left and right ends,
-a partial last vector) run a lane at a time as before. Every vector operation is the scalar operation on each
-lane in the same order, so the volume is bit for bit the scalar kernel's (tests: the vector and the lane-at-a-time
-hypotheses agree exactly).
+divided by the cell count. In float32 each BT term's rho then runs on the 16 lanes with kernels._vexp's exp,
+which has the bits of glibc's expf (what wp.exp calls on the CPU) for every float32 (C++ via wp.func_native where
+the CPU has AVX2 and FMA; elsewhere and on CUDA, wp.exp lane by lane), and for float32 volumes the census lookup,
+the sum and the store run in C++ as well (_CELLS16); float64 rho and compact volumes' sums and stores go lane by
+lane. Other vectors (near the image's left and right ends, a partial last vector) run a lane at a time as before.
+Every vector operation is the scalar operation on each lane in the same order, so the volume is bit for bit the
+scalar kernel's (tests: the vector and the lane-at-a-time hypotheses agree exactly).
 
 Compact mode (`levels` = q > 0, float32 images): the cost is stored as the uint8 round(C q), with
 q <= 255 / (2 + w_bt) so that every cost (< 2 + w_bt) fits; the quantisation step is 1 / q
