@@ -53,7 +53,7 @@ import warp as wp
 from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
 from kernels.launch import default_threads
 from kernels.stereo._common import check_dmin, check_range, image_pair, pixel
-from kernels.stereo.census import census_kernel
+from kernels.stereo.census import census_kernel, census_rows_f32
 
 # Every backward here is a hand-written kernel; Warp's autodiff code would only add compile time.
 wp.set_module_options({"enable_backward": False})
@@ -362,13 +362,22 @@ def _census_radii(radius_y: Any, radius_x: Any) -> tuple[int, int, int]:
     return ry, rx, bits
 
 
+def _census_launch(a: Inputs, img: wp.array, out: wp.array, ry: int, rx: int) -> None:
+    """The census strings of `img` into `out`: float32 on the CPU a row per thread in vector lanes
+    (kernels.stereo.census.census_rows_f32), else a pixel per thread (census_kernel); the same bits."""
+    if a.device.is_cpu and img.dtype == wp.float32:
+        a.launch(census_rows_f32, img.shape[0], [img, out, ry, rx], min_chunk=4)
+    else:
+        a.launch(census_kernel(ry, rx), img.size, [img, out])
+
+
 def census_transform(image: Any, radius_y: int = 3, radius_x: int = 4, *, device: Any = None) -> Any:
     """Census bit strings (H, W) uint64 (see the module docstring for the bit order)."""
     a = Inputs(device, image)
     img = a.floats("image", image, ndim=2, nonempty=True)
     ry, rx, _ = _census_radii(radius_y, radius_x)
     out = a.empty(img.shape, wp.uint64)
-    a.launch(census_kernel(ry, rx), img.size, [img, out])
+    _census_launch(a, img, out, ry, rx)
     return a.out(out)
 
 
@@ -383,8 +392,8 @@ def census_cost(left: Any, right: Any, dmin: int, dmax: int, radius_y: int = 3, 
     ry, rx, bits = _census_radii(radius_y, radius_x)
     cl = a.empty((H, W), wp.uint64)
     cr = a.empty((H, W), wp.uint64)
-    a.launch(census_kernel(ry, rx), H * W, [l_img, cl])
-    a.launch(census_kernel(ry, rx), H * W, [r_img, cr])
+    _census_launch(a, l_img, cl, ry, rx)
+    _census_launch(a, r_img, cr, ry, rx)
     out = a.empty((H, W, D), wp.uint8 if compact else None)
     if D % 8 == 0:
         vec = CENSUS_U8_VEC if compact else CENSUS_VEC[a.scalar]

@@ -662,3 +662,24 @@ def test_sgm_disparity_matches_the_numpy_reference(volume):
     np.testing.assert_array_equal(d, dl)
     np.testing.assert_array_equal(v, ref.left_right_check(dl, np.round(dr), 1.0, vl, vr))
     assert 0.0 < v.mean() < 1.0
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (3, 7), (8, 25), (13, 40), (40, 33), (37, 90)])
+@pytest.mark.parametrize("radii", [(3, 4), (1, 1), (0, 2), (2, 0), (4, 3)])
+def test_census_rows_in_vector_lanes_equal_the_pixel_kernel(shape, radii):
+    """kernels.stereo.census.census_rows_f32 (float32 on the CPU, a row per thread, 16 pixels a vector inside the
+    image) gives census_kernel's bit strings exactly: images with ties and NaN, windows wider than the image,
+    and a non-contiguous view (the rows read pixel by pixel)."""
+    from kernels.launch import launch_split
+    from kernels.stereo.census import census_kernel, census_rows_f32
+
+    rng = np.random.default_rng(sum(shape) + 7 * radii[0] + radii[1])
+    H, W = shape
+    base = (rng.integers(0, 6, (H, 2 * W)) / 5).astype(np.float32)
+    base[rng.random(base.shape) < 0.02] = np.nan
+    for img in (wp.array(base[:, :W].copy(), device="cpu"), wp.array(base, device="cpu")[:, ::2]):
+        want, got = (wp.zeros((H, W), dtype=wp.uint64, device="cpu") for _ in range(2))
+        launch_split(census_kernel(*radii), H * W, [img, want], device="cpu")
+        launch_split(census_rows_f32, H, [img, got, *radii], device="cpu")
+        assert want.numpy().any() or H * W == 1
+        np.testing.assert_array_equal(got.numpy(), want.numpy())
