@@ -8,7 +8,8 @@ raster order (dy, then dx, from -r to r), most significant first:
 with neighbour coordinates clamped to the image (kernels.stereo.costs states the same). The radii
 are compile-time constants of each kernel (`census_kernel(ry, rx)` builds and caches one per window
 size), so the window loops unroll into straight-line code, and pixels whose window lies inside the
-image skip the clamps. One thread per pixel, thread i = y W + x.
+image skip the clamps. One thread per pixel, thread i = y W + x. Float32 images on the CPU take
+census_rows_f32 instead (a row per thread in C++, 16 pixels a vector; the same strings, below).
 """
 
 from __future__ import annotations

@@ -28,7 +28,8 @@ cells out of range hold a fixed cost no real match can beat (each cost below nam
   coordinates clamped to the image); the cost is the Hamming distance
   popcount(c_L(x, y) xor c_R(x - d, y)). Out of range: the number of bits. With `compact` the
   volume is uint8 (every distance is an integer <= 64), for kernels.stereo.sgm's compact mode. The
-  transform runs in kernels.stereo.census (one kernel per window size, its loops unrolled).
+  transform runs in kernels.stereo.census (one kernel per window size, its loops unrolled; float32
+  on the CPU a row per thread in vector lanes).
 * Feature correlation, RAFT-Stereo's 1D correlation (Lipson, Teed & Deng, 3DV 2021) restricted to
   the disparity range, for learned features F (C, H, W) (PyTorch's layout, as kernels/corr.py):
 
