@@ -101,13 +101,15 @@ reported seed 0 was not used for any of this):
     ("distance": median to the nearest surface point; "loss": the last 200 iterations' training loss;
     the splats of the baseline sit 1.5 cm into the ground, a bias of the fit, not of the poses). The
     one-fit refined model (0.270 / 0.640 deg) is not shifted as a whole (ground -0.2 cm against the
-    baseline, lid +2.8, coaster -1.9): it is a WORSE model than the baseline, fewer opaque splats,
-    scattered 3 times as far from the surfaces, at a training loss 35% higher, so at 128 px the
-    refined fit is not at the same loss as the fit at the true poses (the 64-px observation above)
-    but in a worse joint optimum, reached from the perturbed starting cloud (no densification or
-    pruning removes the splats that the 5-degree errors scattered). The second joint fit from a fresh
-    model back-projected at the first fit's poses (experiments.pose_refinement's REFINE_PASSES) gives
-    a clean model (1.9 cm) and there the near-gauge shows: the model is raised against the baseline by
+    baseline, lid +2.8, coaster -1.9): it is a messier model than the baseline (fewer opaque splats,
+    scattered 3 times as far from the surfaces) at a training loss 35% higher, so at 128 px and 3000
+    iterations the refined fit has not reached the loss of the fit at the true poses (unlike the 64-px
+    fit from the true poses above). That is mostly LENGTH, not the scattered starting cloud: one fit of
+    6000 iterations (schedule scaled) reaches the loss of the second fit below (0.0395) with a model as
+    scattered (5.6 cm, 3001 opaque splats) and better poses (0.135 / 0.338 deg, pitch 0.18
+    cos(elevation)). The second joint fit from a fresh model back-projected at the first fit's poses
+    (experiments.pose_refinement's REFINE_PASSES) gives a clean model (1.9 cm) and there the near-gauge
+    shows plainly: the model is raised against the baseline by
     3.2 cm on the ground, 3.1 on the coaster, 1.6 on the lid (+0.7 on the ball, whose offsets are
     mostly horizontal), while the cameras are pitched towards it (0.26 cos(elevation) deg, d =
     (-0.002, 0.000, 0.019) explaining 74% of the rotation errors, centre error 0.18% of the radius):

@@ -1,5 +1,6 @@
-"""experiments.pose_refinement.fit_splats: the refined rows run REFINE_PASSES joint fits, each from a fresh model
-back-projected at the previous pass's poses; the gt and noisy rows run one fit at their starting poses."""
+"""experiments.pose_refinement.fit_splats: the refined rows' fits run REFINED_LENGTH x the iterations (schedule
+scaled) in REFINE_PASSES fits, each from a fresh model back-projected at the previous pass's poses; the gt and noisy
+rows run one fit of the base length at their starting poses."""
 
 from __future__ import annotations
 
@@ -24,13 +25,19 @@ def _views(n=4, size=16):
     return cams, rgba.astype(np.float32), depth.astype(np.float32)
 
 
+def test_defaults():
+    assert (pr.REFINED_LENGTH, pr.REFINE_PASSES) == (2, 1)
+
+
+@pytest.mark.parametrize("passes", [1, 2])
 @pytest.mark.parametrize("run", ["gt", "noisy", "refined", "refined_rgbd"])
-def test_refined_runs_restart_from_the_previous_passes_poses(run, monkeypatch):
+def test_refined_runs_restart_from_the_previous_passes_poses(run, passes, monkeypatch):
+    monkeypatch.setattr(pr, "REFINE_PASSES", passes)
     cams, rgba, depth = _views()
     calls = []
 
     def fake_joint(model, w2c, K, images, extent, cfg, *, progress, desc, depths):
-        calls.append({"model": model, "w2c": np.array(w2c), "extent": extent, "depths": depths})
+        calls.append({"model": model, "w2c": np.array(w2c), "extent": extent, "depths": depths, "cfg": cfg})
         # a deterministic pose change per pass: every camera moved by 0.1 along its own x axis
         out = np.array(w2c)
         out[:, 0, 3] += 0.1
@@ -41,11 +48,15 @@ def test_refined_runs_restart_from_the_previous_passes_poses(run, monkeypatch):
     sizes = {"iterations": 10, "init_points": 50}
     dw = 0.5 if run == "refined_rgbd" else 0.0
     model, c2w_final, _, log = pr.fit_splats(run, cams, c2w, rgba, depth, sizes, 3, False, dw)
-    passes = pr.REFINE_PASSES if run.startswith("refined") else 1
-    assert len(calls) == passes and pr.REFINE_PASSES == 2
+    refined = run.startswith("refined")
+    passes = passes if refined else 1
+    assert len(calls) == passes
     assert log["train_s"] == 2.0 * passes and len(log["losses"]) == 2 * passes
     start = c2w
     for call in calls:
+        length = 10 * pr.REFINED_LENGTH if refined else 10
+        assert call["cfg"].iterations == length and call["cfg"].pose_start == length // 10
+        assert call["cfg"].refine_poses == refined
         # the pass's starting poses, and its fresh model back-projected at them
         np.testing.assert_allclose(call["w2c"], np.linalg.inv(start), atol=1e-12)
         start_cams = [Camera(c.K, T, c.width, c.height) for c, T in zip(cams, start)]
