@@ -146,16 +146,16 @@ iterations), mean / max rotation error in degrees, test PSNR dB (with test-time 
   seed 2 RGB      0.283 / 0.709, 25.06 (26.56)  0.184 / 0.518, 25.99 (28.25)  0.128 / 0.383, 27.00 (28.13)
   seed 1 RGB-D    0.224 / 0.446, 25.17 (27.54)  0.078 / 0.222, 28.91 (29.55)  0.103 / 0.246, 27.90 (29.25)
   seed 2 RGB-D    0.153 / 0.329, 25.73 (26.86)  0.068 / 0.209, 28.92 (29.47)  0.091 / 0.270, 27.59 (28.45)
-(ground-truth poses, seed 1: 30.40 dB). With the longer fit every view is under 0.5 degree on both seeds in the
-RGB row (worst 0.34 and 0.38, from 0.64 and 0.71), the means halve, and the test PSNR rises by 1.9-2.1 dB; the
-RGB-D row improves less than with the two fits (worst 0.246 and 0.270 against 0.222 and 0.209 deg, 27.9 and 27.6
-against 28.9 dB) but stays well under the target: every view under 0.5 degree in both rows on both seeds. A third
-fit of 3000 gives seed 1 RGB 0.168 / 0.498 and seed 2 0.200 / 0.545: more fresh models do not help. What remains
-is the near-gauge (model raised 1-3 cm, every camera pitched towards it, centres fixed; pitch 0.18 cos(elevation)
-deg in the seed-1 RGB 6000 fit, 0.26 after two fits, 0.08-0.09 in the two-fit RGB-D fits; research/pose_refine_splats.py). Cost: the refined rows take twice the training time, as
-six 3000-iteration fits instead of four, about 8.5 minutes for quick mode and 21 for full mode on a quiet 2-core
-machine (estimated from the one-fit timings above, 5.5 and 14.6 minutes, not timed end to end). Quick mode (64
-px) was not rerun with the longer fit, on any seed. The seed-0
+(ground-truth poses, seed 1: 30.40 dB). With the longer fit every view is under 0.5 degree on both seeds in the RGB
+row (worst 0.34 and 0.38, from 0.64 and 0.71), the means halve, and the test PSNR rises by 1.9-2.1 dB; the RGB-D
+row improves less than with the two fits (worst 0.246 and 0.270 against 0.222 and 0.209 deg, 27.9 and 27.6 against
+28.9 dB) but stays well under the target: every view under 0.5 degree in both rows on both seeds. A third fit of
+3000 gives seed 1 RGB 0.168 / 0.498 and seed 2 0.200 / 0.545: more fresh models do not help. What remains is the
+near-gauge (model raised 1-3 cm, every camera pitched towards it, centres fixed; pitch 0.18 cos(elevation) deg in
+the seed-1 RGB 6000 fit, 0.26 after two fits, 0.08-0.09 in the two-fit RGB-D fits; research/pose_refine_splats.py).
+Cost: the refined rows take twice the training time, as six 3000-iteration fits instead of four, about 8.5 minutes
+for quick mode and 21 for full mode on a quiet 2-core machine (estimated from the one-fit timings above, 5.5 and
+14.6 minutes, not timed end to end). Quick mode (64 px) was not rerun with the longer fit, on any seed. The seed-0
 numbers above this paragraph (quick and full) are of the one-fit method. Commands (scratch script replicating
 fit_splats, not kept): each fit alone with the experiment's dataset, perturbation and splat_config.
 
