@@ -32,7 +32,7 @@ delta once (20 bytes a sample in float32) with a NumPy sum split over the same t
 `fwd_over_bound` = fwd_s / bound_s. `bound_max_s` reads the same bytes with an unsigned maximum
 (less arithmetic per byte than NumPy's pairwise float32 sum, which on the bench host is not always
 memory-bound: docs/performance.md, compositing, fourth round); `fwd_over_bound_max` = fwd_s /
-bound_max_s. The target is judged on `bound_s`, as the issue words it.
+bound_max_s. experiments/performance.py judges the target on the tighter `bound_max_s` and shows both.
 
 With `compare=True` (drlab bench --compare), timed interleaved in the same `time_medians` call on
 the same inputs, with the same thread count (torch.set_num_threads):

@@ -26,13 +26,16 @@ def _views(n=4, size=16):
 
 
 def test_defaults():
-    assert (pr.REFINED_LENGTH, pr.REFINE_PASSES) == (2, 1)
+    assert (pr.REFINED_LENGTH, pr.REFINE_PASSES) == (1, 1)
+    assert pr.splat_setup(quick=False, smoke=False)["iterations"] == 6000  # every full-mode row (docstring)
+    assert pr.splat_setup(quick=True, smoke=False)["iterations"] == 3000
 
 
 @pytest.mark.parametrize("passes", [1, 2])
 @pytest.mark.parametrize("run", ["gt", "noisy", "refined", "refined_rgbd"])
 def test_refined_runs_restart_from_the_previous_passes_poses(run, passes, monkeypatch):
     monkeypatch.setattr(pr, "REFINE_PASSES", passes)
+    monkeypatch.setattr(pr, "REFINED_LENGTH", 2)  # the knob the seed 1/2 study used (module docstring)
     cams, rgba, depth = _views()
     calls = []
 
