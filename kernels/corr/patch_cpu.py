@@ -56,7 +56,7 @@ from typing import Any
 import warp as wp
 
 from kernels.corr._common import pixel_window
-from kernels.corr.window_cpu import built_once
+from kernels._native import built_once
 
 # A group's patches (`patch_groups_cpu`; module docstring): thread = group g.
 _GROUP_CPP = r"""

@@ -38,11 +38,11 @@ reading each pixel's on-the-fly patch (its origin 0, 0) instead of a level slice
 on-the-fly forward's sampling on the CPU (`_common.sample_windows` with `from_patch` = 1).
 """
 
-import threading
-from typing import Any, Callable
+from typing import Any
 
 import warp as wp
 
+from kernels._native import built_once
 from kernels.corr._common import pixel_window
 
 _WINDOW_CPP = r"""
@@ -251,17 +251,6 @@ _PREFETCH_CPP = r"""
 
 _kernels: dict[tuple[int, Any], Any] = {}
 _windows: dict[tuple[int, Any], Any] = {}
-_lock = threading.RLock()  # built_once holds it while building; a build may ask for a window
-
-
-def built_once(cache: dict, key: Any, build: Callable[[], Any]) -> Any:
-    """cache[key], made by build() on first use: one build per key even when threads ask at once (under
-    the module's lock, re-entrant because a build may ask for a window). Shared with `patch_cpu`."""
-    with _lock:
-        value = cache.get(key)
-        if value is None:
-            value = cache[key] = build()
-    return value
 
 
 def window_func(radius: int, scalar: Any) -> Any:

@@ -38,10 +38,11 @@ no way to put several rays in SIMD lanes. `forward_kernel()` and `backward_kerne
 the CPU only, for float32 and contiguous sample arrays; float64 and CUDA keep the Warp kernels.
 """
 
-import threading
 from typing import Any
 
 import warp as wp
+
+from kernels._native import built_once
 
 _FORWARD_CPP = r"""
 #if !defined(__CUDA_ARCH__)
@@ -357,26 +358,17 @@ _BACKWARD_CPP = r"""
 
 LANES = 8  # rays per thread of the kernel
 
-_lock = threading.Lock()
 _kernels: dict = {}
 
 
 def forward_kernel() -> Any:
     """The C++ forward kernel (float32; module docstring), built once."""
-    with _lock:
-        k = _kernels.get("forward")
-        if k is None:
-            k = _kernels["forward"] = _build()
-    return k
+    return built_once(_kernels, "forward", _build)
 
 
 def backward_kernel() -> Any:
     """The C++ backward kernel (float32; module docstring), built once."""
-    with _lock:
-        k = _kernels.get("backward")
-        if k is None:
-            k = _kernels["backward"] = _build_backward()
-    return k
+    return built_once(_kernels, "backward", _build_backward)
 
 
 def _build_backward() -> Any:

@@ -31,10 +31,11 @@ own Warp module, compiled on first use), with the arguments of `_hash_forward_ke
 Warp kernels).
 """
 
-import threading
 from typing import Any
 
 import warp as wp
+
+from kernels._native import built_once
 
 _HEAD = r"""
     typedef decltype(zero) T;
@@ -161,7 +162,6 @@ _SCATTER_CPP = _HEAD + r"""
     }
 """
 
-_lock = threading.Lock()
 _kernels: dict = {}
 
 
@@ -176,11 +176,7 @@ def backward_kernel(scalar: Any) -> Any:
 
 
 def _built(scalar: Any) -> Any:
-    with _lock:
-        kernels = _kernels.get(scalar)
-        if kernels is None:
-            kernels = _kernels[scalar] = _build(scalar)
-    return kernels
+    return built_once(_kernels, scalar, lambda: _build(scalar))
 
 
 def _build(scalar: Any) -> Any:
