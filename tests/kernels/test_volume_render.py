@@ -329,3 +329,14 @@ def test_sphere_render_dense_quads_equal_the_one_at_a_time_passes(monkeypatch, n
         assert a.dtype == np_t
         np.testing.assert_array_equal(a, c)
         np.testing.assert_array_equal(b, c)
+
+
+def test_sphere_render_dense_in_place_inputs_reject_a_mixed_dtype():
+    # render_dense reads NumPy inputs in place (_floats_in_place); a mixed dtype still gets a.floats' error
+    field = SphereField.textbook(wp.float32)
+    o = np.zeros((4, 3), np.float32)
+    d = np.tile(np.array([0.0, 0.0, 1.0], np.float32), (4, 1))
+    t = np.tile(np.linspace(1.0, 6.0, 8, dtype=np.float32), (4, 1))
+    delta = np.full((4, 8), 0.5, np.float64)
+    with pytest.raises(ValueError, match="delta: expected dtype float32 like the other inputs, got float64"):
+        field.render_dense(o, d, t, delta)
