@@ -249,7 +249,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         failed = _reproduce_on_ray(args, selected, results_dir)
     else:
         for name in selected:
-            if _run_one(name, args.quick, args.device, results_dir / name, None, ["--debug"] if args.debug else []) != 0:
+            if _run_one(name, args.quick, args.device, results_dir / name, registry.reproduce_seed(name, args.quick),
+                        ["--debug"] if args.debug else []) != 0:
                 failed.append(name)
     index = write_results_index(results_dir, names, args.quick)
     print(f"drlab reproduce: wrote {index}")

@@ -309,8 +309,10 @@ def reproduce_jobs(names: list[str], results_dir: Path, quick: bool, device: str
                    extra: list[str]) -> list[dict[str, Any]]:
     """`drlab reproduce --ray`: one job per registered experiment, into results_dir/<name> as a local
     reproduce writes it (no sweep-run.json), its output in log_dir/<name>.log."""
+    from research import registry
+
     keep = child_env()
-    return [{"key": name, "experiment": name, "device": device, "seed": None,
+    return [{"key": name, "experiment": name, "device": device, "seed": registry.reproduce_seed(name, quick),
              "argv": (["--quick"] if quick else []) + list(extra), "config": {"experiment": name, "quick": quick},
              "out": str(Path(results_dir).absolute() / name), "log": str(Path(log_dir).absolute() / f"{name}.log"),
              "cwd": os.getcwd(), "env": keep, "timeout_s": 24 * 3600.0, "record": False} for name in names]
