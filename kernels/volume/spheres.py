@@ -106,6 +106,11 @@ _NATIVE_ON_CPU = True
 # Those passes run in one launch a chunk, calling NumPy's float32 exp loop themselves, where it was found
 # (spheres_cpu.numpy_exp_loop); False runs three launches a chunk with np.exp between them (for tests).
 _FUSED_EXP_ON_CPU = True
+# ... with chunks of at least this many falloff values (~0.8 ms of one core; nothing is stored between the
+# passes, so no cache size bounds them): the textbook image (786432 values) runs as 2/3 and 1/3 on 2
+# threads, which on the loaded 2-core host was as fast as one chunk or faster, where 6 guided chunks
+# of 2^17 or two halves lost 0.5-1.5 ms of median wall time waiting for the other thread (fifth round).
+_CHUNK_VALUES_ONE_LAUNCH = 1 << 19
 
 # The chapter's scene: (centre, radius, colour, sharpness).
 TEXTBOOK_SPHERES = (
@@ -715,11 +720,11 @@ class SphereField(Field):
                        geometry: wp.array, appearance: wp.array, bg_v: wp.array, t_threshold: float,
                        rgb: wp.array, depth: wp.array, opacity: wp.array) -> None:
         """render_dense's CPU passes in C++ (float32, kernels.volume.spheres_cpu) over groups of eight
-        rays, cut into guided chunks of groups (none smaller than _CHUNK_VALUES falloff values), each
-        chunk on one launch thread. Where NumPy's float32 exp loop was found
-        (spheres_cpu.numpy_exp_loop), one launch a chunk runs pass 1, the exp, pass 2, the exp and
-        pass 3 group by group in the chunk's scratch; else, in blocks of at most _FALLOFF_BLOCK
-        falloff values, three launches a chunk with np.exp between them."""
+        rays, cut into guided chunks of groups, each chunk on one launch thread. Where NumPy's float32
+        exp loop was found (spheres_cpu.numpy_exp_loop), one launch a chunk (chunks of at least
+        _CHUNK_VALUES_ONE_LAUNCH falloff values) runs pass 1, the exp, pass 2, the exp and pass 3
+        group by group in the chunk's scratch; else, in blocks of at most _FALLOFF_BLOCK falloff
+        values, three launches a chunk (chunks of at least _CHUNK_VALUES) with np.exp between them."""
         k1, k2, k3, fused = spheres_cpu.kernels()
         n_rays, n_s = tt.shape
         n_k = geometry.shape[0]
@@ -736,7 +741,9 @@ class SphereField(Field):
         min_chunk = max(1, _CHUNK_VALUES // per_group)
         threads = default_threads()
         if exp_loop is not None:
-            bounds = (guided_bounds(n_groups, threads, min_chunk) if threads > 1 and n_groups >= 2 * min_chunk
+            min_chunk = max(1, _CHUNK_VALUES_ONE_LAUNCH // per_group)
+            # (split as soon as there is more than one chunk's work: the last chunk may be smaller)
+            bounds = (guided_bounds(n_groups, threads, min_chunk) if threads > 1 and n_groups > min_chunk
                       else [(0, n_groups)])
             falloff = a.empty(len(bounds) * per_group)
             factor = a.empty(len(bounds) * lanes * n_s)

@@ -411,11 +411,14 @@ def numpy_exp_loop() -> tuple[int, int] | None:
 
 
 def _find_numpy_exp() -> tuple[int, int] | bool:
-    if ctypes.sizeof(ctypes.c_ssize_t) != 8:  # the kernel passes npy_intp as 64 bits
+    # the kernel passes npy_intp as 64 bits; _UFunc's head is a plain CPython object header (not the
+    # free-threaded build's)
+    if ctypes.sizeof(ctypes.c_ssize_t) != 8 or object.__basicsize__ != 2 * ctypes.sizeof(ctypes.c_void_p):
         return False
     try:
         u = _UFunc.from_address(id(np.exp))
-        if (u.nin, u.nout, u.nargs, u.name) != (1, 1, 2, b"exp") or not 0 < u.ntypes <= 64:
+        # the integer fields first: only then are the pointers read
+        if (u.nin, u.nout, u.nargs) != (1, 1, 2) or u.ntypes != len(np.exp.types) or u.name != b"exp":
             return False
         f32 = np.dtype(np.float32).num
         loop = next((i for i in range(u.ntypes) if (u.types[2 * i], u.types[2 * i + 1]) == (bytes([f32]),) * 2),

@@ -282,6 +282,7 @@ def test_sphere_render_dense_cpp_passes_equal_the_warp_passes(monkeypatch, fused
     for n_s in (8, 37):
         o, d, t, delta = _sphere_rays(rng, 45, n_s, np.float32)
         monkeypatch.setattr(spheres_module, "_CHUNK_VALUES", 1)
+        monkeypatch.setattr(spheres_module, "_CHUNK_VALUES_ONE_LAUNCH", 1)
         for threads in (1, 2, 3):
             monkeypatch.setattr(spheres_module, "default_threads", lambda threads=threads: threads)
             monkeypatch.setattr(spheres_module, "_NATIVE_ON_CPU", True)
