@@ -96,9 +96,9 @@ _FUSED_ON_CPU = False
 _QUADS_ON_CPU = True
 # Falloff values per block of the CPU passes (8 MB in float32): their memory stays bounded at any size.
 _FALLOFF_BLOCK = 1 << 21
-# The CPU passes' chunks (SphereField._two_passes): no chunk of fewer items than hold this many falloff
-# values (~0.1-0.2 ms of kernel a pass, against 20-40 us of Python a launch; a 64x64 x 64 render_dense is
-# cut into 6 chunks at 2 threads).
+# The CPU passes' chunks (SphereField._two_passes, and render_dense's three-launch C++ route): no chunk of
+# fewer items than hold this many falloff values (~0.1-0.2 ms of kernel a pass, against 20-40 us of Python
+# a launch; a 64x64 x 64 render_dense on the Warp passes is cut into 6 chunks at 2 threads).
 _CHUNK_VALUES = 1 << 17
 # render_dense's C++ passes (float32 on CPUs with AVX2, kernels.volume.spheres_cpu); False runs the Warp
 # passes there too (for tests: the same results bit for bit).

@@ -432,7 +432,8 @@ def _find_numpy_exp() -> tuple[int, int] | bool:
         return False
     # the loop's bits against np.exp's on values across float32's range (every exponent, odd lengths)
     rng = np.random.default_rng(0)
-    x = np.concatenate([np.linspace(-110.0, 90.0, 200003, dtype=np.float32), rng.standard_normal(4099).astype(np.float32),
+    x = np.concatenate([np.linspace(-110.0, 90.0, 200003, dtype=np.float32),
+                        rng.standard_normal(4099).astype(np.float32),
                         np.array([0.0, -0.0, -1e-30, 1e-30, -87.5, 88.7, -103.9, np.inf, -np.inf], np.float32)])
     with np.errstate(all="ignore"):
         want = np.exp(x)
