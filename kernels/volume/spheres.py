@@ -60,6 +60,13 @@ time; the compiler turns the lane-wise arithmetic into SIMD instructions and the
 arithmetic is paid once per four samples. render_dense's last pass takes a quad's four factors
 and, unless the ray terminates inside the quad, runs its four blend steps as straight-line code
 (the transmittances it checks are the products the steps form); else one step at a time.
+
+C++ on the CPU (float32, CPUs with AVX2): render_dense's three passes run in
+kernels.volume.spheres_cpu instead, eight rays in the lanes of a vector (sample j of eight rays at
+once, each lane the operations above in the same order, the blends of eight rays side by side), and
+where NumPy's float32 exp loop was found, in one launch a chunk that calls that loop itself between
+the passes on each group's values (the same function np.exp runs, so the same bits). The same
+outputs bit for bit (tested); float64, CUDA and CPUs without AVX2 keep the Warp passes.
 """
 
 from __future__ import annotations
@@ -71,6 +78,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
+from kernels.volume import spheres_cpu
 from kernels.volume._checks import check_dtype
 from kernels.volume.composite import DEFAULT_T_THRESHOLD
 from kernels.volume.field import Field, FieldOutput
@@ -88,10 +96,21 @@ _FUSED_ON_CPU = False
 _QUADS_ON_CPU = True
 # Falloff values per block of the CPU passes (8 MB in float32): their memory stays bounded at any size.
 _FALLOFF_BLOCK = 1 << 21
-# The CPU passes' chunks (SphereField._two_passes): no chunk of fewer items than hold this many falloff
-# values (~0.1-0.2 ms of kernel a pass, against 20-40 us of Python a launch; a 64x64 x 64 render_dense is
-# cut into 6 chunks at 2 threads).
+# The CPU passes' chunks (SphereField._two_passes, and render_dense's three-launch C++ route): no chunk of
+# fewer items than hold this many falloff values (~0.1-0.2 ms of kernel a pass, against 20-40 us of Python
+# a launch; a 64x64 x 64 render_dense on the Warp passes is cut into 6 chunks at 2 threads).
 _CHUNK_VALUES = 1 << 17
+# render_dense's C++ passes (float32 on CPUs with AVX2, kernels.volume.spheres_cpu); False runs the Warp
+# passes there too (for tests: the same results bit for bit).
+_NATIVE_ON_CPU = True
+# Those passes run in one launch a chunk, calling NumPy's float32 exp loop themselves, where it was found
+# (spheres_cpu.numpy_exp_loop); False runs three launches a chunk with np.exp between them (for tests).
+_FUSED_EXP_ON_CPU = True
+# ... with chunks of at least this many falloff values (~0.8 ms of one core; nothing is stored between the
+# passes, so no cache size bounds them): the textbook image (786432 values) runs as 2/3 and 1/3 on 2
+# threads, which on the loaded 2-core host was as fast as one chunk or faster, where 6 guided chunks
+# of 2^17 or two halves lost 0.5-1.5 ms of median wall time waiting for the other thread (fifth round).
+_CHUNK_VALUES_ONE_LAUNCH = 1 << 19
 
 # The chapter's scene: (centre, radius, colour, sharpness).
 TEXTBOOK_SPHERES = (
@@ -697,6 +716,71 @@ class SphereField(Field):
 
             parallel_items(chunk, len(bounds), threads=threads)
 
+    def _native_passes(self, a: A.Inputs, o: wp.array, d: wp.array, tt: wp.array, dl: wp.array,
+                       geometry: wp.array, appearance: wp.array, bg_v: wp.array, t_threshold: float,
+                       rgb: wp.array, depth: wp.array, opacity: wp.array) -> None:
+        """render_dense's CPU passes in C++ (float32, kernels.volume.spheres_cpu) over groups of eight
+        rays, cut into guided chunks of groups, each chunk on one launch thread. Where NumPy's float32
+        exp loop was found (spheres_cpu.numpy_exp_loop), one launch a chunk (chunks of at least
+        _CHUNK_VALUES_ONE_LAUNCH falloff values) runs pass 1, the exp, pass 2, the exp and pass 3
+        group by group in the chunk's scratch; else, in blocks of at most _FALLOFF_BLOCK falloff
+        values, three launches a chunk (chunks of at least _CHUNK_VALUES) with np.exp between them."""
+        k1, k2, k3, fused = spheres_cpu.kernels()
+        n_rays, n_s = tt.shape
+        n_k = geometry.shape[0]
+        dev = a.device
+        lanes = spheres_cpu.LANES
+        n_groups = -(-n_rays // lanes)
+        per_group = lanes * n_s * n_k
+        exp_loop = spheres_cpu.numpy_exp_loop() if _FUSED_EXP_ON_CPU else None
+        block = n_groups if exp_loop is not None else max(1, min(n_groups, _FALLOFF_BLOCK // per_group))
+        g4 = _view(geometry.ptr, wp.float32, (n_k, 4), dev)
+        p4 = _view(appearance.ptr, wp.float32, (n_k, 4), dev)
+        bg3 = _view(bg_v.ptr, wp.float32, (3,), dev)
+        thr = wp.float32(t_threshold)
+        min_chunk = max(1, _CHUNK_VALUES // per_group)
+        threads = default_threads()
+        if exp_loop is not None:
+            min_chunk = max(1, _CHUNK_VALUES_ONE_LAUNCH // per_group)
+            # (split as soon as there is more than one chunk's work: the last chunk may be smaller)
+            bounds = (guided_bounds(n_groups, threads, min_chunk) if threads > 1 and n_groups > min_chunk
+                      else [(0, n_groups)])
+            falloff = a.empty(len(bounds) * per_group)
+            factor = a.empty(len(bounds) * lanes * n_s)
+            fn, data = exp_loop
+
+            def chunk(j: int) -> None:
+                lo, n = bounds[j]
+                fv = _view(falloff.ptr + j * per_group * 4, wp.float32, (per_group,), dev)
+                ev = _view(factor.ptr + j * lanes * n_s * 4, wp.float32, (lanes * n_s,), dev)
+                wp.launch(fused, dim=n, inputs=[o, d, tt, dl, g4, p4, bg3, thr, rgb, depth, opacity, fv, ev,
+                                                fn, data, n_rays, lo], device=dev)
+
+            parallel_items(chunk, len(bounds), threads=threads)
+            return
+        falloff = a.empty(block * per_group)
+        factor = a.empty(block * lanes * n_s)
+        f, e = falloff.numpy(), factor.numpy()
+        for base in range(0, n_groups, block):
+            nb = min(block, n_groups - base)
+            bounds = guided_bounds(nb, threads, min_chunk) if threads > 1 and nb >= 2 * min_chunk else [(0, nb)]
+
+            def chunk(j: int, base: int = base, bounds: list[tuple[int, int]] = bounds) -> None:
+                lo, n = bounds[j]
+                g_lo = base + lo
+                v0, v1 = lo * per_group, (lo + n) * per_group
+                u0, u1 = lo * lanes * n_s, (lo + n) * lanes * n_s
+                fv = _view(falloff.ptr + v0 * 4, wp.float32, (v1 - v0,), dev)
+                ev = _view(factor.ptr + u0 * 4, wp.float32, (u1 - u0,), dev)
+                wp.launch(k1, dim=n, inputs=[o, d, tt, g4, p4, fv, n_rays, g_lo], device=dev)
+                np.exp(f[v0:v1], out=f[v0:v1])
+                wp.launch(k2, dim=n, inputs=[fv, tt, dl, g4, p4, ev, n_rays, g_lo], device=dev)
+                np.exp(e[u0:u1], out=e[u0:u1])
+                wp.launch(k3, dim=n, inputs=[fv, ev, tt, g4, p4, bg3, thr, rgb, depth, opacity, n_rays, g_lo],
+                          device=dev)
+
+            parallel_items(chunk, len(bounds), threads=threads)
+
     def forward(self, points: A.ArrayLike, dirs: A.ArrayLike | None = None) -> FieldOutput:
         a, p, _ = self._inputs(points, dirs)
         n = p.shape[0]
@@ -753,6 +837,9 @@ class SphereField(Field):
         # split launches (module docstring), four samples at a time where the samples of a ray come
         # in fours.
         n_s = tt.shape[1]
+        if self.dtype == wp.float32 and _NATIVE_ON_CPU and n_rays and n_s and spheres_cpu.available():
+            self._native_passes(a, o, d, tt, dl, geometry, appearance, bg_v, t_threshold, rgb, depth, opacity)
+            return a.out(rgb), a.out(depth), a.out(opacity)
         if n_s % 4 == 0 and _QUADS_ON_CPU:  # (t and delta: rows contiguous, _floats_in_place)
             k1, kf, k2 = _RENDER_DENSE4[self.dtype]
             t4, dl4 = (_vec_view(x, _VEC4, (n_rays, n_s // 4)) for x in (tt, dl))

@@ -193,11 +193,16 @@ def _sphere_rays(rng, n_rays, n_s, np_t):
     return [x.astype(np_t) for x in (o, d, t, delta)]
 
 
-@pytest.mark.parametrize("quads", [True, False], ids=["quads", "single"])
+# render_dense's CPU paths: (C++ passes, one launch a chunk calling NumPy's exp loop, Warp quads)
+_DENSE_PATHS = {"cpp_fused": (True, True, True), "cpp_passes": (True, False, True), "quads": (False, True, True),
+                "single": (False, True, False)}
+
+
+@pytest.mark.parametrize("path", list(_DENSE_PATHS))
 @pytest.mark.parametrize("n_s", [1, 4, 37, 64])
 @pytest.mark.parametrize("thr", [0.0, 1e-3, 0.3], ids=["no_termination", "late_termination", "early_termination"])
 @pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
-def test_sphere_render_dense_equals_the_general_path_bitwise(monkeypatch, np_t, wp_t, thr, n_s, quads):
+def test_sphere_render_dense_equals_the_general_path_bitwise(monkeypatch, np_t, wp_t, thr, n_s, path):
     # On the CPU render_dense evaluates the sphere falloffs and the compositing factors
     # exp(-(sigma delta)) with NumPy's exp, as SphereField.forward and composite_forward do, with the
     # same operations in the same order: its image, depth and opacity are those of render_samples on
@@ -206,6 +211,11 @@ def test_sphere_render_dense_equals_the_general_path_bitwise(monkeypatch, np_t, 
     import kernels.volume.spheres as spheres_module
     from kernels.volume.sampling import dense_samples
 
+    native, fused, quads = _DENSE_PATHS[path]
+    if native and wp_t == wp.float64:
+        pytest.skip("the C++ passes are float32; float64 runs the Warp passes (the quads and single cases)")
+    monkeypatch.setattr(spheres_module, "_NATIVE_ON_CPU", native)
+    monkeypatch.setattr(spheres_module, "_FUSED_EXP_ON_CPU", fused)
     monkeypatch.setattr(spheres_module, "_QUADS_ON_CPU", quads)
     rng = np.random.default_rng(12)
     field = SphereField.textbook(wp_t)
@@ -225,6 +235,92 @@ def test_sphere_render_dense_equals_the_general_path_bitwise(monkeypatch, np_t, 
     blocked = field.render_dense(o, d, t, delta, background=bg, t_threshold=thr)
     for w, b in zip(want, blocked):
         assert w.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("fused", [True, False], ids=["one_launch", "three_launches"])
+def test_sphere_render_dense_cpp_passes_equal_the_warp_passes(monkeypatch, fused):
+    # render_dense's float32 CPU passes in C++ (kernels.volume.spheres_cpu: eight rays in vector lanes)
+    # give the Warp passes' image, depth and opacity bit for bit: sample counts in fours and not, rays
+    # not a multiple of eight, early termination, t and delta per ray or one row broadcast, chunks on
+    # 1 to 3 threads and small blocks; and they ran (their kernels were launched).
+    import kernels.volume.spheres as spheres_module
+    from kernels.volume import spheres_cpu
+
+    if not spheres_cpu.available():
+        pytest.skip("this CPU has no AVX2: render_dense runs the Warp passes")
+    if fused:
+        assert spheres_cpu.numpy_exp_loop() is not None
+    monkeypatch.setattr(spheres_module, "_FUSED_EXP_ON_CPU", fused)
+    launched = []
+    real_launch = wp.launch
+
+    def spy(kernel, *args, **kwargs):
+        launched.append(kernel)
+        return real_launch(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(wp, "launch", spy)
+    k1, k2, k3, one = spheres_cpu.kernels()
+    rng = np.random.default_rng(16)
+    field = SphereField.textbook(wp.float32)
+    for n_s in (1, 3, 4, 8, 37, 64):
+        o, d, t, delta = _sphere_rays(rng, 45, n_s, np.float32)
+        row_t, row_d = (np.broadcast_to(x[0], x.shape) for x in (t, delta))
+        for thr in (0.0, 1e-4, 0.3):
+            for bg in ((0.0, 0.0, 0.0), (0.1, 0.2, 0.3)):
+                for tt, dd in ((t, delta), (row_t, row_d)):
+                    monkeypatch.setattr(spheres_module, "_NATIVE_ON_CPU", False)
+                    want = [x.tobytes() for x in field.render_dense(o, d, tt, dd, background=bg, t_threshold=thr)]
+                    monkeypatch.setattr(spheres_module, "_NATIVE_ON_CPU", True)
+                    del launched[:]
+                    got = [x.tobytes() for x in field.render_dense(o, d, tt, dd, background=bg, t_threshold=thr)]
+                    assert got == want, (n_s, thr, bg)
+                    assert (one in launched) if fused else ({k1, k2, k3} <= set(launched)), (n_s, launched)
+                    on_device = field.render_dense(*(wp.array(x) for x in (o, d, tt, dd)), background=bg,
+                                                   t_threshold=thr)
+                    assert [x.numpy().tobytes() for x in on_device] == want
+    # small chunks (one group of eight rays) on 1 to 3 threads, and blocks of one group
+    for n_s in (8, 37):
+        o, d, t, delta = _sphere_rays(rng, 45, n_s, np.float32)
+        monkeypatch.setattr(spheres_module, "_CHUNK_VALUES", 1)
+        monkeypatch.setattr(spheres_module, "_CHUNK_VALUES_ONE_LAUNCH", 1)
+        for threads in (1, 2, 3):
+            monkeypatch.setattr(spheres_module, "default_threads", lambda threads=threads: threads)
+            monkeypatch.setattr(spheres_module, "_NATIVE_ON_CPU", True)
+            monkeypatch.setattr(spheres_module, "_FALLOFF_BLOCK", 1 << 21)
+            got = [x.tobytes() for x in field.render_dense(o, d, t, delta, background=bg, t_threshold=0.3)]
+            monkeypatch.setattr(spheres_module, "_FALLOFF_BLOCK", 1)
+            blocked = [x.tobytes() for x in field.render_dense(o, d, t, delta, background=bg, t_threshold=0.3)]
+            monkeypatch.setattr(spheres_module, "_NATIVE_ON_CPU", False)
+            want = [x.tobytes() for x in field.render_dense(o, d, t, delta, background=bg, t_threshold=0.3)]
+            assert got == want == blocked, (n_s, threads)
+
+
+def test_numpy_exp_loop_gives_np_exp_bits():
+    # The float32 loop the one-launch C++ path calls (read from np.exp's loop table) gives np.exp's
+    # bits on random bit patterns (every exponent, NaNs and infinities included), called in place on
+    # pieces of several lengths as the kernel calls it.
+    import ctypes
+
+    from kernels.volume import spheres_cpu
+
+    loop = spheres_cpu.numpy_exp_loop()
+    if loop is None:
+        pytest.skip("np.exp's float32 loop was not found: render_dense calls np.exp between launches")
+    fn, data = loop
+    x = np.random.default_rng(17).integers(0, 2**32, 1 << 20, dtype=np.uint64).astype(np.uint32).view(np.float32)
+    with np.errstate(all="ignore"):
+        want = np.exp(x)
+    got = x.copy()
+    lo = 0
+    for n in (1, 7, 8, 9, 1536, 4099, got.size):
+        seg = got[lo:lo + n]
+        lo += seg.size
+        ptr = ctypes.c_char_p(seg.ctypes.data)
+        args = (ctypes.c_char_p * 2)(ptr, ptr)
+        spheres_cpu._LOOP(fn)(ctypes.cast(args, ctypes.POINTER(ctypes.c_char_p)), (ctypes.c_ssize_t * 1)(seg.size),
+                              (ctypes.c_ssize_t * 2)(4, 4), data)
+    assert lo == got.size
+    assert got.view(np.uint32).tobytes() == want.view(np.uint32).tobytes()
 
 
 @pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
