@@ -1,8 +1,14 @@
 """The compositing forward and backward on the CPU in C++, eight rays at once in vector lanes (float32).
 
 The same quadrature as `composite._composite_forward_kernel` (its module docstring), with the
-factors e_k = exp(-sigma_k delta_k) given (the CPU always fills them first), and for each ray the
-same float32 operations in the same order, so the same outputs bit for bit. Lane l of a group runs
+factors e_k = exp(-sigma_k delta_k) given (NumPy's pass filled them), or, with `fused`, evaluated
+here first: the group's samples [o_{r0}, o_{r0+8}) are contiguous, and 16 at a time each gets
+e_k = exp(-(sigma_k delta_k)) (the product rounded, then negated, as NumPy's pass computes it) with
+NumPy's float32 exp reproduced bit for bit (kernels._npexp), stored into `factor` (every sample,
+past termination too, as the pass does) and read back from L1 by the steps; with the value check,
+one unsigned maximum of the bits of sigma and delta flags the group's rays with 2 in out_bad
+(composite.py then runs the exact checks). For each ray the same float32 operations in the same
+order, so the same outputs bit for bit. Lane l of a group runs
 ray r = r0 + l; at step i every lane still running takes its sample k = o_r + i:
 
     run  = i < n_r  and  not (T < t_threshold)           (early termination before sample k)
@@ -43,6 +49,7 @@ from typing import Any
 import warp as wp
 
 from kernels._native import built_once
+from kernels._npexp import NPEXP16, NPEXP_TYPES
 
 _FORWARD_CPP = r"""
 #if !defined(__CUDA_ARCH__)
@@ -50,7 +57,11 @@ _FORWARD_CPP = r"""
 #pragma clang fp contract(off)
     typedef float v8f __attribute__((ext_vector_type(8)));
     typedef int v8i __attribute__((ext_vector_type(8)));
+""" + NPEXP_TYPES + r"""
+    typedef unsigned int v16u __attribute__((ext_vector_type(16)));
     const float* F = (const float*)factor.data;
+    const float* S = (const float*)sigma.data;
+    const float* Dl = (const float*)delta.data;
     const char* Cb = (const char*)rgb.data;
     const long long cs0 = rgb.strides[0];
     const long long cs1 = rgb.strides[1];
@@ -58,6 +69,44 @@ _FORWARD_CPP = r"""
     const int* O = (const int*)offsets.data;
     const int n_rays = offsets.shape[0] - 1;
     const int last = factor.shape[0] - 1;
+    int sd_bad = 0;
+    if (fused != 0 && r0 < n_rays) {
+        // the group's samples [ga, gb) are contiguous: their factors exp(-(sigma delta)) with NumPy's bits,
+        // 16 at a time, into `factor` (read back from L1 by the steps below); with the value check, one
+        // unsigned maximum of the bits of sigma and delta (finite and >= 0 iff at most 0x7f7fffff)
+        float* Fw = (float*)factor.data;
+        const int ga = O[r0];
+        const int gb = O[r0 + 8 < n_rays ? r0 + 8 : n_rays];
+        v16u top = 0u;
+        for (int k = ga; k < gb; k += 16) {
+            const int m = gb - k < 16 ? gb - k : 16;
+            v16f sv = 0.0f;
+            v16f dv = 0.0f;
+            if (m == 16) {
+                __builtin_memcpy(&sv, S + k, sizeof(sv));
+                __builtin_memcpy(&dv, Dl + k, sizeof(dv));
+            } else {
+                for (int l = 0; l < m; ++l) {
+                    sv[l] = S[k + l];
+                    dv[l] = Dl[k + l];
+                }
+            }
+            if (check_values != 0) {
+                top = __builtin_elementwise_max(top, __builtin_bit_cast(v16u, sv));
+                top = __builtin_elementwise_max(top, __builtin_bit_cast(v16u, dv));
+            }
+            const v16f sd = sv * dv;
+            const v16f nx = -sd;
+""" + NPEXP16 + r"""
+            if (m == 16) {
+                __builtin_memcpy(Fw + k, &ne, sizeof(ne));
+            } else {
+                for (int l = 0; l < m; ++l)
+                    Fw[k + l] = ne[l];
+            }
+        }
+        sd_bad = __builtin_reduce_max(top) > 0x7f7fffffu ? 2 : 0;
+    }
     v8i start, len;
     int maxlen = 0;
     for (int l = 0; l < 8; ++l) {
@@ -84,7 +133,12 @@ _FORWARD_CPP = r"""
     for (int i = 0; i < maxlen; ++i) {
         const int p = pa + 16 * i;
         if (p < pb) {
-            __builtin_prefetch(F + p);
+            if (fused != 0) {
+                __builtin_prefetch(S + p);
+                __builtin_prefetch(Dl + p);
+            } else {
+                __builtin_prefetch(F + p);
+            }
             __builtin_prefetch(Zp + p);
             const char* pc = Cb + (long long)p * cs0;
             __builtin_prefetch(pc);
@@ -163,7 +217,7 @@ _FORWARD_CPP = r"""
             }
             const bool ok = __builtin_isfinite(R[l]) && __builtin_isfinite(G[l]) && __builtin_isfinite(B[l])
                             && __builtin_isfinite(D[l]) && __builtin_isfinite(rest);
-            ((int*)out_bad.data)[r] = ok ? 0 : 1;
+            ((int*)out_bad.data)[r] = (ok ? 0 : 1) | sd_bad;
         }
         const float* bg = (const float*)(bgb + (long long)(r * per_ray) * background.strides[0]);
         const long long bs1 = background.strides[1];
@@ -401,7 +455,7 @@ def _build() -> Any:
     f32_2 = wp.array2d(dtype=wp.float32)
     i32 = wp.array(dtype=wp.int32)
 
-    def composite_rays8_cpu(factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
+    def composite_rays8_cpu(sigma: f32, delta: f32, fused: int, factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
                             t_threshold: wp.float32, out_rgb: f32_2, out_depth: f32, out_opacity: f32,
                             out_transmittance: f32, out_n_used: i32, check_values: int, out_bad: i32,
                             r0: int): ...
@@ -409,13 +463,13 @@ def _build() -> Any:
     native = wp.func_native(_FORWARD_CPP)(composite_rays8_cpu)
 
     @wp.kernel(module="unique", module_options={"enable_backward": False})
-    def composite_forward_cpu(factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
+    def composite_forward_cpu(sigma: f32, delta: f32, fused: int, factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
                               t_threshold: wp.float32, out_rgb: f32_2, out_depth: f32, out_opacity: f32,
                               out_transmittance: f32, out_n_used: i32, check_values: int, out_bad: i32,
                               offset: int):
         # thread g = rays 8 g .. 8 g + 7
         g = wp.tid() + offset
-        native(factor, rgb, z, offsets, background, per_ray, t_threshold, out_rgb, out_depth, out_opacity,
+        native(sigma, delta, fused, factor, rgb, z, offsets, background, per_ray, t_threshold, out_rgb, out_depth, out_opacity,
                out_transmittance, out_n_used, check_values, out_bad, g * 8)
 
     return composite_forward_cpu
