@@ -2,8 +2,8 @@
 for wp.func_native kernels (clang vector extensions), used by kernels.volume.composite_cpu, whose factors
 exp(-sigma delta) must be those NumPy's pass computed before (kernels.volume.composite._fill_factor).
 
-NumPy (1.18 and later, x86-64 builds with the AVX2+FMA3 or AVX512F dispatch target of
-loops_exponent_log.dispatch) evaluates exp(x) for float32 lane by lane as:
+NumPy (x86-64 builds whose float32 exp dispatches to the AVX2+FMA3 or AVX512F loop of
+loops_exponent_log.dispatch; 2.4.6 here) evaluates exp(x) lane by lane as:
 
     NaN -> 0 (remembered);  x >= XMAX = 88.72283935546875 -> +inf;  x <= XMIN = -103.97208404541015625 -> 0
     (those lanes evaluate the rest with x = 0 and are replaced at the end)
