@@ -36,7 +36,8 @@ and stores its two gradients lane by lane; the samples after n_used get zeros. B
 prefetch the next group's samples (its gradients too, in the backward) over the steps of the
 current group: eight rays in lanes read eight streams, which the hardware prefetcher alone served
 more slowly than the Warp kernel's one stream (in DRAM, without this, the backward was slower than
-the Warp kernel and the forward no faster).
+the Warp kernel and the forward no faster). The fused forward's factor loop reads sigma and delta
+as two contiguous streams, left to the hardware prefetcher (prefetching them too was slower).
 
 Why. The Warp kernel runs one ray per thread: its loop-carried product T e_k and the scalar loads
 cost ~3.1-3.3 ns a sample on a core (docs/performance.md, Compositing, fourth round), and Warp has
@@ -133,12 +134,10 @@ _FORWARD_CPP = r"""
     for (int i = 0; i < maxlen; ++i) {
         const int p = pa + 16 * i;
         if (p < pb) {
-            if (fused != 0) {
-                __builtin_prefetch(S + p);
-                __builtin_prefetch(Dl + p);
-            } else {
+            // fused: the factor loop streams sigma and delta (the hardware prefetcher serves that; prefetching
+            // them here too was 7-10% slower)
+            if (fused == 0)
                 __builtin_prefetch(F + p);
-            }
             __builtin_prefetch(Zp + p);
             const char* pc = Cb + (long long)p * cs0;
             __builtin_prefetch(pc);
