@@ -518,11 +518,11 @@ def composite_forward(
     if simd:
         # CPU, float32: eight rays a thread in vector lanes, the same outputs bit for bit (composite_cpu);
         # fused: the kernel fills the factors itself (NumPy's exp reproduced), flagging bad sigma or delta as 2
-        groups = (n_rays + composite_cpu.LANES - 1) // composite_cpu.LANES
-        _launch(a, composite_cpu.forward_kernel(), groups,
+        rays_a_thread = composite_cpu.LANES * composite_cpu.GROUPS
+        _launch(a, composite_cpu.forward_kernel(), (n_rays + rays_a_thread - 1) // rays_a_thread,
                 [s, d, int(fused), res.factor, c, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth,
                  res.opacity, res.transmittance, res.n_used, int(check), bad],
-                min_chunk=max(1, _min_chunk(n_rays, n) // composite_cpu.LANES))
+                min_chunk=max(1, _min_chunk(n_rays, n) // rays_a_thread))
         if fused and check and n_rays and bool((bad.numpy() & 2).any()):  # a doubt on sigma or delta
             A.check_at_least("sigma", s, 0.0)
             A.check_at_least("delta", d, 0.0)

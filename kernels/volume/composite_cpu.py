@@ -2,12 +2,15 @@
 
 The same quadrature as `composite._composite_forward_kernel` (its module docstring), with the
 factors e_k = exp(-sigma_k delta_k) given (NumPy's pass filled them), or, with `fused`, evaluated
-here first: the group's samples [o_{r0}, o_{r0+8}) are contiguous, and 16 at a time each gets
+here: a group's samples [o_{r0}, o_{r0+8}) are contiguous, and 16 at a time each gets
 e_k = exp(-(sigma_k delta_k)) (the product rounded, then negated, as NumPy's pass computes it) with
 NumPy's float32 exp reproduced bit for bit (kernels._npexp), stored into `factor` (every sample,
-past termination too, as the pass does) and read back from L1 by the steps; with the value check,
-one unsigned maximum of the bits of sigma and delta flags the group's rays with 2 in out_bad
-(composite.py then runs the exact checks). For each ray the same float32 operations in the same
+past termination too, as the pass does) and read back by the steps; with the value check, one
+unsigned maximum of the bits of sigma and delta flags the group's rays with 2 in out_bad
+(composite.py then runs the exact checks). A forward thread takes GROUPS groups one after the
+other: the first group's factors are filled before its steps, each later group's 16 a step during
+the steps of the group before it (the rest after them), so that this stream of sigma and delta
+overlaps the gathers. For each ray the same float32 operations in the same
 order, so the same outputs bit for bit. Lane l of a group runs
 ray r = r0 + l; at step i every lane still running takes its sample k = o_r + i:
 
@@ -52,6 +55,9 @@ import warp as wp
 from kernels._native import built_once
 from kernels._npexp import NPEXP16, NPEXP_TYPES
 
+LANES = 8  # rays in the lanes of a group
+GROUPS = 8  # groups of LANES rays per thread of the forward kernel
+
 _FORWARD_CPP = r"""
 #if !defined(__CUDA_ARCH__)
   {
@@ -60,6 +66,8 @@ _FORWARD_CPP = r"""
     typedef int v8i __attribute__((ext_vector_type(8)));
 """ + NPEXP_TYPES + r"""
     typedef unsigned int v16u __attribute__((ext_vector_type(16)));
+    enum { GROUPS = """ + str(GROUPS) + r""" };  // groups of eight rays a call
+    const int r_first = grp * (8 * GROUPS);
     const float* F = (const float*)factor.data;
     const float* S = (const float*)sigma.data;
     const float* Dl = (const float*)delta.data;
@@ -70,43 +78,56 @@ _FORWARD_CPP = r"""
     const int* O = (const int*)offsets.data;
     const int n_rays = offsets.shape[0] - 1;
     const int last = factor.shape[0] - 1;
-    int sd_bad = 0;
-    if (fused != 0 && r0 < n_rays) {
-        // the group's samples [ga, gb) are contiguous: their factors exp(-(sigma delta)) with NumPy's bits,
-        // 16 at a time, into `factor` (read back from L1 by the steps below); with the value check, one
-        // unsigned maximum of the bits of sigma and delta (finite and >= 0 iff at most 0x7f7fffff)
-        float* Fw = (float*)factor.data;
-        const int ga = O[r0];
-        const int gb = O[r0 + 8 < n_rays ? r0 + 8 : n_rays];
-        v16u top = 0u;
-        for (int k = ga; k < gb; k += 16) {
-            const int m = gb - k < 16 ? gb - k : 16;
-            v16f sv = 0.0f;
-            v16f dv = 0.0f;
-            if (m == 16) {
-                __builtin_memcpy(&sv, S + k, sizeof(sv));
-                __builtin_memcpy(&dv, Dl + k, sizeof(dv));
-            } else {
-                for (int l = 0; l < m; ++l) {
-                    sv[l] = S[k + l];
-                    dv[l] = Dl[k + l];
-                }
-            }
-            if (check_values != 0) {
-                top = __builtin_elementwise_max(top, __builtin_bit_cast(v16u, sv));
-                top = __builtin_elementwise_max(top, __builtin_bit_cast(v16u, dv));
-            }
-            const v16f sd = sv * dv;
-            const v16f nx = -sd;
-""" + NPEXP16 + r"""
-            if (m == 16) {
-                __builtin_memcpy(Fw + k, &ne, sizeof(ne));
-            } else {
-                for (int l = 0; l < m; ++l)
-                    Fw[k + l] = ne[l];
+    float* Fw = (float*)factor.data;
+    // fused: the factors of samples [k, k + m), m <= 16: exp(-(sigma delta)) with NumPy's bits (the product
+    // rounded, then negated), into `factor`; with the value check, `top` takes the unsigned maximum of the
+    // bits of sigma and delta (finite and >= 0 iff at most 0x7f7fffff)
+    auto fill16 = [&](int k, int m, v16u& top) {
+#pragma clang fp contract(off)
+        v16f sv = 0.0f;
+        v16f dv = 0.0f;
+        if (m == 16) {
+            __builtin_memcpy(&sv, S + k, sizeof(sv));
+            __builtin_memcpy(&dv, Dl + k, sizeof(dv));
+        } else {
+            for (int l = 0; l < m; ++l) {
+                sv[l] = S[k + l];
+                dv[l] = Dl[k + l];
             }
         }
-        sd_bad = __builtin_reduce_max(top) > 0x7f7fffffu ? 2 : 0;
+        if (check_values != 0) {
+            top = __builtin_elementwise_max(top, __builtin_bit_cast(v16u, sv));
+            top = __builtin_elementwise_max(top, __builtin_bit_cast(v16u, dv));
+        }
+        const v16f sd = sv * dv;
+        const v16f nx = -sd;
+""" + NPEXP16 + r"""
+        if (m == 16) {
+            __builtin_memcpy(Fw + k, &ne, sizeof(ne));
+        } else {
+            for (int l = 0; l < m; ++l)
+                Fw[k + l] = ne[l];
+        }
+    };
+    // the first group's factors before its steps; each later group's during the steps of the one before
+    v16u top_cur = 0u;
+    if (fused != 0 && r_first < n_rays) {
+        const int ga = O[r_first];
+        const int gb = O[r_first + 8 < n_rays ? r_first + 8 : n_rays];
+        for (int k = ga; k < gb; k += 16)
+            fill16(k, gb - k < 16 ? gb - k : 16, top_cur);
+    }
+    for (int gq = 0; gq < GROUPS; ++gq) {
+    const int r0 = r_first + 8 * gq;
+    if (r0 >= n_rays)
+        break;
+    const int sd_bad = __builtin_reduce_max(top_cur) > 0x7f7fffffu ? 2 : 0;
+    int nk = 0;
+    int nb = 0;
+    v16u top_next = 0u;
+    if (fused != 0 && gq + 1 < GROUPS && r0 + 8 < n_rays) {
+        nk = O[r0 + 8];
+        nb = O[r0 + 16 < n_rays ? r0 + 16 : n_rays];
     }
     v8i start, len;
     int maxlen = 0;
@@ -194,6 +215,16 @@ _FORWARD_CPP = r"""
         B = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Bn)) | (~run & __builtin_bit_cast(v8i, B)));
         D = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Dn)) | (~run & __builtin_bit_cast(v8i, D)));
         used = used - run;
+        if (nk < nb) {  // 16 of the next group's factors
+            const int m = nb - nk < 16 ? nb - nk : 16;
+            fill16(nk, m, top_next);
+            nk += m;
+        }
+    }
+    while (nk < nb) {  // the rest of them
+        const int m = nb - nk < 16 ? nb - nk : 16;
+        fill16(nk, m, top_next);
+        nk += m;
     }
     const char* bgb = (const char*)background.data;
     char* ob = (char*)out_rgb.data;
@@ -235,6 +266,8 @@ _FORWARD_CPP = r"""
         ((float*)out_opacity.data)[r] = 1.0f - Tl;
         ((float*)out_transmittance.data)[r] = Tl;
         ((int*)out_n_used.data)[r] = used[l];
+    }
+    top_cur = top_next;
     }
   }
 #endif
@@ -409,7 +442,6 @@ _BACKWARD_CPP = r"""
 #endif
 """
 
-LANES = 8  # rays per thread of the kernel
 
 _kernels: dict = {}
 
@@ -457,7 +489,7 @@ def _build() -> Any:
     def composite_rays8_cpu(sigma: f32, delta: f32, fused: int, factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
                             t_threshold: wp.float32, out_rgb: f32_2, out_depth: f32, out_opacity: f32,
                             out_transmittance: f32, out_n_used: i32, check_values: int, out_bad: i32,
-                            r0: int): ...
+                            grp: int): ...
 
     native = wp.func_native(_FORWARD_CPP)(composite_rays8_cpu)
 
@@ -466,9 +498,9 @@ def _build() -> Any:
                               t_threshold: wp.float32, out_rgb: f32_2, out_depth: f32, out_opacity: f32,
                               out_transmittance: f32, out_n_used: i32, check_values: int, out_bad: i32,
                               offset: int):
-        # thread g = rays 8 g .. 8 g + 7
+        # thread g = rays 8 GROUPS g .. 8 GROUPS (g + 1) - 1
         g = wp.tid() + offset
         native(sigma, delta, fused, factor, rgb, z, offsets, background, per_ray, t_threshold, out_rgb, out_depth, out_opacity,
-               out_transmittance, out_n_used, check_values, out_bad, g * 8)
+               out_transmittance, out_n_used, check_values, out_bad, g)
 
     return composite_forward_cpu
