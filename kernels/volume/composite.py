@@ -49,7 +49,11 @@ filled in first by NumPy's vectorised exp (about 1 ns a sample), split over the 
 and the kernel reads them. NumPy's float32 exp is within 2 ulp of the exact value (Warp's within
 0.5 ulp), so float32 outputs can differ from the in-kernel exponential by a few ulp of each
 factor (relative 2.4e-7); float64 is within 1 ulp either way. Samples after early termination
-get factors too (unused). On CUDA the kernel evaluates the exponential itself.
+get factors too (unused). On CUDA the kernel evaluates the exponential itself. In the float32 SIMD
+forward (below) the kernel evaluates them too, with NumPy's float32 exp reproduced in its lanes
+(kernels._npexp, the same bits for every float32 input), saving the pass; `FUSED_EXP = False`, a
+NumPy whose exp is another loop (checked once on a fixed set), or offsets that do not cover the N
+samples keep the pass.
 
 SIMD kernels on the CPU. In float32 the CPU forward and backward run kernels.volume.composite_cpu
 instead of the Warp kernels: eight rays a thread in vector lanes, each lane the same float32
@@ -57,15 +61,16 @@ operations in the same order as one thread here, so the same outputs bit for bit
 the two); `SIMD_FORWARD = False` / `SIMD_BACKWARD = False` keep the Warp kernels. float64 and CUDA
 always run the Warp kernels.
 
-Value checks on the CPU ride on passes the forward makes anyway instead of six separate
-single-threaded passes over the samples. sigma and delta: while a block of them is in cache for
-the factors, one unsigned maximum of its bits per array tells whether every value is finite and
->= 0 (before the launch). rgb and z: the kernel's sums C and D are NaN or infinite if any
-processed colour or depth is (the weights are finite once sigma and delta are), so each ray flags
-itself from its own sums, adding up only its samples after early termination; after the launch
-the flags are read. Only on a flag (or a doubt: -0.0, sums that overflow) do the exact checks of
-kernels._arrays run, and they raise the ValueError naming the argument. A bad rgb or z is so
-reported after the launch: the outputs (and `out` buffers) are then to be discarded.
+Value checks on the CPU ride on passes the forward makes anyway instead of six separate single-
+threaded passes over the samples. sigma and delta: while a block of them is in cache for the
+factors, one unsigned maximum of its bits per array tells whether every value is finite and >= 0
+(before the launch; in the fused SIMD forward, in the kernel's factor loop, read after it). rgb and
+z: the kernel's sums C and D are NaN or infinite if any processed colour or depth is (the weights
+are finite once sigma and delta are), so each ray flags itself from its own sums, adding up only its
+samples after early termination; after the launch the flags are read. Only on a flag (or a doubt:
+-0.0, sums that overflow) do the exact checks of kernels._arrays run, and they raise the ValueError
+naming the argument. A bad rgb or z (and, in the fused forward, sigma or delta) is so reported after
+the launch: the outputs (and `out` buffers) are then to be discarded.
 
 Inputs follow the array contract (kernels._arrays): NumPy in gives NumPy out, wp.arrays in give
 wp.arrays on their device; inside `value_checks(False)` only shapes and dtypes are checked.
@@ -83,6 +88,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.launch import default_threads, guided_bounds, parallel_items, parallel_ranges
+from kernels import _npexp
 from kernels.volume import composite_cpu
 from kernels.volume._checks import check_ray_offsets
 from kernels.volume.workspace import Workspace
@@ -94,6 +100,10 @@ DEFAULT_T_THRESHOLD = 1e-4
 # lanes, bit for bit the Warp kernel); False keeps the Warp kernel (tests compare the two).
 SIMD_FORWARD = True
 SIMD_BACKWARD = True  # the same for composite_backward
+# In the SIMD forward, the kernel evaluates the factors exp(-sigma delta) itself with NumPy's float32 exp
+# reproduced (kernels._npexp), instead of NumPy's pass before the launch, where that exp gives np.exp's bits on
+# this CPU (checked once on a fixed set); False keeps NumPy's pass.
+FUSED_EXP = True
 
 
 @wp.func
@@ -408,6 +418,15 @@ def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, check: bool
     return 1
 
 
+def _covers(offsets: wp.array, n: int) -> bool:
+    """offsets[0] = 0, offsets[-1] = n and non-decreasing (as checked values always are), so that the rays'
+    samples are all N: the fused forward fills the factors ray group by ray group, the pass before it all N."""
+    h = offsets.numpy()  # host array: a zero-copy view
+    if h.shape[0] < 2 or int(h[0]) != 0 or int(h[-1]) != n:
+        return False
+    return A.values_checked() or bool(np.all(h[1:] >= h[:-1]))
+
+
 _BACKGROUNDS: dict[tuple, wp.array] = {}  # (bytes, dtype, device) -> a checked (1, 3) background
 
 
@@ -491,22 +510,28 @@ def composite_forward(
                                  for k, (shape, t) in layout.items()})
     s, c, d, zz, offsets = args
     check = A.values_checked() and a.device.is_cpu  # on CUDA _samples checked the values
-    factor_given = _fill_factor(s, d, res.factor, check)
+    simd = (a.device.is_cpu and a.scalar == wp.float32 and SIMD_FORWARD and 3 * n < 2**31
+            and all(x.is_contiguous for x in (s, c, d, zz, offsets, res.factor)))
+    fused = simd and FUSED_EXP and _covers(offsets, n) and _npexp.numpy_agrees()
+    factor_given = 1 if fused else _fill_factor(s, d, res.factor, check)
     bad = a.empty(n_rays if check else 1, wp.int32)
-    if (factor_given and a.scalar == wp.float32 and SIMD_FORWARD and 3 * n < 2**31 and offsets.is_contiguous
-            and c.is_contiguous and zz.is_contiguous and res.factor.is_contiguous):
-        # CPU, float32: eight rays a thread in vector lanes, the same outputs bit for bit (composite_cpu)
-        groups = (n_rays + composite_cpu.LANES - 1) // composite_cpu.LANES
-        _launch(a, composite_cpu.forward_kernel(), groups,
-                [res.factor, c, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth, res.opacity,
-                 res.transmittance, res.n_used, int(check), bad],
-                min_chunk=max(1, _min_chunk(n_rays, n) // composite_cpu.LANES))
+    if simd:
+        # CPU, float32: eight rays a thread in vector lanes, the same outputs bit for bit (composite_cpu);
+        # fused: the kernel fills the factors itself (NumPy's exp reproduced), flagging bad sigma or delta as 2
+        rays_a_thread = composite_cpu.LANES * composite_cpu.GROUPS
+        _launch(a, composite_cpu.forward_kernel(), (n_rays + rays_a_thread - 1) // rays_a_thread,
+                [s, d, int(fused), res.factor, c, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth,
+                 res.opacity, res.transmittance, res.n_used, int(check), bad],
+                min_chunk=max(1, _min_chunk(n_rays, n) // rays_a_thread))
+        if fused and check and n_rays and bool((bad.numpy() & 2).any()):  # a doubt on sigma or delta
+            A.check_at_least("sigma", s, 0.0)
+            A.check_at_least("delta", d, 0.0)
     else:
         _launch(a, _FORWARD[a.scalar], n_rays,
                 [s, _vec_view(c, 3), d, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth,
                  res.opacity, res.transmittance, res.n_used, res.factor, factor_given, _vec_view(res.factor, 4),
                  _vec_view(zz, 4), int(check), bad], min_chunk=_min_chunk(n_rays, n))
-    if check and n_rays and bad.numpy().any():  # a NaN or inf in rgb or z, or a false alarm (module docstring)
+    if check and n_rays and (bad.numpy() & 1).any():  # a NaN or inf in rgb or z, or a false alarm (module docstring)
         A.check_finite("rgb", c)
         A.check_finite("z", zz)
     if out is not None or not a.as_numpy:

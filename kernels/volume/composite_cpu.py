@@ -1,8 +1,17 @@
 """The compositing forward and backward on the CPU in C++, eight rays at once in vector lanes (float32).
 
 The same quadrature as `composite._composite_forward_kernel` (its module docstring), with the
-factors e_k = exp(-sigma_k delta_k) given (the CPU always fills them first), and for each ray the
-same float32 operations in the same order, so the same outputs bit for bit. Lane l of a group runs
+factors e_k = exp(-sigma_k delta_k) given (NumPy's pass filled them), or, with `fused`, evaluated
+here: a group's samples [o_{r0}, o_{r0+8}) are contiguous, and 16 at a time each gets
+e_k = exp(-(sigma_k delta_k)) (the product rounded, then negated, as NumPy's pass computes it) with
+NumPy's float32 exp reproduced bit for bit (kernels._npexp), stored into `factor` (every sample,
+past termination too, as the pass does) and read back by the steps; with the value check, one
+unsigned maximum of the bits of sigma and delta flags the group's rays with 2 in out_bad
+(composite.py then runs the exact checks). A forward thread takes GROUPS groups one after the
+other: the first group's factors are filled before its steps, each later group's 16 a step during
+the steps of the group before it (the rest after them), so that this stream of sigma and delta
+overlaps the gathers. For each ray the same float32 operations in the same
+order, so the same outputs bit for bit. Lane l of a group runs
 ray r = r0 + l; at step i every lane still running takes its sample k = o_r + i:
 
     run  = i < n_r  and  not (T < t_threshold)           (early termination before sample k)
@@ -30,7 +39,8 @@ and stores its two gradients lane by lane; the samples after n_used get zeros. B
 prefetch the next group's samples (its gradients too, in the backward) over the steps of the
 current group: eight rays in lanes read eight streams, which the hardware prefetcher alone served
 more slowly than the Warp kernel's one stream (in DRAM, without this, the backward was slower than
-the Warp kernel and the forward no faster).
+the Warp kernel and the forward no faster). The fused forward's factor loop reads sigma and delta
+as two contiguous streams, left to the hardware prefetcher (prefetching them too was slower).
 
 Why. The Warp kernel runs one ray per thread: its loop-carried product T e_k and the scalar loads
 cost ~3.1-3.3 ns a sample on a core (docs/performance.md, Compositing, fourth round), and Warp has
@@ -43,6 +53,10 @@ from typing import Any
 import warp as wp
 
 from kernels._native import built_once
+from kernels._npexp import NPEXP16, NPEXP_TYPES
+
+LANES = 8  # rays in the lanes of a group
+GROUPS = 8  # groups of LANES rays per thread of the forward kernel
 
 _FORWARD_CPP = r"""
 #if !defined(__CUDA_ARCH__)
@@ -50,7 +64,13 @@ _FORWARD_CPP = r"""
 #pragma clang fp contract(off)
     typedef float v8f __attribute__((ext_vector_type(8)));
     typedef int v8i __attribute__((ext_vector_type(8)));
+""" + NPEXP_TYPES + r"""
+    typedef unsigned int v16u __attribute__((ext_vector_type(16)));
+    enum { GROUPS = """ + str(GROUPS) + r""" };  // groups of eight rays a call
+    const int r_first = grp * (8 * GROUPS);
     const float* F = (const float*)factor.data;
+    const float* S = (const float*)sigma.data;
+    const float* Dl = (const float*)delta.data;
     const char* Cb = (const char*)rgb.data;
     const long long cs0 = rgb.strides[0];
     const long long cs1 = rgb.strides[1];
@@ -58,6 +78,57 @@ _FORWARD_CPP = r"""
     const int* O = (const int*)offsets.data;
     const int n_rays = offsets.shape[0] - 1;
     const int last = factor.shape[0] - 1;
+    float* Fw = (float*)factor.data;
+    // fused: the factors of samples [k, k + m), m <= 16: exp(-(sigma delta)) with NumPy's bits (the product
+    // rounded, then negated), into `factor`; with the value check, `top` takes the unsigned maximum of the
+    // bits of sigma and delta (finite and >= 0 iff at most 0x7f7fffff)
+    auto fill16 = [&](int k, int m, v16u& top) {
+#pragma clang fp contract(off)
+        v16f sv = 0.0f;
+        v16f dv = 0.0f;
+        if (m == 16) {
+            __builtin_memcpy(&sv, S + k, sizeof(sv));
+            __builtin_memcpy(&dv, Dl + k, sizeof(dv));
+        } else {
+            for (int l = 0; l < m; ++l) {
+                sv[l] = S[k + l];
+                dv[l] = Dl[k + l];
+            }
+        }
+        if (check_values != 0) {
+            top = __builtin_elementwise_max(top, __builtin_bit_cast(v16u, sv));
+            top = __builtin_elementwise_max(top, __builtin_bit_cast(v16u, dv));
+        }
+        const v16f sd = sv * dv;
+        const v16f nx = -sd;
+""" + NPEXP16 + r"""
+        if (m == 16) {
+            __builtin_memcpy(Fw + k, &ne, sizeof(ne));
+        } else {
+            for (int l = 0; l < m; ++l)
+                Fw[k + l] = ne[l];
+        }
+    };
+    // the first group's factors before its steps; each later group's during the steps of the one before
+    v16u top_cur = 0u;
+    if (fused != 0 && r_first < n_rays) {
+        const int ga = O[r_first];
+        const int gb = O[r_first + 8 < n_rays ? r_first + 8 : n_rays];
+        for (int k = ga; k < gb; k += 16)
+            fill16(k, gb - k < 16 ? gb - k : 16, top_cur);
+    }
+    for (int gq = 0; gq < GROUPS; ++gq) {
+    const int r0 = r_first + 8 * gq;
+    if (r0 >= n_rays)
+        break;
+    const int sd_bad = __builtin_reduce_max(top_cur) > 0x7f7fffffu ? 2 : 0;
+    int nk = 0;
+    int nb = 0;
+    v16u top_next = 0u;
+    if (fused != 0 && gq + 1 < GROUPS && r0 + 8 < n_rays) {
+        nk = O[r0 + 8];
+        nb = O[r0 + 16 < n_rays ? r0 + 16 : n_rays];
+    }
     v8i start, len;
     int maxlen = 0;
     for (int l = 0; l < 8; ++l) {
@@ -84,7 +155,10 @@ _FORWARD_CPP = r"""
     for (int i = 0; i < maxlen; ++i) {
         const int p = pa + 16 * i;
         if (p < pb) {
-            __builtin_prefetch(F + p);
+            // fused: the factor loop streams sigma and delta (the hardware prefetcher serves that; prefetching
+            // them here too was 7-10% slower)
+            if (fused == 0)
+                __builtin_prefetch(F + p);
             __builtin_prefetch(Zp + p);
             const char* pc = Cb + (long long)p * cs0;
             __builtin_prefetch(pc);
@@ -141,6 +215,16 @@ _FORWARD_CPP = r"""
         B = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Bn)) | (~run & __builtin_bit_cast(v8i, B)));
         D = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Dn)) | (~run & __builtin_bit_cast(v8i, D)));
         used = used - run;
+        if (nk < nb) {  // 16 of the next group's factors
+            const int m = nb - nk < 16 ? nb - nk : 16;
+            fill16(nk, m, top_next);
+            nk += m;
+        }
+    }
+    while (nk < nb) {  // the rest of them
+        const int m = nb - nk < 16 ? nb - nk : 16;
+        fill16(nk, m, top_next);
+        nk += m;
     }
     const char* bgb = (const char*)background.data;
     char* ob = (char*)out_rgb.data;
@@ -163,7 +247,7 @@ _FORWARD_CPP = r"""
             }
             const bool ok = __builtin_isfinite(R[l]) && __builtin_isfinite(G[l]) && __builtin_isfinite(B[l])
                             && __builtin_isfinite(D[l]) && __builtin_isfinite(rest);
-            ((int*)out_bad.data)[r] = ok ? 0 : 1;
+            ((int*)out_bad.data)[r] = (ok ? 0 : 1) | sd_bad;
         }
         const float* bg = (const float*)(bgb + (long long)(r * per_ray) * background.strides[0]);
         const long long bs1 = background.strides[1];
@@ -182,6 +266,8 @@ _FORWARD_CPP = r"""
         ((float*)out_opacity.data)[r] = 1.0f - Tl;
         ((float*)out_transmittance.data)[r] = Tl;
         ((int*)out_n_used.data)[r] = used[l];
+    }
+    top_cur = top_next;
     }
   }
 #endif
@@ -356,7 +442,6 @@ _BACKWARD_CPP = r"""
 #endif
 """
 
-LANES = 8  # rays per thread of the kernel
 
 _kernels: dict = {}
 
@@ -401,21 +486,21 @@ def _build() -> Any:
     f32_2 = wp.array2d(dtype=wp.float32)
     i32 = wp.array(dtype=wp.int32)
 
-    def composite_rays8_cpu(factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
+    def composite_rays8_cpu(sigma: f32, delta: f32, fused: int, factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
                             t_threshold: wp.float32, out_rgb: f32_2, out_depth: f32, out_opacity: f32,
                             out_transmittance: f32, out_n_used: i32, check_values: int, out_bad: i32,
-                            r0: int): ...
+                            grp: int): ...
 
     native = wp.func_native(_FORWARD_CPP)(composite_rays8_cpu)
 
     @wp.kernel(module="unique", module_options={"enable_backward": False})
-    def composite_forward_cpu(factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
+    def composite_forward_cpu(sigma: f32, delta: f32, fused: int, factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
                               t_threshold: wp.float32, out_rgb: f32_2, out_depth: f32, out_opacity: f32,
                               out_transmittance: f32, out_n_used: i32, check_values: int, out_bad: i32,
                               offset: int):
-        # thread g = rays 8 g .. 8 g + 7
+        # thread g = rays 8 GROUPS g .. 8 GROUPS (g + 1) - 1
         g = wp.tid() + offset
-        native(factor, rgb, z, offsets, background, per_ray, t_threshold, out_rgb, out_depth, out_opacity,
-               out_transmittance, out_n_used, check_values, out_bad, g * 8)
+        native(sigma, delta, fused, factor, rgb, z, offsets, background, per_ray, t_threshold, out_rgb, out_depth, out_opacity,
+               out_transmittance, out_n_used, check_values, out_bad, g)
 
     return composite_forward_cpu

@@ -461,3 +461,135 @@ def test_cpu_simd_forward_flags_a_bad_value_after_termination(which):
     with pytest.raises(ValueError, match=which):
         res = composite_forward(sigma, rgb, delta, z, off, t_threshold=0.3)
     assert res is None
+
+
+# --------------------------------------------------------------------------- the fused exp (kernels._npexp)
+
+def _numpy_runs_its_simd_exp():
+    """NumPy's float32 exp is its AVX2+FMA3 / AVX512F loop (the one kernels._npexp reproduces) on x86-64 CPUs
+    with those features; elsewhere it is the C library's expf."""
+    import platform
+
+    feats = getattr(getattr(np, "_core", np.core), "_multiarray_umath").__cpu_features__
+    simd = feats.get("AVX512F") or (feats.get("AVX2") and feats.get("FMA3"))
+    return platform.machine() in ("x86_64", "AMD64") and bool(simd)
+
+
+def test_npexp_gives_numpy_exp_bits_on_every_exponent_and_edge():
+    from kernels import _npexp
+
+    if not _numpy_runs_its_simd_exp():
+        pytest.skip("NumPy runs the C library's expf here (the fused forward then keeps NumPy's pass)")
+    rng = np.random.default_rng(7)
+    x = np.concatenate([_npexp.check_set().view(np.uint32), rng.integers(0, 2**32, 1 << 20, dtype=np.uint32),
+                        np.arange(0xC2C00000, 0xC2D00000, 16, dtype=np.uint32)]).view(np.float32)  # subnormal results
+    with np.errstate(all="ignore"):
+        want = np.exp(x)
+    got = _npexp.exp(x)
+    bad = np.flatnonzero(got.view(np.uint32) != want.view(np.uint32))
+    assert bad.size == 0, [(hex(int(x.view(np.uint32)[i])), got[i], want[i]) for i in bad[:5]]
+    assert _npexp.numpy_agrees()
+    # the check set reaches every region: subnormal, zero, inf and NaN results, both signs of every exponent
+    r = want.view(np.uint32)
+    assert np.any((r > 0) & (r < 0x00800000)) and np.any(r == 0) and np.any(r == 0x7F800000) and np.any(np.isnan(want))
+
+
+def test_npexp_check_notices_a_different_exp(monkeypatch):
+    from kernels import _npexp
+
+    # an exp one ulp off in a single place: the check set must see it
+    x = _npexp.check_set()
+    real = _npexp.exp
+    target = int(np.flatnonzero(x == np.float32(-0.5))[0]) if np.any(x == np.float32(-0.5)) else len(x) // 3
+
+    def off_by_one(v):
+        y = real(v)
+        if v.shape == x.shape:
+            y.view(np.uint32)[target] ^= 1
+        return y
+
+    monkeypatch.setattr(_npexp, "exp", off_by_one)
+    monkeypatch.setattr(_npexp, "_agrees", None)
+    assert not _npexp.numpy_agrees()
+
+
+def _forward_backward(sigma, rgb, delta, z, off, bg, thr, cot):
+    res = composite_forward(sigma, rgb, delta, z, off, bg, thr)
+    grads = composite_backward(sigma, rgb, delta, z, off, res, *cot, bg)
+    return [res.rgb, res.depth, res.opacity, res.transmittance, res.n_used, res.factor, *grads]
+
+
+@pytest.mark.parametrize("threads", ["1", "2"])
+@pytest.mark.parametrize("kind,n_rays", [("packed", 1501), ("odd", 1003), ("dense", 13)])
+def test_fused_exp_forward_equals_numpy_pass_bitwise(monkeypatch, threads, kind, n_rays):
+    """The forward with the factors evaluated in the kernel (FUSED_EXP) against NumPy's pass before the
+    kernel: every output byte, every factor (past termination too) and both gradients; and which ran."""
+    from kernels import _npexp
+    from kernels.volume import composite as cm
+
+    if not _npexp.numpy_agrees():
+        pytest.skip("NumPy's exp is another loop here: the fused path is off (test_fused_exp_falls_back...)")
+    monkeypatch.setenv("DRLAB_THREADS", threads)
+    fills = []
+    real_fill = cm._fill_factor
+    monkeypatch.setattr(cm, "_fill_factor", lambda *a: fills.append(1) or real_fill(*a))
+    sigma, rgb, delta, z, off = _simd_case(kind, n_rays, seed=3)
+    sigma[::97] *= 400.0  # factors down to subnormals and 0
+    rng = np.random.default_rng(2)
+    cot = (rng.normal(size=(n_rays, 3)).astype(np.float32), rng.normal(size=n_rays).astype(np.float32),
+           rng.normal(size=n_rays).astype(np.float32))
+    for thr in (0.0, 1e-4, 0.3):
+        for bg in ((0.2, 0.5, 0.9), rng.random((n_rays, 3)).astype(np.float32)):
+            for checks in (True, False):
+                out = {}
+                for fused in (False, True):
+                    monkeypatch.setattr(cm, "FUSED_EXP", fused)
+                    fills.clear()
+                    with value_checks(checks):
+                        out[fused] = _forward_backward(sigma, rgb, delta, z, off, bg, thr, cot)
+                    assert len(fills) == int(not fused)
+                for a, b in zip(out[False], out[True]):
+                    assert a.tobytes() == b.tobytes(), (thr, checks)
+
+
+def test_fused_exp_falls_back_to_numpy_pass(monkeypatch):
+    """Where the lanes' exp does not give np.exp's bits (another NumPy loop), or the offsets do not cover the
+    samples (value checks off), the forward keeps NumPy's pass: all N factors, the same outputs."""
+    from kernels import _npexp
+    from kernels.volume import composite as cm
+
+    fills = []
+    real_fill = cm._fill_factor
+    monkeypatch.setattr(cm, "_fill_factor", lambda *a: fills.append(1) or real_fill(*a))
+    sigma, rgb, delta, z, off = _simd_case("packed", 301, seed=4)
+    ref = composite_forward(sigma, rgb, delta, z, off)
+    monkeypatch.setattr(_npexp, "_agrees", False)
+    fills.clear()
+    got = composite_forward(sigma, rgb, delta, z, off)
+    assert len(fills) == 1
+    for k in ("rgb", "depth", "opacity", "transmittance", "n_used", "factor"):
+        assert getattr(got, k).tobytes() == getattr(ref, k).tobytes(), k
+    monkeypatch.setattr(_npexp, "_agrees", None)
+    # offsets ending before the last sample (value checks off): every factor still filled, by the pass
+    short = off.copy()
+    short[-1] = short[-2]
+    fills.clear()
+    with value_checks(False):
+        got = composite_forward(sigma, rgb, delta, z, short)
+    assert len(fills) == 1
+    with np.errstate(over="ignore"):
+        assert got.factor.tobytes() == np.exp(-(sigma * delta)).tobytes()
+
+
+@pytest.mark.parametrize("name", ["sigma", "delta"])
+@pytest.mark.parametrize("bad", [np.nan, -1.0, np.inf])
+def test_fused_forward_rejects_a_bad_value_after_termination(name, bad):
+    n = 1000
+    arrays = {"sigma": np.ones(n, np.float32), "delta": np.full(n, 0.01, np.float32)}
+    arrays[name][998] = bad  # in the last ray, after its early termination at 0.3
+    rgb, z = np.ones((n, 3), np.float32), np.ones(n, np.float32)
+    off = np.array([0, 3, 500, 1000], np.int32)
+    assert composite_forward(np.ones(n, np.float32), rgb, np.full(n, 0.01, np.float32), z, off,
+                             t_threshold=0.3).n_used[2] < 500
+    with pytest.raises(ValueError, match=name):
+        composite_forward(arrays["sigma"], rgb, arrays["delta"], z, off, t_threshold=0.3)
