@@ -31,10 +31,10 @@ Compile with floating-point contraction off (`#pragma clang fp contract(off)`): 
 trick must round on its own.
 """
 
-import threading
-
 import numpy as np
 import warp as wp
+
+from kernels._native import built_once
 
 NPEXP_TYPES = r"""
     typedef float v16f __attribute__((ext_vector_type(16)));
@@ -99,25 +99,27 @@ _EXP_ARRAY_CPP = r"""
 #endif
 """
 
-_kernel = None
-_kernel_lock = threading.Lock()
+_kernels: dict = {}
+
 
 def _exp_kernel():
-    global _kernel
-    with _kernel_lock:
-        if _kernel is None:
-            f32 = wp.array(dtype=wp.float32)
+    """The kernel that applies NPEXP16 to a float32 array, 16 values a thread; built once."""
+    return built_once(_kernels, "npexp16_array", _build_exp_kernel)
 
-            def npexp16_block(x: f32, y: f32, b: int): ...
 
-            native = wp.func_native(_EXP_ARRAY_CPP)(npexp16_block)
+def _build_exp_kernel():
+    f32 = wp.array(dtype=wp.float32)
 
-            @wp.kernel(module="unique", module_options={"enable_backward": False})
-            def npexp16_array(x: f32, y: f32):
-                native(x, y, wp.tid())
+    def npexp16_block(x: f32, y: f32, b: int): ...
 
-            _kernel = npexp16_array
-    return _kernel
+    native = wp.func_native(_EXP_ARRAY_CPP)(npexp16_block)
+
+    @wp.kernel(module="unique", module_options={"enable_backward": False})
+    def npexp16_array(x: f32, y: f32):
+        native(x, y, wp.tid())
+
+    return npexp16_array
+
 
 def exp(x: np.ndarray) -> np.ndarray:
     """NPEXP16 over a float32 array on the CPU (for the check and the tests): a new float32 array."""
@@ -129,12 +131,14 @@ def exp(x: np.ndarray) -> np.ndarray:
         wp.launch(_exp_kernel(), dim=(xs.size + 15) // 16, inputs=[wx, wy], device="cpu")
     return out.reshape(np.shape(x))
 
+
 def mismatches(lo: int, hi: int) -> int:
     """How many float32 bit patterns b in [lo, hi) give other bits from NPEXP16 than from np.exp."""
     x = np.arange(lo, hi, dtype=np.uint64).astype(np.uint32).view(np.float32)
     with np.errstate(all="ignore"):
         want = np.exp(x)
     return int(np.count_nonzero(exp(x).view(np.uint32) != want.view(np.uint32)))
+
 
 def check_set() -> np.ndarray:
     """A fixed set of float32 inputs that covers every exponent of both signs and the edges: for each of the 512
@@ -158,7 +162,9 @@ def check_set() -> np.ndarray:
                         0x7FFFFFFF, 0xFFFFFFFF], np.uint32)
     return np.concatenate([grid, *edges, special]).view(np.float32)
 
+
 _agrees: bool | None = None
+
 
 def numpy_agrees() -> bool:
     """True when NPEXP16 gives np.exp's bits on `check_set()` in this process (NumPy and CPU); computed once."""

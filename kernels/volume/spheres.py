@@ -64,8 +64,8 @@ and, unless the ray terminates inside the quad, runs its four blend steps as str
 C++ on the CPU (float32, CPUs with AVX2): render_dense's three passes run in
 kernels.volume.spheres_cpu instead, eight rays in the lanes of a vector (sample j of eight rays at
 once, each lane the operations above in the same order, the blends of eight rays side by side), and
-where NumPy's float32 exp loop was found, in one launch a chunk that calls that loop itself between
-the passes on each group's values (the same function np.exp runs, so the same bits). The same
+where kernels._npexp's copy of NumPy's float32 exp gives np.exp's bits (checked once a process), in one
+launch a chunk that applies it between the passes on each group's values. The same
 outputs bit for bit (tested); float64, CUDA and CPUs without AVX2 keep the Warp passes.
 """
 
@@ -78,6 +78,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
+from kernels import _npexp
 from kernels.volume import spheres_cpu
 from kernels.volume._checks import check_dtype
 from kernels.volume.composite import DEFAULT_T_THRESHOLD
@@ -104,7 +105,7 @@ _CHUNK_VALUES = 1 << 17
 # passes there too (for tests: the same results bit for bit).
 _NATIVE_ON_CPU = True
 # Those passes run in one launch a chunk, calling NumPy's float32 exp loop themselves, where it was found
-# (spheres_cpu.numpy_exp_loop); False runs three launches a chunk with np.exp between them (for tests).
+# (kernels._npexp.numpy_agrees); False runs three launches a chunk with np.exp between them (for tests).
 _FUSED_EXP_ON_CPU = True
 # ... with chunks of at least this many falloff values (~0.8 ms of one core; nothing is stored between the
 # passes, so no cache size bounds them): the textbook image (786432 values) runs as 2/3 and 1/3 on 2
@@ -720,8 +721,8 @@ class SphereField(Field):
                        geometry: wp.array, appearance: wp.array, bg_v: wp.array, t_threshold: float,
                        rgb: wp.array, depth: wp.array, opacity: wp.array) -> None:
         """render_dense's CPU passes in C++ (float32, kernels.volume.spheres_cpu) over groups of eight
-        rays, cut into guided chunks of groups, each chunk on one launch thread. Where NumPy's float32
-        exp loop was found (spheres_cpu.numpy_exp_loop), one launch a chunk (chunks of at least
+        rays, cut into guided chunks of groups, each chunk on one launch thread. Where kernels._npexp's
+        exp has np.exp's bits (numpy_agrees), one launch a chunk (chunks of at least
         _CHUNK_VALUES_ONE_LAUNCH falloff values) runs pass 1, the exp, pass 2, the exp and pass 3
         group by group in the chunk's scratch; else, in blocks of at most _FALLOFF_BLOCK falloff
         values, three launches a chunk (chunks of at least _CHUNK_VALUES) with np.exp between them."""
@@ -732,29 +733,28 @@ class SphereField(Field):
         lanes = spheres_cpu.LANES
         n_groups = -(-n_rays // lanes)
         per_group = lanes * n_s * n_k
-        exp_loop = spheres_cpu.numpy_exp_loop() if _FUSED_EXP_ON_CPU else None
-        block = n_groups if exp_loop is not None else max(1, min(n_groups, _FALLOFF_BLOCK // per_group))
+        fused_exp = _FUSED_EXP_ON_CPU and _npexp.numpy_agrees()
+        block = n_groups if fused_exp else max(1, min(n_groups, _FALLOFF_BLOCK // per_group))
         g4 = _view(geometry.ptr, wp.float32, (n_k, 4), dev)
         p4 = _view(appearance.ptr, wp.float32, (n_k, 4), dev)
         bg3 = _view(bg_v.ptr, wp.float32, (3,), dev)
         thr = wp.float32(t_threshold)
         min_chunk = max(1, _CHUNK_VALUES // per_group)
         threads = default_threads()
-        if exp_loop is not None:
+        if fused_exp:
             min_chunk = max(1, _CHUNK_VALUES_ONE_LAUNCH // per_group)
             # (split as soon as there is more than one chunk's work: the last chunk may be smaller)
             bounds = (guided_bounds(n_groups, threads, min_chunk) if threads > 1 and n_groups > min_chunk
                       else [(0, n_groups)])
             falloff = a.empty(len(bounds) * per_group)
             factor = a.empty(len(bounds) * lanes * n_s)
-            fn, data = exp_loop
 
             def chunk(j: int) -> None:
                 lo, n = bounds[j]
                 fv = _view(falloff.ptr + j * per_group * 4, wp.float32, (per_group,), dev)
                 ev = _view(factor.ptr + j * lanes * n_s * 4, wp.float32, (lanes * n_s,), dev)
                 wp.launch(fused, dim=n, inputs=[o, d, tt, dl, g4, p4, bg3, thr, rgb, depth, opacity, fv, ev,
-                                                fn, data, n_rays, lo], device=dev)
+                                                n_rays, lo], device=dev)
 
             parallel_items(chunk, len(bounds), threads=threads)
             return

@@ -24,22 +24,15 @@ the IEEE ones of Warp's code. Only the order of the values in the buffers differ
 passes (a group's eight rays interleaved, so that every lane's loads are one vector load): NumPy's
 exp is elementwise, so its bits do not depend on it.
 
-One launch a chunk (`kernels()[3]`, where `numpy_exp_loop()` found NumPy's float32 exp loop): each
-thread takes its groups one after the other, and for each runs pass 1 into the chunk's scratch,
-calls that loop on the group's exponents in place (as np.exp(x, out=x) calls it on a contiguous
-array: the same function, so the same bits, whichever SIMD variant NumPy chose for the CPU), pass
-2, the loop again on the factors, and pass 3: the group's values (8 S K + 8 S floats, 8 KB at
-S = 64, K = 3) stay in the core's L1/L2 cache, and a chunk costs one launch instead of three
-launches and two np.exp calls. The SSE status flags the loop may raise (underflow) are restored
-after each call. Otherwise (`kernels()[:3]`) the three passes are three launches a chunk over the
-chunk's falloff and factor buffers, with np.exp between them.
-
-`numpy_exp_loop()` reads the loop's address from np.exp's loop table (the public PyUFuncObject
-struct of NumPy's C API: `functions[i]` and `data[i]` of the first 'f->f' entry, the one NumPy's
-type resolution picks), checks the struct's fields, and calls it once on a test vector against
-np.exp; anything unexpected and the three-launch route runs. On this repository's host the loop
-gave np.exp's bits for all 2^32 float32 inputs (docs/performance.md, Textbook spheres, fifth round);
-test_numpy_exp_loop_gives_np_exp_bits checks random bit patterns.
+One launch a chunk (`kernels()[3]`, where `kernels._npexp.numpy_agrees()`): each thread takes its
+groups one after the other, and for each runs pass 1 into the chunk's scratch, NumPy's float32 exp on
+the group's exponents in place, pass 2, the exp on the factors, and pass 3. The exp is
+kernels._npexp's 16-lane copy of the loop np.exp runs (the same bits for all 2^32 float32 inputs on
+this repository's host; `numpy_agrees` checks a fixed set against np.exp in each process, and where
+anything differs the three-launch route below runs). The group's values (8 S K + 8 S floats, 8 KB at
+S = 64, K = 3) stay in the core's L1/L2 cache, and a chunk costs one launch instead of three launches
+and two np.exp calls. Otherwise (`kernels()[:3]`) the three passes are three launches a chunk over
+the chunk's falloff and factor buffers, with np.exp between them.
 
 Why. The Warp passes take at most four samples of one ray as the lanes of a vec4 (SSE width),
 repeat Warp's index arithmetic for every array access, and pass 3 blends the samples of one ray one
@@ -51,13 +44,13 @@ Built only where the CPU has AVX2 (`#if`: CUDA and other CPUs compile a body tha
 `available()` is False there, so render_dense keeps the Warp passes); float64 keeps them too.
 """
 
-import ctypes
 from typing import Any
 
 import numpy as np
 import warp as wp
 
 from kernels._native import built_once
+from kernels._npexp import NPEXP16, NPEXP_TYPES
 
 LANES = 8  # rays per group (one thread of each kernel)
 
@@ -265,34 +258,36 @@ _PASS3_CPP = _GUARD + _COMMON + _PARAMS + r"""
     const v8f* E = (const v8f*)((const float*)factor.data + (long long)tid * n_s * 8);
 """ + _BODY3 + "#endif\n"
 
-# All three passes on one group, with NumPy's float32 exp loop called in between on the group's
-# values (in the chunk's scratch, reused group after group: in the core's L1/L2 cache). The loop is
-# called as NumPy calls it for np.exp(x, out=x) on a contiguous array; the SSE status flags it may
-# raise (underflow) are restored to their previous state after each call.
-_FUSED_CPP = _GUARD + _COMMON + _PARAMS + r"""
-    typedef void (*npy_loop)(char**, const long long*, const long long*, void*);  // npy_intp: 64 bits
-    const npy_loop exp_f32 = (npy_loop)exp_loop;
-    void* const exp_data = (void*)exp_loop_data;
-    const long long steps[2] = {4, 4};
+# All three passes on one group, with NumPy's float32 exp in between on the group's values, in place
+# in the chunk's scratch (reused group after group: in the core's L1/L2 cache): kernels._npexp's
+# 16-lane copy of NumPy's exp loop, the last 8 values (the scratch holds a multiple of 8) in a padded
+# vector.
+_FUSED_CPP = _GUARD + _COMMON + _PARAMS + NPEXP_TYPES + r"""
+    auto exp_in_place = [](float* p, const long long n) {
+        long long i = 0;
+        for (; i + 16 <= n; i += 16) {
+            v16f nx;
+            __builtin_memcpy(&nx, p + i, sizeof(nx));
+""" + NPEXP16 + r"""
+            __builtin_memcpy(p + i, &ne, sizeof(ne));
+        }
+        if (i < n) {
+            float tail[16] = {0.0f};
+            __builtin_memcpy(tail, p + i, (n - i) * sizeof(float));
+            v16f nx;
+            __builtin_memcpy(&nx, tail, sizeof(nx));
+""" + NPEXP16 + r"""
+            __builtin_memcpy(tail, &ne, sizeof(ne));
+            __builtin_memcpy(p + i, tail, (n - i) * sizeof(float));
+        }
+    };
     v8f* out1 = (v8f*)scratch_falloff.data;
     v8f* out2 = (v8f*)scratch_factor.data;
 """ + _BODY1 + r"""
-    {
-        char* args[2] = {(char*)out1, (char*)out1};
-        const long long n = (long long)n_s * n_k * 8;
-        const unsigned int csr = __builtin_ia32_stmxcsr();
-        exp_f32(args, &n, steps, exp_data);
-        __builtin_ia32_ldmxcsr(csr);
-    }
+    exp_in_place((float*)out1, (long long)n_s * n_k * 8);
     const v8f* F = out1;
 """ + _BODY2 + r"""
-    {
-        char* args[2] = {(char*)out2, (char*)out2};
-        const long long n = (long long)n_s * 8;
-        const unsigned int csr = __builtin_ia32_stmxcsr();
-        exp_f32(args, &n, steps, exp_data);
-        __builtin_ia32_ldmxcsr(csr);
-    }
+    exp_in_place((float*)out2, (long long)n_s * 8);
     const v8f* E = out2;
 """ + _BODY3 + "#endif\n"
 
@@ -351,8 +346,7 @@ def _build() -> tuple[Any, Any, Any, Any]:
 
     def spheres_render8(origins: f32_2, dirs: f32_2, t: f32_2, delta: f32_2, geometry: f32_2, appearance: f32_2,
                         background: f32, t_threshold: wp.float32, out_rgb: f32_2, out_depth: f32, out_opacity: f32,
-                        scratch_falloff: f32, scratch_factor: f32, exp_loop: wp.int64, exp_loop_data: wp.int64,
-                        n_rays: int, g_lo: int, tid: int): ...
+                        scratch_falloff: f32, scratch_factor: f32, n_rays: int, g_lo: int, tid: int): ...
 
     n1 = wp.func_native(_PASS1_CPP)(spheres_exponents8)
     n2 = wp.func_native(_PASS2_CPP)(spheres_factors8)
@@ -381,70 +375,9 @@ def _build() -> tuple[Any, Any, Any, Any]:
     def spheres_render_dense8_cpu(origins: f32_2, dirs: f32_2, t: f32_2, delta: f32_2, geometry: f32_2,
                                   appearance: f32_2, background: f32, t_threshold: wp.float32, out_rgb: f32_2,
                                   out_depth: f32, out_opacity: f32, scratch_falloff: f32, scratch_factor: f32,
-                                  exp_loop: wp.int64, exp_loop_data: wp.int64, n_rays: int, g_lo: int):
+                                  n_rays: int, g_lo: int):
         nf(origins, dirs, t, delta, geometry, appearance, background, t_threshold, out_rgb, out_depth, out_opacity,
-           scratch_falloff, scratch_factor, exp_loop, exp_loop_data, n_rays, g_lo, wp.tid())
+           scratch_falloff, scratch_factor, n_rays, g_lo, wp.tid())
 
     return (spheres_dense_exponent8_cpu, spheres_dense_factor8_cpu, spheres_dense_composite8_cpu,
             spheres_render_dense8_cpu)
-
-
-class _UFunc(ctypes.Structure):
-    """The head of NumPy's PyUFuncObject (numpy/ufuncobject.h, the public C API) up to its types."""
-    _fields_ = [("ob_refcnt", ctypes.c_ssize_t), ("ob_type", ctypes.c_void_p), ("nin", ctypes.c_int),
-                ("nout", ctypes.c_int), ("nargs", ctypes.c_int), ("identity", ctypes.c_int),
-                ("functions", ctypes.POINTER(ctypes.c_void_p)), ("data", ctypes.POINTER(ctypes.c_void_p)),
-                ("ntypes", ctypes.c_int), ("reserved1", ctypes.c_int), ("name", ctypes.c_char_p),
-                ("types", ctypes.POINTER(ctypes.c_char))]
-
-
-_LOOP = ctypes.CFUNCTYPE(None, ctypes.POINTER(ctypes.c_char_p), ctypes.POINTER(ctypes.c_ssize_t),
-                         ctypes.POINTER(ctypes.c_ssize_t), ctypes.c_void_p)
-
-
-def numpy_exp_loop() -> tuple[int, int] | None:
-    """(function, data) addresses of the inner loop np.exp runs on float32 ('f->f', the first such
-    entry, which NumPy's type resolution picks), read from the ufunc's loop table; None where the
-    table does not look as expected or the loop, called on a test vector as np.exp(x, out=x) calls
-    it, does not give np.exp's bits. Checked once."""
-    return built_once(_kernels, "numpy_exp", _find_numpy_exp) or None
-
-
-def _find_numpy_exp() -> tuple[int, int] | bool:
-    # the kernel passes npy_intp as 64 bits; _UFunc's head is a plain CPython object header (not the
-    # free-threaded build's)
-    if ctypes.sizeof(ctypes.c_ssize_t) != 8 or object.__basicsize__ != 2 * ctypes.sizeof(ctypes.c_void_p):
-        return False
-    try:
-        u = _UFunc.from_address(id(np.exp))
-        # the integer fields first: only then are the pointers read
-        if (u.nin, u.nout, u.nargs) != (1, 1, 2) or u.ntypes != len(np.exp.types) or u.name != b"exp":
-            return False
-        f32 = np.dtype(np.float32).num
-        loop = next((i for i in range(u.ntypes) if (u.types[2 * i], u.types[2 * i + 1]) == (bytes([f32]),) * 2),
-                    None)
-        if loop is None or np.exp.types[loop] != "f->f" or np.exp.types.index("f->f") != loop:
-            return False
-        fn, data = u.functions[loop], u.data[loop]
-        if not fn:
-            return False
-    except (ValueError, AttributeError, IndexError, TypeError):
-        return False
-    # the loop's bits against np.exp's on values across float32's range (every exponent, odd lengths)
-    rng = np.random.default_rng(0)
-    x = np.concatenate([np.linspace(-110.0, 90.0, 200003, dtype=np.float32),
-                        rng.standard_normal(4099).astype(np.float32),
-                        np.array([0.0, -0.0, -1e-30, 1e-30, -87.5, 88.7, -103.9, np.inf, -np.inf], np.float32)])
-    with np.errstate(all="ignore"):
-        want = np.exp(x)
-    got = x.copy()
-    for lo, hi in ((0, 1), (1, 8), (8, 23), (23, got.size)):
-        seg = got[lo:hi]
-        ptr = ctypes.c_char_p(seg.ctypes.data)
-        args = (ctypes.c_char_p * 2)(ptr, ptr)
-        n = (ctypes.c_ssize_t * 1)(seg.size)
-        steps = (ctypes.c_ssize_t * 2)(4, 4)
-        _LOOP(fn)(ctypes.cast(args, ctypes.POINTER(ctypes.c_char_p)), n, steps, data)
-    if got.tobytes() != want.tobytes():
-        return False
-    return fn, data or 0
