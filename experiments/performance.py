@@ -62,7 +62,8 @@ TARGETS: dict[tuple[str, str, tuple], tuple[Any, float, str]] = {
     ("volume.composite", "fwd_over_bound", ()):
         (operator.le, 2.0, "fwd (factors kept for a backward) <= 2x the read bound (float-sum read, shown)"),
     ("volume.composite", "fwd_over_bound_max", ()):
-        (operator.le, 2.0, "fwd (factors kept for a backward) <= 2x the read bound (unsigned-max read: the target's case)"),
+        (operator.le, 2.0,
+         "fwd (factors kept for a backward) <= 2x the read bound (unsigned-max read: the target's case)"),
     ("volume.composite", "fwd_no_factor_over_bound_max", ()):
         (operator.le, 2.0, "fwd_no_factor (keep_factor=False, no backward) <= 2x the read bound (unsigned-max read)"),
     ("volume.spheres_render", "render_s", ()): (operator.le, 0.005, "<= 5 ms (general path: packed samples)"),

@@ -315,7 +315,8 @@ def composite_buffers(workspace: Workspace, n_rays: int, n_samples: int, dtype: 
                       keep_factor: bool = True) -> CompositeResult:
     """`out` buffers for composite_forward: views into `workspace` (names "composite.<field>"); with
     keep_factor False, `factor` is None (for composite_forward(..., keep_factor=False))."""
-    return CompositeResult(**{k: (None if k == "factor" and not keep_factor else workspace.array(f"composite.{k}", shape, t))
+    return CompositeResult(**{k: (None if k == "factor" and not keep_factor
+                                  else workspace.array(f"composite.{k}", shape, t))
                               for k, (shape, t) in _result_layout(n_rays, n_samples, dtype).items()})
 
 
@@ -579,8 +580,8 @@ def composite_forward(
         # fused: the kernel fills the factors itself (NumPy's exp reproduced), flagging bad sigma or delta as 2
         rays_a_thread = composite_cpu.LANES * composite_cpu.GROUPS
         _launch(a, composite_cpu.forward_kernel(), (n_rays + rays_a_thread - 1) // rays_a_thread,
-                [s, d, int(fused), int(not ring), factor, c, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth,
-                 res.opacity, res.transmittance, res.n_used, int(check), bad],
+                [s, d, int(fused), int(not ring), factor, c, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb,
+                 res.depth, res.opacity, res.transmittance, res.n_used, int(check), bad],
                 min_chunk=max(1, _min_chunk(n_rays, n) // rays_a_thread))
         if fused and check and n_rays and bool((bad.numpy() & 2).any()):  # a doubt on sigma or delta
             A.check_at_least("sigma", s, 0.0)

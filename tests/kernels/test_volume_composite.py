@@ -686,7 +686,8 @@ def test_backward_refuses_a_result_without_factors(monkeypatch):
 @pytest.mark.parametrize("name", ["sigma", "delta", "rgb"])
 def test_forward_without_factor_still_rejects_bad_values(name):
     n = 1000
-    arrays = {"sigma": np.ones(n, np.float32), "delta": np.full(n, 0.01, np.float32), "rgb": np.ones((n, 3), np.float32)}
+    arrays = {"sigma": np.ones(n, np.float32), "delta": np.full(n, 0.01, np.float32),
+              "rgb": np.ones((n, 3), np.float32)}
     arrays[name][998] = np.nan  # in the last ray, after its early termination at 0.3
     off = np.array([0, 3, 500, 1000], np.int32)
     with pytest.raises(ValueError, match=name):
