@@ -55,6 +55,14 @@ forward (below) the kernel evaluates them too, with NumPy's float32 exp reproduc
 NumPy whose exp is another loop (checked once on a fixed set), or offsets that do not cover the N
 samples keep the pass.
 
+Renders that are never backpropagated (test views, depth and opacity maps for metrics) pass
+`keep_factor=False`: the result's `factor` is None and every other output is bit for bit the same.
+The fused float32 SIMD forward then keeps each group's factors in a two-slot per-thread ring
+(composite_cpu.RING samples a slot) instead of the N-sized array (8 bytes a sample less: the write
+and its read for ownership), where every group of eight rays fits a slot; any other path fills a
+scratch array that is not returned. composite_backward, render_backward and render_backward_rays
+refuse such a result (ValueError, before any kernel runs).
+
 SIMD kernels on the CPU. In float32 the CPU forward and backward run kernels.volume.composite_cpu
 instead of the Warp kernels: eight rays a thread in vector lanes, each lane the same float32
 operations in the same order as one thread here, so the same outputs bit for bit (tests compare
@@ -292,8 +300,9 @@ class CompositeResult:
     transmittance: A.ArrayLike  # (R,) T_N, transmittance after the last processed sample
     n_used: A.ArrayLike  # (R,) int32, samples processed before early termination
     # (N,) exp(-sigma_k delta_k) of every processed sample (entries past termination are not written).
-    # The backward reads it rather than recomputing the exponential.
-    factor: A.ArrayLike
+    # The backward reads it rather than recomputing the exponential. None when composite_forward ran with
+    # keep_factor=False (a render that is not backpropagated): such a result cannot be backpropagated.
+    factor: A.ArrayLike | None
 
 
 def _result_layout(n_rays: int, n_samples: int, dtype: Any) -> dict[str, tuple[tuple[int, ...], Any]]:
@@ -302,10 +311,21 @@ def _result_layout(n_rays: int, n_samples: int, dtype: Any) -> dict[str, tuple[t
             "transmittance": ((n_rays,), dtype), "n_used": ((n_rays,), wp.int32), "factor": ((n_samples,), dtype)}
 
 
-def composite_buffers(workspace: Workspace, n_rays: int, n_samples: int, dtype: Any) -> CompositeResult:
-    """`out` buffers for composite_forward: views into `workspace` (names "composite.<field>")."""
-    return CompositeResult(**{k: workspace.array(f"composite.{k}", shape, t)
+def composite_buffers(workspace: Workspace, n_rays: int, n_samples: int, dtype: Any,
+                      keep_factor: bool = True) -> CompositeResult:
+    """`out` buffers for composite_forward: views into `workspace` (names "composite.<field>"); with
+    keep_factor False, `factor` is None (for composite_forward(..., keep_factor=False))."""
+    return CompositeResult(**{k: (None if k == "factor" and not keep_factor
+                                  else workspace.array(f"composite.{k}", shape, t))
                               for k, (shape, t) in _result_layout(n_rays, n_samples, dtype).items()})
+
+
+def check_backpropagatable(name: str, result: CompositeResult) -> None:
+    """ValueError if `result` (named `name`) came from a forward with keep_factor=False: it holds no factors."""
+    if result.factor is None:
+        raise ValueError(f"{name}: this result was computed with keep_factor=False and holds no per-sample factors "
+                         "(result.factor is None), so it cannot be backpropagated; run the forward with "
+                         "keep_factor=True (the default) for a result to differentiate")
 
 
 def composite_grad_buffers(workspace: Workspace, n_samples: int, dtype: Any) -> tuple[wp.array, wp.array]:
@@ -418,6 +438,27 @@ def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, check: bool
     return 1
 
 
+def _groups_fit(offsets: wp.array, n_rays: int) -> bool:
+    """Every group of composite_cpu.LANES consecutive rays holds at most composite_cpu.RING samples (the forward's
+    factor ring; checked offsets, covering N from 0)."""
+    if n_rays == 0:
+        return True
+    h = offsets.numpy()  # host array: a zero-copy view
+    lanes = composite_cpu.LANES
+    ends = np.minimum(np.arange(lanes, n_rays + lanes, lanes), n_rays)
+    return int((h[ends].astype(np.int64) - h[0:n_rays:lanes]).max()) <= composite_cpu.RING
+
+
+_NO_FACTOR: dict[Any, wp.array] = {}  # device alias -> a 1-entry float32 array: the ring forward's unused `factor`
+
+
+def _no_factor(device: wp.Device) -> wp.array:
+    arr = _NO_FACTOR.get(device.alias)
+    if arr is None:
+        arr = _NO_FACTOR[device.alias] = wp.zeros(1, dtype=wp.float32, device=device)
+    return arr
+
+
 def _covers(offsets: wp.array, n: int) -> bool:
     """offsets[0] = 0, offsets[-1] = n and non-decreasing (as checked values always are), so that the rays'
     samples are all N: the fused forward fills the factors ray group by ray group, the pass before it all N."""
@@ -487,6 +528,7 @@ def composite_forward(
     t_threshold: float = DEFAULT_T_THRESHOLD,
     device: str | wp.Device | None = None,
     out: CompositeResult | None = None,
+    keep_factor: bool = True,
 ) -> CompositeResult:
     """Composite packed samples front to back (module docstring); one thread per ray.
 
@@ -495,7 +537,16 @@ def composite_forward(
     `sigma` (NumPy arrays, or wp.arrays on the device). `out`, if given, is a CompositeResult of
     wp.arrays that receives the outputs and is returned: reusing buffers saves the page faults of
     fresh ones (kernels.volume.workspace).
+
+    keep_factor=False is for renders that are never backpropagated (test views, depth or opacity maps for
+    metrics): the result's `factor` is None, and every other output is bit for bit keep_factor=True's.
+    composite_backward (and render_backward) refuse such a result. The float32 CPU forward then keeps a
+    group's factors in a small per-thread ring and writes no per-sample array (no N-sized allocation, 8
+    bytes a sample less to move); elsewhere the factors go to a scratch array that is not returned.
+    `out.factor` is neither checked nor written then (it may be None).
     """
+    if not isinstance(keep_factor, (bool, np.bool_)):
+        raise ValueError(f"keep_factor: expected a bool, got {type(keep_factor).__name__}")
     a = A.Inputs(device, sigma, rgb, delta, z, ray_offsets)
     args, n, n_rays = _samples(a, sigma, rgb, delta, z, ray_offsets, values=True)
     t_threshold = A.check_float("t_threshold", t_threshold, nonnegative=True)
@@ -503,25 +554,34 @@ def composite_forward(
         raise ValueError(f"t_threshold: expected a value in [0, 1), got {t_threshold}")
     bg, per_ray = _background(a, background, n_rays)
     layout = _result_layout(n_rays, n, a.scalar)
+    del layout["factor"]  # below: only with keep_factor
     if out is None:
-        res = CompositeResult(**{k: a.empty(shape, t) for k, (shape, t) in layout.items()})
+        res = CompositeResult(**{k: a.empty(shape, t) for k, (shape, t) in layout.items()}, factor=None)
     else:
         res = CompositeResult(**{k: A.check_out(f"out.{k}", getattr(out, k), shape, t, a.device)
-                                 for k, (shape, t) in layout.items()})
+                                 for k, (shape, t) in layout.items()}, factor=None)
+    if keep_factor:
+        factor = res.factor = (a.empty(n) if out is None else
+                                 A.check_out("out.factor", out.factor, (n,), a.scalar, a.device))
     s, c, d, zz, offsets = args
     check = A.values_checked() and a.device.is_cpu  # on CUDA _samples checked the values
     simd = (a.device.is_cpu and a.scalar == wp.float32 and SIMD_FORWARD and 3 * n < 2**31
-            and all(x.is_contiguous for x in (s, c, d, zz, offsets, res.factor)))
+            and all(x.is_contiguous for x in (s, c, d, zz, offsets)) and (not keep_factor or factor.is_contiguous))
     fused = simd and FUSED_EXP and _covers(offsets, n) and _npexp.numpy_agrees()
-    factor_given = 1 if fused else _fill_factor(s, d, res.factor, check)
+    # keep_factor False: the fused SIMD forward keeps the factors in its per-thread ring (every group of eight
+    # rays within composite_cpu.RING samples); any other path fills a scratch array that is not returned
+    ring = fused and not keep_factor and _groups_fit(offsets, n_rays)
+    if not keep_factor:
+        factor = _no_factor(a.device) if ring else a.empty(n)
+    factor_given = 1 if fused else _fill_factor(s, d, factor, check)
     bad = a.empty(n_rays if check else 1, wp.int32)
     if simd:
         # CPU, float32: eight rays a thread in vector lanes, the same outputs bit for bit (composite_cpu);
         # fused: the kernel fills the factors itself (NumPy's exp reproduced), flagging bad sigma or delta as 2
         rays_a_thread = composite_cpu.LANES * composite_cpu.GROUPS
         _launch(a, composite_cpu.forward_kernel(), (n_rays + rays_a_thread - 1) // rays_a_thread,
-                [s, d, int(fused), res.factor, c, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth,
-                 res.opacity, res.transmittance, res.n_used, int(check), bad],
+                [s, d, int(fused), int(not ring), factor, c, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb,
+                 res.depth, res.opacity, res.transmittance, res.n_used, int(check), bad],
                 min_chunk=max(1, _min_chunk(n_rays, n) // rays_a_thread))
         if fused and check and n_rays and bool((bad.numpy() & 2).any()):  # a doubt on sigma or delta
             A.check_at_least("sigma", s, 0.0)
@@ -529,14 +589,14 @@ def composite_forward(
     else:
         _launch(a, _FORWARD[a.scalar], n_rays,
                 [s, _vec_view(c, 3), d, zz, offsets, bg, per_ray, a.s(t_threshold), res.rgb, res.depth,
-                 res.opacity, res.transmittance, res.n_used, res.factor, factor_given, _vec_view(res.factor, 4),
+                 res.opacity, res.transmittance, res.n_used, factor, factor_given, _vec_view(factor, 4),
                  _vec_view(zz, 4), int(check), bad], min_chunk=_min_chunk(n_rays, n))
     if check and n_rays and (bad.numpy() & 1).any():  # a NaN or inf in rgb or z, or a false alarm (module docstring)
         A.check_finite("rgb", c)
         A.check_finite("z", zz)
     if out is not None or not a.as_numpy:
         return res
-    return CompositeResult(**{k: a.out(v) for k, v in vars(res).items()})
+    return CompositeResult(**{k: None if v is None else a.out(v) for k, v in vars(res).items()})
 
 
 def composite_backward(
@@ -562,10 +622,11 @@ def composite_backward(
     sigma); the cotangents' are. `out`, if given, is the pair of wp.array buffers (N,) and (N, 3)
     to write the gradients into (and is returned); every entry is written.
     """
-    a = A.Inputs(device, sigma, rgb, delta, z, ray_offsets)
-    (_, c, d, zz, offsets), n, n_rays = _samples(a, sigma, rgb, delta, z, ray_offsets, values=False)
     if not isinstance(result, CompositeResult):
         raise ValueError(f"result: expected the CompositeResult of composite_forward, got {type(result).__name__}")
+    check_backpropagatable("result", result)
+    a = A.Inputs(device, sigma, rgb, delta, z, ray_offsets)
+    (_, c, d, zz, offsets), n, n_rays = _samples(a, sigma, rgb, delta, z, ray_offsets, values=False)
     layout = _result_layout(n_rays, n, a.scalar)
     res = {}
     for k in ("factor", "rgb", "depth", "transmittance", "n_used"):

@@ -5,7 +5,9 @@ factors e_k = exp(-sigma_k delta_k) given (NumPy's pass filled them), or, with `
 here: a group's samples [o_{r0}, o_{r0+8}) are contiguous, and 16 at a time each gets
 e_k = exp(-(sigma_k delta_k)) (the product rounded, then negated, as NumPy's pass computes it) with
 NumPy's float32 exp reproduced bit for bit (kernels._npexp), stored into `factor` (every sample,
-past termination too, as the pass does) and read back by the steps; with the value check, one
+past termination too, as the pass does), or with keep = 0 into one slot of a two-slot ring on the
+thread's stack (RING samples a slot; `factor` is then neither read nor written), and read back by
+the steps; with the value check, one
 unsigned maximum of the bits of sigma and delta flags the group's rays with 2 in out_bad
 (composite.py then runs the exact checks). A forward thread takes GROUPS groups one after the
 other: the first group's factors are filled before its steps, each later group's 16 a step during
@@ -57,6 +59,7 @@ from kernels._npexp import NPEXP16, NPEXP_TYPES
 
 LANES = 8  # rays in the lanes of a group
 GROUPS = 8  # groups of LANES rays per thread of the forward kernel
+RING = 2048  # samples a slot of the forward's two-slot factor ring (keep=0): 8 KB of float32, a slot
 
 _FORWARD_CPP = r"""
 #if !defined(__CUDA_ARCH__)
@@ -67,6 +70,11 @@ _FORWARD_CPP = r"""
 """ + NPEXP_TYPES + r"""
     typedef unsigned int v16u __attribute__((ext_vector_type(16)));
     enum { GROUPS = """ + str(GROUPS) + r""" };  // groups of eight rays a call
+    enum { RING = """ + str(RING) + r""" };  // samples a slot of the ring (keep == 0)
+    // keep == 0 (fused only): a group's factors live in one slot of this two-slot ring (the current group's, and
+    // the next group's being filled during its steps), never in `factor`; composite.py sends a group of more than
+    // RING samples to the keep path with a scratch `factor` instead
+    float ring[2][RING] __attribute__((aligned(64)));
     const int r_first = grp * (8 * GROUPS);
     const float* F = (const float*)factor.data;
     const float* S = (const float*)sigma.data;
@@ -77,12 +85,13 @@ _FORWARD_CPP = r"""
     const float* Zp = (const float*)z.data;
     const int* O = (const int*)offsets.data;
     const int n_rays = offsets.shape[0] - 1;
-    const int last = factor.shape[0] - 1;
+    const int last = z.shape[0] - 1;  // N - 1 (`factor` has N entries too, but none when the ring holds them)
     float* Fw = (float*)factor.data;
+    const int stored = fused == 0 || keep != 0;  // the factors in `factor` (given, or filled here), else in the ring
     // fused: the factors of samples [k, k + m), m <= 16: exp(-(sigma delta)) with NumPy's bits (the product
-    // rounded, then negated), into `factor`; with the value check, `top` takes the unsigned maximum of the
-    // bits of sigma and delta (finite and >= 0 iff at most 0x7f7fffff)
-    auto fill16 = [&](int k, int m, v16u& top) {
+    // rounded, then negated), into dst[0, m) (`factor` + k, or a ring slot); with the value check, `top` takes the
+    // unsigned maximum of the bits of sigma and delta (finite and >= 0 iff at most 0x7f7fffff)
+    auto fill16 = [&](int k, int m, v16u& top, float* dst) {
 #pragma clang fp contract(off)
         v16f sv = 0.0f;
         v16f dv = 0.0f;
@@ -103,11 +112,20 @@ _FORWARD_CPP = r"""
         const v16f nx = -sd;
 """ + NPEXP16 + r"""
         if (m == 16) {
-            __builtin_memcpy(Fw + k, &ne, sizeof(ne));
+            __builtin_memcpy(dst, &ne, sizeof(ne));
         } else {
             for (int l = 0; l < m; ++l)
-                Fw[k + l] = ne[l];
+                dst[l] = ne[l];
         }
+    };
+    // where sample k of a group whose samples start at `base` gets its factor, in ring slot `slot` when keep == 0
+    // (a group never holds more than RING samples there: composite.py checks; the guard only keeps the writes
+    // inside the slot)
+    auto fill_at = [&](int k, int m, v16u& top, int base, int slot) {
+        if (stored != 0)
+            fill16(k, m, top, Fw + k);
+        else if (k - base + m <= RING)
+            fill16(k, m, top, ring[slot] + (k - base));
     };
     // the first group's factors before its steps; each later group's during the steps of the one before
     v16u top_cur = 0u;
@@ -115,7 +133,7 @@ _FORWARD_CPP = r"""
         const int ga = O[r_first];
         const int gb = O[r_first + 8 < n_rays ? r_first + 8 : n_rays];
         for (int k = ga; k < gb; k += 16)
-            fill16(k, gb - k < 16 ? gb - k : 16, top_cur);
+            fill_at(k, gb - k < 16 ? gb - k : 16, top_cur, ga, 0);
     }
     for (int gq = 0; gq < GROUPS; ++gq) {
     const int r0 = r_first + 8 * gq;
@@ -124,10 +142,13 @@ _FORWARD_CPP = r"""
     const int sd_bad = __builtin_reduce_max(top_cur) > 0x7f7fffffu ? 2 : 0;
     int nk = 0;
     int nb = 0;
+    int nbase = 0;
+    const int slot = gq & 1;
     v16u top_next = 0u;
     if (fused != 0 && gq + 1 < GROUPS && r0 + 8 < n_rays) {
         nk = O[r0 + 8];
         nb = O[r0 + 16 < n_rays ? r0 + 16 : n_rays];
+        nbase = nk;
     }
     v8i start, len;
     int maxlen = 0;
@@ -141,6 +162,11 @@ _FORWARD_CPP = r"""
         }
         maxlen = len[l] > maxlen ? len[l] : maxlen;
     }
+    // the gathers' factors: `factor` by sample index, or (keep == 0) this group's slot by index - ga, clamped into
+    // the group's [0, gn) (lanes that ended or have no ray read an entry they then replace by 1)
+    const int ga = O[r0];
+    const int gn = O[r0 + 8 < n_rays ? r0 + 8 : n_rays] - ga;
+    const float* Fg = stored != 0 ? F : ring[slot];
     const v8f thr = t_threshold;
     const v8f one = 1.0f;
     v8f T = one;
@@ -171,6 +197,9 @@ _FORWARD_CPP = r"""
             break;
         v8i idx = start + i;
         idx = __builtin_elementwise_min(idx, (v8i)last);
+        v8i fidx = idx;
+        if (stored == 0)
+            fidx = __builtin_elementwise_max(__builtin_elementwise_min(idx - ga, (v8i)(gn - 1)), (v8i)0);
         v8f e, c0, c1, c2, zk;
 #if defined(__AVX2__)
         {
@@ -180,7 +209,7 @@ _FORWARD_CPP = r"""
             const g8f none = (g8f)(v8f)0.0f;
             const v8i i3 = idx * 3;
             const float* Cf = (const float*)Cb;
-            e = (v8f)__builtin_ia32_gatherd_ps256(none, F, (g8i)idx, all, 4);
+            e = (v8f)__builtin_ia32_gatherd_ps256(none, Fg, (g8i)fidx, all, 4);
             zk = (v8f)__builtin_ia32_gatherd_ps256(none, Zp, (g8i)idx, all, 4);
             c0 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf, (g8i)i3, all, 4);
             c1 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf + 1, (g8i)i3, all, 4);
@@ -190,7 +219,7 @@ _FORWARD_CPP = r"""
         for (int l = 0; l < 8; ++l) {
             const int k = idx[l];
             const float* c = (const float*)(Cb + (long long)k * cs0);
-            e[l] = F[k];
+            e[l] = Fg[fidx[l]];
             c0[l] = c[0];
             c1[l] = *(const float*)((const char*)c + cs1);
             c2[l] = *(const float*)((const char*)c + 2 * cs1);
@@ -217,13 +246,13 @@ _FORWARD_CPP = r"""
         used = used - run;
         if (nk < nb) {  // 16 of the next group's factors
             const int m = nb - nk < 16 ? nb - nk : 16;
-            fill16(nk, m, top_next);
+            fill_at(nk, m, top_next, nbase, slot ^ 1);
             nk += m;
         }
     }
     while (nk < nb) {  // the rest of them
         const int m = nb - nk < 16 ? nb - nk : 16;
-        fill16(nk, m, top_next);
+        fill_at(nk, m, top_next, nbase, slot ^ 1);
         nk += m;
     }
     const char* bgb = (const char*)background.data;
@@ -486,7 +515,7 @@ def _build() -> Any:
     f32_2 = wp.array2d(dtype=wp.float32)
     i32 = wp.array(dtype=wp.int32)
 
-    def composite_rays8_cpu(sigma: f32, delta: f32, fused: int, factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
+    def composite_rays8_cpu(sigma: f32, delta: f32, fused: int, keep: int, factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
                             t_threshold: wp.float32, out_rgb: f32_2, out_depth: f32, out_opacity: f32,
                             out_transmittance: f32, out_n_used: i32, check_values: int, out_bad: i32,
                             grp: int): ...
@@ -494,13 +523,13 @@ def _build() -> Any:
     native = wp.func_native(_FORWARD_CPP)(composite_rays8_cpu)
 
     @wp.kernel(module="unique", module_options={"enable_backward": False})
-    def composite_forward_cpu(sigma: f32, delta: f32, fused: int, factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
+    def composite_forward_cpu(sigma: f32, delta: f32, fused: int, keep: int, factor: f32, rgb: f32_2, z: f32, offsets: i32, background: f32_2, per_ray: int,
                               t_threshold: wp.float32, out_rgb: f32_2, out_depth: f32, out_opacity: f32,
                               out_transmittance: f32, out_n_used: i32, check_values: int, out_bad: i32,
                               offset: int):
         # thread g = rays 8 GROUPS g .. 8 GROUPS (g + 1) - 1
         g = wp.tid() + offset
-        native(sigma, delta, fused, factor, rgb, z, offsets, background, per_ray, t_threshold, out_rgb, out_depth, out_opacity,
+        native(sigma, delta, fused, keep, factor, rgb, z, offsets, background, per_ray, t_threshold, out_rgb, out_depth, out_opacity,
                out_transmittance, out_n_used, check_values, out_bad, g)
 
     return composite_forward_cpu

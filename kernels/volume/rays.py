@@ -52,7 +52,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.volume.composite import composite_backward
+from kernels.volume.composite import check_backpropagatable, composite_backward
 from kernels.volume.field import Field
 from kernels.volume.field_points import check_point_field, field_point_backward
 from kernels.volume.render import RenderResult
@@ -260,6 +260,7 @@ def render_backward_rays(field: Field, result: RenderResult, grad_rgb: A.ArrayLi
     check_point_field(field)
     if not isinstance(result, RenderResult):
         raise ValueError(f"result: expected the RenderResult of render_rays, got {type(result).__name__}")
+    check_backpropagatable("result", result.composite)
     s, out, comp = result.samples, result.field_out, result.composite
     a = A.Inputs(field.device, s.points)
     a.scalar = field.dtype

@@ -31,8 +31,8 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.launch import launch_split
-from kernels.volume.composite import (DEFAULT_T_THRESHOLD, CompositeResult, composite_backward, composite_buffers,
-                                      composite_forward, composite_grad_buffers)
+from kernels.volume.composite import (DEFAULT_T_THRESHOLD, CompositeResult, check_backpropagatable, composite_backward,
+                                      composite_buffers, composite_forward, composite_grad_buffers)
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.sampling import Samples, pack_samples, sample_rays
 from kernels.volume.workspace import Workspace, check_workspace
@@ -74,27 +74,36 @@ def _on_device(field: Field, samples: Samples) -> tuple[A.Inputs, Samples]:
     return a, Samples(**floats, **ints)
 
 
+def _check_keep_factor(keep_factor: Any) -> None:
+    if not isinstance(keep_factor, bool):
+        raise ValueError(f"keep_factor: expected a bool, got {type(keep_factor).__name__}")
+
+
 def _render(a: A.Inputs, field: Field, samples: Samples, background: Any, t_threshold: float,
-            workspace: Workspace | None) -> RenderResult:
+            workspace: Workspace | None, keep_factor: bool) -> RenderResult:
     out = field.forward(samples.points, samples.dirs if field.needs_dirs else None)
     buffers = None if workspace is None else composite_buffers(workspace, samples.n_rays, samples.n_samples,
-                                                                field.dtype)
+                                                                field.dtype, keep_factor)
     comp = composite_forward(out.sigma, out.rgb, samples.delta, samples.z, samples.ray_offsets, background,
-                             t_threshold, field.device, out=buffers)
+                             t_threshold, field.device, out=buffers, keep_factor=keep_factor)
     kind = (lambda x: x) if workspace is not None else a.out
     return RenderResult(kind(comp.rgb), kind(comp.depth), kind(comp.opacity), samples, out, comp, background)
 
 
 def render_samples(field: Field, samples: Samples, background: Any = (0.0, 0.0, 0.0),
-                   t_threshold: float = DEFAULT_T_THRESHOLD, workspace: Workspace | None = None) -> RenderResult:
+                   t_threshold: float = DEFAULT_T_THRESHOLD, workspace: Workspace | None = None,
+                   keep_factor: bool = True) -> RenderResult:
     """Evaluate `field` at the packed samples and composite them per ray.
 
     rgb, depth and opacity come back in the kind of `samples.points`; with a `workspace` they are
-    views into it (wp.arrays), valid until its next use.
+    views into it (wp.arrays), valid until its next use. keep_factor=False: a render that will not be
+    backpropagated keeps no per-sample compositing state (composite_forward; the same rgb, depth and
+    opacity bit for bit), and render_backward refuses it.
     """
     check_workspace(workspace, field.device)
+    _check_keep_factor(keep_factor)
     a, samples = _on_device(field, samples)
-    return _render(a, field, samples, background, t_threshold, workspace)
+    return _render(a, field, samples, background, t_threshold, workspace, keep_factor)
 
 
 # The keyword options of kernels.volume.sample_rays and their defaults, read from its signature.
@@ -111,6 +120,7 @@ def render_rays(
     background: Any = (0.0, 0.0, 0.0),
     t_threshold: float = DEFAULT_T_THRESHOLD,
     workspace: Workspace | None = None,
+    keep_factor: bool = True,
     **sampling: Any,
 ) -> RenderResult:
     """Render rays (R, 3) through `field` inside `bbox`.
@@ -118,8 +128,10 @@ def render_rays(
     `sampling` holds the keyword options of kernels.volume.sample_rays (near, far, n_samples, step,
     z_scale, occupancy, jitter, seed). rgb, depth and opacity come back in the kind of `origins`;
     with a `workspace` they are views into it (wp.arrays), valid until its next use.
+    keep_factor=False: for renders that will not be backpropagated (render_samples).
     """
     check_workspace(workspace, field.device)
+    _check_keep_factor(keep_factor)
     unknown = set(sampling) - set(_SAMPLING_DEFAULTS)
     if unknown:
         raise ValueError(f"sampling: unknown options {sorted(unknown)}; expected some of {sorted(_SAMPLING_DEFAULTS)} "
@@ -128,7 +140,7 @@ def render_rays(
         raise ValueError(f"origins: expected dtype {A.type_name(field.dtype)} (the field's)")
     a = A.Inputs(field.device, origins, dirs)
     samples = pack_samples(a, origins, dirs, bbox, **{**_SAMPLING_DEFAULTS, **sampling})
-    return _render(a, field, samples, background, t_threshold, workspace)
+    return _render(a, field, samples, background, t_threshold, workspace, keep_factor)
 
 
 def optical_depth_sum(result: RenderResult) -> float:
@@ -149,6 +161,9 @@ def render_backward(field: Field, result: RenderResult, grad_rgb: A.ArrayLike | 
     """
     sigma_l1 = A.check_float("sigma_l1", sigma_l1)
     check_workspace(workspace, field.device)
+    if not isinstance(result, RenderResult):
+        raise ValueError(f"result: expected the RenderResult of render_rays, got {type(result).__name__}")
+    check_backpropagatable("result", result.composite)
     s, out = result.samples, result.field_out
     buffers = None if workspace is None else composite_grad_buffers(workspace, s.n_samples, field.dtype)
     g_sigma, g_rgb = composite_backward(out.sigma, out.rgb, s.delta, s.z, s.ray_offsets, result.composite,

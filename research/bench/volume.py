@@ -11,7 +11,10 @@ with the same keys, for the test suite):
                           `fwd_bwd_fresh_buffers_s` is the same with new arrays on every call, whose
                           first-touch page faults cost more than the backward kernel on the CPU.
                           `fwd_no_value_checks_s` is the forward inside value_checks(False), as a
-                          training loop calls it (shape and dtype checks only).
+                          training loop calls it (shape and dtype checks only). `fwd_no_factor_s` (here
+                          and in volume.composite_fwd) is the forward with keep_factor=False, as a render
+                          that is never backpropagated calls it: the same outputs, no per-sample factors
+                          kept (`fwd_s` keeps them for a backward, and is what PyTorch is compared with).
   * volume.field.<name>   points 1048576 in float32 for spheres (the 3 of the Video and 3D Vision
                           textbook chapter), grid (128^3 RGB), grid_sh2 (128^3, SH degree 2), hashgrid
                           (16 levels x 2^19 x 2, MLP 64-64) and pe_mlp (8 frequencies, MLP 64-64):
@@ -32,7 +35,8 @@ delta once (20 bytes a sample in float32) with a NumPy sum split over the same t
 `fwd_over_bound` = fwd_s / bound_s. `bound_max_s` reads the same bytes with an unsigned maximum
 (less arithmetic per byte than NumPy's pairwise float32 sum, which on the bench host is not always
 memory-bound: docs/performance.md, compositing, fourth round); `fwd_over_bound_max` = fwd_s /
-bound_max_s. experiments/performance.py judges the target on the tighter `bound_max_s` and shows both.
+bound_max_s; `fwd_no_factor_over_bound_max` = fwd_no_factor_s / bound_max_s. experiments/performance.py
+judges the target on the tighter `bound_max_s` and shows both, for each forward.
 
 With `compare=True` (drlab bench --compare), timed interleaved in the same `time_medians` call on
 the same inputs, with the same thread count (torch.set_num_threads):
@@ -149,9 +153,13 @@ def _composite_case(dev, threads: int, rays: int, samples: int, rng, sync, compa
     ws = Workspace(dev)
     res_buf = composite_buffers(ws, rays, n, wp.float32)
     grad_buf = composite_grad_buffers(ws, n, wp.float32)
+    res_buf_no_factor = composite_buffers(ws, rays, n, wp.float32, keep_factor=False)  # the same views, no factor
 
     def fwd(out=res_buf):
         return composite_forward(sigma, rgb, delta, z, offsets, device=dev, out=out)
+
+    def fwd_no_factor():  # the forward of a render that is not backpropagated: no per-sample factors kept
+        return composite_forward(sigma, rgb, delta, z, offsets, device=dev, out=res_buf_no_factor, keep_factor=False)
 
     def fwd_bwd(reuse=True):
         res = fwd(res_buf if reuse else None)
@@ -164,7 +172,7 @@ def _composite_case(dev, threads: int, rays: int, samples: int, rng, sync, compa
 
     row = {"bench": "volume.composite" if full else "volume.composite_fwd", "device": str(dev), "threads": threads,
            "rays": rays, "samples": samples}
-    fns = {"fwd": fwd}
+    fns = {"fwd": fwd, "fwd_no_factor": fwd_no_factor}
     if full:
         fns.update(fwd_unchecked=fwd_unchecked, fwd_bwd=fwd_bwd)
         if dev.is_cpu:
@@ -180,6 +188,7 @@ def _composite_case(dev, threads: int, rays: int, samples: int, rng, sync, compa
     # fresh-buffer variant runs on its own: the memory it releases slows whatever runs next.
     times = time_medians(fns, repeats=5, sync=sync, settle_s=SETTLE_S)
     row["fwd_s"] = times["fwd"]
+    row["fwd_no_factor_s"] = times["fwd_no_factor"]
     if full:
         row.update(fwd_bwd_s=times["fwd_bwd"], samples_per_s=n / times["fwd_bwd"],
                    fwd_bwd_fresh_buffers_s=time_median(lambda: fwd_bwd(reuse=False), repeats=5, sync=sync),
@@ -187,7 +196,8 @@ def _composite_case(dev, threads: int, rays: int, samples: int, rng, sync, compa
         if "bound" in times:
             row.update(bound_s=times["bound"], bound_gb_per_s=20 * n / times["bound"] / 1e9,
                        fwd_over_bound=times["fwd"] / times["bound"],
-                       bound_max_s=times["bound_max"], fwd_over_bound_max=times["fwd"] / times["bound_max"])
+                       bound_max_s=times["bound_max"], fwd_over_bound_max=times["fwd"] / times["bound_max"],
+                       fwd_no_factor_over_bound_max=times["fwd_no_factor"] / times["bound_max"])
     if compare:
         if ref is None:
             row["ref_missing"] = "torch (pip install drlab[bench])" if dev.is_cpu else "torch CPU reference on a CUDA run"

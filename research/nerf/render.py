@@ -63,7 +63,7 @@ def render_image(
         e = min(s + chunk, n)
         res = render_rays(field, o[s:e], d[s:e], bbox, near=near, far=far, n_samples=n_samples, step=step,
                           z_scale=zs[s:e], occupancy=occupancy, background=background, t_threshold=t_threshold,
-                          workspace=workspace)
+                          workspace=workspace, keep_factor=False)  # never backpropagated: no per-sample state
         rgb[s:e], depth[s:e], opacity[s:e] = res.rgb.numpy(), res.depth.numpy(), res.opacity.numpy()  # workspace views
         n_samples_total += res.samples.n_samples
     h, w = camera.height, camera.width

@@ -593,3 +593,103 @@ def test_fused_forward_rejects_a_bad_value_after_termination(name, bad):
                              t_threshold=0.3).n_used[2] < 500
     with pytest.raises(ValueError, match=name):
         composite_forward(arrays["sigma"], rgb, arrays["delta"], z, off, t_threshold=0.3)
+
+
+def _long_case(n_rays, seed=0):
+    """Rays of 250-400 samples: groups of eight rays beyond the forward's factor ring (composite_cpu.RING)."""
+    rng = np.random.default_rng(seed)
+    off = np.concatenate([[0], np.cumsum(rng.integers(250, 401, size=n_rays))]).astype(np.int32)
+    n = int(off[-1])
+    delta = (rng.random(n) * 0.02).astype(np.float32)
+    return (rng.exponential(1.0, n).astype(np.float32), rng.random((n, 3)).astype(np.float32), delta,
+            np.cumsum(delta).astype(np.float32), off)
+
+
+_OUTPUTS = ("rgb", "depth", "opacity", "transmittance", "n_used")
+
+
+@pytest.mark.parametrize("threads", ["1", "2"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("kind,n_rays", [("packed", 1501), ("odd", 1003), ("dense", 13), ("long", 203)])
+def test_forward_without_factor_equals_keep_factor_bitwise(monkeypatch, threads, dtype, kind, n_rays):
+    """keep_factor=False: every output byte of keep_factor=True's, `factor` None; in float32 on the CPU the SIMD
+    forward holds the factors in its ring (groups of at most RING samples) and allocates no N-sized array."""
+    from kernels import _npexp
+    from kernels.volume import composite as cm
+
+    monkeypatch.setenv("DRLAB_THREADS", threads)
+    rings = []
+    real_no_factor = cm._no_factor
+    monkeypatch.setattr(cm, "_no_factor", lambda dev: rings.append(1) or real_no_factor(dev))
+    sigma, rgb, delta, z, off = _long_case(n_rays, seed=5) if kind == "long" else _simd_case(kind, n_rays, seed=5)
+    sigma[::89] *= 400.0  # factors down to subnormals and 0
+    sigma, rgb, delta, z = (x.astype(dtype) for x in (sigma, rgb, delta, z))
+    rng = np.random.default_rng(6)
+    in_ring = dtype == np.float32 and kind != "long" and _npexp.numpy_agrees()
+    for thr in (0.0, 1e-4, 0.3):
+        for bg in ((0.2, 0.5, 0.9), rng.random((n_rays, 3)).astype(dtype)):
+            for checks in (True, False):
+                with value_checks(checks):
+                    kept = composite_forward(sigma, rgb, delta, z, off, bg, thr)
+                    rings.clear()
+                    bare = composite_forward(sigma, rgb, delta, z, off, bg, thr, keep_factor=False)
+                assert len(rings) == int(in_ring), (thr, checks)
+                assert bare.factor is None and kept.factor is not None
+                for k in _OUTPUTS:
+                    assert getattr(bare, k).tobytes() == getattr(kept, k).tobytes(), (k, thr, checks)
+
+
+@pytest.mark.parametrize("fused,simd", [(False, True), (True, False)])
+def test_forward_without_factor_on_the_other_paths(monkeypatch, fused, simd):
+    """NumPy's pass (FUSED_EXP off) and the Warp kernel (SIMD_FORWARD off) fill a scratch that is not returned."""
+    from kernels.volume import composite as cm
+
+    sigma, rgb, delta, z, off = _simd_case("packed", 301, seed=8)
+    kept = composite_forward(sigma, rgb, delta, z, off, t_threshold=1e-4)
+    monkeypatch.setattr(cm, "FUSED_EXP", fused)
+    monkeypatch.setattr(cm, "SIMD_FORWARD", simd)
+    bare = composite_forward(sigma, rgb, delta, z, off, t_threshold=1e-4, keep_factor=False)
+    assert bare.factor is None
+    for k in _OUTPUTS:
+        assert getattr(bare, k).tobytes() == getattr(kept, k).tobytes(), k
+
+
+def test_forward_without_factor_into_workspace_buffers():
+    """With `out` buffers (composite_buffers(..., keep_factor=False): factor None): the same outputs, and the
+    workspace holds no factor buffer."""
+    sigma, rgb, delta, z, off = _simd_case("packed", 700, seed=9)
+    ws = Workspace("cpu")
+    kept = composite_forward(sigma, rgb, delta, z, off)
+    bufs = composite_buffers(ws, 700, sigma.shape[0], wp.float32, keep_factor=False)
+    assert bufs.factor is None
+    got = composite_forward(*(wp.array(x, device="cpu") for x in (sigma, rgb, delta, z, off)), out=bufs,
+                            keep_factor=False)
+    assert got.factor is None and got.rgb.ptr == bufs.rgb.ptr
+    for k in _OUTPUTS:
+        assert getattr(got, k).numpy().tobytes() == getattr(kept, k).tobytes(), k
+    assert "composite.factor" not in ws._buffers
+    with pytest.raises(ValueError, match="keep_factor"):
+        composite_forward(sigma, rgb, delta, z, off, keep_factor=1)
+
+
+def test_backward_refuses_a_result_without_factors(monkeypatch):
+    """composite_backward on a keep_factor=False result: a ValueError naming it, before any kernel runs."""
+    from kernels.volume import composite as cm
+
+    sigma, rgb, delta, z, off = _simd_case("packed", 64, seed=10)
+    res = composite_forward(sigma, rgb, delta, z, off, keep_factor=False)
+    monkeypatch.setattr(cm, "_launch", lambda *a, **k: pytest.fail("a kernel ran"))
+    with pytest.raises(ValueError, match=r"keep_factor=False.*result\.factor is None"):
+        composite_backward(sigma, rgb, delta, z, off, res, np.ones((64, 3), np.float32))
+
+
+@pytest.mark.parametrize("name", ["sigma", "delta", "rgb"])
+def test_forward_without_factor_still_rejects_bad_values(name):
+    n = 1000
+    arrays = {"sigma": np.ones(n, np.float32), "delta": np.full(n, 0.01, np.float32),
+              "rgb": np.ones((n, 3), np.float32)}
+    arrays[name][998] = np.nan  # in the last ray, after its early termination at 0.3
+    off = np.array([0, 3, 500, 1000], np.int32)
+    with pytest.raises(ValueError, match=name):
+        composite_forward(arrays["sigma"], arrays["rgb"], arrays["delta"], np.ones(n, np.float32), off,
+                          t_threshold=0.3, keep_factor=False)

@@ -409,3 +409,37 @@ def test_sphere_render_dense_in_place_inputs_reject_a_mixed_dtype():
     delta = np.full((4, 8), 0.5, np.float64)
     with pytest.raises(ValueError, match="delta: expected dtype float32 like the other inputs, got float64"):
         field.render_dense(o, d, t, delta)
+
+
+@pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+def test_render_without_factor_equals_the_backpropagatable_render_and_refuses_backward(np_t, wp_t):
+    """keep_factor=False (render_image's renders): the same rgb, depth and opacity bit for bit as keep_factor=True,
+    no per-sample factors, and render_backward / render_backward_rays refuse the result with a ValueError."""
+    from kernels.volume.rays import render_backward_rays
+    from research.nerf.render import camera_rays as nerf_camera_rays
+
+    field = GridField(BOX, (4, 4, 4), dtype=wp_t)
+    rng = np.random.default_rng(4)
+    field.set_params({"density": rng.normal(2.0, 1.0, 64).astype(np_t), "color": rng.normal(size=(64, 3)).astype(np_t)})
+    cam = Camera.from_fov(60.0, 24, 18, np.array([[1, 0, 0, 0.05], [0, 1, 0, 0.02], [0, 0, 1, -3.0], [0, 0, 0, 1]]))
+    img = render_image(cam, field, BOX, step=0.01, background=(0.1, 0.2, 0.3), chunk=100)  # keep_factor=False inside
+    o, d, zs = nerf_camera_rays(cam, np_t)
+    ws = Workspace()
+    for s in range(0, o.shape[0], 100):
+        e = min(s + 100, o.shape[0])
+        kw = dict(step=0.01, z_scale=zs[s:e], background=(0.1, 0.2, 0.3), workspace=ws)
+        kept = render_rays(field, o[s:e], d[s:e], BOX, **kw)
+        assert kept.composite.factor is not None
+        rgb, depth, opacity = kept.rgb.numpy().copy(), kept.depth.numpy().copy(), kept.opacity.numpy().copy()
+        bare = render_rays(field, o[s:e], d[s:e], BOX, keep_factor=False, **kw)
+        assert bare.composite.factor is None
+        for a, b in ((bare.rgb.numpy(), rgb), (bare.depth.numpy(), depth), (bare.opacity.numpy(), opacity)):
+            assert a.tobytes() == b.tobytes()
+        assert rgb.astype(np.float64).tobytes() == img.rgb.reshape(-1, 3)[s:e].tobytes()
+        assert depth.astype(np.float64).tobytes() == img.depth.reshape(-1)[s:e].tobytes()
+    with pytest.raises(ValueError, match="keep_factor=False"):
+        render_backward(field, bare, np.ones((e - s, 3), np_t))
+    with pytest.raises(ValueError, match="keep_factor=False"):
+        render_backward_rays(field, bare, grad_depth=np.ones(e - s, np_t))
+    with pytest.raises(ValueError, match="keep_factor"):
+        render_rays(field, o[:4], d[:4], BOX, step=0.01, keep_factor=None)

@@ -95,6 +95,9 @@ def test_volume_compare_rows_carry_reference_or_ref_missing():
     assert rows["volume.composite"]["bound_s"] > 0
     comp = rows["volume.composite"]
     assert comp["bound_max_s"] > 0 and comp["fwd_over_bound_max"] == comp["fwd_s"] / comp["bound_max_s"]
+    assert comp["fwd_no_factor_s"] > 0
+    assert comp["fwd_no_factor_over_bound_max"] == comp["fwd_no_factor_s"] / comp["bound_max_s"]
+    assert rows["volume.composite_fwd"]["fwd_no_factor_s"] > 0
     sph = rows["volume.spheres_render"]
     for phase in ("render", "render_fused"):
         assert sph[f"speedup_{phase}"] == sph[f"ref_{phase}_s"] / sph[f"{phase}_s"]

@@ -42,3 +42,20 @@ def test_repeated_runs_that_do_not_pair_up_raise():
         _merge_runs([a, b])
     with pytest.raises(ValueError, match="different numbers of rows"):
         _merge_runs([a, a + a])
+
+
+def test_both_compositing_forwards_get_their_own_read_bound_line():
+    from experiments.performance import _target_status
+
+    row = {"bench": "volume.composite", "threads": 2, "rays": 65536, "samples": 128, "fwd_s": 0.024,
+           "fwd_no_factor_s": 0.014, "bound_max_s": 0.008, "fwd_over_bound_max": 3.0,
+           "fwd_no_factor_over_bound_max": 1.75}
+    found = {text: (shown, status) for _, text, shown, status in _target_status(row, full=True)}
+    kept, = [t for t in found if t.startswith("fwd (factors kept for a backward)") and "unsigned-max" in t]
+    none, = [t for t in found if t.startswith("fwd_no_factor (keep_factor=False")]
+    assert found[kept] == ("3", "NOT met") and found[none] == ("1.75", "met")
+    assert found[none] != found[kept]
+    quick = {text: status for _, text, _, status in _target_status(row, full=False)}
+    assert quick[none] == "n/a (not full size)"
+    phases = [ln["phase"] for ln in _lines(row)]
+    assert "fwd" in phases and "fwd_no_factor" in phases
