@@ -32,7 +32,8 @@ pixels whose windows hold a row sharing its tap vectors, reading P^l(f2) in its 
 (float16 widened in registers) and f1 widened once a call (exact), then samples each pixel's
 window from its patch (`window_cpu.sample_patches_cpu`): every tap the same operations in the same
 order as `_patch_sample_level` (the Warp kernel, which CUDA keeps, with `_patch_level`), so the
-same values bit for bit.
+same values bit for bit. With several threads, stored features (`lookup_onthefly_features`) take all
+levels at once in three parallel sections (`_forward_phased`: a patch buffer a level), the same values.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -66,7 +67,7 @@ from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, 
                                   pool_levels, pool_levels_adjoint, sample_window, sample_windows,
                                   sample_windows_adjoint)
 from kernels.corr.stored import OnTheFlyFeatures, check_feature_dtype, refuse_backward, store, widen
-from kernels.launch import chunk_bounds, default_threads, parallel_ranges
+from kernels.launch import chunk_bounds, default_threads, parallel_items, parallel_ranges
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -467,7 +468,8 @@ def _group_pixels(a: Inputs, xy: wp.array, scale: Any, radius: int, height_l: in
 
 
 def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
-             level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray]) -> wp.array:
+             level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray],
+             stored: bool = False) -> wp.array:
     """Equation (4) from f1's channels-last rows (N, C8) in the storage dtype (the working dtype or
     float16), one level at a time: `level_rows(l)` gives P^l(f2)'s rows (N_l, C8) in the same dtype,
     `level_scaled(l)` P^l(f2) / sqrt(C) as (C, N_l) on the host in the working dtype.
@@ -475,12 +477,24 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
     On the CPU the patches of a level are formed and sampled by `patch_cpu` from the stored rows
     themselves (f1 widened once); elsewhere f1 and each level are widened (`widen`, exact) for
     `_patch_sample_level` / `_patch_level`. Either way the values are the same, bit for bit.
+
+    With `stored` (every level's rows held, `lookup_onthefly_features`) on the CPU with several
+    threads, the levels go through `_forward_phased` instead (the same kernels, values bit for bit).
     """
     n = f1_rows.shape[0]
     _, height, width = xy.shape
     side = 2 * radius + 1
     inv = a.s(1.0 / math.sqrt(channels))
     out = a.empty((n_levels * side * side, height, width))  # every element is written
+    if stored and _cpu_patches(a, f1_rows) and default_threads() > 1:
+        # which kernels the call launches: those of its dtypes, radius, patched and full-product levels
+        full = {full_product_level(hl, wl, radius, a.device) and channels % VEC == 0
+                for hl, wl in level_shapes(height, width, n_levels)}
+        key = (radius, a.scalar, f1_rows.dtype, frozenset(full))
+        if key in _phased_ready:
+            _forward_phased(a, f1_rows, channels, xy, radius, n_levels, level_rows, level_scaled, out)
+            return out
+        _phased_ready.add(key)  # the first call (below) compiles and loads the kernels on one thread
     # Every tap is written by _patch_level; a full-product level reuses the memory for its blocks.
     patch = a.empty((n, side + 1, side + 1))
     cpu_kernel = (patch_cpu.patch_groups_cpu(radius, a.scalar, f1_rows.dtype) if _cpu_patches(a, f1_rows)
@@ -513,6 +527,120 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
                 a.launch(sample_windows, n, [patch, xy, out, scale, radius, lvl * side * side, 1, 0])
             del f2l_v  # one level's copy at a time (`onthefly_bytes`)
     return out
+
+
+# (radius, working dtype, storage dtype, kinds of levels) whose kernels a call has loaded (level by level,
+# on one launch thread at a time), so that `_forward_phased`'s threads never load a module at once
+_phased_ready: set[tuple] = set()
+
+
+def _pieces(lo: int, hi: int, k: int) -> list[tuple[int, int]]:
+    """[lo, hi) cut into at most k contiguous non-empty ranges of near-equal size."""
+    return [(lo + o, lo + o + s) for o, s in chunk_bounds(hi - lo, max(1, min(k, hi - lo)))]
+
+
+def _weighted_pieces(starts: np.ndarray, k: int) -> list[tuple[int, int]]:
+    """Groups [0, G) cut into at most k contiguous ranges holding near-equal numbers of pixels
+    (starts (G + 1,): each group's first pixel position, the pixel count at the end)."""
+    n_groups, total = len(starts) - 1, int(starts[-1])
+    cuts = np.searchsorted(starts, [total * j / k for j in range(1, k)], side="left")
+    bounds = sorted({0, n_groups, *(int(min(max(c, 0), n_groups)) for c in cuts)})
+    return [(g0, g1) for g0, g1 in zip(bounds[:-1], bounds[1:]) if starts[g1] > starts[g0]]
+
+
+def _run_phase(items: list[Callable[[], None]]) -> None:
+    """The items on the launch threads, each pulling the next when free (`parallel_items`)."""
+    parallel_items(lambda i: items[i](), len(items))
+
+
+def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
+                    level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray],
+                    out: wp.array) -> None:
+    """`_forward`'s CPU path on several threads, as three parallel sections instead of three a level.
+
+    The same kernels on the same values as `_forward` (bit for bit), but each patched level has a
+    patch buffer of its own (`onthefly_bytes` counts them), so the levels need not wait for each other:
+      1. f1 widened (row ranges), every patched level's pixels grouped, each full-product level's
+         P^l(f2) / sqrt(C) formed (one item each);
+      2. every patched level's patches (its groups cut into ranges holding equal numbers of pixels)
+         and every full-product level's rows of V^l by BLAS (the same 256-row products);
+      3. every level's windows sampled (ranges of pixel blocks).
+    Each section's items are pulled by the launch threads as they come free (`parallel_items`);
+    items of one section write disjoint memory. Per call: 3 hand-offs to the pool and ~25 launches,
+    against ~10 hand-offs and ~70 guided chunks' launches level by level.
+    """
+    n = f1_rows.shape[0]
+    threads = default_threads()
+    side = 2 * radius + 1
+    inv = a.s(1.0 / math.sqrt(channels))
+    vec = VEC_OF[a.scalar]
+    shapes = level_shapes(xy.shape[1], xy.shape[2], n_levels)
+    full = [full_product_level(hl, wl, radius, a.device) and channels % VEC == 0 for hl, wl in shapes]
+    device = a.device
+
+    def launch_range(kernel: Any, lo: int, hi: int, inputs: list[Any]) -> Callable[[], None]:
+        return lambda: wp.launch(kernel, dim=hi - lo, inputs=[*inputs, lo], device=device)
+
+    # 1. f1 widened (exact; float32 storage: a view), groupings, scaled levels
+    phase: list[Callable[[], None]] = []
+    if f1_rows.dtype == a.scalar:
+        f1_v = widen(f1_rows, a)
+    else:  # float16 rows, float32 work (`_cpu_patches`): `widen`'s C++ conversion, by row ranges
+        f1_v = a.empty((n, f1_rows.shape[1] // VEC), vec)
+        f1_w = wp.array(ptr=f1_v.ptr, shape=f1_rows.shape, dtype=a.scalar, device=device)  # f1_v outlives it
+        widen_kernel = patch_cpu.widen_rows_cpu()
+        phase += [launch_range(widen_kernel, lo, hi, [f1_rows, f1_w]) for lo, hi in _pieces(0, n, threads)]
+    groups: dict[int, tuple] = {}
+    scaled: dict[int, np.ndarray] = {}
+    for lvl, (hl, wl) in enumerate(shapes):
+        if full[lvl]:
+            phase.append(lambda lvl=lvl: scaled.__setitem__(lvl, level_scaled(lvl)))
+        else:
+            phase.append(lambda lvl=lvl, hl=hl, wl=wl: groups.__setitem__(
+                lvl, _group_pixels(a, xy, a.s(0.5 ** lvl), radius, hl, wl)))
+    _run_phase(phase)
+
+    # 2. patches (a buffer a patched level) and full products
+    patch_kernel = patch_cpu.patch_groups_cpu(radius, a.scalar, f1_rows.dtype)
+    f1_r = _rows(f1_v)
+    buffers: dict[int, wp.array] = {}
+    phase = []
+    for lvl, (hl, wl) in enumerate(shapes):
+        if full[lvl]:
+            flat = a.empty((n, hl, wl))
+            buffers[lvl] = flat
+            rows = flat.numpy().reshape(n, hl * wl)
+            x1_rows = f1_v.numpy().reshape(n, channels)  # f1 channels-last: the vectors' own memory
+            starts = range(0, n, _BLAS_ROWS)
+
+            def products(c0: int, c1: int, rows: np.ndarray = rows, x1_rows: np.ndarray = x1_rows, lvl: int = lvl,
+                         starts: range = starts) -> None:
+                for r0 in starts[c0:c1]:  # the same 256-row products as `_sample_full_product`
+                    r1 = min(r0 + _BLAS_ROWS, n)
+                    np.matmul(x1_rows[r0:r1], scaled[lvl], out=rows[r0:r1])
+
+            phase += [lambda c0=c0, c1=c1, f=products: f(c0, c1) for c0, c1 in _pieces(0, len(starts), 2 * threads)]
+        else:
+            n_groups, order, sorted_j0, starts_g = groups[lvl]
+            buffers[lvl] = a.empty((n, side + 1, side + 1))  # every tap is written
+            inputs = [f1_r, level_rows(lvl), order, sorted_j0, starts_g, hl, wl, inv, buffers[lvl]]
+            phase += [launch_range(patch_kernel, g0, g1, inputs)
+                      for g0, g1 in _weighted_pieces(starts_g.numpy(), 2 * threads)]
+    with _one_blas_thread():
+        _run_phase(phase)
+
+    # 3. the windows
+    phase = []
+    n_blocks = window_cpu.blocks(n)
+    for lvl in range(n_levels):
+        buf, scale, channel0 = buffers[lvl], a.s(0.5 ** lvl), lvl * side * side
+        if full[lvl]:  # the dense lookup's kernel on this one level
+            kernel, inputs = window_cpu.sample_levels_cpu(radius, a.scalar), [buf, buf, buf, buf, 1, xy, out, scale,
+                                                                                channel0]
+        else:
+            kernel, inputs = window_cpu.sample_patches_cpu(radius, a.scalar), [buf, xy, out, scale, channel0]
+        phase += [launch_range(kernel, lo, hi, inputs) for lo, hi in _pieces(0, n_blocks, threads)]
+    _run_phase(phase)
 
 
 def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radius: int, *,
@@ -587,7 +715,7 @@ def _lookup_stored(features: OnTheFlyFeatures, xy: wp.array, radius: int, a: Inp
     channels = features.channels
     inv = 1.0 / math.sqrt(channels)
     out = _forward(a, features.f1, channels, xy, radius, len(features.levels), lambda lvl: features.levels[lvl],
-                   lambda lvl: _scaled_level(features.levels[lvl].numpy(), channels, inv, a))
+                   lambda lvl: _scaled_level(features.levels[lvl].numpy(), channels, inv, a), stored=True)
     return a.out(out)
 
 
