@@ -33,7 +33,7 @@ pixels whose windows hold a row sharing its tap vectors, reading P^l(f2) in its 
 window from its patch (`window_cpu.sample_patches_cpu`): every tap the same operations in the same
 order as `_patch_sample_level` (the Warp kernel, which CUDA keeps, with `_patch_level`), so the
 same values bit for bit. With several threads, stored features (`lookup_onthefly_features`) take all
-levels at once in three parallel sections (`_forward_phased`: a patch buffer a level), the same values.
+levels at once (`_forward_phased`: a patch buffer a level, one hand-off to the threads), the same values.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -53,6 +53,7 @@ to a multiple of 8), so a tap's dot product is a few vector multiply-adds.
 from __future__ import annotations
 
 import math
+import threading
 import typing
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, Sequence
@@ -453,16 +454,20 @@ def _cpu_patches(a: Inputs, f1_rows: wp.array) -> bool:
     return f1_rows.dtype == a.scalar or (f1_rows.dtype == wp.float16 and a.scalar == wp.float32)
 
 
+def _grouping_arrays(a: Inputs, n: int, radius: int, height_l: int,
+                     width_l: int) -> tuple[int, list[wp.array], wp.array, wp.array]:
+    """(number of groups, [i0, j0, order, sorted j0] (N,), starts, counts): `group_pixels_cpu`'s outputs and scratch."""
+    side = 2 * radius + 2
+    n_groups = width_l + side + 1
+    ints = [a.empty(n, wp.int32) for _ in range(4)]
+    return n_groups, ints, a.empty(n_groups + 1, wp.int32), a.empty(n_groups * (height_l + side + 1) + 1, wp.int32)
+
+
 def _group_pixels(a: Inputs, xy: wp.array, scale: Any, radius: int, height_l: int,
                   width_l: int) -> tuple[int, wp.array, wp.array, wp.array]:
     """The pixels grouped for `patch_cpu.patch_groups_cpu` at one level (`patch_cpu.group_pixels_cpu`):
     (number of groups, pixel order, each ordered pixel's window row origin, each group's first position)."""
-    n = xy.shape[1] * xy.shape[2]
-    side = 2 * radius + 2
-    n_groups = width_l + side + 1
-    ints = [a.empty(n, wp.int32) for _ in range(4)]  # i0, j0, order, sorted j0
-    starts = a.empty(n_groups + 1, wp.int32)
-    counts = a.empty(n_groups * (height_l + side + 1) + 1, wp.int32)
+    n_groups, ints, starts, counts = _grouping_arrays(a, xy.shape[1] * xy.shape[2], radius, height_l, width_l)
     a.launch(patch_cpu.group_pixels_cpu(radius, a.scalar), 1, [xy, scale, *ints, starts, counts, height_l, width_l])
     return n_groups, ints[2], ints[3], starts
 
@@ -548,26 +553,79 @@ def _weighted_pieces(starts: np.ndarray, k: int) -> list[tuple[int, int]]:
     return [(g0, g1) for g0, g1 in zip(bounds[:-1], bounds[1:]) if starts[g1] > starts[g0]]
 
 
-def _run_phase(items: list[Callable[[], None]]) -> None:
-    """The items on the launch threads, each pulling the next when free (`parallel_items`)."""
-    parallel_items(lambda i: items[i](), len(items))
+_kept = threading.local()  # per thread: {(device, level, n, radius, H_l, W_l): `_grouping_arrays`}
+
+
+def _kept_grouping_arrays(a: Inputs, lvl: int, n: int, radius: int, height_l: int,
+                          width_l: int) -> tuple[int, list[wp.array], wp.array, wp.array]:
+    """`_grouping_arrays`, kept between the calling thread's lookups of the same size (a call fills them
+    entirely before reading them): 18 small allocations a call were ~0.2 ms of its Python."""
+    kept = getattr(_kept, "arrays", None)
+    if kept is None:
+        kept = _kept.arrays = {}
+    key = (a.device.alias, lvl, n, radius, height_l, width_l)  # a level's own: the levels group at once
+    if key not in kept:
+        if len(kept) >= 16:  # a few sizes in use at a time
+            kept.clear()
+        kept[key] = _grouping_arrays(a, n, radius, height_l, width_l)
+    return kept[key]
+
+
+def _run_ordered(items: list[Callable[[], None]], after: list[tuple[int, ...]]) -> None:
+    """Run the items on the launch threads: each thread pulls the next item in list order and, before
+    running it, waits for the items it comes `after` (all earlier in the list). One hand-off to the pool
+    a call, and no thread waits at a barrier for a whole stage, only for what its item reads.
+
+    No deadlock: an item's predecessors were pulled before it, so each is done or running on another
+    thread (a thread alone runs them all in order). After a failure no item starts, the waiting threads
+    are released, and the first exception is re-raised here once every thread has stopped.
+    """
+    done = [threading.Event() for _ in items]
+    order = iter(range(len(items)))
+    lock = threading.Lock()
+    errors: list[BaseException] = []
+
+    def work(_: int) -> None:
+        while True:
+            with lock:
+                i = None if errors else next(order, None)
+            if i is None:
+                return
+            for j in after[i]:
+                done[j].wait()
+            if errors:
+                return
+            try:
+                items[i]()
+            except BaseException as exc:
+                with lock:
+                    errors.append(exc)
+                for event in done:  # release every waiting thread
+                    event.set()
+                return
+            done[i].set()
+
+    parallel_items(work, min(default_threads(), len(items)))
+    if errors:
+        raise errors[0]
 
 
 def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
                     level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray],
                     out: wp.array) -> None:
-    """`_forward`'s CPU path on several threads, as three parallel sections instead of three a level.
+    """`_forward`'s CPU path on several threads: every level at once, one hand-off to the launch threads.
 
-    The same kernels on the same values as `_forward` (bit for bit), but each patched level has a
-    patch buffer of its own (`onthefly_bytes` counts them), so the levels need not wait for each other:
-      1. f1 widened (row ranges), every patched level's pixels grouped, each full-product level's
-         P^l(f2) / sqrt(C) formed (one item each);
-      2. every patched level's patches (its groups cut into ranges holding equal numbers of pixels)
-         and every full-product level's rows of V^l by BLAS (the same 256-row products);
-      3. every level's windows sampled (ranges of pixel blocks).
-    Each section's items are pulled by the launch threads as they come free (`parallel_items`);
-    items of one section write disjoint memory. Per call: 3 hand-offs to the pool and ~25 launches,
-    against ~10 hand-offs and ~70 guided chunks' launches level by level.
+    The same kernels on the same values as `_forward` (bit for bit), as items run in this order by
+    `_run_ordered` (each waiting only for the items it reads):
+      1. f1 widened (row ranges), each full-product level's P^l(f2) / sqrt(C), each patched level's
+         pixels grouped;
+      2. each patched level's patches, its groups cut into ranges of equal pixel counts (after f1 and
+         that level's grouping), and each full-product level's rows of V^l by BLAS (the same 256-row
+         products; after f1 and its scaled level);
+      3. each level's windows sampled, ranges of pixel blocks (after that level's patches or rows).
+    Each patched level has a patch buffer of its own (`onthefly_bytes` counts them); items write
+    disjoint memory. Against level by level (~10 parallel sections, ~70 guided-chunk launches and
+    three groupings on one thread at two threads): ~25 launches, no stage-wide barrier.
     """
     n = f1_rows.shape[0]
     threads = default_threads()
@@ -577,70 +635,85 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
     shapes = level_shapes(xy.shape[1], xy.shape[2], n_levels)
     full = [full_product_level(hl, wl, radius, a.device) and channels % VEC == 0 for hl, wl in shapes]
     device = a.device
+    items: list[Callable[[], None]] = []
+    after: list[tuple[int, ...]] = []
+
+    def add(fn: Callable[[], None], deps: Sequence[int] = ()) -> int:
+        items.append(fn)
+        after.append(tuple(deps))
+        return len(items) - 1
 
     def launch_range(kernel: Any, lo: int, hi: int, inputs: list[Any]) -> Callable[[], None]:
         return lambda: wp.launch(kernel, dim=hi - lo, inputs=[*inputs, lo], device=device)
 
-    # 1. f1 widened (exact; float32 storage: a view), groupings, scaled levels
-    phase: list[Callable[[], None]] = []
+    # 1. f1 widened (exact; float32 storage: a view), scaled levels, groupings
+    widened: list[int] = []
     if f1_rows.dtype == a.scalar:
         f1_v = widen(f1_rows, a)
     else:  # float16 rows, float32 work (`_cpu_patches`): `widen`'s C++ conversion, by row ranges
         f1_v = a.empty((n, f1_rows.shape[1] // VEC), vec)
         f1_w = wp.array(ptr=f1_v.ptr, shape=f1_rows.shape, dtype=a.scalar, device=device)  # f1_v outlives it
         widen_kernel = patch_cpu.widen_rows_cpu()
-        phase += [launch_range(widen_kernel, lo, hi, [f1_rows, f1_w]) for lo, hi in _pieces(0, n, threads)]
-    groups: dict[int, tuple] = {}
+        widened = [add(launch_range(widen_kernel, lo, hi, [f1_rows, f1_w])) for lo, hi in _pieces(0, n, threads)]
     scaled: dict[int, np.ndarray] = {}
+    grouping: dict[int, tuple] = {}
+    ready: dict[int, int] = {}  # level -> the item its products or patches wait for (besides f1)
     for lvl, (hl, wl) in enumerate(shapes):
         if full[lvl]:
-            phase.append(lambda lvl=lvl: scaled.__setitem__(lvl, level_scaled(lvl)))
+            ready[lvl] = add(lambda lvl=lvl: scaled.__setitem__(lvl, level_scaled(lvl)))
         else:
-            phase.append(lambda lvl=lvl, hl=hl, wl=wl: groups.__setitem__(
-                lvl, _group_pixels(a, xy, a.s(0.5 ** lvl), radius, hl, wl)))
-    _run_phase(phase)
+            grouping[lvl] = _kept_grouping_arrays(a, lvl, n, radius, hl, wl)
+            n_groups, ints, starts, counts = grouping[lvl]
+            inputs = [xy, a.s(0.5 ** lvl), *ints, starts, counts, hl, wl]
+            ready[lvl] = add(launch_range(patch_cpu.group_pixels_cpu(radius, a.scalar), 0, 1, inputs))
 
     # 2. patches (a buffer a patched level) and full products
     patch_kernel = patch_cpu.patch_groups_cpu(radius, a.scalar, f1_rows.dtype)
     f1_r = _rows(f1_v)
+    x1_rows = f1_v.numpy().reshape(n, -1)[:, :channels]  # f1 channels-last: the vectors' own memory
     buffers: dict[int, wp.array] = {}
-    phase = []
+    formed: dict[int, list[int]] = {}
+    pieces = 2 * threads
     for lvl, (hl, wl) in enumerate(shapes):
+        deps = [*widened, ready[lvl]]
         if full[lvl]:
-            flat = a.empty((n, hl, wl))
-            buffers[lvl] = flat
-            rows = flat.numpy().reshape(n, hl * wl)
-            x1_rows = f1_v.numpy().reshape(n, channels)  # f1 channels-last: the vectors' own memory
-            starts = range(0, n, _BLAS_ROWS)
+            buffers[lvl] = a.empty((n, hl, wl))
+            rows = buffers[lvl].numpy().reshape(n, hl * wl)
+            chunks = range(0, n, _BLAS_ROWS)
 
-            def products(c0: int, c1: int, rows: np.ndarray = rows, x1_rows: np.ndarray = x1_rows, lvl: int = lvl,
-                         starts: range = starts) -> None:
-                for r0 in starts[c0:c1]:  # the same 256-row products as `_sample_full_product`
+            def products(c0: int, c1: int, rows: np.ndarray = rows, lvl: int = lvl, chunks: range = chunks) -> None:
+                for r0 in chunks[c0:c1]:  # the same 256-row products as `_sample_full_product`
                     r1 = min(r0 + _BLAS_ROWS, n)
                     np.matmul(x1_rows[r0:r1], scaled[lvl], out=rows[r0:r1])
 
-            phase += [lambda c0=c0, c1=c1, f=products: f(c0, c1) for c0, c1 in _pieces(0, len(starts), 2 * threads)]
+            formed[lvl] = [add(lambda c0=c0, c1=c1, f=products: f(c0, c1), deps)
+                           for c0, c1 in _pieces(0, len(chunks), pieces)]
         else:
-            n_groups, order, sorted_j0, starts_g = groups[lvl]
+            n_groups, ints, starts, _ = grouping[lvl]
             buffers[lvl] = a.empty((n, side + 1, side + 1))  # every tap is written
-            inputs = [f1_r, level_rows(lvl), order, sorted_j0, starts_g, hl, wl, inv, buffers[lvl]]
-            phase += [launch_range(patch_kernel, g0, g1, inputs)
-                      for g0, g1 in _weighted_pieces(starts_g.numpy(), 2 * threads)]
-    with _one_blas_thread():
-        _run_phase(phase)
+            inputs = [f1_r, level_rows(lvl), ints[2], ints[3], starts, hl, wl, inv, buffers[lvl]]
+
+            def patches(j: int, inputs: list[Any] = inputs, starts: wp.array = starts) -> None:
+                # piece j of the groups cut by pixel counts (known once the grouping has run)
+                cut = _weighted_pieces(starts.numpy(), pieces)
+                if j < len(cut):
+                    wp.launch(patch_kernel, dim=cut[j][1] - cut[j][0], inputs=[*inputs, cut[j][0]], device=device)
+
+            formed[lvl] = [add(lambda j=j, f=patches: f(j), deps) for j in range(pieces)]
 
     # 3. the windows
-    phase = []
     n_blocks = window_cpu.blocks(n)
     for lvl in range(n_levels):
         buf, scale, channel0 = buffers[lvl], a.s(0.5 ** lvl), lvl * side * side
         if full[lvl]:  # the dense lookup's kernel on this one level
-            kernel, inputs = window_cpu.sample_levels_cpu(radius, a.scalar), [buf, buf, buf, buf, 1, xy, out, scale,
-                                                                                channel0]
+            kernel = window_cpu.sample_levels_cpu(radius, a.scalar)
+            inputs = [buf, buf, buf, buf, 1, xy, out, scale, channel0]
         else:
             kernel, inputs = window_cpu.sample_patches_cpu(radius, a.scalar), [buf, xy, out, scale, channel0]
-        phase += [launch_range(kernel, lo, hi, inputs) for lo, hi in _pieces(0, n_blocks, threads)]
-    _run_phase(phase)
+        for lo, hi in _pieces(0, n_blocks, threads):
+            add(launch_range(kernel, lo, hi, inputs), formed[lvl])
+    with _one_blas_thread():
+        _run_ordered(items, after)
 
 
 def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radius: int, *,

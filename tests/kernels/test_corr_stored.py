@@ -273,3 +273,41 @@ def test_weighted_pieces_cover_the_groups_by_pixel_counts():
     # each cut at the first group starting at or past j / k of the pixels: 60 | 40, 31 | 29 | 40
     assert onthefly._weighted_pieces(starts, 2) == [(0, 6), (6, 8)]
     assert onthefly._weighted_pieces(starts, 4) == [(0, 4), (4, 6), (6, 7)]
+
+
+@pytest.mark.parametrize("threads", ["1", "2", "3"])
+def test_ordered_items_wait_for_their_predecessors_and_raise(monkeypatch, threads):
+    """`_run_ordered`: an item starts only after the items it comes after have finished, on any number
+    of threads; a failing item's exception reaches the caller and releases an item waiting for it."""
+    import threading
+    import time
+
+    from kernels.corr import onthefly
+
+    monkeypatch.setenv("DRLAB_THREADS", threads)
+    log: list[tuple[str, int]] = []
+    lock = threading.Lock()
+
+    def item(i: int, sleep: float = 0.0):
+        def run() -> None:
+            with lock:
+                log.append(("start", i))
+            time.sleep(sleep)
+            with lock:
+                log.append(("end", i))
+        return run
+
+    after = [(), (), (0, 1), (), (2,), (3, 4)]
+    onthefly._run_ordered([item(0, 0.02), item(1, 0.01), item(2), item(3, 0.02), item(4), item(5)], after)
+    for i, deps in enumerate(after):
+        assert all(log.index(("end", j)) < log.index(("start", i)) for j in deps)
+    assert sorted(log) == sorted([(e, i) for i in range(6) for e in ("start", "end")])
+
+    def fail() -> None:
+        time.sleep(0.01)
+        raise RuntimeError("item failed")
+
+    ran = []
+    with pytest.raises(RuntimeError, match="item failed"):
+        onthefly._run_ordered([fail, lambda: ran.append(1), lambda: ran.append(2)], [(), (0,), (1,)])
+    assert ran == []  # the items after the failure never ran
