@@ -33,7 +33,7 @@ pixels whose windows hold a row sharing its tap vectors, reading P^l(f2) in its 
 window from its patch (`window_cpu.sample_patches_cpu`): every tap the same operations in the same
 order as `_patch_sample_level` (the Warp kernel, which CUDA keeps, with `_patch_level`), so the
 same values bit for bit. With several threads, stored features (`lookup_onthefly_features`) take all
-levels at once (`_forward_phased`: a patch buffer a level, one hand-off to the threads), the same values.
+levels at once (`_forward_phased`: two patch buffers, one hand-off to the threads), the same values.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -622,10 +622,12 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
       2. each patched level's patches, its groups cut into ranges of equal pixel counts (after f1 and
          that level's grouping), and each full-product level's rows of V^l by BLAS (the same 256-row
          products; after f1 and its scaled level);
-      3. each level's windows sampled, ranges of pixel blocks (after that level's patches or rows).
-    Each patched level has a patch buffer of its own (`onthefly_bytes` counts them); items write
-    disjoint memory. Against level by level (~10 parallel sections, ~70 guided-chunk launches and
-    three groupings on one thread at two threads): ~25 launches, no stage-wide barrier.
+      3. each level's windows sampled, ranges of pixel blocks (after that level's patches or rows),
+         interleaved with 2 (order below).
+    The patched levels take turns in two patch buffers (`onthefly_bytes` counts both), each
+    full-product level has its rows of its own; items running at once write disjoint memory. Against
+    level by level (at two threads ~10 parallel sections, ~70 guided-chunk launches, three groupings on
+    one thread): ~30 launches and one hand-off a call.
     """
     n = f1_rows.shape[0]
     threads = default_threads()
@@ -667,18 +669,26 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
             inputs = [xy, a.s(0.5 ** lvl), *ints, starts, counts, hl, wl]
             ready[lvl] = add(launch_range(patch_cpu.group_pixels_cpu(radius, a.scalar), 0, 1, inputs))
 
-    # 2. patches (a buffer a patched level) and full products
+    # 2-3. patches and full products, then windows, in the order
+    #   P0 (B) P1 S0 P2 S1 P3 S2 ... S(full) S(last): Pk = patched level k's patches (into buffer k % 2,
+    #   after f1, its grouping and, from k = 2, S(k - 2), the windows that read that buffer), B = the
+    #   full-product levels' rows by BLAS, Sk = level k's windows (after Pk); so a thread that pulls Sk
+    #   finds Pk done (P(k+1) was pulled in between), and the full-product windows fill the last wait.
     patch_kernel = patch_cpu.patch_groups_cpu(radius, a.scalar, f1_rows.dtype)
     f1_r = _rows(f1_v)
     x1_rows = f1_v.numpy().reshape(n, -1)[:, :channels]  # f1 channels-last: the vectors' own memory
-    buffers: dict[int, wp.array] = {}
-    formed: dict[int, list[int]] = {}
     pieces = 2 * threads
-    for lvl, (hl, wl) in enumerate(shapes):
-        deps = [*widened, ready[lvl]]
-        if full[lvl]:
-            buffers[lvl] = a.empty((n, hl, wl))
-            rows = buffers[lvl].numpy().reshape(n, hl * wl)
+    patched = [lvl for lvl in range(n_levels) if not full[lvl]]
+    patch_buffers = [a.empty((n, side + 1, side + 1)) for _ in patched[:2]]  # every tap is written
+    formed: dict[int, list[int]] = {}
+    sampled: dict[int, list[Any]] = {}  # a level's window kernel and first inputs, then its items
+    n_blocks = window_cpu.blocks(n)
+
+    def add_products() -> None:
+        for lvl in (lvl for lvl in range(n_levels) if full[lvl]):
+            hl, wl = shapes[lvl]
+            buf = a.empty((n, hl, wl))
+            rows = buf.numpy().reshape(n, hl * wl)
             chunks = range(0, n, _BLAS_ROWS)
 
             def products(c0: int, c1: int, rows: np.ndarray = rows, lvl: int = lvl, chunks: range = chunks) -> None:
@@ -686,32 +696,43 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
                     r1 = min(r0 + _BLAS_ROWS, n)
                     np.matmul(x1_rows[r0:r1], scaled[lvl], out=rows[r0:r1])
 
-            formed[lvl] = [add(lambda c0=c0, c1=c1, f=products: f(c0, c1), deps)
+            formed[lvl] = [add(lambda c0=c0, c1=c1, f=products: f(c0, c1), [*widened, ready[lvl]])
                            for c0, c1 in _pieces(0, len(chunks), pieces)]
+            # the dense lookup's kernel on this one level
+            sampled[lvl] = [window_cpu.sample_levels_cpu(radius, a.scalar), [buf, buf, buf, buf, 1]]
+
+    def add_windows(lvl: int) -> None:
+        kernel, head = sampled[lvl]
+        inputs = [*head, xy, out, a.s(0.5 ** lvl), lvl * side * side]
+        sampled[lvl] = [add(launch_range(kernel, lo, hi, inputs), formed[lvl])
+                        for lo, hi in _pieces(0, n_blocks, threads)]
+
+    if not patched:
+        add_products()
+    for k, lvl in enumerate(patched):
+        hl, wl = shapes[lvl]
+        n_groups, ints, starts, _ = grouping[lvl]
+        buf = patch_buffers[k % 2]
+        inputs = [f1_r, level_rows(lvl), ints[2], ints[3], starts, hl, wl, inv, buf]
+
+        def patches(j: int, inputs: list[Any] = inputs, starts: wp.array = starts) -> None:
+            # piece j of the groups cut by pixel counts (known once the grouping has run)
+            cut = _weighted_pieces(starts.numpy(), pieces)
+            if j < len(cut):
+                wp.launch(patch_kernel, dim=cut[j][1] - cut[j][0], inputs=[*inputs, cut[j][0]], device=device)
+
+        deps = [*widened, ready[lvl], *(sampled[patched[k - 2]] if k >= 2 else [])]
+        formed[lvl] = [add(lambda j=j, f=patches: f(j), deps) for j in range(pieces)]
+        sampled[lvl] = [window_cpu.sample_patches_cpu(radius, a.scalar), [buf]]
+        if k == 0:
+            add_products()
         else:
-            n_groups, ints, starts, _ = grouping[lvl]
-            buffers[lvl] = a.empty((n, side + 1, side + 1))  # every tap is written
-            inputs = [f1_r, level_rows(lvl), ints[2], ints[3], starts, hl, wl, inv, buffers[lvl]]
-
-            def patches(j: int, inputs: list[Any] = inputs, starts: wp.array = starts) -> None:
-                # piece j of the groups cut by pixel counts (known once the grouping has run)
-                cut = _weighted_pieces(starts.numpy(), pieces)
-                if j < len(cut):
-                    wp.launch(patch_kernel, dim=cut[j][1] - cut[j][0], inputs=[*inputs, cut[j][0]], device=device)
-
-            formed[lvl] = [add(lambda j=j, f=patches: f(j), deps) for j in range(pieces)]
-
-    # 3. the windows
-    n_blocks = window_cpu.blocks(n)
+            add_windows(patched[k - 1])
     for lvl in range(n_levels):
-        buf, scale, channel0 = buffers[lvl], a.s(0.5 ** lvl), lvl * side * side
-        if full[lvl]:  # the dense lookup's kernel on this one level
-            kernel = window_cpu.sample_levels_cpu(radius, a.scalar)
-            inputs = [buf, buf, buf, buf, 1, xy, out, scale, channel0]
-        else:
-            kernel, inputs = window_cpu.sample_patches_cpu(radius, a.scalar), [buf, xy, out, scale, channel0]
-        for lo, hi in _pieces(0, n_blocks, threads):
-            add(launch_range(kernel, lo, hi, inputs), formed[lvl])
+        if full[lvl]:
+            add_windows(lvl)
+    if patched:
+        add_windows(patched[-1])
     with _one_blas_thread():
         _run_ordered(items, after)
 

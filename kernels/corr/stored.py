@@ -219,9 +219,10 @@ def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: 
     (`lookup_onthefly_features`) the working copies are the widened f1 and level, of the same sizes,
     in the working dtype; on the CPU the patch kernel reads the stored level rows in place, so there
     the count is an upper bound (no level copy is made). On the CPU with several threads that lookup
-    forms all levels at once (`onthefly._forward_phased`): the float16 count holds a patch buffer for
-    every patched level, every full-product level's rows of V^l (N H_l W_l) and scaled P^l(f2), and every
-    patched level's grouping (with stored float32 features the same buffers, beside float32 held bytes).
+    forms all levels at once (`onthefly._forward_phased`): the float16 count holds two patch buffers
+    (the patched levels take turns), every full-product level's rows of V^l (N H_l W_l) and scaled
+    P^l(f2), and every patched level's grouping (kept between calls, per thread and size); with stored
+    float32 features the same buffers, beside float32 held bytes.
     """
     c_pad = -(-channels // VEC) * VEC
     n = height * width
@@ -237,6 +238,6 @@ def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: 
     groupings = [4 * n + (wl + side + 1) * (hl + side + 1) + 1 + wl + side + 2
                  for (hl, wl), f in zip(shapes, is_full) if not f]
     if feature_dtype == "float16":  # all levels at once (`_forward_phased`), the larger count
-        work = c_pad * n + c_pad * max(patched, default=0) + patch * len(patched) + (n + channels) * sum(full)
+        work = c_pad * n + c_pad * max(patched, default=0) + patch * min(2, len(patched)) + (n + channels) * sum(full)
         return held + itemsize * work + 4 * sum(groupings)
     return held + itemsize * work + 4 * max(groupings, default=0)

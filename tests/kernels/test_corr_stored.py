@@ -129,8 +129,9 @@ def test_held_bytes_exact(c):
     work32 = 4 * (2 * c8 * n + 100 * n + c * 35 * full3) + 4 * grouping[0]
     assert corr.onthefly_bytes(h, w, c, levels, radius) - corr.onthefly_held_bytes(h, w, c, levels) == work32
     # float16 (stored features): with several threads every level at once (`onthefly._forward_phased`):
-    # a patch buffer for each patched level, level 3's rows of V^l beside them, every patched level's grouping
-    work16 = 4 * (2 * c8 * n + patched * 100 * n + (n + c) * 35 * full3) + 4 * sum(grouping)
+    # two patch buffers (the patched levels take turns), level 3's rows of V^l beside them, every patched
+    # level's grouping
+    work16 = 4 * (2 * c8 * n + 2 * 100 * n + (n + c) * 35 * full3) + 4 * sum(grouping)
     assert corr.onthefly_bytes(h, w, c, levels, radius, feature_dtype="float16") == 2 * c8 * pixels + work16
     rng = np.random.default_rng(7)
     f1 = rng.standard_normal((c, h, w)).astype(np.float32)
