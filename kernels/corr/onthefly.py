@@ -20,7 +20,9 @@ Memory: the path keeps f1 and the pooled f2 pyramid between lookups, C (H W +
 sum_l H_l W_l) values (`onthefly_held_bytes`), instead of the volume pyramid's
 H W sum_l H_l W_l; a forward call adds channels-last copies of f1 and of one
 level, and the patch buffer of H W (2r + 2)^2 values (`onthefly_bytes`), whose
-memory the full-product levels reuse (both counts in kernels.corr.stored).
+memory the full-product levels reuse (both counts in kernels.corr.stored); on the
+CPU with several threads (all levels at once, below) every patched level's copy,
+two patch buffers and the full-product levels' rows beside them.
 
 Stored features (`onthefly_features`, `lookup_onthefly_features`; kernels.corr.stored):
 f1 and P^l(f2) kept channels-last between lookups, in float32 or float16 (half the
@@ -32,8 +34,9 @@ pixels whose windows hold a row sharing its tap vectors, reading P^l(f2) in its 
 (float16 widened in registers) and f1 widened once a call (exact), then samples each pixel's
 window from its patch (`window_cpu.sample_patches_cpu`): every tap the same operations in the same
 order as `_patch_sample_level` (the Warp kernel, which CUDA keeps, with `_patch_level`), so the
-same values bit for bit. With several threads, stored features (`lookup_onthefly_features`) take all
-levels at once (`_forward_phased`: two patch buffers, one hand-off to the threads), the same values.
+same values bit for bit. With several threads, stored features (`lookup_onthefly_features`) and the
+float32 lookup (C a multiple of 8) take all levels at once (`_forward_phased`: two patch buffers, one
+hand-off to the threads), the same values.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -316,6 +319,19 @@ def _channels_last_v(x: wp.array, a: Inputs) -> wp.array:
     return pack_rows(x.transpose(), -(-channels // VEC), a)
 
 
+def _channels_last_later(x: wp.array, a: Inputs) -> tuple[wp.array, Callable[[int, int], None]]:
+    """(C, N) scalars (C a multiple of 8, CPU) -> the (N, C / 8) vectors of `_channels_last_v`, allocated
+    here and filled by `fill(lo, hi)` row range by row range (the same values; NumPy copies without the GIL)."""
+    channels, n = x.shape
+    out_v = a.empty((n, channels // VEC), VEC_OF[a.scalar])
+    src, dst = x.numpy(), out_v.numpy().reshape(n, channels)
+
+    def fill(lo: int, hi: int) -> None:
+        np.copyto(dst[lo:hi], src[:, lo:hi].T)
+
+    return out_v, fill
+
+
 _blas_controller = None
 _BLAS_ROWS = 256  # rows of V^l per BLAS call in `_sample_full_product`
 
@@ -474,7 +490,7 @@ def _group_pixels(a: Inputs, xy: wp.array, scale: Any, radius: int, height_l: in
 
 def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
              level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray],
-             stored: bool = False) -> wp.array:
+             stored: bool = False, fills: dict[Any, Callable[[int, int], None]] | None = None) -> wp.array:
     """Equation (4) from f1's channels-last rows (N, C8) in the storage dtype (the working dtype or
     float16), one level at a time: `level_rows(l)` gives P^l(f2)'s rows (N_l, C8) in the same dtype,
     `level_scaled(l)` P^l(f2) / sqrt(C) as (C, N_l) on the host in the working dtype.
@@ -483,8 +499,10 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
     themselves (f1 widened once); elsewhere f1 and each level are widened (`widen`, exact) for
     `_patch_sample_level` / `_patch_level`. Either way the values are the same, bit for bit.
 
-    With `stored` (every level's rows held, `lookup_onthefly_features`) on the CPU with several
-    threads, the levels go through `_forward_phased` instead (the same kernels, values bit for bit).
+    With `stored` (every level's rows may be held at once) on the CPU with several threads, the levels
+    go through `_forward_phased` instead (the same kernels, values bit for bit). `fills` ("f1" and
+    levels, set by the `level_rows` calls): row-range fills that f1's rows and a level's rows need
+    before use (`_channels_last_later`); `_forward_phased` runs them as items, the path here up front.
     """
     n = f1_rows.shape[0]
     _, height, width = xy.shape
@@ -497,9 +515,18 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
                 for hl, wl in level_shapes(height, width, n_levels)}
         key = (radius, a.scalar, f1_rows.dtype, frozenset(full))
         if key in _phased_ready:
-            _forward_phased(a, f1_rows, channels, xy, radius, n_levels, level_rows, level_scaled, out)
+            _forward_phased(a, f1_rows, channels, xy, radius, n_levels, level_rows, level_scaled, out, fills or {})
             return out
         _phased_ready.add(key)  # the first call (below) compiles and loads the kernels on one thread
+    if fills is not None:  # the copies made up front
+        fills["f1"](0, n)
+        copied_rows = level_rows
+
+        def level_rows(lvl: int) -> wp.array:
+            rows = copied_rows(lvl)
+            fills[lvl](0, rows.shape[0])
+            return rows
+
     # Every tap is written by _patch_level; a full-product level reuses the memory for its blocks.
     patch = a.empty((n, side + 1, side + 1))
     cpu_kernel = (patch_cpu.patch_groups_cpu(radius, a.scalar, f1_rows.dtype) if _cpu_patches(a, f1_rows)
@@ -612,13 +639,13 @@ def _run_ordered(items: list[Callable[[], None]], after: list[tuple[int, ...]]) 
 
 def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
                     level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray],
-                    out: wp.array) -> None:
+                    out: wp.array, fills: dict[Any, Callable[[int, int], None]]) -> None:
     """`_forward`'s CPU path on several threads: every level at once, one hand-off to the launch threads.
 
     The same kernels on the same values as `_forward` (bit for bit), as items run in this order by
     `_run_ordered` (each waiting only for the items it reads):
-      1. f1 widened (row ranges), each full-product level's P^l(f2) / sqrt(C), each patched level's
-         pixels grouped;
+      1. f1 widened or copied channels-last, and each patched level's channels-last copy (`fills`),
+         by row ranges; each full-product level's P^l(f2) / sqrt(C); each patched level's pixels grouped;
       2. each patched level's patches, its groups cut into ranges of equal pixel counts (after f1 and
          that level's grouping), and each full-product level's rows of V^l by BLAS (the same 256-row
          products; after f1 and its scaled level);
@@ -648,26 +675,38 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
     def launch_range(kernel: Any, lo: int, hi: int, inputs: list[Any]) -> Callable[[], None]:
         return lambda: wp.launch(kernel, dim=hi - lo, inputs=[*inputs, lo], device=device)
 
-    # 1. f1 widened (exact; float32 storage: a view), scaled levels, groupings
+    # 1. f1 widened (exact; float32 storage: a view) or copied, level copies, scaled levels, groupings
     widened: list[int] = []
+
+    def fill_items(key: Any, rows: int) -> list[int]:
+        return [add(lambda lo=lo, hi=hi: fills[key](lo, hi)) for lo, hi in _pieces(0, rows, threads)]
+
     if f1_rows.dtype == a.scalar:
         f1_v = widen(f1_rows, a)
+        widened = fill_items("f1", n) if "f1" in fills else []
     else:  # float16 rows, float32 work (`_cpu_patches`): `widen`'s C++ conversion, by row ranges
         f1_v = a.empty((n, f1_rows.shape[1] // VEC), vec)
         f1_w = wp.array(ptr=f1_v.ptr, shape=f1_rows.shape, dtype=a.scalar, device=device)  # f1_v outlives it
         widen_kernel = patch_cpu.widen_rows_cpu()
         widened = [add(launch_range(widen_kernel, lo, hi, [f1_rows, f1_w])) for lo, hi in _pieces(0, n, threads)]
+    level_arrays: dict[int, wp.array] = {}
+    copied: dict[int, list[int]] = {}  # level -> its copy's items
+    for lvl in range(n_levels):
+        if not full[lvl]:
+            level_arrays[lvl] = level_rows(lvl)
+            copied[lvl] = fill_items(lvl, level_arrays[lvl].shape[0]) if lvl in fills else []
     scaled: dict[int, np.ndarray] = {}
     grouping: dict[int, tuple] = {}
-    ready: dict[int, int] = {}  # level -> the item its products or patches wait for (besides f1)
+    ready: dict[int, list[int]] = {}  # level -> the items its products or patches wait for (besides f1)
     for lvl, (hl, wl) in enumerate(shapes):
         if full[lvl]:
-            ready[lvl] = add(lambda lvl=lvl: scaled.__setitem__(lvl, level_scaled(lvl)))
+            ready[lvl] = [add(lambda lvl=lvl: scaled.__setitem__(lvl, level_scaled(lvl)))]
         else:
             grouping[lvl] = _kept_grouping_arrays(a, lvl, n, radius, hl, wl)
             n_groups, ints, starts, counts = grouping[lvl]
             inputs = [xy, a.s(0.5 ** lvl), *ints, starts, counts, hl, wl]
-            ready[lvl] = add(launch_range(patch_cpu.group_pixels_cpu(radius, a.scalar), 0, 1, inputs))
+            group_kernel = patch_cpu.group_pixels_cpu(radius, a.scalar)
+            ready[lvl] = [*copied[lvl], add(launch_range(group_kernel, 0, 1, inputs))]
 
     # 2-3. patches and full products, then windows, in the order
     #   P0 (B) P1 S0 P2 S1 P3 S2 ... S(full) S(last): Pk = patched level k's patches (into buffer k % 2,
@@ -696,7 +735,7 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
                     r1 = min(r0 + _BLAS_ROWS, n)
                     np.matmul(x1_rows[r0:r1], scaled[lvl], out=rows[r0:r1])
 
-            formed[lvl] = [add(lambda c0=c0, c1=c1, f=products: f(c0, c1), [*widened, ready[lvl]])
+            formed[lvl] = [add(lambda c0=c0, c1=c1, f=products: f(c0, c1), [*widened, *ready[lvl]])
                            for c0, c1 in _pieces(0, len(chunks), pieces)]
             # the dense lookup's kernel on this one level
             sampled[lvl] = [window_cpu.sample_levels_cpu(radius, a.scalar), [buf, buf, buf, buf, 1]]
@@ -713,7 +752,7 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
         hl, wl = shapes[lvl]
         n_groups, ints, starts, _ = grouping[lvl]
         buf = patch_buffers[k % 2]
-        inputs = [f1_r, level_rows(lvl), ints[2], ints[3], starts, hl, wl, inv, buf]
+        inputs = [f1_r, level_arrays[lvl], ints[2], ints[3], starts, hl, wl, inv, buf]
 
         def patches(j: int, inputs: list[Any] = inputs, starts: wp.array = starts) -> None:
             # piece j of the groups cut by pixel counts (known once the grouping has run)
@@ -721,7 +760,7 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
             if j < len(cut):
                 wp.launch(patch_kernel, dim=cut[j][1] - cut[j][0], inputs=[*inputs, cut[j][0]], device=device)
 
-        deps = [*widened, ready[lvl], *(sampled[patched[k - 2]] if k >= 2 else [])]
+        deps = [*widened, *ready[lvl], *(sampled[patched[k - 2]] if k >= 2 else [])]
         formed[lvl] = [add(lambda j=j, f=patches: f(j), deps) for j in range(pieces)]
         sampled[lvl] = [window_cpu.sample_patches_cpu(radius, a.scalar), [buf]]
         if k == 0:
@@ -754,16 +793,30 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
     if feature_dtype != "float32":
         _, height, width = xy.shape
         return _lookup_stored(_store(a, x1, levels, height, width, feature_dtype), xy, radius, a)
+    scaled = lambda lvl: levels[lvl].numpy().reshape(channels, -1) * a.np_dtype.type(inv)  # noqa: E731
+    if a.device.is_cpu and default_threads() > 1 and channels % VEC == 0:
+        # Every level at once (`_forward_phased`): the channels-last copies of f1 and of every patched
+        # level are made by its items, by row ranges (`fills`), and held together (`onthefly_bytes`).
+        x1_v, fill_f1 = _channels_last_later(x1, a)
+        fills = {"f1": fill_f1}
+        level_v: dict[int, wp.array] = {}
+
+        def all_rows(lvl: int) -> wp.array:
+            if lvl not in level_v:
+                level_v[lvl], fills[lvl] = _channels_last_later(levels[lvl], a)
+            return _rows(level_v[lvl])
+
+        return a.out(_forward(a, _rows(x1_v), channels, xy, radius, len(levels), all_rows, scaled, stored=True,
+                              fills=fills))
     x1_v = _channels_last_v(x1, a)
-    level_v: list[wp.array] = []  # the level's vectors live while its rows are used
+    level_copy: list[wp.array] = []  # the level's vectors live while its rows are used
 
     def level_rows(lvl: int) -> wp.array:
-        level_v.clear()  # one level's copy at a time (`onthefly_bytes`)
-        level_v.append(_channels_last_v(levels[lvl], a))
-        return _rows(level_v[0])
+        level_copy.clear()  # one level's copy at a time (`onthefly_bytes`)
+        level_copy.append(_channels_last_v(levels[lvl], a))
+        return _rows(level_copy[0])
 
-    out = _forward(a, _rows(x1_v), channels, xy, radius, len(levels), level_rows,
-                   lambda lvl: levels[lvl].numpy().reshape(channels, -1) * a.np_dtype.type(inv))
+    out = _forward(a, _rows(x1_v), channels, xy, radius, len(levels), level_rows, scaled)
     return a.out(out)
 
 

@@ -120,13 +120,16 @@ def test_held_bytes_exact(c):
     assert corr.stored_bytes(h, w, c, levels) == 2 * c8 * pixels
     assert corr.onthefly_held_bytes(h, w, c, levels, feature_dtype="float16") == 2 * c8 * pixels
     assert corr.stored_bytes(h, w, c, levels, "float32") == 4 * c8 * pixels
-    # the working buffers of a float32 call (one level at a time): f1 and level 0 channels-last, the patch
-    # buffer (which level 3's rows of V^l reuse, where C is a multiple of 8), level 3 scaled, level 0's grouping
     n = h * w
     full3 = c % 8 == 0  # level 3 (5x7) by the full product, else through patches
     patched = 3 if full3 else 4
-    grouping = [4 * n + (wl + 11) * (hl + 11) + 1 + wl + 12 for hl, wl in corr.level_shapes(h, w, patched)]
-    work32 = 4 * (2 * c8 * n + 100 * n + c * 35 * full3) + 4 * grouping[0]
+    shapes = corr.level_shapes(h, w, patched)
+    grouping = [4 * n + (wl + 11) * (hl + 11) + 1 + wl + 12 for hl, wl in shapes]
+    if full3:  # the float32 call at several threads (C a multiple of 8): every level at once, as below,
+        # with every patched level's channels-last copy
+        work32 = 4 * (c8 * n + c8 * sum(hl * wl for hl, wl in shapes) + 2 * 100 * n + (n + c) * 35) + 4 * sum(grouping)
+    else:  # one level at a time: f1 and level 0 channels-last, the patch buffer, level 0's grouping
+        work32 = 4 * (2 * c8 * n + 100 * n) + 4 * grouping[0]
     assert corr.onthefly_bytes(h, w, c, levels, radius) - corr.onthefly_held_bytes(h, w, c, levels) == work32
     # float16 (stored features): with several threads every level at once (`onthefly._forward_phased`):
     # two patch buffers (the patched levels take turns), level 3's rows of V^l beside them, every patched
@@ -240,8 +243,9 @@ def test_lookup_without_patch_cpu_is_bit_identical(monkeypatch, feature_dtype):
 @pytest.mark.parametrize("feature_dtype", ["float16", "float32"])
 @pytest.mark.parametrize("shape", [*CASES, (16, 24, 24, 3, 4)], ids=lambda s: "x".join(map(str, s)))
 def test_phased_lookup_is_the_level_by_level_lookup_bit_for_bit(monkeypatch, feature_dtype, shape):
-    """With several threads, stored features go through `_forward_phased` (all levels at once, groups cut
-    by pixel counts, BLAS row chunks as items): the one-thread, level-by-level lookup's bytes. The last
+    """With several threads, stored features and the float32 lookup (C a multiple of 8) go through
+    `_forward_phased` (all levels at once, groups cut by pixel counts, BLAS row chunks and channels-last
+    copies as items): the one-thread, level-by-level lookup's bytes. The last
     case has three BLAS row chunks at its 6x6 level (576 pixels, radius 4); C = 12 takes no full product."""
     from kernels.corr import onthefly
 
@@ -250,6 +254,7 @@ def test_phased_lookup_is_the_level_by_level_lookup_bit_for_bit(monkeypatch, fea
     features = corr.onthefly_features(f1, f2_pyramid, feature_dtype=feature_dtype)
     monkeypatch.setenv("DRLAB_THREADS", "1")
     want = corr.lookup_onthefly_features(features, coords, radius)
+    want_direct = corr.lookup_onthefly(f1, f2_pyramid, coords, radius)  # float32 features given as arrays
     calls = []
     phased = onthefly._forward_phased
     monkeypatch.setattr(onthefly, "_forward_phased", lambda *args: calls.append(1) or phased(*args))
@@ -257,7 +262,9 @@ def test_phased_lookup_is_the_level_by_level_lookup_bit_for_bit(monkeypatch, fea
         monkeypatch.setenv("DRLAB_THREADS", threads)
         for _ in range(2):  # a key's first call at several threads loads the kernels level by level
             assert corr.lookup_onthefly_features(features, coords, radius).tobytes() == want.tobytes()
-    assert len(calls) >= 2
+            if feature_dtype == "float32":  # the channels-last copies made by the items (C % 8 == 0)
+                assert corr.lookup_onthefly(f1, f2_pyramid, coords, radius).tobytes() == want_direct.tobytes()
+    assert len(calls) >= (2 if feature_dtype == "float16" or c % 8 else 4)
 
 
 def test_weighted_pieces_cover_the_groups_by_pixel_counts():
