@@ -319,3 +319,24 @@ def test_ordered_items_wait_for_their_predecessors_and_raise(monkeypatch, thread
     with pytest.raises(RuntimeError, match="item failed"):
         onthefly._run_ordered([fail, lambda: ran.append(1), lambda: ran.append(2)], [(), (0,), (1,)])
     assert ran == []  # the items after the failure never ran
+
+
+def test_phased_float64_lookup_is_the_one_thread_lookup_bit_for_bit(monkeypatch):
+    """float64 features (working dtype float64, C = 16): the phased path at 2 threads gives the one-thread bytes."""
+    from kernels.corr import onthefly
+
+    rng = np.random.default_rng(12)
+    c, h, w, levels, radius = 16, 24, 24, 3, 4
+    f1, f2 = rng.standard_normal((2, c, h, w))
+    coords = np.stack([rng.uniform(-4, w + 4, (h, w)), rng.uniform(-4, h + 4, (h, w))])
+    pyramid = corr.pool_features(f2, levels)
+    monkeypatch.setenv("DRLAB_THREADS", "1")
+    want = corr.lookup_onthefly(f1, pyramid, coords, radius)
+    calls = []
+    phased = onthefly._forward_phased
+    monkeypatch.setattr(onthefly, "_forward_phased", lambda *args: calls.append(1) or phased(*args))
+    monkeypatch.setenv("DRLAB_THREADS", "2")
+    for _ in range(2):
+        got = corr.lookup_onthefly(f1, pyramid, coords, radius)
+        assert got.dtype == np.float64 and got.tobytes() == want.tobytes()
+    assert calls
