@@ -20,7 +20,9 @@ Memory: the path keeps f1 and the pooled f2 pyramid between lookups, C (H W +
 sum_l H_l W_l) values (`onthefly_held_bytes`), instead of the volume pyramid's
 H W sum_l H_l W_l; a forward call adds channels-last copies of f1 and of one
 level, and the patch buffer of H W (2r + 2)^2 values (`onthefly_bytes`), whose
-memory the full-product levels reuse (both counts in kernels.corr.stored).
+memory the full-product levels reuse (both counts in kernels.corr.stored); on the
+CPU with several threads (all levels at once, below) every patched level's copy,
+two patch buffers and the full-product levels' rows beside them.
 
 Stored features (`onthefly_features`, `lookup_onthefly_features`; kernels.corr.stored):
 f1 and P^l(f2) kept channels-last between lookups, in float32 or float16 (half the
@@ -32,7 +34,9 @@ pixels whose windows hold a row sharing its tap vectors, reading P^l(f2) in its 
 (float16 widened in registers) and f1 widened once a call (exact), then samples each pixel's
 window from its patch (`window_cpu.sample_patches_cpu`): every tap the same operations in the same
 order as `_patch_sample_level` (the Warp kernel, which CUDA keeps, with `_patch_level`), so the
-same values bit for bit.
+same values bit for bit. With several threads, stored features (`lookup_onthefly_features`) and the
+float32 lookup (C a multiple of 8) take all levels at once (`_forward_phased`: two patch buffers, one
+hand-off to the threads), the same values.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -52,6 +56,7 @@ to a multiple of 8), so a tap's dot product is a few vector multiply-adds.
 from __future__ import annotations
 
 import math
+import threading
 import typing
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, Sequence
@@ -66,7 +71,7 @@ from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, 
                                   pool_levels, pool_levels_adjoint, sample_window, sample_windows,
                                   sample_windows_adjoint)
 from kernels.corr.stored import OnTheFlyFeatures, check_feature_dtype, refuse_backward, store, widen
-from kernels.launch import chunk_bounds, default_threads, parallel_ranges
+from kernels.launch import chunk_bounds, default_threads, parallel_items, parallel_ranges
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -314,6 +319,19 @@ def _channels_last_v(x: wp.array, a: Inputs) -> wp.array:
     return pack_rows(x.transpose(), -(-channels // VEC), a)
 
 
+def _channels_last_later(x: wp.array, a: Inputs) -> tuple[wp.array, Callable[[int, int], None]]:
+    """(C, N) scalars (C a multiple of 8, CPU) -> the (N, C / 8) vectors of `_channels_last_v`, allocated
+    here and filled by `fill(lo, hi)` row range by row range (the same values; NumPy copies without the GIL)."""
+    channels, n = x.shape
+    out_v = a.empty((n, channels // VEC), VEC_OF[a.scalar])
+    src, dst = x.numpy(), out_v.numpy().reshape(n, channels)
+
+    def fill(lo: int, hi: int) -> None:
+        np.copyto(dst[lo:hi], src[:, lo:hi].T)
+
+    return out_v, fill
+
+
 _blas_controller = None
 _BLAS_ROWS = 256  # rows of V^l per BLAS call in `_sample_full_product`
 
@@ -452,22 +470,27 @@ def _cpu_patches(a: Inputs, f1_rows: wp.array) -> bool:
     return f1_rows.dtype == a.scalar or (f1_rows.dtype == wp.float16 and a.scalar == wp.float32)
 
 
+def _grouping_arrays(a: Inputs, n: int, radius: int, height_l: int,
+                     width_l: int) -> tuple[int, list[wp.array], wp.array, wp.array]:
+    """(number of groups, [i0, j0, order, sorted j0] (N,), starts, counts): `group_pixels_cpu`'s outputs and scratch."""
+    side = 2 * radius + 2
+    n_groups = width_l + side + 1
+    ints = [a.empty(n, wp.int32) for _ in range(4)]
+    return n_groups, ints, a.empty(n_groups + 1, wp.int32), a.empty(n_groups * (height_l + side + 1) + 1, wp.int32)
+
+
 def _group_pixels(a: Inputs, xy: wp.array, scale: Any, radius: int, height_l: int,
                   width_l: int) -> tuple[int, wp.array, wp.array, wp.array]:
     """The pixels grouped for `patch_cpu.patch_groups_cpu` at one level (`patch_cpu.group_pixels_cpu`):
     (number of groups, pixel order, each ordered pixel's window row origin, each group's first position)."""
-    n = xy.shape[1] * xy.shape[2]
-    side = 2 * radius + 2
-    n_groups = width_l + side + 1
-    ints = [a.empty(n, wp.int32) for _ in range(4)]  # i0, j0, order, sorted j0
-    starts = a.empty(n_groups + 1, wp.int32)
-    counts = a.empty(n_groups * (height_l + side + 1) + 1, wp.int32)
+    n_groups, ints, starts, counts = _grouping_arrays(a, xy.shape[1] * xy.shape[2], radius, height_l, width_l)
     a.launch(patch_cpu.group_pixels_cpu(radius, a.scalar), 1, [xy, scale, *ints, starts, counts, height_l, width_l])
     return n_groups, ints[2], ints[3], starts
 
 
 def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
-             level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray]) -> wp.array:
+             level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray],
+             stored: bool = False, fills: dict[Any, Callable[[int, int], None]] | None = None) -> wp.array:
     """Equation (4) from f1's channels-last rows (N, C8) in the storage dtype (the working dtype or
     float16), one level at a time: `level_rows(l)` gives P^l(f2)'s rows (N_l, C8) in the same dtype,
     `level_scaled(l)` P^l(f2) / sqrt(C) as (C, N_l) on the host in the working dtype.
@@ -475,12 +498,35 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
     On the CPU the patches of a level are formed and sampled by `patch_cpu` from the stored rows
     themselves (f1 widened once); elsewhere f1 and each level are widened (`widen`, exact) for
     `_patch_sample_level` / `_patch_level`. Either way the values are the same, bit for bit.
+
+    With `stored` (every level's rows may be held at once) on the CPU with several threads, the levels
+    go through `_forward_phased` instead (the same kernels, values bit for bit). `fills` ("f1" and
+    levels, set by the `level_rows` calls): row-range fills that f1's rows and a level's rows need
+    before use (`_channels_last_later`); `_forward_phased` runs them as items, the path here up front.
     """
     n = f1_rows.shape[0]
     _, height, width = xy.shape
     side = 2 * radius + 1
     inv = a.s(1.0 / math.sqrt(channels))
     out = a.empty((n_levels * side * side, height, width))  # every element is written
+    if stored and _cpu_patches(a, f1_rows) and default_threads() > 1:
+        # which kernels the call launches: those of its dtypes, radius, patched and full-product levels
+        full = {full_product_level(hl, wl, radius, a.device) and channels % VEC == 0
+                for hl, wl in level_shapes(height, width, n_levels)}
+        key = (radius, a.scalar, f1_rows.dtype, frozenset(full))
+        if key in _phased_ready:
+            _forward_phased(a, f1_rows, channels, xy, radius, n_levels, level_rows, level_scaled, out, fills or {})
+            return out
+        _phased_ready.add(key)  # the first call (below) compiles and loads the kernels on one thread
+    if fills is not None:  # the copies made up front
+        fills["f1"](0, n)
+        copied_rows = level_rows
+
+        def level_rows(lvl: int) -> wp.array:
+            rows = copied_rows(lvl)
+            fills[lvl](0, rows.shape[0])
+            return rows
+
     # Every tap is written by _patch_level; a full-product level reuses the memory for its blocks.
     patch = a.empty((n, side + 1, side + 1))
     cpu_kernel = (patch_cpu.patch_groups_cpu(radius, a.scalar, f1_rows.dtype) if _cpu_patches(a, f1_rows)
@@ -515,6 +561,221 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
     return out
 
 
+# (radius, working dtype, storage dtype, kinds of levels) whose kernels a call has loaded (level by level,
+# on one launch thread at a time), so that `_forward_phased`'s threads never load a module at once
+_phased_ready: set[tuple] = set()
+
+
+def _pieces(lo: int, hi: int, k: int) -> list[tuple[int, int]]:
+    """[lo, hi) cut into at most k contiguous non-empty ranges of near-equal size."""
+    return [(lo + o, lo + o + s) for o, s in chunk_bounds(hi - lo, max(1, min(k, hi - lo)))]
+
+
+def _weighted_pieces(starts: np.ndarray, k: int) -> list[tuple[int, int]]:
+    """Groups [0, G) cut into at most k contiguous ranges holding near-equal numbers of pixels
+    (starts (G + 1,): each group's first pixel position, the pixel count at the end)."""
+    n_groups, total = len(starts) - 1, int(starts[-1])
+    cuts = np.searchsorted(starts, [total * j / k for j in range(1, k)], side="left")
+    bounds = sorted({0, n_groups, *(int(min(max(c, 0), n_groups)) for c in cuts)})
+    return [(g0, g1) for g0, g1 in zip(bounds[:-1], bounds[1:]) if starts[g1] > starts[g0]]
+
+
+_kept = threading.local()  # per thread: {(device, level, n, radius, H_l, W_l): `_grouping_arrays`}
+
+
+def _kept_grouping_arrays(a: Inputs, lvl: int, n: int, radius: int, height_l: int,
+                          width_l: int) -> tuple[int, list[wp.array], wp.array, wp.array]:
+    """`_grouping_arrays`, kept between the calling thread's lookups of the same size (a call fills them
+    entirely before reading them): 18 small allocations a call were ~0.2 ms of its Python."""
+    kept = getattr(_kept, "arrays", None)
+    if kept is None:
+        kept = _kept.arrays = {}
+    key = (a.device.alias, lvl, n, radius, height_l, width_l)  # a level's own: the levels group at once
+    if key not in kept:
+        if len(kept) >= 16:  # a few sizes in use at a time
+            kept.clear()
+        kept[key] = _grouping_arrays(a, n, radius, height_l, width_l)
+    return kept[key]
+
+
+def _run_ordered(items: list[Callable[[], None]], after: list[tuple[int, ...]]) -> None:
+    """Run the items on the launch threads: each thread pulls the next item in list order and, before
+    running it, waits for the items it comes `after` (all earlier in the list). One hand-off to the pool
+    a call, and no thread waits at a barrier for a whole stage, only for what its item reads.
+
+    No deadlock: an item's predecessors were pulled before it, so each is done or running on another
+    thread (a thread alone runs them all in order). After a failure no item starts, the waiting threads
+    are released, and the first exception is re-raised here once every thread has stopped.
+    """
+    done = [threading.Event() for _ in items]
+    order = iter(range(len(items)))
+    lock = threading.Lock()
+    errors: list[BaseException] = []
+
+    def work(_: int) -> None:
+        while True:
+            with lock:
+                i = None if errors else next(order, None)
+            if i is None:
+                return
+            for j in after[i]:
+                done[j].wait()
+            if errors:
+                return
+            try:
+                items[i]()
+            except BaseException as exc:
+                with lock:
+                    errors.append(exc)
+                for event in done:  # release every waiting thread
+                    event.set()
+                return
+            done[i].set()
+
+    parallel_items(work, min(default_threads(), len(items)))
+    if errors:
+        raise errors[0]
+
+
+def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
+                    level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray],
+                    out: wp.array, fills: dict[Any, Callable[[int, int], None]]) -> None:
+    """`_forward`'s CPU path on several threads: every level at once, one hand-off to the launch threads.
+
+    The same kernels on the same values as `_forward` (bit for bit), as items run in this order by
+    `_run_ordered` (each waiting only for the items it reads):
+      1. f1 widened or copied channels-last, and each patched level's channels-last copy (`fills`),
+         by row ranges; each full-product level's P^l(f2) / sqrt(C); each patched level's pixels grouped;
+      2. each patched level's patches, its groups cut into ranges of equal pixel counts (after f1 and
+         that level's grouping), and each full-product level's rows of V^l by BLAS (the same 256-row
+         products; after f1 and its scaled level);
+      3. each level's windows sampled, ranges of pixel blocks (after that level's patches or rows),
+         interleaved with 2 (order below).
+    The patched levels take turns in two patch buffers (`onthefly_bytes` counts both), each
+    full-product level has its rows of its own; items running at once write disjoint memory. Against
+    level by level (at two threads ~10 parallel sections, ~70 guided-chunk launches, three groupings on
+    one thread): ~30 launches and one hand-off a call.
+    """
+    n = f1_rows.shape[0]
+    threads = default_threads()
+    side = 2 * radius + 1
+    inv = a.s(1.0 / math.sqrt(channels))
+    vec = VEC_OF[a.scalar]
+    shapes = level_shapes(xy.shape[1], xy.shape[2], n_levels)
+    full = [full_product_level(hl, wl, radius, a.device) and channels % VEC == 0 for hl, wl in shapes]
+    device = a.device
+    items: list[Callable[[], None]] = []
+    after: list[tuple[int, ...]] = []
+
+    def add(fn: Callable[[], None], deps: Sequence[int] = ()) -> int:
+        items.append(fn)
+        after.append(tuple(deps))
+        return len(items) - 1
+
+    def launch_range(kernel: Any, lo: int, hi: int, inputs: list[Any]) -> Callable[[], None]:
+        return lambda: wp.launch(kernel, dim=hi - lo, inputs=[*inputs, lo], device=device)
+
+    # 1. f1 widened (exact; float32 storage: a view) or copied, level copies, scaled levels, groupings
+    widened: list[int] = []
+
+    def fill_items(key: Any, rows: int) -> list[int]:
+        return [add(lambda lo=lo, hi=hi: fills[key](lo, hi)) for lo, hi in _pieces(0, rows, threads)]
+
+    if f1_rows.dtype == a.scalar:
+        f1_v = widen(f1_rows, a)
+        widened = fill_items("f1", n) if "f1" in fills else []
+    else:  # float16 rows, float32 work (`_cpu_patches`): `widen`'s C++ conversion, by row ranges
+        f1_v = a.empty((n, f1_rows.shape[1] // VEC), vec)
+        f1_w = wp.array(ptr=f1_v.ptr, shape=f1_rows.shape, dtype=a.scalar, device=device)  # f1_v outlives it
+        widen_kernel = patch_cpu.widen_rows_cpu()
+        widened = [add(launch_range(widen_kernel, lo, hi, [f1_rows, f1_w])) for lo, hi in _pieces(0, n, threads)]
+    level_arrays: dict[int, wp.array] = {}
+    copied: dict[int, list[int]] = {}  # level -> its copy's items
+    for lvl in range(n_levels):
+        if not full[lvl]:
+            level_arrays[lvl] = level_rows(lvl)
+            copied[lvl] = fill_items(lvl, level_arrays[lvl].shape[0]) if lvl in fills else []
+    scaled: dict[int, np.ndarray] = {}
+    grouping: dict[int, tuple] = {}
+    ready: dict[int, list[int]] = {}  # level -> the items its products or patches wait for (besides f1)
+    for lvl, (hl, wl) in enumerate(shapes):
+        if full[lvl]:
+            ready[lvl] = [add(lambda lvl=lvl: scaled.__setitem__(lvl, level_scaled(lvl)))]
+        else:
+            grouping[lvl] = _kept_grouping_arrays(a, lvl, n, radius, hl, wl)
+            n_groups, ints, starts, counts = grouping[lvl]
+            inputs = [xy, a.s(0.5 ** lvl), *ints, starts, counts, hl, wl]
+            group_kernel = patch_cpu.group_pixels_cpu(radius, a.scalar)
+            ready[lvl] = [*copied[lvl], add(launch_range(group_kernel, 0, 1, inputs))]
+
+    # 2-3. patches and full products, then windows, in the order
+    #   P0 (B) P1 S0 P2 S1 P3 S2 ... S(full) S(last): Pk = patched level k's patches (into buffer k % 2,
+    #   after f1, its grouping and, from k = 2, S(k - 2), the windows that read that buffer), B = the
+    #   full-product levels' rows by BLAS, Sk = level k's windows (after Pk); so a thread that pulls Sk
+    #   finds Pk done (P(k+1) was pulled in between), and the full-product windows fill the last wait.
+    patch_kernel = patch_cpu.patch_groups_cpu(radius, a.scalar, f1_rows.dtype)
+    f1_r = _rows(f1_v)
+    x1_rows = f1_v.numpy().reshape(n, -1)[:, :channels]  # f1 channels-last: the vectors' own memory
+    pieces = 2 * threads
+    patched = [lvl for lvl in range(n_levels) if not full[lvl]]
+    patch_buffers = [a.empty((n, side + 1, side + 1)) for _ in patched[:2]]  # every tap is written
+    formed: dict[int, list[int]] = {}
+    sampled: dict[int, list[Any]] = {}  # a level's window kernel and first inputs, then its items
+    n_blocks = window_cpu.blocks(n)
+
+    def add_products() -> None:
+        for lvl in (lvl for lvl in range(n_levels) if full[lvl]):
+            hl, wl = shapes[lvl]
+            buf = a.empty((n, hl, wl))
+            rows = buf.numpy().reshape(n, hl * wl)
+            chunks = range(0, n, _BLAS_ROWS)
+
+            def products(c0: int, c1: int, rows: np.ndarray = rows, lvl: int = lvl, chunks: range = chunks) -> None:
+                for r0 in chunks[c0:c1]:  # the same 256-row products as `_sample_full_product`
+                    r1 = min(r0 + _BLAS_ROWS, n)
+                    np.matmul(x1_rows[r0:r1], scaled[lvl], out=rows[r0:r1])
+
+            formed[lvl] = [add(lambda c0=c0, c1=c1, f=products: f(c0, c1), [*widened, *ready[lvl]])
+                           for c0, c1 in _pieces(0, len(chunks), pieces)]
+            # the dense lookup's kernel on this one level
+            sampled[lvl] = [window_cpu.sample_levels_cpu(radius, a.scalar), [buf, buf, buf, buf, 1]]
+
+    def add_windows(lvl: int) -> None:
+        kernel, head = sampled[lvl]
+        inputs = [*head, xy, out, a.s(0.5 ** lvl), lvl * side * side]
+        sampled[lvl] = [add(launch_range(kernel, lo, hi, inputs), formed[lvl])
+                        for lo, hi in _pieces(0, n_blocks, threads)]
+
+    if not patched:
+        add_products()
+    for k, lvl in enumerate(patched):
+        hl, wl = shapes[lvl]
+        n_groups, ints, starts, _ = grouping[lvl]
+        buf = patch_buffers[k % 2]
+        inputs = [f1_r, level_arrays[lvl], ints[2], ints[3], starts, hl, wl, inv, buf]
+
+        def patches(j: int, inputs: list[Any] = inputs, starts: wp.array = starts) -> None:
+            # piece j of the groups cut by pixel counts (known once the grouping has run)
+            cut = _weighted_pieces(starts.numpy(), pieces)
+            if j < len(cut):
+                wp.launch(patch_kernel, dim=cut[j][1] - cut[j][0], inputs=[*inputs, cut[j][0]], device=device)
+
+        deps = [*widened, *ready[lvl], *(sampled[patched[k - 2]] if k >= 2 else [])]
+        formed[lvl] = [add(lambda j=j, f=patches: f(j), deps) for j in range(pieces)]
+        sampled[lvl] = [window_cpu.sample_patches_cpu(radius, a.scalar), [buf]]
+        if k == 0:
+            add_products()
+        else:
+            add_windows(patched[k - 1])
+    for lvl in range(n_levels):
+        if full[lvl]:
+            add_windows(lvl)
+    if patched:
+        add_windows(patched[-1])
+    with _one_blas_thread():
+        _run_ordered(items, after)
+
+
 def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radius: int, *,
                     feature_dtype: str = "float32", device: str | None = None) -> Array:
     """Equation (4) computed from f1 and pooled f2 (`pool_features`) without the volume.
@@ -532,16 +793,30 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
     if feature_dtype != "float32":
         _, height, width = xy.shape
         return _lookup_stored(_store(a, x1, levels, height, width, feature_dtype), xy, radius, a)
+    scaled = lambda lvl: levels[lvl].numpy().reshape(channels, -1) * a.np_dtype.type(inv)  # noqa: E731
+    if a.device.is_cpu and default_threads() > 1 and channels % VEC == 0:
+        # Every level at once (`_forward_phased`): the channels-last copies of f1 and of every patched
+        # level are made by its items, by row ranges (`fills`), and held together (`onthefly_bytes`).
+        x1_v, fill_f1 = _channels_last_later(x1, a)
+        fills = {"f1": fill_f1}
+        level_v: dict[int, wp.array] = {}
+
+        def all_rows(lvl: int) -> wp.array:
+            if lvl not in level_v:
+                level_v[lvl], fills[lvl] = _channels_last_later(levels[lvl], a)
+            return _rows(level_v[lvl])
+
+        return a.out(_forward(a, _rows(x1_v), channels, xy, radius, len(levels), all_rows, scaled, stored=True,
+                              fills=fills))
     x1_v = _channels_last_v(x1, a)
-    level_v: list[wp.array] = []  # the level's vectors live while its rows are used
+    level_copy: list[wp.array] = []  # the level's vectors live while its rows are used
 
     def level_rows(lvl: int) -> wp.array:
-        level_v.clear()  # one level's copy at a time (`onthefly_bytes`)
-        level_v.append(_channels_last_v(levels[lvl], a))
-        return _rows(level_v[0])
+        level_copy.clear()  # one level's copy at a time (`onthefly_bytes`)
+        level_copy.append(_channels_last_v(levels[lvl], a))
+        return _rows(level_copy[0])
 
-    out = _forward(a, _rows(x1_v), channels, xy, radius, len(levels), level_rows,
-                   lambda lvl: levels[lvl].numpy().reshape(channels, -1) * a.np_dtype.type(inv))
+    out = _forward(a, _rows(x1_v), channels, xy, radius, len(levels), level_rows, scaled)
     return a.out(out)
 
 
@@ -587,7 +862,7 @@ def _lookup_stored(features: OnTheFlyFeatures, xy: wp.array, radius: int, a: Inp
     channels = features.channels
     inv = 1.0 / math.sqrt(channels)
     out = _forward(a, features.f1, channels, xy, radius, len(features.levels), lambda lvl: features.levels[lvl],
-                   lambda lvl: _scaled_level(features.levels[lvl].numpy(), channels, inv, a))
+                   lambda lvl: _scaled_level(features.levels[lvl].numpy(), channels, inv, a), stored=True)
     return a.out(out)
 
 

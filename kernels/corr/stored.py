@@ -218,17 +218,29 @@ def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: 
     + 1 + W_l + 2r + 4 at the largest patched level). With float16 features
     (`lookup_onthefly_features`) the working copies are the widened f1 and level, of the same sizes,
     in the working dtype; on the CPU the patch kernel reads the stored level rows in place, so there
-    the count is an upper bound (no level copy is made).
+    the count is an upper bound (no level copy is made). On the CPU with several threads the lookups
+    form all levels at once (`onthefly._forward_phased`; the float32 `lookup_onthefly` where C is a
+    multiple of 8): the count holds two patch buffers (the patched levels take turns), every
+    full-product level's rows of V^l (N H_l W_l) and scaled P^l(f2), every patched level's grouping
+    (kept between calls, per thread and size) and, for the float32 lookup, every patched level's
+    channels-last copy at once. These are the counts of the several-thread path (one thread holds
+    less); stored float32 features take the float16 count's buffers, beside float32 held bytes.
     """
     c_pad = -(-channels // VEC) * VEC
     n = height * width
     patch = n * (2 * radius + 2) ** 2
     shapes = level_shapes(height, width, levels)
-    full = [hl * wl for hl, wl in shapes if full_product_level(hl, wl, radius, wp.get_device("cpu"))]
-    patched = [hl * wl for hl, wl in shapes if not full_product_level(hl, wl, radius, wp.get_device("cpu"))]
+    # the full product needs whole 8-channel vectors (`onthefly._forward`)
+    is_full = [full_product_level(hl, wl, radius, wp.get_device("cpu")) and channels % VEC == 0 for hl, wl in shapes]
+    full = [hl * wl for (hl, wl), f in zip(shapes, is_full) if f]
+    patched = [hl * wl for (hl, wl), f in zip(shapes, is_full) if not f]
     work = c_pad * n + c_pad * max(patched, default=0) + patch + channels * max(full, default=0)
     held = onthefly_held_bytes(height, width, channels, levels, itemsize, feature_dtype=feature_dtype)
     side = 2 * radius + 2
-    grouping = max(((wl + side + 1) * (hl + side + 1) + 1 + wl + side + 2 for hl, wl in shapes
-                    if not full_product_level(hl, wl, radius, wp.get_device("cpu"))), default=0)
-    return held + itemsize * work + 4 * (4 * n + grouping if grouping else 0)
+    groupings = [4 * n + (wl + side + 1) * (hl + side + 1) + 1 + wl + side + 2
+                 for (hl, wl), f in zip(shapes, is_full) if not f]
+    if feature_dtype == "float16" or channels % VEC == 0:  # all levels at once (`_forward_phased`)
+        copies = max(patched, default=0) if feature_dtype == "float16" else sum(patched)
+        work = c_pad * n + c_pad * copies + patch * min(2, len(patched)) + (n + channels) * sum(full)
+        return held + itemsize * work + 4 * sum(groupings)
+    return held + itemsize * work + 4 * max(groupings, default=0)

@@ -210,12 +210,13 @@ def test_memory_accounting():
     pixels = 46 * 62 + 23 * 31 + 11 * 15 + 5 * 7
     assert corr.dense_bytes(46, 62, 4) == 4 * 46 * 62 * pixels
     assert corr.onthefly_held_bytes(46, 62, 256, 4) == 4 * 256 * (46 * 62 + pixels)  # f1 and the pooled f2
-    # The peak adds f1 and level 0 channels-last, the patch buffer (whose memory the full-product level
-    # 3, 2 * 5x7 <= 10^2 taps, reuses for its block of V^l) and the scaled level 3;
-    # the patch kernel's grouping: four int32 a pixel, and at level 0 the counting sort's
-    # (62 + 11) (46 + 11) + 1 counts and 62 + 12 group starts.
-    work = 256 * 46 * 62 * 2 + 46 * 62 * 10 ** 2 + 256 * 5 * 7
-    grouping = 4 * 46 * 62 + 73 * 57 + 1 + 74
+    # The peak (every level at once, `onthefly._forward_phased`, several threads) adds f1 and levels
+    # 0-2 channels-last, two patch buffers, level 3's rows of V^l (the full product: 2 * 5x7 <= 10^2
+    # taps) and its scaled P^3(f2); the patch kernel's groupings of levels 0-2: four int32 a pixel,
+    # the counting sort's (W_l + 11) (H_l + 11) + 1 counts and W_l + 12 group starts.
+    n = 46 * 62
+    work = 256 * n + 256 * (n + 23 * 31 + 11 * 15) + 2 * n * 10 ** 2 + (n + 256) * 5 * 7
+    grouping = sum(4 * n + (wl + 11) * (hl + 11) + 1 + wl + 12 for hl, wl in [(46, 62), (23, 31), (11, 15)])
     assert corr.onthefly_bytes(46, 62, 256, 4, 4) == (corr.onthefly_held_bytes(46, 62, 256, 4) + 4 * work
                                                       + 4 * grouping)
 

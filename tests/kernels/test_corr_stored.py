@@ -120,9 +120,22 @@ def test_held_bytes_exact(c):
     assert corr.stored_bytes(h, w, c, levels) == 2 * c8 * pixels
     assert corr.onthefly_held_bytes(h, w, c, levels, feature_dtype="float16") == 2 * c8 * pixels
     assert corr.stored_bytes(h, w, c, levels, "float32") == 4 * c8 * pixels
-    # the working buffers of a call are those of the float32 path
-    work32 = corr.onthefly_bytes(h, w, c, levels, radius) - corr.onthefly_held_bytes(h, w, c, levels)
-    assert corr.onthefly_bytes(h, w, c, levels, radius, feature_dtype="float16") == 2 * c8 * pixels + work32
+    n = h * w
+    full3 = c % 8 == 0  # level 3 (5x7) by the full product, else through patches
+    patched = 3 if full3 else 4
+    shapes = corr.level_shapes(h, w, patched)
+    grouping = [4 * n + (wl + 11) * (hl + 11) + 1 + wl + 12 for hl, wl in shapes]
+    if full3:  # the float32 call at several threads (C a multiple of 8): every level at once, as below,
+        # with every patched level's channels-last copy
+        work32 = 4 * (c8 * n + c8 * sum(hl * wl for hl, wl in shapes) + 2 * 100 * n + (n + c) * 35) + 4 * sum(grouping)
+    else:  # one level at a time: f1 and level 0 channels-last, the patch buffer, level 0's grouping
+        work32 = 4 * (2 * c8 * n + 100 * n) + 4 * grouping[0]
+    assert corr.onthefly_bytes(h, w, c, levels, radius) - corr.onthefly_held_bytes(h, w, c, levels) == work32
+    # float16 (stored features): with several threads every level at once (`onthefly._forward_phased`):
+    # two patch buffers (the patched levels take turns), level 3's rows of V^l beside them, every patched
+    # level's grouping
+    work16 = 4 * (2 * c8 * n + 2 * 100 * n + (n + c) * 35 * full3) + 4 * sum(grouping)
+    assert corr.onthefly_bytes(h, w, c, levels, radius, feature_dtype="float16") == 2 * c8 * pixels + work16
     rng = np.random.default_rng(7)
     f1 = rng.standard_normal((c, h, w)).astype(np.float32)
     pyramid = corr.pool_features(rng.standard_normal((c, h, w)).astype(np.float32), levels)
@@ -225,3 +238,105 @@ def test_lookup_without_patch_cpu_is_bit_identical(monkeypatch, feature_dtype):
            corr.lookup_onthefly(f1, f2_pyramid, coords, 2, feature_dtype=feature_dtype)]
     for g, w in zip(got, want):
         assert g.tobytes() == w.tobytes()
+
+
+@pytest.mark.parametrize("feature_dtype", ["float16", "float32"])
+@pytest.mark.parametrize("shape", [*CASES, (16, 24, 24, 3, 4)], ids=lambda s: "x".join(map(str, s)))
+def test_phased_lookup_is_the_level_by_level_lookup_bit_for_bit(monkeypatch, feature_dtype, shape):
+    """With several threads, stored features and the float32 lookup (C a multiple of 8) go through
+    `_forward_phased` (all levels at once, groups cut by pixel counts, BLAS row chunks and channels-last
+    copies as items): the one-thread, level-by-level lookup's bytes. The last
+    case has three BLAS row chunks at its 6x6 level (576 pixels, radius 4); C = 12 takes no full product."""
+    from kernels.corr import onthefly
+
+    c, h, w, levels, radius = shape
+    f1, f2_pyramid, coords = case(np.random.default_rng(9), c, h, w, levels)
+    features = corr.onthefly_features(f1, f2_pyramid, feature_dtype=feature_dtype)
+    monkeypatch.setenv("DRLAB_THREADS", "1")
+    want = corr.lookup_onthefly_features(features, coords, radius)
+    want_direct = corr.lookup_onthefly(f1, f2_pyramid, coords, radius)  # float32 features given as arrays
+    calls = []
+    phased = onthefly._forward_phased
+    monkeypatch.setattr(onthefly, "_forward_phased", lambda *args: calls.append(1) or phased(*args))
+    for threads in ("2", "3"):
+        monkeypatch.setenv("DRLAB_THREADS", threads)
+        for _ in range(2):  # a key's first call at several threads loads the kernels level by level
+            assert corr.lookup_onthefly_features(features, coords, radius).tobytes() == want.tobytes()
+            if feature_dtype == "float32":  # the channels-last copies made by the items (C % 8 == 0)
+                assert corr.lookup_onthefly(f1, f2_pyramid, coords, radius).tobytes() == want_direct.tobytes()
+    assert len(calls) >= (2 if feature_dtype == "float16" or c % 8 else 4)
+
+
+def test_weighted_pieces_cover_the_groups_by_pixel_counts():
+    """Group ranges for the phased patches: contiguous, covering every group holding pixels, balanced by pixels."""
+    from kernels.corr import onthefly
+
+    starts = np.array([0, 0, 5, 5, 30, 31, 60, 100, 100], dtype=np.int32)  # 8 groups, 100 pixels
+    for k in (1, 2, 3, 4, 8, 20):
+        pieces = onthefly._weighted_pieces(starts, k)
+        assert 1 <= len(pieces) <= k
+        assert all(g0 < g1 for g0, g1 in pieces) and all(a[1] <= b[0] for a, b in zip(pieces, pieces[1:]))
+        covered = {g for g0, g1 in pieces for g in range(g0, g1)}
+        assert {g for g in range(8) if starts[g + 1] > starts[g]} <= covered
+    # each cut at the first group starting at or past j / k of the pixels: 60 | 40, 31 | 29 | 40
+    assert onthefly._weighted_pieces(starts, 2) == [(0, 6), (6, 8)]
+    assert onthefly._weighted_pieces(starts, 4) == [(0, 4), (4, 6), (6, 7)]
+
+
+@pytest.mark.parametrize("threads", ["1", "2", "3"])
+def test_ordered_items_wait_for_their_predecessors_and_raise(monkeypatch, threads):
+    """`_run_ordered`: an item starts only after the items it comes after have finished, on any number
+    of threads; a failing item's exception reaches the caller and releases an item waiting for it."""
+    import threading
+    import time
+
+    from kernels.corr import onthefly
+
+    monkeypatch.setenv("DRLAB_THREADS", threads)
+    log: list[tuple[str, int]] = []
+    lock = threading.Lock()
+
+    def item(i: int, sleep: float = 0.0):
+        def run() -> None:
+            with lock:
+                log.append(("start", i))
+            time.sleep(sleep)
+            with lock:
+                log.append(("end", i))
+        return run
+
+    after = [(), (), (0, 1), (), (2,), (3, 4)]
+    onthefly._run_ordered([item(0, 0.02), item(1, 0.01), item(2), item(3, 0.02), item(4), item(5)], after)
+    for i, deps in enumerate(after):
+        assert all(log.index(("end", j)) < log.index(("start", i)) for j in deps)
+    assert sorted(log) == sorted([(e, i) for i in range(6) for e in ("start", "end")])
+
+    def fail() -> None:
+        time.sleep(0.01)
+        raise RuntimeError("item failed")
+
+    ran = []
+    with pytest.raises(RuntimeError, match="item failed"):
+        onthefly._run_ordered([fail, lambda: ran.append(1), lambda: ran.append(2)], [(), (0,), (1,)])
+    assert ran == []  # the items after the failure never ran
+
+
+def test_phased_float64_lookup_is_the_one_thread_lookup_bit_for_bit(monkeypatch):
+    """float64 features (working dtype float64, C = 16): the phased path at 2 threads gives the one-thread bytes."""
+    from kernels.corr import onthefly
+
+    rng = np.random.default_rng(12)
+    c, h, w, levels, radius = 16, 24, 24, 3, 4
+    f1, f2 = rng.standard_normal((2, c, h, w))
+    coords = np.stack([rng.uniform(-4, w + 4, (h, w)), rng.uniform(-4, h + 4, (h, w))])
+    pyramid = corr.pool_features(f2, levels)
+    monkeypatch.setenv("DRLAB_THREADS", "1")
+    want = corr.lookup_onthefly(f1, pyramid, coords, radius)
+    calls = []
+    phased = onthefly._forward_phased
+    monkeypatch.setattr(onthefly, "_forward_phased", lambda *args: calls.append(1) or phased(*args))
+    monkeypatch.setenv("DRLAB_THREADS", "2")
+    for _ in range(2):
+        got = corr.lookup_onthefly(f1, pyramid, coords, radius)
+        assert got.dtype == np.float64 and got.tobytes() == want.tobytes()
+    assert calls
