@@ -140,6 +140,13 @@ def _submit(fn: Callable[[], None], count: int) -> list[Future]:
         return [_pool.submit(fn) for _ in range(count)]
 
 
+def submit(fn: Callable[[], Any]) -> Future:
+    """Start `fn()` on one of the launch threads (the shared pool) and return at once; the Future gives
+    its result or re-raises its exception. For work a caller overlaps with its own (e.g. a native launch,
+    which releases the GIL, while the caller prepares the next ones); the caller must wait for it."""
+    return _submit(fn, 1)[0]
+
+
 def parallel_ranges(fn: Callable[[int, int], None], n: int, *, threads: int | None = None,
                     min_chunk: int = 1 << 16) -> None:
     """Call `fn(lo, hi)` over contiguous ranges covering [0, n), one per thread, concurrently.

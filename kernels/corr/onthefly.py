@@ -71,7 +71,7 @@ from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, 
                                   pool_levels, pool_levels_adjoint, sample_window, sample_windows,
                                   sample_windows_adjoint)
 from kernels.corr.stored import OnTheFlyFeatures, check_feature_dtype, refuse_backward, store, widen
-from kernels.launch import chunk_bounds, default_threads, parallel_items, parallel_ranges
+from kernels.launch import chunk_bounds, default_threads, parallel_items, parallel_ranges, submit
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -644,17 +644,19 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
 
     The same kernels on the same values as `_forward` (bit for bit), as items run in this order by
     `_run_ordered` (each waiting only for the items it reads):
-      1. f1 widened or copied channels-last, and each patched level's channels-last copy (`fills`),
-         by row ranges; each full-product level's P^l(f2) / sqrt(C); each patched level's pixels grouped;
-      2. each patched level's patches, its groups cut into ranges of equal pixel counts (after f1 and
-         that level's grouping), and each full-product level's rows of V^l by BLAS (the same 256-row
+      0. f1 widened or copied channels-last (`fills`), whole, on a launch thread from the start
+         (`submit`), while this thread builds the list;
+      1. each patched level's channels-last copy (`fills`), by row ranges; each full-product level's
+         P^l(f2) / sqrt(C); each patched level's pixels grouped and its groups cut into ranges of equal
+         pixel counts; then an item that waits for 0;
+      2. each patched level's patches, by those ranges (after f1 and that level's grouping), and each full-product level's rows of V^l by BLAS (the same 256-row
          products; after f1 and its scaled level);
       3. each level's windows sampled, ranges of pixel blocks (after that level's patches or rows),
          interleaved with 2 (order below).
     The patched levels take turns in two patch buffers (`onthefly_bytes` counts both), each
     full-product level has its rows of its own; items running at once write disjoint memory. Against
     level by level (at two threads ~10 parallel sections, ~70 guided-chunk launches, three groupings on
-    one thread): ~30 launches and one hand-off a call.
+    one thread): ~30 launches and two hand-offs a call (0, then the list).
     """
     n = f1_rows.shape[0]
     threads = default_threads()
@@ -675,20 +677,23 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
     def launch_range(kernel: Any, lo: int, hi: int, inputs: list[Any]) -> Callable[[], None]:
         return lambda: wp.launch(kernel, dim=hi - lo, inputs=[*inputs, lo], device=device)
 
-    # 1. f1 widened (exact; float32 storage: a view) or copied, level copies, scaled levels, groupings
-    widened: list[int] = []
-
+    # 0. f1 widened (exact; float32 storage: a view) or copied channels-last, handed whole to a launch
+    # thread first: it runs (one native launch or NumPy copy, without the GIL) while this thread builds the
+    # list; the item `widened` waits for it (placed after the groupings, so the caller's thread groups first)
     def fill_items(key: Any, rows: int) -> list[int]:
         return [add(lambda lo=lo, hi=hi: fills[key](lo, hi)) for lo, hi in _pieces(0, rows, threads)]
 
+    early = None
     if f1_rows.dtype == a.scalar:
         f1_v = widen(f1_rows, a)
-        widened = fill_items("f1", n) if "f1" in fills else []
-    else:  # float16 rows, float32 work (`_cpu_patches`): `widen`'s C++ conversion, by row ranges
+        if "f1" in fills:
+            early = submit(lambda: fills["f1"](0, n))
+    else:  # float16 rows, float32 work (`_cpu_patches`): `widen`'s C++ conversion
         f1_v = a.empty((n, f1_rows.shape[1] // VEC), vec)
         f1_w = wp.array(ptr=f1_v.ptr, shape=f1_rows.shape, dtype=a.scalar, device=device)  # f1_v outlives it
-        widen_kernel = patch_cpu.widen_rows_cpu()
-        widened = [add(launch_range(widen_kernel, lo, hi, [f1_rows, f1_w])) for lo, hi in _pieces(0, n, threads)]
+        early = submit(lambda: wp.launch(patch_cpu.widen_rows_cpu(), dim=n, inputs=[f1_rows, f1_w, 0],
+                                         device=device))
+    # 1. level copies, scaled levels, groupings
     level_arrays: dict[int, wp.array] = {}
     copied: dict[int, list[int]] = {}  # level -> its copy's items
     for lvl in range(n_levels):
@@ -697,6 +702,8 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
             copied[lvl] = fill_items(lvl, level_arrays[lvl].shape[0]) if lvl in fills else []
     scaled: dict[int, np.ndarray] = {}
     grouping: dict[int, tuple] = {}
+    pieces = 2 * threads
+    cuts: dict[int, list[tuple[int, int]]] = {}  # patched level -> its groups' ranges for the patch items
     ready: dict[int, list[int]] = {}  # level -> the items its products or patches wait for (besides f1)
     for lvl, (hl, wl) in enumerate(shapes):
         if full[lvl]:
@@ -706,7 +713,15 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
             n_groups, ints, starts, counts = grouping[lvl]
             inputs = [xy, a.s(0.5 ** lvl), *ints, starts, counts, hl, wl]
             group_kernel = patch_cpu.group_pixels_cpu(radius, a.scalar)
-            ready[lvl] = [*copied[lvl], add(launch_range(group_kernel, 0, 1, inputs))]
+
+            def group(lvl: int = lvl, inputs: list[Any] = inputs, starts: wp.array = starts,
+                      group_kernel: Any = group_kernel) -> None:
+                wp.launch(group_kernel, dim=1, inputs=[*inputs, 0], device=device)
+                # the level's groups cut into `pieces` ranges of equal pixel counts, once for its patch items
+                cuts[lvl] = _weighted_pieces(starts.numpy(), pieces)
+
+            ready[lvl] = [*copied[lvl], add(group)]
+    widened = [add(early.result)] if early is not None else []  # f1 ready (re-raises a failure of it)
 
     # 2-3. patches and full products, then windows, in the order
     #   P0 (B) P1 S0 P2 S1 P3 S2 ... S(full) S(last): Pk = patched level k's patches (into buffer k % 2,
@@ -716,7 +731,6 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
     patch_kernel = patch_cpu.patch_groups_cpu(radius, a.scalar, f1_rows.dtype)
     f1_r = _rows(f1_v)
     x1_rows = f1_v.numpy().reshape(n, -1)[:, :channels]  # f1 channels-last: the vectors' own memory
-    pieces = 2 * threads
     patched = [lvl for lvl in range(n_levels) if not full[lvl]]
     patch_buffers = [a.empty((n, side + 1, side + 1)) for _ in patched[:2]]  # every tap is written
     formed: dict[int, list[int]] = {}
@@ -754,9 +768,9 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
         buf = patch_buffers[k % 2]
         inputs = [f1_r, level_arrays[lvl], ints[2], ints[3], starts, hl, wl, inv, buf]
 
-        def patches(j: int, inputs: list[Any] = inputs, starts: wp.array = starts) -> None:
-            # piece j of the groups cut by pixel counts (known once the grouping has run)
-            cut = _weighted_pieces(starts.numpy(), pieces)
+        def patches(j: int, inputs: list[Any] = inputs, lvl: int = lvl) -> None:
+            # piece j of the groups cut by pixel counts (by the grouping's item)
+            cut = cuts[lvl]
             if j < len(cut):
                 wp.launch(patch_kernel, dim=cut[j][1] - cut[j][0], inputs=[*inputs, cut[j][0]], device=device)
 

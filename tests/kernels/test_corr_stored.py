@@ -340,3 +340,30 @@ def test_phased_float64_lookup_is_the_one_thread_lookup_bit_for_bit(monkeypatch)
         got = corr.lookup_onthefly(f1, pyramid, coords, radius)
         assert got.dtype == np.float64 and got.tobytes() == want.tobytes()
     assert calls
+
+
+def test_phased_lookup_raises_when_the_early_widening_fails(monkeypatch):
+    """`_forward_phased` hands f1's widening to a launch thread first (`submit`); a failure there reaches the
+    caller, and no patch item runs."""
+    from kernels import launch
+    from kernels.corr import onthefly
+
+    f1, f2_pyramid, coords = case(np.random.default_rng(5), 16, 24, 24, 3)
+    features = corr.onthefly_features(f1, f2_pyramid, feature_dtype="float16")
+    monkeypatch.setenv("DRLAB_THREADS", "2")
+    want = corr.lookup_onthefly_features(features, coords, 4)  # loads the kernels (the key's first call)
+    corr.lookup_onthefly_features(features, coords, 4)
+
+    def fail() -> None:
+        raise RuntimeError("early widening failed")
+
+    launched = []
+    real_launch = onthefly.wp.launch
+    monkeypatch.setattr(onthefly, "submit", lambda fn: launch.submit(fail))
+    monkeypatch.setattr(onthefly.wp, "launch", lambda k, *a, **kw: launched.append(k) or real_launch(k, *a, **kw))
+    with pytest.raises(RuntimeError, match="early widening failed"):
+        corr.lookup_onthefly_features(features, coords, 4)
+    assert not any("patch_groups" in k.key for k in launched)
+    monkeypatch.undo()
+    monkeypatch.setenv("DRLAB_THREADS", "2")
+    assert corr.lookup_onthefly_features(features, coords, 4).tobytes() == want.tobytes()

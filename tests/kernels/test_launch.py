@@ -256,3 +256,23 @@ def test_parallel_items_reraises():
 
     with pytest.raises(KeyError, match="item 3"):
         kl.parallel_items(fn, 8, threads=2)
+
+
+def test_submit_runs_on_a_launch_thread_and_reraises():
+    """`submit`: fn runs on a pool thread while the caller goes on; its Future gives the result or the exception."""
+    caller = threading.get_ident()
+    started = threading.Event()
+
+    def fn():
+        started.set()
+        return threading.get_ident()
+
+    fut = kl.submit(fn)
+    assert started.wait(10)
+    assert fut.result(10) != caller
+
+    def fail():
+        raise KeyError("early")
+
+    with pytest.raises(KeyError, match="early"):
+        kl.submit(fail).result(10)
