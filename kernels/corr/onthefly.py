@@ -646,9 +646,9 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
     `_run_ordered` (each waiting only for the items it reads):
       0. f1 widened or copied channels-last (`fills`), whole, on a launch thread from the start
          (`submit`), while this thread builds the list;
-      1. each patched level's channels-last copy (`fills`), by row ranges; each full-product level's
-         P^l(f2) / sqrt(C); each patched level's pixels grouped and its groups cut into ranges of equal
-         pixel counts; then an item that waits for 0;
+      1. each patched level's pixels grouped and its groups cut into ranges of equal pixel counts, here
+         while the list is built (no item); each patched level's channels-last copy (`fills`), by row
+         ranges; each full-product level's P^l(f2) / sqrt(C); then an item that waits for 0;
       2. each patched level's patches, by those ranges (after f1 and that level's grouping), and each full-product level's rows of V^l by BLAS (the same 256-row
          products; after f1 and its scaled level);
       3. each level's windows sampled, ranges of pixel blocks (after that level's patches or rows),
@@ -683,16 +683,24 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
     def fill_items(key: Any, rows: int) -> list[int]:
         return [add(lambda lo=lo, hi=hi: fills[key](lo, hi)) for lo, hi in _pieces(0, rows, threads)]
 
-    early = None
+    early_fn = None
     if f1_rows.dtype == a.scalar:
         f1_v = widen(f1_rows, a)
         if "f1" in fills:
-            early = submit(lambda: fills["f1"](0, n))
+            early_fn = lambda: fills["f1"](0, n)  # noqa: E731
     else:  # float16 rows, float32 work (`_cpu_patches`): `widen`'s C++ conversion
         f1_v = a.empty((n, f1_rows.shape[1] // VEC), vec)
         f1_w = wp.array(ptr=f1_v.ptr, shape=f1_rows.shape, dtype=a.scalar, device=device)  # f1_v outlives it
-        early = submit(lambda: wp.launch(patch_cpu.widen_rows_cpu(), dim=n, inputs=[f1_rows, f1_w, 0],
-                                         device=device))
+        early_fn = lambda: wp.launch(patch_cpu.widen_rows_cpu(), dim=n, inputs=[f1_rows, f1_w, 0],  # noqa: E731
+                                     device=device)
+    early = None
+    if early_fn is not None:
+        # This thread waits (GIL released) until the launch thread has started 0: else this thread's Python
+        # keeps the GIL and the woken launch thread could not start 0 before the list is built. Bounded, in
+        # case every launch thread is busy.
+        started = threading.Event()
+        early = submit(lambda: started.set() or early_fn())
+        started.wait(0.002)
     # 1. level copies, scaled levels, groupings
     level_arrays: dict[int, wp.array] = {}
     copied: dict[int, list[int]] = {}  # level -> its copy's items
@@ -712,15 +720,11 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
             grouping[lvl] = _kept_grouping_arrays(a, lvl, n, radius, hl, wl)
             n_groups, ints, starts, counts = grouping[lvl]
             inputs = [xy, a.s(0.5 ** lvl), *ints, starts, counts, hl, wl]
-            group_kernel = patch_cpu.group_pixels_cpu(radius, a.scalar)
-
-            def group(lvl: int = lvl, inputs: list[Any] = inputs, starts: wp.array = starts,
-                      group_kernel: Any = group_kernel) -> None:
-                wp.launch(group_kernel, dim=1, inputs=[*inputs, 0], device=device)
-                # the level's groups cut into `pieces` ranges of equal pixel counts, once for its patch items
-                cuts[lvl] = _weighted_pieces(starts.numpy(), pieces)
-
-            ready[lvl] = [*copied[lvl], add(group)]
+            # grouped here, on this thread (native launches, which release the GIL: meanwhile the launch
+            # thread takes it to start 0), and cut into `pieces` ranges of equal pixel counts for the patches
+            wp.launch(patch_cpu.group_pixels_cpu(radius, a.scalar), dim=1, inputs=[*inputs, 0], device=device)
+            cuts[lvl] = _weighted_pieces(starts.numpy(), pieces)
+            ready[lvl] = copied[lvl]
     widened = [add(early.result)] if early is not None else []  # f1 ready (re-raises a failure of it)
 
     # 2-3. patches and full products, then windows, in the order
