@@ -35,8 +35,8 @@ pixels whose windows hold a row sharing its tap vectors, reading P^l(f2) in its 
 window from its patch (`window_cpu.sample_patches_cpu`): every tap the same operations in the same
 order as `_patch_sample_level` (the Warp kernel, which CUDA keeps, with `_patch_level`), so the
 same values bit for bit. With several threads, stored features (`lookup_onthefly_features`) and the
-float32 lookup (C a multiple of 8) take all levels at once (`_forward_phased`: two patch buffers, one
-hand-off to the threads), the same values.
+float32 lookup (C a multiple of 8) take all levels at once (`_forward_phased`: two patch buffers, f1's
+widening handed to a thread first, then one list of items), the same values.
 
 Backward, with g = d loss / d out: the patch is recomputed; d T follows from g
 and (3) (and d coords as in the dense lookup); then
@@ -640,7 +640,7 @@ def _run_ordered(items: list[Callable[[], None]], after: list[tuple[int, ...]]) 
 def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: int, n_levels: int,
                     level_rows: Callable[[int], wp.array], level_scaled: Callable[[int], np.ndarray],
                     out: wp.array, fills: dict[Any, Callable[[int, int], None]]) -> None:
-    """`_forward`'s CPU path on several threads: every level at once, one hand-off to the launch threads.
+    """`_forward`'s CPU path on several threads: every level at once, two hand-offs to the launch threads.
 
     The same kernels on the same values as `_forward` (bit for bit), as items run in this order by
     `_run_ordered` (each waiting only for the items it reads):
@@ -649,14 +649,14 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
       1. each patched level's pixels grouped and its groups cut into ranges of equal pixel counts, here
          while the list is built (no item); each patched level's channels-last copy (`fills`), by row
          ranges; each full-product level's P^l(f2) / sqrt(C); then an item that waits for 0;
-      2. each patched level's patches, by those ranges (after f1 and that level's grouping), and each full-product level's rows of V^l by BLAS (the same 256-row
-         products; after f1 and its scaled level);
+      2. each patched level's patches, by those ranges (after f1), and each full-product level's rows
+         of V^l by BLAS (the same 256-row products; after f1 and its scaled level);
       3. each level's windows sampled, ranges of pixel blocks (after that level's patches or rows),
          interleaved with 2 (order below).
     The patched levels take turns in two patch buffers (`onthefly_bytes` counts both), each
     full-product level has its rows of its own; items running at once write disjoint memory. Against
     level by level (at two threads ~10 parallel sections, ~70 guided-chunk launches, three groupings on
-    one thread): ~30 launches and two hand-offs a call (0, then the list).
+    one thread): ~25 launches and two hand-offs a call (0, then the list).
     """
     n = f1_rows.shape[0]
     threads = default_threads()
