@@ -679,7 +679,7 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
 
     # 0. f1 widened (exact; float32 storage: a view) or copied channels-last, handed whole to a launch
     # thread first: it runs (one native launch or NumPy copy, without the GIL) while this thread builds the
-    # list; the item `widened` waits for it (placed after the groupings, so the caller's thread groups first)
+    # list and groups the pixels; the item `widened`, before the first patches, waits for it
     def fill_items(key: Any, rows: int) -> list[int]:
         return [add(lambda lo=lo, hi=hi: fills[key](lo, hi)) for lo, hi in _pieces(0, rows, threads)]
 
@@ -701,7 +701,7 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
         started = threading.Event()
         early = submit(lambda: started.set() or early_fn())
         started.wait(0.002)
-    # 1. level copies, scaled levels, groupings
+    # 1. level copies, scaled levels (items); groupings (here)
     level_arrays: dict[int, wp.array] = {}
     copied: dict[int, list[int]] = {}  # level -> its copy's items
     for lvl in range(n_levels):
@@ -773,7 +773,7 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
         inputs = [f1_r, level_arrays[lvl], ints[2], ints[3], starts, hl, wl, inv, buf]
 
         def patches(j: int, inputs: list[Any] = inputs, lvl: int = lvl) -> None:
-            # piece j of the groups cut by pixel counts (by the grouping's item)
+            # piece j of the groups cut by pixel counts (`cuts`, made with the grouping)
             cut = cuts[lvl]
             if j < len(cut):
                 wp.launch(patch_kernel, dim=cut[j][1] - cut[j][0], inputs=[*inputs, cut[j][0]], device=device)
