@@ -598,6 +598,36 @@ def _kept_grouping_arrays(a: Inputs, lvl: int, n: int, radius: int, height_l: in
     return kept[key]
 
 
+def _kept_launches(key: tuple) -> dict[Any, Any]:
+    """The calling thread's recorded launches (`_replay`) for the phased lookups of one size (`key`)."""
+    kept = getattr(_kept, "launches", None)
+    if kept is None:
+        kept = _kept.launches = {}
+    if key not in kept and len(kept) >= 8:  # a few sizes in use at a time
+        kept.clear()
+    return kept.setdefault(key, {})
+
+
+def _replay(replays: dict[Any, Any], slot: Any, kernel: Any, dim: int, inputs: list[Any], device: wp.Device) -> None:
+    """`wp.launch(kernel, dim, inputs)` through a launch recorded once per slot (`replays`, one call's items
+    each own a slot): its arguments set from their ctypes values and replayed, ~half of `wp.launch`'s Python
+    (which packs and checks every argument). The recorded launch keeps no array between calls (fwd_args
+    dropped); every argument is set again before each replay. Concrete (non-generic) CPU kernels only."""
+    cmd = replays.get(slot)
+    if cmd is None or cmd.kernel is not kernel or len(cmd.params) != len(inputs) + 1:
+        cmd = wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
+        cmd.fwd_args = None
+        replays[slot] = cmd
+    else:
+        cmd.set_dim(dim)
+        for i, v in enumerate(inputs):
+            if isinstance(v, wp.array):
+                cmd.set_param_at_index_from_ctype(i, v.__ctype__())
+            else:
+                cmd.set_param_at_index_from_ctype(i, v if isinstance(v, int) else float(v))
+    cmd.launch()
+
+
 def _run_ordered(items: list[Callable[[], None]], after: list[tuple[int, ...]]) -> None:
     """Run the items on the launch threads: each thread pulls the next item in list order and, before
     running it, waits for the items it comes `after` (all earlier in the list). One hand-off to the pool
@@ -674,8 +704,10 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
         after.append(tuple(deps))
         return len(items) - 1
 
-    def launch_range(kernel: Any, lo: int, hi: int, inputs: list[Any]) -> Callable[[], None]:
-        return lambda: wp.launch(kernel, dim=hi - lo, inputs=[*inputs, lo], device=device)
+    replays = _kept_launches((device.alias, n, tuple(shapes), radius, a.scalar, f1_rows.dtype, threads, channels))
+
+    def launch_range(kernel: Any, lo: int, hi: int, inputs: list[Any], slot: Any) -> Callable[[], None]:
+        return lambda: _replay(replays, slot, kernel, hi - lo, [*inputs, lo], device)
 
     # 0. f1 widened (exact; float32 storage: a view) or copied channels-last, handed whole to a launch
     # thread first: it runs (one native launch or NumPy copy, without the GIL) while this thread builds the
@@ -761,7 +793,7 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
     def add_windows(lvl: int) -> None:
         kernel, head = sampled[lvl]
         inputs = [*head, xy, out, a.s(0.5 ** lvl), lvl * side * side]
-        sampled[lvl] = [add(launch_range(kernel, lo, hi, inputs), formed[lvl])
+        sampled[lvl] = [add(launch_range(kernel, lo, hi, inputs, ("windows", lvl, lo)), formed[lvl])
                         for lo, hi in _pieces(0, n_blocks, threads)]
 
     if not patched:
@@ -776,7 +808,8 @@ def _forward_phased(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, r
             # piece j of the groups cut by pixel counts (`cuts`, made with the grouping)
             cut = cuts[lvl]
             if j < len(cut):
-                wp.launch(patch_kernel, dim=cut[j][1] - cut[j][0], inputs=[*inputs, cut[j][0]], device=device)
+                _replay(replays, ("patches", lvl, j), patch_kernel, cut[j][1] - cut[j][0], [*inputs, cut[j][0]],
+                        device)
 
         deps = [*widened, *ready[lvl], *(sampled[patched[k - 2]] if k >= 2 else [])]
         formed[lvl] = [add(lambda j=j, f=patches: f(j), deps) for j in range(pieces)]

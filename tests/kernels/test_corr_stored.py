@@ -367,3 +367,25 @@ def test_phased_lookup_raises_when_the_early_widening_fails(monkeypatch):
     monkeypatch.undo()
     monkeypatch.setenv("DRLAB_THREADS", "2")
     assert corr.lookup_onthefly_features(features, coords, 4).tobytes() == want.tobytes()
+
+
+def test_replayed_launch_equals_wp_launch_with_new_arguments_each_call():
+    """`_replay` (the phased path's launches): a launch recorded once per slot, then every argument set again
+    and replayed: the same writes as `wp.launch` with each call's own arrays, dims and offsets; it keeps no
+    array between calls."""
+    import warp as wp
+
+    from kernels.corr import onthefly, patch_cpu
+
+    rng = np.random.default_rng(3)
+    kernel = patch_cpu.widen_rows_cpu()
+    replays: dict = {}
+    for rows, lo, hi in ((7, 0, 7), (9, 2, 6), (5, 1, 5)):
+        x = rng.standard_normal((rows, 16)).astype(np.float16)
+        src = wp.array(x, dtype=wp.float16, device="cpu")
+        got = wp.zeros((rows, 16), dtype=wp.float32, device="cpu")
+        onthefly._replay(replays, "slot", kernel, hi - lo, [src, got, lo], wp.get_device("cpu"))
+        want = np.zeros((rows, 16), np.float32)
+        want[lo:hi] = x[lo:hi].astype(np.float32)
+        assert got.numpy().tobytes() == want.tobytes()
+        assert len(replays) == 1 and replays["slot"].fwd_args is None
