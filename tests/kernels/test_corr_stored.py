@@ -358,11 +358,13 @@ def test_phased_lookup_raises_when_the_early_widening_fails(monkeypatch):
         raise RuntimeError("early widening failed")
 
     launched = []
-    real_launch = onthefly.wp.launch
+    real_launch, real_replay = onthefly.wp.launch, onthefly._replay
     monkeypatch.setattr(onthefly, "submit", lambda fn: launch.submit(fail))
     monkeypatch.setattr(onthefly.wp, "launch", lambda k, *a, **kw: launched.append(k) or real_launch(k, *a, **kw))
+    monkeypatch.setattr(onthefly, "_replay", lambda r, s, k, *a: launched.append(k) or real_replay(r, s, k, *a))
     with pytest.raises(RuntimeError, match="early widening failed"):
         corr.lookup_onthefly_features(features, coords, 4)
+    assert any("group_pixels" in k.key for k in launched)  # the spies see the call's launches
     assert not any("patch_groups" in k.key for k in launched)
     monkeypatch.undo()
     monkeypatch.setenv("DRLAB_THREADS", "2")
