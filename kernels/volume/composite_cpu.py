@@ -22,9 +22,14 @@ ray r = r0 + l; at step i every lane still running takes its sample k = o_r + i:
 
 each product and each sum its own statement and floating-point contraction off, so no fused
 multiply-add appears (none does in Warp's generated code either). Lanes that have ended keep their
-values (a select by the run mask); they read a clamped in-range sample (their factor replaced by
-1), which nothing uses. The step count is the longest ray of the group: the sample indices are
-o_r + i whatever the lanes' transmittances, so the loads do not wait on the recurrence. The
+values (a select by the run mask); what they read (their factor replaced by 1) nothing uses. The
+step count is the longest ray of the group: the sample indices are o_r + i whatever the lanes'
+transmittances, so the loads do not wait on the recurrence. With `fused` (offsets covering the N
+samples, non-decreasing) the steps go in blocks of eight: each lane loads samples o_r + i0 ..
+o_r + i0 + 7 of every array as one unaligned vector (three for the interleaved colours), element
+by element where that would pass the group's last sample, and 8 x 8 register transposes give the
+eight steps' lane vectors (5 transposes of 24 shuffles against 40 gathers of 8); without it each
+step gathers its sample, clamped to N - 1. The
 optional value check adds up, per lane after the loop, the colours and depths of the samples
 after early termination exactly as the Warp kernel does, and flags the ray when any sum is NaN or
 infinite. Rays past the last of a group of eight get no lanes' results written.
@@ -69,6 +74,33 @@ _FORWARD_CPP = r"""
     typedef int v8i __attribute__((ext_vector_type(8)));
 """ + NPEXP_TYPES + r"""
     typedef unsigned int v16u __attribute__((ext_vector_type(16)));
+    // out[j][l] = in[l * stride][j]: an 8 x 8 transpose in registers (unpack, shuffle, 128-bit lane swap)
+    auto transpose8 = [](const v8f* in, int stride, v8f* out) __attribute__((always_inline)) {
+        const v8f t0 = __builtin_shufflevector(in[0], in[stride], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t1 = __builtin_shufflevector(in[0], in[stride], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f t2 = __builtin_shufflevector(in[2 * stride], in[3 * stride], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t3 = __builtin_shufflevector(in[2 * stride], in[3 * stride], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f t4 = __builtin_shufflevector(in[4 * stride], in[5 * stride], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t5 = __builtin_shufflevector(in[4 * stride], in[5 * stride], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f t6 = __builtin_shufflevector(in[6 * stride], in[7 * stride], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t7 = __builtin_shufflevector(in[6 * stride], in[7 * stride], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f u0 = __builtin_shufflevector(t0, t2, 0, 1, 8, 9, 4, 5, 12, 13);
+        const v8f u1 = __builtin_shufflevector(t0, t2, 2, 3, 10, 11, 6, 7, 14, 15);
+        const v8f u2 = __builtin_shufflevector(t1, t3, 0, 1, 8, 9, 4, 5, 12, 13);
+        const v8f u3 = __builtin_shufflevector(t1, t3, 2, 3, 10, 11, 6, 7, 14, 15);
+        const v8f u4 = __builtin_shufflevector(t4, t6, 0, 1, 8, 9, 4, 5, 12, 13);
+        const v8f u5 = __builtin_shufflevector(t4, t6, 2, 3, 10, 11, 6, 7, 14, 15);
+        const v8f u6 = __builtin_shufflevector(t5, t7, 0, 1, 8, 9, 4, 5, 12, 13);
+        const v8f u7 = __builtin_shufflevector(t5, t7, 2, 3, 10, 11, 6, 7, 14, 15);
+        out[0] = __builtin_shufflevector(u0, u4, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[1] = __builtin_shufflevector(u1, u5, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[2] = __builtin_shufflevector(u2, u6, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[3] = __builtin_shufflevector(u3, u7, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[4] = __builtin_shufflevector(u0, u4, 4, 5, 6, 7, 12, 13, 14, 15);
+        out[5] = __builtin_shufflevector(u1, u5, 4, 5, 6, 7, 12, 13, 14, 15);
+        out[6] = __builtin_shufflevector(u2, u6, 4, 5, 6, 7, 12, 13, 14, 15);
+        out[7] = __builtin_shufflevector(u3, u7, 4, 5, 6, 7, 12, 13, 14, 15);
+    };
     enum { GROUPS = """ + str(GROUPS) + r""" };  // groups of eight rays a call
     enum { RING = """ + str(RING) + r""" };  // samples a slot of the ring (keep == 0)
     // keep == 0 (fused only): a group's factors live in one slot of this two-slot ring (the current group's, and
@@ -178,7 +210,11 @@ _FORWARD_CPP = r"""
     // the next group's samples [pa, pb), prefetched 16 a step (a hint: bits do not depend on it)
     const int pa = r0 + 8 < n_rays ? O[r0 + 8] : 0;
     const int pb = r0 + 8 < n_rays ? O[(r0 + 16 < n_rays ? r0 + 16 : n_rays)] : 0;
-    for (int i = 0; i < maxlen; ++i) {
+    // one step: the prefetch of the next group, the run mask, the recurrence on the lanes' sample values e (the
+    // factor), c0, c1, c2 (colour) and zk (depth), the next group's 16 factors; false when no lane runs (the
+    // group's loop ends)
+    auto step = [&](int i, v8f e, v8f c0, v8f c1, v8f c2, v8f zk) __attribute__((always_inline)) -> bool {
+#pragma clang fp contract(off)
         const int p = pa + 16 * i;
         if (p < pb) {
             // fused: the factor loop streams sigma and delta (the hardware prefetcher serves that; prefetching
@@ -194,38 +230,7 @@ _FORWARD_CPP = r"""
         const v8i inside = (v8i)i < len;
         const v8i run = inside & ~(T < thr);
         if (!__builtin_reduce_or(run))
-            break;
-        v8i idx = start + i;
-        idx = __builtin_elementwise_min(idx, (v8i)last);
-        v8i fidx = idx;
-        if (stored == 0)
-            fidx = __builtin_elementwise_max(__builtin_elementwise_min(idx - ga, (v8i)(gn - 1)), (v8i)0);
-        v8f e, c0, c1, c2, zk;
-#if defined(__AVX2__)
-        {
-            typedef float g8f __attribute__((__vector_size__(32)));
-            typedef int g8i __attribute__((__vector_size__(32)));
-            const g8f all = (g8f)(v8i)(-1);
-            const g8f none = (g8f)(v8f)0.0f;
-            const v8i i3 = idx * 3;
-            const float* Cf = (const float*)Cb;
-            e = (v8f)__builtin_ia32_gatherd_ps256(none, Fg, (g8i)fidx, all, 4);
-            zk = (v8f)__builtin_ia32_gatherd_ps256(none, Zp, (g8i)idx, all, 4);
-            c0 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf, (g8i)i3, all, 4);
-            c1 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf + 1, (g8i)i3, all, 4);
-            c2 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf + 2, (g8i)i3, all, 4);
-        }
-#else
-        for (int l = 0; l < 8; ++l) {
-            const int k = idx[l];
-            const float* c = (const float*)(Cb + (long long)k * cs0);
-            e[l] = Fg[fidx[l]];
-            c0[l] = c[0];
-            c1[l] = *(const float*)((const char*)c + cs1);
-            c2[l] = *(const float*)((const char*)c + 2 * cs1);
-            zk[l] = Zp[k];
-        }
-#endif
+            return false;
         e = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, e)) | (~run & __builtin_bit_cast(v8i, one)));
         const v8f om = one - e;
         const v8f w = T * om;
@@ -249,6 +254,102 @@ _FORWARD_CPP = r"""
             fill_at(nk, m, top_next, nbase, slot ^ 1);
             nk += m;
         }
+        return true;
+    };
+    if (fused != 0) {
+        // blocks of eight steps: each lane loads eight consecutive samples of its ray as one vector per array
+        // (three for the interleaved colours), and 8 x 8 register transposes turn the lanes' rows into the
+        // eight steps' columns. The group's samples are [ga, gb) (fused: offsets cover N, non-decreasing); a
+        // row that would pass gb is loaded element by element up to gb and zero after it: every sample a
+        // running lane takes lies before its ray's end <= gb, the rest only feed lanes that do not run (their
+        // factor replaced by 1, their values kept by the selects), so the bits are those of the gathers
+        const int gb = ga + gn;
+        const int fb = stored != 0 ? 0 : ga;  // sample k's factor is Fg[k - fb]
+        const float* Cf = (const float*)Cb;
+        v8i lb;  // the lanes' first samples; gb for lanes without a ray (nothing loaded)
+        for (int l = 0; l < 8; ++l)
+            lb[l] = r0 + l < n_rays ? start[l] : gb;
+        bool go = true;
+        for (int i0 = 0; go && i0 < maxlen; i0 += 8) {
+            v8f fr[8], zr[8], cr[24];
+#pragma clang loop unroll(full)
+            for (int l = 0; l < 8; ++l) {
+                const int k = lb[l] + i0;
+                const int m = gb - k;
+                if (m >= 8) {
+                    __builtin_memcpy(&fr[l], Fg + (k - fb), sizeof(v8f));
+                    __builtin_memcpy(&zr[l], Zp + k, sizeof(v8f));
+                    __builtin_memcpy(&cr[3 * l], Cf + 3LL * k, 3 * sizeof(v8f));
+                } else {
+                    fr[l] = 0.0f;
+                    zr[l] = 0.0f;
+                    cr[3 * l] = 0.0f;
+                    cr[3 * l + 1] = 0.0f;
+                    cr[3 * l + 2] = 0.0f;
+                    for (int j = 0; j < m; ++j) {
+                        fr[l][j] = Fg[k - fb + j];
+                        zr[l][j] = Zp[k + j];
+                        for (int c = 0; c < 3; ++c) {
+                            const int q = 3 * j + c;
+                            cr[3 * l + q / 8][q % 8] = Cf[3LL * k + q];
+                        }
+                    }
+                }
+            }
+            // columns: fc[j][l] = lane l's factor at step i0 + j; likewise zc; cc[q][l] = lane l's float q of
+            // its 24 colour floats (sample j's channel c at q = 3 j + c)
+            v8f fc[8] __attribute__((aligned(64)));
+            v8f zc[8] __attribute__((aligned(64)));
+            v8f cc[24] __attribute__((aligned(64)));
+            transpose8(fr, 1, fc);
+            transpose8(zr, 1, zc);
+            transpose8(cr, 3, cc);
+            transpose8(cr + 1, 3, cc + 8);
+            transpose8(cr + 2, 3, cc + 16);
+            // the steps read the columns back from the stack (one copy of `step` in the loop: unrolling it eight
+            // times, with the factor fill inlined into each, was not faster)
+            const int jn = maxlen - i0 < 8 ? maxlen - i0 : 8;
+#pragma clang loop unroll(disable)
+            for (int j = 0; j < jn; ++j) {
+                if (!step(i0 + j, fc[j], cc[3 * j], cc[3 * j + 1], cc[3 * j + 2], zc[j])) {
+                    go = false;
+                    break;
+                }
+            }
+        }
+    } else {
+    for (int i = 0; i < maxlen; ++i) {
+        v8i idx = start + i;
+        idx = __builtin_elementwise_min(idx, (v8i)last);
+        v8f e, c0, c1, c2, zk;
+#if defined(__AVX2__)
+        {
+            typedef float g8f __attribute__((__vector_size__(32)));
+            typedef int g8i __attribute__((__vector_size__(32)));
+            const g8f all = (g8f)(v8i)(-1);
+            const g8f none = (g8f)(v8f)0.0f;
+            const v8i i3 = idx * 3;
+            const float* Cf = (const float*)Cb;
+            e = (v8f)__builtin_ia32_gatherd_ps256(none, F, (g8i)idx, all, 4);
+            zk = (v8f)__builtin_ia32_gatherd_ps256(none, Zp, (g8i)idx, all, 4);
+            c0 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf, (g8i)i3, all, 4);
+            c1 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf + 1, (g8i)i3, all, 4);
+            c2 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf + 2, (g8i)i3, all, 4);
+        }
+#else
+        for (int l = 0; l < 8; ++l) {
+            const int k = idx[l];
+            const float* c = (const float*)(Cb + (long long)k * cs0);
+            e[l] = F[k];
+            c0[l] = c[0];
+            c1[l] = *(const float*)((const char*)c + cs1);
+            c2[l] = *(const float*)((const char*)c + 2 * cs1);
+            zk[l] = Zp[k];
+        }
+#endif
+        if (!step(i, e, c0, c1, c2, zk))
+            break;
+    }
     }
     while (nk < nb) {  // the rest of them
         const int m = nb - nk < 16 ? nb - nk : 16;
