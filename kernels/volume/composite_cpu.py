@@ -66,24 +66,17 @@ LANES = 8  # rays in the lanes of a group
 GROUPS = 8  # groups of LANES rays per thread of the forward kernel
 RING = 2048  # samples a slot of the forward's two-slot factor ring (keep=0): 8 KB of float32, a slot
 
-_FORWARD_CPP = r"""
-#if !defined(__CUDA_ARCH__)
-  {
-#pragma clang fp contract(off)
-    typedef float v8f __attribute__((ext_vector_type(8)));
-    typedef int v8i __attribute__((ext_vector_type(8)));
-""" + NPEXP_TYPES + r"""
-    typedef unsigned int v16u __attribute__((ext_vector_type(16)));
-    // out[j][l] = in[l * stride][j]: an 8 x 8 transpose in registers (unpack, shuffle, 128-bit lane swap)
-    auto transpose8 = [](const v8f* in, int stride, v8f* out) __attribute__((always_inline)) {
-        const v8f t0 = __builtin_shufflevector(in[0], in[stride], 0, 8, 1, 9, 4, 12, 5, 13);
-        const v8f t1 = __builtin_shufflevector(in[0], in[stride], 2, 10, 3, 11, 6, 14, 7, 15);
-        const v8f t2 = __builtin_shufflevector(in[2 * stride], in[3 * stride], 0, 8, 1, 9, 4, 12, 5, 13);
-        const v8f t3 = __builtin_shufflevector(in[2 * stride], in[3 * stride], 2, 10, 3, 11, 6, 14, 7, 15);
-        const v8f t4 = __builtin_shufflevector(in[4 * stride], in[5 * stride], 0, 8, 1, 9, 4, 12, 5, 13);
-        const v8f t5 = __builtin_shufflevector(in[4 * stride], in[5 * stride], 2, 10, 3, 11, 6, 14, 7, 15);
-        const v8f t6 = __builtin_shufflevector(in[6 * stride], in[7 * stride], 0, 8, 1, 9, 4, 12, 5, 13);
-        const v8f t7 = __builtin_shufflevector(in[6 * stride], in[7 * stride], 2, 10, 3, 11, 6, 14, 7, 15);
+_TRANSPOSE8 = r"""
+    // out[j * os][l] = in[l * is][j]: an 8 x 8 transpose in registers (unpack, shuffle, 128-bit lane swap)
+    auto transpose8 = [](const v8f* in, int is, v8f* out, int os) __attribute__((always_inline)) {
+        const v8f t0 = __builtin_shufflevector(in[0], in[is], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t1 = __builtin_shufflevector(in[0], in[is], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f t2 = __builtin_shufflevector(in[2 * is], in[3 * is], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t3 = __builtin_shufflevector(in[2 * is], in[3 * is], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f t4 = __builtin_shufflevector(in[4 * is], in[5 * is], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t5 = __builtin_shufflevector(in[4 * is], in[5 * is], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f t6 = __builtin_shufflevector(in[6 * is], in[7 * is], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t7 = __builtin_shufflevector(in[6 * is], in[7 * is], 2, 10, 3, 11, 6, 14, 7, 15);
         const v8f u0 = __builtin_shufflevector(t0, t2, 0, 1, 8, 9, 4, 5, 12, 13);
         const v8f u1 = __builtin_shufflevector(t0, t2, 2, 3, 10, 11, 6, 7, 14, 15);
         const v8f u2 = __builtin_shufflevector(t1, t3, 0, 1, 8, 9, 4, 5, 12, 13);
@@ -92,16 +85,26 @@ _FORWARD_CPP = r"""
         const v8f u5 = __builtin_shufflevector(t4, t6, 2, 3, 10, 11, 6, 7, 14, 15);
         const v8f u6 = __builtin_shufflevector(t5, t7, 0, 1, 8, 9, 4, 5, 12, 13);
         const v8f u7 = __builtin_shufflevector(t5, t7, 2, 3, 10, 11, 6, 7, 14, 15);
-        out[0] = __builtin_shufflevector(u0, u4, 0, 1, 2, 3, 8, 9, 10, 11);
-        out[1] = __builtin_shufflevector(u1, u5, 0, 1, 2, 3, 8, 9, 10, 11);
-        out[2] = __builtin_shufflevector(u2, u6, 0, 1, 2, 3, 8, 9, 10, 11);
-        out[3] = __builtin_shufflevector(u3, u7, 0, 1, 2, 3, 8, 9, 10, 11);
-        out[4] = __builtin_shufflevector(u0, u4, 4, 5, 6, 7, 12, 13, 14, 15);
-        out[5] = __builtin_shufflevector(u1, u5, 4, 5, 6, 7, 12, 13, 14, 15);
-        out[6] = __builtin_shufflevector(u2, u6, 4, 5, 6, 7, 12, 13, 14, 15);
-        out[7] = __builtin_shufflevector(u3, u7, 4, 5, 6, 7, 12, 13, 14, 15);
+        out[0 * os] = __builtin_shufflevector(u0, u4, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[1 * os] = __builtin_shufflevector(u1, u5, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[2 * os] = __builtin_shufflevector(u2, u6, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[3 * os] = __builtin_shufflevector(u3, u7, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[4 * os] = __builtin_shufflevector(u0, u4, 4, 5, 6, 7, 12, 13, 14, 15);
+        out[5 * os] = __builtin_shufflevector(u1, u5, 4, 5, 6, 7, 12, 13, 14, 15);
+        out[6 * os] = __builtin_shufflevector(u2, u6, 4, 5, 6, 7, 12, 13, 14, 15);
+        out[7 * os] = __builtin_shufflevector(u3, u7, 4, 5, 6, 7, 12, 13, 14, 15);
     };
-    enum { GROUPS = """ + str(GROUPS) + r""" };  // groups of eight rays a call
+"""
+
+_FORWARD_CPP = r"""
+#if !defined(__CUDA_ARCH__)
+  {
+#pragma clang fp contract(off)
+    typedef float v8f __attribute__((ext_vector_type(8)));
+    typedef int v8i __attribute__((ext_vector_type(8)));
+""" + NPEXP_TYPES + r"""
+    typedef unsigned int v16u __attribute__((ext_vector_type(16)));
+""" + _TRANSPOSE8 + r"""    enum { GROUPS = """ + str(GROUPS) + r""" };  // groups of eight rays a call
     enum { RING = """ + str(RING) + r""" };  // samples a slot of the ring (keep == 0)
     // keep == 0 (fused only): a group's factors live in one slot of this two-slot ring (the current group's, and
     // the next group's being filled during its steps), never in `factor`; composite.py sends a group of more than
@@ -301,11 +304,11 @@ _FORWARD_CPP = r"""
             v8f fc[8] __attribute__((aligned(64)));
             v8f zc[8] __attribute__((aligned(64)));
             v8f cc[24] __attribute__((aligned(64)));
-            transpose8(fr, 1, fc);
-            transpose8(zr, 1, zc);
-            transpose8(cr, 3, cc);
-            transpose8(cr + 1, 3, cc + 8);
-            transpose8(cr + 2, 3, cc + 16);
+            transpose8(fr, 1, fc, 1);
+            transpose8(zr, 1, zc, 1);
+            transpose8(cr, 3, cc, 1);
+            transpose8(cr + 1, 3, cc + 8, 1);
+            transpose8(cr + 2, 3, cc + 16, 1);
             // the steps read the columns back from the stack (one copy of `step` in the loop: unrolling it eight
             // times, with the factor fill inlined into each, was not faster)
             const int jn = maxlen - i0 < 8 ? maxlen - i0 : 8;
@@ -411,7 +414,7 @@ _BACKWARD_CPP = r"""
 #define DRLAB_AT2(a, i, j) (*(const float*)((const char*)(a).data + (long long)(i) * (a).strides[0] + (long long)(j) * (a).strides[1]))
     typedef float v8f __attribute__((ext_vector_type(8)));
     typedef int v8i __attribute__((ext_vector_type(8)));
-    const float* F = (const float*)factor.data;
+""" + _TRANSPOSE8 + r"""    const float* F = (const float*)factor.data;
     const float* C = (const float*)rgb.data;
     const float* Dl = (const float*)delta.data;
     const float* Zp = (const float*)z.data;
@@ -480,7 +483,11 @@ _BACKWARD_CPP = r"""
     v8f prefix = 0.0f;
     const int pa = r0 + 8 < n_rays ? O[r0 + 8] : 0;
     const int pb = r0 + 8 < n_rays ? O[(r0 + 16 < n_rays ? r0 + 16 : n_rays)] : 0;
-    for (int i = 0; i < maxused; ++i) {
+    // one step on the lanes' sample values e, c0, c1, c2, zk, dk (the prefetch of the next group, the recurrence);
+    // the step's gradients into gs (dL/dsigma) and wr, wg, wb (dL/dc)
+    auto step = [&](int i, v8f e, v8f c0, v8f c1, v8f c2, v8f zk, v8f dk, v8f& gs, v8f& wr, v8f& wg, v8f& wb)
+        __attribute__((always_inline)) {
+#pragma clang fp contract(off)
         const int p = pa + 16 * i;
         if (p < pb) {
             __builtin_prefetch(F + p);
@@ -497,34 +504,6 @@ _BACKWARD_CPP = r"""
             __builtin_prefetch(pg + 32, 1);
         }
         const v8i run = (v8i)i < used;
-        v8i idx = start + i;
-        idx = __builtin_elementwise_min(idx, (v8i)last);
-        v8f e, c0, c1, c2, zk, dk;
-#if defined(__AVX2__)
-        {
-            typedef float g8f __attribute__((__vector_size__(32)));
-            typedef int g8i __attribute__((__vector_size__(32)));
-            const g8f all = (g8f)(v8i)(-1);
-            const g8f none = (g8f)(v8f)0.0f;
-            const v8i i3 = idx * 3;
-            e = (v8f)__builtin_ia32_gatherd_ps256(none, F, (g8i)idx, all, 4);
-            zk = (v8f)__builtin_ia32_gatherd_ps256(none, Zp, (g8i)idx, all, 4);
-            dk = (v8f)__builtin_ia32_gatherd_ps256(none, Dl, (g8i)idx, all, 4);
-            c0 = (v8f)__builtin_ia32_gatherd_ps256(none, C, (g8i)i3, all, 4);
-            c1 = (v8f)__builtin_ia32_gatherd_ps256(none, C + 1, (g8i)i3, all, 4);
-            c2 = (v8f)__builtin_ia32_gatherd_ps256(none, C + 2, (g8i)i3, all, 4);
-        }
-#else
-        for (int l = 0; l < 8; ++l) {
-            const long long k = idx[l];
-            e[l] = F[k];
-            zk[l] = Zp[k];
-            dk[l] = Dl[k];
-            c0[l] = C[3 * k];
-            c1[l] = C[3 * k + 1];
-            c2[l] = C[3 * k + 2];
-        }
-#endif
         e = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, e)) | (~run & __builtin_bit_cast(v8i, one)));
         const v8f om = one - e;
         const v8f w = T * om;
@@ -542,19 +521,84 @@ _BACKWARD_CPP = r"""
         const v8f rest = total - pn;
         const v8f u = tfv - rest;
         const v8f v = u + tail;
-        const v8f gs = dk * v;
-        const v8f wr = GR * w;
-        const v8f wg = GG * w;
-        const v8f wb = GB * w;
+        gs = dk * v;
+        wr = GR * w;
+        wg = GG * w;
+        wb = GB * w;
         T = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Tn)) | (~run & __builtin_bit_cast(v8i, T)));
         prefix = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, pn)) | (~run & __builtin_bit_cast(v8i, prefix)));
+    };
+    // blocks of eight steps: a lane loads samples k .. k + 7 (k = o_r + i0) of each array as one vector (three for
+    // the colours; element by element, clamped to N - 1 as the gathers were, where k + 8 > N), 8 x 8 register
+    // transposes give the steps' lane vectors, and the steps' gradient columns are transposed back into rows, stored
+    // as vectors where the lane runs all eight steps, element by element up to n_used otherwise
+    const int n = last + 1;
+    for (int i0 = 0; i0 < maxused; i0 += 8) {
+        v8f fr[8], zr[8], dr[8], cr[24];
+#pragma clang loop unroll(full)
         for (int l = 0; l < 8; ++l) {
-            if (run[l]) {
-                const long long k = idx[l];
-                GS[k] = gs[l];
-                GC[3 * k] = wr[l];
-                GC[3 * k + 1] = wg[l];
-                GC[3 * k + 2] = wb[l];
+            const int k = start[l] + i0;
+            if (k + 8 <= n) {
+                __builtin_memcpy(&fr[l], F + k, sizeof(v8f));
+                __builtin_memcpy(&zr[l], Zp + k, sizeof(v8f));
+                __builtin_memcpy(&dr[l], Dl + k, sizeof(v8f));
+                __builtin_memcpy(&cr[3 * l], C + 3LL * k, 3 * sizeof(v8f));
+            } else {
+                for (int j = 0; j < 8; ++j) {
+                    const long long kk = k + j < last ? k + j : last;
+                    fr[l][j] = F[kk];
+                    zr[l][j] = Zp[kk];
+                    dr[l][j] = Dl[kk];
+                    for (int c = 0; c < 3; ++c) {
+                        const int q = 3 * j + c;
+                        cr[3 * l + q / 8][q % 8] = C[3 * kk + c];
+                    }
+                }
+            }
+        }
+        v8f fc[8] __attribute__((aligned(64)));
+        v8f zc[8] __attribute__((aligned(64)));
+        v8f dc[8] __attribute__((aligned(64)));
+        v8f cc[24] __attribute__((aligned(64)));
+        transpose8(fr, 1, fc, 1);
+        transpose8(zr, 1, zc, 1);
+        transpose8(dr, 1, dc, 1);
+        transpose8(cr, 3, cc, 1);
+        transpose8(cr + 1, 3, cc + 8, 1);
+        transpose8(cr + 2, 3, cc + 16, 1);
+        v8f gsc[8] __attribute__((aligned(64)));
+        v8f gcc[24] __attribute__((aligned(64)));
+        const int jn = maxused - i0 < 8 ? maxused - i0 : 8;
+#pragma clang loop unroll(disable)
+        for (int j = 0; j < jn; ++j)
+            step(i0 + j, fc[j], cc[3 * j], cc[3 * j + 1], cc[3 * j + 2], zc[j], dc[j], gsc[j], gcc[3 * j],
+                 gcc[3 * j + 1], gcc[3 * j + 2]);
+        for (int j = jn; j < 8; ++j) {  // columns no lane stores
+            gsc[j] = 0.0f;
+            gcc[3 * j] = 0.0f;
+            gcc[3 * j + 1] = 0.0f;
+            gcc[3 * j + 2] = 0.0f;
+        }
+        v8f gsr[8], gcr[24];
+        transpose8(gsc, 1, gsr, 1);
+        transpose8(gcc, 1, gcr, 3);
+        transpose8(gcc + 8, 1, gcr + 1, 3);
+        transpose8(gcc + 16, 1, gcr + 2, 3);
+#pragma clang loop unroll(full)
+        for (int l = 0; l < 8; ++l) {
+            const int k = start[l] + i0;
+            const int m = used[l] - i0;  // the steps this lane runs in the block
+            if (m >= 8 && k + 8 <= n) {
+                __builtin_memcpy(GS + k, &gsr[l], sizeof(v8f));
+                __builtin_memcpy(GC + 3LL * k, &gcr[3 * l], 3 * sizeof(v8f));
+            } else {
+                for (int j = 0; j < m && j < 8; ++j) {
+                    const long long kk = k + j < last ? k + j : last;
+                    GS[kk] = gsr[l][j];
+                    GC[3 * kk] = gcr[3 * l + (3 * j) / 8][(3 * j) % 8];
+                    GC[3 * kk + 1] = gcr[3 * l + (3 * j + 1) / 8][(3 * j + 1) % 8];
+                    GC[3 * kk + 2] = gcr[3 * l + (3 * j + 2) / 8][(3 * j + 2) % 8];
+                }
             }
         }
     }
