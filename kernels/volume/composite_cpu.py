@@ -42,7 +42,11 @@ here) takes its sample k = o_r + i:
     w = T (1 - e_k);  f = ((g_r c_r + g_g c_g) + g_b c_b) + g_D z_k;  prefix' = prefix + w f
     T' = T e_k;  dL/dsigma_k = delta_k ((T' f - (total - prefix')) + tail);  dL/dc_k = g_C w
 
-and stores its two gradients lane by lane; the samples after n_used get zeros. Both kernels
+and stores its two gradients; the samples after n_used get zeros. The steps go in blocks of eight as
+in the fused forward (each lane's eight samples of F, z, delta and the colours as row vectors, element
+by element clamped to N - 1 where a row would pass N, and 8 x 8 register transposes); the eight steps'
+gradient columns are transposed back into rows, stored as vectors where the lane runs all eight
+steps, element by element up to n_used otherwise. Both kernels
 prefetch the next group's samples (its gradients too, in the backward) over the steps of the
 current group: eight rays in lanes read eight streams, which the hardware prefetcher alone served
 more slowly than the Warp kernel's one stream (in DRAM, without this, the backward was slower than
