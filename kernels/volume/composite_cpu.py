@@ -130,7 +130,7 @@ _FORWARD_CPP = r"""
     // fused: the factors of samples [k, k + m), m <= 16: exp(-(sigma delta)) with NumPy's bits (the product
     // rounded, then negated), into dst[0, m) (`factor` + k, or a ring slot); with the value check, `top` takes the
     // unsigned maximum of the bits of sigma and delta (finite and >= 0 iff at most 0x7f7fffff)
-    auto fill16 = [&](int k, int m, v16u& top, float* dst) {
+    auto fill16 = [&](int k, int m, v16u& top, float* dst, float* dst2) {
 #pragma clang fp contract(off)
         v16f sv = 0.0f;
         v16f dv = 0.0f;
@@ -152,19 +152,30 @@ _FORWARD_CPP = r"""
 """ + NPEXP16 + r"""
         if (m == 16) {
             __builtin_memcpy(dst, &ne, sizeof(ne));
+            if (dst2 != nullptr) {
+                if (((unsigned long long)dst2 & 63) == 0)
+                    __builtin_nontemporal_store(ne, (v16f*)dst2);
+                else
+                    __builtin_memcpy(dst2, &ne, sizeof(ne));
+            }
         } else {
             for (int l = 0; l < m; ++l)
                 dst[l] = ne[l];
+            if (dst2 != nullptr)
+                for (int l = 0; l < m; ++l)
+                    dst2[l] = ne[l];
         }
     };
     // where sample k of a group whose samples start at `base` gets its factor, in ring slot `slot` when keep == 0
     // (a group never holds more than RING samples there: composite.py checks; the guard only keeps the writes
     // inside the slot)
-    auto fill_at = [&](int k, int m, v16u& top, int base, int slot) {
-        if (stored != 0)
-            fill16(k, m, top, Fw + k);
+    auto fill_at = [&](int k, int m, v16u& top, int base, int slot, int gsz) {
+        if (stored != 0 && gsz <= RING)
+            fill16(k, m, top, ring[slot] + (k - base), Fw + k);
+        else if (stored != 0)
+            fill16(k, m, top, Fw + k, nullptr);
         else if (k - base + m <= RING)
-            fill16(k, m, top, ring[slot] + (k - base));
+            fill16(k, m, top, ring[slot] + (k - base), nullptr);
     };
     // the first group's factors before its steps; each later group's during the steps of the one before
     v16u top_cur = 0u;
@@ -172,7 +183,7 @@ _FORWARD_CPP = r"""
         const int ga = O[r_first];
         const int gb = O[r_first + 8 < n_rays ? r_first + 8 : n_rays];
         for (int k = ga; k < gb; k += 16)
-            fill_at(k, gb - k < 16 ? gb - k : 16, top_cur, ga, 0);
+            fill_at(k, gb - k < 16 ? gb - k : 16, top_cur, ga, 0, gb - ga);
     }
     for (int gq = 0; gq < GROUPS; ++gq) {
     const int r0 = r_first + 8 * gq;
@@ -258,7 +269,7 @@ _FORWARD_CPP = r"""
         used = used - run;
         if (nk < nb) {  // 16 of the next group's factors
             const int m = nb - nk < 16 ? nb - nk : 16;
-            fill_at(nk, m, top_next, nbase, slot ^ 1);
+            fill_at(nk, m, top_next, nbase, slot ^ 1, nb - nbase);
             nk += m;
         }
         return true;
@@ -271,7 +282,9 @@ _FORWARD_CPP = r"""
         // running lane takes lies before its ray's end <= gb, the rest only feed lanes that do not run (their
         // factor replaced by 1, their values kept by the selects), so the bits are those of the gathers
         const int gb = ga + gn;
-        const int fb = stored != 0 ? 0 : ga;  // sample k's factor is Fg[k - fb]
+        const bool ringed = stored == 0 || gn <= RING;  // the group's factors in its ring slot (keep: also in factor)
+        const float* Fb = ringed ? ring[slot] : F;
+        const int fb = ringed ? ga : 0;  // sample k's factor is Fb[k - fb]
         const float* Cf = (const float*)Cb;
         v8i lb;  // the lanes' first samples; gb for lanes without a ray (nothing loaded)
         for (int l = 0; l < 8; ++l)
@@ -284,7 +297,7 @@ _FORWARD_CPP = r"""
                 const int k = lb[l] + i0;
                 const int m = gb - k;
                 if (m >= 8) {
-                    __builtin_memcpy(&fr[l], Fg + (k - fb), sizeof(v8f));
+                    __builtin_memcpy(&fr[l], Fb + (k - fb), sizeof(v8f));
                     __builtin_memcpy(&zr[l], Zp + k, sizeof(v8f));
                     __builtin_memcpy(&cr[3 * l], Cf + 3LL * k, 3 * sizeof(v8f));
                 } else {
@@ -294,7 +307,7 @@ _FORWARD_CPP = r"""
                     cr[3 * l + 1] = 0.0f;
                     cr[3 * l + 2] = 0.0f;
                     for (int j = 0; j < m; ++j) {
-                        fr[l][j] = Fg[k - fb + j];
+                        fr[l][j] = Fb[k - fb + j];
                         zr[l][j] = Zp[k + j];
                         for (int c = 0; c < 3; ++c) {
                             const int q = 3 * j + c;
@@ -360,7 +373,7 @@ _FORWARD_CPP = r"""
     }
     while (nk < nb) {  // the rest of them
         const int m = nb - nk < 16 ? nb - nk : 16;
-        fill_at(nk, m, top_next, nbase, slot ^ 1);
+        fill_at(nk, m, top_next, nbase, slot ^ 1, nb - nbase);
         nk += m;
     }
     const char* bgb = (const char*)background.data;
@@ -406,6 +419,7 @@ _FORWARD_CPP = r"""
     }
     top_cur = top_next;
     }
+    __builtin_ia32_sfence();  // the factors' non-temporal stores
   }
 #endif
 """
