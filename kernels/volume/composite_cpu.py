@@ -4,10 +4,13 @@ The same quadrature as `composite._composite_forward_kernel` (its module docstri
 factors e_k = exp(-sigma_k delta_k) given (NumPy's pass filled them), or, with `fused`, evaluated
 here: a group's samples [o_{r0}, o_{r0+8}) are contiguous, and 16 at a time each gets
 e_k = exp(-(sigma_k delta_k)) (the product rounded, then negated, as NumPy's pass computes it) with
-NumPy's float32 exp reproduced bit for bit (kernels._npexp), stored into `factor` (every sample,
-past termination too, as the pass does), or with keep = 0 into one slot of a two-slot ring on the
-thread's stack (RING samples a slot; `factor` is then neither read nor written), and read back by
-the steps; with the value check, one
+NumPy's float32 exp reproduced bit for bit (kernels._npexp), into one slot of a two-slot ring on
+the thread's stack (RING samples a slot), from which the steps read them back; with keep = 1 also
+into `factor` (every sample, past termination too, as the pass does), by non-temporal 64-byte
+stores where aligned, so that the N-sized array streams out without being read for ownership;
+with keep = 0 `factor` is neither read nor written. A group of more than RING samples (keep = 1
+only: composite.py sends keep = 0 calls with such groups to keep = 1 with a scratch array) has its
+factors filled into `factor` alone and read back from there. With the value check, one
 unsigned maximum of the bits of sigma and delta flags the group's rays with 2 in out_bad
 (composite.py then runs the exact checks). A forward thread takes GROUPS groups one after the
 other: the first group's factors are filled before its steps, each later group's 16 a step during
