@@ -4,10 +4,13 @@ The same quadrature as `composite._composite_forward_kernel` (its module docstri
 factors e_k = exp(-sigma_k delta_k) given (NumPy's pass filled them), or, with `fused`, evaluated
 here: a group's samples [o_{r0}, o_{r0+8}) are contiguous, and 16 at a time each gets
 e_k = exp(-(sigma_k delta_k)) (the product rounded, then negated, as NumPy's pass computes it) with
-NumPy's float32 exp reproduced bit for bit (kernels._npexp), stored into `factor` (every sample,
-past termination too, as the pass does), or with keep = 0 into one slot of a two-slot ring on the
-thread's stack (RING samples a slot; `factor` is then neither read nor written), and read back by
-the steps; with the value check, one
+NumPy's float32 exp reproduced bit for bit (kernels._npexp), into one slot of a two-slot ring on
+the thread's stack (RING samples a slot), from which the steps read them back; with keep = 1 also
+into `factor` (every sample, past termination too, as the pass does), by non-temporal 64-byte
+stores where aligned, so that the N-sized array streams out without being read for ownership;
+with keep = 0 `factor` is neither read nor written. A group of more than RING samples (keep = 1
+only: composite.py sends keep = 0 calls with such groups to keep = 1 with a scratch array) has its
+factors filled into `factor` alone and read back from there. With the value check, one
 unsigned maximum of the bits of sigma and delta flags the group's rays with 2 in out_bad
 (composite.py then runs the exact checks). A forward thread takes GROUPS groups one after the
 other: the first group's factors are filled before its steps, each later group's 16 a step during
@@ -22,9 +25,14 @@ ray r = r0 + l; at step i every lane still running takes its sample k = o_r + i:
 
 each product and each sum its own statement and floating-point contraction off, so no fused
 multiply-add appears (none does in Warp's generated code either). Lanes that have ended keep their
-values (a select by the run mask); they read a clamped in-range sample (their factor replaced by
-1), which nothing uses. The step count is the longest ray of the group: the sample indices are
-o_r + i whatever the lanes' transmittances, so the loads do not wait on the recurrence. The
+values (a select by the run mask); what they read (their factor replaced by 1) nothing uses. The
+step count is the longest ray of the group: the sample indices are o_r + i whatever the lanes'
+transmittances, so the loads do not wait on the recurrence. With `fused` (offsets covering the N
+samples, non-decreasing) the steps go in blocks of eight: each lane loads samples o_r + i0 ..
+o_r + i0 + 7 of every array as one unaligned vector (three for the interleaved colours), element
+by element where that would pass the group's last sample, and 8 x 8 register transposes give the
+eight steps' lane vectors (5 transposes of 24 shuffles against 40 gathers of 8); without it each
+step gathers its sample, clamped to N - 1. The
 optional value check adds up, per lane after the loop, the colours and depths of the samples
 after early termination exactly as the Warp kernel does, and flags the ray when any sum is NaN or
 infinite. Rays past the last of a group of eight get no lanes' results written.
@@ -37,7 +45,11 @@ here) takes its sample k = o_r + i:
     w = T (1 - e_k);  f = ((g_r c_r + g_g c_g) + g_b c_b) + g_D z_k;  prefix' = prefix + w f
     T' = T e_k;  dL/dsigma_k = delta_k ((T' f - (total - prefix')) + tail);  dL/dc_k = g_C w
 
-and stores its two gradients lane by lane; the samples after n_used get zeros. Both kernels
+and stores its two gradients; the samples after n_used get zeros. The steps go in blocks of eight as
+in the fused forward (each lane's eight samples of F, z, delta and the colours as row vectors, element
+by element clamped to N - 1 where a row would pass N, and 8 x 8 register transposes); the eight steps'
+gradient columns are transposed back into rows, stored as vectors where the lane runs all eight
+steps, element by element up to n_used otherwise. Both kernels
 prefetch the next group's samples (its gradients too, in the backward) over the steps of the
 current group: eight rays in lanes read eight streams, which the hardware prefetcher alone served
 more slowly than the Warp kernel's one stream (in DRAM, without this, the backward was slower than
@@ -61,6 +73,36 @@ LANES = 8  # rays in the lanes of a group
 GROUPS = 8  # groups of LANES rays per thread of the forward kernel
 RING = 2048  # samples a slot of the forward's two-slot factor ring (keep=0): 8 KB of float32, a slot
 
+_TRANSPOSE8 = r"""
+    // out[j * os][l] = in[l * is][j]: an 8 x 8 transpose in registers (unpack, shuffle, 128-bit lane swap)
+    auto transpose8 = [](const v8f* in, int is, v8f* out, int os) __attribute__((always_inline)) {
+        const v8f t0 = __builtin_shufflevector(in[0], in[is], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t1 = __builtin_shufflevector(in[0], in[is], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f t2 = __builtin_shufflevector(in[2 * is], in[3 * is], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t3 = __builtin_shufflevector(in[2 * is], in[3 * is], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f t4 = __builtin_shufflevector(in[4 * is], in[5 * is], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t5 = __builtin_shufflevector(in[4 * is], in[5 * is], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f t6 = __builtin_shufflevector(in[6 * is], in[7 * is], 0, 8, 1, 9, 4, 12, 5, 13);
+        const v8f t7 = __builtin_shufflevector(in[6 * is], in[7 * is], 2, 10, 3, 11, 6, 14, 7, 15);
+        const v8f u0 = __builtin_shufflevector(t0, t2, 0, 1, 8, 9, 4, 5, 12, 13);
+        const v8f u1 = __builtin_shufflevector(t0, t2, 2, 3, 10, 11, 6, 7, 14, 15);
+        const v8f u2 = __builtin_shufflevector(t1, t3, 0, 1, 8, 9, 4, 5, 12, 13);
+        const v8f u3 = __builtin_shufflevector(t1, t3, 2, 3, 10, 11, 6, 7, 14, 15);
+        const v8f u4 = __builtin_shufflevector(t4, t6, 0, 1, 8, 9, 4, 5, 12, 13);
+        const v8f u5 = __builtin_shufflevector(t4, t6, 2, 3, 10, 11, 6, 7, 14, 15);
+        const v8f u6 = __builtin_shufflevector(t5, t7, 0, 1, 8, 9, 4, 5, 12, 13);
+        const v8f u7 = __builtin_shufflevector(t5, t7, 2, 3, 10, 11, 6, 7, 14, 15);
+        out[0 * os] = __builtin_shufflevector(u0, u4, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[1 * os] = __builtin_shufflevector(u1, u5, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[2 * os] = __builtin_shufflevector(u2, u6, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[3 * os] = __builtin_shufflevector(u3, u7, 0, 1, 2, 3, 8, 9, 10, 11);
+        out[4 * os] = __builtin_shufflevector(u0, u4, 4, 5, 6, 7, 12, 13, 14, 15);
+        out[5 * os] = __builtin_shufflevector(u1, u5, 4, 5, 6, 7, 12, 13, 14, 15);
+        out[6 * os] = __builtin_shufflevector(u2, u6, 4, 5, 6, 7, 12, 13, 14, 15);
+        out[7 * os] = __builtin_shufflevector(u3, u7, 4, 5, 6, 7, 12, 13, 14, 15);
+    };
+"""
+
 _FORWARD_CPP = r"""
 #if !defined(__CUDA_ARCH__)
   {
@@ -69,7 +111,7 @@ _FORWARD_CPP = r"""
     typedef int v8i __attribute__((ext_vector_type(8)));
 """ + NPEXP_TYPES + r"""
     typedef unsigned int v16u __attribute__((ext_vector_type(16)));
-    enum { GROUPS = """ + str(GROUPS) + r""" };  // groups of eight rays a call
+""" + _TRANSPOSE8 + r"""    enum { GROUPS = """ + str(GROUPS) + r""" };  // groups of eight rays a call
     enum { RING = """ + str(RING) + r""" };  // samples a slot of the ring (keep == 0)
     // keep == 0 (fused only): a group's factors live in one slot of this two-slot ring (the current group's, and
     // the next group's being filled during its steps), never in `factor`; composite.py sends a group of more than
@@ -91,7 +133,7 @@ _FORWARD_CPP = r"""
     // fused: the factors of samples [k, k + m), m <= 16: exp(-(sigma delta)) with NumPy's bits (the product
     // rounded, then negated), into dst[0, m) (`factor` + k, or a ring slot); with the value check, `top` takes the
     // unsigned maximum of the bits of sigma and delta (finite and >= 0 iff at most 0x7f7fffff)
-    auto fill16 = [&](int k, int m, v16u& top, float* dst) {
+    auto fill16 = [&](int k, int m, v16u& top, float* dst, float* dst2) {
 #pragma clang fp contract(off)
         v16f sv = 0.0f;
         v16f dv = 0.0f;
@@ -113,19 +155,30 @@ _FORWARD_CPP = r"""
 """ + NPEXP16 + r"""
         if (m == 16) {
             __builtin_memcpy(dst, &ne, sizeof(ne));
+            if (dst2 != nullptr) {
+                if (((unsigned long long)dst2 & 63) == 0)
+                    __builtin_nontemporal_store(ne, (v16f*)dst2);
+                else
+                    __builtin_memcpy(dst2, &ne, sizeof(ne));
+            }
         } else {
             for (int l = 0; l < m; ++l)
                 dst[l] = ne[l];
+            if (dst2 != nullptr)
+                for (int l = 0; l < m; ++l)
+                    dst2[l] = ne[l];
         }
     };
     // where sample k of a group whose samples start at `base` gets its factor, in ring slot `slot` when keep == 0
     // (a group never holds more than RING samples there: composite.py checks; the guard only keeps the writes
     // inside the slot)
-    auto fill_at = [&](int k, int m, v16u& top, int base, int slot) {
-        if (stored != 0)
-            fill16(k, m, top, Fw + k);
+    auto fill_at = [&](int k, int m, v16u& top, int base, int slot, int gsz) {
+        if (stored != 0 && gsz <= RING)
+            fill16(k, m, top, ring[slot] + (k - base), Fw + k);
+        else if (stored != 0)
+            fill16(k, m, top, Fw + k, nullptr);
         else if (k - base + m <= RING)
-            fill16(k, m, top, ring[slot] + (k - base));
+            fill16(k, m, top, ring[slot] + (k - base), nullptr);
     };
     // the first group's factors before its steps; each later group's during the steps of the one before
     v16u top_cur = 0u;
@@ -133,7 +186,7 @@ _FORWARD_CPP = r"""
         const int ga = O[r_first];
         const int gb = O[r_first + 8 < n_rays ? r_first + 8 : n_rays];
         for (int k = ga; k < gb; k += 16)
-            fill_at(k, gb - k < 16 ? gb - k : 16, top_cur, ga, 0);
+            fill_at(k, gb - k < 16 ? gb - k : 16, top_cur, ga, 0, gb - ga);
     }
     for (int gq = 0; gq < GROUPS; ++gq) {
     const int r0 = r_first + 8 * gq;
@@ -178,7 +231,11 @@ _FORWARD_CPP = r"""
     // the next group's samples [pa, pb), prefetched 16 a step (a hint: bits do not depend on it)
     const int pa = r0 + 8 < n_rays ? O[r0 + 8] : 0;
     const int pb = r0 + 8 < n_rays ? O[(r0 + 16 < n_rays ? r0 + 16 : n_rays)] : 0;
-    for (int i = 0; i < maxlen; ++i) {
+    // one step: the prefetch of the next group, the run mask, the recurrence on the lanes' sample values e (the
+    // factor), c0, c1, c2 (colour) and zk (depth), the next group's 16 factors; false when no lane runs (the
+    // group's loop ends)
+    auto step = [&](int i, v8f e, v8f c0, v8f c1, v8f c2, v8f zk) __attribute__((always_inline)) -> bool {
+#pragma clang fp contract(off)
         const int p = pa + 16 * i;
         if (p < pb) {
             // fused: the factor loop streams sigma and delta (the hardware prefetcher serves that; prefetching
@@ -194,38 +251,7 @@ _FORWARD_CPP = r"""
         const v8i inside = (v8i)i < len;
         const v8i run = inside & ~(T < thr);
         if (!__builtin_reduce_or(run))
-            break;
-        v8i idx = start + i;
-        idx = __builtin_elementwise_min(idx, (v8i)last);
-        v8i fidx = idx;
-        if (stored == 0)
-            fidx = __builtin_elementwise_max(__builtin_elementwise_min(idx - ga, (v8i)(gn - 1)), (v8i)0);
-        v8f e, c0, c1, c2, zk;
-#if defined(__AVX2__)
-        {
-            typedef float g8f __attribute__((__vector_size__(32)));
-            typedef int g8i __attribute__((__vector_size__(32)));
-            const g8f all = (g8f)(v8i)(-1);
-            const g8f none = (g8f)(v8f)0.0f;
-            const v8i i3 = idx * 3;
-            const float* Cf = (const float*)Cb;
-            e = (v8f)__builtin_ia32_gatherd_ps256(none, Fg, (g8i)fidx, all, 4);
-            zk = (v8f)__builtin_ia32_gatherd_ps256(none, Zp, (g8i)idx, all, 4);
-            c0 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf, (g8i)i3, all, 4);
-            c1 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf + 1, (g8i)i3, all, 4);
-            c2 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf + 2, (g8i)i3, all, 4);
-        }
-#else
-        for (int l = 0; l < 8; ++l) {
-            const int k = idx[l];
-            const float* c = (const float*)(Cb + (long long)k * cs0);
-            e[l] = Fg[fidx[l]];
-            c0[l] = c[0];
-            c1[l] = *(const float*)((const char*)c + cs1);
-            c2[l] = *(const float*)((const char*)c + 2 * cs1);
-            zk[l] = Zp[k];
-        }
-#endif
+            return false;
         e = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, e)) | (~run & __builtin_bit_cast(v8i, one)));
         const v8f om = one - e;
         const v8f w = T * om;
@@ -246,13 +272,111 @@ _FORWARD_CPP = r"""
         used = used - run;
         if (nk < nb) {  // 16 of the next group's factors
             const int m = nb - nk < 16 ? nb - nk : 16;
-            fill_at(nk, m, top_next, nbase, slot ^ 1);
+            fill_at(nk, m, top_next, nbase, slot ^ 1, nb - nbase);
             nk += m;
         }
+        return true;
+    };
+    if (fused != 0) {
+        // blocks of eight steps: each lane loads eight consecutive samples of its ray as one vector per array
+        // (three for the interleaved colours), and 8 x 8 register transposes turn the lanes' rows into the
+        // eight steps' columns. The group's samples are [ga, gb) (fused: offsets cover N, non-decreasing); a
+        // row that would pass gb is loaded element by element up to gb and zero after it: every sample a
+        // running lane takes lies before its ray's end <= gb, the rest only feed lanes that do not run (their
+        // factor replaced by 1, their values kept by the selects), so the bits are those of the gathers
+        const int gb = ga + gn;
+        const bool ringed = stored == 0 || gn <= RING;  // the group's factors in its ring slot (keep: also in factor)
+        const float* Fb = ringed ? ring[slot] : F;
+        const int fb = ringed ? ga : 0;  // sample k's factor is Fb[k - fb]
+        const float* Cf = (const float*)Cb;
+        v8i lb;  // the lanes' first samples; gb for lanes without a ray (nothing loaded)
+        for (int l = 0; l < 8; ++l)
+            lb[l] = r0 + l < n_rays ? start[l] : gb;
+        bool go = true;
+        for (int i0 = 0; go && i0 < maxlen; i0 += 8) {
+            v8f fr[8], zr[8], cr[24];
+#pragma clang loop unroll(full)
+            for (int l = 0; l < 8; ++l) {
+                const int k = lb[l] + i0;
+                const int m = gb - k;
+                if (m >= 8) {
+                    __builtin_memcpy(&fr[l], Fb + (k - fb), sizeof(v8f));
+                    __builtin_memcpy(&zr[l], Zp + k, sizeof(v8f));
+                    __builtin_memcpy(&cr[3 * l], Cf + 3LL * k, 3 * sizeof(v8f));
+                } else {
+                    fr[l] = 0.0f;
+                    zr[l] = 0.0f;
+                    cr[3 * l] = 0.0f;
+                    cr[3 * l + 1] = 0.0f;
+                    cr[3 * l + 2] = 0.0f;
+                    for (int j = 0; j < m; ++j) {
+                        fr[l][j] = Fb[k - fb + j];
+                        zr[l][j] = Zp[k + j];
+                        for (int c = 0; c < 3; ++c) {
+                            const int q = 3 * j + c;
+                            cr[3 * l + q / 8][q % 8] = Cf[3LL * k + q];
+                        }
+                    }
+                }
+            }
+            // columns: fc[j][l] = lane l's factor at step i0 + j; likewise zc; cc[q][l] = lane l's float q of
+            // its 24 colour floats (sample j's channel c at q = 3 j + c)
+            v8f fc[8] __attribute__((aligned(64)));
+            v8f zc[8] __attribute__((aligned(64)));
+            v8f cc[24] __attribute__((aligned(64)));
+            transpose8(fr, 1, fc, 1);
+            transpose8(zr, 1, zc, 1);
+            transpose8(cr, 3, cc, 1);
+            transpose8(cr + 1, 3, cc + 8, 1);
+            transpose8(cr + 2, 3, cc + 16, 1);
+            // the steps read the columns back from the stack (one copy of `step` in the loop: unrolling it eight
+            // times, with the factor fill inlined into each, was not faster)
+            const int jn = maxlen - i0 < 8 ? maxlen - i0 : 8;
+#pragma clang loop unroll(disable)
+            for (int j = 0; j < jn; ++j) {
+                if (!step(i0 + j, fc[j], cc[3 * j], cc[3 * j + 1], cc[3 * j + 2], zc[j])) {
+                    go = false;
+                    break;
+                }
+            }
+        }
+    } else {
+    for (int i = 0; i < maxlen; ++i) {
+        v8i idx = start + i;
+        idx = __builtin_elementwise_min(idx, (v8i)last);
+        v8f e, c0, c1, c2, zk;
+#if defined(__AVX2__)
+        {
+            typedef float g8f __attribute__((__vector_size__(32)));
+            typedef int g8i __attribute__((__vector_size__(32)));
+            const g8f all = (g8f)(v8i)(-1);
+            const g8f none = (g8f)(v8f)0.0f;
+            const v8i i3 = idx * 3;
+            const float* Cf = (const float*)Cb;
+            e = (v8f)__builtin_ia32_gatherd_ps256(none, F, (g8i)idx, all, 4);
+            zk = (v8f)__builtin_ia32_gatherd_ps256(none, Zp, (g8i)idx, all, 4);
+            c0 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf, (g8i)i3, all, 4);
+            c1 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf + 1, (g8i)i3, all, 4);
+            c2 = (v8f)__builtin_ia32_gatherd_ps256(none, Cf + 2, (g8i)i3, all, 4);
+        }
+#else
+        for (int l = 0; l < 8; ++l) {
+            const int k = idx[l];
+            const float* c = (const float*)(Cb + (long long)k * cs0);
+            e[l] = F[k];
+            c0[l] = c[0];
+            c1[l] = *(const float*)((const char*)c + cs1);
+            c2[l] = *(const float*)((const char*)c + 2 * cs1);
+            zk[l] = Zp[k];
+        }
+#endif
+        if (!step(i, e, c0, c1, c2, zk))
+            break;
+    }
     }
     while (nk < nb) {  // the rest of them
         const int m = nb - nk < 16 ? nb - nk : 16;
-        fill_at(nk, m, top_next, nbase, slot ^ 1);
+        fill_at(nk, m, top_next, nbase, slot ^ 1, nb - nbase);
         nk += m;
     }
     const char* bgb = (const char*)background.data;
@@ -298,6 +422,7 @@ _FORWARD_CPP = r"""
     }
     top_cur = top_next;
     }
+    __builtin_ia32_sfence();  // the factors' non-temporal stores
   }
 #endif
 """
@@ -310,7 +435,7 @@ _BACKWARD_CPP = r"""
 #define DRLAB_AT2(a, i, j) (*(const float*)((const char*)(a).data + (long long)(i) * (a).strides[0] + (long long)(j) * (a).strides[1]))
     typedef float v8f __attribute__((ext_vector_type(8)));
     typedef int v8i __attribute__((ext_vector_type(8)));
-    const float* F = (const float*)factor.data;
+""" + _TRANSPOSE8 + r"""    const float* F = (const float*)factor.data;
     const float* C = (const float*)rgb.data;
     const float* Dl = (const float*)delta.data;
     const float* Zp = (const float*)z.data;
@@ -379,7 +504,11 @@ _BACKWARD_CPP = r"""
     v8f prefix = 0.0f;
     const int pa = r0 + 8 < n_rays ? O[r0 + 8] : 0;
     const int pb = r0 + 8 < n_rays ? O[(r0 + 16 < n_rays ? r0 + 16 : n_rays)] : 0;
-    for (int i = 0; i < maxused; ++i) {
+    // one step on the lanes' sample values e, c0, c1, c2, zk, dk (the prefetch of the next group, the recurrence);
+    // the step's gradients into gs (dL/dsigma) and wr, wg, wb (dL/dc)
+    auto step = [&](int i, v8f e, v8f c0, v8f c1, v8f c2, v8f zk, v8f dk, v8f& gs, v8f& wr, v8f& wg, v8f& wb)
+        __attribute__((always_inline)) {
+#pragma clang fp contract(off)
         const int p = pa + 16 * i;
         if (p < pb) {
             __builtin_prefetch(F + p);
@@ -396,34 +525,6 @@ _BACKWARD_CPP = r"""
             __builtin_prefetch(pg + 32, 1);
         }
         const v8i run = (v8i)i < used;
-        v8i idx = start + i;
-        idx = __builtin_elementwise_min(idx, (v8i)last);
-        v8f e, c0, c1, c2, zk, dk;
-#if defined(__AVX2__)
-        {
-            typedef float g8f __attribute__((__vector_size__(32)));
-            typedef int g8i __attribute__((__vector_size__(32)));
-            const g8f all = (g8f)(v8i)(-1);
-            const g8f none = (g8f)(v8f)0.0f;
-            const v8i i3 = idx * 3;
-            e = (v8f)__builtin_ia32_gatherd_ps256(none, F, (g8i)idx, all, 4);
-            zk = (v8f)__builtin_ia32_gatherd_ps256(none, Zp, (g8i)idx, all, 4);
-            dk = (v8f)__builtin_ia32_gatherd_ps256(none, Dl, (g8i)idx, all, 4);
-            c0 = (v8f)__builtin_ia32_gatherd_ps256(none, C, (g8i)i3, all, 4);
-            c1 = (v8f)__builtin_ia32_gatherd_ps256(none, C + 1, (g8i)i3, all, 4);
-            c2 = (v8f)__builtin_ia32_gatherd_ps256(none, C + 2, (g8i)i3, all, 4);
-        }
-#else
-        for (int l = 0; l < 8; ++l) {
-            const long long k = idx[l];
-            e[l] = F[k];
-            zk[l] = Zp[k];
-            dk[l] = Dl[k];
-            c0[l] = C[3 * k];
-            c1[l] = C[3 * k + 1];
-            c2[l] = C[3 * k + 2];
-        }
-#endif
         e = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, e)) | (~run & __builtin_bit_cast(v8i, one)));
         const v8f om = one - e;
         const v8f w = T * om;
@@ -441,19 +542,84 @@ _BACKWARD_CPP = r"""
         const v8f rest = total - pn;
         const v8f u = tfv - rest;
         const v8f v = u + tail;
-        const v8f gs = dk * v;
-        const v8f wr = GR * w;
-        const v8f wg = GG * w;
-        const v8f wb = GB * w;
+        gs = dk * v;
+        wr = GR * w;
+        wg = GG * w;
+        wb = GB * w;
         T = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Tn)) | (~run & __builtin_bit_cast(v8i, T)));
         prefix = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, pn)) | (~run & __builtin_bit_cast(v8i, prefix)));
+    };
+    // blocks of eight steps: a lane loads samples k .. k + 7 (k = o_r + i0) of each array as one vector (three for
+    // the colours; element by element, clamped to N - 1 as the gathers were, where k + 8 > N), 8 x 8 register
+    // transposes give the steps' lane vectors, and the steps' gradient columns are transposed back into rows, stored
+    // as vectors where the lane runs all eight steps, element by element up to n_used otherwise
+    const int n = last + 1;
+    for (int i0 = 0; i0 < maxused; i0 += 8) {
+        v8f fr[8], zr[8], dr[8], cr[24];
+#pragma clang loop unroll(full)
         for (int l = 0; l < 8; ++l) {
-            if (run[l]) {
-                const long long k = idx[l];
-                GS[k] = gs[l];
-                GC[3 * k] = wr[l];
-                GC[3 * k + 1] = wg[l];
-                GC[3 * k + 2] = wb[l];
+            const int k = start[l] + i0;
+            if (k + 8 <= n) {
+                __builtin_memcpy(&fr[l], F + k, sizeof(v8f));
+                __builtin_memcpy(&zr[l], Zp + k, sizeof(v8f));
+                __builtin_memcpy(&dr[l], Dl + k, sizeof(v8f));
+                __builtin_memcpy(&cr[3 * l], C + 3LL * k, 3 * sizeof(v8f));
+            } else {
+                for (int j = 0; j < 8; ++j) {
+                    const long long kk = k + j < last ? k + j : last;
+                    fr[l][j] = F[kk];
+                    zr[l][j] = Zp[kk];
+                    dr[l][j] = Dl[kk];
+                    for (int c = 0; c < 3; ++c) {
+                        const int q = 3 * j + c;
+                        cr[3 * l + q / 8][q % 8] = C[3 * kk + c];
+                    }
+                }
+            }
+        }
+        v8f fc[8] __attribute__((aligned(64)));
+        v8f zc[8] __attribute__((aligned(64)));
+        v8f dc[8] __attribute__((aligned(64)));
+        v8f cc[24] __attribute__((aligned(64)));
+        transpose8(fr, 1, fc, 1);
+        transpose8(zr, 1, zc, 1);
+        transpose8(dr, 1, dc, 1);
+        transpose8(cr, 3, cc, 1);
+        transpose8(cr + 1, 3, cc + 8, 1);
+        transpose8(cr + 2, 3, cc + 16, 1);
+        v8f gsc[8] __attribute__((aligned(64)));
+        v8f gcc[24] __attribute__((aligned(64)));
+        const int jn = maxused - i0 < 8 ? maxused - i0 : 8;
+#pragma clang loop unroll(disable)
+        for (int j = 0; j < jn; ++j)
+            step(i0 + j, fc[j], cc[3 * j], cc[3 * j + 1], cc[3 * j + 2], zc[j], dc[j], gsc[j], gcc[3 * j],
+                 gcc[3 * j + 1], gcc[3 * j + 2]);
+        for (int j = jn; j < 8; ++j) {  // columns no lane stores
+            gsc[j] = 0.0f;
+            gcc[3 * j] = 0.0f;
+            gcc[3 * j + 1] = 0.0f;
+            gcc[3 * j + 2] = 0.0f;
+        }
+        v8f gsr[8], gcr[24];
+        transpose8(gsc, 1, gsr, 1);
+        transpose8(gcc, 1, gcr, 3);
+        transpose8(gcc + 8, 1, gcr + 1, 3);
+        transpose8(gcc + 16, 1, gcr + 2, 3);
+#pragma clang loop unroll(full)
+        for (int l = 0; l < 8; ++l) {
+            const int k = start[l] + i0;
+            const int m = used[l] - i0;  // the steps this lane runs in the block
+            if (m >= 8 && k + 8 <= n) {
+                __builtin_memcpy(GS + k, &gsr[l], sizeof(v8f));
+                __builtin_memcpy(GC + 3LL * k, &gcr[3 * l], 3 * sizeof(v8f));
+            } else {
+                for (int j = 0; j < m && j < 8; ++j) {
+                    const long long kk = k + j < last ? k + j : last;
+                    GS[kk] = gsr[l][j];
+                    GC[3 * kk] = gcr[3 * l + (3 * j) / 8][(3 * j) % 8];
+                    GC[3 * kk + 1] = gcr[3 * l + (3 * j + 1) / 8][(3 * j + 1) % 8];
+                    GC[3 * kk + 2] = gcr[3 * l + (3 * j + 2) / 8][(3 * j + 2) % 8];
+                }
             }
         }
     }
