@@ -580,32 +580,34 @@ def _weighted_pieces(starts: np.ndarray, k: int) -> list[tuple[int, int]]:
     return [(g0, g1) for g0, g1 in zip(bounds[:-1], bounds[1:]) if starts[g1] > starts[g0]]
 
 
-_kept = threading.local()  # per thread: {(device, level, n, radius, H_l, W_l): `_grouping_arrays`}
+_kept = threading.local()  # per thread: {name: {key: value}}, what a thread keeps between lookups of one size
+
+
+def _thread_kept(name: str, key: tuple, limit: int, make: Callable[[], Any]) -> Any:
+    """The calling thread's kept value `name` for `key`, made on first use; a few keys at a time (all are
+    dropped when `limit` are held and a new one comes)."""
+    kept = getattr(_kept, name, None)
+    if kept is None:
+        kept = {}
+        setattr(_kept, name, kept)
+    if key not in kept:
+        if len(kept) >= limit:
+            kept.clear()
+        kept[key] = make()
+    return kept[key]
 
 
 def _kept_grouping_arrays(a: Inputs, lvl: int, n: int, radius: int, height_l: int,
                           width_l: int) -> tuple[int, list[wp.array], wp.array, wp.array]:
     """`_grouping_arrays`, kept between the calling thread's lookups of the same size (a call fills them
     entirely before reading them): 18 small allocations a call were ~0.2 ms of its Python."""
-    kept = getattr(_kept, "arrays", None)
-    if kept is None:
-        kept = _kept.arrays = {}
     key = (a.device.alias, lvl, n, radius, height_l, width_l)  # a level's own: the levels group at once
-    if key not in kept:
-        if len(kept) >= 16:  # a few sizes in use at a time
-            kept.clear()
-        kept[key] = _grouping_arrays(a, n, radius, height_l, width_l)
-    return kept[key]
+    return _thread_kept("arrays", key, 16, lambda: _grouping_arrays(a, n, radius, height_l, width_l))
 
 
 def _kept_launches(key: tuple) -> dict[Any, Any]:
     """The calling thread's recorded launches (`_replay`) for the phased lookups of one size (`key`)."""
-    kept = getattr(_kept, "launches", None)
-    if kept is None:
-        kept = _kept.launches = {}
-    if key not in kept and len(kept) >= 8:  # a few sizes in use at a time
-        kept.clear()
-    return kept.setdefault(key, {})
+    return _thread_kept("launches", key, 8, dict)
 
 
 def _replay(replays: dict[Any, Any], slot: Any, kernel: Any, dim: int, inputs: list[Any], device: wp.Device) -> None:

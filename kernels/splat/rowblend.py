@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from kernels._native import SELECT_CPP
 from kernels._vexp import EXP16 as _EXP16
 from kernels._vexp import TYPES as _TYPES
 from kernels._vexp import exp16_mismatches  # noqa: F401  (tests import it from here)
@@ -42,7 +43,7 @@ _SNIPPET = r"""
 #if defined(__CUDA_ARCH__) || !defined(__AVX2__) || !defined(__FMA__)
     return 0;
 #else
-""" + _TYPES + r"""
+""" + _TYPES + SELECT_CPP + r"""
     int* live_row = (int*)((char*)live.data + (size_t)tile * live.strides[0]) + row;
     const int todo = live_row[0] & cols;
     if (todo == 0)
@@ -79,8 +80,7 @@ _SNIPPET = r"""
     const v16f amax = alpha_max;
     // Warp's min(alpha_max, x): alpha_max if alpha_max <= x, else x unless x is NaN
     const v16i take_max = (amax <= oe) | (oe != oe);
-    const v16f alpha = __builtin_bit_cast(v16f, (take_max & __builtin_bit_cast(v16i, amax)) |
-                                                (~take_max & __builtin_bit_cast(v16i, oe)));
+    const v16f alpha = sel(take_max, amax, oe);
     run = run & ~(alpha < (float)(1.0 / 255.0));
     v16f T, R, G, B, D;
     v16i N;
@@ -116,13 +116,13 @@ _SNIPPET = r"""
     const v16f G2 = G + wg;
     const v16f B2 = B + wb;
     const v16f D2 = D + wd;
-    R = __builtin_bit_cast(v16f, (blend & __builtin_bit_cast(v16i, R2)) | (~blend & __builtin_bit_cast(v16i, R)));
-    G = __builtin_bit_cast(v16f, (blend & __builtin_bit_cast(v16i, G2)) | (~blend & __builtin_bit_cast(v16i, G)));
-    B = __builtin_bit_cast(v16f, (blend & __builtin_bit_cast(v16i, B2)) | (~blend & __builtin_bit_cast(v16i, B)));
-    D = __builtin_bit_cast(v16f, (blend & __builtin_bit_cast(v16i, D2)) | (~blend & __builtin_bit_cast(v16i, D)));
-    T = __builtin_bit_cast(v16f, (blend & __builtin_bit_cast(v16i, next_t)) | (~blend & __builtin_bit_cast(v16i, T)));
+    R = sel(blend, R2, R);
+    G = sel(blend, G2, G);
+    B = sel(blend, B2, B);
+    D = sel(blend, D2, D);
+    T = sel(blend, next_t, T);
     const v16i s16 = s1;
-    N = (blend & s16) | (~blend & N);
+    N = sel(blend, s16, N);
     __builtin_memcpy(pT, &T, 64);
     __builtin_memcpy(pR, &R, 64);
     __builtin_memcpy(pG, &G, 64);

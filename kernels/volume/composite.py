@@ -320,6 +320,12 @@ def composite_buffers(workspace: Workspace, n_rays: int, n_samples: int, dtype: 
                               for k, (shape, t) in _result_layout(n_rays, n_samples, dtype).items()})
 
 
+def check_keep_factor(keep_factor: Any) -> None:
+    """ValueError unless `keep_factor` is a bool (composite_forward's, and the renders' that pass it on)."""
+    if not isinstance(keep_factor, (bool, np.bool_)):
+        raise ValueError(f"keep_factor: expected a bool, got {type(keep_factor).__name__}")
+
+
 def check_backpropagatable(name: str, result: CompositeResult) -> None:
     """ValueError if `result` (named `name`) came from a forward with keep_factor=False: it holds no factors."""
     if result.factor is None:
@@ -545,8 +551,7 @@ def composite_forward(
     bytes a sample less to move); elsewhere the factors go to a scratch array that is not returned.
     `out.factor` is neither checked nor written then (it may be None).
     """
-    if not isinstance(keep_factor, (bool, np.bool_)):
-        raise ValueError(f"keep_factor: expected a bool, got {type(keep_factor).__name__}")
+    check_keep_factor(keep_factor)
     a = A.Inputs(device, sigma, rgb, delta, z, ray_offsets)
     args, n, n_rays = _samples(a, sigma, rgb, delta, z, ray_offsets, values=True)
     t_threshold = A.check_float("t_threshold", t_threshold, nonnegative=True)

@@ -66,12 +66,39 @@ from typing import Any
 
 import warp as wp
 
-from kernels._native import built_once
+from kernels._native import SELECT_CPP, built_once
 from kernels._npexp import NPEXP16, NPEXP_TYPES
 
 LANES = 8  # rays in the lanes of a group
 GROUPS = 8  # groups of LANES rays per thread of the forward kernel
 RING = 2048  # samples a slot of the forward's two-slot factor ring (keep=0): 8 KB of float32, a slot
+
+# One front-to-back step of the quadrature on eight lanes (module docstring), for this module's forward and
+# kernels.volume.spheres_cpu's: where `run`, w = T (1 - e), T' = T e, C' = C + w c (each channel), D' = D + w z,
+# each product and sum rounded on its own (contraction off); elsewhere T, C and D keep their values. Paste after
+# the v8f / v8i typedefs and SELECT_CPP.
+BLEND8_CPP = r"""
+    auto blend8 = [&](const v8i run, const v8f e, const v8f c0, const v8f c1, const v8f c2, const v8f zk, v8f& T,
+                     v8f& R, v8f& G, v8f& B, v8f& D) __attribute__((always_inline)) {
+#pragma clang fp contract(off)
+        const v8f om = (v8f)1.0f - e;
+        const v8f w = T * om;
+        const v8f Tn = T * e;
+        const v8f wr = w * c0;
+        const v8f wg = w * c1;
+        const v8f wb = w * c2;
+        const v8f wd = w * zk;
+        const v8f Rn = R + wr;
+        const v8f Gn = G + wg;
+        const v8f Bn = B + wb;
+        const v8f Dn = D + wd;
+        T = sel(run, Tn, T);
+        R = sel(run, Rn, R);
+        G = sel(run, Gn, G);
+        B = sel(run, Bn, B);
+        D = sel(run, Dn, D);
+    };
+"""
 
 _TRANSPOSE8 = r"""
     // out[j * os][l] = in[l * is][j]: an 8 x 8 transpose in registers (unpack, shuffle, 128-bit lane swap)
@@ -109,7 +136,7 @@ _FORWARD_CPP = r"""
 #pragma clang fp contract(off)
     typedef float v8f __attribute__((ext_vector_type(8)));
     typedef int v8i __attribute__((ext_vector_type(8)));
-""" + NPEXP_TYPES + r"""
+""" + NPEXP_TYPES + SELECT_CPP + BLEND8_CPP + r"""
     typedef unsigned int v16u __attribute__((ext_vector_type(16)));
 """ + _TRANSPOSE8 + r"""    enum { GROUPS = """ + str(GROUPS) + r""" };  // groups of eight rays a call
     enum { RING = """ + str(RING) + r""" };  // samples a slot of the ring (keep == 0)
@@ -252,23 +279,8 @@ _FORWARD_CPP = r"""
         const v8i run = inside & ~(T < thr);
         if (!__builtin_reduce_or(run))
             return false;
-        e = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, e)) | (~run & __builtin_bit_cast(v8i, one)));
-        const v8f om = one - e;
-        const v8f w = T * om;
-        const v8f Tn = T * e;
-        const v8f wr = w * c0;
-        const v8f wg = w * c1;
-        const v8f wb = w * c2;
-        const v8f wd = w * zk;
-        const v8f Rn = R + wr;
-        const v8f Gn = G + wg;
-        const v8f Bn = B + wb;
-        const v8f Dn = D + wd;
-        T = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Tn)) | (~run & __builtin_bit_cast(v8i, T)));
-        R = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Rn)) | (~run & __builtin_bit_cast(v8i, R)));
-        G = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Gn)) | (~run & __builtin_bit_cast(v8i, G)));
-        B = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Bn)) | (~run & __builtin_bit_cast(v8i, B)));
-        D = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Dn)) | (~run & __builtin_bit_cast(v8i, D)));
+        e = sel(run, e, one);
+        blend8(run, e, c0, c1, c2, zk, T, R, G, B, D);
         used = used - run;
         if (nk < nb) {  // 16 of the next group's factors
             const int m = nb - nk < 16 ? nb - nk : 16;
@@ -435,7 +447,7 @@ _BACKWARD_CPP = r"""
 #define DRLAB_AT2(a, i, j) (*(const float*)((const char*)(a).data + (long long)(i) * (a).strides[0] + (long long)(j) * (a).strides[1]))
     typedef float v8f __attribute__((ext_vector_type(8)));
     typedef int v8i __attribute__((ext_vector_type(8)));
-""" + _TRANSPOSE8 + r"""    const float* F = (const float*)factor.data;
+""" + SELECT_CPP + r"""""" + _TRANSPOSE8 + r"""    const float* F = (const float*)factor.data;
     const float* C = (const float*)rgb.data;
     const float* Dl = (const float*)delta.data;
     const float* Zp = (const float*)z.data;
@@ -525,7 +537,7 @@ _BACKWARD_CPP = r"""
             __builtin_prefetch(pg + 32, 1);
         }
         const v8i run = (v8i)i < used;
-        e = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, e)) | (~run & __builtin_bit_cast(v8i, one)));
+        e = sel(run, e, one);
         const v8f om = one - e;
         const v8f w = T * om;
         const v8f f0 = GR * c0;
@@ -546,8 +558,8 @@ _BACKWARD_CPP = r"""
         wr = GR * w;
         wg = GG * w;
         wb = GB * w;
-        T = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Tn)) | (~run & __builtin_bit_cast(v8i, T)));
-        prefix = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, pn)) | (~run & __builtin_bit_cast(v8i, prefix)));
+        T = sel(run, Tn, T);
+        prefix = sel(run, pn, prefix);
     };
     // blocks of eight steps: a lane loads samples k .. k + 7 (k = o_r + i0) of each array as one vector (three for
     // the colours; element by element, clamped to N - 1 as the gathers were, where k + 8 > N), 8 x 8 register

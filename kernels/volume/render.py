@@ -31,8 +31,9 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.launch import launch_split
-from kernels.volume.composite import (DEFAULT_T_THRESHOLD, CompositeResult, check_backpropagatable, composite_backward,
-                                      composite_buffers, composite_forward, composite_grad_buffers)
+from kernels.volume.composite import (DEFAULT_T_THRESHOLD, CompositeResult, check_backpropagatable,
+                                      check_keep_factor, composite_backward, composite_buffers, composite_forward,
+                                      composite_grad_buffers)
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.sampling import Samples, pack_samples, sample_rays
 from kernels.volume.workspace import Workspace, check_workspace
@@ -74,11 +75,6 @@ def _on_device(field: Field, samples: Samples) -> tuple[A.Inputs, Samples]:
     return a, Samples(**floats, **ints)
 
 
-def _check_keep_factor(keep_factor: Any) -> None:
-    if not isinstance(keep_factor, bool):
-        raise ValueError(f"keep_factor: expected a bool, got {type(keep_factor).__name__}")
-
-
 def _render(a: A.Inputs, field: Field, samples: Samples, background: Any, t_threshold: float,
             workspace: Workspace | None, keep_factor: bool) -> RenderResult:
     out = field.forward(samples.points, samples.dirs if field.needs_dirs else None)
@@ -101,7 +97,7 @@ def render_samples(field: Field, samples: Samples, background: Any = (0.0, 0.0, 
     opacity bit for bit), and render_backward refuses it.
     """
     check_workspace(workspace, field.device)
-    _check_keep_factor(keep_factor)
+    check_keep_factor(keep_factor)  # before the field's forward runs
     a, samples = _on_device(field, samples)
     return _render(a, field, samples, background, t_threshold, workspace, keep_factor)
 
@@ -131,7 +127,7 @@ def render_rays(
     keep_factor=False: for renders that will not be backpropagated (render_samples).
     """
     check_workspace(workspace, field.device)
-    _check_keep_factor(keep_factor)
+    check_keep_factor(keep_factor)  # before the field's forward runs
     unknown = set(sampling) - set(_SAMPLING_DEFAULTS)
     if unknown:
         raise ValueError(f"sampling: unknown options {sorted(unknown)}; expected some of {sorted(_SAMPLING_DEFAULTS)} "

@@ -49,8 +49,9 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from kernels._native import built_once
+from kernels._native import SELECT_CPP, built_once
 from kernels._npexp import NPEXP16, NPEXP_TYPES
+from kernels.volume.composite_cpu import BLEND8_CPP
 
 LANES = 8  # rays per group (one thread of each kernel)
 
@@ -64,7 +65,7 @@ _COMMON = r"""
 #pragma clang fp contract(off)
     typedef float v8f __attribute__((ext_vector_type(8)));
     typedef int v8i __attribute__((ext_vector_type(8)));
-    const int n_s = t.shape[1];
+""" + SELECT_CPP + BLEND8_CPP + r"""    const int n_s = t.shape[1];
     const long long ts0 = t.strides[0];
     const long long ts1 = t.strides[1];
     const char* tb = (const char*)t.data;
@@ -75,17 +76,23 @@ _COMMON = r"""
         const int r = 8 * g + l;
         rl[l] = r < n_rays ? r : n_rays - 1;
     }
-"""
-
-# the sample t_j of every lane's ray (one load when t's rows are one row, stride 0)
-_LOAD_T = r"""
-        v8f tk;
-        if (ts0 == 0) {
-            tk = *(const float*)(tb + (long long)j * ts1);
+    // column j of a (R, S) float32 array (base, strides s0, s1) for every lane's ray: one load when its rows are
+    // one row (s0 = 0)
+    auto lanes_at = [&](const char* base, const long long s0, const long long s1, const int j) -> v8f {
+        v8f v;
+        if (s0 == 0) {
+            v = *(const float*)(base + (long long)j * s1);
         } else {
             for (int l = 0; l < 8; ++l)
-                tk[l] = *(const float*)(tb + (long long)rl[l] * ts0 + (long long)j * ts1);
+                v[l] = *(const float*)(base + (long long)rl[l] * s0 + (long long)j * s1);
         }
+        return v;
+    };
+"""
+
+# the sample t_j of every lane's ray
+_LOAD_T = r"""
+        const v8f tk = lanes_at(tb, ts0, ts1, j);
 """
 
 # pass 1: the exponents of the group's samples to out1[j K + k] (eight lanes each)
@@ -127,7 +134,7 @@ _BODY1 = r"""
             const v8f dist = __builtin_elementwise_sqrt(q);
             const v8f v = dist - G[4 * k + 3];
             const v8i pos = zero > v;
-            const v8f m = __builtin_bit_cast(v8f, (pos & __builtin_bit_cast(v8i, zero)) | (~pos & __builtin_bit_cast(v8i, v)));
+            const v8f m = sel(pos, zero, v);
             const float neg_s = -P[4 * k + 3];
             out1[j * n_k + k] = neg_s * m;
         }
@@ -142,13 +149,7 @@ _BODY2 = r"""
     const long long ls0 = delta.strides[0];
     const long long ls1 = delta.strides[1];
     for (int j = 0; j < n_s; ++j) {
-        v8f dk;
-        if (ls0 == 0) {
-            dk = *(const float*)(lb + (long long)j * ls1);
-        } else {
-            for (int l = 0; l < 8; ++l)
-                dk[l] = *(const float*)(lb + (long long)rl[l] * ls0 + (long long)j * ls1);
-        }
+        const v8f dk = lanes_at(lb, ls0, ls1, j);
         v8f sig = 0.0f;
         for (int k = 0; k < n_k; ++k) {
             const v8f d = P[4 * k + 3] * F[j * n_k + k];
@@ -194,26 +195,10 @@ _BODY3 = r"""
         const v8f qr = nr / sig;
         const v8f qg = ng / sig;
         const v8f qb = nb / sig;
-        nr = __builtin_bit_cast(v8f, (norm & __builtin_bit_cast(v8i, qr)) | (~norm & __builtin_bit_cast(v8i, nr)));
-        ng = __builtin_bit_cast(v8f, (norm & __builtin_bit_cast(v8i, qg)) | (~norm & __builtin_bit_cast(v8i, ng)));
-        nb = __builtin_bit_cast(v8f, (norm & __builtin_bit_cast(v8i, qb)) | (~norm & __builtin_bit_cast(v8i, nb)));
-        const v8f e = E[j];
-        const v8f om = one - e;
-        const v8f w = T * om;
-        const v8f Tn = T * e;
-        const v8f wr = w * nr;
-        const v8f wg = w * ng;
-        const v8f wb = w * nb;
-        const v8f wd = w * tk;
-        const v8f crn = cr + wr;
-        const v8f cgn = cg + wg;
-        const v8f cbn = cb + wb;
-        const v8f depn = dep + wd;
-        T = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, Tn)) | (~run & __builtin_bit_cast(v8i, T)));
-        cr = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, crn)) | (~run & __builtin_bit_cast(v8i, cr)));
-        cg = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, cgn)) | (~run & __builtin_bit_cast(v8i, cg)));
-        cb = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, cbn)) | (~run & __builtin_bit_cast(v8i, cb)));
-        dep = __builtin_bit_cast(v8f, (run & __builtin_bit_cast(v8i, depn)) | (~run & __builtin_bit_cast(v8i, dep)));
+        nr = sel(norm, qr, nr);
+        ng = sel(norm, qg, ng);
+        nb = sel(norm, qb, nb);
+        blend8(run, E[j], nr, ng, nb, tk, T, cr, cg, cb, dep);
     }
     const float* bg = (const float*)background.data;
     const float b0 = bg[0];
