@@ -149,10 +149,11 @@ def _row_blocks(fn, n: int) -> None:
     one taking the remainder (S .. 2 S - 1 rows); once n >= _SPLIT_ROWS the launch threads pull the
     blocks one at a time (single-threaded BLAS).
 
-    The blocks do not depend on the thread count, and none is short: OpenBLAS computes a product of
-    a few hundred rows (e.g. 300 x 64 times 64 x 4) with another kernel, whose rounding differs from
-    that of the same rows inside a longer product; with blocks of >= S rows each row's result is the
-    one a single long product gives (tests/kernels/test_volume_fields.py)."""
+    The blocks do not depend on the thread count, so neither do the results (each block is the same
+    single-threaded BLAS call whatever the thread count). None is short: OpenBLAS may compute a
+    product of a few hundred rows with another kernel than a longer one; which rounding a shape gets
+    is BLAS's choice, and the tests bound the difference instead of assuming one
+    (tests/kernels/test_volume_fields.py, research.checks.rounding)."""
     if n < _SPLIT_ROWS:
         fn(0, n)
         return
