@@ -72,13 +72,39 @@ def values_checked() -> bool:
 
 
 def get_device(device: Any) -> wp.Device:
-    """`device` as a wp.Device (None means the CPU); ValueError naming `device` otherwise."""
+    """`device` as a wp.Device (None means `default_device()`); ValueError naming `device` otherwise."""
     if isinstance(device, wp.Device):
         return device
+    if device is None:
+        return default_device()
     try:
-        return wp.get_device("cpu" if device is None else device)
+        return wp.get_device(device)
     except (RuntimeError, ValueError, TypeError) as exc:
         raise ValueError(f"device: cannot use {device!r} ({exc})") from None
+
+
+# The device of NumPy inputs and of objects made without a `device` argument: the CPU, unless a
+# `default_device_scope` is active (the device-parametrised tests, `drlab gradcheck --device`).
+_DEFAULT_DEVICES: list[wp.Device] = []
+
+
+def default_device() -> wp.Device:
+    """The CPU, or the device of the innermost active `default_device_scope`."""
+    return _DEFAULT_DEVICES[-1] if _DEFAULT_DEVICES else wp.get_device("cpu")
+
+
+@contextlib.contextmanager
+def default_device_scope(device: Any) -> Iterator[wp.Device]:
+    """Inside the block, NumPy inputs are copied to `device` and objects made without a device live
+    there (results still come back as NumPy arrays). Not thread-local: enter it from the thread that
+    makes the calls, around whole calls."""
+    dev = get_device(device)
+    _DEFAULT_DEVICES.append(dev)
+    try:
+        with wp.ScopedDevice(dev):  # and Warp's own default: wp.array(x) without a device lands there too
+            yield dev
+    finally:
+        _DEFAULT_DEVICES.pop()
 
 
 def is_array(x: Any) -> bool:
@@ -390,7 +416,7 @@ class Inputs:
     """The inputs of one entry-point call: their device, float dtype and array kind.
 
     `Inputs(device, *arrays)` resolves the device (the `device` argument, else the first
-    wp.array's, else the CPU) and the output kind (that of the first array); then `floats`,
+    wp.array's, else `default_device()`: the CPU unless a `default_device_scope` is active) and the output kind (that of the first array); then `floats`,
     `ints` and `mask` check and convert each argument, and `out` hands results back.
     """
 
@@ -398,7 +424,7 @@ class Inputs:
         candidates = [a for a in arrays if is_array(a)]
         if device is None:
             on_device = [a for a in candidates if isinstance(a, wp.array)]
-            self.device = on_device[0].device if on_device else wp.get_device("cpu")
+            self.device = on_device[0].device if on_device else default_device()
         else:
             self.device = get_device(device)
         self.as_numpy = not candidates or isinstance(candidates[0], np.ndarray)

@@ -4,7 +4,7 @@
     drlab run EXPERIMENT [--quick|--smoke] [--device cpu|cuda] [--out DIR] [--seed N] [-- EXPERIMENT OPTIONS]
     drlab reproduce [EXP ...] [--quick] [--ray [--ray-address A]]   registered experiments, then results/README.md
     drlab sweep SPEC [--jobs N] [--ray [--ray-address A]]  a grid of runs from a TOML file (research.sweep)
-    drlab gradcheck [KERNEL ...]       finite-difference table; exit status 1 on any failure
+    drlab gradcheck [KERNEL ...] [--device D]  finite-difference table; exit status 1 on any failure
     drlab bench [FAMILY ...] [--json] [--compare]  timings (median of >= 3 runs after a warm-up)
     drlab list                         registered experiments, gradient checks and bench families
     drlab sfm IMAGES_DIR --out DIR [--matcher exhaustive|sequential] [--shared-camera] [--intrinsics FX,FY,CX,CY]
@@ -343,8 +343,12 @@ def _cmd_gradcheck(args: argparse.Namespace) -> int:
         _select(args.kernels or None)
     except KeyError as e:  # an unknown name is a usage error, named before anything runs
         raise ValueError(f"kernels: {e.args[0]}") from None
+    device = _check_device(args.device)
     _quiet_warp()
-    results = run_checks(args.kernels or None)
+    from kernels._arrays import default_device_scope
+
+    with default_device_scope(device):  # the checks' NumPy inputs and fields go to that device
+        results = run_checks(args.kernels or None)
     print(format_table(results))
     failed = [r for r in results if not r.passed]
     print(f"\n{len(results) - len(failed)} passed, {len(failed)} failed")
@@ -487,6 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     g = sub.add_parser("gradcheck", help="finite-difference checks of every registered backward pass")
     g.add_argument("kernels", nargs="*", help="check names or prefixes (default: all)")
+    g.add_argument("--device", default="cpu", help="Warp device the checks run on: cpu, cuda or cuda:N (default cpu)")
     g.set_defaults(fn=_cmd_gradcheck)
 
     b = sub.add_parser("bench", help="timings of registered kernels")

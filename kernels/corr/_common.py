@@ -44,6 +44,7 @@ from typing import Any, Sequence
 
 import warp as wp
 
+from kernels import fast_paths
 from kernels._arrays import Inputs, check_int, declare_float_overloads
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -357,7 +358,7 @@ def full_product_level(height_l: int, width_l: int, radius: int, device: wp.Devi
     docs/performance.md, "Fifth round"). So the full product is kept where H_l W_l is at most
     half the patch: RAFT's coarsest level at 1/8 resolution.
     """
-    return device.is_cpu and 2 * height_l * width_l <= (2 * radius + 2) ** 2
+    return fast_paths.on(device) and 2 * height_l * width_l <= (2 * radius + 2) ** 2
 
 
 

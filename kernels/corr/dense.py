@@ -23,6 +23,7 @@ from typing import Sequence
 
 import warp as wp
 
+from kernels import fast_paths
 from kernels._arrays import Inputs
 from kernels.corr._common import (LEVELS_PER_LAUNCH, Array, check_levels, check_list, check_radius, coords_in,
                                   levels_in, sample_levels, sample_windows_adjoint, volume_in)
@@ -50,7 +51,7 @@ def lookup(pyramid: Sequence[Array], coords: Array, radius: int, *, device: str 
     side = 2 * radius + 1
     n = height * width
     out = a.empty((len(levels) * side * side, height, width))  # every element is written
-    cpu_kernel = window_cpu.sample_levels_cpu(radius, a.scalar) if a.device.is_cpu else None
+    cpu_kernel = window_cpu.sample_levels_cpu(radius, a.scalar) if fast_paths.on(a.device) else None
     for lvl0 in range(0, len(levels), LEVELS_PER_LAUNCH):
         group = levels[lvl0:lvl0 + LEVELS_PER_LAUNCH]
         padded = group + [group[0]] * (LEVELS_PER_LAUNCH - len(group))  # unused slots: never read

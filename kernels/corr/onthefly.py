@@ -64,6 +64,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import warp as wp
 
+from kernels import fast_paths
 from kernels._arrays import Inputs, declare_float_overloads
 from kernels.corr import patch_cpu, window_cpu
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, check_radius, coords_in,
@@ -313,7 +314,7 @@ def _channels_last_v(x: wp.array, a: Inputs) -> wp.array:
     copy, aliased as vectors (a quarter of the packing kernel's time, which reads x^T strided).
     """
     channels, n = x.shape
-    if a.device.is_cpu and channels % VEC == 0:
+    if fast_paths.on(a.device) and channels % VEC == 0:
         rows = np.ascontiguousarray(x.numpy().T).reshape(n, channels // VEC, VEC)
         return wp.array(rows, dtype=VEC_OF[a.scalar], device=a.device, copy=False)  # keeps `rows` alive
     return pack_rows(x.transpose(), -(-channels // VEC), a)
@@ -465,7 +466,7 @@ def _rows(x_v: wp.array) -> wp.array:
 def _cpu_patches(a: Inputs, f1_rows: wp.array) -> bool:
     """Whether the patches go through `patch_cpu` (its C++ kernels): on the CPU, rows contiguous, stored in
     the working dtype or in float16 with float32 work."""
-    if not a.device.is_cpu or f1_rows.strides[1] != wp.types.type_size_in_bytes(f1_rows.dtype):
+    if not fast_paths.on(a.device) or f1_rows.strides[1] != wp.types.type_size_in_bytes(f1_rows.dtype):
         return False
     return f1_rows.dtype == a.scalar or (f1_rows.dtype == wp.float16 and a.scalar == wp.float32)
 
@@ -550,7 +551,7 @@ def _forward(a: Inputs, f1_rows: wp.array, channels: int, xy: wp.array, radius: 
         else:
             f1_v = widen(f1_rows, a) if f1_v is None else f1_v
             f2l_v = widen(level_rows(lvl), a)
-            if a.device.is_cpu:
+            if fast_paths.on(a.device):
                 a.launch(_patch_sample_level, n, [f1_v, f2l_v, xy, patch, out, hl, wl, scale, radius, inv,
                                                   lvl * side * side], min_chunk=64)
             else:
@@ -847,7 +848,7 @@ def lookup_onthefly(f1: Array, f2_pyramid: Sequence[Array], coords: Array, radiu
         _, height, width = xy.shape
         return _lookup_stored(_store(a, x1, levels, height, width, feature_dtype), xy, radius, a)
     scaled = lambda lvl: levels[lvl].numpy().reshape(channels, -1) * a.np_dtype.type(inv)  # noqa: E731
-    if a.device.is_cpu and default_threads() > 1 and channels % VEC == 0:
+    if fast_paths.on(a.device) and default_threads() > 1 and channels % VEC == 0:
         # Every level at once (`_forward_phased`): the channels-last copies of f1 and of every patched
         # level are made by its items, by row ranges (`fills`), and held together (`onthefly_bytes`).
         x1_v, fill_f1 = _channels_last_later(x1, a)

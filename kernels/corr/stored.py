@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from kernels import fast_paths
 from kernels._arrays import Inputs
 from kernels.corr import patch_cpu
 from kernels.corr._common import VEC, VEC_OF, full_product_level, level_shapes
@@ -175,7 +176,7 @@ def widen(x: wp.array, a: Inputs) -> wp.array:
     vec = VEC_OF[a.scalar]
     if x.dtype == a.scalar:
         return wp.array(ptr=x.ptr, shape=(n, c8 // VEC), dtype=vec, device=x.device)  # x outlives the call
-    if a.device.is_cpu:
+    if fast_paths.on(a.device):
         if a.scalar == wp.float32 and x.strides[1] == 2:
             # the rows converted in C++ (`patch_cpu.widen_rows_cpu`, 8-lane conversions), into the vectors' memory
             out_v = a.empty((n, c8 // VEC), vec)

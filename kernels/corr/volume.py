@@ -36,6 +36,7 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
+from kernels import fast_paths
 from kernels._arrays import Inputs, declare_float_overloads
 from kernels.corr._common import (VEC, VEC_OF, Array, check_levels, check_list, features_in, level_shapes,
                                   levels_in, pack_rows, pool_levels, pool_levels_adjoint, volume_in)
@@ -143,7 +144,7 @@ BACKENDS = ("numpy", "warp")
 def _backend(a: Inputs, backend: str | None) -> str:
     """The product's backend: the argument, else "numpy" on the CPU and "warp" on CUDA."""
     if backend is None:
-        return "numpy" if a.device.is_cpu else "warp"
+        return "numpy" if fast_paths.on(a.device) else "warp"
     if backend not in BACKENDS:
         raise ValueError(f"backend: expected one of {', '.join(BACKENDS)} or None, got {backend!r}")
     if backend == "numpy" and not a.device.is_cpu:

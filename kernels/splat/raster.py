@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from kernels import fast_paths
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
 from kernels.splat.rowblend import blend_row, rowblend_available
@@ -514,7 +515,8 @@ def _check_tiles_mode(tiles: Tiles, mode: str) -> None:
 def rasterize_wp(s: Splats2D, width: int, height: int, bg: wp.array,
                  tiles: Tiles | None = None, mode: str = DEFAULT_MODE) -> tuple[Raster, Tiles]:
     """`rasterize` with wp.array results (the render chain's last stage); `bg` a wp.array."""
-    return _rasterize_wp(s, width, height, bg, tiles, mode, per_tile=s.device.is_cpu)
+    # a thread per tile on the CPU's fast route, else a thread per pixel (CUDA's; kernels.fast_paths)
+    return _rasterize_wp(s, width, height, bg, tiles, mode, per_tile=fast_paths.on(s.device))
 
 
 _ROWS_OK: list[bool] = []

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from kernels import fast_paths
 from kernels import _arrays as A
 from kernels.splat.modes import DEFAULT_MODE, mode_id
 
@@ -502,7 +503,8 @@ def bin_tiles(s: Splats2D, width: int, height: int, mode: str = DEFAULT_MODE) ->
     mode_id(mode)
     width = A.check_int("width", width, minimum=1, maximum=MAX_SIDE)
     height = A.check_int("height", height, minimum=1, maximum=MAX_SIDE)
-    return _bin_tiles(s, width, height, mode, counting_sort=s.device.is_cpu)
+    # the counting sort on the CPU's fast route, else the radix sort (CUDA's; kernels.fast_paths)
+    return _bin_tiles(s, width, height, mode, counting_sort=fast_paths.on(s.device))
 
 
 def _bin_tiles(s: Splats2D, width: int, height: int, mode: str, counting_sort: bool,

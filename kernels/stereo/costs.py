@@ -51,6 +51,7 @@ from typing import Any
 
 import warp as wp
 
+from kernels import fast_paths
 from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
 from kernels.launch import default_threads
 from kernels.stereo._common import check_dmin, check_range, image_pair, pixel
@@ -366,7 +367,7 @@ def _census_radii(radius_y: Any, radius_x: Any) -> tuple[int, int, int]:
 def _census_launch(a: Inputs, img: wp.array, out: wp.array, ry: int, rx: int) -> None:
     """The census strings of `img` into `out`: float32 on the CPU a row per thread in vector lanes
     (kernels.stereo.census.census_rows_f32), else a pixel per thread (census_kernel); the same bits."""
-    if a.device.is_cpu and img.dtype == wp.float32:
+    if fast_paths.on(a.device) and img.dtype == wp.float32:
         a.launch(census_rows_f32, img.shape[0], [img, out, ry, rx], min_chunk=4)
     else:
         a.launch(census_kernel(ry, rx), img.size, [img, out])

@@ -67,7 +67,8 @@ SIMD kernels on the CPU. In float32 the CPU forward and backward run kernels.vol
 instead of the Warp kernels: eight rays a thread in vector lanes, each lane the same float32
 operations in the same order as one thread here, so the same outputs bit for bit (tests compare
 the two); `SIMD_FORWARD = False` / `SIMD_BACKWARD = False` keep the Warp kernels. float64 and CUDA
-always run the Warp kernels.
+always run the Warp kernels. With the CPU fast paths off (kernels.fast_paths) the CPU takes the CUDA
+route throughout: no NumPy factor pass, no C++, the values checked before the launch.
 
 Value checks on the CPU ride on passes the forward makes anyway instead of six separate single-
 threaded passes over the samples. sigma and delta: while a block of them is in cache for the
@@ -96,7 +97,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.launch import default_threads, guided_bounds, parallel_items, parallel_ranges
-from kernels import _npexp
+from kernels import _npexp, fast_paths
 from kernels.volume import composite_cpu
 from kernels.volume._checks import check_ray_offsets
 from kernels.volume.workspace import Workspace
@@ -406,6 +407,13 @@ def _launch(a: A.Inputs, kernel: Any, dim: int, inputs: list[Any], min_chunk: in
     parallel_items(lambda i: run(first + i), len(bounds) - first)
 
 
+def _host_passes(device: wp.Device) -> bool:
+    """Whether the CPU route runs: the factor pass by NumPy and the C++ kernels (kernels.fast_paths).
+    Otherwise the CUDA route runs, also on the CPU: the values checked before the launch, the factors
+    evaluated by the Warp kernel itself."""
+    return device.is_cpu and fast_paths.enabled()
+
+
 def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, check: bool) -> int:
     """On the CPU, factor = exp(-sigma delta) for every sample with NumPy's vectorised exp, in
     cache-sized blocks split over the launch threads; returns 1 (the kernel then reads the
@@ -417,7 +425,7 @@ def _fill_factor(sigma: wp.array, delta: wp.array, factor: wp.array, check: bool
     the argument. See the module docstring for the rounding of the
     factors.
     """
-    if not factor.device.is_cpu:
+    if not _host_passes(factor.device):
         return 0
     s, d, f = sigma.numpy(), delta.numpy(), factor.numpy()  # zero-copy views of host arrays
     uint, top = _MAX_FINITE_BITS[f.dtype]
@@ -511,7 +519,7 @@ def _samples(a: A.Inputs, sigma: Any, rgb: Any, delta: Any, z: Any, ray_offsets:
     (_fill_factor, before the launch) and rgb and z through its kernel's sums (module
     docstring). The backward passes False (the forward checked them).
     """
-    on_cuda = values and not a.device.is_cpu
+    on_cuda = values and not _host_passes(a.device)
     s = a.floats("sigma", sigma, (None,), finite=False)
     n = s.shape[0]
     c = a.floats("rgb", rgb, (n, 3), finite=on_cuda)
@@ -569,8 +577,8 @@ def composite_forward(
         factor = res.factor = (a.empty(n) if out is None else
                                  A.check_out("out.factor", out.factor, (n,), a.scalar, a.device))
     s, c, d, zz, offsets = args
-    check = A.values_checked() and a.device.is_cpu  # on CUDA _samples checked the values
-    simd = (a.device.is_cpu and a.scalar == wp.float32 and SIMD_FORWARD and 3 * n < 2**31
+    check = A.values_checked() and _host_passes(a.device)  # else _samples checked the values
+    simd = (_host_passes(a.device) and a.scalar == wp.float32 and SIMD_FORWARD and 3 * n < 2**31
             and all(x.is_contiguous for x in (s, c, d, zz, offsets)) and (not keep_factor or factor.is_contiguous))
     fused = simd and FUSED_EXP and _covers(offsets, n) and _npexp.numpy_agrees()
     # keep_factor False: the fused SIMD forward keeps the factors in its per-thread ring (every group of eight
@@ -578,7 +586,7 @@ def composite_forward(
     ring = fused and not keep_factor and _groups_fit(offsets, n_rays)
     if not keep_factor:
         factor = _no_factor(a.device) if ring else a.empty(n)
-    factor_given = 1 if fused else _fill_factor(s, d, factor, check)
+    factor_given = 1 if fused else _fill_factor(s, d, factor, check) if _host_passes(a.device) else 0
     bad = a.empty(n_rays if check else 1, wp.int32)
     if simd:
         # CPU, float32: eight rays a thread in vector lanes, the same outputs bit for bit (composite_cpu);
@@ -651,7 +659,7 @@ def composite_backward(
             raise ValueError("out: expected a pair (grad_sigma (N,), grad_rgb (N, 3)) of wp.arrays")
         grad_sigma = A.check_out("out[0]", out[0], (n,), a.scalar, a.device)
         grad_sample_rgb = A.check_out("out[1]", out[1], (n, 3), a.scalar, a.device)
-    simd = (a.device.is_cpu and a.scalar == wp.float32 and SIMD_BACKWARD and 3 * n < 2**31
+    simd = (_host_passes(a.device) and a.scalar == wp.float32 and SIMD_BACKWARD and 3 * n < 2**31
             and all(x.is_contiguous for x in (res["factor"], c, d, zz, offsets, grad_sigma, grad_sample_rgb)))
     if simd:  # CPU, float32: eight rays a thread in vector lanes, bit for bit the Warp kernel (composite_cpu)
         _launch(a, composite_cpu.backward_kernel(), (n_rays + composite_cpu.LANES - 1) // composite_cpu.LANES,

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from kernels import _arrays as A
+from kernels import _arrays as A, fast_paths
 from kernels.launch import DEFAULT_MIN_CHUNK, launch_split, parallel_items
 from kernels.volume._checks import check_bbox
 from kernels.volume.grid import trilinear_weight
@@ -259,7 +259,7 @@ class HashEncoding:
         if n:
             block = _block(points.device)
             # F = 2 on the CPU: the same sums in C++, 8 points at a time (kernels.volume.hashgrid_cpu)
-            kernel = (forward_kernel(points.dtype) if points.device.is_cpu and self.n_features == 2
+            kernel = (forward_kernel(points.dtype) if points.device.is_cpu and self.n_features == 2 and fast_paths.enabled()
                       else _hash_forward_kernel)
             launch_split(kernel, -(-n // block) * self.n_levels,
                          [self._normalised(points, pool), *self._static(points.dtype, points.device), table, out,
@@ -297,7 +297,7 @@ class HashEncoding:
             runs = -(-points.shape[0] // block)
 
             # F = 2 on the CPU: the same additions in the same order in C++ (kernels.volume.hashgrid_cpu)
-            kernel = (backward_kernel(points.dtype) if points.device.is_cpu and self.n_features == 2
+            kernel = (backward_kernel(points.dtype) if points.device.is_cpu and self.n_features == 2 and fast_paths.enabled()
                       else _hash_backward_kernel)
 
             def level(l: int) -> None:

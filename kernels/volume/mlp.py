@@ -17,7 +17,7 @@ Two backends compute the same thing:
     ReLU), with one thread per output element ((n, j) for z, (n, k) for da, (j, k) for dW) and
     the transposes W^T, dz^T passed as strided views; j for db. Each is a gather with disjoint
     writes, so launch_split is safe. It runs on the CPU and on CUDA.
-  * "numpy" (the default on the CPU): the three matrix products (z = a W^T, dW = dz^T a,
+  * "numpy" (the default on the CPU, unless its fast paths are off: kernels.fast_paths): the three matrix products (z = a W^T, dW = dz^T a,
     da = dz W) are NumPy/BLAS products written straight into the Warp arrays' memory, with the
     per-sample parts (+ bias and ReLU after z, the ReLU mask after da) applied by NumPy to each
     block of 2048 rows right after its product, while it is in the cache; the forward takes each
@@ -37,7 +37,7 @@ from typing import Any, Sequence
 import numpy as np
 import warp as wp
 
-from kernels import _arrays as A
+from kernels import _arrays as A, fast_paths
 from kernels.launch import launch_split, parallel_items, parallel_ranges
 
 wp.set_module_options({"enable_backward": False})
@@ -288,7 +288,7 @@ class MLP:
         self.dtype = params["W0"].dtype
         self.device = params["W0"].device
         if backend is None:
-            backend = "warp" if self.device.is_cuda else "numpy"
+            backend = "numpy" if self.device.is_cpu and fast_paths.enabled() else "warp"
         if backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
         if backend == "numpy" and self.device.is_cuda:

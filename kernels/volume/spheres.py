@@ -78,7 +78,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels import _npexp
+from kernels import _npexp, fast_paths
 from kernels.volume import spheres_cpu
 from kernels.volume._checks import check_dtype
 from kernels.volume.composite import DEFAULT_T_THRESHOLD
@@ -89,8 +89,8 @@ from kernels.volume.workspace import Workspace
 wp.set_module_options({"enable_backward": False})
 
 COLOR_NORMALIZE_EPS = 1e-6
-# forward and render_dense on the CPU run the two-pass paths; True runs the one-kernel paths there too
-# (CUDA's; for tests).
+# forward and render_dense on the CPU run the two-pass paths (NumPy's exp between Warp passes, and C++);
+# True, or the CPU fast paths off (kernels.fast_paths), runs the one-kernel paths there too (CUDA's).
 _FUSED_ON_CPU = False
 # render_dense's CPU passes take four samples at a time when S % 4 == 0; False runs the one-at-a-time
 # passes there too (for tests: the same results bit for bit).
@@ -785,7 +785,7 @@ class SphereField(Field):
         a, p, _ = self._inputs(points, dirs)
         n = p.shape[0]
         sigma, rgb = a.empty(n), a.empty((n, 3))
-        if not self.device.is_cpu or _FUSED_ON_CPU:
+        if not self.device.is_cpu or _FUSED_ON_CPU or not fast_paths.enabled():
             a.launch(_spheres_forward_kernel, n, [p, *self._param_args(), sigma, rgb])
             return self._result(a, sigma, rgb)
         # CPU: the falloffs by NumPy's exp between two passes over quads of points (module docstring).
@@ -829,7 +829,7 @@ class SphereField(Field):
         bg_v = _background_vec3(bg, self.dtype, self.device)
         o3, d3, rgb3 = _vec_view3(o), _vec_view3(d), _vec_view3(rgb)
         fused, k1, kf, k2 = _RENDER_DENSE[self.dtype]
-        if not self.device.is_cpu or _FUSED_ON_CPU:
+        if not self.device.is_cpu or _FUSED_ON_CPU or not fast_paths.enabled():
             a.launch(fused, n_rays, [o3, d3, tt, dl, geometry, appearance, bg_v, a.s(t_threshold), rgb3, depth,
                                      opacity], min_chunk=16)
             return a.out(rgb), a.out(depth), a.out(opacity)

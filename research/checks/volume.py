@@ -146,8 +146,9 @@ def relu_margin(field: Field, points: np.ndarray) -> float:
     return float(min(np.abs(z.numpy()).min() for z in pre)) if pre else np.inf
 
 
-def neural_field(kind: str, seed: int, backend: str = "numpy") -> Field:
-    """A small float64 neural field with non-degenerate parameters (hash table entries O(1))."""
+def neural_field(kind: str, seed: int, backend: str | None = None) -> Field:
+    """A small float64 neural field with non-degenerate parameters (hash table entries O(1)); `backend` None:
+    the MLP's default for the device (kernels.volume.mlp)."""
     if kind == "hashgrid":
         # Levels 2, 4, 8 with a 64-entry table: level 0 dense, levels 1-2 hashed (collisions included).
         return HashGridField(BOX, n_levels=3, n_features=2, log2_table_size=6, base_resolution=2, max_resolution=8,
@@ -167,7 +168,7 @@ def _margin_points(field: Field, rng: np.random.Generator, n: int) -> np.ndarray
     raise RuntimeError("could not draw points away from the ReLU kinks")
 
 
-def check_neural(kind: str, seeds=(0, 1), backend: str = "numpy") -> list[GradcheckResult]:
+def check_neural(kind: str, seeds=(0, 1), backend: str | None = None) -> list[GradcheckResult]:
     results = []
     for seed in seeds:
         rng = np.random.default_rng(seed)

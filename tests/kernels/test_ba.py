@@ -19,6 +19,7 @@ def _problem(seed=0, n_cams=3, n_points=7):
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.usefixtures("warp_device")
 def test_reproject_matches_reference(dtype):
     inputs, ci, pi, poses0, K = _problem(0)
     got = kba.reproject(poses0.astype(dtype), inputs["points"].astype(dtype), inputs["observations"].astype(dtype),
@@ -42,6 +43,7 @@ def test_reproject_kind_rule_and_3x4_poses():
     np.testing.assert_allclose(got.jac_point.numpy(), want.jac_point, rtol=1e-13, atol=1e-12)
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_ba_gradients():
     assert_gradcheck(cba.ba_checks())
 

@@ -30,6 +30,7 @@ def random_case(rng: np.random.Generator, dtype, shape=(5, 9, 11)):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.usefixtures("warp_device")
 def test_volume_and_pyramid_match_reference(dtype):
     f1, f2, _ = random_case(np.random.default_rng(1), dtype)
     volume = corr.correlation_volume(f1, f2)
@@ -68,6 +69,7 @@ def test_volume_backend_warp_arrays():
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("radius", [0, 2])
+@pytest.mark.usefixtures("warp_device")
 def test_lookup_matches_reference(dtype, radius):
     f1, f2, coords = random_case(np.random.default_rng(2 + radius), dtype)
     pyramid = corr.correlation_pyramid(corr.correlation_volume(f1, f2), 3)
@@ -248,26 +250,31 @@ def test_onthefly_full_product_levels(dtype, shape, levels, radius, full):
 
 
 @pytest.mark.parametrize("seed", checks.SEEDS)
+@pytest.mark.usefixtures("warp_device")
 def test_gradcheck_volume_pyramid_pool(seed):
     assert_gradcheck(checks.check_volume(seed) + checks.check_pyramid(seed) + checks.check_pool_features(seed))
 
 
 @pytest.mark.parametrize("seed", checks.SEEDS)
+@pytest.mark.usefixtures("warp_device")
 def test_gradcheck_volume_warp_backend(seed):
     assert_gradcheck(checks.check_volume_warp(seed))
 
 
 @pytest.mark.parametrize("seed", checks.SEEDS)
+@pytest.mark.usefixtures("warp_device")
 def test_gradcheck_lookup(seed):
     assert_gradcheck(checks.check_lookup(seed, radius=checks.radius_of(seed)))
 
 
 @pytest.mark.parametrize("seed", checks.SEEDS)
+@pytest.mark.usefixtures("warp_device")
 def test_gradcheck_lookup_onthefly(seed):
     assert_gradcheck(checks.check_lookup_onthefly(seed, radius=checks.radius_of(seed)))
 
 
 @pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.usefixtures("warp_device")
 def test_gradcheck_whole_paths(seed):
     assert_gradcheck(checks.check_dense_chain(seed) + checks.check_onthefly_chain(seed))
 

@@ -129,8 +129,11 @@ def test_worker_thread_error_propagates_after_all_chunks(monkeypatch):
         worker_started.wait(timeout=30)  # keep chunks left over for the worker to take
         return real_launch(kernel, dim=dim, inputs=inputs, device=device)
 
-    monkeypatch.setattr(kl.wp, "launch", flaky_launch)
     x = wp.zeros(4096, dtype=wp.float64, device=DEVICE)
+    # loaded first: a first use launches one chunk alone before any worker starts (kernels.launch),
+    # which here would wait out the timeout instead of letting a worker take a chunk
+    launch_split(float64_only, 4096, [x], device=DEVICE, threads=2, min_chunk=64)
+    monkeypatch.setattr(kl.wp, "launch", flaky_launch)
     with pytest.raises(RuntimeError, match="boom in worker"):
         launch_split(float64_only, 4096, [x], device=DEVICE, threads=2, min_chunk=64)
     monkeypatch.undo()

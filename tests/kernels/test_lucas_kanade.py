@@ -29,6 +29,7 @@ def texture(rng: np.random.Generator, h: int, w: int, sigma: float = 1.5) -> np.
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.usefixtures("warp_device")
 def test_gradients_downsample_upsample_match_reference(dtype):
     rng = np.random.default_rng(0)
     img = rng.uniform(0, 1, (9, 12)).astype(dtype)
@@ -43,6 +44,7 @@ def test_gradients_downsample_upsample_match_reference(dtype):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.usefixtures("warp_device")
 def test_lk_step_matches_reference(dtype):
     rng = np.random.default_rng(1)
     img1 = texture(rng, 11, 13).astype(dtype)
@@ -61,6 +63,7 @@ def test_lk_step_matches_reference(dtype):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.usefixtures("warp_device")
 def test_pyramidal_matches_reference(dtype):
     rng = np.random.default_rng(2)
     img1 = texture(rng, 20, 23).astype(dtype)

@@ -20,14 +20,15 @@ def numpy_adam(p, grads, lr, b1=0.9, b2=0.999, eps=1e-8):
 # The float32 tolerance covers float32 rounding of five steps (the reference runs in float32 too).
 @pytest.mark.parametrize("dtype, rtol, atol", [(np.float64, 1e-12, 1e-14), (np.float32, 1e-5, 1e-6)])
 @pytest.mark.parametrize("kind", ["numpy", "warp"])
+@pytest.mark.usefixtures("warp_device")
 def test_adam_matches_numpy(dtype, rtol, atol, kind):
     rng = np.random.default_rng(0)
     p0 = rng.normal(size=(300, 3)).astype(dtype)
     grads = [rng.normal(size=p0.shape).astype(dtype) for _ in range(5)]
-    p = p0.copy() if kind == "numpy" else wp.array(p0, device="cpu")
+    p = p0.copy() if kind == "numpy" else wp.array(p0)
     opt = Adam({"x": p}, lr=0.01)
     for g in grads:
-        opt.step({"x": g if kind == "numpy" else wp.array(g, device="cpu")})
+        opt.step({"x": g if kind == "numpy" else wp.array(g)})
     got = p if kind == "numpy" else p.numpy()
     np.testing.assert_allclose(got, numpy_adam(p0, grads, 0.01), rtol=rtol, atol=atol)
     assert opt.t == {"x": 5}
@@ -90,13 +91,13 @@ def test_adam_float32_is_the_elementwise_float32_update_bit_for_bit():
     rng = np.random.default_rng(5)
     p0 = rng.normal(size=70001).astype(np.float32)
     grads = [rng.normal(size=p0.shape).astype(np.float32) for _ in range(3)]
-    p = wp.array(p0, device="cpu")
+    p = wp.array(p0)
     opt = Adam({"x": p}, lr=0.01, betas=(0.9, 0.99), eps=1e-15)
     f = np.float32
     b1, b2, one, lr, eps = f(0.9), f(0.99), f(1.0), f(0.01), f(1e-15)
     ref, m, v = p0.copy(), np.zeros_like(p0), np.zeros_like(p0)
     for t, g in enumerate(grads, start=1):
-        opt.step({"x": wp.array(g, device="cpu")})
+        opt.step({"x": wp.array(g)})
         m = b1 * m + (one - b1) * g
         v = b2 * v + (one - b2) * g * g
         ref = ref - lr * (m / f(1.0 - 0.9**t)) / (np.sqrt(v / f(1.0 - 0.99**t)) + eps)

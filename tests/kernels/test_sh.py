@@ -42,6 +42,7 @@ def _evaluate(d: np.ndarray):
 
 
 @pytest.mark.parametrize("dtype, tol", [(np.float32, 1e-6), (np.float64, 1e-14)])
+@pytest.mark.usefixtures("warp_device")
 def test_basis_and_derivatives_match_reference(dtype, tol):
     rng = np.random.default_rng(0)
     d = rng.normal(size=(64, 3))

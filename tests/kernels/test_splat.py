@@ -25,6 +25,7 @@ TOL = {np.float32: dict(rtol=2e-4, atol=2e-5), np.float64: dict(rtol=1e-10, atol
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("antialiased", [False, True])
+@pytest.mark.usefixtures("warp_device")
 def test_project_matches_reference(dtype, antialiased):
     scene = cs.smooth_scene(5, antialiased=antialiased, off_frustum=True)
     params = as_dtype(scene.params, dtype)
@@ -98,6 +99,7 @@ def test_project_sh_degree_and_culling():
 
 
 @pytest.mark.parametrize("mode", ks.MODES)
+@pytest.mark.usefixtures("warp_device")
 def test_tile_binning_matches_reference(mode):
     scene = cs.smooth_scene(6, mode=mode)
     g = ks.gaussian_inputs(*(scene.params[k] for k in PARAMS))
@@ -118,6 +120,7 @@ def test_tile_binning_matches_reference(mode):
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.usefixtures("warp_device")
 def test_rasterize_matches_reference(dtype):
     scene = cs.smooth_scene(7, require_events=True)
     g = ks.gaussian_inputs(*(scene.params[k] for k in PARAMS))
@@ -135,6 +138,7 @@ def test_rasterize_matches_reference(dtype):
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("antialiased", [False, True])
+@pytest.mark.usefixtures("warp_device")
 def test_render_matches_reference(dtype, antialiased):
     scene = cs.smooth_scene(8, antialiased=antialiased)
     params = as_dtype(scene.params, dtype)
@@ -165,14 +169,17 @@ def test_outputs_follow_the_input_kind():
 # --------------------------------------------------------------------------- gradients (float64 FD)
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_project_gradients():
     assert_gradcheck(cs.project_checks())
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_rasterize_gradients():
     assert_gradcheck(cs.rasterize_checks())
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_render_gradients():
     assert_gradcheck(cs.render_checks())
 

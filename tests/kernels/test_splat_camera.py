@@ -17,10 +17,12 @@ from research.splats.loss import depth_loss
 PARAMS = cs.PARAMS
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_camera_gradients():
     assert_gradcheck(cs.camera_checks())
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_depth_loss_gradients():
     assert_gradcheck(cs.depth_loss_checks())
 

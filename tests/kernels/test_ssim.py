@@ -13,6 +13,7 @@ from research.gradcheck import assert_gradcheck
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("shape", [(20, 23, 3), (7, 5, 1)])
+@pytest.mark.usefixtures("warp_device")
 def test_ssim_map_matches_reference(dtype, shape):
     rng = np.random.default_rng(0)
     y = rng.uniform(0, 1, shape)
@@ -31,6 +32,7 @@ def test_ssim_identical_images_is_one_and_stationary():
     np.testing.assert_allclose(grad, 0.0, atol=1e-12)
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_ssim_gradients():
     assert_gradcheck(cssim.ssim_checks())
 

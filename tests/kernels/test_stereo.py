@@ -34,6 +34,7 @@ def _images(seed: int, shape=(9, 13), dtype=np.float64):
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("seed,drange,radius", [(0, (0, 5), 2), (1, (-2, 4), 1), (2, (3, 9), 3)])
+@pytest.mark.usefixtures("warp_device")
 def test_sad_matches_reference(dtype, seed, drange, radius):
     L, R = _images(seed, dtype=dtype)
     got = stereo.sad_cost(L, R, *drange, radius)
@@ -43,6 +44,7 @@ def test_sad_matches_reference(dtype, seed, drange, radius):
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("seed,drange,radius", [(0, (0, 5), 2), (1, (-3, 3), 3)])
+@pytest.mark.usefixtures("warp_device")
 def test_zncc_matches_reference(dtype, seed, drange, radius):
     L, R = _images(seed, dtype=dtype)
     got = stereo.zncc_cost(L, R, *drange, radius, eps=1e-4)
@@ -52,6 +54,7 @@ def test_zncc_matches_reference(dtype, seed, drange, radius):
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("seed,drange,radius,channels", [(0, (0, 5), 2, 0), (1, (-2, 4), 1, 3), (2, (3, 9), 0, 3)])
+@pytest.mark.usefixtures("warp_device")
 def test_bt_matches_reference(dtype, seed, drange, radius, channels):
     rng = np.random.default_rng(seed)
     shape = (7, 11, channels) if channels else (7, 11)
@@ -99,6 +102,7 @@ def test_zncc_flat_window_is_finite():
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("seed,drange,radii", [(0, (0, 5), (1, 2)), (1, (-2, 6), (3, 4)), (2, (-3, 13), (2, 2))])
+@pytest.mark.usefixtures("warp_device")
 def test_census_matches_reference(dtype, seed, drange, radii):
     L, R = _images(seed, shape=(9, 21), dtype=dtype)  # D = 16: the 8-wide vector path; 5: the scalar one
     np.testing.assert_array_equal(stereo.census_transform(L, *radii), ref.census_transform(L, *radii))
@@ -109,6 +113,7 @@ def test_census_matches_reference(dtype, seed, drange, radii):
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("seed,drange", [(0, (0, 4)), (1, (-3, 5))])
+@pytest.mark.usefixtures("warp_device")
 def test_correlation_matches_reference(dtype, seed, drange):
     rng = np.random.default_rng(seed)
     FL, FR = (rng.standard_normal((6, 4, 10)).astype(dtype) for _ in range(2))
@@ -119,6 +124,7 @@ def test_correlation_matches_reference(dtype, seed, drange):
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("paths", [4, 8])
 @pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.usefixtures("warp_device")
 def test_sgm_matches_reference(dtype, paths, seed):
     rng = np.random.default_rng(seed)
     C = rng.uniform(0.0, 4.0, (6, 8, 5)).astype(dtype)
@@ -153,6 +159,7 @@ def test_sgm_single_path_edge_cases():
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("dmin,uniqueness", [(0, 0.0), (-2, 0.0), (1, 0.15)])
+@pytest.mark.usefixtures("warp_device")
 def test_wta_matches_reference(dtype, dmin, uniqueness):
     C = np.random.default_rng(5).uniform(0.0, 3.0, (5, 9, 6)).astype(dtype)
     disp, valid = stereo.wta(C, dmin, uniqueness=uniqueness)
@@ -173,6 +180,7 @@ def test_wta_subpixel_recovers_parabola_vertex():
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("dmin", [0, -1])
+@pytest.mark.usefixtures("warp_device")
 def test_wta_right_matches_reference(dtype, dmin):
     C = np.random.default_rng(6).uniform(0.0, 3.0, (4, 9, 5)).astype(dtype)
     disp, valid = stereo.wta_right(C, dmin)
@@ -237,6 +245,7 @@ def test_wta_left_and_right_agree_on_a_shifted_pair():
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("temperature", [0.25, 1.0, 3.0])
+@pytest.mark.usefixtures("warp_device")
 def test_soft_argmin_matches_reference(dtype, temperature):
     C = np.random.default_rng(8).uniform(0.0, 5.0, (4, 7, 6)).astype(dtype)
     got = stereo.soft_argmin(C, -1, temperature)
@@ -251,6 +260,7 @@ def test_soft_argmin_is_stable_for_large_costs():
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.usefixtures("warp_device")
 def test_left_right_check_matches_reference(dtype):
     rng = np.random.default_rng(10)
     dl = rng.uniform(0.0, 4.0, (6, 11)).astype(dtype)
@@ -321,11 +331,13 @@ def test_backward_returns_gradients_by_argument_name():
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.usefixtures("warp_device")
 def test_feature_correlation_gradcheck(seed):
     assert_gradcheck(check_feature_correlation(seed))
 
 
 @pytest.mark.parametrize("seed,temperature", [(0, 0.3), (1, 0.7), (2, 2.0)])
+@pytest.mark.usefixtures("warp_device")
 def test_soft_argmin_gradcheck(seed, temperature):
     assert_gradcheck(check_soft_argmin(seed, temperature=temperature))
 
@@ -427,6 +439,7 @@ def test_bad_dtypes_devices_and_parameters():
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("channels,cap", [(0, 0.25), (3, 0.1)])
+@pytest.mark.usefixtures("warp_device")
 def test_sobel_x_clipped_matches_reference(dtype, channels, cap):
     rng = np.random.default_rng(3)
     img = rng.uniform(0.0, 1.0, (6, 9, channels) if channels else (6, 9)).astype(dtype)
@@ -439,6 +452,7 @@ def test_sobel_x_clipped_matches_reference(dtype, channels, cap):
 @pytest.mark.parametrize("seed,drange,channels,bt_weight,eps", [(0, (0, 5), 0, 0.0, 0.0), (1, (-2, 4), 3, 0.5, 0.0),
                                                                  (2, (3, 9), 3, 0.0, 0.0), (3, (0, 6), 0, 0.3, 0.05),
                                                                  (4, (-1, 5), 3, 0.3, 0.2)])
+@pytest.mark.usefixtures("warp_device")
 def test_adcensus_matches_reference(dtype, seed, drange, channels, bt_weight, eps):
     rng = np.random.default_rng(seed)
     shape = (7, 11, channels) if channels else (7, 11)

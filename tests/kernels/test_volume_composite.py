@@ -17,6 +17,7 @@ from research.gradcheck import assert_gradcheck
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("t_threshold", [0.0, 1e-4, 0.05])
 @pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.usefixtures("warp_device")
 def test_forward_matches_reference(dtype, t_threshold, seed):
     inp = composite_inputs(seed)
     args = [inp[k].astype(dtype) for k in ("sigma", "rgb", "delta", "z")]
@@ -82,6 +83,7 @@ def test_empty_ray_returns_background_with_zero_gradient():
     assert np.all(np.isfinite(gs)) and np.all(np.isfinite(gr))
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_gradients_match_finite_differences():
     assert_gradcheck(check_composite(seeds=(0, 1, 2), t_threshold=1e-4))
     assert_gradcheck(check_composite(seeds=(3, 4), t_threshold=0.0))

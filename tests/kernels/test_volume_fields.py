@@ -41,6 +41,7 @@ def hash_reference(enc: HashEncoding, p, table):
 # --------------------------------------------------------------------------- soft spheres
 
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+@pytest.mark.usefixtures("warp_device")
 def test_spheres_forward(np_t, wp_t, tol):
     rng = np.random.default_rng(0)
     field = SphereField.textbook(wp_t)
@@ -59,6 +60,7 @@ def test_spheres_forward(np_t, wp_t, tol):
     np.testing.assert_array_equal(out_wp.rgb.numpy(), out.rgb)
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_spheres_gradients():
     assert_gradcheck(check_spheres(seeds=(0, 1, 2)))
 
@@ -67,6 +69,7 @@ def test_spheres_gradients():
 
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
 @pytest.mark.parametrize("sh_degree, activation", [(None, "softplus"), (1, "exp"), (2, "softplus")])
+@pytest.mark.usefixtures("warp_device")
 def test_grid_forward(np_t, wp_t, tol, sh_degree, activation):
     rng = np.random.default_rng(1)
     field = GridField(BOX, (4, 3, 5), sh_degree=sh_degree, density_bias=0.3, density_scale=2.5,
@@ -84,10 +87,12 @@ def test_grid_forward(np_t, wp_t, tol, sh_degree, activation):
 
 
 @pytest.mark.parametrize("sh_degree, activation", [(None, "softplus"), (1, "exp"), (2, "softplus")])
+@pytest.mark.usefixtures("warp_device")
 def test_grid_gradients(sh_degree, activation):
     assert_gradcheck(check_grid(seeds=(0, 1, 2), sh_degree=sh_degree, activation=activation))
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_grid_total_variation():
     from kernels.volume.grid import add_tv_grad
     from research.checks.volume import check_tv
@@ -121,6 +126,7 @@ def test_grid_vertex_values_are_reproduced():
 
 @pytest.mark.parametrize("n_features", [2, 3], ids=["two_features", "three_features"])  # the kernel's two paths
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+@pytest.mark.usefixtures("warp_device")
 def test_hash_encoding_forward(np_t, wp_t, tol, n_features):
     enc = HashEncoding(BOX, n_levels=4, n_features=n_features, log2_table_size=7, base_resolution=2, max_resolution=20)
     assert enc.dense.tolist()[0] == 1 and enc.dense.tolist()[-1] == 0  # both dense and hashed levels
@@ -258,6 +264,7 @@ def test_level_resolutions_follow_the_geometric_progression():
 # --------------------------------------------------------------------------- positional encoding and MLP
 
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+@pytest.mark.usefixtures("warp_device")
 def test_positional_encoding(np_t, wp_t, tol):
     pe = PositionalEncoding(BOX, n_freqs=4)
     rng = np.random.default_rng(3)
@@ -271,9 +278,11 @@ def test_positional_encoding(np_t, wp_t, tol):
 
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
 @pytest.mark.parametrize("backend", ["numpy", "warp"])
-def test_mlp_forward(np_t, wp_t, tol, backend):
+def test_mlp_forward(np_t, wp_t, tol, backend, warp_device):
+    if backend == "numpy" and not warp_device.is_cpu:
+        pytest.skip("the numpy backend runs on the CPU only")
     sizes = [5, 16, 16, 4]
-    params = init_mlp_params(sizes, 0, wp_t, wp.get_device("cpu"))
+    params = init_mlp_params(sizes, 0, wp_t, warp_device)
     mlp = MLP(sizes, params, backend)
     x = np.random.default_rng(4).normal(size=(33, 5)).astype(np_t)
     y, _ = mlp.forward(wp.array(x, dtype=wp_t))
@@ -381,6 +390,7 @@ def test_mlp_backends_agree_on_the_backward():
 
 @pytest.mark.parametrize("kind", ["hashgrid", "pe_mlp"])
 @pytest.mark.parametrize("np_t, wp_t, tol", DTYPES)
+@pytest.mark.usefixtures("warp_device")
 def test_neural_field_forward(kind, np_t, wp_t, tol):
     f64 = neural_field(kind, 0)
     kw = dict(hidden=(8, 8), density_bias=-0.5, seed=0, dtype=wp_t)
@@ -405,7 +415,9 @@ def test_neural_field_forward(kind, np_t, wp_t, tol):
 
 
 @pytest.mark.parametrize("kind, backend", [("hashgrid", "numpy"), ("hashgrid", "warp"), ("pe_mlp", "numpy")])
-def test_neural_field_gradients(kind, backend):
+def test_neural_field_gradients(kind, backend, warp_device):
+    if backend == "numpy" and not warp_device.is_cpu:
+        pytest.skip("the numpy backend runs on the CPU only")
     assert_gradcheck(check_neural(kind, seeds=(0, 1), backend=backend))
 
 

@@ -18,6 +18,7 @@ from research.poses import se3_exp
 
 
 @pytest.mark.parametrize("np_t,tol", [(np.float32, 2e-6), (np.float64, 1e-14)])
+@pytest.mark.usefixtures("warp_device")
 def test_camera_rays_match_reference(np_t, tol):
     w2c, intrinsics, _ = camera_setup(3)
     pixels = pixel_centers(7, 5)
@@ -47,16 +48,19 @@ def test_pixel_centers_order():
                                                         [0.5, 1.5], [1.5, 1.5], [2.5, 1.5]])
 
 
+@pytest.mark.usefixtures("warp_device")
 def test_camera_rays_gradients():
     assert_gradcheck(check_camera_rays(seeds=(0, 1, 2)))
 
 
 @pytest.mark.parametrize("kind", ["spheres", "grid_rgb", "grid_sh2"])
+@pytest.mark.usefixtures("warp_device")
 def test_field_point_gradients(kind):
     assert_gradcheck(check_field_points(kind, seeds=(0, 1)))
 
 
 @pytest.mark.parametrize("kind", ["spheres", "grid_rgb", "grid_sh2"])
+@pytest.mark.usefixtures("warp_device")
 def test_render_camera_gradients_colour_depth_opacity(kind):
     assert_gradcheck(check_render_camera(kind, seeds=(0, 1)))
 

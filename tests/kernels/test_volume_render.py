@@ -16,6 +16,7 @@ from research.nerf.render import render_image
 
 
 @pytest.mark.parametrize("np_t, wp_t, tol", [(np.float32, wp.float32, 1e-5), (np.float64, wp.float64, 1e-12)])
+@pytest.mark.usefixtures("warp_device")
 def test_render_rays_matches_reference(np_t, wp_t, tol):
     rng = np.random.default_rng(0)
     field = SphereField.textbook(wp_t)
@@ -101,6 +102,7 @@ def test_occupancy_grid_skips_empty_space_without_changing_the_image():
 
 
 @pytest.mark.parametrize("kind", ["grid", "hashgrid", "pe_mlp"])
+@pytest.mark.usefixtures("warp_device")
 def test_end_to_end_gradients(kind):
     assert_gradcheck(check_render(kind, seeds=(0, 1)))
 

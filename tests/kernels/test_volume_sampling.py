@@ -30,6 +30,7 @@ def random_rays(seed, n=40):
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.usefixtures("warp_device")
 def test_ray_aabb_matches_reference(dtype, seed):
     o, d = random_rays(seed)
     for near, far in ((0.0, 1e10), (0.5, 3.0)):

@@ -57,7 +57,7 @@ def test_run_unknown_experiment_fails_clearly():
 
 
 def test_gradcheck_selftest_table_and_exit_status():
-    r = run_cli("gradcheck", "selftest")
+    r = run_cli("gradcheck", "selftest", "--device", "cpu")
     assert r.returncode == 0, r.stdout + r.stderr
     assert "selftest.known_gradient" in r.stdout and "0 failed" in r.stdout
 

@@ -263,7 +263,12 @@ def test_run_checks_all_and_registered(monkeypatch):
     assert good_rows and all(r.passed for r in good_rows)
     (err,) = [r for r in results if r.name == "zz_test.boom"]
     assert not err.passed and "kaboom" in err.worst
-    assert {r.name for r in gc.run_checks()} >= {"selftest.known_gradient", "zz_test.good"}
+    # all when names is None: on a registry cut down to three checks (the families' tests run every
+    # real check already, and running all of them here took 45 s)
+    small = {k: v for k, v in gc.CHECKS.items() if k.startswith(("selftest.", "zz_test."))}
+    assert "selftest.known_gradient" in small and len(gc.CHECKS) > len(small)
+    monkeypatch.setattr(gc, "CHECKS", small)
+    assert {r.name for r in gc.run_checks()} == {"selftest.known_gradient", "zz_test.good", "zz_test.boom"}
     with pytest.raises(KeyError, match="no_such"):
         gc.run_checks(["no_such"])
 

@@ -87,6 +87,8 @@ CLI_CASES = [
     ("bench-unknown-family", ["bench", "nosuch"], "drlab bench: ", "families: unknown family ['nosuch']"),
     ("bench-unknown-families", ["bench", "a", "b"], "drlab bench: ", "families: unknown families ['a', 'b']"),
     ("bench-device-tpu", ["bench", "--device", "tpu"], "drlab bench: ", "--device: expected 'cpu', 'cuda'"),
+    ("gradcheck-device-tpu", ["gradcheck", "selftest", "--device", "tpu"], "drlab gradcheck: ",
+     "--device: expected 'cpu', 'cuda'"),
     ("reproduce-unknown-experiment", ["reproduce", "kalman_tracking", "nosuch"], "drlab reproduce: ",
      "experiments: unknown 'nosuch'; registered: "),
     ("reproduce-device-gpu", ["reproduce", "--device", "gpu"], "drlab reproduce: ",
@@ -139,8 +141,8 @@ def test_dataset_bad_value_is_one_line_before_any_file(extra, name, capsys, tmp_
 @pytest.mark.parametrize("argv", [["run", "kalman_tracking", "--device", "cuda"],
                                   ["run", "volume_render_spheres", "--device", "cuda:0"],
                                   ["reproduce", "--device", "cuda"],
-                                  ["bench", "--device", "cuda"]],
-                         ids=["run-kalman-cuda", "run-volume-cuda0", "reproduce-cuda", "bench-cuda"])
+                                  ["bench", "--device", "cuda"], ["gradcheck", "selftest", "--device", "cuda"]],
+                         ids=["run-kalman-cuda", "run-volume-cuda0", "reproduce-cuda", "bench-cuda", "gradcheck-cuda"])
 def test_cuda_without_gpu_is_one_line_before_any_work(argv, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     ran = []

@@ -1,0 +1,299 @@
+"""kernels.fast_paths: the one switch that turns every CPU fast path off, and the fall-backs taken
+when a fast path's own check fails (NumPy's exp not reproduced, no AVX2 for the row blend or the
+sphere passes).
+
+The switch tests replace every fast path's entry point by one that fails, then run each operation
+with the switch off: they must not be reached, and the results must still match the NumPy
+references (the plain Warp kernels, the CUDA route, run on the CPU)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from kernels import fast_paths
+
+
+@pytest.fixture(autouse=True)
+def _follow_env():
+    fast_paths.set_enabled(None)
+    yield
+    fast_paths.set_enabled(None)
+
+
+# --------------------------------------------------------------------------- the switch itself
+
+
+@pytest.mark.parametrize("value, on", [("", True), ("1", True), ("on", True), ("TRUE", True), ("yes", True),
+                                       ("0", False), ("off", False), ("False", False), (" no ", False)])
+def test_env_variable_turns_fast_paths_off(monkeypatch, value, on):
+    monkeypatch.setenv(fast_paths.ENV, value)
+    monkeypatch.setattr(fast_paths, "_versions_ok", True)
+    assert fast_paths.enabled() is on
+    assert fast_paths.on(wp.get_device("cpu")) is on
+
+
+def test_env_variable_bad_value_is_named(monkeypatch):
+    monkeypatch.setenv(fast_paths.ENV, "maybe")
+    with pytest.raises(ValueError, match="DRLAB_FAST_PATHS: expected one of .* got 'maybe'"):
+        fast_paths.enabled()
+
+
+def test_api_overrides_env_and_context_restores(monkeypatch):
+    monkeypatch.setattr(fast_paths, "_versions_ok", True)
+    monkeypatch.setenv(fast_paths.ENV, "0")
+    fast_paths.set_enabled(True)
+    assert fast_paths.enabled()
+    with fast_paths.disabled():
+        assert not fast_paths.enabled()
+        with fast_paths.disabled():
+            assert not fast_paths.enabled()
+        assert not fast_paths.enabled()
+    assert fast_paths.enabled()
+    fast_paths.set_enabled(None)
+    assert not fast_paths.enabled()
+    with pytest.raises(TypeError, match="on: expected True, False or None"):
+        fast_paths.set_enabled(1)
+
+
+def test_unsupported_versions_turn_fast_paths_off_with_one_warning(monkeypatch):
+    assert fast_paths.unsupported_versions({"warp": "1.19.0", "numpy": "2.4.6"}) == []
+    assert fast_paths.unsupported_versions({"warp": "1.19.3.dev1", "numpy": "1.24.0rc1"}) == []
+    bad = fast_paths.unsupported_versions({"warp": "1.20.0", "numpy": "3.0.0"})
+    assert len(bad) == 2 and bad[0].startswith("warp 1.20.0") and "1.19 <= warp < 1.20" in bad[0]
+    assert fast_paths.unsupported_versions({"warp": "1.18.9", "numpy": "2.0"})[0].startswith("warp 1.18.9")
+    monkeypatch.delenv(fast_paths.ENV, raising=False)
+    monkeypatch.setattr(fast_paths, "_versions_ok", None)
+    monkeypatch.setattr(fast_paths, "unsupported_versions", lambda: ["warp 9.0 (test)"])
+    with pytest.warns(RuntimeWarning, match="fast paths off.*warp 9.0"):
+        assert not fast_paths.enabled()
+    assert not fast_paths.enabled()  # decided once, no second warning (pytest.warns would not see it)
+
+
+def test_installed_versions_are_supported():
+    # pyproject.toml pins the same range: an environment built from it must run the fast paths
+    assert fast_paths.unsupported_versions() == []
+
+
+# --------------------------------------------------------------------------- the switch reaches every fast path
+
+
+def _refuse(name):
+    def refused(*args, **kwargs):
+        raise AssertionError(f"{name} was reached with the CPU fast paths off")
+    return refused
+
+
+@pytest.fixture
+def no_fast_path(monkeypatch):
+    """Every fast path's entry point fails; the switch is off."""
+    from kernels.corr import onthefly, patch_cpu, window_cpu
+    from kernels.splat import raster, tiles
+    from kernels.stereo import costs
+    from kernels.volume import composite, composite_cpu, hashgrid, spheres, spheres_cpu
+
+    for mod, name in [(composite_cpu, "forward_kernel"), (composite_cpu, "backward_kernel"),
+                      (composite, "_fill_factor"), (spheres_cpu, "kernels"), (hashgrid, "forward_kernel"),
+                      (hashgrid, "backward_kernel"), (window_cpu, "sample_levels_cpu"),
+                      (window_cpu, "sample_patches_cpu"), (patch_cpu, "patch_groups_cpu"),
+                      (patch_cpu, "widen_rows_cpu"), (onthefly, "_sample_full_product"),
+                      (onthefly, "_channels_last_later"), (costs, "census_rows_f32"),
+                      (raster, "_raster_forward_rows_kernel"), (raster, "_raster_forward_kernel"),
+                      (tiles, "_counting_sort"), (spheres.SphereField, "_two_passes")]:
+        monkeypatch.setattr(mod, name, _refuse(f"{getattr(mod, '__name__', mod)}.{name}"))
+    with fast_paths.disabled():
+        yield
+
+
+def test_volume_without_fast_paths(no_fast_path):
+    from kernels.reference import volume as ref
+    from kernels.volume import MLP, HashEncoding, SphereField, composite_backward, composite_forward
+    from kernels.volume.mlp import init_mlp_params
+
+    rng = np.random.default_rng(3)
+    n_rays, per = 11, 9
+    n = n_rays * per
+    sigma, delta = rng.uniform(0, 3, n).astype(np.float32), rng.uniform(0.01, 0.2, n).astype(np.float32)
+    rgb, z = rng.uniform(0, 1, (n, 3)).astype(np.float32), np.arange(n, dtype=np.float32) * 0.1
+    off = np.arange(0, n + 1, per, dtype=np.int32)
+    res = composite_forward(sigma, rgb, delta, z, off, (0.1, 0.2, 0.3), 1e-4)
+    want = ref.composite(*(x.astype(np.float64) for x in (sigma, rgb, delta, z)), off, np.array([0.1, 0.2, 0.3]), 1e-4)
+    np.testing.assert_allclose(res.rgb, want[0], rtol=2e-5, atol=2e-6)
+    g_sigma, g_rgb = composite_backward(sigma, rgb, delta, z, off, res, np.ones((n_rays, 3), np.float32))
+    assert np.all(np.isfinite(g_sigma)) and np.all(np.isfinite(g_rgb))
+    with pytest.raises(ValueError, match="sigma"):  # the values are still checked before the launch
+        composite_forward(-sigma, rgb, delta, z, off)
+
+    field = SphereField.textbook(wp.float32)
+    o = np.tile(np.array([0.0, 0.0, -3.0], np.float32), (8, 1))
+    d = rng.normal(0, 0.1, (8, 3)).astype(np.float32) + np.array([0, 0, 1], np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = np.tile(np.linspace(0.5, 5.5, 16, dtype=np.float32), (8, 1))
+    dl = np.full_like(t, 5.0 / 16)
+    img, _, _ = field.render_dense(o, d, t, dl)
+    assert img.shape == (8, 3) and np.all(np.isfinite(img))
+    out = field.forward(rng.uniform(-1, 1, (40, 3)).astype(np.float32))
+    assert np.all(np.isfinite(out.sigma))
+
+    enc = HashEncoding(((-1, -1, -1), (1, 1, 1)), n_levels=2, n_features=2, log2_table_size=8)
+    dev = wp.get_device("cpu")
+    for np_t, wp_t, tol in ((np.float32, wp.float32, None), (np.float64, wp.float64, 1e-12)):
+        table = enc.init_table(0, wp_t, dev, scale=1.0)
+        pts = rng.uniform(-1, 1, (33, 3)).astype(np_t)
+        got = enc.encode(wp.array(pts, dtype=wp_t), table).numpy()
+        grad = enc.backward(wp.array(pts, dtype=wp_t), table, wp.array(np.ones_like(got), dtype=wp_t)).numpy()
+        assert np.all(np.isfinite(got)) and np.all(np.isfinite(grad))
+        if tol:  # float64: against the reference (float32 points fall in other cells near a boundary)
+            want_enc = ref.hash_encoding(enc.bbox, enc.resolutions, enc.table_size, 2, pts, table.numpy())
+            np.testing.assert_allclose(got, want_enc, rtol=tol, atol=tol)
+
+    params = init_mlp_params([7, 16, 4], 0, wp.float32, dev)
+    assert MLP([7, 16, 4], params).backend == "warp"
+
+
+def test_corr_without_fast_paths(no_fast_path):
+    from kernels.corr import correlation_pyramid, correlation_volume, lookup, lookup_onthefly, onthefly_features, lookup_onthefly_features
+    from kernels.corr.volume import _backend
+    from kernels._arrays import Inputs
+    from kernels.reference import corr as ref
+    from research.checks.corr import smooth_coords
+
+    rng = np.random.default_rng(4)
+    c, h, w, radius = 16, 9, 10, 2
+    f1, f2 = rng.normal(size=(c, h, w)).astype(np.float32), rng.normal(size=(c, h, w)).astype(np.float32)
+    assert _backend(Inputs("cpu", f1), None) == "warp"
+    coords = smooth_coords(rng, h, w).astype(np.float32)
+    pyr = correlation_pyramid(correlation_volume(f1, f2), 2)
+    f2_pyr = ref.pyramid(f2.astype(np.float64), 2)
+    want = ref.lookup(ref.pyramid(ref.volume(f1.astype(np.float64), f2.astype(np.float64)), 2),
+                      coords.astype(np.float64), radius)
+    np.testing.assert_allclose(lookup(pyr, coords, radius), want, rtol=1e-4, atol=1e-5)
+    f2_pyr = [x.astype(np.float32) for x in f2_pyr]
+    # pooling is linear, so the volume of the pooled features is the pooled volume
+    np.testing.assert_allclose(lookup_onthefly(f1, f2_pyr, coords, radius), want, rtol=1e-4, atol=1e-5)
+    feats = onthefly_features(f1, f2_pyr, feature_dtype="float16")
+    assert np.all(np.isfinite(lookup_onthefly_features(feats, coords, radius)))
+
+
+def test_stereo_and_splat_without_fast_paths(no_fast_path):
+    import kernels.splat as ks
+    from kernels.reference import splat as ref_splat
+    from kernels.reference import stereo as ref_stereo
+    from kernels.stereo.costs import census_transform
+    from research.checks import splat as cs
+
+    img = np.random.default_rng(5).uniform(0, 1, (12, 17)).astype(np.float32)
+    np.testing.assert_array_equal(census_transform(img, 2, 3), ref_stereo.census_transform(img, 2, 3))
+
+    scene = cs.smooth_scene(8)
+    params = {k: v.astype(np.float32) for k, v in scene.params.items()}
+    want = ref_splat.render({k: v.astype(np.float64) for k, v in params.items()}, scene.camera, scene.background)
+    r = ks.render(ks.gaussian_inputs(*(params[k] for k in cs.PARAMS)), scene.camera,
+                  scene.background.astype(np.float32))
+    np.testing.assert_allclose(r.rgb, want[0], rtol=1e-4, atol=1e-5)
+
+
+# --------------------------------------------------------------------------- fall-backs of the fast paths' own checks
+
+
+def test_composite_and_spheres_when_numpy_exp_is_not_reproduced(monkeypatch):
+    """kernels._npexp's agreement check fails (another NumPy exp loop): the compositing forward keeps
+    NumPy's factor pass and render_dense takes three launches with np.exp between them; the results
+    are the same as with a reproduced exp, bit for bit where the exp's bits agree (they do here, or
+    the forced case would not differ from the default)."""
+    from kernels import _npexp
+    from kernels.volume import SphereField, composite_forward
+    from kernels.volume import composite_cpu, spheres_cpu
+
+    rng = np.random.default_rng(6)
+    n_rays, per = 19, 13
+    n = n_rays * per
+    args = (rng.uniform(0, 3, n).astype(np.float32), rng.uniform(0, 1, (n, 3)).astype(np.float32),
+            rng.uniform(0.01, 0.2, n).astype(np.float32), np.arange(n, dtype=np.float32) * 0.1,
+            np.arange(0, n + 1, per, dtype=np.int32))
+    field = SphereField.textbook(wp.float32)
+    o = np.tile(np.array([0.0, 0.0, -3.0], np.float32), (24, 1))
+    d = rng.normal(0, 0.1, (24, 3)).astype(np.float32) + np.array([0, 0, 1], np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = np.tile(np.linspace(0.5, 5.5, 16, dtype=np.float32), (24, 1))
+    dl = np.full_like(t, 5.0 / 16)
+
+    def run():
+        res = composite_forward(*args, keep_factor=False)
+        return [res.rgb, res.depth, *field.render_dense(o, d, t, dl)]
+
+    launched = []
+    real_launch = wp.launch
+    monkeypatch.setattr(wp, "launch", lambda k, *a, **kw: (launched.append(k), real_launch(k, *a, **kw))[1])
+    default = run()
+    monkeypatch.setattr(_npexp, "_agrees", False)  # the check found a difference
+    assert not _npexp.numpy_agrees()
+    del launched[:]
+    forced = run()
+    if spheres_cpu.available():
+        k1, k2, k3, one = spheres_cpu.kernels()
+        assert one not in launched and {k1, k2, k3} <= set(launched)
+    assert composite_cpu.forward_kernel() in launched  # still the C++ forward, with NumPy's factors
+    for a, b in zip(default, forced):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_splat_raster_without_the_row_blend(monkeypatch):
+    """The row blend's availability check fails (no AVX2/FMA): the per-tile Warp kernel runs, the same bytes."""
+    import kernels.splat as ks
+    from kernels.splat import raster
+    from research.checks import splat as cs
+
+    scene = cs.smooth_scene(8)
+    params = {k: v.astype(np.float32) for k, v in scene.params.items()}
+
+    def render():
+        return ks.render(ks.gaussian_inputs(*(params[k] for k in cs.PARAMS)), scene.camera,
+                         scene.background.astype(np.float32))
+
+    monkeypatch.setattr(raster, "_ROWS_OK", [True])
+    if not raster.rowblend_available():
+        pytest.skip("this CPU has no AVX2/FMA: the row blend never runs")
+    with_rows = render()
+    monkeypatch.setattr(raster, "_ROWS_OK", [False])
+    monkeypatch.setattr(raster, "_raster_forward_rows_kernel", _refuse("the row blend"))
+    without = render()
+    for k in ("rgb", "alpha", "depth"):
+        np.testing.assert_array_equal(getattr(with_rows, k), getattr(without, k))
+
+
+def test_spheres_without_avx2(monkeypatch):
+    """spheres_cpu.available() False (no AVX2): render_dense runs the Warp passes, the same bytes."""
+    from kernels.volume import SphereField, spheres_cpu
+    import kernels.volume.spheres as spheres_module
+
+    if not spheres_cpu.available():
+        pytest.skip("this CPU has no AVX2: only the Warp passes exist")
+    rng = np.random.default_rng(9)
+    field = SphereField.textbook(wp.float32)
+    o = np.tile(np.array([0.0, 0.0, -3.0], np.float32), (13, 1))
+    d = rng.normal(0, 0.1, (13, 3)).astype(np.float32) + np.array([0, 0, 1], np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = np.tile(np.linspace(0.5, 5.5, 12, dtype=np.float32), (13, 1))
+    dl = np.full_like(t, 5.0 / 12)
+    want = field.render_dense(o, d, t, dl)
+    monkeypatch.setattr(spheres_cpu, "available", lambda: False)
+    monkeypatch.setattr(spheres_module.SphereField, "_native_passes", _refuse("spheres_cpu"))
+    got = field.render_dense(o, d, t, dl)
+    for a, b in zip(want, got):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_pyproject_states_the_supported_range():
+    """pyproject.toml's bounds on warp-lang and numpy are kernels.fast_paths.SUPPORTED."""
+    import pathlib
+    import re
+
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+    deps = tomllib.loads((pathlib.Path(__file__).parents[2] / "pyproject.toml").read_text())["project"]["dependencies"]
+    for dist, key in (("warp-lang", "warp"), ("numpy", "numpy")):
+        (spec,) = [d for d in deps if re.match(rf"{dist}\s*[<>=]", d)]
+        lo, hi = fast_paths.SUPPORTED[key]
+        want = {">=" + ".".join(map(str, lo)), "<" + ".".join(str(v) for v in (hi if hi[1:] != (0,) else hi[:1]))}
+        assert set(spec[len(dist):].replace(" ", "").split(",")) == want, spec
