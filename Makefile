@@ -23,8 +23,17 @@ $(STAMP): pyproject.toml
 	$(VPY) -m research.mitsuba_env --ensure
 	touch $(STAMP)
 
+# The kernel tests of every route that kernels.fast_paths switches, run a second time with the CPU fast
+# paths off: the plain Warp kernels (the CUDA route) on the CPU (docs/kernels.md, "CPU fast paths").
+# The adcensus cost is left out: its C++ sits inside its Warp kernel, with its own portable branch.
+PLAIN_TESTS := tests/kernels/test_fast_paths.py tests/kernels/test_volume_composite.py \
+	tests/kernels/test_reliability_volume_composite.py tests/kernels/test_volume_render.py \
+	tests/kernels/test_volume_fields.py tests/kernels/test_corr.py tests/kernels/test_corr_stored.py \
+	tests/kernels/test_splat.py tests/kernels/test_splat_tiles.py tests/kernels/test_stereo.py
+
 test: $(STAMP)
 	$(VPY) -m pytest -q
+	DRLAB_FAST_PATHS=0 $(VPY) -m pytest -q $(PLAIN_TESTS) -k "not adcensus"
 
 reproduce: $(STAMP)
 	$(VENV)/bin/drlab reproduce

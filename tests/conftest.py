@@ -1,4 +1,9 @@
-"""Shared pytest set-up: the devices the device-parametrised tests run on.
+"""Shared pytest set-up: the devices the device-parametrised tests run on, and the tests of the CPU
+fast paths.
+
+A test marked `@pytest.mark.cpu_fast_path` tests a CPU fast path itself (that it gives the plain Warp
+kernel's bits, that it ran, its memory accounting): it is skipped while the fast paths are off
+(DRLAB_FAST_PATHS=0, kernels.fast_paths), when the CPU runs the plain Warp kernels only.
 
 A test marked `@pytest.mark.usefixtures("warp_device")` (or taking `warp_device` as an argument)
 runs once per device Warp sees: "cpu" everywhere, and "cuda:0", ... where there is a GPU. Its body
@@ -27,6 +32,22 @@ def warp_devices() -> list[str]:
     if missing:
         raise pytest.UsageError(f"DRLAB_TEST_DEVICES: {missing} not among the devices Warp sees ({seen})")
     return wanted or seen
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "cpu_fast_path: tests a CPU fast path itself; skipped while the fast paths "
+                                       "are off (DRLAB_FAST_PATHS=0)")
+
+
+def pytest_collection_modifyitems(config, items):
+    from kernels import fast_paths
+
+    if fast_paths.enabled():
+        return
+    skip = pytest.mark.skip(reason="tests a CPU fast path, and the fast paths are off (kernels.fast_paths)")
+    for item in items:
+        if item.get_closest_marker("cpu_fast_path") is not None:
+            item.add_marker(skip)
 
 
 def pytest_generate_tests(metafunc):

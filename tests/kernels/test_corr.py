@@ -44,6 +44,7 @@ def test_volume_and_pyramid_match_reference(dtype):
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.cpu_fast_path
 def test_volume_backends_agree(dtype):
     """BLAS ("numpy", the CPU default) and the blocked Warp product give the volume and its adjoint to rounding."""
     f1, f2, _ = random_case(np.random.default_rng(5), dtype, shape=(37, 9, 13))  # odd sizes: every padding path
@@ -80,6 +81,7 @@ def test_lookup_matches_reference(dtype, radius):
     assert np.count_nonzero(want == 0.0) > 0  # some windows lie wholly outside frame 2
 
 
+@pytest.mark.cpu_fast_path
 def test_onthefly_independent_of_thread_count(monkeypatch):
     """The full-product levels run BLAS on row chunks fixed in advance, the patches in race-free split
     launches: the same bytes with 1 and 3 launch threads (576 pixels: three BLAS chunks at the 6x6 level,
@@ -208,6 +210,7 @@ def test_warp_arrays_in_warp_arrays_out():
     assert isinstance(corr.correlation_volume_backward(wf1, wf2, corr.correlation_volume(wf1, wf2))["f1"], wp.array)
 
 
+@pytest.mark.cpu_fast_path
 def test_memory_accounting():
     pixels = 46 * 62 + 23 * 31 + 11 * 15 + 5 * 7
     assert corr.dense_bytes(46, 62, 4) == 4 * 46 * 62 * pixels
@@ -232,6 +235,7 @@ FULL_PRODUCT_CASES = [((16, 10, 13), 3, 2, [False, False, True]), ((8, 12, 16), 
 
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("shape,levels,radius,full", FULL_PRODUCT_CASES, ids=["radius2", "radius3"])
+@pytest.mark.cpu_fast_path
 def test_onthefly_full_product_levels(dtype, shape, levels, radius, full):
     """Levels small enough for the full product f1^T P^l(f2) by BLAS (CPU, C a multiple of 8) give the
     reference lookup, as the patch levels of the same call do."""

@@ -113,6 +113,7 @@ def test_widen_kernel_matches_host_conversion():
 
 
 @pytest.mark.parametrize("c", [256, 12])
+@pytest.mark.cpu_fast_path
 def test_held_bytes_exact(c):
     h, w, levels, radius = 46, 62, 4, 4
     c8 = -(-c // 8) * 8
@@ -242,6 +243,7 @@ def test_lookup_without_patch_cpu_is_bit_identical(monkeypatch, feature_dtype):
 
 @pytest.mark.parametrize("feature_dtype", ["float16", "float32"])
 @pytest.mark.parametrize("shape", [*CASES, (16, 24, 24, 3, 4)], ids=lambda s: "x".join(map(str, s)))
+@pytest.mark.cpu_fast_path
 def test_phased_lookup_is_the_level_by_level_lookup_bit_for_bit(monkeypatch, feature_dtype, shape):
     """With several threads, stored features and the float32 lookup (C a multiple of 8) go through
     `_forward_phased` (all levels at once, groups cut by pixel counts, BLAS row chunks and channels-last
@@ -321,6 +323,7 @@ def test_ordered_items_wait_for_their_predecessors_and_raise(monkeypatch, thread
     assert ran == []  # the items after the failure never ran
 
 
+@pytest.mark.cpu_fast_path
 def test_phased_float64_lookup_is_the_one_thread_lookup_bit_for_bit(monkeypatch):
     """float64 features (working dtype float64, C = 16): the phased path at 2 threads gives the one-thread bytes."""
     from kernels.corr import onthefly
@@ -342,6 +345,7 @@ def test_phased_float64_lookup_is_the_one_thread_lookup_bit_for_bit(monkeypatch)
     assert calls
 
 
+@pytest.mark.cpu_fast_path
 def test_phased_lookup_raises_when_the_early_widening_fails(monkeypatch):
     """`_forward_phased` hands f1's widening to a launch thread first (`submit`); a failure there reaches the
     caller, and no patch item runs."""

@@ -197,6 +197,7 @@ def test_stereo_and_splat_without_fast_paths(no_fast_path):
 # --------------------------------------------------------------------------- fall-backs of the fast paths' own checks
 
 
+@pytest.mark.cpu_fast_path
 def test_composite_and_spheres_when_numpy_exp_is_not_reproduced(monkeypatch):
     """kernels._npexp's agreement check fails (another NumPy exp loop): the compositing forward keeps
     NumPy's factor pass and render_dense takes three launches with np.exp between them; the results
@@ -239,6 +240,7 @@ def test_composite_and_spheres_when_numpy_exp_is_not_reproduced(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.cpu_fast_path
 def test_splat_raster_without_the_row_blend(monkeypatch):
     """The row blend's availability check fails (no AVX2/FMA): the per-tile Warp kernel runs, the same bytes."""
     import kernels.splat as ks
@@ -263,6 +265,7 @@ def test_splat_raster_without_the_row_blend(monkeypatch):
         np.testing.assert_array_equal(getattr(with_rows, k), getattr(without, k))
 
 
+@pytest.mark.cpu_fast_path
 def test_spheres_without_avx2(monkeypatch):
     """spheres_cpu.available() False (no AVX2): render_dense runs the Warp passes, the same bytes."""
     from kernels.volume import SphereField, spheres_cpu

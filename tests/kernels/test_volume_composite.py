@@ -410,6 +410,7 @@ def _simd_case(kind, n_rays, seed=0):
 
 @pytest.mark.parametrize("threads", ["1", "2"])
 @pytest.mark.parametrize("kind,n_rays", [("packed", 3001), ("odd", 2003), ("dense", 5)])
+@pytest.mark.cpu_fast_path
 def test_cpu_simd_kernels_equal_the_warp_kernels_bitwise(monkeypatch, threads, kind, n_rays):
     from kernels.volume import composite as cm
     from kernels.volume import composite_cpu
@@ -523,6 +524,7 @@ def _forward_backward(sigma, rgb, delta, z, off, bg, thr, cot):
 
 @pytest.mark.parametrize("threads", ["1", "2"])
 @pytest.mark.parametrize("kind,n_rays", [("packed", 1501), ("odd", 1003), ("dense", 13)])
+@pytest.mark.cpu_fast_path
 def test_fused_exp_forward_equals_numpy_pass_bitwise(monkeypatch, threads, kind, n_rays):
     """The forward with the factors evaluated in the kernel (FUSED_EXP) against NumPy's pass before the
     kernel: every output byte, every factor (past termination too) and both gradients; and which ran."""
@@ -554,6 +556,7 @@ def test_fused_exp_forward_equals_numpy_pass_bitwise(monkeypatch, threads, kind,
                     assert a.tobytes() == b.tobytes(), (thr, checks)
 
 
+@pytest.mark.cpu_fast_path
 def test_fused_exp_falls_back_to_numpy_pass(monkeypatch):
     """Where the lanes' exp does not give np.exp's bits (another NumPy loop), or the offsets do not cover the
     samples (value checks off), the forward keeps NumPy's pass: all N factors, the same outputs."""
@@ -613,6 +616,7 @@ _OUTPUTS = ("rgb", "depth", "opacity", "transmittance", "n_used")
 @pytest.mark.parametrize("threads", ["1", "2"])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("kind,n_rays", [("packed", 1501), ("odd", 1003), ("dense", 13), ("long", 203)])
+@pytest.mark.cpu_fast_path
 def test_forward_without_factor_equals_keep_factor_bitwise(monkeypatch, threads, dtype, kind, n_rays):
     """keep_factor=False: every output byte of keep_factor=True's, `factor` None; in float32 on the CPU the SIMD
     forward holds the factors in its ring (groups of at most RING samples) and allocates no N-sized array."""

@@ -551,6 +551,7 @@ def test_sphere_cpu_passes_give_the_same_values_in_any_block_size(monkeypatch, b
 
 @pytest.mark.parametrize("n", [1, 3, 4, 5, 4999])
 @pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
+@pytest.mark.cpu_fast_path
 def test_sphere_forward_cpu_passes_equal_numpy_bit_for_bit(monkeypatch, np_t, wp_t, n):
     # The CPU forward (quads of points in vec4 lanes, NumPy's exp between the passes) against the
     # same formula written in NumPy with the same operations in the same order: equal bit for bit,

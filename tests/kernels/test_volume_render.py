@@ -240,6 +240,7 @@ def test_sphere_render_dense_equals_the_general_path_bitwise(monkeypatch, np_t, 
 
 
 @pytest.mark.parametrize("fused", [True, False], ids=["one_launch", "three_launches"])
+@pytest.mark.cpu_fast_path
 def test_sphere_render_dense_cpp_passes_equal_the_warp_passes(monkeypatch, fused):
     # render_dense's float32 CPU passes in C++ (kernels.volume.spheres_cpu: eight rays in vector lanes)
     # give the Warp passes' image, depth and opacity bit for bit: sample counts in fours and not, rays
