@@ -19,6 +19,11 @@ Conventions (the Mitsuba facts behind them are in docs/mitsuba.md):
 * Mitsuba intrinsics (fov_axis 'x'): fx = fy = (W/2) / tan(fov_x/2),
   cx = W/2 - principal_point_offset_x * W,  cy = H/2 - principal_point_offset_y * H.
 
+* Every pose taken in (`Camera`, `check_pose`, so every dataset reader) passes the one rotation
+  check of kernels/rotation.py: max |R^T R - I| <= 1e-5 (what float32 JSON and 6-8 digit text
+  can hold; the derivation is there) and det R > 0, else ValueError naming the argument; an accepted
+  rotation is replaced by its nearest rotation (the orthogonal polar factor).
+
 This module is the only place where these conversions live.
 """
 
@@ -30,8 +35,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-# Tolerance for "is a rotation": |R^T R - I| and |det R - 1| below this.
-_ROTATION_TOL = 1e-6
+from kernels.rotation import checked_rigid, checked_rotation
 
 _CV_TO_MITSUBA = np.diag([-1.0, -1.0, 1.0, 1.0])  # self-inverse
 _CV_TO_NERF = np.diag([1.0, -1.0, -1.0, 1.0])  # self-inverse
@@ -46,23 +50,17 @@ def _as_matrix(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
-def check_rotation(name: str, R: np.ndarray, tol: float = _ROTATION_TOL) -> None:
-    """Raise ValueError naming `name` unless R is a proper rotation (R^T R = I, det R = +1)."""
-    ortho_err = float(np.abs(R.T @ R - np.eye(3)).max())
-    if ortho_err > tol:
-        raise ValueError(f"{name}: rotation part is not orthonormal (max |R^T R - I| = {ortho_err:.3g})")
-    det = float(np.linalg.det(R))
-    if abs(det - 1.0) > tol:
-        raise ValueError(f"{name}: rotation part has determinant {det:.6g}, expected +1 (a reflection?)")
+def check_rotation(name: str, R: Any, tol: float | None = None) -> np.ndarray:
+    """R as the nearest rotation, after `kernels.rotation.checked_rotation`'s check (ValueError naming
+    `name` unless max |R^T R - I| <= tol, default 1e-5, and det R > 0; that module derives the tolerance
+    from how the formats store matrices and re-orthonormalises with the polar factor)."""
+    return checked_rotation(name, R, tol)
 
 
 def check_pose(name: str, pose: Any) -> np.ndarray:
-    """Validate a 4x4 rigid transform and return it as float64."""
-    M = _as_matrix(name, pose, (4, 4))
-    if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0], atol=1e-12):
-        raise ValueError(f"{name}: last row must be [0, 0, 0, 1], got {M[3].tolist()}")
-    check_rotation(name, M[:3, :3])
-    return M
+    """A 4x4 rigid transform as float64, its rotation re-orthonormalised and its last row exact
+    (`kernels.rotation.checked_rigid`: the one rotation check; ValueError naming `name`)."""
+    return checked_rigid(name, _as_matrix(name, pose, (4, 4)))
 
 
 def intrinsics_from_fov(fov_x_deg: float, width: int, height: int) -> np.ndarray:

@@ -47,6 +47,7 @@ from tqdm import tqdm
 
 from kernels import _arrays as A
 from kernels.optim import Adam
+from kernels.rotation import checked_rigid
 from kernels.volume import GridField, OccupancyGrid, Workspace, render_backward, render_rays
 from kernels.volume.grid import add_tv_grad
 from kernels.volume.rays import camera_rays, camera_rays_backward, render_backward_rays
@@ -250,26 +251,14 @@ def _train(field: GridField, views: TrainingViews, xi: np.ndarray, bbox: np.ndar
                     if np.linalg.norm(delta[:3]) > cfg.max_trans_step:
                         delta *= cfg.max_trans_step / np.linalg.norm(delta[:3])
                     current[v] = P.se3_exp(delta) @ current[v]
-                    current[v][:3, :3] = _orthonormal(current[v][:3, :3])
+                    current[v] = checked_rigid(f"w2c[{v}]", current[v])  # removes the products' rounding
                     steps.append(np.degrees(np.linalg.norm(delta[3:])))
                 rot_steps.append(float(np.mean(steps)))
             losses.append(loss)
     occupancy.update_from(field.density, seed=cfg.seed * 1_000_003 + cfg.iters, dtype=field.dtype)
-    xi[:] = np.array([P.se3_log(_rigid(C @ np.linalg.inv(B))) for C, B in zip(current, views.w2c)])
+    xi[:] = np.array([P.se3_log(checked_rigid(f"w2c[{v}] w2c_init[{v}]^-1", C @ np.linalg.inv(B)))
+                      for v, (C, B) in enumerate(zip(current, views.w2c))])
     return JointLog(losses, rot_steps, time.perf_counter() - t0)
-
-
-def _orthonormal(R: np.ndarray) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(R)
-    return U @ Vt
-
-
-def _rigid(T: np.ndarray) -> np.ndarray:
-    """T with its rotation re-orthonormalised and last row exact (removes float rounding)."""
-    out = np.eye(4)
-    out[:3, :3] = _orthonormal(T[:3, :3])
-    out[:3, 3] = T[:3, 3]
-    return out
 
 
 def align_to_reference(c2w: np.ndarray, c2w_ref: np.ndarray, with_scale: bool = False) -> np.ndarray:

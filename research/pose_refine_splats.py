@@ -140,6 +140,7 @@ from tqdm import tqdm
 
 from kernels import _arrays as A
 from kernels import splat as ks
+from kernels.rotation import checked_rigid
 from research.splats.loss import LAMBDA_DSSIM, depth_loss, l1_dssim
 from research.splats.model import GaussianModel
 from research.splats.optim import BETAS, LearningRates, expon_lr, make_adam
@@ -223,11 +224,8 @@ class PoseAdam:
 
 
 def _apply(delta: np.ndarray, w2c: np.ndarray) -> np.ndarray:
-    out = ks.se3_exp(delta) @ w2c
-    U, _, Vt = np.linalg.svd(out[:3, :3])
-    out[:3, :3] = U @ Vt
-    out[3] = (0.0, 0.0, 0.0, 1.0)
-    return out
+    """exp(delta^) w2c, its rotation re-orthonormalised and its last row exact (the products' rounding removed)."""
+    return checked_rigid("w2c", ks.se3_exp(delta) @ w2c)
 
 
 def _check_inputs(model: GaussianModel, w2c: np.ndarray, K: np.ndarray, images: np.ndarray) -> None:

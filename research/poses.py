@@ -75,7 +75,7 @@ def so3_log(R: Any) -> np.ndarray:
     R = np.asarray(R, dtype=np.float64)
     if R.shape != (3, 3):
         raise ValueError(f"R: expected shape (3, 3), got {R.shape}")
-    check_rotation("R", R)
+    R = check_rotation("R", R)
     w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     c = min(1.0, max(-1.0, 0.5 * (np.trace(R) - 1.0)))
     a = math.acos(c)
@@ -159,14 +159,12 @@ def random_perturbations(n: int, rot_deg: float, trans: float, seed: int) -> np.
 
 
 def check_trajectory(name: str, poses: Any) -> np.ndarray:
-    """A list or array of 4x4 rigid transforms as an (N, 4, 4) float64 array; ValueError naming `name`
-    and the pose index for any that is not a rotation plus translation."""
+    """A list or array of 4x4 rigid transforms as an (N, 4, 4) float64 array, each re-orthonormalised by
+    `check_pose`; ValueError naming `name` and the pose index for any that is not a rotation plus translation."""
     arr = np.asarray(poses, dtype=np.float64)
     if arr.ndim != 3 or arr.shape[1:] != (4, 4) or arr.shape[0] < 1:
         raise ValueError(f"{name}: expected a non-empty array of 4x4 poses (N, 4, 4), got shape {arr.shape}")
-    for i, T in enumerate(arr):
-        check_pose(f"{name}[{i}]", T)
-    return arr
+    return np.array([check_pose(f"{name}[{i}]", T) for i, T in enumerate(arr)])
 
 
 def _same_length(est: np.ndarray, ref: np.ndarray) -> None:

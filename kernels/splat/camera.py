@@ -3,6 +3,8 @@
 A world point X maps to p = W X + t in the camera frame (viewmat = [[W, t], [0, 0, 0, 1]], W a
 rotation), and to the pixel (fx p_x / p_z + cx, fy p_y / p_z + cy); pixel (i, j) has its centre
 at (i + 0.5, j + 0.5). Splats with z-depth outside [near, far] are culled. Host code only.
+viewmat passes the one rotation check (kernels/rotation.py: max |W^T W - I| <= 1e-5, det W > 0, last
+row 0 0 0 1) and is kept with W re-orthonormalised (the polar factor).
 
 Pose perturbations (the convention of the camera gradients, render_backward(want_camera=True)):
 a twist xi = (rho, phi), translation first, acts on the LEFT of world-to-camera,
@@ -20,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kernels import _arrays as A
+from kernels.rotation import checked_rigid
 from kernels.splat.tiles import MAX_SIDE, TILE
 
 DEFAULT_NEAR = 0.01
@@ -46,10 +49,11 @@ class SplatCamera:
         K = np.asarray(self.K, dtype=np.float64)
         if view.shape != (4, 4) or not np.all(np.isfinite(view)):
             raise ValueError(f"viewmat: expected a finite 4x4 matrix, got shape {view.shape}")
-        R = view[:3, :3]
-        if not np.allclose(view[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) \
-                or np.linalg.det(R) <= 0:
-            raise ValueError("viewmat: expected a rigid world-to-camera transform [[R, t], [0, 0, 0, 1]]")
+        try:
+            view = checked_rigid("viewmat", view)
+        except ValueError as exc:
+            raise ValueError(f"viewmat: expected a rigid world-to-camera transform [[R, t], [0, 0, 0, 1]]; "
+                             f"{str(exc).removeprefix('viewmat: ')}") from None
         if K.shape != (3, 3) or not np.all(np.isfinite(K)):
             raise ValueError(f"K: expected a finite 3x3 matrix, got shape {K.shape}")
         if K[0, 0] <= 0 or K[1, 1] <= 0 or K[0, 1] != 0 or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:

@@ -52,6 +52,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
+from kernels.rotation import checked_rigid
 from kernels.volume.composite import check_backpropagatable, composite_backward
 from kernels.volume.field import Field
 from kernels.volume.field_points import check_point_field, field_point_backward
@@ -161,20 +162,15 @@ def _gather_rays_kernel(
 
 def check_camera(w2c: Any, intrinsics: Any) -> tuple[np.ndarray, np.ndarray]:
     """(w2c (4, 4), intrinsics (4,)) as float64 NumPy; ValueError naming the argument for a matrix that is
-    not a rigid transform (rotation part orthonormal to 1e-6, det +1, last row 0 0 0 1) or
-    intrinsics that are not (fx > 0, fy > 0, cx, cy)."""
+    not a rigid transform (kernels/rotation.py's one check: rotation part orthonormal to 1e-5, det > 0,
+    last row 0 0 0 1; the rotation is returned re-orthonormalised) or intrinsics that are not
+    (fx > 0, fy > 0, cx, cy)."""
     M = np.asarray(w2c.numpy() if isinstance(w2c, wp.array) else w2c, dtype=np.float64)
     if M.shape != (4, 4):
         raise ValueError(f"w2c: expected a 4x4 world-to-camera matrix, got shape {M.shape}")
     if not np.all(np.isfinite(M)):
         raise ValueError("w2c: contains non-finite values")
-    if np.abs(M[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-12:
-        raise ValueError(f"w2c: last row must be [0, 0, 0, 1], got {M[3].tolist()}")
-    R = M[:3, :3]
-    ortho = float(np.abs(R.T @ R - np.eye(3)).max())
-    det = float(np.linalg.det(R))
-    if ortho > 1e-6 or abs(det - 1.0) > 1e-6:
-        raise ValueError(f"w2c: rotation part is not a rotation (max |R^T R - I| = {ortho:.3g}, det = {det:.6g})")
+    M = checked_rigid("w2c", M)
     K = np.asarray(intrinsics.numpy() if isinstance(intrinsics, wp.array) else intrinsics, dtype=np.float64)
     if K.shape != (4,):
         raise ValueError(f"intrinsics: expected (fx, fy, cx, cy), got shape {K.shape}")

@@ -31,7 +31,9 @@ Errors (research.datasets.DatasetError, a ValueError; one line naming the file):
 transforms_train.json or transforms_test.json (when there is no single transforms.json), a single
 transforms.json with fewer than 2 frames, a frame without `file_path` or `transform_matrix`,
 a transform whose rotation part is not a rotation, an image listed but absent, images of different
-sizes, a size not divisible by `factor`.
+sizes, a size not divisible by `factor`. "A rotation" is kernels/rotation.py's one check: max
+|R^T R - I| <= 1e-5 and det R > 0. The official files store float32 matrices (max |R^T R - I| up to
+about 1.3e-6 in lego's transforms_train.json), which pass and are re-orthonormalised (the polar factor).
 """
 
 from __future__ import annotations

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from kernels import splat as ks
+from kernels.rotation import checked_rigid
 from research.splats.loss import depth_loss
 from research.splats.model import GaussianModel
 
@@ -129,11 +130,5 @@ def track_frame(model: GaussianModel, w2c_init: np.ndarray, K: np.ndarray, width
         v = b2 * v + (1 - b2) * g * g
         step = lr * (m / (1 - b1 ** it)) / (np.sqrt(v / (1 - b2 ** it)) + cfg.eps)
         w2c = ks.se3_exp(-step) @ w2c
-        w2c[:3, :3] = _orthonormal(w2c[:3, :3])
+        w2c = checked_rigid("w2c", w2c)  # the rotation nearest: removes the rounding repeated products accumulate
     return best
-
-
-def _orthonormal(R: np.ndarray) -> np.ndarray:
-    """The rotation nearest R (removes the rounding that repeated products accumulate)."""
-    u, _, vt = np.linalg.svd(R)
-    return u @ vt

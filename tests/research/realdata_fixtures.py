@@ -35,10 +35,26 @@ def write_rgba(path: Path, rng, width: int, height: int, alpha: bool = True) -> 
     return img
 
 
+OFFICIAL_DRIFT = 6.25e-7  # R (I + eps S), S symmetric with unit off-diagonal entries: max |R^T R - I| = 2 eps
+
+
+def official_precision(M: np.ndarray, drift: float = 0.0) -> list[list[float]]:
+    """A 4x4 `transform_matrix` as the official NeRF-synthetic files hold it: float32 values written as JSON
+    numbers (Blender's matrices are float32), the rotation part first moved off orthonormal by `drift`
+    (R (I + drift S): max |R^T R - I| ~ 2 drift, as the float32 products before storage leave it; the
+    official lego transforms_train.json reaches 1.25e-6)."""
+    M = np.array(M, dtype=np.float64)
+    S = np.array([[0.0, 1.0, -1.0], [1.0, 0.0, 1.0], [-1.0, 1.0, 0.0]])
+    M[:3, :3] = M[:3, :3] @ (np.eye(3) + drift * S)
+    return [[float(np.float32(x)) for x in row] for row in M]
+
+
 def write_blender(root: Path, views: dict[str, int] | None = None, size: int = 16, nerfstudio: str | None = None,
-                  seed: int = 0) -> dict[str, list[Camera]]:
+                  seed: int = 0, float32: bool = False) -> dict[str, list[Camera]]:
     """A NeRF-synthetic folder: transforms_<split>.json with camera_angle_x (or nerfstudio intrinsics:
-    nerfstudio="global" or "frame") and RGBA PNGs train/r_<k>.png; returns the cameras per split."""
+    nerfstudio="global" or "frame") and RGBA PNGs train/r_<k>.png; returns the (exact) cameras per split.
+    float32: the matrices at the official files' precision (`official_precision`), the first train
+    frame's with OFFICIAL_DRIFT (max |R^T R - I| about 1.25e-6, as lego's frame 88)."""
     views = views or {"train": 4, "val": 1, "test": 2}
     rng = np.random.default_rng(seed)
     total = sum(views.values())
@@ -50,7 +66,10 @@ def write_blender(root: Path, views: dict[str, int] | None = None, size: int = 1
             cam = cams[k]
             k += 1
             write_rgba(root / split / f"r_{i}.png", rng, size, size)
-            frame = {"file_path": f"./{split}/r_{i}", "rotation": 0.0, "transform_matrix": cam.to_nerf().tolist()}
+            matrix = cam.to_nerf().tolist()
+            if float32:
+                matrix = official_precision(cam.to_nerf(), OFFICIAL_DRIFT if (split, i) == ("train", 0) else 0.0)
+            frame = {"file_path": f"./{split}/r_{i}", "rotation": 0.0, "transform_matrix": matrix}
             if nerfstudio == "frame":
                 frame.update(fl_x=cam.fx, fl_y=cam.fy, cx=cam.cx, cy=cam.cy, w=size, h=size)
             frames.append(frame)

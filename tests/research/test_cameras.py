@@ -189,3 +189,35 @@ def test_camera_dict_round_trip():
     assert (back.width, back.height) == (cam.width, cam.height)
     with pytest.raises(ValueError, match="K"):
         Camera.from_dict({"width": 1, "height": 1, "c2w": np.eye(4).tolist()})
+
+
+def test_every_pose_reader_uses_the_one_rotation_check():
+    """Camera, check_pose, from_nerf, the trajectory and COLMAP readers share kernels/rotation.py: a float32
+    pipeline's 1.25e-6 passes (the old 1e-6 copy refused it) and comes back orthonormal; 2e-5 is refused by name."""
+    from kernels.rotation import checked_rigid, orthonormality_error
+    from research import poses as P
+    from research.cameras import check_pose
+    from research.datasets.colmap import c2w_from_colmap
+
+    S = np.array([[0.0, 1.0, -1.0], [1.0, 0.0, 1.0], [-1.0, 1.0, 0.0]])
+    c2w = look_at((3.0, 1.0, 2.0), (0.0, 0.0, 0.0))
+    drifted = c2w.copy()
+    drifted[:3, :3] = c2w[:3, :3] @ (np.eye(3) + 6.25e-7 * S)
+    drifted = drifted.astype(np.float32).astype(np.float64)
+    assert orthonormality_error(drifted[:3, :3]) > 1e-6
+    clean = checked_rigid("c2w", drifted)
+    assert orthonormality_error(clean[:3, :3]) < 1e-15 and np.abs(clean - c2w).max() < 1e-6
+    K = intrinsics_from_fov(50.0, 16, 16)
+    assert np.array_equal(Camera(K, drifted, 16, 16).c2w, clean)
+    assert np.array_equal(check_pose("c2w", drifted), clean)
+    assert orthonormality_error(Camera.from_nerf(drifted, 16, 16, camera_angle_x=0.8).R) < 1e-15
+    assert np.array_equal(P.check_trajectory("c2w", [drifted, c2w]), [clean, c2w])
+    assert orthonormality_error(c2w_from_colmap(drifted[:3, :3].T, drifted[:3, 3])[:3, :3]) < 1e-15
+    bad = c2w.copy()
+    bad[:3, :3] = c2w[:3, :3] @ (np.eye(3) + 1e-5 * S)
+    for call, name in ((lambda: Camera(K, bad, 16, 16), "c2w"), (lambda: check_pose("pose", bad), "pose"),
+                       (lambda: Camera.from_nerf(bad, 16, 16, camera_angle_x=0.8), "transform_matrix"),
+                       (lambda: P.check_trajectory("traj", [c2w, bad]), r"traj\[1\]")):
+        with pytest.raises(ValueError, match=rf"^{name}: rotation part is not orthonormal \(max \|R\^T R - I\| = 2e-05, "
+                                             r"tolerance 1e-05\)"):
+            call()
