@@ -19,6 +19,7 @@ from typing import Iterator
 import numpy as np
 import warp as wp
 
+from kernels._arrays import declare_float_overloads
 from kernels.launch import default_threads, launch_split
 from research.bench import time_medians
 
@@ -37,6 +38,9 @@ def recurrence(x0: wp.array(dtype=typing.Any), out: wp.array(dtype=typing.Any), 
     for _k in range(iters):
         x = wp.sin(x) * x0.dtype(0.9) + wp.cos(x * x0.dtype(1.1)) * x0.dtype(0.5)
     out[i] = x
+
+
+declare_float_overloads(recurrence)  # concrete overloads: the module compiles ahead of time too (kernels.cuda_build)
 
 
 def cases(device: str = "cpu", quick: bool = False, tiny: bool = False) -> Iterator[dict]:
