@@ -582,6 +582,9 @@ def test_fused_exp_falls_back_to_numpy_pass(monkeypatch):
     with value_checks(False):
         got = composite_forward(sigma, rgb, delta, z, short)
     assert len(fills) == 1
+    # the same NumPy float32 product, negation and exp loop on the same values, in blocks instead of
+    # one call: each element's bits do not depend on the block (NumPy's SIMD loops mask the tail
+    # instead of switching to another algorithm, and its scalar fallback is per element)
     with np.errstate(over="ignore"):
         assert got.factor.tobytes() == np.exp(-(sigma * delta)).tobytes()
 
