@@ -124,7 +124,9 @@ def training_figure(history: list[dict], events: list[dict], path: Path) -> None
 
 def add_data_options(p) -> None:
     """--format and --resolution (shared with fit_nerf)."""
-    p.add_argument("--format", choices=["auto", "drlab", "blender", "colmap"], default="auto",
+    from research.datasets.formats import FORMATS
+
+    p.add_argument("--format", choices=["auto", *FORMATS], default="auto",
                    help="format of --data: a `drlab dataset` folder, a NeRF-synthetic/Blender folder "
                         "(transforms_*.json), a COLMAP / Mip-NeRF 360 folder (sparse/0, images*/); auto (default) "
                         "detects it, and a folder of none of them is the cache root of the Mitsuba renders")
