@@ -129,7 +129,8 @@ def _read_json(path: Path) -> Any:
 def _image_size(path: Path) -> tuple[int, int]:
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise DatasetError(f"{path}: cannot be read as an image ({oiio.geterror()})")
+        reason = " ".join(oiio.geterror().split())  # OpenImageIO's message can span lines: one line
+        raise DatasetError(f"{path}: cannot be read as an image ({reason})")
     try:
         spec = inp.spec()
         return spec.width, spec.height

@@ -79,6 +79,8 @@ BLENDER_BAD = [
      r"transforms_test\.json: lists no frames"),
     ("bad-aabb", lambda r: _edit_json(r / "transforms_train.json", lambda d: d.update(aabb=[[1, 1, 1], [0, 0, 0]])),
      {}, r"transforms_train\.json: the scene box must be .*min < max"),
+    ("not-a-png-under-a-png-name", lambda r: (r / "train" / "r_1.png").write_bytes(b"\x89PNG\r\n\x1a\nxxxx"), {},
+     r"train/r_1\.png: cannot be read as an image \(.*end of file"),
     ("factor-not-dividing-the-size", lambda r: None, {"factor": 3},
      r"train/r_0\.png: image is 16x16, not divisible by the downscale factor 3"),
     ("factor-zero", lambda r: None, {"factor": 0}, r"factor: expected a downscale factor, an integer >= 1, got 0"),
@@ -95,6 +97,77 @@ def test_blender_bad_input(tmp_path, case):
         load_blender(root, **options)
     msg = str(e.value)
     assert "\n" not in msg and re.search(expected, msg), msg
+
+
+def _source_pixels(rng, channels: int, dtype=np.uint8) -> np.ndarray:
+    top = np.iinfo(dtype).max
+    a = rng.integers(0, top + 1, (16, 16, channels), dtype=np.int64).astype(dtype)
+    if channels in (2, 4):
+        a[0, :, -1] = 0  # transparent, half-transparent and opaque pixels: straight alpha must stay straight
+        a[1, :, -1] = top // 2
+    return a
+
+
+def _encode(root: Path, encoding: str, rng) -> np.ndarray:
+    """train/r_1 rewritten in `encoding`; returns what a decoder must give: straight sRGB RGBA in [0, 1]."""
+    from PIL import Image
+
+    path = root / "train" / "r_1.png"
+    if encoding == "rgba-16bit":
+        a = _source_pixels(rng, 4, np.uint16)
+        io.write_png_u16(path, a)
+        return a / 65535.0
+    if encoding == "rgb-no-alpha":
+        a = _source_pixels(rng, 3)
+        io.write_png_u8(path, a)
+        return np.concatenate([a / 255.0, np.ones((16, 16, 1))], axis=2)
+    if encoding in ("grey", "grey-alpha"):
+        a = _source_pixels(rng, 1 if encoding == "grey" else 2)
+        io.write_png_u8(path, a)
+        alpha = a[..., 1:] / 255.0 if encoding == "grey-alpha" else np.ones((16, 16, 1))
+        return np.concatenate([np.repeat(a[..., :1] / 255.0, 3, axis=2), alpha], axis=2)
+    if encoding == "paletted-with-transparency":  # mode P with a tRNS chunk: PNG colour type 3
+        palette = rng.integers(0, 256, (16, 3), dtype=np.uint8)
+        trns = rng.integers(0, 256, 16, dtype=np.uint8)
+        index = rng.integers(0, 16, (16, 16), dtype=np.uint8)
+        im = Image.fromarray(index, mode="P")
+        im.putpalette(palette.ravel().tolist())
+        im.save(path, transparency=trns.tobytes())
+        assert Image.open(path).mode == "P"
+        return np.concatenate([palette[index] / 255.0, trns[index][..., None] / 255.0], axis=2)
+    assert encoding == "jpeg", encoding
+    a = _source_pixels(rng, 3)
+    path.unlink()
+    jpg = path.with_suffix(".jpg")
+    Image.fromarray(a).save(jpg, quality=95)
+    doc = json.loads((root / "transforms_train.json").read_text())
+    doc["frames"][1]["file_path"] = "./train/r_1.jpg"  # an explicit extension is used as given
+    (root / "transforms_train.json").write_text(json.dumps(doc))
+    decoded = np.asarray(Image.open(jpg).convert("RGB"))  # the reference decoder (Pillow's libjpeg)
+    return np.concatenate([decoded / 255.0, np.ones((16, 16, 1))], axis=2)
+
+
+ENCODINGS = ["rgba-16bit", "rgb-no-alpha", "grey", "grey-alpha", "paletted-with-transparency", "jpeg"]
+
+
+@pytest.mark.parametrize("encoding", ENCODINGS)
+def test_blender_reads_every_png_and_jpeg_encoding_as_its_reference_decoder(tmp_path, encoding):
+    """Images in the encodings the reference loaders (imageio / PIL in the NeRF and nerfstudio code) accept
+    are read, not refused: 16-bit, no alpha (opaque), grey, grey + alpha, paletted with tRNS, JPEG. Values:
+    straight (unassociated) sRGB in [0, 1], exactly the stored code / (2^bits - 1); the JPEG within one code
+    of Pillow's decode (libjpeg builds may differ by one in the inverse DCT's rounding)."""
+    from research.datasets.formats import read_srgb
+
+    root = tmp_path / "lego"
+    write_blender(root)
+    expected = _encode(root, encoding, np.random.default_rng(3))
+    path = root / "train" / ("r_1.jpg" if encoding == "jpeg" else "r_1.png")
+    got = read_srgb(path)
+    assert got.shape == (16, 16, 4) and got.dtype == np.float32
+    tol = 1.0 / 255 + 1e-6 if encoding == "jpeg" else 1e-6  # 1e-6: float32 rounding of code / (2^bits - 1)
+    assert np.abs(got - expected).max() <= tol
+    view = load_blender(root).load_split("train")  # and the folder loads, the view at its size
+    assert view.rgba.shape == (4, 16, 16, 4) and np.isfinite(view.rgba).all()
 
 
 def _rewrite_camera_model(root: Path, old: str, new: str) -> None:
@@ -158,8 +231,8 @@ def test_colmap_bad_input(tmp_path, case):
 
 
 def test_open_dataset_names_the_format_option(tmp_path):
-    with pytest.raises(ValueError, match=r"^--format: expected one of .*got 'llff'$"):
-        open_dataset(tmp_path, "llff")
+    with pytest.raises(ValueError, match=r"^--format: expected one of .*got 'nerfies'$"):
+        open_dataset(tmp_path, "nerfies")
 
 
 # (id, fixture, experiment, arguments after --data, expected stderr line: a regex)
