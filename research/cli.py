@@ -243,6 +243,11 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     # A subset reruns only those experiments; the index still gathers every registered experiment's
     # folder, each section naming the commit that produced it.
     selected = [n for n in names if n in args.experiments] if args.experiments else names
+    for name in list(selected):
+        why = registry.missing_data(name)
+        if why:  # the index still shows its last committed table
+            print(f"drlab reproduce: {name} skipped: {why}", flush=True)
+            selected.remove(name)
     results_dir = registry.results_dir(quick=args.quick)
     failed = []
     if args.ray or args.ray_address is not None:

@@ -71,6 +71,9 @@ class ExperimentSpec:
     # The seed `drlab reproduce` (full mode) runs, where the reported run is not the experiment's own
     # default seed 0: one that none of its settings were picked on. None: the experiment's default.
     reproduce_seed: int | None = None
+    # External data the experiment cannot run without (real photographs, not in the repository): a path
+    # under the default data folder. `drlab reproduce` skips the experiment in one line when it is absent.
+    needs_data: str | None = None
 
     @property
     def module(self) -> str:
@@ -81,10 +84,20 @@ class ExperimentSpec:
 EXPERIMENTS: dict[str, ExperimentSpec] = {}
 
 
-def register_experiment(name: str, description: str, quick_budget_s: float, reproduce_seed: int | None = None) -> None:
+def register_experiment(name: str, description: str, quick_budget_s: float, reproduce_seed: int | None = None,
+                        needs_data: str | None = None) -> None:
     if name in EXPERIMENTS:
         raise ValueError(f"experiment {name!r} registered twice")
-    EXPERIMENTS[name] = ExperimentSpec(name, description, quick_budget_s, reproduce_seed)
+    EXPERIMENTS[name] = ExperimentSpec(name, description, quick_budget_s, reproduce_seed, needs_data)
+
+
+def missing_data(name: str) -> str | None:
+    """Why `drlab reproduce` cannot run `name` (its `needs_data` folder is absent), or None."""
+    need = EXPERIMENTS[name].needs_data
+    if need is None or (default_data_dir() / need).is_dir():
+        return None
+    return (f"its data folder {default_data_dir() / need} is absent (real photographs, not in the repository); "
+            f"`drlab run {name} -- --data DIR` runs it on such a folder")
 
 
 def reproduce_seed(name: str, quick: bool) -> int | None:
@@ -149,6 +162,15 @@ register_experiment(
     "`drlab sfm` (pycolmap) on bare renders of Mitsuba `objects`: registered views, pose error after Sim(3) "
     "alignment, and splats on SfM vs ground-truth poses.",
     quick_budget_s=300,
+)
+
+register_experiment(
+    "real_photos",
+    "Middlebury templeRing photographs with calibrated cameras: `drlab sfm` against the calibration (registered "
+    "views, rotation, camera-centre and focal error after Sim(3)) and splats on held-out views with the calibrated "
+    "and the SfM cameras.",
+    quick_budget_s=600,
+    needs_data="middlebury_mview/templeRing",
 )
 
 register_experiment(

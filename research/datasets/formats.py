@@ -3,7 +3,8 @@
 `detect_format(path)`: "drlab" (a folder written by `drlab dataset`: manifest.json), "blender"
 (NeRF-synthetic / nerfstudio: transforms_train.json, or nerfstudio's single transforms.json),
 "colmap" (a COLMAP layout: sparse/0 or
-sparse/ holding a model), or None (not a dataset folder: the experiments then treat --data as the
+sparse/ holding a model), "middlebury_mview" (a Middlebury multi-view folder: one *_par.txt),
+or None (not a dataset folder: the experiments then treat --data as the
 cache root of their own renders, as before). `open_dataset(path, fmt, factor)` loads it.
 
 Shared by research.datasets.blender and research.datasets.colmap: images in straight-alpha sRGB,
@@ -25,7 +26,7 @@ from research.cameras import Camera
 from research.datasets.integrity import DatasetError
 from research.datasets.loader import Dataset, Protocol, Split
 
-FORMATS = ("drlab", "blender", "colmap")
+FORMATS = ("drlab", "blender", "colmap", "middlebury_mview")
 
 
 def detect_format(path: str | Path) -> str | None:
@@ -39,6 +40,8 @@ def detect_format(path: str | Path) -> str | None:
         return "blender"
     if (root / "sparse").is_dir():
         return "colmap"
+    if any(p.is_file() for p in root.glob("*_par.txt")):
+        return "middlebury_mview"
     return None
 
 
@@ -56,6 +59,10 @@ def open_dataset(path: str | Path, fmt: str, factor: int | None = None) -> Datas
         from research.datasets.blender import load_blender
 
         return load_blender(path, factor=1 if factor is None else factor)
+    if fmt == "middlebury_mview":
+        from research.datasets.middlebury_mview import load_middlebury_mview
+
+        return load_middlebury_mview(path, factor=1 if factor is None else factor)
     from research.datasets.colmap import load_colmap
 
     return load_colmap(path, factor=factor)
