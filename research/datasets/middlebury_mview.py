@@ -122,12 +122,11 @@ def read_par(path: str | Path) -> list[ParEntry]:
         raise DatasetError(f"{path}: count mismatch: the first line says {count} cameras, the file lists {len(body)}")
     entries, seen = [], {}
     for no, fields in body:
-        where = f"{path}: line {no}"
+        name = fields[0]
+        where = f"{path}: line {no} ({name})"
         if len(fields) != _FIELDS:
             raise DatasetError(f"{where}: expected {_FIELDS} fields (image name, 9 of K, 9 of R, 3 of t), got "
                                f"{len(fields)}")
-        name = fields[0]
-        where = f"{where} ({name})"
         try:
             v = np.array([float(x) for x in fields[1:]], dtype=np.float64)
         except ValueError:

@@ -135,6 +135,16 @@ def _check_sfm_poses(m):
     assert _finite(m["splats"]["sfm_poses"]["psnr"]) and _finite(m["splats"]["gt_poses"]["psnr"])
 
 
+def _check_real_photos(m):
+    # smoke: the synthetic 16-view capture in the Middlebury format (seed 3) measured 16/16, 0.66 deg median,
+    # 0.9% of the scene radius, focal -0.2%
+    assert m["registered"] >= m["images"] // 2 and m["registered"] <= m["images"]
+    assert m["pose_errors"]["rotation_deg_median"] < 10.0 and m["centre_error_median_pct"] < 15.0
+    assert abs(m["focal_error_pct"]) < 10.0
+    for fit in ("calibrated", "sfm"):
+        assert _finite(m["splats"][fit]["psnr"]) and m["splats"][fit]["psnr"] > 5
+
+
 def _check_oracle(m):
     assert m["worst_float64_rel"] <= 1e-10  # drlab conforms to its Dr.Jit oracle in float64
     for case in m["cases"].values():
@@ -178,7 +188,8 @@ def _check_slam(m):
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
           "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
-          "volume_render_spheres": _check_volume, "sfm_poses": _check_sfm_poses, "oracle_conformance": _check_oracle,
+          "volume_render_spheres": _check_volume, "sfm_poses": _check_sfm_poses, "real_photos": _check_real_photos,
+          "oracle_conformance": _check_oracle,
           "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo,
           "splat_slam": _check_slam}
 
