@@ -16,6 +16,7 @@ one ray or one point at a time where that reads more clearly; no Warp.
     neural_head        the neural fields' output head (kernels.volume.neural)
     render_spheres     slab test + midpoint strata + soft spheres + compositing, end to end
     camera_rays        pinhole rays of pixels from world-to-camera and (fx, fy, cx, cy) (kernels.volume.rays)
+    ndc_rays           NeRF's forward-facing NDC map of world rays (kernels.volume.rays.ndc_rays)
 """
 
 from __future__ import annotations
@@ -236,3 +237,25 @@ def camera_rays(w2c, intrinsics, pixels):
         dirs.append(R.T @ (c / np.linalg.norm(c)))
         z_scale.append(1.0 / np.linalg.norm(c))  # z-depth per unit of distance along the ray
     return np.array(origins).reshape(-1, 3), np.array(dirs).reshape(-1, 3), np.array(z_scale)
+
+
+def ndc_rays(o, d, near, focal, size, normalize=False):
+    """NeRF's `ndc_rays` (run_nerf_helpers.py) in NumPy, float64: shift the origins to the plane
+    z = -near, then map to normalised device coordinates with a_x = 2 fx / W, a_y = 2 fy / H."""
+    o = np.asarray(o, dtype=np.float64)
+    d = np.asarray(d, dtype=np.float64)
+    f = np.asarray(focal, dtype=np.float64).reshape(-1)
+    fx, fy = (f[0], f[0]) if f.size == 1 else (f[0], f[1])
+    W, H = (float(x) for x in size)
+    t = -(near + o[:, 2]) / d[:, 2]
+    o = o + t[:, None] * d
+    o0 = -1.0 / (W / (2.0 * fx)) * o[:, 0] / o[:, 2]
+    o1 = -1.0 / (H / (2.0 * fy)) * o[:, 1] / o[:, 2]
+    o2 = 1.0 + 2.0 * near / o[:, 2]
+    d0 = -1.0 / (W / (2.0 * fx)) * (d[:, 0] / d[:, 2] - o[:, 0] / o[:, 2])
+    d1 = -1.0 / (H / (2.0 * fy)) * (d[:, 1] / d[:, 2] - o[:, 1] / o[:, 2])
+    d2 = -2.0 * near / o[:, 2]
+    dn = np.stack([d0, d1, d2], -1)
+    if normalize:
+        dn = dn / np.linalg.norm(dn, axis=-1, keepdims=True)
+    return np.stack([o0, o1, o2], -1), dn

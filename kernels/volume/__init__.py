@@ -20,7 +20,7 @@ equations:
     mlp        ReLU MLP, forward and backward (Warp kernels; BLAS products on the CPU)
     neural     HashGridField (hash + MLP), PEMLPField (PE + MLP)                          Field
     render     sampling -> field -> compositing, and the chain rule back to the parameters
-    rays       pinhole camera rays, and the render's gradient wrt the camera pose and intrinsics
+    rays       pinhole camera rays, NeRF's NDC map of rays, and the render's gradient wrt the camera
     field_points  a field's gradient wrt its sample points and view directions (spheres, grid)
     workspace  reusable output buffers (fresh large arrays cost page faults on every call)
     _act, _checks  activations shared by the fields; the family's own argument checks
@@ -48,8 +48,8 @@ from kernels.volume.mlp import MLP
 from kernels.volume.neural import HashGridField, PEMLPField
 from kernels.volume.occupancy import OccupancyGrid
 from kernels.volume.render import RenderResult, render_backward, render_rays, render_samples
-from kernels.volume.rays import (CameraGrad, camera_rays, camera_rays_backward, pixel_centers, render_backward_camera,
-                                 render_backward_rays)
+from kernels.volume.rays import (CameraGrad, camera_rays, camera_rays_backward, ndc_rays, ndc_rays_backward,
+                                 pixel_centers, render_backward_camera, render_backward_rays)
 from kernels.volume.sampling import Samples, ray_aabb, sample_rays
 from kernels.volume.spheres import SphereField
 from kernels.volume.workspace import Workspace
@@ -58,4 +58,5 @@ __all__ = ["DEFAULT_T_THRESHOLD", "CompositeResult", "composite_backward", "comp
            "dense_offsets", "PositionalEncoding", "Field", "FieldOutput", "GridField", "HashEncoding", "MLP",
            "HashGridField", "PEMLPField", "OccupancyGrid", "RenderResult", "render_backward", "render_rays",
            "render_samples", "Samples", "ray_aabb", "sample_rays", "SphereField", "Workspace", "CameraGrad",
-           "camera_rays", "camera_rays_backward", "pixel_centers", "render_backward_camera", "render_backward_rays"]
+           "camera_rays", "camera_rays_backward", "ndc_rays", "ndc_rays_backward", "pixel_centers",
+           "render_backward_camera", "render_backward_rays"]

@@ -36,6 +36,31 @@ w_k = T_k (1 - exp(-sigma_k delta_k)), and the field's point gradient (kernels.v
 
 summed over ray r's samples, k < n_used (samples after early termination have zero gradient).
 
+Normalised device coordinates (NeRF's forward-facing parametrisation, Mildenhall et al. 2020,
+appendix C; its `ndc_rays`). For a scene whose cameras look down -z of the world frame (LLFF after
+NeRF's recentring, research.datasets.llff), a near plane z = -n and a reference pinhole of focal
+lengths (fx, fy) and size (W, H), with a_x = 2 fx / W, a_y = 2 fy / H, a world ray o + s d first has
+its origin moved onto the near plane and is then mapped by the projective map of the camera frustum:
+
+    s_n = -(n + o_z) / d_z,   p = o + s_n d   (so p_z = -n),   r = d / d_z,
+    o' = (-a_x p_x / p_z,  -a_y p_y / p_z,  1 + 2 n / p_z)
+    d' = (-a_x (r_x - p_x / p_z),  -a_y (r_y - p_y / p_z),  -2 n / p_z)
+
+(o' + t d', t in [0, 1], runs from the near plane to z = -infinity; t is linear in disparity 1/z).
+With p_z = -n exactly, o' = (a_x p_x / n, a_y p_y / n, -1) and d' = (-a_x (r_x + p_x / n), -a_y (r_y +
+p_y / n), 2): the third components are constant, so their gradient is zero, and with
+p_x = o_x - (n + o_z) r_x the VJP of cotangents (g_o', g_d') is, per axis x (y alike, a_y):
+
+    g_p = a_x (g_o'_x - g_d'_x) / n,   g_r = -a_x g_d'_x - (n + o_z) g_p,
+    dL/do_x = g_p,   dL/do_z += -r_x g_p,   dL/dd_x = g_r / d_z,   dL/dd_z += -g_r r_x / d_z.
+
+`normalize=True` returns u' = d' / |d'| instead of d' (the renderer's unit directions: sample
+intervals are then NDC lengths, as NeRF's `dists * |rays_d|`), whose VJP is g_d' = (g_u - u' (u' . g_u))
+/ |d'|. Every ray must point into the scene, d_z < 0 (a value check). The kernel is NeRF's formula
+term by term (its p_z is computed, equal to -n up to rounding); the NumPy reference is
+kernels.reference.volume.ndc_rays. Chained after `camera_rays`, `ndc_rays_backward` carries a
+render's ray gradients (render_backward_rays) back to the world rays and so to the camera.
+
 Kernels: one thread per pixel or ray, each writing its own rows (launch_split); the per-pixel
 pose and intrinsics terms are summed on the host. Inputs follow the array contract
 (kernels._arrays): origins, dirs, z_scale come back in the kind of `pixels`; the per-ray
@@ -157,6 +182,78 @@ def _gather_rays_kernel(
     out_zs[r] = zs
 
 
+@wp.func
+def _ndc_terms(origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), i: int, near: typing.Any):
+    """(p_x, p_y, p_z, r_x, r_y) of ray i: its origin moved onto the plane z = -near, r = d / d_z."""
+    s = -(near + origins[i, 2]) / dirs[i, 2]
+    return (origins[i, 0] + s * dirs[i, 0], origins[i, 1] + s * dirs[i, 1], origins[i, 2] + s * dirs[i, 2],
+            dirs[i, 0] / dirs[i, 2], dirs[i, 1] / dirs[i, 2])
+
+
+@wp.kernel
+def _ndc_kernel(
+    origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), near: typing.Any, ax: typing.Any,
+    ay: typing.Any, normalize: int, out_o: wp.array2d(dtype=typing.Any), out_d: wp.array2d(dtype=typing.Any),
+    offset: int,
+):
+    i = wp.tid() + offset
+    one = origins.dtype(1.0)
+    two = origins.dtype(2.0)
+    px, py, pz, rx, ry = _ndc_terms(origins, dirs, i, near)
+    out_o[i, 0] = -ax * px / pz
+    out_o[i, 1] = -ay * py / pz
+    out_o[i, 2] = one + two * near / pz
+    dx = -ax * (rx - px / pz)
+    dy = -ay * (ry - py / pz)
+    dz = -two * near / pz
+    if normalize != 0:
+        inv = one / wp.sqrt(dx * dx + dy * dy + dz * dz)
+        dx = dx * inv
+        dy = dy * inv
+        dz = dz * inv
+    out_d[i, 0] = dx
+    out_d[i, 1] = dy
+    out_d[i, 2] = dz
+
+
+@wp.kernel
+def _ndc_backward_kernel(
+    origins: wp.array2d(dtype=typing.Any), dirs: wp.array2d(dtype=typing.Any), near: typing.Any, ax: typing.Any,
+    ay: typing.Any, normalize: int, g_on: wp.array2d(dtype=typing.Any), g_dn: wp.array2d(dtype=typing.Any),
+    out_go: wp.array2d(dtype=typing.Any), out_gd: wp.array2d(dtype=typing.Any), offset: int,
+):
+    # The module docstring's VJP; p_z = -near exactly, so o'_z and d'_z are constants.
+    i = wp.tid() + offset
+    two = origins.dtype(2.0)
+    px, py, pz, rx, ry = _ndc_terms(origins, dirs, i, near)
+    gdx = g_dn[i, 0]
+    gdy = g_dn[i, 1]
+    gdz = g_dn[i, 2]
+    if normalize != 0:  # d' -> d' / |d'|
+        dx = -ax * (rx + px / near)
+        dy = -ay * (ry + py / near)
+        dz = two
+        n = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        ux = dx / n
+        uy = dy / n
+        uz = dz / n
+        ug = ux * gdx + uy * gdy + uz * gdz
+        gdx = (gdx - ux * ug) / n
+        gdy = (gdy - uy * ug) / n
+    gpx = ax * (g_on[i, 0] - gdx) / near
+    gpy = ay * (g_on[i, 1] - gdy) / near
+    shift = near + origins[i, 2]
+    grx = -ax * gdx - shift * gpx
+    gry = -ay * gdy - shift * gpy
+    dz_ = dirs[i, 2]
+    out_go[i, 0] = gpx
+    out_go[i, 1] = gpy
+    out_go[i, 2] = -rx * gpx - ry * gpy
+    out_gd[i, 0] = grx / dz_
+    out_gd[i, 1] = gry / dz_
+    out_gd[i, 2] = -(grx * rx + gry * ry) / dz_
+
+
 # =========================================================================== camera
 
 
@@ -241,6 +338,67 @@ def camera_rays_backward(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, grad_or
     return CameraGrad(np.concatenate([-total[:3], total[3:6]]), total[6:10])
 
 
+# =========================================================================== NDC
+
+
+def _ndc_params(near: float, focal: Any, size: Any) -> tuple[float, float, float]:
+    near = A.check_float("near", near, positive=True)
+    f = np.asarray(focal, dtype=np.float64).reshape(-1)
+    if f.shape not in ((1,), (2,)) or not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise ValueError(f"focal: expected fx or (fx, fy), finite and > 0, got {np.asarray(focal).tolist()}")
+    wh = np.asarray(size, dtype=np.float64).reshape(-1)
+    if wh.shape != (2,) or not np.all(np.isfinite(wh)) or np.any(wh <= 0):
+        raise ValueError(f"size: expected the reference image's (width, height) > 0, got {np.asarray(size).tolist()}")
+    fx, fy = (f[0], f[0]) if f.shape == (1,) else (f[0], f[1])
+    return near, 2.0 * fx / wh[0], 2.0 * fy / wh[1]
+
+
+def _ndc_inputs(a: A.Inputs, origins: A.ArrayLike, dirs: A.ArrayLike) -> tuple[wp.array, wp.array]:
+    o = a.floats("origins", origins, (None, 3))
+    d = a.floats("dirs", dirs, (o.shape[0], 3))
+    if A.values_checked() and d.shape[0]:
+        h = A.host_view(d)
+        dz = h[:, 2] if h is not None else d.numpy()[:, 2]
+        if np.any(dz >= 0):
+            raise ValueError(f"dirs: NDC needs every ray to point into the scene (d_z < 0 in the world frame, "
+                             f"which looks down -z); {int(np.sum(dz >= 0))} of {dz.size} do not")
+    return o, d
+
+
+def ndc_rays(origins: A.ArrayLike, dirs: A.ArrayLike, near: float, focal: Any, size: Any, normalize: bool = False,
+             device: str | wp.Device | None = None) -> tuple[A.ArrayLike, A.ArrayLike]:
+    """(origins', dirs') (R, 3) in NDC of world rays (R, 3) (module docstring; NeRF's `ndc_rays`), in the
+    kind and dtype of `origins`. `near`: the near plane z = -near; `focal`: fx or (fx, fy) and `size`:
+    (width, height) of the reference pinhole; `normalize`: unit dirs' (else NeRF's d', d'_z = 2)."""
+    near, ax, ay = _ndc_params(near, focal, size)
+    a = A.Inputs(device, origins, dirs)
+    o, d = _ndc_inputs(a, origins, dirs)
+    n = o.shape[0]
+    on, dn = a.empty((n, 3)), a.empty((n, 3))
+    if n:
+        a.launch(_ndc_kernel, n, [o, d, a.s(near), a.s(ax), a.s(ay), int(bool(normalize)), on, dn])
+    return a.out(on), a.out(dn)
+
+
+def ndc_rays_backward(origins: A.ArrayLike, dirs: A.ArrayLike, near: float, focal: Any, size: Any,
+                      grad_origins: A.ArrayLike | None = None, grad_dirs: A.ArrayLike | None = None,
+                      normalize: bool = False, device: str | wp.Device | None = None
+                      ) -> tuple[A.ArrayLike, A.ArrayLike]:
+    """(dL/dorigins, dL/ddirs) (R, 3) of L = <g_o', origins'> + <g_d', dirs'> of `ndc_rays` (module
+    docstring), in the kind of `origins`; a missing cotangent counts as zero."""
+    near, ax, ay = _ndc_params(near, focal, size)
+    a = A.Inputs(device, origins, dirs, grad_origins, grad_dirs)
+    o, d = _ndc_inputs(a, origins, dirs)
+    n = o.shape[0]
+    go, gd = (a.zeros((n, 3)) if g is None else a.floats(name, g, (n, 3))
+              for name, g in (("grad_origins", grad_origins), ("grad_dirs", grad_dirs)))
+    out_o, out_d = a.empty((n, 3)), a.empty((n, 3))
+    if n:
+        a.launch(_ndc_backward_kernel, n, [o, d, a.s(near), a.s(ax), a.s(ay), int(bool(normalize)), go, gd,
+                                           out_o, out_d])
+    return a.out(out_o), a.out(out_d)
+
+
 # =========================================================================== renderer
 
 
@@ -283,5 +441,6 @@ def render_backward_camera(field: Field, result: RenderResult, w2c: Any, intrins
     return camera_rays_backward(w2c, intrinsics, pixels, go, gd, gz, device=field.device)
 
 
-for _k in (_rays_kernel, _rays_backward_kernel, _depth_grad_kernel, _gather_rays_kernel):
+for _k in (_rays_kernel, _rays_backward_kernel, _depth_grad_kernel, _gather_rays_kernel, _ndc_kernel,
+           _ndc_backward_kernel):
     A.declare_float_overloads(_k)

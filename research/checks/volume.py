@@ -331,6 +331,40 @@ def check_camera_rays(seeds=(0, 1)) -> list[GradcheckResult]:
     return results
 
 
+def ndc_setup(seed: int) -> tuple[np.ndarray, np.ndarray, float, tuple[float, float], tuple[float, float]]:
+    """(origins (R, 3), dirs (R, 3), near, (fx, fy), (W, H)): forward-facing rays as LLFF's recentred
+    cameras give them (origins near the world origin, directions down -z within a 60-degree cone; the
+    near plane at z = -1 as NeRF's after its bd_factor rescaling), with fx != fy."""
+    rng = np.random.default_rng(seed)
+    origins = rng.normal(0.0, 0.2, (8, 3))
+    dirs = np.column_stack([rng.uniform(-0.5, 0.5, (8, 2)), -np.ones(8)])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    return origins, dirs, 1.0, (rng.uniform(380.0, 420.0), rng.uniform(380.0, 420.0)), (504.0, 378.0)
+
+
+def check_ndc_rays(seeds=(0, 1, 2)) -> list[GradcheckResult]:
+    """NDC origins and directions of kernels.volume.ndc_rays (NeRF's d' and the unit u') with respect to
+    the world origins and directions."""
+    from kernels.volume.rays import ndc_rays, ndc_rays_backward
+
+    results = []
+    for seed in seeds:
+        origins, dirs, near, focal, size = ndc_setup(seed)
+        for normalize in (False, True):
+            def f(origins, dirs, normalize=normalize, near=near, focal=focal, size=size):
+                o, d = ndc_rays(origins, dirs, near, focal, size, normalize=normalize)
+                return {"origins": o, "dirs": d}
+
+            def vjp(inp, cot, normalize=normalize, near=near, focal=focal, size=size):
+                go, gd = ndc_rays_backward(inp["origins"], inp["dirs"], near, focal, size, cot["origins"],
+                                           cot["dirs"], normalize=normalize)
+                return {"origins": go, "dirs": gd}
+
+            results += check_vjp(f, vjp, {"origins": origins, "dirs": dirs}, seed=seed,
+                                 name="volume.ndc_rays" + (".unit" if normalize else ""))
+    return results
+
+
 def camera_field(kind: str, seed: int) -> Field:
     """A float64 field filling BOX: soft spheres, or a grid with RGB or degree-2 SH colour."""
     rng = np.random.default_rng(seed)
@@ -442,6 +476,7 @@ def _away_from_kinks(field: Field, points: np.ndarray) -> bool:
 
 for _name, _check, _kwargs in [
         ("volume.camera_rays", check_camera_rays, {}),
+        ("volume.ndc_rays", check_ndc_rays, {}),
         ("volume.field_points.spheres", check_field_points, {"kind": "spheres"}),
         ("volume.field_points.grid_rgb", check_field_points, {"kind": "grid_rgb"}),
         ("volume.field_points.grid_sh2", check_field_points, {"kind": "grid_sh2"}),
