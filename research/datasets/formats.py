@@ -2,7 +2,8 @@
 
 `detect_format(path)`: "drlab" (a folder written by `drlab dataset`: manifest.json), "blender"
 (NeRF-synthetic / nerfstudio: transforms_train.json, or nerfstudio's single transforms.json),
-"colmap" (a COLMAP layout: sparse/0 or
+"llff" (LLFF forward-facing: poses_bounds.npy, even beside a sparse/ folder; `--format colmap` reads
+that as COLMAP), "colmap" (a COLMAP layout: sparse/0 or
 sparse/ holding a model), "middlebury_mview" (a Middlebury multi-view folder: one *_par.txt),
 or None (not a dataset folder: the experiments then treat --data as the
 cache root of their own renders, as before). `open_dataset(path, fmt, factor)` loads it.
@@ -26,7 +27,7 @@ from research.cameras import Camera
 from research.datasets.integrity import DatasetError
 from research.datasets.loader import Dataset, Protocol, Split
 
-FORMATS = ("drlab", "blender", "colmap", "middlebury_mview")
+FORMATS = ("drlab", "blender", "colmap", "llff", "middlebury_mview")
 
 
 def detect_format(path: str | Path) -> str | None:
@@ -38,6 +39,8 @@ def detect_format(path: str | Path) -> str | None:
         return "drlab"
     if (root / "transforms_train.json").is_file() or (root / "transforms.json").is_file():
         return "blender"
+    if (root / "poses_bounds.npy").is_file():
+        return "llff"
     if (root / "sparse").is_dir():
         return "colmap"
     if any(p.is_file() for p in root.glob("*_par.txt")):
@@ -59,6 +62,10 @@ def open_dataset(path: str | Path, fmt: str, factor: int | None = None) -> Datas
         from research.datasets.blender import load_blender
 
         return load_blender(path, factor=1 if factor is None else factor)
+    if fmt == "llff":
+        from research.datasets.llff import load_llff
+
+        return load_llff(path, factor=factor)
     if fmt == "middlebury_mview":
         from research.datasets.middlebury_mview import load_middlebury_mview
 

@@ -81,6 +81,8 @@ class Dataset:
     protocol: Protocol | None = None  # None: drlab's own (research.metrics.EVAL_PROTOCOL)
     points: np.ndarray | None = None  # (P, 3) SfM points (COLMAP), world coordinates
     point_colors: np.ndarray | None = None  # (P, 3) their sRGB colours in [0, 1]
+    ndc: Any = None  # research.nerf.ndc.NDC: forward-facing data (LLFF) whose fields live in NDC
+    near_far: np.ndarray | None = None  # (V, 2) per-view z-depth bounds in the views' order (LLFF), or None
     split_loader: Callable[[list[View]], Split] | None = field(default=None, repr=False)
 
     def split_views(self, split: str) -> list[View]:
