@@ -20,7 +20,10 @@ points' box for COLMAP, else the declared box or the cameras' bound) and scored 
 protocol: the fields train on random backgrounds against the files' sRGB composited on them
 (instant-ngp's recipe), and the test views are rendered on the protocol's background (white for
 NeRF-synthetic) and compared with the files composited on it; no depth error and no noise floor
-(there is no ground-truth depth or second render).
+(there is no ground-truth depth or second render). An LLFF forward-facing folder is fitted in NeRF's NDC
+(research.nerf.ndc: the rays mapped by kernels.volume.ndc_rays, the fields' box the cameras' frusta in
+NDC, samples evenly spaced in the NDC ray parameter, i.e. in disparity), scored as above without a
+background (the photographs are opaque).
 
 Writes results/fit_nerf/{table.md, metrics.json, renders_<field>.png, loss.png}.
 """
@@ -128,14 +131,14 @@ def noise_floor(ds, split, gt_srgb: np.ndarray, n_views: int, seed: int) -> dict
 
 
 def evaluate(field, occupancy, bbox, step: float, split, gt_srgb: np.ndarray,
-             background=(0.0, 0.0, 0.0)) -> dict[str, Any]:
+             background=(0.0, 0.0, 0.0), ndc=None) -> dict[str, Any]:
     from research.metrics import psnr, ssim
     from research.nerf.render import render_image
 
     rows, images = [], []
     for i, cam in enumerate(split.cameras):
         t0 = time.perf_counter()
-        img = render_image(cam, field, bbox, step=step, occupancy=occupancy, background=background)
+        img = render_image(cam, field, bbox, step=step, occupancy=occupancy, background=background, ndc=ndc)
         seconds = time.perf_counter() - t0
         pred = np.clip(img.rgb, 0.0, 1.0)
         row = {"psnr": psnr(pred, gt_srgb[i, ..., :3]), "ssim": ssim(pred, gt_srgb[i, ..., :3])}
@@ -256,8 +259,8 @@ def run(ctx: Context) -> int:
     if not train_split.cameras or not test_split.cameras:
         raise ValueError(f"--data: {data} has {len(train_split.cameras)} train and {len(test_split.cameras)} test "
                          "views; the fit needs both")
-    bbox = ds.bbox.copy()
-    bank = RayBank.from_views(train_split.cameras, train_split.rgba)
+    bbox = ds.bbox.copy() if ds.ndc is None else ds.ndc.bbox_for([v.camera for v in ds.views])
+    bank = RayBank.from_views(train_split.cameras, train_split.rgba, ndc=ds.ndc)
     external = ds.format != "drlab"
     background = tuple(ds.protocol.background) if ds.protocol and ds.protocol.background else (0.0, 0.0, 0.0)
     if external:  # the files' sRGB x alpha: composited on each ray's random background as the papers do
@@ -271,7 +274,8 @@ def run(ctx: Context) -> int:
     for name in args.fields:
         field, occupancy, log = fit_one(name, all_plans[name], bank, bbox, ctx.quick, ctx.seed, ctx.progress,
                                         random_background=external)
-        ev = evaluate(field, occupancy, bbox, all_plans[name]["config"]["step"], test_split, gt, background)
+        ev = evaluate(field, occupancy, bbox, all_plans[name]["config"]["step"], test_split, gt, background,
+                      ds.ndc)
         results[name] = {"train": log, "eval": {k: v for k, v in ev.items() if k != "images"},
                          "images": ev["images"], "params": field.n_params(),
                          "bytes_per_param": wp.types.type_size_in_bytes(field.dtype),
@@ -296,7 +300,8 @@ def run(ctx: Context) -> int:
         table = (f"`{ds.scene}` ({ds.format} format) at {cam0.width}x{cam0.height}: "
                  f"{len(train_split.cameras)} training and {len(test_split.cameras)} test views, "
                  f"device `{ctx.device}`. Evaluation: {record['eval_protocol']}. Scene bound "
-                 f"{np.round(bbox, 3).tolist()}{' (from the SfM points)' if ds.points is not None else ''}; "
+                 f"{np.round(bbox, 3).tolist()}{' (from the SfM points)' if ds.points is not None else ''}"
+                 f"{' in NDC (NeRF forward-facing: the frusta of the cameras)' if ds.ndc is not None else ''}; "
                  "no ground-truth depth.\n\n" + markdown_table(headers, rows))
     else:
         table = (f"`objects` from `drlab dataset` ({cfg.views} views, {cfg.res}x{cfg.res}, {cfg.spp} spp): "
@@ -311,7 +316,8 @@ def run(ctx: Context) -> int:
     metrics = {"eval_protocol": record["eval_protocol"], "data": record,
                "dataset": {"path": str(data), "config": None if external else cfg.__dict__,
                            "seconds_if_rendered": dataset_s, "content_hash": record["content_hash"],
-                           "bbox": bbox.tolist(), "train_views": len(train_split.cameras),
+                           "bbox": bbox.tolist(), "ndc": None if ds.ndc is None else vars(ds.ndc),
+                           "train_views": len(train_split.cameras),
                            "test_views": len(test_split.cameras)},
                "noise_floor": floor,
                "fields": {name: {"params": r["params"], "bytes_per_param": r["bytes_per_param"],

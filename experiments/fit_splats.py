@@ -23,7 +23,10 @@ paper's protocol (the dataset's Protocol: split, resolution, background; PSNR an
 the sRGB targets of that protocol): on white for NeRF-synthetic, opaque photographs at images_N for
 Mip-NeRF 360. The splats start from the SfM points with their colours when the data has them
 (COLMAP, as 3DGS does: every point, up to the splat cap), else from random points in the scene
-bound (3DGS's synthetic-scene start). `--resolution N` reads the images at 1/N.
+bound (3DGS's synthetic-scene start); an LLFF forward-facing folder (no SfM points, but per-view
+near/far bounds) starts from points in the training views' frusta between their bounds, uniform in
+disparity, coloured by their pixel (research.splats.model.points_in_frusta; --init frustum).
+`--resolution N` reads the images at 1/N.
 
 Writes results/fit_splats/{table.md, metrics.json, renders.png, training.png};
 the PLY goes to build/fit_splats/point_cloud.ply (not committed: ~7.5 MB at 30k splats).
@@ -44,7 +47,7 @@ from research.experiment import Context, Experiment
 from research.results import markdown_table, save_figure
 
 REPO = registry.REPO_ROOT
-DATA_HELP = ("a NeRF-synthetic/Blender, COLMAP / Mip-NeRF 360 or `drlab dataset` folder, read with its paper's "
+DATA_HELP = ("a NeRF-synthetic/Blender, COLMAP / Mip-NeRF 360, LLFF or `drlab dataset` folder, read with its paper's "
              "protocol (see --format); any other folder is the " + CACHE_ROOT_HELP)
 
 
@@ -128,11 +131,12 @@ def add_data_options(p) -> None:
 
     p.add_argument("--format", choices=["auto", *FORMATS], default="auto",
                    help="format of --data: a `drlab dataset` folder, a NeRF-synthetic/Blender folder "
-                        "(transforms_*.json), a COLMAP / Mip-NeRF 360 folder (sparse/0, images*/); auto (default) "
+                        "(transforms_*.json), a COLMAP / Mip-NeRF 360 folder (sparse/0, images*/), an LLFF folder "
+                        "(poses_bounds.npy, images_N/; it wins over a sparse/ beside it); auto (default) "
                         "detects it, and a folder of none of them is the cache root of the Mitsuba renders")
     p.add_argument("--resolution", type=int, default=None,
-                   help="read the images at 1/N of their size (Blender: box-averaged; COLMAP: the images_N "
-                        "folder); default: the protocol's (Blender 1; Mip-NeRF 360: 4 outdoors, 2 indoors)")
+                   help="read the images at 1/N of their size (Blender: box-averaged; COLMAP, LLFF: the images_N "
+                        "folder); default: the protocol's (Blender 1; Mip-NeRF 360: 4 outdoors, 2 indoors; LLFF 8)")
 
 
 def open_external(ctx: Context):
@@ -148,7 +152,7 @@ def open_external(ctx: Context):
         raise ValueError(f"--resolution: expected an integer >= 1, got {args.resolution}")
     if fmt is None:
         if args.resolution is not None:
-            raise ValueError(f"--resolution: applies to a --data folder in Blender or COLMAP format; {ctx.data} "
+            raise ValueError(f"--resolution: applies to a --data folder in Blender, COLMAP or LLFF format; {ctx.data} "
                              "is neither (it is used as the cache root of the Mitsuba renders)")
         return None
     ds = open_dataset(ctx.data, fmt, args.resolution)
@@ -179,10 +183,11 @@ def add_options(p) -> None:
     p.add_argument("--ply", type=Path, default=None,
                    help="where to write the PLY (default build/fit_splats[-quick|-smoke]/point_cloud.ply, in the "
                         "checkout when run from one, else under the current directory)")
-    p.add_argument("--init", choices=["depth", "random", "sfm"], default=None,
+    p.add_argument("--init", choices=["depth", "random", "sfm", "frustum"], default=None,
                    help="initial points: ground-truth depth of the train views (drlab data), the SfM points (COLMAP "
-                        "data), or random in the scene box (default: depth for drlab data, sfm when the data has "
-                        "SfM points, else random)")
+                        "data), points in the train views' frusta between their near/far bounds (LLFF data), or "
+                        "random in the scene box (default: depth for drlab data, sfm when the data has SfM points, "
+                        "frustum when it has bounds, else random)")
     add_data_options(p)
     p.add_argument("--iterations", type=int, default=None, help="override the number of training iterations")
     p.add_argument("--mode", choices=["3dgs", "gsplat"], default="3dgs",
@@ -219,11 +224,14 @@ def run(ctx: Context) -> int:
     train_rgb = formats.protocol_target_linear(train_split, ds.protocol)
     test_rgb = formats.protocol_target_linear(test_split, ds.protocol)
     background = tuple(ds.protocol.background) if ds.protocol and ds.protocol.background else (0.0, 0.0, 0.0)
-    init = args.init or ("depth" if train_split.depth is not None else "sfm" if ds.points is not None else "random")
+    init = args.init or ("depth" if train_split.depth is not None else "sfm" if ds.points is not None
+                         else "frustum" if ds.near_far is not None else "random")
     if init == "depth" and train_split.depth is None:
         raise ValueError(f"--init depth: {path} has no ground-truth depth; use --init sfm or random")
     if init == "sfm" and ds.points is None:
         raise ValueError(f"--init sfm: {path} has no SfM points; use --init random")
+    if init == "frustum" and ds.near_far is None:
+        raise ValueError(f"--init frustum: {path} has no per-view near/far bounds (LLFF's); use --init random")
 
     if init == "depth":
         points, colors = sm.points_from_depth(train_split.cameras, train_split.rgba, train_split.depth,
@@ -235,6 +243,9 @@ def run(ctx: Context) -> int:
         if len(points) > cfg.max_gaussians:
             keep = np.sort(np.random.default_rng(ctx.seed).choice(len(points), cfg.max_gaussians, replace=False))
             points, colors = points[keep], colors[keep]
+    elif init == "frustum":
+        bounds = ds.near_far[[i for i, v in enumerate(ds.views) if v.split == splits[0]]]
+        points, colors = sm.points_in_frusta(train_split.cameras, train_split.rgba, bounds, cfg.init_points, ctx.seed)
     else:
         points, colors = sm.random_points(ds.bbox, cfg.init_points, ctx.seed)
     model = sm.from_points(points, colors)

@@ -3,7 +3,9 @@
 Rays go through every pixel centre (research.cameras, OpenCV convention) with unit directions;
 z_scale = cos(theta) to the optical axis turns the ray parameter t into z-depth, so `depth` is the
 expected z-depth sum_k w_k t_k cos(theta) (depth means z-depth throughout the project). Rays are
-rendered in chunks by kernels.volume.render_rays.
+rendered in chunks by kernels.volume.render_rays. With an `ndc` (research.nerf.ndc.NDC, forward-facing
+data) the rays are mapped to NDC first and `bbox` is a box in NDC; `depth` is then the expected NDC
+ray parameter (research.nerf.ndc).
 """
 
 from __future__ import annotations
@@ -27,9 +29,12 @@ class Image:
     n_samples: int  # samples evaluated
 
 
-def camera_rays(camera: Camera, dtype: Any = np.float64) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unit-direction rays through every pixel centre: origins, dirs (H*W, 3) and z_scale (H*W,)."""
+def camera_rays(camera: Camera, dtype: Any = np.float64, ndc: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit-direction rays through every pixel centre: origins, dirs (H*W, 3) and z_scale (H*W,);
+    with `ndc` (research.nerf.ndc.NDC) those rays in NDC (`NDC.rays`)."""
     o, d = camera.rays(normalize=True)
+    if ndc is not None:
+        return tuple(x.astype(dtype) for x in ndc.rays(o.reshape(-1, 3), d.reshape(-1, 3)))
     return (o.reshape(-1, 3).astype(dtype), d.reshape(-1, 3).astype(dtype),
             camera.ray_cosines().reshape(-1).astype(dtype))
 
@@ -48,12 +53,13 @@ def render_image(
     t_threshold: float = DEFAULT_T_THRESHOLD,
     chunk: int = 16384,
     progress: bool = False,
+    ndc: Any = None,
 ) -> Image:
     """Render `field` as seen by `camera` (see kernels.volume.sample_rays for the sampling options)."""
     if not isinstance(camera, Camera):
         raise ValueError(f"camera: expected a research.cameras.Camera, got {type(camera).__name__}")
     A.check_int("chunk", chunk, minimum=1)
-    o, d, zs = camera_rays(camera, A.NP_OF_WP[field.dtype])
+    o, d, zs = camera_rays(camera, A.NP_OF_WP[field.dtype], ndc)
     n = o.shape[0]
     rgb, depth, opacity = np.empty((n, 3)), np.empty(n), np.empty(n)
     n_samples_total = 0

@@ -92,8 +92,10 @@ class RayBank:
     rgba: np.ndarray
 
     @classmethod
-    def from_views(cls, cameras: list[Camera], rgba_linear: np.ndarray, dtype: Any = np.float32) -> "RayBank":
-        rays = [camera_rays(c, dtype) for c in cameras]
+    def from_views(cls, cameras: list[Camera], rgba_linear: np.ndarray, dtype: Any = np.float32,
+                   ndc: Any = None) -> "RayBank":
+        """`ndc` (research.nerf.ndc.NDC): the rays in NDC (forward-facing data; research.nerf.render)."""
+        rays = [camera_rays(c, dtype, ndc) for c in cameras]
         target = srgb_targets(rgba_linear).reshape(-1, 4)
         return cls(np.concatenate([r[0] for r in rays]), np.concatenate([r[1] for r in rays]),
                    np.concatenate([r[2] for r in rays]), target)

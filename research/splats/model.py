@@ -145,6 +145,36 @@ def random_points(bbox: np.ndarray, n: int, seed: int) -> tuple[np.ndarray, np.n
     return rng.uniform(bbox[0], bbox[1], (n, 3)), rng.uniform(0.0, 1.0, (n, 3))
 
 
+def points_in_frusta(cameras: list[Camera], rgba: np.ndarray, near_far: np.ndarray, n: int,
+                     seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """`n` points in the views' frusta between their z-depth bounds, for data without SfM points (LLFF).
+
+    Each point picks a view uniformly, a pixel uniformly, and a z-depth uniform in disparity 1/z
+    between the view's near and far bounds (what NeRF's NDC samples are uniform in for forward-facing
+    scenes; uniform in volume would put almost every point near the far bound), and takes that
+    pixel's colour (premultiplied linear RGB over alpha). `rgba` (V, H, W, 4), `near_far` (V, 2).
+    """
+    near_far = np.asarray(near_far, dtype=np.float64)
+    if near_far.shape != (len(cameras), 2) or np.any(near_far[:, 0] <= 0) or np.any(near_far[:, 1] <= near_far[:, 0]):
+        raise ValueError(f"near_far: expected ({len(cameras)}, 2) bounds with 0 < near < far, got shape "
+                         f"{near_far.shape}")
+    rng = np.random.default_rng(seed)
+    view = rng.integers(0, len(cameras), n)
+    u, v = rng.uniform(0.0, 1.0, n), rng.uniform(0.0, 1.0, n)
+    disparity = rng.uniform(1.0 / near_far[view, 1], 1.0 / near_far[view, 0])
+    points, colors = np.empty((n, 3)), np.empty((n, 3))
+    for k, cam in enumerate(cameras):
+        sel = np.nonzero(view == k)[0]
+        if not len(sel):
+            continue
+        uu, vv = u[sel] * cam.width, v[sel] * cam.height
+        rays = cam.camera_directions(uu, vv) @ cam.R.T  # z-depth 1 along each
+        points[sel] = cam.center + rays / disparity[sel, None]
+        px = rgba[k, np.minimum(vv.astype(int), cam.height - 1), np.minimum(uu.astype(int), cam.width - 1)]
+        colors[sel] = np.clip(px[:, :3] / np.maximum(px[:, 3:4], 1e-6), 0.0, 1.0)
+    return points, colors
+
+
 def splat_camera(camera: Camera, near: float = ks.DEFAULT_NEAR) -> ks.SplatCamera:
     return ks.SplatCamera(camera.w2c, camera.K, camera.width, camera.height, near=near)
 
