@@ -21,7 +21,14 @@ reader is exercised too).
    max) and camera-centre error after a Sim(3) Umeyama alignment of the registered SfM centres to
    the calibrated ones (research.align), as % of the scene radius, here the median distance of the
    calibrated camera centres from their centroid; the SfM focal length against the calibrated
-   (fx + fy) / 2 (median over the images), in %.
+   (fx + fy) / 2 (median over the images), in %. SfM holds the principal point at the image centre;
+   where the calibrated one lies d pixels off it, the SfM cameras turn by about atan(d / f) to make up
+   for it, and the rotation error contains that. Beside them, the SfM feature tracks (every SfM point's
+   observations) re-triangulated by linear least squares (DLT) with each set of cameras held fixed,
+   and their reprojection error: with the SfM cameras, and with the calibrated ones at the reader's
+   pixel-centre offset of 0.5 and at 0 and 1 instead (a check of that convention: the offset the
+   calibration was made with should reproject best). The tracks are SfM's own inliers, chosen under
+   its cameras, which favours the SfM cameras.
 
 2. Splats (research.splats, fit_splats's trainer: 3DGS loss, learning rates and densification on
    fit_splats' default schedule, 3000 iterations, at most 30 000 splats) fitted twice on the same
@@ -160,6 +167,32 @@ def cached_sfm(images: Path, out: Path, opts, ctx: Context):
     return json.loads(doc.read_text()), False
 
 
+def feature_tracks(model_dir: Path) -> list:
+    """Every SfM point's observations [(image name, (x, y) in pixels, centres at +0.5)], from the model."""
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(model_dir))
+    names = {i: im.name for i, im in rec.images.items()}
+    return [[(names[e.image_id], np.asarray(rec.images[e.image_id].points2D[e.point2D_idx].xy, dtype=np.float64))
+             for e in p.track.elements] for p in rec.points3D.values()]
+
+
+def track_reprojection(tracks: list, cameras: dict) -> dict:
+    """Reprojection error (px) of the feature tracks under fixed `cameras`: each point triangulated by the
+    linear (DLT) least-squares solution from all its observations, then projected back into each."""
+    P = {n: c.K @ c.w2c[:3] for n, c in cameras.items()}
+    errs = []
+    for obs in tracks:
+        A = np.concatenate([[xy[0] * P[n][2] - P[n][0], xy[1] * P[n][2] - P[n][1]] for n, xy in obs])
+        X = np.linalg.svd(A)[2][-1]
+        for n, xy in obs:
+            x = P[n] @ X
+            errs.append(float(np.hypot(x[0] / x[2] - xy[0], x[1] / x[2] - xy[1])))
+    e = np.array(errs)
+    return {"mean": float(e.mean()), "median": float(np.median(e)), "rms": float(np.sqrt((e**2).mean())),
+            "observations": len(e)}
+
+
 def small(cameras: list, factor: int) -> list:
     from research.cameras import Camera
 
@@ -270,6 +303,16 @@ def run(ctx: Context) -> int:
     f_calib = float(np.median([(c.fx + c.fy) / 2 for c in calib.values()]))
     f_sfm = float(summary["cameras"][0]["params"][0])
     focal_err = 100.0 * (f_sfm / f_calib - 1.0)
+    # the SfM feature tracks reprojected under each set of cameras (the calibration with the reader's
+    # +0.5 pixel-centre offset, and with 0 or 1 instead, which tests that convention)
+    from research.cameras import Camera
+    from research.datasets.middlebury_mview import PIXEL_CENTRE_OFFSET
+
+    tracks = feature_tracks(sfm_out / "sparse" / "0")
+    shifted = lambda off: {n: Camera(c.K + np.array([[0, 0, off - PIXEL_CENTRE_OFFSET], [0, 0, off - PIXEL_CENTRE_OFFSET],  # noqa: E731
+                                                     [0, 0, 0]]), c.c2w, c.width, c.height) for n, c in calib.items()}
+    reproj = {"sfm": track_reprojection(tracks, est),
+              **{f"calibrated_offset_{off:g}": track_reprojection(tracks, shifted(off)) for off in (0.0, 0.5, 1.0)}}
 
     # splats: the same train / test images (the calibrated split, views SfM registered), two sets of cameras
     train_views = [v for v in ds.split_views("train") if v.name in est]
@@ -306,6 +349,7 @@ def run(ctx: Context) -> int:
 
     box_cal, box_sfm = boxed(ev_cal), boxed(ev_sfm)
     w, h = cal_test[0].width, cal_test[0].height
+    w0, h0 = ds.views[0].camera.width, ds.views[0].camera.height
     seconds = summary.get("seconds", {})
     metrics = {
         "scene": scene, "data": {"path": str(root), "format": ds.format, "content_hash": ds.manifest["content_hash"],
@@ -322,6 +366,9 @@ def run(ctx: Context) -> int:
         "focal_calibrated_fx_fy": [float(np.median([c.fx for c in calib.values()])),
                                    float(np.median([c.fy for c in calib.values()]))],
         "focal_error_pct": focal_err,
+        "track_reprojection_px": reproj,
+        "principal_point_calibrated": [float(np.median([c.cx for c in calib.values()])),
+                                       float(np.median([c.cy for c in calib.values()]))],
         "per_view": [{"name": n, "rotation_deg": float(r), "centre_error": float(t)}
                      for n, r, t in zip(names, pe.rotation_deg, pe.translation)],
         "splats": {
@@ -345,6 +392,14 @@ def run(ctx: Context) -> int:
          f"{metrics['centre_error_median_pct']:.2f}% / {metrics['centre_error_max_pct']:.2f}%"],
         ["focal length (px): SfM / calibrated (fx + fy) / 2",
          f"{f_sfm:.1f} / {f_calib:.1f} ({focal_err:+.2f}%)"],
+        ["principal point (px): SfM (fixed at the centre) / calibrated",
+         f"({w0 / 2:g}, {h0 / 2:g}) / ({metrics['principal_point_calibrated'][0]:.2f}, "
+         f"{metrics['principal_point_calibrated'][1]:.2f})"],
+        ["SfM tracks re-triangulated, reprojection error mean / median (px): SfM cameras",
+         f"{reproj['sfm']['mean']:.3f} / {reproj['sfm']['median']:.3f}"],
+        ["the same, calibrated cameras with pixel-centre offset 0.5 (the reader's) / 0 / 1",
+         " ; ".join(f"{reproj[f'calibrated_offset_{o}']['mean']:.3f} / {reproj[f'calibrated_offset_{o}']['median']:.3f}"
+                    for o in ("0.5", "0", "1"))],
         ["SfM time (features + matching + mapping + undistortion)",
          " + ".join(f"{seconds.get(k, 0.0):.1f}" for k in ("features", "matching", "mapping", "undistortion"))
          + " s" + (" (cached model)" if reused else "")],
