@@ -13,6 +13,7 @@ import pytest
 import warp as wp
 
 from kernels import fast_paths
+from research.checks import rounding
 
 
 @pytest.fixture(autouse=True)
@@ -91,16 +92,18 @@ def no_fast_path(monkeypatch):
     from kernels.corr import onthefly, patch_cpu, window_cpu
     from kernels.splat import raster, tiles
     from kernels.stereo import costs
-    from kernels.volume import composite, composite_cpu, hashgrid, spheres, spheres_cpu
+    from kernels.volume import composite, composite_cpu, hashgrid, mlp, spheres, spheres_cpu
 
     for mod, name in [(composite_cpu, "forward_kernel"), (composite_cpu, "backward_kernel"),
                       (composite, "_fill_factor"), (spheres_cpu, "kernels"), (hashgrid, "forward_kernel"),
                       (hashgrid, "backward_kernel"), (window_cpu, "sample_levels_cpu"),
                       (window_cpu, "sample_patches_cpu"), (patch_cpu, "patch_groups_cpu"),
-                      (patch_cpu, "widen_rows_cpu"), (onthefly, "_sample_full_product"),
+                      (patch_cpu, "widen_rows_cpu"), (patch_cpu, "group_pixels_cpu"),
+                      (onthefly, "_sample_full_product"),
                       (onthefly, "_channels_last_later"), (costs, "census_rows_f32"),
                       (raster, "_raster_forward_rows_kernel"), (raster, "_raster_forward_kernel"),
-                      (tiles, "_counting_sort"), (spheres.SphereField, "_two_passes")]:
+                      (tiles, "_counting_sort"), (spheres.SphereField, "_two_passes"),
+                      (mlp, "_forward_blas"), (mlp, "_input_grads_blas"), (mlp, "_weight_grad_blas")]:
         monkeypatch.setattr(mod, name, _refuse(f"{getattr(mod, '__name__', mod)}.{name}"))
     with fast_paths.disabled():
         yield
@@ -149,7 +152,17 @@ def test_volume_without_fast_paths(no_fast_path):
             np.testing.assert_allclose(got, want_enc, rtol=tol, atol=tol)
 
     params = init_mlp_params([7, 16, 4], 0, wp.float32, dev)
-    assert MLP([7, 16, 4], params).backend == "warp"
+    net = MLP([7, 16, 4], params)
+    assert net.backend == "warp"
+    # and it runs, the BLAS blocks refused: the Warp products, within float32's rounding of float64's
+    x = rng.uniform(-1, 1, (37, 7)).astype(np.float32)
+    y, cache = net.forward(wp.array(x, dtype=wp.float32))
+    net.backward(cache, wp.array(np.ones((37, 4), np.float32), dtype=wp.float32), need_input_grad=True)
+    p = {k: v.numpy().astype(np.float64) for k, v in params.items()}
+    want = np.maximum(x.astype(np.float64) @ p["W0"].T + p["b0"], 0.0) @ p["W1"].T + p["b1"]
+    bound = rounding.mlp_forward_bound(x, [p["W0"], p["W1"]], [p["b0"], p["b1"]], np.float32)
+    ref_err = rounding.mlp_forward_bound(x, [p["W0"], p["W1"]], [p["b0"], p["b1"]], np.float64)  # `want`'s own
+    assert np.all(np.abs(y.numpy() - want) <= bound + ref_err)
 
 
 def test_corr_without_fast_paths(no_fast_path):
@@ -286,6 +299,127 @@ def test_spheres_without_avx2(monkeypatch):
     got = field.render_dense(o, d, t, dl)
     for a, b in zip(want, got):
         np.testing.assert_array_equal(a, b)
+
+
+
+# --------------------------------------------------------------------------- the branches for CPUs without AVX2 / FMA
+# The C++ fast paths choose their code at compile time (`#if !defined(__AVX2__) || !defined(__FMA__)`), and Warp
+# compiles for the host (-march=native), so on every CI machine (all have AVX2 and FMA) those branches would never be
+# compiled. Warp's `cpu_compiler_flags = ""` compiles for the generic x86-64 target (SSE2: neither AVX2 nor FMA), so
+# the tests below compile them here, whatever the CPU.
+
+_GENERIC_CHILD = r'''
+import sys
+import numpy as np
+import warp as wp
+
+wp.config.quiet = True
+wp.config.cpu_compiler_flags = ""  # every module this process builds: the generic x86-64 target
+from kernels.native import source
+from kernels.splat.rowblend import rowblend_available
+from kernels.volume import composite as cm, composite_backward, composite_cpu, composite_forward, spheres_cpu
+
+
+@wp.func_native("#if defined(__AVX2__) || defined(__FMA__)\nreturn 1;\n#else\nreturn 0;\n#endif\n")
+def _has_avx2_or_fma() -> int: ...
+
+
+@wp.kernel(enable_backward=False)
+def _probe(out: wp.array(dtype=wp.int32)):
+    out[0] = _has_avx2_or_fma()
+
+
+flag = wp.zeros(1, dtype=wp.int32, device="cpu")
+wp.launch(_probe, 1, [flag], device="cpu")
+assert int(flag.numpy()[0]) == 0, "the generic target still has AVX2 or FMA"
+# the fast paths' own checks, compiled without AVX2: they say no, so the Warp kernels run
+assert not spheres_cpu.available() and not rowblend_available()
+# the compositing C++ has no such check: its non-AVX2 branch (element loads instead of gathers) runs and gives
+# the Warp kernel's bits, as on the host build (the same float operations in the same order, contraction off)
+used = []
+for name in ("forward_kernel", "backward_kernel"):
+    built = getattr(composite_cpu, name)
+    setattr(composite_cpu, name, lambda built=built, name=name: used.append(name) or built())
+rng = np.random.default_rng(1)
+lens = rng.choice([0, 1, 3, 5, 7, 63, 65, 127], size=203)
+off = np.concatenate([[0], np.cumsum(lens)]).astype(np.int32)
+n = int(off[-1])
+sigma = (rng.exponential(2.0, n) * (rng.random(n) < 0.8)).astype(np.float32)
+rgb, delta = rng.random((n, 3)).astype(np.float32), (rng.random(n) * 0.1).astype(np.float32)
+z = np.cumsum(delta).astype(np.float32)
+cot = [rng.normal(size=s).astype(np.float32) for s in ((203, 3), 203, 203)]
+out = {}
+for simd in (False, True):
+    cm.SIMD_FORWARD = cm.SIMD_BACKWARD = simd
+    res = composite_forward(sigma, rgb, delta, z, off, (0.2, 0.5, 0.9), 1e-4)
+    g = composite_backward(sigma, rgb, delta, z, off, res, *cot, (0.2, 0.5, 0.9))
+    out[simd] = [res.rgb, res.depth, res.opacity, res.transmittance, res.n_used, *g]
+assert sorted(set(used)) == ["backward_kernel", "forward_kernel"], used
+for a, b in zip(out[False], out[True]):
+    assert a.tobytes() == b.tobytes()
+print("generic build: fall-backs ok")
+'''
+
+
+@pytest.mark.cpu_fast_path
+def test_fast_paths_compiled_without_avx2_and_fma(tmp_path):
+    """A process whose Warp modules are all compiled for generic x86-64: the sphere passes' and the row blend's
+    availability checks, compiled there, say no (so the Warp kernels run), and the compositing C++'s non-AVX2
+    branch gives the Warp kernel's bits, forward and backward."""
+    import os
+    import pathlib
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != fast_paths.ENV}
+    script = tmp_path / "generic_build.py"  # Warp reads a kernel's source from its file
+    script.write_text(_GENERIC_CHILD)
+    root = pathlib.Path(__file__).parents[2]
+    env["PYTHONPATH"] = os.pathsep.join([str(root), *filter(None, [env.get("PYTHONPATH")])])
+    run = subprocess.run([sys.executable, str(script)], cwd=root, env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-4000:]
+    assert "generic build: fall-backs ok" in run.stdout
+
+
+@wp.func_native("#if defined(__AVX2__) && defined(__FMA__)\nreturn 1;\n#else\nreturn 0;\n#endif\n")
+def _avx2_and_fma() -> int: ...
+
+
+def _rho_without_avx2_kernel():
+    from kernels.stereo.adcensus import _V32, _rho_lanes, _robust_term
+
+    @wp.kernel(enable_backward=False, module="unique", module_options={"cpu_compiler_flags": ""})
+    def rho_plain(c: wp.array(dtype=wp.float32), lam: wp.float64, weight: wp.float64,
+                  vec: wp.array(dtype=wp.float32), lane: wp.array(dtype=wp.float32), simd: wp.array(dtype=wp.int32)):
+        b = wp.tid()
+        if b == 0:
+            simd[0] = _avx2_and_fma()
+        v = _V32()
+        for i in range(16):
+            v[i] = c[b * 16 + i]
+        r = _rho_lanes(v, wp.float32(wp.float64(1.0) / lam), wp.float32(weight))
+        for i in range(16):
+            vec[b * 16 + i] = r[i]
+            lane[b * 16 + i] = _robust_term(c[b * 16 + i], lam, weight)
+
+    return rho_plain
+
+
+def test_adcensus_rho_lanes_without_avx2_are_the_scalar_term():
+    """The adcensus cost's 16-lane rho (adcensus_rho16.cpp, not switched by kernels.fast_paths) compiled without
+    AVX2/FMA takes its plain loop (wp.exp a lane at a time, the scalar operations in their order): the bits of
+    _robust_term, as its vector exp gives where it is compiled (tests/kernels/test_vexp.py)."""
+    rng = np.random.default_rng(8)
+    c = np.concatenate([rng.uniform(0.0, 4.0, 4000), rng.exponential(0.05, 4000), [0.0, 1e-45, 3.5, 1e30, np.inf]])
+    c = np.concatenate([c, np.zeros(-len(c) % 16)]).astype(np.float32)
+    ca = wp.array(c, dtype=wp.float32, device="cpu")
+    vec, lane = (wp.zeros(len(c), dtype=wp.float32, device="cpu") for _ in range(2))
+    simd = wp.full(1, 7, dtype=wp.int32, device="cpu")
+    wp.launch(_rho_without_avx2_kernel(), len(c) // 16, [ca, wp.float64(0.04), wp.float64(0.3), vec, lane, simd],
+              device="cpu")
+    assert int(simd.numpy()[0]) == 0  # compiled without AVX2/FMA: the plain loop
+    np.testing.assert_array_equal(vec.numpy().view(np.uint32), lane.numpy().view(np.uint32))
 
 
 def test_pyproject_states_the_supported_range():
