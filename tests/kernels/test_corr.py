@@ -52,6 +52,8 @@ def test_volume_backends_agree(dtype):
     tol = TOL[dtype]
     np.testing.assert_allclose(corr.correlation_volume(f1, f2, backend="numpy"),
                                corr.correlation_volume(f1, f2, backend="warp"), **tol)
+    # bit-equal by construction: with the fast paths on (cpu_fast_path), the CPU default IS backend="numpy",
+    # the same BLAS calls on the same arrays in one process
     np.testing.assert_array_equal(corr.correlation_volume(f1, f2), corr.correlation_volume(f1, f2, backend="numpy"))
     got = corr.correlation_volume_backward(f1, f2, g, backend="numpy")
     want = corr.correlation_volume_backward(f1, f2, g, backend="warp")
@@ -93,6 +95,8 @@ def test_onthefly_independent_of_thread_count(monkeypatch):
     for threads in ("1", "3"):
         monkeypatch.setenv("DRLAB_THREADS", threads)
         outs.append(corr.lookup_onthefly(f1, f2_pyramid, coords, 4))
+    # bit-equal by drlab's blocking: the BLAS calls (256-row chunks, one BLAS thread each) and the window kernels
+    # are the same whatever the thread count; only which thread runs a chunk changes
     assert outs[0].tobytes() == outs[1].tobytes()
 
 
@@ -132,6 +136,9 @@ def test_lookup_cpu_kernel_is_the_warp_kernel_bit_for_bit(dtype, radius):
     want = want.numpy()
     nan = np.isnan(want)
     assert nan.any() and np.array_equal(np.isnan(got), nan)
+    # bit-equal by construction (kernels.corr.window_cpu): every tap the Warp kernel's float operations in its order,
+    # one per C++ statement, so no multiply-add is contracted in either (Warp's generated code never fuses across
+    # statements), and the SIMD width (AVX2 or AVX-512) changes no lane's arithmetic
     assert got[~nan].tobytes() == want[~nan].tobytes()
     # A level read through strides (every other column of a wider array): the tested, clamped reads;
     # written through strides too (lane by lane instead of a vector a channel).

@@ -210,6 +210,8 @@ def test_compact_census_sgm_and_winners_equal_the_float_pipeline(drange):
     c8 = stereo.census_cost(L, R, *drange, 2, 3, compact=True)
     c32 = stereo.census_cost(L, R, *drange, 2, 3)
     assert c8.dtype == np.uint8
+    # bit-equal on any CPU: census costs, P1, P2 and every SGM sum and minimum are small integers, exact in
+    # float32 (< 2^24) and uint16, so no order, scheme or SIMD width can round them differently
     np.testing.assert_array_equal(c8.astype(np.float32), c32)
     for paths in (4, 8):
         s16, s32 = stereo.sgm(c8, 8, 64, paths), stereo.sgm(c32, 8.0, 64.0, paths)
@@ -513,6 +515,7 @@ def test_adcensus_vector_and_scalar_hypotheses_agree_bit_for_bit(dtype, channels
     for o in (1, n // 2 + 1, n - 1):
         vec = stereo.adcensus_cost(L, R, o, o + n, grey=grey, bt_weight=0.3, levels=levels, vector_rho=vector_rho)
         mixed = stereo.adcensus_cost(L, R, 0, o + n, grey=grey, bt_weight=0.3, levels=levels, vector_rho=vector_rho)
+        # bit-equal by construction: the same kernel and the same per-cell operations whatever the first disparity
         np.testing.assert_array_equal(vec, mixed[:, :, o:])
 
 

@@ -233,6 +233,8 @@ def test_dense_samples_match_numpy_broadcasting_bit_for_bit(np_t, layout, s):
     got = dense_samples(o, d, t, delta, z_scale=zs)
     for x, x0 in zip((o, d, t, delta, zs), inputs):  # read, never written
         np.testing.assert_array_equal(x, x0)
+    # bit-equal on any CPU: x = o + t d is one IEEE product then one IEEE sum in the kernel (no contraction across
+    # Warp's statements) and in NumPy's two ufuncs, each correctly rounded; the rest are copies and integers
     np.testing.assert_array_equal(got.points.numpy(), (o[:, None, :] + t[:, :, None] * d[:, None, :]).reshape(-1, 3))
     np.testing.assert_array_equal(got.dirs.numpy(), np.repeat(d, s, axis=0))
     np.testing.assert_array_equal(got.t.numpy(), t.reshape(-1))
