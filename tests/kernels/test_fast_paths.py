@@ -315,7 +315,6 @@ import warp as wp
 
 wp.config.quiet = True
 wp.config.cpu_compiler_flags = ""  # every module this process builds: the generic x86-64 target
-from kernels.native import source
 from kernels.splat.rowblend import rowblend_available
 from kernels.volume import composite as cm, composite_backward, composite_cpu, composite_forward, spheres_cpu
 
