@@ -1,6 +1,7 @@
-"""A float32 exp on 16 SIMD lanes with the bits of NumPy's float32 exp (its AVX2/AVX-512 loop): C++ snippet text
-for wp.func_native kernels (clang vector extensions), used by kernels.volume.composite_cpu, whose factors
-exp(-sigma delta) must be those NumPy's pass computed before (kernels.volume.composite._fill_factor).
+"""A float32 exp on 16 SIMD lanes with the bits of NumPy's float32 exp (its AVX2/AVX-512 loop): the C++ in
+kernels/native/npexp16.h (clang vector extensions), included by the wp.func_native kernels of
+kernels.volume.composite_cpu, whose factors exp(-sigma delta) must be those NumPy's pass computed before
+(kernels.volume.composite._fill_factor), and kernels.volume.spheres_cpu; this module checks it against np.exp.
 
 NumPy (x86-64 builds whose float32 exp dispatches to the AVX2+FMA3 or AVX512F loop of
 loops_exponent_log.dispatch; 2.4.6 here) evaluates exp(x) lane by lane as:
@@ -16,7 +17,7 @@ loops_exponent_log.dispatch; 2.4.6 here) evaluates exp(x) lane by lane as:
                                                (AVX-512's vscalefps; AVX2's exponent add, with a division by a
                                                power of two where the result is subnormal: the same bits)
 
-(the literal constants below are the float32 values of NumPy's NPY_COEFF_*_EXPf, NPY_CODY_WAITE_LOGE_2_*f and
+(the literal constants in npexp16.h are the float32 values of NumPy's NPY_COEFF_*_EXPf, NPY_CODY_WAITE_LOGE_2_*f and
 NPY_LOG2Ef; a third Cody-Waite step with constant 0 changes no bit and is left out). Here 2^q is applied as two
 exact power-of-two products (p 2^h) 2^(q-h), h = floor(q/2): p 2^h is a normal float (q >= -150), so the second
 product is the only rounding, the correctly rounded p 2^q that vscalefps gives.
@@ -26,7 +27,8 @@ The bits equal np.exp's for all 2^32 float32 inputs on this machine (NumPy 2.4.6
 (no AVX2/FMA: the C library's expf; other architectures) give other bits for some inputs: callers check a fixed set
 against np.exp at first use (`numpy_agrees`) and keep NumPy's pass when anything differs.
 
-NPEXP16 sets `ne` (v16f) to exp(`nx`) lane by lane; paste NPEXP_TYPES (the v16f and v16i types) before it.
+npexp16.h sets `ne` (v16f) to exp(`nx`) lane by lane; a snippet includes npexp_types.h (the v16f and v16i types)
+before it.
 Compile with floating-point contraction off (`#pragma clang fp contract(off)`): each product, sum and the rounding
 trick must round on its own.
 """
@@ -34,76 +36,13 @@ trick must round on its own.
 import numpy as np
 import warp as wp
 
-from kernels._native import built_once
-
-NPEXP_TYPES = r"""
-    typedef float v16f __attribute__((ext_vector_type(16)));
-    typedef int v16i __attribute__((ext_vector_type(16)));
-"""
-
-# ne = NumPy's float32 exp of nx, in 16 lanes (module docstring).
-NPEXP16 = r"""
-    v16f ne;
-    {
-        const v16i nb = __builtin_bit_cast(v16i, nx);
-        const v16i is_nan = (nb & 0x7fffffff) > 0x7f800000;
-        v16f x = __builtin_bit_cast(v16f, nb & ~is_nan);
-        const v16i big = x >= 0x1.62e43p+6f;            // 88.72283935546875
-        const v16i small = x <= -0x1.9fe36ap+6f;        // -103.97208404541015625
-        x = __builtin_bit_cast(v16f, __builtin_bit_cast(v16i, x) & ~(big | small));
-        v16f q = x * 0x1.715476p+0f;                    // LOG2E
-        q = q + 0x1.8p+23f;
-        q = q - 0x1.8p+23f;
-        v16f y = __builtin_elementwise_fma(q, (v16f)-0x1.62e4p-1f, x);
-        y = __builtin_elementwise_fma(q, (v16f)-0x1.7f7d1cp-20f, y);
-        v16f pn = __builtin_elementwise_fma((v16f)0x1.0a7bbp-11f, y, (v16f)0x1.bae2b2p-8f);
-        pn = __builtin_elementwise_fma(pn, y, (v16f)0x1.a2fb18p-5f);
-        pn = __builtin_elementwise_fma(pn, y, (v16f)0x1.fa98b0p-3f);
-        pn = __builtin_elementwise_fma(pn, y, (v16f)0x1.7397aap-1f);
-        pn = __builtin_elementwise_fma(pn, y, (v16f)1.0f);
-        v16f pd = __builtin_elementwise_fma((v16f)0x1.61d064p-6f, y, (v16f)-0x1.18d0aep-2f);
-        pd = __builtin_elementwise_fma(pd, y, (v16f)1.0f);
-        const v16f p = pn / pd;
-        // p 2^q with one rounding: q in [-150, 128], h = floor(q / 2), both factors normal powers of two
-        const v16i qi = __builtin_convertvector(q, v16i);
-        const v16i h = qi >> 1;
-        const v16f s1 = __builtin_bit_cast(v16f, (h + 127) << 23);
-        const v16f s2 = __builtin_bit_cast(v16f, (qi - h + 127) << 23);
-        const v16f ps = p * s1;
-        v16i r = __builtin_bit_cast(v16i, ps * s2);
-        r = (r & ~is_nan) | (is_nan & 0x7fc00000);
-        r = (r & ~big) | (big & 0x7f800000);
-        r = r & ~small;
-        ne = __builtin_bit_cast(v16f, r);
-    }
-"""
-
-_EXP_ARRAY_CPP = r"""
-#if !defined(__CUDA_ARCH__)
-  {
-#pragma clang fp contract(off)
-""" + NPEXP_TYPES + r"""
-    const float* X = (const float*)x.data;
-    float* Y = (float*)y.data;
-    const int n = x.shape[0];
-    const int k0 = b * 16;
-    v16f nx = 0.0f;
-    for (int l = 0; l < 16; ++l)
-        if (k0 + l < n)
-            nx[l] = X[k0 + l];
-""" + NPEXP16 + r"""
-    for (int l = 0; l < 16; ++l)
-        if (k0 + l < n)
-            Y[k0 + l] = ne[l];
-  }
-#endif
-"""
+from kernels.native import built_once, source
 
 _kernels: dict = {}
 
 
 def _exp_kernel():
-    """The kernel that applies NPEXP16 to a float32 array, 16 values a thread; built once."""
+    """The kernel that applies npexp16.h to a float32 array, 16 values a thread; built once."""
     return built_once(_kernels, "npexp16_array", _build_exp_kernel)
 
 
@@ -112,7 +51,7 @@ def _build_exp_kernel():
 
     def npexp16_block(x: f32, y: f32, b: int): ...
 
-    native = wp.func_native(_EXP_ARRAY_CPP)(npexp16_block)
+    native = wp.func_native(source("npexp_array.cpp"))(npexp16_block)
 
     @wp.kernel(module="unique", module_options={"enable_backward": False})
     def npexp16_array(x: f32, y: f32):
@@ -122,7 +61,7 @@ def _build_exp_kernel():
 
 
 def exp(x: np.ndarray) -> np.ndarray:
-    """NPEXP16 over a float32 array on the CPU (for the check and the tests): a new float32 array."""
+    """npexp16.h over a float32 array on the CPU (for the check and the tests): a new float32 array."""
     xs = np.ascontiguousarray(x, dtype=np.float32).ravel()
     out = np.empty_like(xs)
     if xs.size:
@@ -133,7 +72,7 @@ def exp(x: np.ndarray) -> np.ndarray:
 
 
 def mismatches(lo: int, hi: int) -> int:
-    """How many float32 bit patterns b in [lo, hi) give other bits from NPEXP16 than from np.exp."""
+    """How many float32 bit patterns b in [lo, hi) give other bits from npexp16.h than from np.exp."""
     x = np.arange(lo, hi, dtype=np.uint64).astype(np.uint32).view(np.float32)
     with np.errstate(all="ignore"):
         want = np.exp(x)
@@ -167,7 +106,7 @@ _agrees: bool | None = None
 
 
 def numpy_agrees() -> bool:
-    """True when NPEXP16 gives np.exp's bits on `check_set()` in this process (NumPy and CPU); computed once."""
+    """True when npexp16.h gives np.exp's bits on `check_set()` in this process (NumPy and CPU); computed once."""
     global _agrees
     if _agrees is None:
         x = check_set()

@@ -8,7 +8,7 @@ and compiles them that way, so a CPU-only test run also proves that the kernels 
 
 `project_modules()` imports every module of the `kernels` package and builds the kernels that
 exist only after a first call, made by factory functions per radius or dtype (the C++ fast paths
-cached with `kernels._native.built_once`, each kernel its own Warp module through
+cached with `kernels.native.built_once`, each kernel its own Warp module through
 `module="unique"`, and `kernels.stereo.census.census_kernel`). Each factory is called for every
 float dtype and storage dtype its callers use and for a small set of radii (`CORR_RADII`,
 `CENSUS_RADII`: a radius only changes compile-time constants). It returns every registered Warp

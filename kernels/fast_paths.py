@@ -1,9 +1,9 @@
 """One switch for every CPU fast path.
 
 Each operation has a plain Warp kernel that reads like its maths and is the CUDA path too. On the
-CPU some operations also have a fast path: C++ through `wp.func_native` (clang vector extensions:
-compositing, spheres, hash grid, correlation windows and patches, census rows, splat row blending,
-vector exp) or a NumPy/BLAS backend picked automatically on the CPU (the MLP's and the correlation
+CPU some operations also have a fast path: C++ through `wp.func_native` (files in kernels/native; clang
+vector extensions: compositing, spheres, hash grid, correlation windows and patches, census rows, splat
+row blending, vector exp) or a NumPy/BLAS backend picked automatically on the CPU (the MLP's and the correlation
 volume's products, the stereo aggregation's sweep). The fast paths give the same results (bit for
 bit where the module says so, else within the bound its tests derive), but they rely on the CPU
 (AVX2 and FMA), on clang's vector extensions as Warp's CPU compiler builds them and on NumPy's float32

@@ -50,11 +50,12 @@ vector width on each side cover the lanes past the image). A ring row is filled 
 holding an in-range cell of the row; its other lanes hold finite values that are never read), the row sums are
 vector sums, and where a vector's 16 cells all lie in range with the same window [max(x - r, 0), min(x + r,
 W - 1)] (the window bounds of kernels.stereo.bt's mean then do not depend on d) the window mean is a vector sum
-divided by the cell count. In float32 each BT term's rho then runs on the 16 lanes with kernels._vexp's exp,
-which has the bits of glibc's expf (what wp.exp calls on the CPU) for every float32 (C++ via wp.func_native where
-the CPU has AVX2 and FMA; elsewhere and on CUDA, wp.exp lane by lane), and for float32 volumes the census lookup,
-the sum and the store run in C++ as well (_CELLS16); float64 rho and compact volumes' sums and stores go lane by
-lane. Other vectors (near the image's left and right ends, a partial last vector) run a lane at a time as before.
+divided by the cell count. In float32 each BT term's rho then runs on the 16 lanes with kernels._vexp's exp, which
+has the bits of glibc's expf (what wp.exp calls on the CPU) for every float32 (C++ via wp.func_native,
+kernels/native/adcensus_rho16.cpp, where the CPU has AVX2 and FMA; elsewhere and on CUDA, wp.exp lane by lane), and
+for float32 volumes the census lookup, the sum and the store run in C++ as well (adcensus_cells16.cpp); float64 rho
+and compact volumes' sums and stores go lane by lane. Other vectors (near the image's left and right ends, a
+partial last vector) run a lane at a time as before.
 Every vector operation is the scalar operation on each lane in the same order, so the volume is bit for bit the
 scalar kernel's (tests: the vector and the lane-at-a-time hypotheses agree exactly).
 
@@ -91,8 +92,8 @@ from typing import Any
 import warp as wp
 
 from kernels._arrays import Inputs, check_float, check_int, declare_float_overloads
-from kernels._vexp import EXP16, TYPES
 from kernels.launch import default_threads
+from kernels.native import source
 from kernels.stereo._common import check_range, image_pair, pixel
 from kernels.stereo.bt import _half_range
 from kernels.stereo.costs import _census_radii, census_transform
@@ -201,45 +202,13 @@ _V64 = VEC[wp.float64]
 # w rho(c) = w (1 - exp(-c inv)) on 16 float32 lanes: _robust_term's operations in its order on each lane, with
 # kernels._vexp's exp (glibc expf's bits, wp.exp's on the CPU); no contraction, one operation per statement. Where
 # the lanes' exp is not compiled (CUDA, CPUs without AVX2 / FMA), wp.exp lane by lane.
-_RHO16 = r"""
-#if defined(__CUDA_ARCH__) || !defined(__AVX2__) || !defined(__FMA__)
-    wp::vec_t<16, float> res;
-    for (int l = 0; l < 16; ++l) {
-        const float nc = -c.c[l];
-        const float p = nc * inv;
-        const float e = wp::exp(p);
-        const float om = 1.0f - e;
-        res.c[l] = weight * om;
-    }
-    return res;
-#else
-    {
-#pragma clang fp contract(off)
-""" + TYPES + r"""
-    v16f cv;
-    __builtin_memcpy(&cv, &c, 64);
-    const v16f nc = -cv;
-    const v16f power = nc * inv;
-    const v16i run = -1;
-""" + EXP16 + r"""
-    const v16f one16 = 1.0f;
-    const v16f om = one16 - e;
-    const v16f w16 = weight * om;
-    wp::vec_t<16, float> res;
-    __builtin_memcpy(&res, &w16, 64);
-    return res;
-    }
-#endif
-"""
-
-
-@wp.func_native(_RHO16)
+@wp.func_native(source("adcensus_rho16.cpp"))
 def _rho16(c: _V32, inv: wp.float32, weight: wp.float32) -> _V32: ...
 
 
 @wp.func
 def _rho_lanes(c: _V32, inv: wp.float32, weight: wp.float32):
-    """_robust_term of every lane with 1 / lambda = inv (_RHO16)."""
+    """_robust_term of every lane with 1 / lambda = inv (adcensus_rho16.cpp)."""
     return _rho16(c, inv, weight)
 
 
@@ -255,25 +224,7 @@ def _rho_lanes(c: _V64, inv: wp.float64, weight: wp.float64):
 # The 16 cells (x, d0 + i) of a vector whose lanes are all in range, float32 volume: census table + rho_grad
 # (+ rho_bt), stored; the fused kernel's lane loop in C++ (the same operations in its order, contraction off), so
 # the sums and stores run on the vector.
-_CELLS16 = r"""
-#if !defined(__CUDA_ARCH__)
-#pragma clang fp contract(off)
-#endif
-    float total[16];
-    for (int l = 0; l < 16; ++l)
-        total[l] = wp::index(rho, (int)wp::bit_count(a ^ wp::index(cr, y, u - l)));
-    for (int l = 0; l < 16; ++l)
-        total[l] = total[l] + rg.c[l];
-    if (terms > 1)
-        for (int l = 0; l < 16; ++l)
-            total[l] = total[l] + rb.c[l];
-    for (int l = 0; l < 16; ++l)
-        wp::index(out, y, x, k0 + l) = total[l];
-    return 0;
-"""
-
-
-@wp.func_native(_CELLS16)
+@wp.func_native(source("adcensus_cells16.cpp"))
 def _cells16(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho: wp.array(dtype=wp.float32), y: int, u: int,
              rg: _V32, rb: _V32, terms: int, out: wp.array3d(dtype=wp.float32), x: int, k0: int) -> int: ...
 
@@ -282,7 +233,8 @@ def _cells16(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho: wp.array(dtype=
 def _cells(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(dtype=wp.float32), y: int, x: int,
            d0: int, rho_grad: _V32, rho_bt: _V32, T: int, out: wp.array3d(dtype=wp.float32), k0: int,
            levels: wp.float64):
-    """out[y, x, k0 + i] = rho_census[popcount(a ^ cr[y, x - d0 - i])] + rho_grad[i] (+ rho_bt[i]) (_CELLS16)."""
+    """out[y, x, k0 + i] = rho_census[popcount(a ^ cr[y, x - d0 - i])] + rho_grad[i] (+ rho_bt[i])
+    (adcensus_cells16.cpp)."""
     return _cells16(a, cr, rho_census, y, x - d0, rho_grad, rho_bt, T, out, x, k0)
 
 
