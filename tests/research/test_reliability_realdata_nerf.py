@@ -242,7 +242,7 @@ EXPERIMENT_BAD = [
     ("blender-format-on-a-colmap-folder", "colmap", "fit_nerf", ["--format", "blender"],
      r"transforms_train\.json: missing"),
     ("resolution-on-the-render-cache", "empty", "fit_splats", ["--resolution", "2"],
-     r"--resolution: applies to a --data folder in Blender or COLMAP format"),
+     r"--resolution: applies to a --data folder in Blender, COLMAP or LLFF format"),
     ("resolution-zero", "blender", "fit_nerf", ["--resolution", "0"], r"--resolution: expected an integer >= 1, got 0"),
     ("images-too-small-for-ssim", "colmap", "fit_splats", ["--resolution", "2"],
      r"--data: the test images of .* are 8x6 at this resolution; SSIM needs at least 11x11"),
