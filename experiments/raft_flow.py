@@ -3,7 +3,7 @@
 
 RAFT's correlation machinery (kernels.corr: all-pairs volume, 2x2-pooled
 pyramid, radius-r lookups) drives a fixed, weight-free update
-(research.opticalflow.CorrFlow): normalised multi-scale colour patches as
+(research.flow.raft.CorrFlow): normalised multi-scale colour patches as
 features at stride 4, and 12 lookups, coarse to fine, each turned into a
 soft-argmax step around its window's peak. No learned weights exist here, so
 this measures what the correlation machinery alone delivers.
@@ -14,7 +14,7 @@ k -> k+1, evaluated on non-occluded surface pixels (the datasets' `valid`).
 
 Reported:
   * EPE (px) and F1-all (KITTI: % of pixels with EPE > 3 px and > 5% of |gt|)
-    for the coarse-to-fine correlation flow (research.corrflow, "C2F": normalised-patch
+    for the coarse-to-fine correlation flow (research.flow.coarse_to_fine, "C2F": normalised-patch
     lookups with warping between image-pyramid levels and a TV-L1 step, its defaults
     chosen on held-out data: the photograph's tuning split and Mitsuba pairs rendered
     with seed 7), the RAFT-style CorrFlow (levels 4,
@@ -25,7 +25,7 @@ Reported:
     noise, 8-bit sRGB; the stress seed is 1000 seed + pair index; the clean pair is
     the same 8-bit sRGB encoding without the stress);
   * the same methods on a real photograph warped by known smooth flows
-    (research.texture_flow: matplotlib's grace_hopper.jpg, evaluation split, median
+    (research.flow.texture: matplotlib's grace_hopper.jpg, evaluation split, median
     motion 4 px; smoke: a 96x128 crop, one flow);
   * the RAFT-style CorrFlow ablation levels {1,2,3,4} x radius {1,2,3,4}, as in
     RAFT's ablations (`--levels L` and/or `--radius R` evaluate only those cells:
@@ -42,7 +42,7 @@ Benchmarks: `--data PATH` naming an MPI-Sintel, KITTI 2012/2015 flow or Middlebu
 folder (detected from its layout, or named by `--format sintel|kitti|middlebury`; `--pass
 clean|final` picks Sintel's pass, clean by default) runs the headline CorrFlow and the same baselines
 on every pair of it (quick: the first pair of each sequence; smoke: the first pair only) and writes
-that benchmark's protocol (research.flow_metrics): Sintel EPE all / matched / unmatched, KITTI Fl-all
+that benchmark's protocol (research.flow.metrics): Sintel EPE all / matched / unmatched, KITTI Fl-all
 and EPE on noc and occ, Middlebury EPE and angular error per sequence. The table names the dataset,
 the protocol and the pass. CorrFlow keeps the dense correlation pyramid only while it fits in
 MEMORY_BUDGET_MIB; above it, it uses the on-the-fly lookup (the same flow to float rounding), and
@@ -127,8 +127,8 @@ RAFT_NAME = "CorrFlow (L={}, r={})"
 
 
 def c2f(rgb1: np.ndarray, rgb2: np.ndarray, device: str) -> tuple[np.ndarray, float]:
-    """research.corrflow's coarse-to-fine flow at its defaults, and its seconds."""
-    from research.corrflow import coarse_to_fine_flow
+    """research.flow.coarse_to_fine's coarse-to-fine flow at its defaults, and its seconds."""
+    from research.flow.coarse_to_fine import coarse_to_fine_flow
 
     t0 = time.perf_counter()
     flow = coarse_to_fine_flow(rgb1, rgb2, device=device)
@@ -137,7 +137,7 @@ def c2f(rgb1: np.ndarray, rgb2: np.ndarray, device: str) -> tuple[np.ndarray, fl
 
 def every_method(rgb1: np.ndarray, rgb2: np.ndarray, device: str) -> dict[str, tuple[np.ndarray, float]]:
     """C2F, the RAFT-style CorrFlow at the headline setting and the baselines: flow and seconds each."""
-    from research.opticalflow import CorrFlow, CorrFlowConfig
+    from research.flow.raft import CorrFlow, CorrFlowConfig
 
     out = {C2F_NAME: c2f(rgb1, rgb2, device)}
     t0 = time.perf_counter()
@@ -153,7 +153,7 @@ def baselines(rgb1: np.ndarray, rgb2: np.ndarray, device: str) -> dict[str, tupl
     import cv2
 
     from kernels import lucas_kanade as lk
-    from research.opticalflow import grey
+    from research.flow.raft import grey
 
     g1, g2 = grey(_unit(rgb1)), grey(_unit(rgb2))
     u1, u2 = (np.clip(g * 255.0 + 0.5, 0, 255).astype(np.uint8) for g in (g1, g2))
@@ -193,7 +193,7 @@ class Pooled:
 
 def memory_time(rgb1: np.ndarray, rgb2: np.ndarray, gt: np.ndarray, mask: np.ndarray, device: str) -> dict:
     """Dense vs on-the-fly correlation for the headline configuration on one pair."""
-    from research.opticalflow import CorrFlow, CorrFlowConfig, flow_metrics
+    from research.flow.raft import CorrFlow, CorrFlowConfig, flow_metrics
 
     cfg = CorrFlowConfig(levels=HEADLINE[0], radius=HEADLINE[1])
     rows = {}
@@ -227,7 +227,7 @@ def flow_figure(scene: str, rgb1: np.ndarray, gt: np.ndarray, mask: np.ndarray,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from research.opticalflow import flow_to_color
+    from research.flow.raft import flow_to_color
 
     scale = float(np.linalg.norm(gt[mask], axis=-1).max())
     cols = 2 + len(flows)
@@ -309,8 +309,8 @@ def _cell(value) -> str:
 def run_benchmark(ctx: Context, bench) -> int:
     """CorrFlow (headline setting) and the baselines on a benchmark folder, scored by its protocol."""
     from kernels import corr
-    from research.flow_metrics import FlowTally, protocol_regions
-    from research.opticalflow import CorrFlow, CorrFlowConfig, srgb
+    from research.flow.metrics import FlowTally, protocol_regions
+    from research.flow.raft import CorrFlow, CorrFlowConfig, srgb
 
     t_start = time.perf_counter()
     limit = 1 if ctx.quick else None  # pairs per sequence
@@ -375,7 +375,7 @@ def run_benchmark(ctx: Context, bench) -> int:
     mode = "smoke: first pair only" if ctx.smoke else "quick: first pair of each sequence" if ctx.quick else "all"
     table = (f"Dataset: {bench.dataset}, {bench.root}. Pairs evaluated: {n_pairs} of {bench.pairs} ({mode}), "
              f"at {', '.join(sizes)}.\nProtocol: {bench.protocol}. Values: {which}.\n"
-             f"CorrFlow: research/opticalflow.py at its headline setting (L={HEADLINE[0]}, r={HEADLINE[1]}, stride "
+             f"CorrFlow: research/flow/raft.py at its headline setting (L={HEADLINE[0]}, r={HEADLINE[1]}, stride "
              f"{STRIDE}), correlation lookup: {' and '.join(sorted(lookup_paths))} (the dense pyramid is kept only "
              f"below {MEMORY_BUDGET_MIB} MiB). 's / pair' runs on a shared CPU.\n\n"
              + markdown_table(headers, rows))
@@ -452,9 +452,9 @@ class _Table:
 
 
 def real_texture(ctx: Context) -> tuple[_Table, dict]:
-    """Every method on the photograph's evaluation split (research.texture_flow), pooled over its flows."""
-    from research import texture_flow as tf
-    from research.opticalflow import flow_metrics
+    """Every method on the photograph's evaluation split (research.flow.texture), pooled over its flows."""
+    from research.flow import texture as tf
+    from research.flow.raft import flow_metrics
 
     src = tf.split("eval")
     seeds = tf.EVAL_SEEDS[:1] if ctx.smoke else tf.EVAL_SEEDS[:2] if ctx.quick else tf.EVAL_SEEDS
@@ -477,7 +477,7 @@ def real_texture(ctx: Context) -> tuple[_Table, dict]:
 def run_rendered(ctx: Context) -> int:
     from research import radiometry
     from research.datasets import load_flow, provenance
-    from research.opticalflow import CorrFlow, CorrFlowConfig, flow_metrics, srgb
+    from research.flow.raft import CorrFlow, CorrFlowConfig, flow_metrics, srgb
 
     t0 = time.perf_counter()
     paths = datasets(ctx.quick, ctx.seed, ctx.data, ctx.smoke)
@@ -556,10 +556,10 @@ def run_rendered(ctx: Context) -> int:
         f"Mitsuba flow pairs at {res}x{res} ({spp} spp, camera azimuth step {STEP_DEG} deg), frame k -> k+1; "
         f"pairs per scene: {n_pairs}. Metrics over non-occluded surface pixels: EPE in px, F1-all = % of "
         "pixels with EPE > 3 px and > 5% of |gt| (KITTI). "
-        + ("" if cell_mode else f"{C2F_NAME}: research/corrflow.py (coarse-to-fine normalised-patch lookups with "
+        + ("" if cell_mode else f"{C2F_NAME}: research/flow/coarse_to_fine.py (coarse-to-fine normalised-patch lookups with "
            "warping and a TV-L1 step; defaults chosen on held-out data: the photograph's tuning split and "
            "Mitsuba pairs rendered with seed 7, not on these pairs). ")
-        + f"CorrFlow: kernels.corr lookups driving the RAFT-style weight-free update (research/opticalflow.py), "
+        + f"CorrFlow: kernels.corr lookups driving the RAFT-style weight-free update (research/flow/raft.py), "
         f"features at stride {STRIDE}, 12 lookups. 's / pair' includes building the correlation pyramid "
         "and runs on a shared 2-core CPU.\n\n"
         + markdown_table(main_headers, main_rows, floatfmt=".3f")
@@ -593,7 +593,7 @@ def run_rendered(ctx: Context) -> int:
             + f"\nReal photograph ({photo_info['image']} from matplotlib's sample data, {photo_info['split']}, "
             f"{photo_info['size'][0]}x{photo_info['size'][1]}) warped by smooth random flows (seeds "
             f"{photo_info['flow_seeds']}, median motion {photo_info['median_motion_px']:.1f} px; "
-            "research/texture_flow.py). C2F's defaults were chosen on the other half of the photograph with "
+            "research/flow/texture.py). C2F's defaults were chosen on the other half of the photograph with "
             "other flow seeds (and on Mitsuba pairs of seed 7).\n\n"
             + markdown_table(photo_headers, photo_rows, floatfmt=".3f")
             + f"\nDense pyramid vs on-the-fly lookup (RAFT-style CorrFlow L={HEADLINE[0]}, r={HEADLINE[1]}, float32, "
@@ -605,7 +605,7 @@ def run_rendered(ctx: Context) -> int:
         metrics.update(radiometric=conditions.metrics(), real_texture={"methods": photo.metrics()["photograph"],
                                                                        **photo_info}, memory_time=memtime)
     ablation_figure(grid, levels, radii, ctx.out / "ablation.png")
-    from research.corrflow import C2FConfig
+    from research.flow.coarse_to_fine import C2FConfig
 
     config = {"quick": ctx.quick, "scenes": list(paths), "res": res, "spp": spp, "flow_step_deg": STEP_DEG,
               "stride": STRIDE, "headline": headline, "corrflow": CorrFlowConfig().__dict__,

@@ -31,7 +31,7 @@ flow_noc knows no pixel flow_occ does not; a .flo holds no NaN; a PNG decodes to
 Every error is a DatasetError (a ValueError) of one line naming the file.
 
 Frames are returned as drlab's sequences hold them: linear RGBA with alpha 1 (research.io.read_png
-inverts the sRGB curve of the 8-bit PNG; research.opticalflow.srgb gives the stored values back),
+inverts the sRGB curve of the 8-bit PNG; research.flow.raft.srgb gives the stored values back),
 grey frames repeated into three channels. The flow PNGs and .flo files go through research.io.
 """
 

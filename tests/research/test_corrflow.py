@@ -1,4 +1,4 @@
-"""research.corrflow (coarse-to-fine correlation flow) and research.texture_flow (the real-photograph pairs)."""
+"""research.flow.coarse_to_fine (coarse-to-fine correlation flow) and research.flow.texture (the real-photograph pairs)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from research import corrflow as c2f
-from research import texture_flow as tf
+from research.flow import coarse_to_fine as c2f
+from research.flow import texture as tf
 
 
 @pytest.fixture(scope="module")

@@ -17,9 +17,9 @@ from flow_fixtures import H, W, kitti_pair, write_kitti, write_middlebury, write
 from research import io
 from research.datasets import FlowSequence, detect_flow_format, load_flow_benchmark, open_flow_benchmark
 from research.datasets.flow_benchmarks import kitti_decode, kitti_encode
-from research.flow_metrics import (FlowTally, angular_error, endpoint_error, kitti_metrics, kitti_outliers,
+from research.flow.metrics import (FlowTally, angular_error, endpoint_error, kitti_metrics, kitti_outliers,
                                    middlebury_metrics, protocol_regions, sintel_metrics)
-from research.opticalflow import srgb
+from research.flow.raft import srgb
 
 
 def _u8(frames: np.ndarray) -> np.ndarray:

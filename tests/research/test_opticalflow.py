@@ -1,4 +1,4 @@
-"""research.opticalflow: flow metrics, colour wheel, fixed features and the weight-free CorrFlow estimator."""
+"""research.flow.raft: flow metrics, colour wheel, fixed features and the weight-free CorrFlow estimator."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from research import opticalflow as of
+from research.flow import raft as of
 
 
 def test_flow_metrics_by_hand():

@@ -1,12 +1,12 @@
-"""research.corrflow / research.texture_flow bad inputs: one ValueError line naming the argument."""
+"""research.flow.coarse_to_fine / research.flow.texture bad inputs: one ValueError line naming the argument."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from research import corrflow as c2f
-from research import texture_flow as tf
+from research.flow import coarse_to_fine as c2f
+from research.flow import texture as tf
 
 IMG = np.random.default_rng(0).uniform(0, 1, (24, 24, 3))
 

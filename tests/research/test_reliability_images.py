@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from research import opticalflow as of
+from research.flow import raft as of
 from research import stereo
 from research.images import LUMA_601, to_unit, to_unit_grey, unit_grey_pair, unit_pair
 

@@ -40,7 +40,7 @@ Images: uint8, uint16 or float colour/grey in [0, 1] (research.images.to_unit);
 the NCC features need no further normalisation, and the texture floor is in the
 [0, 1] units of that rule.
 
-Defaults (`C2FConfig`) were chosen on held-out data only: research.texture_flow's
+Defaults (`C2FConfig`) were chosen on held-out data only: research.flow.texture's
 tuning split (the lower half of the photograph; flows of seeds 100 and 101) and
 raft_flow's quick Mitsuba pairs (scene `objects`, 2 pairs) rendered with seed 7,
 a seed no table reports; never on the pairs reported (the photograph's upper
