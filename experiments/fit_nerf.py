@@ -89,8 +89,8 @@ def plans(quick: bool, bbox: np.ndarray, smoke: bool = False) -> dict[str, dict[
         "hashgrid": dict(
             make=lambda seed: HashGridField(bbox, n_levels=12, n_features=2, log2_table_size=15, base_resolution=16,
                                             max_resolution=256 if quick else 512, density_bias=-1.0, seed=seed),
-            # 1300 full-size iterations: what the cheaper iteration of 6bb3ded buys in the time 1200 took
-            # (docs/performance.md, fit_nerf's hash-grid fit, third round; chosen on --seed 1).
+            # 1300 full-size iterations: +0.22 dB over 1200 on --seed 1 (chosen there), in about the time 1200
+            # iterations of the slower per-iteration code took (docs/performance.md, "Targets").
             stages=[Stage(mlp_iters or (400 if quick else 1300))],
             config=dict(common, lr=1e-2, batch_rays=mlp_batch)),
         "pe_mlp": dict(
@@ -228,16 +228,30 @@ def add_options(p) -> None:
     add_data_options(p)
 
 
-def run(ctx: Context) -> int:
-    import warp as wp
+@dataclass
+class FieldData:
+    """The data of a field fit: the dataset, its splits, the scene box, the training rays and the test targets."""
 
-    from research.datasets import cache_dir, ensure, load
+    ds: Any
+    data: Path
+    config: Any  # the DatasetConfig of a Mitsuba dataset
+    dataset_s: float
+    train_split: Any
+    test_split: Any
+    bbox: np.ndarray
+    bank: Any
+    external: bool
+    background: tuple[float, float, float]
+    gt: np.ndarray
+
+
+def prepare(ctx: Context) -> FieldData:
+    """Open --data (or render the Mitsuba dataset) and build the training rays and the sRGB test targets."""
+    from research.datasets import cache_dir, ensure, formats, load
     from research.nerf.train import RayBank, srgb_targets
 
-    from experiments.fit_splats import data_record, open_external
-    from research.datasets import formats
+    from experiments.fit_splats import open_external
 
-    args = ctx.args
     cfg = dataset_config(ctx.quick, 0, ctx.smoke)
     t0 = time.perf_counter()
     ds = open_external(ctx)
@@ -266,6 +280,19 @@ def run(ctx: Context) -> int:
     if external:  # the files' sRGB x alpha: composited on each ray's random background as the papers do
         bank.rgba = formats.protocol_srgb(train_split, ds.protocol).reshape(-1, 4)
     gt = formats.protocol_target_srgb(test_split, ds.protocol) if external else srgb_targets(test_split.rgba)
+    return FieldData(ds, data, cfg, dataset_s, train_split, test_split, bbox, bank, external, background, gt)
+
+
+def run(ctx: Context) -> int:
+    import warp as wp
+
+    from experiments.fit_splats import data_record
+
+    args = ctx.args
+    fd = prepare(ctx)
+    ds, data, cfg, dataset_s, bbox, bank = fd.ds, fd.data, fd.config, fd.dataset_s, fd.bbox, fd.bank
+    train_split, test_split, external, background, gt = (fd.train_split, fd.test_split, fd.external,
+                                                         fd.background, fd.gt)
     floor = None if external else noise_floor(ds, test_split, gt, 3, ctx.seed)
     record = data_record(ds, data)
 

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -196,19 +197,30 @@ def add_options(p) -> None:
                         "<= stop), for comparing against gsplat-trained numbers")
 
 
-def run(ctx: Context) -> int:
-    import warp as wp
+@dataclass
+class Prepared:
+    """The data of one fit: the dataset, its protocol's splits and targets, and the initial points."""
 
+    ds: Any
+    path: Path
+    splits: tuple[str, str]
+    train_split: Any
+    test_split: Any
+    train_rgb: np.ndarray
+    test_rgb: np.ndarray
+    background: tuple[float, float, float]
+    init: str
+    points: np.ndarray
+    colors: np.ndarray
+
+
+def prepare(ctx: Context, cfg: Setup) -> Prepared:
+    """Open --data (or render the Mitsuba dataset), check it, and choose the initial points (--init)."""
     from research import datasets
-    from research.splats import model as sm, train as st
+    from research.datasets import formats
+    from research.splats import model as sm
 
     args = ctx.args
-    cfg = setup(ctx.quick, ctx.smoke)
-    if args.iterations is not None:
-        cfg = Setup(**{**asdict(cfg), "iterations": args.iterations})
-    suffix = "" if ctx.mode == "full" else "-" + ctx.mode
-    from research.datasets import formats
-
     ds = open_external(ctx)
     if ds is None:
         dcfg = datasets.DatasetConfig("objects", views=cfg.views, res=cfg.res, spp=cfg.spp, seed=ctx.seed)
@@ -248,16 +260,50 @@ def run(ctx: Context) -> int:
         points, colors = sm.points_in_frusta(train_split.cameras, train_split.rgba, bounds, cfg.init_points, ctx.seed)
     else:
         points, colors = sm.random_points(ds.bbox, cfg.init_points, ctx.seed)
-    model = sm.from_points(points, colors)
-    extent = sm.scene_extent(train_split.cameras)
-    tcfg = st.TrainConfig(iterations=cfg.iterations, seed=ctx.seed, background=background,
-                          densify=st.DensifyConfig(max_gaussians=cfg.max_gaussians), mode=args.mode)
-    result = st.train(model, train_split.cameras, train_rgb, extent, tcfg, device=ctx.device,
-                      progress=ctx.progress)
-    model = result.model
+    return Prepared(ds, path, splits, train_split, test_split, train_rgb, test_rgb, background, init, points, colors)
 
-    ev = st.evaluate(model, test_split.cameras, test_rgb, result.sh_degree, background=background,
-                     device=ctx.device, mode=args.mode)
+
+def train_and_score(prep: Prepared, cfg: Setup, ctx: Context):
+    """Train splats from the prepared points on cfg's schedule and score the test split.
+
+    Returns (TrainConfig, TrainResult, test Evaluation, CPU seconds of training over all threads);
+    the TrainResult's `seconds` is the training wall time.
+    """
+    import time
+
+    from research.splats import model as sm, train as st
+
+    model = sm.from_points(prep.points, prep.colors)
+    extent = sm.scene_extent(prep.train_split.cameras)
+    tcfg = st.TrainConfig(iterations=cfg.iterations, seed=ctx.seed, background=prep.background,
+                          densify=st.DensifyConfig(max_gaussians=cfg.max_gaussians), mode=ctx.args.mode)
+    cpu0 = time.process_time()
+    result = st.train(model, prep.train_split.cameras, prep.train_rgb, extent, tcfg, device=ctx.device,
+                      progress=ctx.progress)
+    cpu_s = time.process_time() - cpu0
+    ev = st.evaluate(result.model, prep.test_split.cameras, prep.test_rgb, result.sh_degree,
+                     background=prep.background, device=ctx.device, mode=ctx.args.mode)
+    return tcfg, result, ev, cpu_s
+
+
+def run(ctx: Context) -> int:
+    import warp as wp
+
+    from research.splats import model as sm, train as st
+
+    args = ctx.args
+    cfg = setup(ctx.quick, ctx.smoke)
+    if args.iterations is not None:
+        cfg = Setup(**{**asdict(cfg), "iterations": args.iterations})
+    suffix = "" if ctx.mode == "full" else "-" + ctx.mode
+    prep = prepare(ctx, cfg)
+    ds, path, points, init = prep.ds, prep.path, prep.points, prep.init
+    train_split, test_split, train_rgb, test_rgb = prep.train_split, prep.test_split, prep.train_rgb, prep.test_rgb
+    background = prep.background
+    tcfg, result, ev, train_cpu_s = train_and_score(prep, cfg, ctx)
+    model = result.model
+    extent = sm.scene_extent(train_split.cameras)
+
     ev_train = st.evaluate(model, train_split.cameras[:10], train_rgb[:10], result.sh_degree, background=background,
                            device=ctx.device, mode=args.mode)
     fps = st.render_fps(model, test_split.cameras, result.sh_degree, device=ctx.device, mode=args.mode)
@@ -280,7 +326,7 @@ def run(ctx: Context) -> int:
         "scene": f"{scene}, {len(train_split.cameras)} train / {len(test_split.cameras)} test",
         "eval_protocol": data["eval_protocol"], "data": data,
         "test_psnr": ev.psnr, "test_ssim": ev.ssim, "test_psnr_linear": ev.psnr_linear,
-        "train_views_psnr": ev_train.psnr, "gaussians": model.n, "train_seconds": result.seconds,
+        "train_views_psnr": ev_train.psnr, "gaussians": model.n, "train_seconds": result.seconds, "train_cpu_seconds": train_cpu_s,
         "train_iterations": cfg.iterations, "render_fps": fps, "ply_bytes": ply_bytes,
         "ply_path": str(ply_path.relative_to(REPO)) if ply_path.is_relative_to(REPO) else str(ply_path),
         "ply_roundtrip_identical": same, "init": init, "init_points": len(points), "extent": extent,

@@ -21,7 +21,7 @@ textbook spheres render <= 5 ms, hash grid + MLP forward plus backward at 1M poi
 split launch >= 1.9x on 2 cores; RAFT correlation build no slower than PyTorch, dense lookup >= 2x
 grid_sample, on-the-fly lookup within 3x of the dense one holding >= 10x less memory (judged on
 the float16-feature case, the float32 case shown beside it); the default stereo SGM pipeline
-(research.stereo.DEFAULT_CONFIG, bench case stereo.default) <= 5x OpenCV StereoSGBM's time at
+(research.stereo.matching.DEFAULT_CONFIG, bench case stereo.default) <= 5x OpenCV StereoSGBM's time at
 256x256x64 and 741x500x64, with census + SGM-8 (StereoConfig's field defaults, stereo.sgm) judged
 on its own lines; splat rasteriser >= 100x the dense
 PyTorch rasteriser at 2000 Gaussians, 128x128, and the splat forward <= 1 s at 1M Gaussians,
@@ -82,7 +82,7 @@ TARGETS: dict[tuple[str, str, tuple], tuple[Any, float, str]] = {
         (operator.le, 3.0, "on-the-fly within 3x of the dense lookup (float32 features, shown beside it)"),
     ("corr.lookup_onthefly", "memory_ratio", ()):
         (operator.ge, 10.0, "on-the-fly holds >= 10x less memory (float32 features, shown beside it)"),
-    # The default SGM pipeline is research.stereo.DEFAULT_CONFIG ("adcensus" + SGM-8 + post-processing), timed by
+    # The default SGM pipeline is research.stereo.matching.DEFAULT_CONFIG ("adcensus" + SGM-8 + post-processing), timed by
     # stereo.default; stereo.sgm times StereoConfig()'s field defaults (census + SGM-8), judged on its own line.
     ("stereo.default", "speedup_total", (("height", 256), ("width", 256), ("disparities", 64))):
         (operator.ge, 0.2, "default SGM pipeline (DEFAULT_CONFIG) <= 5x OpenCV StereoSGBM's time at 256x256x64"),

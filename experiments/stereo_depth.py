@@ -11,9 +11,9 @@ them to 8-bit grayscale as a camera would store them, and runs
     parabola and the left-right check; plus soft-argmin in place of WTA on the
     best SGM configuration;
   * OpenCV StereoSGBM and StereoBM;
-  * "drlab default": research.stereo.DEFAULT_CONFIG as it is, not tuned here (its parameters were
+  * "drlab default": research.stereo.matching.DEFAULT_CONFIG as it is, not tuned here (its parameters were
     chosen on the real Middlebury 2001 pairs tsukuba and venus and on these tuning pairs p_000, clean
-    and stressed; research.stereo's docstring), never the "best" or "robust" pick below.
+    and stressed; research.stereo.matching's docstring), never the "best" or "robust" pick below.
 
 Protocol. Pair p_000 of each scene is a tuning pair; the others are the
 evaluation pairs. Every method's free parameters (drlab: window, P1, P2, soft-
@@ -30,7 +30,7 @@ stressed evaluation pairs test whether the chosen defaults hold. "The robust cho
 configuration, among those chosen, with the lowest mean of its clean and its stressed tuning D1
 (p_000 stressed: held out from the evaluation like p_000 clean).
 
-Scoring (research.stereo): invalid pixels are filled as KITTI's devkit does,
+Scoring (research.stereo.matching): invalid pixels are filled as KITTI's devkit does,
 then EPE, bad-1/2/3, D1 and depth abs-rel over the non-occluded ground truth
 (noc) and D1 over every pixel with ground truth (all); pooled over pairs
 (pixel-weighted). Time is wall time per pair on this machine: drlab with its
@@ -46,7 +46,7 @@ of tuning the grid, scores that one drlab configuration (no OpenCV) on the tunin
 Benchmarks (`--data PATH` of a Middlebury 2014/2021, Middlebury 2001/2003, KITTI 2012/2015 or ETH3D
 two-view folder, its format detected or given with `--format`; research.datasets.stereo_benchmarks reads
 it; `--gt-scale` overrides Middlebury 2001/2003's ground-truth scale table): runs drlab's default
-(research.stereo.DEFAULT_CONFIG, chosen on Middlebury 2001 tsukuba + venus and the Mitsuba tuning pairs),
+(research.stereo.matching.DEFAULT_CONFIG, chosen on Middlebury 2001 tsukuba + venus and the Mitsuba tuning pairs),
 the drlab configurations the default run chose on its Mitsuba tuning pairs (BENCHMARK_DRLAB: BT + SGM-4
 soft-argmin, its best; ZNCC + SGM-4, its robust choice; SAD + SGM-4 soft-argmin, the best before BT;
 census + SGM-8; nothing is tuned on the benchmark) and OpenCV StereoSGBM with standard
@@ -55,7 +55,7 @@ parameters (blockSize 3 and, as a second row, 5; P1 = 8 * cn * 3^2, P2 = 32 * cn
 disparities [0, D) with D the pair's ndisp (calib.txt) rounded up to a multiple of 16, or
 `--max-disp` (KITTI's default 256). drlab matches the stored images through research.images'
 normalisation (colour to grey, uint8 / 255); SGBM gets the stored 8-bit images (16-bit ones shifted
-to 8 bits). Scores follow the benchmark's protocol (research.stereo.protocol_metrics: Middlebury
+to 8 bits). Scores follow the benchmark's protocol (research.stereo.matching.protocol_metrics: Middlebury
 bad-0.5/1/2/4 and avgerr on nonocc and all; KITTI D1-bg/fg/all on noc and occ; ETH3D bad-1/2 and
 avgerr; Middlebury 2001/2003 bad-0.5/1/2/4, avgerr = EPE and D1 over every pixel with known ground
 truth, as these sets come without occlusion masks, plus a per-pair table), at `--resolution` (full, half or quarter of the stored Middlebury/ETH3D files). Such a run
@@ -63,7 +63,7 @@ needs its own `--out` (the default results/stereo_depth holds the Mitsuba table)
 metrics.json and disparity_maps.png (the first pair); --smoke reads the first 2 pairs, --quick the first 5.
 
 Three runs share this module (the Mitsuba tuning table, one configuration, and the benchmark
-protocols of --data, whose run lives in research.stereo_benchmark), and some of their table code.
+protocols of --data, whose run lives in research.stereo.benchmark), and some of their table code.
 """
 
 from __future__ import annotations
@@ -79,10 +79,10 @@ import numpy as np
 
 from research.experiment import Context, Experiment, rendered_cache_help
 from research.results import markdown_table, save_figure
-from research.stereo_benchmark import DEFAULT_NAME, run_benchmark
+from research.stereo.benchmark import DEFAULT_NAME, run_benchmark
 
 SCENES = ("objects", "cornell")
-LUMA_709 = np.array([0.2126, 0.7152, 0.0722])  # research.stereo.to_gray_u8's weights
+LUMA_709 = np.array([0.2126, 0.7152, 0.0722])  # research.stereo.matching.to_gray_u8's weights
 
 
 def _stress_params() -> Any:
@@ -141,7 +141,7 @@ def load_pairs(ctx: Context, st: Setup, used: dict[str, Any]) -> list[Pair]:
     from research.datasets import DatasetConfig, ensure, load_stereo, provenance
     from research.io import linear_to_srgb
     from research.radiometry import stress_pair
-    from research.stereo import to_gray_u8
+    from research.stereo.matching import to_gray_u8
 
     pairs = []
     for scene in SCENES:
@@ -174,12 +174,12 @@ class Method:
     run: Callable[[Pair], tuple[np.ndarray, np.ndarray, float]]  # -> disparity, valid, seconds
 
 
-# P1 of the tuning grid's middle, about one cost unit of each cost (research.stereo: units).
+# P1 of the tuning grid's middle, about one cost unit of each cost (research.stereo.matching: units).
 P1_BASE = {"sad": 0.01, "zncc": 0.1, "census": 8.0, "bt": 0.01, "adcensus": 0.2, "corr": 0.01}
 
 
 def drlab_grid(cost: str, aggregation: str) -> list[dict[str, Any]]:
-    """Candidate parameters of one drlab cost x aggregation (research.stereo.StereoConfig fields)."""
+    """Candidate parameters of one drlab cost x aggregation (research.stereo.matching.StereoConfig fields)."""
     windows = {"sad": [{"radius": r} for r in (1, 2, 3, 4)],
                "zncc": [{"radius": r, "zncc_eps": e} for r in (2, 3, 4, 5) for e in (1e-4, 1e-3)],
                "census": [{"census_radii": rr} for rr in ((2, 3), (3, 4))],
@@ -232,7 +232,7 @@ def _run_cv(matcher: Any, p: Pair) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def score(disp: np.ndarray, valid: np.ndarray, p: Pair) -> dict[str, dict[str, float]]:
-    from research.stereo import evaluate
+    from research.stereo.matching import evaluate
 
     return evaluate(disp, valid, p.gt, p.masks, p.depth, p.focal, p.baseline)
 
@@ -266,7 +266,7 @@ def tune(candidates: list[Method], tuning: list[Pair], desc: str, ctx: Context) 
 
 def drlab_candidates(cost: str, aggregation: str, dmax: int, device: str, cache: dict) -> list[Method]:
     """drlab methods for one cost x aggregation; the cost volume of each pair is computed once and shared."""
-    from research.stereo import StereoConfig, cost_volume, disparity_from_cost, uses_compact
+    from research.stereo.matching import StereoConfig, cost_volume, disparity_from_cost, uses_compact
 
     out = []
     for params in drlab_grid(cost, aggregation):
@@ -285,7 +285,7 @@ def drlab_candidates(cost: str, aggregation: str, dmax: int, device: str, cache:
 
 
 def drlab_method(cfg: Any, dmax: int, device: str) -> Method:
-    from research.stereo import match
+    from research.stereo.matching import match
 
     def run(p: Pair) -> tuple[np.ndarray, np.ndarray, float]:
         r = match(p.left / 255.0, p.right / 255.0, 0, dmax, cfg, device)
@@ -303,7 +303,7 @@ def figures(best: dict[str, Method], pairs: list[Pair], results: dict, out: Path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from research.stereo import fill_invalid
+    from research.stereo.matching import fill_invalid
 
     shown = [next(p for p in pairs if p.scene == s) for s in SCENES]
     names = list(best)
@@ -392,7 +392,7 @@ def run(ctx: Context) -> int:
     import cv2
 
     from kernels.launch import default_threads
-    from research.stereo import AGGREGATIONS, COSTS, DEFAULT_CONFIG, StereoConfig
+    from research.stereo.matching import AGGREGATIONS, COSTS, DEFAULT_CONFIG, StereoConfig
 
     fmt = benchmark_format(ctx)
     if fmt is not None:
@@ -432,8 +432,8 @@ def run(ctx: Context) -> int:
     for name in ("OpenCV StereoSGBM", "OpenCV StereoBM"):
         keep(*tune([c for c in opencv_methods(st.dmax) if c.name == name], tuning, f"tune {name}", ctx))
     best_drlab = min((k for k in chosen if chosen[k].family == "drlab"), key=lambda k: tuning_d1[k])
-    # drlab's default (research.stereo.DEFAULT_CONFIG), fixed, not tuned here: its own choice was made on
-    # Middlebury 2001 tsukuba + venus and these tuning pairs (research.stereo's docstring).
+    # drlab's default (research.stereo.matching.DEFAULT_CONFIG), fixed, not tuned here: its own choice was made on
+    # Middlebury 2001 tsukuba + venus and these tuning pairs (research.stereo.matching's docstring).
     default = drlab_method(DEFAULT_CONFIG, st.dmax, ctx.device)
     default.name = DEFAULT_NAME
     default.family = "drlab-default"
@@ -479,7 +479,7 @@ def run(ctx: Context) -> int:
         f"stressed pairs {best['pooled_stressed']['d1']:.4f} against {sgbm['pooled_stressed']['d1']:.4f}: it "
         f"{verdicts['stressed']} SGBM; at {1000 * best['time_s_mean']:.1f} ms per pair against SGBM's "
         f"{1000 * sgbm['time_s_mean']:.1f} ms.\n\n"
-        f"**drlab's default** ({DEFAULT_NAME}: research.stereo.DEFAULT_CONFIG, not tuned in this run; chosen on "
+        f"**drlab's default** ({DEFAULT_NAME}: research.stereo.matching.DEFAULT_CONFIG, not tuned in this run; chosen on "
         f"Middlebury 2001 tsukuba + venus and the tuning pairs p_000, clean and stressed) has D1 noc "
         f"{dflt['pooled']['d1']:.4f} clean and {dflt['pooled_stressed']['d1']:.4f} stressed, against SGBM's "
         f"{sgbm['pooled']['d1']:.4f} and {sgbm['pooled_stressed']['d1']:.4f}, at {1000 * dflt['time_s_mean']:.1f} ms "
@@ -524,7 +524,7 @@ _SINGLE_OPTIONS = ("aggregation", "radius", "p1", "p2", "zncc_eps")
 
 def single_config(args: Any) -> Any:
     """The one StereoConfig that --cost (and its companions) name, or None for the tuning run."""
-    from research.stereo import StereoConfig
+    from research.stereo.matching import StereoConfig
 
     given = [name for name in _SINGLE_OPTIONS if getattr(args, name) is not None]
     if args.cost is None:
@@ -630,7 +630,7 @@ def _short(params: dict[str, Any]) -> str:
 
 def add_options(p: Any) -> None:
     from research.datasets.stereo_benchmarks import FORMATS, RESOLUTIONS
-    from research.stereo import AGGREGATIONS, COSTS
+    from research.stereo.matching import AGGREGATIONS, COSTS
 
     p.add_argument("--cost", choices=COSTS, default=None,
                    help="evaluate ONE drlab configuration instead of tuning the grid (a sweep spreads the grid "
@@ -642,7 +642,7 @@ def add_options(p: Any) -> None:
                    help="with --cost: the window radius R of sad/zncc/bt/adcensus/corr; census uses radii (R, R + 1), a "
                         "(2R+1) x (2R+3) window, as the tuning grid (default 2)")
     p.add_argument("--p1", type=_nonnegative_float, default=None,
-                   help="with --cost and SGM: P1 in the cost's units (research.stereo: [0, 1] intensity for "
+                   help="with --cost and SGM: P1 in the cost's units (research.stereo.matching: [0, 1] intensity for "
                         "sad/bt/corr, bits for census, 1 - correlation for zncc, fractions of one squashed term "
                         "for adcensus); default: the grid's base "
                         f"({', '.join(f'{k} {v:g}' for k, v in P1_BASE.items())})")

@@ -147,6 +147,14 @@ register_experiment(
 )
 
 register_experiment(
+    "time_budget",
+    "PSNR against training time on the official lego at 1/4: splats and the hash-grid field at longer and "
+    "longer schedules, wall and CPU time, the best fit in 10, 30 and 60 minutes.",
+    quick_budget_s=600,
+    needs_data="nerf_synthetic/lego",
+)
+
+register_experiment(
     "volume_render_spheres",
     "The textbook's three soft spheres (64x64, focal 60, 64 samples): Warp volume rendering vs a NumPy port.",
     quick_budget_s=120,

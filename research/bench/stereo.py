@@ -11,11 +11,11 @@ copy shifted by 5 pixels plus noise (timings do not depend on the content), floa
     the two-sweep scheme of kernels.stereo.sweep, int16 lanes, a uint16 aggregate);
   * backend_s: SGM-8, both views' winners and the left-right check on that volume in one call
     (kernels.stereo.sgm_disparity), the pipeline's back end;
-  * total_s: the default pipeline, research.stereo.match with StereoConfig() (census 7x9 +
+  * total_s: the default pipeline, research.stereo.matching.match with StereoConfig() (census 7x9 +
     SGM-8 + winner-take-all with the sub-pixel parabola + the right view's winner + the left-right
     check), from the images to the disparity and validity maps on the host;
   * peak_mb: drlab's largest live arrays during total_s, from their nbytes (not RSS; tracemalloc
-    does not see Warp's allocations; research.stereo.peak_volume_bytes): the uint8 cost volume and
+    does not see Warp's allocations; research.stereo.matching.peak_volume_bytes): the uint8 cost volume and
     the uint16 aggregate (3 bytes per cell; plus padded copies when D is not a multiple of 32). No
     volume per path exists: each SGM sweep keeps two rows of L_r per path.
 
@@ -26,22 +26,22 @@ texture as 8-bit grey (blockSize 3, P1 = 8*3*3^2, P2 = 32*3*3^2, uniquenessRatio
 > 1 means drlab is faster); without OpenCV the case has `ref_missing` instead.
 
 Case `stereo.default`, at 256x256x64 and 741x500x64 (tiny mode: 64x128x32), on the same pair and with
-the same StereoSGBM reference: research.stereo's DEFAULT_CONFIG, the pipeline `match` runs when no
+the same StereoSGBM reference: research.stereo.matching's DEFAULT_CONFIG, the pipeline `match` runs when no
 configuration is given ("adcensus": census 7x9 + BT on the clipped x-Sobel gradient + 0.3 x intensity
 BT, kernels.stereo.adcensus; SGM-8; both views' winners, the left-right check, border invalidation and
 a 3x3 median). The `stereo.sgm` cases above time StereoConfig()'s field defaults (census + SGM-8),
 which are not that pipeline:
 
-  * cost_s: research.stereo.cost_volume with DEFAULT_CONFIG (float32 below its float budget, as
+  * cost_s: research.stereo.matching.cost_volume with DEFAULT_CONFIG (float32 below its float budget, as
     `match` runs it at these sizes: `compact` says which), images to the volume;
   * aggregate_s: SGM-8 of that volume with the configuration's penalties (kernels.stereo.sgm; in compact
     mode the int16 two-sweep SGM of kernels.stereo.sweep, penalties in the volume's units);
-  * backend_s: research.stereo.disparity_from_cost, everything after the cost (SGM, both winners, the
+  * backend_s: research.stereo.matching.disparity_from_cost, everything after the cost (SGM, both winners, the
     left-right check, the post-processing, the maps on the host);
-  * total_s: research.stereo.match with DEFAULT_CONFIG; `speedup_total` against StereoSGBM as above;
-  * total_fast_s: research.stereo.match with FAST_DEFAULT_CONFIG, the same pipeline in compact mode at every
+  * total_s: research.stereo.matching.match with DEFAULT_CONFIG; `speedup_total` against StereoSGBM as above;
+  * total_fast_s: research.stereo.matching.match with FAST_DEFAULT_CONFIG, the same pipeline in compact mode at every
     size (uint8 costs by the vector rho of kernels.stereo.adcensus, the int16 SGM); `speedup_total_fast`;
-  * peak_mb: research.stereo.peak_volume_bytes (the cost volume and SGM's aggregate; the adcensus
+  * peak_mb: research.stereo.matching.peak_volume_bytes (the cost volume and SGM's aggregate; the adcensus
     kernel's band buffers are not counted).
 
 Case `stereo.memory` (full mode only; tiny mode runs it at the tiny size): the default pipeline once
@@ -50,14 +50,13 @@ uint16 aggregate; float32 volumes would take 3.0 GiB): `peak_mb` (the volumes' n
 here), `rss_peak_mb` (the process's peak resident set after the run, ru_maxrss, which includes
 everything the process held before), `compact` and `total_once_s` (one run, not a median).
 
-Profile (where the time goes; docs/performance.md, section Stereo, has the before/after table and
-how it was measured): CPU time of one thread (DRLAB_THREADS=1, cv2.setNumThreads(1),
+Profile (where the time goes): CPU time of one thread (DRLAB_THREADS=1, cv2.setNumThreads(1),
 time.process_time, median of 5, a loaded host), 256x256x64 / 741x500x64: census transform 2.6 /
 12.6 ms per image, census cost volume (both transforms + Hamming distances) 9.0 / 47 ms, SGM-8
 sweeps 11.5 / 84 ms, SGM + both winners + LR check 14.0 / 96 ms, the whole default pipeline 23.5 /
 145 ms against OpenCV StereoSGBM 3-way's 6.0 / 39 ms (3.9x / 3.7x). Per-call Python overhead and
-input checks are below 1 ms. The stereo.default pipeline, measured the same way: 121 / 658 ms (cost
-72 / 391 ms) against StereoSGBM's 5.9 / 37.6 ms, 20.6x / 17.5x (docs/performance.md).
+input checks are below 1 ms. The stereo.default pipeline in the committed table
+(results/performance/table.md: 2 threads, wall): 75.5 / 351 ms against StereoSGBM's 6.07 / 38.4 ms.
 
 Each figure is the median of 3 interleaved runs after a warm-up (research.bench). Every call
 allocates its output volume, as the entry points do, so page-fault time for fresh memory is part
@@ -102,7 +101,7 @@ def _sgbm(disparities: int) -> Any:
 
 
 def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare: bool = False) -> Iterator[dict]:
-    from research.stereo import StereoConfig, match, peak_volume_bytes
+    from research.stereo.matching import StereoConfig, match, peak_volume_bytes
 
     dev = wp.get_device(device)
     threads = 1 if dev.is_cuda else default_threads()
@@ -179,8 +178,8 @@ def _reference(fns: dict, row: dict, cv2: Any, compare: bool, disparities: int, 
 
 def _default_case(device: str, threads: int, height: int, width: int, disparities: int, cv2: Any,
                   compare: bool) -> dict:
-    """Case `stereo.default`: research.stereo.DEFAULT_CONFIG's pipeline (module docstring)."""
-    from research.stereo import (DEFAULT_CONFIG, FAST_DEFAULT_CONFIG, compact_penalties, cost_volume,
+    """Case `stereo.default`: research.stereo.matching.DEFAULT_CONFIG's pipeline (module docstring)."""
+    from research.stereo.matching import (DEFAULT_CONFIG, FAST_DEFAULT_CONFIG, compact_penalties, cost_volume,
                                  disparity_from_cost, match, peak_volume_bytes, uses_compact)
 
     cfg = DEFAULT_CONFIG
@@ -232,7 +231,7 @@ def _memory_case(device: str, threads: int, height: int, width: int, disparities
     import resource
     import time
 
-    from research.stereo import StereoConfig, match, peak_volume_bytes, uses_compact
+    from research.stereo.matching import StereoConfig, match, peak_volume_bytes, uses_compact
 
     left, right = _pair(height, width)
     cfg = StereoConfig()

@@ -16,7 +16,7 @@ teddy and cones 60 (quarter size).
 
 These sets ship no calibration (no depth: baseline NaN, cameras None) and, here, no occlusion masks:
 `noc` equals `mask` (every pixel with known ground truth) and `has_noc_mask` is False, so a protocol
-over "nonocc" would in fact be over all known pixels; research.stereo's "middlebury2003" protocol
+over "nonocc" would in fact be over all known pixels; research.stereo.matching's "middlebury2003" protocol
 names its one mask "all" for that reason.
 
 The root may be one scene's folder or a folder whose sub-folders are scenes (read in sorted order).

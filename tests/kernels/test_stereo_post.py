@@ -1,4 +1,4 @@
-"""kernels.stereo.post: the row fill + 3x3 median equals research.stereo.fill_invalid then scipy's median."""
+"""kernels.stereo.post: the row fill + 3x3 median equals research.stereo.matching.fill_invalid then scipy's median."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import warp as wp
 from scipy.ndimage import median_filter
 
 from kernels import stereo
-from research.stereo import fill_invalid
+from research.stereo.matching import fill_invalid
 
 
 def _want(disp, valid):

@@ -1,4 +1,4 @@
-"""research.bench.stereo: the stereo.default case times research.stereo.DEFAULT_CONFIG's pipeline."""
+"""research.bench.stereo: the stereo.default case times research.stereo.matching.DEFAULT_CONFIG's pipeline."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from experiments.performance import _target_status
 from research.bench import stereo as bench
-from research.stereo import DEFAULT_CONFIG, match
+from research.stereo.matching import DEFAULT_CONFIG, match
 
 
 def _rows(compare: bool) -> list[dict]:

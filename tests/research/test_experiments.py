@@ -91,8 +91,8 @@ def _check_stereo(m):
         assert 0.0 <= r["pooled_stressed"]["d1"] <= 1.0 and 0.0 <= r["tuning_d1_stressed"] <= 1.0
     assert m["best_drlab"] in m["methods"] and m["robust_drlab"] in m["methods"]
     assert "OpenCV StereoSGBM" in m["methods"]
-    # drlab's default runs as it is (research.stereo.DEFAULT_CONFIG), never picked as the grid's best or robust one.
-    from research.stereo import DEFAULT_CONFIG
+    # drlab's default runs as it is (research.stereo.matching.DEFAULT_CONFIG), never picked as the grid's best or robust one.
+    from research.stereo.matching import DEFAULT_CONFIG
 
     default = m["methods"][m["default_drlab"]]
     assert default["family"] == "drlab-default" and default["params"]["cost"] == DEFAULT_CONFIG.cost

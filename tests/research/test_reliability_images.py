@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from research.flow import raft as of
-from research import stereo
+from research.stereo import matching as stereo
 from research.images import LUMA_601, to_unit, to_unit_grey, unit_grey_pair, unit_pair
 
 rng = np.random.default_rng(0)

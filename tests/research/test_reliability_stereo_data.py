@@ -285,7 +285,7 @@ CLI_CASES = [
 def test_bad_stereo_depth_benchmark_run(tmp_path, capsys, monkeypatch, case, argv, expected):
     """One line `<prog>: <message>`, exit status 2; the previous --out folder is left as it was."""
     from experiments.stereo_depth import main
-    from research import stereo_benchmark
+    from research.stereo import benchmark as stereo_benchmark
 
     if "@lowmem" in argv:
         monkeypatch.setattr(stereo_benchmark, "_free_memory", lambda: 1000)

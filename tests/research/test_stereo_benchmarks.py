@@ -19,7 +19,7 @@ from research.datasets import detect_stereo_format, load_stereo_benchmark
 from research.datasets.stereo_benchmarks import (detect_format, load_benchmark, load_eth3d, load_kitti,
                                                  load_middlebury, read_calib, read_kitti_disparity)
 from research.registry import REPO_ROOT
-from research.stereo import bad_pixel_metrics, d1_outliers, kitti_d1, pool_protocol, protocol_metrics
+from research.stereo.matching import bad_pixel_metrics, d1_outliers, kitti_d1, pool_protocol, protocol_metrics
 
 # --------------------------------------------------------------------------- readers
 

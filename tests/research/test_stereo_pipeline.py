@@ -1,4 +1,4 @@
-"""research.stereo (named apart from tests/kernels/test_stereo.py, which pytest would confuse with it): KITTI fill,
+"""research.stereo.matching (named apart from tests/kernels/test_stereo.py, which pytest would confuse with it): KITTI fill,
 disparity and depth metrics, patch features, and the pipeline end to end."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import warp as wp
 import pytest
 
-from research.stereo import (StereoConfig, depth_abs_rel, disparity_metrics, fill_invalid, match, patch_features,
+from research.stereo.matching import (StereoConfig, depth_abs_rel, disparity_metrics, fill_invalid, match, patch_features,
                              to_gray_u8)
 
 
@@ -83,7 +83,7 @@ def test_match_recovers_a_constant_disparity(cfg):
 @pytest.mark.parametrize("dtype", ["uint8", "uint16", "float"])
 def test_bt_takes_colour_in_any_unit(dtype):
     # One colour pair stored three ways gives one BT volume (up to the 8-bit rounding of the float copy).
-    from research.stereo import cost_volume
+    from research.stereo.matching import cost_volume
 
     rng = np.random.default_rng(2)
     base = rng.integers(0, 256, (12, 30, 3)).astype(np.uint8)
@@ -99,7 +99,7 @@ def test_bt_takes_colour_in_any_unit(dtype):
 def test_compact_mode_gives_the_float32_result():
     # Census + SGM with integer penalties runs on uint8 costs and a uint16 aggregate: the numbers of the
     # float32 census volume through the same back end.
-    import research.stereo as rs
+    import research.stereo.matching as rs
     from kernels import stereo
 
     rng = np.random.default_rng(3)
@@ -122,7 +122,7 @@ def test_adcensus_compact_mode_quantises_the_cost_and_the_penalties(monkeypatch)
     """Above the budget, adcensus + SGM runs on its uint8 cost (step 1 / 110 for the default's weights) with P1, P2
     rounded to that step; on a textured pair with a known shift the disparities barely move. FAST_DEFAULT_CONFIG
     (fast_compact) runs so at every size, with the vector rho."""
-    import research.stereo as rs
+    import research.stereo.matching as rs
 
     DEFAULT_CONFIG, fast_cfg = rs.DEFAULT_CONFIG, rs.FAST_DEFAULT_CONFIG
     assert not DEFAULT_CONFIG.fast_compact and fast_cfg == replace(DEFAULT_CONFIG, fast_compact=True)
@@ -167,7 +167,7 @@ def test_config_rejects_unknown_names():
 def test_border_invalidation_and_median_post_processing():
     """In the columns x < dmax - 1, pixels left of d_b + 1 (d_b: the row's first valid full-range disparity)
     become invalid; the median runs on the filled map and keeps the valid mask."""
-    import research.stereo as rs
+    import research.stereo.matching as rs
 
     disp = np.array([[0.0, 1.0, 2.0, 3.0, 2.5, 2.5, 2.5, 2.5],
                      [0.0, 1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.5],

@@ -2,11 +2,11 @@
 
 For a Middlebury 2014/2021, Middlebury 2001/2003, KITTI 2012/2015 or ETH3D two-view folder
 (research.datasets.stereo_benchmarks reads it), `run_benchmark` matches every pair with drlab's default
-(research.stereo.DEFAULT_CONFIG), the drlab configurations the Mitsuba run chose (BENCHMARK_DRLAB; none
+(research.stereo.matching.DEFAULT_CONFIG), the drlab configurations the Mitsuba run chose (BENCHMARK_DRLAB; none
 tuned on benchmark data) and OpenCV StereoSGBM with standard parameters (blockSize 3 and 5, P1 = 8 cn bs^2,
 P2 = 32 cn bs^2 for cn image channels, 3-way, uniqueness 10, speckle window 100 and range 32,
 disp12MaxDiff 1, preFilterCap 63), over disparities [0, D) with D the pair's ndisp rounded up to a
-multiple of 16 or `--max-disp`, scores them with the benchmark's protocol (research.stereo.protocol_metrics)
+multiple of 16 or `--max-disp`, scores them with the benchmark's protocol (research.stereo.matching.protocol_metrics)
 and writes table.md (pooled, and per pair except for KITTI), metrics.json and disparity_maps.png (the
 first pair). Every range and every volume is checked against the image and the free memory before any
 matching. The experiment's docstring (experiments/stereo_depth.py) describes the options.
@@ -24,7 +24,7 @@ from research.experiment import Context
 from research.results import markdown_table, save_figure
 
 DEFAULT_NAME = "drlab default"
-# The Middlebury 2001/2003 scenes that took part in choosing research.stereo.DEFAULT_CONFIG (its docstring).
+# The Middlebury 2001/2003 scenes that took part in choosing research.stereo.matching.DEFAULT_CONFIG (its docstring).
 DEFAULT_CHOSEN_ON = ("tsukuba", "venus")
 
 # Configurations the default run chose on its Mitsuba tuning pairs (results/stereo_depth/metrics.json), none
@@ -67,7 +67,7 @@ def benchmark_figure(p: Any, runs: dict[str, tuple[np.ndarray, np.ndarray, float
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from research.stereo import fill_invalid
+    from research.stereo.matching import fill_invalid
 
     vmax = float(p.disparity[p.mask].max()) if p.mask.any() else 1.0
     panels: list[tuple[str, Any, dict]] = [
@@ -100,8 +100,8 @@ def benchmark_figure(p: Any, runs: dict[str, tuple[np.ndarray, np.ndarray, float
 
 def _volume_bytes(shape: tuple[int, int], dmax: int) -> int:
     """drlab's peak for one pair: the largest over the benchmark configurations of the volumes `match`
-    holds at once (research.stereo.peak_volume_bytes: float32, or compact uint8/uint16 for census + SGM)."""
-    from research.stereo import DEFAULT_CONFIG, StereoConfig, peak_volume_bytes
+    holds at once (research.stereo.matching.peak_volume_bytes: float32, or compact uint8/uint16 for census + SGM)."""
+    from research.stereo.matching import DEFAULT_CONFIG, StereoConfig, peak_volume_bytes
 
     return max(peak_volume_bytes(c, int(shape[0]), int(shape[1]), int(dmax))
                for c in [DEFAULT_CONFIG] + [StereoConfig(**cfg) for cfg in BENCHMARK_DRLAB.values()])
@@ -127,7 +127,7 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
 
     from kernels.launch import default_threads
     from research.datasets.stereo_benchmarks import load_benchmark
-    from research.stereo import DEFAULT_CONFIG, PROTOCOLS, StereoConfig, match, pool_protocol, protocol_metrics
+    from research.stereo.matching import DEFAULT_CONFIG, PROTOCOLS, StereoConfig, match, pool_protocol, protocol_metrics
 
     args = ctx.args
     if fmt == "kitti" and args.resolution != "full":
@@ -244,14 +244,14 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
         f"resolution {args.resolution} of the stored files ({', '.join(res)}), disparities [0, D) with D in "
         f"{dranges}. Protocol: {PROTOCOL_NAMES[fmt]}; invalid estimates filled as KITTI's devkit does, scores "
         f"{pooling}.{noc_note}{fg_note} drlab configurations chosen on the Mitsuba tuning pairs of the default "
-        f"run, not on this data; drlab default = research.stereo.DEFAULT_CONFIG ({DEFAULT_CONFIG.label}), whose parameters "
+        f"run, not on this data; drlab default = research.stereo.matching.DEFAULT_CONFIG ({DEFAULT_CONFIG.label}), whose parameters "
         f"were chosen on Middlebury 2001 tsukuba + venus and the Mitsuba tuning pairs (p_000 of objects and cornell at "
         f"256 and 128 px, clean and stressed), never on teddy or cones. OpenCV StereoSGBM with standard parameters (P1 = 8 cn bs^2, "
         f"P2 = 32 cn bs^2, 3-way, uniqueness 10, speckle window 100 and range 32, disp12MaxDiff 1, preFilterCap 63), "
         f"blockSize 3 and 5, on the stored 8-bit images (colour as read), same disparity range. Colour inputs go to "
         f"drlab as read too (uint8, normalised by research.images). Time: wall per pair, drlab with "
         f"{default_threads()} CPU threads (device {ctx.device}), OpenCV with {cv2.getNumThreads()} threads; "
-        f"drlab's cost volumes take up to {peak / 2**20:.1f} MiB per pair (research.stereo.peak_volume_bytes: "
+        f"drlab's cost volumes take up to {peak / 2**20:.1f} MiB per pair (research.stereo.matching.peak_volume_bytes: "
         f"float32 cost and aggregate; census + SGM in compact mode, uint8 costs and a uint16 aggregate).\n\n"
         + markdown_table(headers, rows) + per_pair)
     config = {"benchmark": fmt, "data": str(ctx.data), "resolution": args.resolution, "pairs": [p.name for p in pairs],
