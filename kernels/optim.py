@@ -34,8 +34,7 @@ wp.set_module_options({"enable_backward": False})
 
 # Elements per CPU kernel thread (1 on CUDA): a thread updates a run of BLOCK consecutive elements, so the per-thread
 # cost of a Warp CPU launch (the kernel function called once per thread, every argument reloaded and
-# the hyper-parameters converted again) is paid once per run (docs/performance.md, fit_nerf's
-# hash-grid fit). Each element's arithmetic is unchanged.
+# the hyper-parameters converted again) is paid once per run. Each element's arithmetic is unchanged.
 BLOCK = 16
 
 

@@ -354,8 +354,8 @@ def full_product_level(height_l: int, width_l: int, radius: int, device: wp.Devi
     The patch kernel (`patch_cpu`, pixels grouped so that up to 8 share each tap row's vectors)
     forms at most (2r + 2)^2 dot products a pixel, at ~35-43 GMAC/s on one thread; BLAS forms all
     H_l W_l of them at ~32-52 GMAC/s, plus per-level host work (46x62 frames, C = 256, radius 4:
-    the 11x15 level took 0.6 ms more through BLAS, the 5x7 level the same either way;
-    docs/performance.md, "Fifth round"). So the full product is kept where H_l W_l is at most
+    the 11x15 level took 0.6 ms more through BLAS, the 5x7 level the same either way, on the
+    2-vCPU Intel Xeon bench host). So the full product is kept where H_l W_l is at most
     half the patch: RAFT's coarsest level at 1/8 resolution.
     """
     return fast_paths.on(device) and 2 * height_l * width_l <= (2 * radius + 2) ** 2

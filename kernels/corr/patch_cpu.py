@@ -33,9 +33,9 @@ x_k * y_k, lanes 8-15 the other's: per lane the same operations as above). A row
 two halves of r + 1, so 8 pixels' accumulators (20 16-lane vectors) stay in registers. The
 windows are then sampled from the patches by `window_cpu.sample_patches_cpu` (4 pixels a thread, in
 pixel order: 10% less time a level than sampling each group's pixels one by one after its patches).
-With one pixel a tap row (the fourth round's kernel), each loaded and converted tap vector fed
-one multiply-add: ~21 GMAC/s on one thread against BLAS's 52 on the same core, and neither the
-vector width nor where the bytes came from changed that (docs/performance.md, "Fifth round"); with
+With one pixel a tap row, each loaded and converted tap vector feeds one multiply-add: ~21 GMAC/s
+on one thread against BLAS's 52 on the same core (the 2-vCPU Intel Xeon bench host), and neither the
+vector width nor where the bytes come from changes that; with
 eight pixels, one conversion feeds 8 pixels' multiply-adds (four 16-lane instructions): 35-43
 GMAC/s. The kernel's module is compiled with `-mprefer-vector-width=512` (16-lane vectors stay
 whole on AVX-512; elsewhere the compiler splits them in two). The order of the pixels, the rows and

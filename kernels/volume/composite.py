@@ -41,7 +41,7 @@ samples four at a time where four consecutive ones start at a multiple of 4 (vec
 factors and depths, vec3 loads of the colours) and none of the four terminates the ray, one at a
 time elsewhere: the same operations in the same order, so the outputs are bit for bit those of a
 one-at-a-time loop, with a quarter of the loop and index arithmetic (Warp's CPU code computes
-and wraps every index, docs/performance.md).
+and wraps every index).
 
 Factors on the CPU. Warp's scalar exp costs 3.7 ns a sample on one core, more than the rest of
 the forward loop (3.0 ns): on the CPU the factors exp(-sigma_k delta_k) of all N samples are

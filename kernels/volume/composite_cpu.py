@@ -60,7 +60,7 @@ the Warp kernel and the forward no faster). The fused forward's factor loop read
 as two contiguous streams, left to the hardware prefetcher (prefetching them too was slower).
 
 Why. The Warp kernel runs one ray per thread: its loop-carried product T e_k and the scalar loads
-cost ~3.1-3.3 ns a sample on a core (docs/performance.md, Compositing, fourth round), and Warp has
+cost ~3.1-3.3 ns a sample on a core (docs/performance.md, "CPU fast paths", has what the lanes gain), and Warp has
 no way to put several rays in SIMD lanes. `forward_kernel()` and `backward_kernel()` are launched on
 the CPU only, for float32 and contiguous sample arrays; float64 and CUDA keep the Warp kernels.
 """

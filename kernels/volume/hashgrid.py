@@ -107,7 +107,7 @@ def corner_row(c: int, l: int, ix: int, iy: int, iz: int, res: int, dense: int, 
 # memory accesses coalesce over consecutive points): a thread walks a run of BLOCK consecutive
 # points of one level, so the per-thread cost of a Warp CPU launch (its loop calls the kernel function
 # once per thread, which reloads every argument) is paid once per run; 32 -> 26 ms for 57k points x 12
-# levels on one thread (docs/performance.md). The points and their order are unchanged, so are the results.
+# levels on one thread. The points and their order are unchanged, so are the results.
 BLOCK = 16
 
 
@@ -125,7 +125,7 @@ def _hash_forward_kernel(
     # Level-major threads (t = l B + b over the B = ceil(N / block) runs of `block` points): a chunk of
     # consecutive threads reads one level's table (T F values, 4 MB at T = 2^19, F = 2 in float32)
     # instead of all L levels' at once, so its random reads stay in the cache (point-major: 1.6x slower
-    # at 131072 points, docs/performance.md).
+    # at 131072 points).
     t = wp.tid() + offset
     n_points = x.shape[1]
     n_runs = (n_points + block - 1) / block

@@ -17,11 +17,11 @@ code).
 Why C++. With the tables in the cache Warp's scalar code still took 0.48 s for 1M points x 16
 levels on one thread: per point and level ~190 instructions (the cell, 8 weights, 8 rows with
 runtime-strided 2-index addresses, 16 loads, 16 products and sums), bound by arithmetic, not by the
-table's cache misses (docs/performance.md). Here a thread's run of points is taken K = 8 at a time,
-each step a loop over the 8 points with a fixed trip count (the cells, the rows, the weights, the
-sums), which the compiler turns into vector instructions; only the 16 table reads per point stay
-scalar loads. A last group of fewer than 8 points repeats its first point in the unused lanes and
-stores only its own.
+table's cache misses (docs/performance.md, "CPU fast paths", has what the C++ gains). Here a
+thread's run of points is taken K = 8 at a time, each step a loop over the 8 points with a fixed
+trip count (the cells, the rows, the weights, the sums), which the compiler turns into vector
+instructions; only the 16 table reads per point stay scalar loads. A last group of fewer than 8
+points repeats its first point in the unused lanes and stores only its own.
 
 The scatter (`_hash_backward_kernel`, F = 2) computes the cells, rows and weights of 8 points the same
 way, then adds w_c G[n, 2 l + j] into the table's gradient one point after the other, corners

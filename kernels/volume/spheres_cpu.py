@@ -40,9 +40,9 @@ the chunk's falloff and factor buffers, with np.exp between them.
 
 Why. The Warp passes take at most four samples of one ray as the lanes of a vec4 (SSE width),
 repeat Warp's index arithmetic for every array access, and pass 3 blends the samples of one ray one
-after the other: its loop-carried products bound it (docs/performance.md, Textbook spheres). Here
-eight rays fill the lanes, the blends of eight rays run side by side, and the buffers are read and
-written as whole vectors.
+after the other: its loop-carried products bound it (docs/performance.md, "CPU fast paths", has
+what the lanes gain). Here eight rays fill the lanes, the blends of eight rays run side by side,
+and the buffers are read and written as whole vectors.
 
 Built only where the CPU has AVX2 (`#if`: CUDA and other CPUs compile a body that does nothing, and
 `available()` is False there, so render_dense keeps the Warp passes); float64 keeps them too.

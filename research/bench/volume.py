@@ -34,7 +34,7 @@ spin-wait after every op, are not timed as part of the drlab call that follows t
 delta once (20 bytes a sample in float32) with a NumPy sum split over the same threads;
 `fwd_over_bound` = fwd_s / bound_s. `bound_max_s` reads the same bytes with an unsigned maximum
 (less arithmetic per byte than NumPy's pairwise float32 sum, which on the bench host is not always
-memory-bound: docs/performance.md, compositing, fourth round); `fwd_over_bound_max` = fwd_s /
+memory-bound: the same 168 MB took 42.5 ms by sum and 23.4 ms by maximum on one thread); `fwd_over_bound_max` = fwd_s /
 bound_max_s; `fwd_no_factor_over_bound_max` = fwd_no_factor_s / bound_max_s. experiments/performance.py
 judges the target on the tighter `bound_max_s` and shows both, for each forward.
 

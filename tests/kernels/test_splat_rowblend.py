@@ -77,7 +77,7 @@ def _exp16_sweep(lo: wp.uint32, stride: wp.uint32, n: int, bad: wp.array(dtype=w
 def test_row_blend_exp_is_expf():
     """The lanes' exp has expf's bits (what wp.exp calls) on a sweep of float32 inputs in [-100, 0]
     (every 997th bit pattern; the fast path and, below -88, expf itself) and of all in [-2^-20, 0]
-    and [0, 2^-20]. (All 2^32 inputs were checked once: docs/performance.md, Splats, fourth round.)"""
+    and [0, 2^-20]. (All 2^32 inputs were checked once with kernels._vexp.exp16_mismatches: a 147 s sweep.)"""
     neg0, neg100 = 0x80000000, int(np.float32(-100).view(np.uint32))
     tiny = int(np.float32(2.0 ** -20).view(np.uint32))
     for lo, hi, stride in ((neg0, neg100, 997), (neg0, neg0 + tiny, 61), (0, tiny, 61)):
