@@ -1,6 +1,6 @@
 // kernels/volume/spheres_cpu.py, pass 1 on one group of eight rays: x = o + (t_j d), for sphere k
 // q = ((x - c_k)_x^2 + (x - c_k)_y^2) + (x - c_k)_z^2, m = max(0, sqrt(q) - r_k) (Warp's max: 0 if
-// 0 > v, else v), the exponent -s_k m into out1[j K + k]; spheres._spheres_dense_exponent_kernel's
+// 0 > v, else v), the exponent -s_k m into out1[j K + k]; spheres_passes._spheres_dense_exponent_kernel's
 // float32 operations in its order.
 
   {

@@ -1,6 +1,6 @@
 // kernels/volume/spheres_cpu.py, pass 2 on one group: from the falloffs F[j K + k],
 // sigma = ((0 + s_0 F_0) + s_1 F_1) + ... and the compositing exponent -(sigma delta_j) into out2[j];
-// spheres._spheres_dense_factor_kernel's float32 operations in its order.
+// spheres_passes._spheres_dense_factor_kernel's float32 operations in its order.
 
   {
     const char* lb = (const char*)delta.data;

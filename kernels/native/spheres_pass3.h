@@ -1,7 +1,7 @@
 // kernels/volume/spheres_cpu.py, pass 3 on one group: from the falloffs F and the factors E[j], per
 // sample d_k = s_k F_k, sigma and the colour sums n += d_k col_k from 0 in sphere order, the colour
 // divided by sigma where sigma > 1e-6, early termination (T < t_threshold), one blend8.h step; then the
-// pixels C + T b, depth and 1 - T. spheres._spheres_dense_composite_kernel's float32 operations.
+// pixels C + T b, depth and 1 - T. spheres_passes._spheres_dense_composite_kernel's float32 operations.
 
   {
     const v8f thr = t_threshold;

@@ -14,6 +14,7 @@ equations:
     composite  the quadrature above, forward and hand-written reverse pass (one thread per ray)
     occupancy  occupancy grid with EMA-max updates and a threshold
     spheres    analytic soft spheres (the Video and 3D Vision textbook chapter's scene)   Field
+               (its plain Warp kernels in spheres_kernels, the CPU passes in spheres_passes)
     grid       dense voxel grid, trilinear density + RGB or SH <= 2                       Field
     hashgrid   multiresolution hash encoding
     encoding   frequency positional encoding

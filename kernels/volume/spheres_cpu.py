@@ -4,9 +4,9 @@ The C++ is in kernels/native/spheres_*.cpp (one file a native function; the pass
 spheres_pass1.h, spheres_pass2.h and spheres_pass3.h, their set-up in spheres_common.h, with the
 shared lanes.h, blend8.h and npexp16.h), loaded by `kernels.native.source`.
 
-The same passes as `spheres._spheres_dense_exponent_kernel`, `_spheres_dense_factor_kernel` and
+The same passes as `spheres_passes._spheres_dense_exponent_kernel`, `_spheres_dense_factor_kernel` and
 `_spheres_dense_composite_kernel` (and their quad versions; the module docstring of
-kernels/volume/spheres.py), with NumPy's exp between them as there, and for every sample the same
+kernels/volume/spheres_passes.py), with NumPy's exp between them as there, and for every sample the same
 float32 operations in the same order, so the same exponents, factors and outputs bit for bit. A
 group is eight rays r = 8 g + l, lane l (the rays past the last one repeat the last ray in their
 lanes and nothing of them is written); at step j every lane takes sample j of its ray:
