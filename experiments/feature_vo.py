@@ -2,7 +2,7 @@
 """Classical RGB-D feature visual odometry with local bundle adjustment and loop closure (research/vo).
 
 Sequence: the `objects` scene's loop path, `drlab dataset --scene objects --flow --flow-path loop`
-(research.poses.loop_path: one orbit around the scene and back to the first frame, with Mitsuba's
+(research.poses.se3.loop_path: one orbit around the scene and back to the first frame, with Mitsuba's
 z-depth per frame), 60 frames at 128x128: the same dataset configuration as splat_slam (quick: 16
 spp, full: 64 spp, so the two experiments share the rendered data and their tables compare).
 Smoke: the same 60-frame loop at 128x128 with 4 spp (fewer bundle-adjustment iterations made the
@@ -23,7 +23,7 @@ verified by PnP RANSAC; the verified loops and the odometry edges go into a pose
 (SE(3) relative-pose residuals, scipy least squares).
 
 Reported, before and after the loop closure: ATE RMSE (after SE(3) Umeyama alignment of the camera
-centres, research.poses) and its % of the ground-truth path length, RPE frame to frame (translation
+centres, research.poses.se3) and its % of the ground-truth path length, RPE frame to frame (translation
 RMSE, also as % of the mean step, and rotation RMSE), frames per second (the odometry alone, and with
 the loop closure), tracking failures, keyframes, landmarks, and the bundle adjustments' RMS
 reprojection error before and after.
@@ -111,7 +111,7 @@ def run(ctx: Context) -> int:
     import time
 
     from research import datasets
-    from research import poses as P
+    from research.poses import se3 as P
     from research.vo.loop import LoopConfig, detect_loops, optimise_pose_graph
     from research.vo.odometry import VOConfig, check_sequence, run_vo
 
@@ -180,7 +180,7 @@ def run(ctx: Context) -> int:
     table = (f"`objects` loop sequence from `drlab dataset --flow --flow-path loop` ({n} frames at "
              f"{size['res']}x{size['res']}, {size['spp']} spp; path length {length:.3f}, mean step {step:.4f}), "
              f"the dataset configuration of splat_slam's {ctx.mode} run. ATE after SE(3) Umeyama alignment; RPE "
-             f"frame to frame (TUM definitions, research.poses).\n\n"
+             f"frame to frame (TUM definitions, research.poses.se3).\n\n"
              + markdown_table(headers, rows)
              + f"\nFrames/s: {fps_vo:.2f} for the odometry ({vo.seconds:.1f} s, with its bundle adjustments), "
                f"{fps_all:.2f} with loop detection and the pose graph ({loop_s:.1f} s). Keyframes: "

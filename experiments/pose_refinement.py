@@ -3,7 +3,7 @@
 
 Set-up: the training views of a Mitsuba `objects` dataset (`drlab dataset`; fit_nerf's quick configuration,
 40 views at 64 x 64; for the splats' full mode the same 40 cameras at 128 x 128, splat_dataset). Every
-training pose is perturbed by a left se(3) perturbation of world-to-camera (research/poses.py) of exactly
+training pose is perturbed by a left se(3) perturbation of world-to-camera (research/poses/se3.py) of exactly
 `--rot-deg` degrees (5 by default) and `--trans-frac` of the scene radius (the cameras' distance to the
 scene centre; 5% by default) about seeded random axes. Fits of the same scene model (`--model`) on the same
 images:
@@ -18,20 +18,20 @@ images:
 run's STARTING poses (so noisy and refined start from the blurred cloud the wrong poses give), fitted
 with blurred images and SH degree 0 early (coarse to fine, as BARF's positional encoding), the poses
 moving by per-view Adam steps on the splat renderer's exact pose gradient from the same backward
-(kernels.splat.render_backward(want_camera=True); research/pose_refine_splats.py).
+(kernels.splat.render_backward(want_camera=True); research/poses/refine_splats.py).
 `--model grid`: a dense voxel grid coarse to fine, the poses refined from the second stage on by
 damped Gauss-Newton steps built from the volume renderer's camera gradients (kernels/volume/rays.py;
-research/pose_refine.py).
+research/poses/refine_volume.py).
 
 Reported: rotation and camera-centre errors of the training poses before and after refinement, after
 the rigid alignment that removes the joint solution's gauge (Umeyama over the camera centres, as
 BARF does with Procrustes), and test-view PSNR/SSIM of the three fields (test cameras at their
 ground-truth poses mapped through the same alignment; for gt and noisy it is computed the same way),
 and for the splats also after BARF's test-time pose optimisation (the test views' poses refined
-against the fixed model on the test images, research.pose_refine_splats.polish_poses).
+against the fixed model on the test images, research.poses.refine_splats.polish_poses).
 `--depth-weight` sets the depth loss (rendered expected depth against Mitsuba's z-depth): for the
 splats the refined_rgbd row's, for the grid every fit's.
-The ground-truth, noisy and refined trajectories are written as TUM files (research.poses.write_tum).
+The ground-truth, noisy and refined trajectories are written as TUM files (research.poses.se3.write_tum).
 
 Status of `--model grid` (quick mode, seed 0, 236 s on a shared 2-core CPU): refinement lowers the mean rotation error
 from 4.9 to 2.2 degrees and raises test PSNR from 15.9 to 19.2 dB (ground-truth poses: 24.4 dB), but
@@ -57,7 +57,7 @@ scene radius, test PSNR 15.5 (noisy, fixed) -> 20.6 dB (refined; ground-truth po
 (test PSNR 21.3 dB): the joint solution drifts in scale, which Sim(3) removes, as BARF's evaluation
 does.
 
-Why it stalls there (research/pose_refine_splats.py's docstring has the measurements, all on --seed 1):
+Why it stalls there (research/poses/refine_splats.py's docstring has the measurements, all on --seed 1):
 the remaining error is one systematic mode, every camera pitched about its own x axis by about 0.9
 cos(elevation) degrees, which the joint problem barely sees (started at the ground-truth poses the fit
 drifts into it at the same training loss), not a slow pose optimiser (a pose-only Levenberg-Marquardt
@@ -80,7 +80,7 @@ nearest the horizon.
 A third change, also chosen on --seed 1 only: the renderer's low-pass dilation of every projected 2D
 covariance (SPLAT_DILATION, --dilation) lowered from the reference codes' 0.3 px^2 to 0.1 (a kernel
 parameter, kernels/splat/modes.py). The pitch mode shrinks with it in the fit started at the
-ground-truth poses (0.63 -> 0.36 cos(elevation) deg; research/pose_refine_splats.py), and the quick
+ground-truth poses (0.63 -> 0.36 cos(elevation) deg; research/poses/refine_splats.py), and the quick
 run on --seed 1 (both with the compensation and the depth row; 778 / 771 s wall, two runs sharing a
 2-core CPU) goes from refined 0.541 mean / 1.086 max deg, test PSNR 22.32 dB (26.56 TTO) and
 refined_rgbd 0.417 / 0.704 deg, 23.10 dB at 0.3 to refined 0.437 / 0.951 deg, 23.93 dB (27.21) and
@@ -106,7 +106,7 @@ degrees), so the pitch mode might be a resolution limit that 128 px halves. It i
   * the quick dataset's 40 cameras at 128 x 128, 64 spp (the same poses and split; splat_dataset), seed 1:
     refined 0.437 / 0.951 -> 0.295 / 0.801 deg, refined_rgbd 0.347 / 0.598 -> 0.226 / 0.438. The pitch
     mode keeps its size in degrees (0.37 cos(elevation) in the RGB fit; 0.36 at 64 px from the
-    ground-truth poses): the gain is in the rest of the residual (research/pose_refine_splats.py);
+    ground-truth poses): the gain is in the rest of the residual (research/poses/refine_splats.py);
   * seed 2 at 128 px lost one view of the RGB fit (0.792 / 6.505 deg, the view at 69 degrees of elevation
     6.5 degrees off; at 64 px: 0.417 / 0.905). The coarse phase's blur is set in pixels, so at 128 px it
     covers half the angle and narrows the basin: with the blur scaled to the width (4 px at 128,
@@ -121,7 +121,7 @@ degrees), so the pitch mode might be a resolution limit that 128 px halves. It i
   about 20-25 minutes for the four fits on a quiet 2-core machine (estimated, not timed end to end).
   The pitch mode is not a pixel-convention offset between Mitsuba and the rasteriser either (Mitsuba's
   position AOV lands on the pixel centres to 1e-3 px, tests/research/test_datasets.py, and an image
-  offset would be a constant angle, not one growing as cos(elevation)); research/pose_refine_splats.py
+  offset would be a constant angle, not one growing as cos(elevation)); research/poses/refine_splats.py
   has the gauge test and the fit at the ground-truth poses.
 
 Reported seed 0, full mode (results/pose_refinement, `drlab reproduce pose_refinement`, 14.6 min on an idle
@@ -136,7 +136,7 @@ the PSNR columns compare fits of one length (REFINED_LENGTH is 1). Quick mode ke
 bound), so its seed-0 figures above stand.
 How it was found: at 128 px the 3000-iteration refined model is a messier model than the
 fit at the true poses (seed 1: training loss 0.0469 against 0.0347; 2557 opaque splats against 4586, a median 6.1
-cm from the true surfaces against 2.1; seed 2: 11 cm; research/pose_refine_splats.py has the measurement), as if
+cm from the true surfaces against 2.1; seed 2: 11 cm; research/poses/refine_splats.py has the measurement), as if
 the splats back-projected at the perturbed poses (up to r x 5 degrees = 35 cm off; nothing prunes them) held it
 back. So a second joint fit was tried first, from a FRESH model back-projected at the first fit's poses, same
 schedule (REFINE_PASSES = 2; the machinery stays, default 1). It helped, but the control of the same cost, one fit
@@ -154,7 +154,7 @@ row improves less than with the two fits (worst 0.246 and 0.270 against 0.222 an
 28.9 dB) but stays well under the target: every view under 0.5 degree in both rows on both seeds. A third fit of
 3000 gives seed 1 RGB 0.168 / 0.498 and seed 2 0.200 / 0.545: more fresh models do not help. What remains is the
 near-gauge (model raised 1-3 cm, every camera pitched towards it, centres fixed; pitch 0.18 cos(elevation) deg in
-the seed-1 RGB 6000 fit, 0.26 after two fits, 0.08-0.09 in the two-fit RGB-D fits; research/pose_refine_splats.py).
+the seed-1 RGB 6000 fit, 0.26 after two fits, 0.08-0.09 in the two-fit RGB-D fits; research/poses/refine_splats.py).
 Cost: full mode's four fits take twice the training time (28.7 minutes on the idle 2-vCPU Intel Xeon,
 against 14.6 with 3000 iterations). The seed-0 full-mode numbers above this paragraph are of the 3000-iteration
 fits. Reported seed 0 with the 6000-iteration fits (results/pose_refinement, `drlab reproduce pose_refinement`):
@@ -228,7 +228,7 @@ def fit(run: str, views, xi: np.ndarray, bbox: np.ndarray, plan, common: dict, s
     `pose_from_stage` on (the coarsest stage first forms a field from the poses as given)."""
     from kernels.volume import GridField, OccupancyGrid
     from research.nerf.train import upsample_grid
-    from research.pose_refine import JointConfig, train_joint
+    from research.poses.refine_volume import JointConfig, train_joint
 
     field = GridField(bbox, plan[0][1], density_bias=-3.0, density_activation="exp", seed=seed)
     occupancy = OccupancyGrid(bbox, common["occupancy_res"], threshold=1.0)
@@ -280,9 +280,9 @@ def blur_start(width: int) -> float:
 
 def splat_config(run: str, iterations: int, seed: int, depth_weight: float = 0.0,
                  dilation: float = SPLAT_DILATION, width: int = 64) -> Any:
-    """The joint fit's schedule (research/pose_refine_splats.py) for images `width` pixels wide; rates chosen on
+    """The joint fit's schedule (research/poses/refine_splats.py) for images `width` pixels wide; rates chosen on
     --seed 1 (module docstring)."""
-    from research.pose_refine_splats import SplatJointConfig
+    from research.poses.refine_splats import SplatJointConfig
 
     return SplatJointConfig(iterations=iterations, refine_poses=run.startswith("refined"),
                             pose_start=max(1, iterations // 10), sh_interval=max(1, iterations // 20),
@@ -297,7 +297,7 @@ def fit_splats(run: str, cameras, c2w_start: np.ndarray, rgba: np.ndarray, depth
     perturbed ones), fitted jointly with the poses when run starts with "refined", with the expected-depth
     loss of weight `depth_weight` (RGB-D; 0: colour only). Returns (model, final c2w, SH degree, log)."""
     from research.cameras import Camera
-    from research.pose_refine_splats import train_joint_splats
+    from research.poses.refine_splats import train_joint_splats
     from research.splats import model as sm
 
     iterations = sizes["iterations"] * (REFINED_LENGTH if run.startswith("refined") else 1)
@@ -326,10 +326,10 @@ def evaluate_splats(model, sh_degree: int, test_split, G: np.ndarray, test_time_
                     dilation: float = SPLAT_DILATION) -> dict[str, Any]:
     """Test PSNR/SSIM (research.splats.train.evaluate: sRGB on black) with every test camera's ground-truth
     pose mapped into the model's frame by G^-1; with `test_time_iterations` > 0 also after those poses are
-    polished against the fixed model on the test images (research.pose_refine_splats.polish_poses; BARF's
+    polished against the fixed model on the test images (research.poses.refine_splats.polish_poses; BARF's
     test-time pose optimisation), as "psnr_tto"/"ssim_tto"."""
     from research.cameras import Camera
-    from research.pose_refine_splats import polish_poses
+    from research.poses.refine_splats import polish_poses
     from research.splats.train import evaluate as splat_evaluate
 
     Gi = np.linalg.inv(G)
@@ -435,8 +435,8 @@ def add_options(p) -> None:
     p.add_argument("--trans-frac", type=float, default=0.05, help="translation of every perturbation as a fraction "
                    "of the scene radius (the cameras' distance to the scene centre; default 0.05)")
     p.add_argument("--model", choices=("splats", "grid"), default="splats", help="the scene model fitted with the "
-                   "poses: Gaussian splats (default; research/pose_refine_splats.py) or the dense voxel grid "
-                   "(research/pose_refine.py)")
+                   "poses: Gaussian splats (default; research/poses/refine_splats.py) or the dense voxel grid "
+                   "(research/poses/refine_volume.py)")
     p.add_argument("--depth-weight", type=float, default=None, help="weight of the depth loss (rendered expected "
                    "z-depth against the dataset's depth; RGB-D). --model splats: the weight of the extra "
                    f"'refined_rgbd' row (default {SPLAT_DEPTH_WEIGHT:g}; 0 drops the row; the gt, noisy and refined "
@@ -463,10 +463,10 @@ def _check_args(args) -> None:
 
 def run(ctx: Context) -> int:
     from experiments.fit_nerf import dataset_config
-    from research import poses as P
+    from research.poses import se3 as P
     from research.datasets import cache_dir, ensure, get_scene, load, provenance
     from research.nerf.train import srgb_targets
-    from research.pose_refine import TrainingViews, align_to_reference, apply_alignment, pose_error_summary
+    from research.poses.refine_volume import TrainingViews, align_to_reference, apply_alignment, pose_error_summary
 
     args = ctx.args
     _check_args(args)
@@ -539,7 +539,7 @@ def run(ctx: Context) -> int:
                       "colour only); blurred images (Gaussian of "
                       f"{blur_start(train_split.rgba.shape[2]):g} px at first) and SH degree 0 early (coarse to "
                       "fine), per-view Adam on the "
-                      "poses (research/pose_refine_splats.py)."
+                      "poses (research/poses/refine_splats.py)."
                       + (f" The refined rows' fits run {REFINED_LENGTH}x as many iterations (schedule scaled)."
                          if REFINED_LENGTH > 1 else "")
                       + (f" The refined rows run {REFINE_PASSES} such joint fits in turn, each from a fresh model "
@@ -552,7 +552,7 @@ def run(ctx: Context) -> int:
                         f"{SPLAT_DILATION:g}, chosen on --seed 1 against the reference codes' 0.3)."
                       + " 'test PSNR, TTO': the test views' poses then optimised against the fixed model "
                         f"({TEST_TIME_ITERATIONS} Levenberg-Marquardt iterations on the test image, as BARF's "
-                        "test-time pose optimisation; research.pose_refine_splats.polish_poses). Depth weight, "
+                        "test-time pose optimisation; research.poses.refine_splats.polish_poses). Depth weight, "
                         "compensation, dilation and schedules chosen on --seed 1 (the blur's scaling above 64 px on "
                         "--seed 2), not on the reported seed.")
     else:

@@ -11,7 +11,7 @@ the same images and options). Smoke mode without such a folder renders a tiny sy
 <data>/real_photos-smoke (a voxel-textured sphere on black, written as a *_par.txt and PNGs, so the
 reader is exercised too).
 
-1. SfM against the calibration. research.sfm (`drlab sfm`'s code: pycolmap SIFT, exhaustive
+1. SfM against the calibration. research.poses.sfm (`drlab sfm`'s code: pycolmap SIFT, exhaustive
    matching, incremental mapping) on every image of the folder, with one shared SIMPLE_PINHOLE
    camera (square pixels, principal point at the image centre, no distortion; the focal length
    estimated, not given): the calibration is a distortion-free pinhole too, and a pinhole model
@@ -19,7 +19,7 @@ reader is exercised too).
    below see the same images. 1 thread (COLMAP's threaded matching and mapping vary from run to
    run), seed --seed. Reported: images registered / total; rotation error (degrees, median and
    max) and camera-centre error after a Sim(3) Umeyama alignment of the registered SfM centres to
-   the calibrated ones (research.align), as % of the scene radius, here the median distance of the
+   the calibrated ones (research.poses.align), as % of the scene radius, here the median distance of the
    calibrated camera centres from their centroid; the SfM focal length against the calibrated
    (fx + fy) / 2 (median over the images), in %. SfM holds the principal point at the image centre;
    where the calibrated one lies d pixels off it, the SfM cameras turn by about atan(d / f) to make up
@@ -151,8 +151,8 @@ def find_data(ctx: Context) -> Path:
 
 
 def cached_sfm(images: Path, out: Path, opts, ctx: Context):
-    """research.sfm on `images` into `out`, reused when out/sfm.json records the same images and options."""
-    from research import sfm
+    """research.poses.sfm on `images` into `out`, reused when out/sfm.json records the same images and options."""
+    from research.poses import sfm
 
     doc = out / sfm.SUMMARY
     if doc.is_file():
@@ -264,8 +264,9 @@ def fit(ctx: Context, cfg: Setup, points, colors, train_cams, train_rgb, test_ca
 
 
 def run(ctx: Context) -> int:
-    from research import metrics as rm, sfm
-    from research.align import pose_errors
+    from research import metrics as rm
+    from research.poses import sfm
+    from research.poses.align import pose_errors
     from research.datasets import formats, load_colmap
     from research.datasets.middlebury_mview import box_mask, load_middlebury_mview, read_object_box, scene_radius
     from research.io import srgb_to_linear

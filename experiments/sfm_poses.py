@@ -11,7 +11,7 @@ with a median rotation error of 22 degrees; 48 at 256x256 (4 spp), all, 1.8 degr
 generator's distance 4.2 (elevation 25 +- 3 degrees) registered all 48 views at 256x256 but with 2.4
 degrees and the focal length 9% short: orbiting one axis while fixating one point is a critical motion
 for self-calibration; the elevation and distance wobble of this path breaks it. The PNGs are written to
-<data>/sfm_poses-objects[-quick|-smoke]/images/ and only that folder is handed to research.sfm
+<data>/sfm_poses-objects[-quick|-smoke]/images/ and only that folder is handed to research.poses.sfm
 (`drlab sfm`'s code: pycolmap SIFT, exhaustive matching, incremental mapping, one shared camera
 with the SIMPLE_PINHOLE model: square pixels and no distortion, as the renderer's, with the focal
 length estimated, not given); the ground-truth cameras are kept aside.
@@ -19,7 +19,7 @@ length estimated, not given); the ground-truth cameras are kept aside.
 Reported:
 * images registered / total;
 * the SfM camera poses against the Mitsuba ground truth after a Sim(3) Umeyama alignment of the
-  camera centres (research.align): rotation error (degrees) and translation error, in scene units
+  camera centres (research.poses.align): rotation error (degrees) and translation error, in scene units
   and in % of the scene radius (half the diagonal of the scene's box, 2.87 for `objects`); the
   estimated focal length against the true one;
 * splats (research.splats, fit_splats's trainer) trained on the SfM poses against splats trained on
@@ -206,8 +206,8 @@ def add_options(p) -> None:
 
 
 def run(ctx: Context) -> int:
-    from research import sfm
-    from research.align import pose_errors
+    from research.poses import sfm
+    from research.poses.align import pose_errors
     from research.datasets import formats, load_colmap
     from research.io import srgb_to_linear
 

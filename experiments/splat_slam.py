@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """RGB-D SLAM with a Gaussian-splat map (SplaTAM-style) on a Mitsuba camera path that returns to its start.
 
-Sequence: `drlab dataset --scene objects --flow --flow-path loop` (research.poses.loop_path: one orbit
+Sequence: `drlab dataset --scene objects --flow --flow-path loop` (research.poses.se3.loop_path: one orbit
 around the scene and back to the first frame, with Mitsuba's z-depth per frame): 60 frames at 128x128
 (quick: the same 60 frames, fewer iterations per frame; smoke: the first 8 frames of the 60-frame loop
 at 32x32). The dataset's
@@ -17,7 +17,7 @@ median, or a pose jumping beyond a bound from the guess) are recorded in the tab
 the run with an error rather than a trajectory of guesses.
 
 Reported: ATE RMSE (after SE(3) Umeyama alignment of the camera centres) and RPE (frame to frame,
-translation and rotation; TUM definitions, research.poses) also as % of the ground-truth path length,
+translation and rotation; TUM definitions, research.poses.se3) also as % of the ground-truth path length,
 frames per second of the whole loop (tracking + mapping), tracking failures, the map's PSNR/SSIM on
 the held-out views (rendered at their ground-truth poses: frame 0 anchors the map in the ground-truth
 world frame) and its size. Beside it, on the same frames: the classical feature-VO baseline
@@ -141,7 +141,7 @@ def feature_vo(rgba: np.ndarray, depth: np.ndarray, K: np.ndarray, gt: np.ndarra
     its ATE/RPE/fps, or why there is none (the odometry stopped: its own one-line error)."""
     import time
 
-    from research import poses as P
+    from research.poses import se3 as P
     from research.vo.odometry import run_vo
 
     t0 = time.perf_counter()
@@ -158,7 +158,7 @@ def feature_vo(rgba: np.ndarray, depth: np.ndarray, K: np.ndarray, gt: np.ndarra
 
 def run(ctx: Context) -> int:
     from research import datasets
-    from research import poses as P
+    from research.poses import se3 as P
     from research.slam import MapConfig, SlamConfig, TrackConfig, check_sequence, run_slam
     from research.splats.train import evaluate
 
@@ -239,7 +239,7 @@ def run(ctx: Context) -> int:
              f"device `{ctx.device}`. Tracking {track_iters} Adam iterations per frame (3x for frame 1), "
              f"mapping {map_iters} iterations per keyframe (every {slam_cfg.keyframe_every} frames, window "
              f"{slam_cfg.window}). ATE after SE(3) Umeyama alignment; RPE frame to frame (TUM definitions, "
-             f"research.poses). Held-out PSNR/SSIM (sRGB on black) on the dataset's {len(cams)} test and val views at "
+             f"research.poses.se3). Held-out PSNR/SSIM (sRGB on black) on the dataset's {len(cams)} test and val views at "
              f"their ground-truth poses. Frames/s: the whole loop (tracking + mapping), {result.seconds:.1f} s.\n\n"
              + markdown_table(headers, rows)
              + f"\nTarget (ATE RMSE < {TARGET_ATE_PCT:g}% of the path length, no tracking failure): {target} "

@@ -8,7 +8,7 @@
     drlab bench [FAMILY ...] [--json] [--compare]  timings (median of >= 3 runs after a warm-up)
     drlab list                         registered experiments, gradient checks and bench families
     drlab sfm IMAGES_DIR --out DIR [--matcher exhaustive|sequential] [--shared-camera] [--intrinsics FX,FY,CX,CY]
-                                       photos -> a COLMAP folder (images/, sparse/0/) through pycolmap (research.sfm)
+                                       photos -> a COLMAP folder (images/, sparse/0/) through pycolmap (research.poses.sfm)
 
 Errors: a user mistake (a bad option or value, a folder that exists or is missing, a file that
 cannot be written, an unknown name) prints one line `drlab <command>: <message>` to stderr and
@@ -386,7 +386,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_sfm(args: argparse.Namespace) -> int:
-    from research import sfm
+    from research.poses import sfm
 
     intrinsics = sfm.parse_intrinsics(args.intrinsics) if args.intrinsics is not None else None
     opts = sfm.SfmOptions(matcher=args.matcher, overlap=args.overlap, shared_camera=args.shared_camera,
@@ -514,7 +514,7 @@ def build_parser() -> argparse.ArgumentParser:
         "sfm", help="structure from motion: a folder of photos -> a COLMAP model (pycolmap, CPU)",
         description="Run pycolmap's SIFT feature extraction, matching and incremental mapping on the images "
                     "directly in IMAGES_DIR, then undistort them, and write a COLMAP folder that fit_splats/fit_nerf "
-                    "--data read: OUT/images/, OUT/sparse/0/ and OUT/sfm.json (research/sfm.py). OUT appears only "
+                    "--data read: OUT/images/, OUT/sparse/0/ and OUT/sfm.json (research/poses/sfm.py). OUT appears only "
                     "when complete. Fewer registered images than --min-registered is an error (exit 2).")
     sf.add_argument("images_dir", type=directory_path, help="folder of .png/.jpg images (sub-folders are ignored)")
     sf.add_argument("--out", required=True, type=directory_path, help="output folder (must not exist; see --force)")

@@ -311,7 +311,7 @@ def check_camera_rays(seeds=(0, 1)) -> list[GradcheckResult]:
     """Origins, directions and z_scale of kernels.volume.camera_rays with respect to the left se(3)
     perturbation xi of world-to-camera (checked at xi = 0 of a random pose) and (fx, fy, cx, cy)."""
     from kernels.volume.rays import camera_rays, camera_rays_backward
-    from research.poses import se3_exp
+    from research.poses.se3 import se3_exp
 
     results = []
     for seed in seeds:
@@ -422,7 +422,7 @@ def check_render_camera(kind: str, seeds=(0, 1)) -> list[GradcheckResult]:
     from kernels.volume.rays import camera_rays, render_backward_camera
     from kernels.volume.sampling import dense_samples, sample_rays
     from kernels.volume import render_samples
-    from research.poses import se3_exp
+    from research.poses.se3 import se3_exp
 
     results = []
     for seed in seeds:

@@ -50,7 +50,7 @@ from tqdm import tqdm
 
 from research import atomic, io
 from research.cameras import Camera, smooth_path
-from research.poses import loop_path
+from research.poses.se3 import loop_path
 from research.datasets.config import DatasetConfig, config_record
 from research.datasets.folders import (PARTIAL_CONFIG, check_out, commit, config_diff, dataset_lock, notice,
                                       partial_config, partial_dir, partial_state, recover_swap)

@@ -30,7 +30,7 @@ from typing import Any, Callable
 import numpy as np
 
 from research.cameras import check_pose
-from research.poses import rotation_angle_deg
+from research.poses.se3 import rotation_angle_deg
 from research.slam.mapping import (Keyframe, MapConfig, add_splats, densify_mask, init_map, make_map_adam,
                                    map_window, new_splats)
 from research.slam.tracking import TrackConfig, track_frame

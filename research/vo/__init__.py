@@ -7,7 +7,7 @@
   the SE(3) left Jacobian chain, scipy's sparse least squares with a robust loss;
 * loop.py: loop detection against the first keyframes, PnP verification, SE(3) pose-graph optimisation.
 
-Poses follow research/poses.py: world-to-camera T_cw, left se(3) perturbation T_cw <- exp(xi^) T_cw,
+Poses follow research/poses/se3.py: world-to-camera T_cw, left se(3) perturbation T_cw <- exp(xi^) T_cw,
 xi = (rho, phi) translation first.
 """
 

@@ -1,7 +1,7 @@
 """Local bundle adjustment: reprojection error over keyframe poses and points, solved with scipy.
 
 Parameters. Each free camera c has a pose 6-vector xi_c = (rho, phi) applied as the module-wide LEFT
-perturbation of its starting world-to-camera matrix, T_c = exp(xi_c^) T_c0 (research/poses.py);
+perturbation of its starting world-to-camera matrix, T_c = exp(xi_c^) T_c0 (research/poses/se3.py);
 points are free 3-vectors p_j. Fixed cameras (the oldest keyframes of the window, which hold the
 gauge: position, orientation and, with depth-scaled points, scale) keep T_c0.
 
@@ -35,7 +35,7 @@ import scipy.sparse as sp
 from scipy.optimize import least_squares
 
 from kernels.ba import reproject
-from research.poses import hat, se3_exp
+from research.poses.se3 import hat, se3_exp
 
 LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
 

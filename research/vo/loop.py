@@ -8,7 +8,7 @@ landmarks (in the world frame of keyframe i's time, which has drifted little), a
 `min_inliers` inliers and an inlier fraction of at least `min_inlier_frac`. It yields j's pose in
 i's map, T_j', and the loop measurement Z_ij = T_j' T_i^-1 (camera i to camera j).
 
-Pose graph (world-to-camera keyframe poses T_k, research/poses.py's left perturbation
+Pose graph (world-to-camera keyframe poses T_k, research/poses/se3.py's left perturbation
 T_k = exp(xi_k^) T_k0, keyframe 0 fixed). Edges: consecutive keyframes with the odometry's relative
 pose Z_{k,k+1} = T_{k+1,0} T_{k,0}^-1, and the verified loops. The residual of an edge (i, j, Z) is
 
@@ -28,7 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.optimize import least_squares
 
-from research.poses import se3_exp, se3_log
+from research.poses.se3 import se3_exp, se3_log
 from research.vo.features import match
 from research.vo.odometry import VOResult, _pose_from_rt
 

@@ -1,6 +1,6 @@
 """Feature visual odometry (RGB-D): essential-matrix initialisation, PnP tracking, keyframes, local BA.
 
-Poses are world-to-camera T_cw (research/poses.py conventions); frame 0's pose is given (it fixes the
+Poses are world-to-camera T_cw (research/poses/se3.py conventions); frame 0's pose is given (it fixes the
 world frame, as in splat SLAM). Pipeline, per frame k (research/vo/features.py for the features):
 
 1. Initialisation (frame 1): ORB matches with keyframe 0, the essential matrix with RANSAC

@@ -14,7 +14,7 @@ from kernels.volume.rays import (camera_rays, camera_rays_backward, pixel_center
 from research.checks.volume import (BOX, camera_field, camera_setup, check_camera_rays, check_field_points,
                                     check_render_camera)
 from research.gradcheck import assert_gradcheck
-from research.poses import se3_exp
+from research.poses.se3 import se3_exp
 
 
 @pytest.mark.parametrize("np_t,tol", [(np.float32, 2e-6), (np.float64, 1e-14)])
@@ -141,7 +141,7 @@ def test_grid_field_camera_gradient_runs_on_float32():
 def test_per_pixel_rows_sum_to_the_gradient_and_are_jacobian_rows():
     """Rows of per_pixel sum to the total; with a one-hot cotangent each row is that pixel's Jacobian row
     (compared with a central difference of the pixel's own output)."""
-    from research.poses import se3_exp
+    from research.poses.se3 import se3_exp
 
     w2c, intrinsics, pixels = camera_setup(5)
     rng = np.random.default_rng(0)

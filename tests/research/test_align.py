@@ -1,4 +1,4 @@
-"""research.align: Umeyama's Sim(3) against known transforms and against evo, and the pose errors."""
+"""research.poses.align: Umeyama's Sim(3) against known transforms and against evo, and the pose errors."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from research.align import pose_errors, rotation_angle_deg, umeyama
+from research.poses.align import pose_errors, rotation_angle_deg, umeyama
 from research.cameras import look_at
 
 

@@ -195,7 +195,7 @@ def test_every_pose_reader_uses_the_one_rotation_check():
     """Camera, check_pose, from_nerf, the trajectory and COLMAP readers share kernels/rotation.py: a float32
     pipeline's 1.25e-6 passes (the old 1e-6 copy refused it) and comes back orthonormal; 2e-5 is refused by name."""
     from kernels.rotation import checked_rigid, orthonormality_error
-    from research import poses as P
+    from research.poses import se3 as P
     from research.cameras import check_pose
     from research.datasets.colmap import c2w_from_colmap
 

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from research import poses as P
+from research.poses import se3 as P
 from research.datasets import DatasetConfig, ensure, generate, load_flow
 from research.datasets.config import config_record
 

@@ -108,7 +108,7 @@ def test_round_trip_level_rig_scale_and_factor(tmp_path):
 
 def test_recentring_removes_a_rigid_motion_of_the_rig(tmp_path):
     """A whole rig moved by a rotation and translation reads back the same cameras (NeRF's recentring)."""
-    from research.poses import se3_exp
+    from research.poses.se3 import se3_exp
 
     c2ws = level_rig(5)
     G = se3_exp(np.array([0.4, -0.2, 1.0, 0.3, -0.5, 0.2]))

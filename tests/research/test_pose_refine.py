@@ -1,4 +1,4 @@
-"""research.pose_refine: the depth loss gradient, and pose refinement against a known field (the gradient
+"""research.poses.refine_volume: the depth loss gradient, and pose refinement against a known field (the gradient
 signs and the per-view bookkeeping: wrong poses move back towards the truth)."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import warp as wp
 from kernels.volume import GridField, OccupancyGrid
 from kernels.volume.rays import camera_rays, pixel_centers
 from kernels.volume import render_rays
-from research import poses as P
+from research.poses import se3 as P
 from research.gradcheck import assert_gradcheck, check_vjp
-from research.pose_refine import JointConfig, TrainingViews, depth_loss, pose_error_summary, train_joint
+from research.poses.refine_volume import JointConfig, TrainingViews, depth_loss, pose_error_summary, train_joint
 from research.cameras import Camera, orbit_poses
 
 BOX = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])

@@ -1,4 +1,4 @@
-"""research/pose_refine_splats.py: one view's pose recovered against a fixed splat model; bad inputs."""
+"""research/poses/refine_splats.py: one view's pose recovered against a fixed splat model; bad inputs."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from kernels import splat as ks
-from research import poses as P
-from research.pose_refine_splats import SplatJointConfig, polish_poses, pose_jacobian, refine_pose, train_joint_splats
+from research.poses import se3 as P
+from research.poses.refine_splats import SplatJointConfig, polish_poses, pose_jacobian, refine_pose, train_joint_splats
 from research.splats.model import GaussianModel
 
 W = H = 48
@@ -152,7 +152,7 @@ def test_experiment_smoke_splats(tmp_path):
 @pytest.mark.parametrize("sigma", [0.7, 2.0])
 def test_blur_is_self_adjoint(sigma):
     """The coarse-to-fine blur's backward is the blur itself: <b x, y> = <x, b y> (zero padding)."""
-    from research.pose_refine_splats import _blur
+    from research.poses.refine_splats import _blur
 
     rng = np.random.default_rng(0)
     x, y = rng.normal(size=(2, 13, 17, 3))

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from experiments import pose_refinement as pr
-from research import pose_refine_splats as prs
+from research.poses import refine_splats as prs
 from research.cameras import Camera, look_at
 from research.splats import model as sm
 

@@ -24,5 +24,5 @@ def test_blur_scales_with_the_width_above_64_px():
     assert pr.blur_start(128) == 4.0
     assert pr.splat_config("refined", 3000, 1, width=128).blur_start == 4.0
     # the quick size's schedule is SplatJointConfig's default blur
-    from research.pose_refine_splats import SplatJointConfig
+    from research.poses.refine_splats import SplatJointConfig
     assert pr.splat_config("refined", 3000, 1, width=64).blur_start == SplatJointConfig().blur_start

@@ -1,4 +1,4 @@
-"""research.poses: SE(3) exp/log, TUM files, ATE and RPE checked against the evo package."""
+"""research.poses.se3: SE(3) exp/log, TUM files, ATE and RPE checked against the evo package."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from research import poses as P
+from research.poses import se3 as P
 
 evo_traj = pytest.importorskip("evo.core.trajectory")
 from evo.core import metrics as evo_metrics  # noqa: E402

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from research import cli, poses
+from research import cli
+from research.poses import se3 as poses
 from research.datasets import DatasetConfig, generate
 
 CASES = [

@@ -1,4 +1,4 @@
-"""Reliability of research.poses: a pose that is not a rotation, bad TUM lines, mismatched trajectories.
+"""Reliability of research.poses.se3: a pose that is not a rotation, bad TUM lines, mismatched trajectories.
 
 Each case names the input and the one-line ValueError it must raise.
 """
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from research import poses as P
+from research.poses import se3 as P
 
 GOOD = np.array([P.se3_exp([0.1 * k, 0.0, 0.2, 0.0, 0.05 * k, 0.0]) for k in range(6)])
 SCALED = GOOD.copy()

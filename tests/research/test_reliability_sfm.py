@@ -1,4 +1,4 @@
-"""Bad input to `drlab sfm` (research.sfm): one line naming the argument, exit status 2, no output folder.
+"""Bad input to `drlab sfm` (research.poses.sfm): one line naming the argument, exit status 2, no output folder.
 
 Each case is a command line against a folder the test writes; every case but the last fails before
 pycolmap runs. The last one runs real SfM on images of pure noise, where nothing can register.

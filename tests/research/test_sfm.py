@@ -1,4 +1,4 @@
-"""`drlab sfm` (research.sfm) on a small feature-rich Mitsuba render: registered images, pose error
+"""`drlab sfm` (research.poses.sfm) on a small feature-rich Mitsuba render: registered images, pose error
 against the ground truth after a Sim(3) alignment, the output layout and research.datasets.colmap
 reading it. About 30 s on 2 cores (render 6 s, three SfM runs)."""
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from research import cli
-from research.align import pose_errors
+from research.poses.align import pose_errors
 from research.datasets import detect_format, load_colmap
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -12,7 +12,7 @@ import pytest
 
 from kernels import splat as ks
 from kernels.sh import SH_C0
-from research import poses as P
+from research.poses import se3 as P
 from research.slam import MapConfig, SlamConfig, TrackConfig, densify_mask, init_map, new_splats, run_slam, track_frame
 from research.slam.system import TrackingLost
 from research.splats.model import SH_COEFFS, GaussianModel

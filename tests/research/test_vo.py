@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from research.checks import ba as cba
-from research.poses import se3_exp, se3_log
+from research.poses.se3 import se3_exp, se3_log
 from research.vo import ba as vba
 from research.vo import features as F
 from research.vo.loop import Loop, optimise_pose_graph
@@ -68,7 +68,7 @@ def test_robust_loss_resists_outliers():
 
 
 def _circle(n=16, radius=3.0):
-    from research.poses import loop_path
+    from research.poses.se3 import loop_path
 
     return np.stack([np.linalg.inv(T) for T in loop_path(n, radius)])  # world-to-camera
 
@@ -128,7 +128,7 @@ def loop_sequence(tmp_path_factory):
 
 @pytest.mark.timeout(240)
 def test_run_vo_tracks_and_records_failures(loop_sequence):
-    from research import poses as P
+    from research.poses import se3 as P
     from research.vo.odometry import TrackingError, VOConfig, run_vo
 
     rgba, depth, K, gt = loop_sequence

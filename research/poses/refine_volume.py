@@ -5,7 +5,7 @@ training cameras' poses together from poses that start a few degrees off. Here t
 voxel grid fitted coarse to fine (research.nerf.train.upsample_grid), which smooths the photometric
 loss early on as BARF's coarse-to-fine positional encoding does.
 
-Poses (research/poses.py convention): view v keeps its starting world-to-camera matrix B_v and a
+Poses (research/poses/se3.py convention): view v keeps its starting world-to-camera matrix B_v and a
 6-vector xi_v; its current pose is exp(xi_v^) B_v. Per iteration, with a ray batch drawn from
 `views_per_batch` random training views:
 
@@ -32,7 +32,7 @@ Intrinsics are held at their known values. Sample distances are held fixed in th
 
 Gauge: jointly refined poses and field are defined up to one rigid motion of the whole scene (and
 the grid's box does not pin it exactly). `align_to_reference` finds it (Umeyama over the camera
-centres, research.poses) for evaluation, as BARF does with Procrustes.
+centres, research.poses.se3) for evaluation, as BARF does with Procrustes.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ from kernels.rotation import checked_rigid
 from kernels.volume import GridField, OccupancyGrid, Workspace, render_backward, render_rays
 from kernels.volume.grid import add_tv_grad
 from kernels.volume.rays import camera_rays, camera_rays_backward, render_backward_rays
-from research import poses as P
+from research.poses import se3 as P
 from research.cameras import Camera
 
 
@@ -263,7 +263,7 @@ def _train(field: GridField, views: TrainingViews, xi: np.ndarray, bbox: np.ndar
 
 def align_to_reference(c2w: np.ndarray, c2w_ref: np.ndarray, with_scale: bool = False) -> np.ndarray:
     """G (4x4, [[s R, t], [0, 1]]; s = 1 unless `with_scale`, Sim(3)) with G c2w_v ~ c2w_ref_v: Umeyama over the
-    camera centres (research.poses.umeyama)."""
+    camera centres (research.poses.se3.umeyama)."""
     R, t, s = P.umeyama(np.asarray(c2w)[:, :3, 3], np.asarray(c2w_ref)[:, :3, 3], with_scale=with_scale)
     G = np.eye(4)
     G[:3, :3], G[:3, 3] = (s if with_scale else 1.0) * R, t

@@ -1,6 +1,6 @@
 """Joint refinement of camera poses and Gaussian splats from posed images (BARF-style, splat renderer).
 
-The splat variant of research/pose_refine.py. Each iteration renders one training view v at its
+The splat variant of research/poses/refine_volume.py. Each iteration renders one training view v at its
 current world-to-camera pose T_v (a fresh random permutation of the views per epoch, as 3DGS) and
 takes the 3DGS loss on images blurred by a Gaussian of width s(it) pixels (coarse to fine):
 
@@ -28,7 +28,7 @@ splats first form from the poses as given. No densification: the splats are init
 back-projected depth pixels (or uniformly in the box) and only move, rescale and recolour.
 
 Gauge: jointly refined poses and splats are defined up to one rigid motion of the whole scene;
-research.pose_refine.align_to_reference (Umeyama over the camera centres) removes it for
+research.poses.refine_volume.align_to_reference (Umeyama over the camera centres) removes it for
 evaluation, as BARF does with Procrustes.
 
 RGB-D (`depth_weight` > 0): the loss adds depth_weight times research.splats.loss.depth_loss (L1 of
