@@ -36,7 +36,7 @@ its spread instead of one draw. A target is judged on the median and also counte
 
 Writes results/performance/{table.md, metrics.json (every bench row), figure.png}. A full run
 into the default folder of a checkout (what `make reproduce` does) then copies table.md into
-README.md between the markers README_START and README_END (the README's performance table).
+docs/performance.md between the markers README_START and README_END (its current table).
 """
 
 from __future__ import annotations
@@ -254,7 +254,7 @@ def run(ctx: Context) -> int:
     config = {"quick": ctx.quick, "smoke": ctx.smoke, "families": families, "compare": True, "repeats": repeats}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
     if full and registry.in_checkout() and ctx.final_out.resolve() == registry.default_out("performance").resolve():
-        ctx.after_commit(lambda: refresh_readme(registry.REPO_ROOT / "README.md", table))
+        ctx.after_commit(lambda: refresh_readme(registry.REPO_ROOT / "docs" / "performance.md", table))
     return 0
 
 
