@@ -350,7 +350,7 @@ def test_phased_lookup_raises_when_the_early_widening_fails(monkeypatch):
     """`_forward_phased` hands f1's widening to a launch thread first (`submit`); a failure there reaches the
     caller, and no patch item runs."""
     from kernels import launch
-    from kernels.corr import onthefly
+    from kernels.corr import onthefly_phased
 
     f1, f2_pyramid, coords = case(np.random.default_rng(5), 16, 24, 24, 3)
     features = corr.onthefly_features(f1, f2_pyramid, feature_dtype="float16")
@@ -362,10 +362,11 @@ def test_phased_lookup_raises_when_the_early_widening_fails(monkeypatch):
         raise RuntimeError("early widening failed")
 
     launched = []
-    real_launch, real_replay = onthefly.wp.launch, onthefly._replay
-    monkeypatch.setattr(onthefly, "submit", lambda fn: launch.submit(fail))
-    monkeypatch.setattr(onthefly.wp, "launch", lambda k, *a, **kw: launched.append(k) or real_launch(k, *a, **kw))
-    monkeypatch.setattr(onthefly, "_replay", lambda r, s, k, *a: launched.append(k) or real_replay(r, s, k, *a))
+    real_launch, real_replay = onthefly_phased.wp.launch, onthefly_phased._replay
+    monkeypatch.setattr(onthefly_phased, "submit", lambda fn: launch.submit(fail))
+    monkeypatch.setattr(onthefly_phased.wp, "launch",
+                        lambda k, *a, **kw: launched.append(k) or real_launch(k, *a, **kw))
+    monkeypatch.setattr(onthefly_phased, "_replay", lambda r, s, k, *a: launched.append(k) or real_replay(r, s, k, *a))
     with pytest.raises(RuntimeError, match="early widening failed"):
         corr.lookup_onthefly_features(features, coords, 4)
     assert any("group_pixels" in k.key for k in launched)  # the spies see the call's launches
