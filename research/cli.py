@@ -27,70 +27,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 from research import atomic, registry
-from research.registry import BENCH_MODULES, EXPERIMENTS, REPO_ROOT
-
-#: Exceptions that mean the user asked for something that cannot be done (not a bug in drlab).
-USER_ERRORS = (ValueError, FileExistsError, FileNotFoundError, PermissionError, NotADirectoryError,
-               IsADirectoryError)
-EXIT_USAGE = 2
-EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
-
-
-class UsageError(ValueError):
-    """A bad command line, raised by the parser instead of printing its usage text."""
-
-
-class _Parser(argparse.ArgumentParser):
-    """An ArgumentParser whose errors are exceptions, so `main` prints them as one line."""
-
-    def error(self, message: str):  # type: ignore[override]
-        raise UsageError(message[len("argument "):] if message.startswith("argument ") else message)
-
-
-def one_line(exc: BaseException) -> str:
-    """An exception as one line: an OSError as "<path>: <reason>", anything else by its text."""
-    if isinstance(exc, OSError) and exc.strerror:
-        where = f"{exc.filename}: " if exc.filename is not None else ""
-        return f"{where}{exc.strerror[0].lower()}{exc.strerror[1:]}"
-    text = str(exc).strip() or type(exc).__name__
-    return " ".join(part.strip() for part in text.splitlines() if part.strip())  # lines folded into one
-
-
-def caused_by_interrupt(exc: BaseException) -> bool:
-    """Whether Ctrl-C is behind `exc`: some libraries (Mitsuba's render, through Dr.Jit) re-raise the
-    KeyboardInterrupt as another exception whose cause or context it is."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return False
-
-
-def directory_path(value: str) -> str:
-    """argparse type of a folder option: any non-blank path (whether it exists is checked later)."""
-    if not value.strip():
-        raise argparse.ArgumentTypeError(f"expected a directory path, got {value!r}")
-    return value
-
-
-def seed_value(value: str) -> int:
-    """argparse type of --seed: an integer in [0, 2^32) (what NumPy's generators accept)."""
-    try:
-        seed = int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2^32), got {value!r}") from None
-    if not 0 <= seed < 2**32:
-        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2^32), got {value!r}")
-    return seed
+from research.cli_common import (EXIT_INTERRUPTED, EXIT_USAGE, USER_ERRORS, Parser, UsageError, caused_by_interrupt,
+                                 directory_path, experiment_env, one_line, seed_value)
+from research.registry import BENCH_MODULES, EXPERIMENTS
 
 
 def _check_device(value: str) -> str:
@@ -136,14 +81,6 @@ def _experiment_command(name: str, quick: bool, device: str, out: Path | None, s
     return cmd + list(extra)
 
 
-def _experiment_env() -> dict[str, str]:
-    """The environment of an experiment's process: from a checkout, it imports this checkout's code."""
-    env = dict(os.environ)
-    if registry.in_checkout():
-        env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
-    return env
-
-
 def _check_experiment(name: str) -> None:
     if name not in EXPERIMENTS:
         raise ValueError(f"unknown experiment {name!r}; registered: {', '.join(sorted(EXPERIMENTS)) or 'none'}")
@@ -160,7 +97,7 @@ def _run_one(name: str, quick: bool, device: str, out: Path | None, seed: int | 
     # The current directory is kept, so relative paths among the extra options mean what they say.
     # The child is in our process group, so Ctrl-C reaches it too: it cleans its temporary folder and
     # says so in one line; we wait for that instead of killing it half-way.
-    proc = subprocess.Popen(cmd, env={**_experiment_env(), "DRLAB_PROG": f"drlab run {name}"})
+    proc = subprocess.Popen(cmd, env={**experiment_env(), "DRLAB_PROG": f"drlab run {name}"})
     try:
         rc = proc.wait()
     except KeyboardInterrupt:
@@ -413,11 +350,11 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="drlab", description="drlab: differentiable rendering and 3D/video vision.")
+    p = Parser(prog="drlab", description="drlab: differentiable rendering and 3D/video vision.")
     p.add_argument("--debug", action="store_true",
                    help="show the traceback of an error instead of one line (anywhere before `--`; passed on to "
                         "experiments)")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub = p.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     d = sub.add_parser("dataset", help="render a Mitsuba ground-truth dataset")
     d.add_argument("--scene", required=True, help="built-in scene: spheres, objects or cornell")

@@ -319,9 +319,9 @@ class Experiment:
         return os.environ.get("DRLAB_PROG") or f"python -m experiments.{self.name}"
 
     def parser(self) -> argparse.ArgumentParser:
-        from research.cli import _Parser
+        from research.cli_common import Parser
 
-        p = _Parser(prog=f"python -m experiments.{self.name}", description=self.doc,
+        p = Parser(prog=f"python -m experiments.{self.name}", description=self.doc,
                     formatter_class=argparse.RawDescriptionHelpFormatter)
         g = p.add_argument_group("options every experiment has", description=f"Sizes. {self.sizes}")
         size = g.add_mutually_exclusive_group()
@@ -358,7 +358,7 @@ class Experiment:
 
         User mistakes exit 2 and Ctrl-C exits 130, each after one line on stderr (module docstring).
         """
-        from research.cli import EXIT_INTERRUPTED, EXIT_USAGE, USER_ERRORS, caused_by_interrupt, one_line
+        from research.cli_common import EXIT_INTERRUPTED, EXIT_USAGE, USER_ERRORS, caused_by_interrupt, one_line
 
         argv = list(sys.argv[1:] if argv is None else argv)
         debug = "--debug" in argv
@@ -413,13 +413,13 @@ class Experiment:
 
 def _folder(value: str) -> Path:
     """argparse type of --out and --data: a non-blank path."""
-    from research.cli import directory_path
+    from research.cli_common import directory_path
 
     return Path(directory_path(value))
 
 
 def _seed(value: str) -> int:
-    from research.cli import seed_value
+    from research.cli_common import seed_value
 
     return seed_value(value)
 

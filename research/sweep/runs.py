@@ -298,10 +298,10 @@ def _first_line(e: BaseException) -> str:
 
 
 def child_env() -> dict[str, str]:
-    """What a job's `env` carries: PYTHONPATH of the experiment's environment (research.cli), when set."""
-    from research.cli import _experiment_env
+    """What a job's `env` carries: PYTHONPATH of the experiment's environment (research.cli_common), when set."""
+    from research.cli_common import experiment_env
 
-    env = _experiment_env()
+    env = experiment_env()
     return {k: env[k] for k in ("PYTHONPATH",) if k in env}
 
 
