@@ -42,7 +42,7 @@ A diagnostic on the same data: with the field fitted at the ground-truth poses a
 pose updates bring every view to 1.2 degrees mean (2.4 max) in 150 iterations and then drift along
 the rotation-translation trade-off (7 degrees max after 450); a 4x finer ray-marching step changes
 nothing, so it is not quadrature aliasing. The likely cause, not verified, is the grid's
-shape-radiance ambiguity on the textured ground (README: texture at the wrong depth), which makes
+shape-radiance ambiguity on the textured ground (docs/results.md: texture at the wrong depth), which makes
 the field's renders from nearby poses inconsistent.
 
 Status of `--model splats` before the changes below: the pose rates (3e-2 per Adam step, rotation in

@@ -36,7 +36,7 @@ anything else is one word; `{seed}` in a value (or in an [sweep] options word) b
 run` (a relative path is taken from the current directory, which every run keeps); an experiment that
 renders its data into --data from its seed (stereo_depth, raft_flow) should get one folder per seed,
 e.g. `options = ["--data", "data/sweeps/seed{seed}"]`, so that concurrent runs never share a cache
-that depends on the seed. On a cluster --data must be a path every node sees (README).
+that depends on the seed. On a cluster --data must be a path every node sees (docs/sweeps.md).
 `drlab sweep SPEC --smoke` runs the same sweep at smoke sizes into `<name>-smoke`.
 
 Runs. Each run is `python -m experiments.<name> --out <results>/<sweep>/<run-key> --seed S ...`, the
