@@ -385,7 +385,7 @@ def dense_samples(
     n = n_rays * n_s
     # Packed by one kernel (one thread per ray, split over the launch threads) rather than NumPy
     # broadcasting, repeats and copies: 22-23 -> 16 ms on the textbook's 4096 x 64 float32 samples
-    # on a busy host (docs/performance.md), with the same roundings (bit for bit, tested); four
+    # on a busy host, with the same roundings (bit for bit, tested); four
     # samples at a time with vec4 stores when S % 4 == 0.
     out = Samples(points=a.empty((n, 3)), dirs=a.empty((n, 3)), t=a.empty(n), delta=a.empty(n), z=a.empty(n),
                   ray_index=a.empty(n, wp.int32),
