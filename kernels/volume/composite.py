@@ -83,12 +83,15 @@ the launch: the outputs (and `out` buffers) are then to be discarded.
 
 Inputs follow the array contract (kernels._arrays): NumPy in gives NumPy out, wp.arrays in give
 wp.arrays on their device; inside `value_checks(False)` only shapes and dtypes are checked.
+
+This module is the host side (the entry points, their checks, the factor pass, the split launches);
+the Warp kernels are in kernels.volume.composite_kernels, the float32 CPU kernels in
+kernels.volume.composite_cpu.
 """
 
 from __future__ import annotations
 
 import threading
-import typing
 from dataclasses import dataclass
 from typing import Any
 
@@ -100,9 +103,8 @@ from kernels.launch import default_threads, guided_bounds, parallel_items, paral
 from kernels import _npexp, fast_paths
 from kernels.volume import composite_cpu
 from kernels.volume._checks import check_ray_offsets
+from kernels.volume.composite_kernels import _BACKWARD, _FORWARD, _VEC3, _VEC4
 from kernels.volume.workspace import Workspace
-
-wp.set_module_options({"enable_backward": False})
 
 DEFAULT_T_THRESHOLD = 1e-4
 # On the CPU in float32, the forward runs kernels.volume.composite_cpu (eight rays a thread in vector
@@ -113,182 +115,6 @@ SIMD_BACKWARD = True  # the same for composite_backward
 # reproduced (kernels._npexp), instead of NumPy's pass before the launch, where that exp gives np.exp's bits on
 # this CPU (checked once on a fixed set); False keeps NumPy's pass.
 FUSED_EXP = True
-
-
-@wp.func
-def _sample_factor(sigma: wp.array(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
-                   factor: wp.array(dtype=typing.Any), k: int, factor_given: int):
-    """exp(-sigma_k delta_k): read from `factor` (filled before the launch), or evaluated and stored."""
-    if factor_given != 0:
-        return factor[k]
-    e = wp.exp(-sigma[k] * delta[k])
-    factor[k] = e
-    return e
-
-
-@wp.func
-def _composite_step(T: typing.Any, cr: typing.Any, cg: typing.Any, cb: typing.Any, d: typing.Any, e: typing.Any,
-                    c: typing.Any, zk: typing.Any):
-    """One sample of the quadrature: w = T (1 - e); (T e, C + w c, D + w z)."""
-    w = T * (type(T)(1.0) - e)
-    return T * e, cr + w * c[0], cg + w * c[1], cb + w * c[2], d + w * zk
-
-
-@wp.kernel
-def _composite_forward_kernel(
-    sigma: wp.array(dtype=typing.Any), rgb: wp.array(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
-    z: wp.array(dtype=typing.Any), ray_offsets: wp.array(dtype=wp.int32), background: wp.array2d(dtype=typing.Any),
-    background_per_ray: int, t_threshold: typing.Any,
-    out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
-    out_opacity: wp.array(dtype=typing.Any), out_transmittance: wp.array(dtype=typing.Any),
-    out_n_used: wp.array(dtype=wp.int32), out_factor: wp.array(dtype=typing.Any), factor_given: int,
-    factor4: wp.array(dtype=typing.Any), z4: wp.array(dtype=typing.Any), check_values: int,
-    out_bad: wp.array(dtype=wp.int32), offset: int,
-):
-    # rgb is the (N, 3) colours viewed as N vec3; factor4 and z4 view out_factor and z as vec4 (samples 4q..4q+3).
-    # check_values != 0: out_bad[r] = 1 if a colour or depth of the ray may be NaN or infinite (see below).
-    r = wp.tid() + offset
-    one = sigma.dtype(1.0)
-    T = one
-    cr = sigma.dtype(0.0)
-    cg = sigma.dtype(0.0)
-    cb = sigma.dtype(0.0)
-    d = sigma.dtype(0.0)
-    start = ray_offsets[r]
-    stop = ray_offsets[r + 1]
-    k = start
-    # Single samples up to a multiple of 4 (stop = k ends the ray: early termination) ...
-    while k < stop and k % 4 != 0:
-        if T < t_threshold:
-            stop = k
-        else:
-            e = _sample_factor(sigma, delta, out_factor, k, factor_given)
-            T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e, rgb[k], z[k])
-            k += 1
-    # ... then four at a time while none of the four terminates (the same operations in the same
-    # order as one at a time, so bit for bit the same sums; fewer loop and index computations) ...
-    while k + 4 <= stop:
-        q = k // 4
-        e4 = factor4[q]
-        if factor_given == 0:
-            e4 = wp.vector(wp.exp(-sigma[k] * delta[k]), wp.exp(-sigma[k + 1] * delta[k + 1]),
-                           wp.exp(-sigma[k + 2] * delta[k + 2]), wp.exp(-sigma[k + 3] * delta[k + 3]))
-            factor4[q] = e4
-        T1 = T * e4[0]
-        T2 = T1 * e4[1]
-        T3 = T2 * e4[2]
-        if T < t_threshold or T1 < t_threshold or T2 < t_threshold or T3 < t_threshold:
-            break
-        z_q = z4[q]
-        T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e4[0], rgb[k], z_q[0])
-        T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e4[1], rgb[k + 1], z_q[1])
-        T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e4[2], rgb[k + 2], z_q[2])
-        T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e4[3], rgb[k + 3], z_q[3])
-        k += 4
-    # ... and single samples for the rest (the tail, or the quad in which the ray terminates).
-    while k < stop:
-        if T < t_threshold:
-            stop = k
-        else:
-            e = _sample_factor(sigma, delta, out_factor, k, factor_given)
-            T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e, rgb[k], z[k])
-            k += 1
-    if check_values != 0:
-        # The sums C and D are NaN or infinite if a processed colour or depth is (w_k is finite:
-        # sigma and delta were checked), so only the samples after early termination are added
-        # up here. Infinite sums of finite values are a false alarm that the exact check clears.
-        rest = sigma.dtype(0.0)
-        for j in range(k, ray_offsets[r + 1]):
-            c = rgb[j]
-            rest += c[0] + c[1] + c[2] + z[j]
-        bad = int(1)
-        if wp.isfinite(cr) and wp.isfinite(cg) and wp.isfinite(cb) and wp.isfinite(d) and wp.isfinite(rest):
-            bad = 0
-        out_bad[r] = bad
-    b = r * background_per_ray
-    out_rgb[r, 0] = cr + T * background[b, 0]
-    out_rgb[r, 1] = cg + T * background[b, 1]
-    out_rgb[r, 2] = cb + T * background[b, 2]
-    out_depth[r] = d
-    out_opacity[r] = one - T
-    out_transmittance[r] = T
-    out_n_used[r] = k - start
-
-
-@wp.func
-def _backward_step(T: typing.Any, prefix: typing.Any, e: typing.Any, c: typing.Any, zk: typing.Any, dk: typing.Any,
-                   gr: typing.Any, gg: typing.Any, gb: typing.Any, gd: typing.Any, total: typing.Any,
-                   tail: typing.Any):
-    """One sample of the backward: (T_{k+1}, prefix through k, dL/dsigma_k, w_k)."""
-    w = T * (type(T)(1.0) - e)
-    f = gr * c[0] + gg * c[1] + gb * c[2] + gd * zk
-    prefix = prefix + w * f
-    T = T * e
-    return T, prefix, dk * (T * f - (total - prefix) + tail), w
-
-
-@wp.kernel
-def _composite_backward_kernel(
-    factor: wp.array(dtype=typing.Any), rgb: wp.array(dtype=typing.Any), delta: wp.array(dtype=typing.Any),
-    z: wp.array(dtype=typing.Any), ray_offsets: wp.array(dtype=wp.int32), background: wp.array2d(dtype=typing.Any),
-    background_per_ray: int, out_rgb: wp.array2d(dtype=typing.Any), out_depth: wp.array(dtype=typing.Any),
-    out_transmittance: wp.array(dtype=typing.Any), out_n_used: wp.array(dtype=wp.int32),
-    grad_rgb: wp.array2d(dtype=typing.Any), grad_depth: wp.array(dtype=typing.Any),
-    grad_opacity: wp.array(dtype=typing.Any), grad_sigma: wp.array(dtype=typing.Any),
-    grad_sample_rgb: wp.array(dtype=typing.Any), factor4: wp.array(dtype=typing.Any), z4: wp.array(dtype=typing.Any),
-    delta4: wp.array(dtype=typing.Any), grad_sigma4: wp.array(dtype=typing.Any), offset: int,
-):
-    # rgb and grad_sample_rgb are (N, 3) arrays viewed as N vec3; the *4 arrays view their namesakes
-    # as vec4 (samples 4q..4q+3). Quads where aligned, as in the forward kernel: the same operations.
-    r = wp.tid() + offset
-    zero = factor.dtype(0.0)
-    one = factor.dtype(1.0)
-    b = r * background_per_ray
-    gr = grad_rgb[r, 0]
-    gg = grad_rgb[r, 1]
-    gb = grad_rgb[r, 2]
-    gd = grad_depth[r]
-    g3 = wp.vector(gr, gg, gb)
-    T_final = out_transmittance[r]
-    g_bg = gr * background[b, 0] + gg * background[b, 1] + gb * background[b, 2]
-    total = (gr * (out_rgb[r, 0] - T_final * background[b, 0]) + gg * (out_rgb[r, 1] - T_final * background[b, 1])
-             + gb * (out_rgb[r, 2] - T_final * background[b, 2]) + gd * out_depth[r])
-    tail = T_final * (grad_opacity[r] - g_bg)
-    start = ray_offsets[r]
-    stop = start + out_n_used[r]
-    T = one
-    prefix = zero
-    k = start
-    while k < stop and k % 4 != 0:
-        # factor: exp(-sigma_k delta_k), stored by the forward: bit for bit its T_k and w_k
-        T, prefix, gs, w = _backward_step(T, prefix, factor[k], rgb[k], z[k], delta[k], gr, gg, gb, gd, total, tail)
-        grad_sigma[k] = gs
-        grad_sample_rgb[k] = g3 * w
-        k += 1
-    while k + 4 <= stop:
-        q = k // 4
-        e4 = factor4[q]
-        z_q = z4[q]
-        d_q = delta4[q]
-        T, prefix, gs0, w0 = _backward_step(T, prefix, e4[0], rgb[k], z_q[0], d_q[0], gr, gg, gb, gd, total, tail)
-        T, prefix, gs1, w1 = _backward_step(T, prefix, e4[1], rgb[k + 1], z_q[1], d_q[1], gr, gg, gb, gd, total, tail)
-        T, prefix, gs2, w2 = _backward_step(T, prefix, e4[2], rgb[k + 2], z_q[2], d_q[2], gr, gg, gb, gd, total, tail)
-        T, prefix, gs3, w3 = _backward_step(T, prefix, e4[3], rgb[k + 3], z_q[3], d_q[3], gr, gg, gb, gd, total, tail)
-        grad_sigma4[q] = wp.vector(gs0, gs1, gs2, gs3)
-        grad_sample_rgb[k] = g3 * w0
-        grad_sample_rgb[k + 1] = g3 * w1
-        grad_sample_rgb[k + 2] = g3 * w2
-        grad_sample_rgb[k + 3] = g3 * w3
-        k += 4
-    while k < stop:
-        T, prefix, gs, w = _backward_step(T, prefix, factor[k], rgb[k], z[k], delta[k], gr, gg, gb, gd, total, tail)
-        grad_sigma[k] = gs
-        grad_sample_rgb[k] = g3 * w
-        k += 1
-    zero3 = wp.vector(zero, zero, zero)
-    for j in range(stop, ray_offsets[r + 1]):
-        grad_sigma[j] = zero
-        grad_sample_rgb[j] = zero3
 
 
 @dataclass
@@ -677,35 +503,8 @@ def composite_backward(
     return a.out(grad_sigma), a.out(grad_sample_rgb)
 
 
-_VEC3 = {wp.float32: wp.vec3f, wp.float64: wp.vec3d}
-_VEC4 = {wp.float32: wp.vec4f, wp.float64: wp.vec4d}
-
-
-def _declare_overloads(kernel: Any, vec3: tuple[str, ...], vec4: tuple[str, ...]) -> dict[Any, Any]:
-    """Both float overloads of a generic kernel whose arrays named in `vec3`/`vec4` hold vectors,
-    as {scalar type: overload}. Launching an overload rather than the generic kernel spares Warp
-    inferring and normalising the argument types on every launch (~50 us of Python a launch,
-    each chunk of a split launch paying it)."""
-    overloads = {}
-    for scalar in A.FLOATS:
-        types: dict[str, Any] = {}
-        for arg in kernel.adj.args:
-            if wp.types.is_array(arg.type) and arg.type.dtype is typing.Any:
-                dt = _VEC3[scalar] if arg.label in vec3 else _VEC4[scalar] if arg.label in vec4 else scalar
-                types[arg.label] = wp.array(dtype=dt, ndim=arg.type.ndim)
-            elif arg.type is typing.Any:
-                types[arg.label] = scalar
-        overloads[scalar] = wp.overload(kernel, types)
-    return overloads
-
-
 def _vec_view(x: wp.array, length: int) -> wp.array:
     """A contiguous float array seen as consecutive vectors of `length` (x[length i : length (i+1)] as entry i;
     a trailing remainder is left out). Zero-copy: x must stay alive while the view is used."""
     vt = (_VEC3 if length == 3 else _VEC4)[x.dtype]
     return wp.array(ptr=x.ptr, dtype=vt, shape=(x.size // length,), device=x.device)
-
-
-_FORWARD = _declare_overloads(_composite_forward_kernel, vec3=("rgb",), vec4=("factor4", "z4"))
-_BACKWARD = _declare_overloads(_composite_backward_kernel, vec3=("rgb", "grad_sample_rgb"),
-                               vec4=("factor4", "z4", "delta4", "grad_sigma4"))
