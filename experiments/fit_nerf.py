@@ -119,7 +119,7 @@ def noise_floor(ds, split, gt_srgb: np.ndarray, n_views: int, seed: int) -> dict
     from research.datasets import get_scene
     from research.datasets.render import SceneRenderer
     from research.metrics import psnr
-    from research.nerf.train import srgb_targets
+    from research.metrics import srgb_targets
 
     renderer = SceneRenderer(get_scene(ds.manifest["config"]["scene"]), spp=ds.manifest["config"]["spp"])
     values = []
@@ -248,7 +248,8 @@ class FieldData:
 def prepare(ctx: Context) -> FieldData:
     """Open --data (or render the Mitsuba dataset) and build the training rays and the sRGB test targets."""
     from research.datasets import cache_dir, ensure, formats, load
-    from research.nerf.train import RayBank, srgb_targets
+    from research.metrics import srgb_targets
+    from research.nerf.train import RayBank
 
     from experiments.fit_splats import open_external
 

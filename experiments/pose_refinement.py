@@ -465,7 +465,7 @@ def run(ctx: Context) -> int:
     from experiments.fit_nerf import dataset_config
     from research.poses import se3 as P
     from research.datasets import cache_dir, ensure, get_scene, load, provenance
-    from research.nerf.train import srgb_targets
+    from research.metrics import srgb_targets
     from research.poses.refine_volume import TrainingViews, align_to_reference, apply_alignment, pose_error_summary
 
     args = ctx.args

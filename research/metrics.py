@@ -44,6 +44,16 @@ def srgb_on_black(rgb_linear_premultiplied: np.ndarray) -> np.ndarray:
     return linear_to_srgb(np.clip(rgb, 0.0, 1.0))
 
 
+def srgb_targets(rgba_linear: np.ndarray) -> np.ndarray:
+    """Linear premultiplied RGBA (N, H, W, 4) -> (sRGB of the image on black, alpha), float32.
+
+    The RGB is exactly what this module evaluates against (`srgb_on_black`), so a field trained
+    on a black background is fitted to its evaluation target, edge pixels included.
+    """
+    rgb = srgb_on_black(rgba_linear.astype(np.float64))
+    return np.concatenate([rgb, rgba_linear[..., 3:].astype(np.float64)], axis=-1).astype(np.float32)
+
+
 def _pair(pred: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a = np.asarray(pred, dtype=np.float64)
     b = np.asarray(target, dtype=np.float64)

@@ -25,7 +25,7 @@ NeRF, instant-ngp and 3DGS) trains on the train split and scores the test split 
 composited on white in sRGB: `srgb * alpha + (1 - alpha)`.
 
 Scene bound: a declared box (`"aabb": [[x, y, z], [x, y, z]]` in transforms_train.json or transforms.json, or the
-scene record of a drlab cameras.json beside it), else `formats.bound_from_cameras`.
+scene record of a drlab cameras.json beside it), else `external.bound_from_cameras`.
 
 Errors (research.datasets.DatasetError, a ValueError; one line naming the file): a missing
 transforms_train.json or transforms_test.json (when there is no single transforms.json), a single
@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from research.cameras import Camera
-from research.datasets import formats
+from research.datasets import external
 from research.datasets.integrity import DatasetError
 from research.datasets.loader import SPLITS, Dataset, Protocol, Split, View, _image_size
 
@@ -184,7 +184,7 @@ def load_blender(path: str | Path, factor: int = 1) -> Dataset:
 
     Headers and cameras are checked here; pixels are read by `Dataset.load_split`.
     """
-    factor = formats.check_factor(factor)
+    factor = external.check_factor(factor)
     root = Path(path)
     if not root.is_dir():
         raise DatasetError(f"{root}: no such dataset folder")
@@ -226,19 +226,19 @@ def load_blender(path: str | Path, factor: int = 1) -> Dataset:
     cams = [v.camera for v in views]
     bbox = _declared_box(root, train_doc, root / (SINGLE_TRANSFORMS if single else "transforms_train.json"))
     if bbox is None:
-        bbox = formats.bound_from_cameras([v.camera for v in views if v.split == "train"] or cams)
+        bbox = external.bound_from_cameras([v.camera for v in views if v.split == "train"] or cams)
     width, height = cams[0].width, cams[0].height
 
     def load_views(selected: list[View]) -> Split:
-        images = [formats.downscale(formats.read_srgb(files[v.name]), factor, files[v.name]) for v in selected]
+        images = [external.downscale(external.read_srgb(files[v.name]), factor, files[v.name]) for v in selected]
         for v, im in zip(selected, images):
             if im.shape[:2] != (v.camera.height, v.camera.width):
                 raise DatasetError(f"{files[v.name]}: image changed on disk: now {im.shape[1]}x{im.shape[0]}")
-        return formats.split_from_srgb([v.camera for v in selected], images, [str(files[v.name]) for v in selected])
+        return external.split_from_srgb([v.camera for v in selected], images, [str(files[v.name]) for v in selected])
 
-    manifest = {"format": "blender", "content_hash": formats.content_hash(root, read), "factor": factor,
+    manifest = {"format": "blender", "content_hash": external.content_hash(root, read), "factor": factor,
                 "root": str(root)}
     protocol = (nerfstudio_protocol if single else nerf_synthetic_protocol)(width, height, factor)
-    return Dataset(root, manifest, views, bbox, formats.up_from_cameras(cams), format="blender",
+    return Dataset(root, manifest, views, bbox, external.up_from_cameras(cams), format="blender",
                    scene=root.resolve().name, protocol=protocol,
                    split_loader=load_views)

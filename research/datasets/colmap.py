@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from research.cameras import Camera, check_pose
-from research.datasets import formats
+from research.datasets import external
 from research.datasets.integrity import DatasetError
 from research.datasets.loader import Dataset, Protocol, Split, View, _image_size
 
@@ -155,7 +155,7 @@ def load_colmap(path: str | Path, factor: int | None = None) -> Dataset:
     if not root.is_dir():
         raise DatasetError(f"{root}: no such dataset folder")
     scene = root.resolve().name
-    factor = default_factor(scene) if factor is None else formats.check_factor(factor)
+    factor = default_factor(scene) if factor is None else external.check_factor(factor)
     d = model_dir(root)
     rec = read_model(d)
     cams_file, images_file = _model_file(d, "cameras"), _model_file(d, "images")
@@ -197,7 +197,7 @@ def load_colmap(path: str | Path, factor: int | None = None) -> Dataset:
 
     pts = np.array([p.xyz for p in rec.points3D.values()], dtype=np.float64).reshape(-1, 3)
     cols = np.array([p.color for p in rec.points3D.values()], dtype=np.float64).reshape(-1, 3) / 255.0
-    bbox = _points_bound(pts) if len(pts) >= 8 else formats.bound_from_cameras(cams)
+    bbox = _points_bound(pts) if len(pts) >= 8 else external.bound_from_cameras(cams)
     width, height = cams[0].width, cams[0].height
     if len(sizes) > 1:
         width, height = max(sizes)
@@ -205,18 +205,18 @@ def load_colmap(path: str | Path, factor: int | None = None) -> Dataset:
     def load_views(selected: list[View]) -> Split:
         images = []
         for v in selected:
-            im = formats.read_srgb(files[v.name])
+            im = external.read_srgb(files[v.name])
             if im.shape[:2] != (v.camera.height, v.camera.width):
                 raise DatasetError(f"{files[v.name]}: image changed on disk: now {im.shape[1]}x{im.shape[0]}")
             images.append(im)
         if len({im.shape for im in images}) > 1:
             raise DatasetError(f"{folder}: the {len(selected)} images of a split must have one size to be "
                                f"stacked, got {sorted({im.shape[1::-1] for im in images})}")
-        return formats.split_from_srgb([v.camera for v in selected], images, [str(files[v.name]) for v in selected])
+        return external.split_from_srgb([v.camera for v in selected], images, [str(files[v.name]) for v in selected])
 
     model_files = [f for f in d.iterdir() if f.is_file()]
-    manifest = {"format": "colmap", "content_hash": formats.content_hash(root, model_files + list(files.values())),
+    manifest = {"format": "colmap", "content_hash": external.content_hash(root, model_files + list(files.values())),
                 "factor": factor, "root": str(root), "model": str(d), "points": len(pts)}
-    return Dataset(root, manifest, views, bbox, formats.up_from_cameras(cams), format="colmap", scene=scene,
+    return Dataset(root, manifest, views, bbox, external.up_from_cameras(cams), format="colmap", scene=scene,
                    protocol=mipnerf360_protocol(factor, width, height), points=pts if len(pts) else None,
                    point_colors=cols if len(pts) else None, split_loader=load_views)

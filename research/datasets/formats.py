@@ -1,4 +1,4 @@
-"""Which reader a data folder needs, and what the readers of external formats share.
+"""Which reader a data folder needs, and the evaluation targets of a dataset's protocol.
 
 `detect_format(path)`: "drlab" (a folder written by `drlab dataset`: manifest.json), "blender"
 (NeRF-synthetic / nerfstudio: transforms_train.json, or nerfstudio's single transforms.json),
@@ -8,23 +8,19 @@ sparse/ holding a model), "middlebury_mview" (a Middlebury multi-view folder: on
 or None (not a dataset folder: the experiments then treat --data as the
 cache root of their own renders, as before). `open_dataset(path, fmt, factor)` loads it.
 
-Shared by research.datasets.blender and research.datasets.colmap: images in straight-alpha sRGB,
-their conversion to the Split contract (linear, premultiplied), the protocol's targets (composited
-on the protocol's background in sRGB, as the NeRF/3DGS evaluations do), a content hash over the
-files read, and a scene bound from the cameras.
+The protocol's targets (`protocol_srgb`, `protocol_target_srgb`, `protocol_target_linear`): the
+images composited on the protocol's background in sRGB, as the NeRF/3DGS evaluations do. What the
+readers themselves share (images in straight-alpha sRGB, the Split contract, content hash, scene
+bound) is research.datasets.external, which this dispatch imports nothing from.
 """
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
 from research import io
-from research.cameras import Camera
-from research.datasets.integrity import DatasetError
 from research.datasets.loader import Dataset, Protocol, Split
 
 FORMATS = ("drlab", "blender", "colmap", "llff", "middlebury_mview")
@@ -75,67 +71,15 @@ def open_dataset(path: str | Path, fmt: str, factor: int | None = None) -> Datas
     return load_colmap(path, factor=factor)
 
 
-def check_factor(factor: object) -> int:
-    if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
-        raise ValueError(f"factor: expected a downscale factor, an integer >= 1, got {factor!r}")
-    return int(factor)
-
-
-def read_srgb(path: Path) -> np.ndarray:
-    """An 8- or 16-bit PNG or a JPEG as straight-alpha sRGB RGBA float32 in [0, 1] (alpha 1 if absent)."""
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".png":
-            x = io.read_png(path, linear=False)
-        elif suffix in (".jpg", ".jpeg"):
-            pixels, spec = io._oiio_read(path, "jpeg", None)
-            if pixels.dtype != np.uint8:
-                raise DatasetError(f"{path}: expected an 8-bit JPEG, got pixel format {spec.format}")
-            x = pixels.astype(np.float32) / np.float32(255.0)
-        else:
-            raise DatasetError(f"{path}: expected a .png, .jpg or .jpeg image")
-    except (ValueError, OSError) as e:  # OpenImageIO's messages can span lines: one line, naming the file
-        msg = " ".join(str(e).split())
-        raise DatasetError(msg if str(path) in msg else f"{path}: {msg}") from None
-    c = x.shape[2]
-    if c == 1:
-        x = np.repeat(x, 3, axis=2)
-    elif c == 2:
-        x = np.concatenate([np.repeat(x[..., :1], 3, axis=2), x[..., 1:]], axis=2)
-    if x.shape[2] == 3:
-        x = np.concatenate([x, np.ones_like(x[..., :1])], axis=2)
-    return np.ascontiguousarray(x[..., :4], dtype=np.float32)
-
-
-def downscale(img: np.ndarray, factor: int, path: Path) -> np.ndarray:
-    """Box average over factor x factor blocks of the straight values (OpenCV's INTER_AREA at an
-    integer factor, what the NeRF code uses for its half-resolution images)."""
-    if factor == 1:
-        return img
-    h, w = img.shape[:2]
-    if h % factor or w % factor:
-        raise DatasetError(f"{path}: image is {w}x{h}, not divisible by the downscale factor {factor}")
-    return img.reshape(h // factor, factor, w // factor, factor, -1).mean(axis=(1, 3), dtype=np.float64) \
-        .astype(np.float32)
-
-
-def split_from_srgb(cameras: list[Camera], srgb: list[np.ndarray], names: list[str]) -> Split:
-    """The Split contract (linear premultiplied RGBA; no depth, no mask) from straight sRGB images."""
-    s = np.stack(srgb) if srgb else np.zeros((0, 1, 1, 4), np.float32)
-    alpha = s[..., 3:]
-    rgba = np.concatenate([io.srgb_to_linear(s[..., :3]) * alpha, alpha], axis=-1).astype(np.float32)
-    return Split(cameras, rgba, None, None, names, srgb=s)
-
-
 def protocol_srgb(split: Split, protocol: Protocol | None) -> np.ndarray:
     """(N, H, W, 4): the sRGB colour premultiplied by alpha (colour x alpha, in sRGB) and alpha.
 
     Composited on a background b as `rgb + (1 - alpha) b`, this is the NeRF/3DGS target
     `srgb * alpha + (1 - alpha) b`. drlab's own datasets (no srgb): the sRGB of the linear image on
-    black, and alpha (research.nerf.train.srgb_targets).
+    black, and alpha (research.metrics.srgb_targets).
     """
     if split.srgb is None:
-        from research.nerf.train import srgb_targets
+        from research.metrics import srgb_targets
 
         return srgb_targets(split.rgba)
     s = split.srgb.astype(np.float64)
@@ -164,47 +108,3 @@ def protocol_target_linear(split: Split, protocol: Protocol | None) -> np.ndarra
     if split.srgb is None or protocol is None:
         return split.rgba[..., :3]
     return io.srgb_to_linear(protocol_target_srgb(split, protocol).astype(np.float64)).astype(np.float32)
-
-
-def content_hash(root: Path, files: Iterable[Path]) -> str:
-    """SHA-256 over (path relative to root, bytes) of every file read, in sorted order."""
-    h = hashlib.sha256()
-    for f in sorted(set(files)):
-        h.update(str(f.relative_to(root)).encode())
-        h.update(b"\0")
-        with open(f, "rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
-    return h.hexdigest()
-
-
-def bound_from_cameras(cameras: list[Camera]) -> np.ndarray:
-    """A box for an inward-looking capture: the cube centred where the optical axes come closest to
-    each other (least squares), of half-size d tan(fov_x / 2) with d the median camera distance to
-    that point -- what a camera's field of view spans there (1.45 for NeRF-synthetic's cameras at
-    radius 4.03 with camera_angle_x 0.69, whose objects lie within 1.5)."""
-    A = np.zeros((3, 3))
-    b = np.zeros(3)
-    for c in cameras:
-        d = c.R[:, 2]
-        P = np.eye(3) - np.outer(d, d)
-        A += P
-        b += P @ c.center
-    if np.linalg.cond(A) > 1e8:  # parallel axes (a forward-facing capture): the point before the mean camera
-        centres = np.array([c.center for c in cameras])
-        spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) or 1.0
-        focus = centres.mean(0) + spread * np.mean([c.R[:, 2] for c in cameras], axis=0)
-    else:
-        focus = np.linalg.solve(A, b)
-    dist = float(np.median([np.linalg.norm(c.center - focus) for c in cameras]))
-    half = dist * float(np.median([(c.width / 2.0) / c.fx for c in cameras]))
-    if not np.isfinite(half) or half <= 0:
-        raise DatasetError("cameras: cannot derive a scene bound (the cameras coincide)")
-    return np.array([focus - half, focus + half])
-
-
-def up_from_cameras(cameras: list[Camera]) -> np.ndarray:
-    """The mean of the cameras' image-up directions (-y of the OpenCV frame), normalised."""
-    up = -np.mean([c.R[:, 1] for c in cameras], axis=0)
-    n = float(np.linalg.norm(up))
-    return up / n if n > 1e-9 else np.array([0.0, 0.0, 1.0])

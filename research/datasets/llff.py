@@ -55,7 +55,7 @@ import numpy as np
 
 from kernels.rotation import checked_rotation
 from research.cameras import Camera
-from research.datasets import formats
+from research.datasets import external
 from research.datasets.integrity import DatasetError
 from research.datasets.loader import Dataset, Protocol, Split, View, _image_size
 
@@ -156,7 +156,7 @@ def load_llff(path: str | Path, factor: int | None = None) -> Dataset:
     root = Path(path)
     if not root.is_dir():
         raise DatasetError(f"{root}: no such dataset folder")
-    factor = DEFAULT_FACTOR if factor is None else formats.check_factor(factor)
+    factor = DEFAULT_FACTOR if factor is None else external.check_factor(factor)
     pb = root / POSES_BOUNDS
     if not pb.is_file():
         raise DatasetError(f"{pb}: missing (an LLFF folder has {POSES_BOUNDS} and images_N/)")
@@ -208,15 +208,15 @@ def load_llff(path: str | Path, factor: int | None = None) -> Dataset:
     def load_views(selected: list[View]) -> Split:
         images = []
         for v in selected:
-            im = formats.read_srgb(by_name[v.name])
+            im = external.read_srgb(by_name[v.name])
             if im.shape[:2] != (v.camera.height, v.camera.width):
                 raise DatasetError(f"{by_name[v.name]}: image changed on disk: now {im.shape[1]}x{im.shape[0]}")
             images.append(im)
-        return formats.split_from_srgb([v.camera for v in selected], images, [str(by_name[v.name]) for v in selected])
+        return external.split_from_srgb([v.camera for v in selected], images, [str(by_name[v.name]) for v in selected])
 
-    manifest = {"format": "llff", "content_hash": formats.content_hash(root, [pb, *files]), "factor": factor,
+    manifest = {"format": "llff", "content_hash": external.content_hash(root, [pb, *files]), "factor": factor,
                 "root": str(root), "scale": scale, "bd_factor": BD_FACTOR, "ndc_near": NDC_NEAR}
     return Dataset(root, manifest, views, _frusta_box([cams[i] for i in train], near_far[train]),
-                   formats.up_from_cameras(cams), format="llff", scene=root.resolve().name,
+                   external.up_from_cameras(cams), format="llff", scene=root.resolve().name,
                    protocol=llff_protocol(factor, cams[0].width, cams[0].height), split_loader=load_views,
                    ndc=ndc, near_far=near_far)

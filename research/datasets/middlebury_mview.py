@@ -42,7 +42,7 @@ black background. PSNR and SSIM on sRGB in [0, 1] over the whole image (research
 `object_box` (README.txt's tight bounding box, when the file has one) lets a caller also score only
 the pixels whose rays cross that box (`box_mask`), a region given by the dataset itself.
 
-Scene bound: README.txt's bounding box when present, else `formats.bound_from_cameras`.
+Scene bound: README.txt's bounding box when present, else `external.bound_from_cameras`.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ import numpy as np
 
 from kernels.rotation import checked_rotation
 from research.cameras import Camera
-from research.datasets import formats
+from research.datasets import external
 from research.datasets.integrity import DatasetError
 from research.datasets.loader import Dataset, Protocol, Split, View, _image_size
 
@@ -215,7 +215,7 @@ def load_middlebury_mview(path: str | Path, factor: int = 1) -> Dataset:
     `factor` downscales by box averaging (K scaled). The calibration, names and sizes are checked
     here; pixels are read by `Dataset.load_split`.
     """
-    factor = formats.check_factor(factor)
+    factor = external.check_factor(factor)
     root = Path(path)
     if not root.is_dir():
         raise DatasetError(f"{root}: no such dataset folder")
@@ -251,20 +251,20 @@ def load_middlebury_mview(path: str | Path, factor: int = 1) -> Dataset:
         raise DatasetError(f"{par}: {len(views)} camera; the protocol (every {HOLD}th a test view) needs at least 2")
     cams = [v.camera for v in views]
     box = read_object_box(root)
-    bbox = box if box is not None else formats.bound_from_cameras(cams)
+    bbox = box if box is not None else external.bound_from_cameras(cams)
 
     def load_views(selected: list[View]) -> Split:
-        images = [formats.downscale(formats.read_srgb(files[v.name]), factor, files[v.name]) for v in selected]
+        images = [external.downscale(external.read_srgb(files[v.name]), factor, files[v.name]) for v in selected]
         for v, im in zip(selected, images):
             if im.shape[:2] != (v.camera.height, v.camera.width):
                 raise DatasetError(f"{files[v.name]}: image changed on disk: now {im.shape[1]}x{im.shape[0]}")
-        return formats.split_from_srgb([v.camera for v in selected], images, [str(files[v.name]) for v in selected])
+        return external.split_from_srgb([v.camera for v in selected], images, [str(files[v.name]) for v in selected])
 
     read = [par] + list(files.values()) + ([root / "README.txt"] if box is not None else [])
     n_test = sum(v.split == "test" for v in views)
-    manifest = {"format": "middlebury_mview", "content_hash": formats.content_hash(root, read), "factor": factor,
+    manifest = {"format": "middlebury_mview", "content_hash": external.content_hash(root, read), "factor": factor,
                 "root": str(root), "par": par.name, "object_box": None if box is None else box.tolist()}
-    return Dataset(root, manifest, views, bbox, formats.up_from_cameras(cams), format="middlebury_mview",
+    return Dataset(root, manifest, views, bbox, external.up_from_cameras(cams), format="middlebury_mview",
                    scene=root.resolve().name,
                    protocol=middlebury_protocol(cams[0].width, cams[0].height, n_test, len(views) - n_test),
                    split_loader=load_views)

@@ -42,7 +42,7 @@ from kernels.optim import Adam
 from kernels.volume import Field, GridField, OccupancyGrid, Workspace, render_backward, render_rays
 from kernels.volume.grid import add_tv_grad
 from research.cameras import Camera
-from research.metrics import srgb_on_black
+from research.metrics import srgb_targets
 from research.nerf.render import camera_rays
 
 
@@ -70,16 +70,6 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
-
-
-def srgb_targets(rgba_linear: np.ndarray) -> np.ndarray:
-    """Linear premultiplied RGBA (N, H, W, 4) -> (sRGB of the image on black, alpha), float32.
-
-    The RGB is exactly what research.metrics evaluates against (`srgb_on_black`), so a field trained
-    on a black background is fitted to its evaluation target, edge pixels included.
-    """
-    rgb = srgb_on_black(rgba_linear.astype(np.float64))
-    return np.concatenate([rgb, rgba_linear[..., 3:].astype(np.float64)], axis=-1).astype(np.float32)
 
 
 @dataclass

@@ -70,7 +70,7 @@ def test_bad_inputs():
 
 def test_evaluation_image_is_the_srgb_of_the_composite_on_black():
     from research.metrics import srgb_on_black
-    from research.nerf.train import srgb_targets
+    from research.metrics import srgb_targets
 
     # A half-covered pixel of linear colour 0.4 stores premultiplied 0.2: its evaluation value is
     # sRGB(0.2) (the image on black), not 0.5 * sRGB(0.4) (straight colour encoded, then scaled).

@@ -156,7 +156,7 @@ def test_blender_reads_every_png_and_jpeg_encoding_as_its_reference_decoder(tmp_
     are read, not refused: 16-bit, no alpha (opaque), grey, grey + alpha, paletted with tRNS, JPEG. Values:
     straight (unassociated) sRGB in [0, 1], exactly the stored code / (2^bits - 1); the JPEG within one code
     of Pillow's decode (libjpeg builds may differ by one in the inverse DCT's rounding)."""
-    from research.datasets.formats import read_srgb
+    from research.datasets.external import read_srgb
 
     root = tmp_path / "lego"
     write_blender(root)
