@@ -35,6 +35,7 @@ import numpy as np
 from research import io
 from research.datasets.integrity import DatasetError, read_or_fail
 from research.datasets.loader import StereoPair
+from research.datasets.stereo_pixels import linear_rgba
 
 SCALES = {"tsukuba": 16, "venus": 8, "teddy": 4, "cones": 4}
 NDISP = {"tsukuba": 16, "venus": 20, "teddy": 60, "cones": 60}
@@ -118,9 +119,7 @@ def read_scene(folder: str | Path, scale: float | None = None) -> StereoPair:
     disparity = np.where(known, raw.astype(np.float32) / np.float32(scale), 0.0).astype(np.float32)
     H, W = disparity.shape
     ndisp = NDISP.get(folder.name, int(math.ceil(float(disparity.max()) + 1)))
-    from research.datasets.stereo_benchmarks import _linear_rgba
-
-    return StereoPair(folder.name, None, None, float("nan"), _linear_rgba(left), _linear_rgba(right), disparity,
+    return StereoPair(folder.name, None, None, float("nan"), linear_rgba(left), linear_rgba(right), disparity,
                       known.copy(), known, np.zeros((H, W), np.float32), benchmark=BENCHMARK, left_image=left,
                       right_image=right, ndisp=int(ndisp), has_noc_mask=False, source=str(folder))
 

@@ -64,6 +64,7 @@ from research import io
 from research.cameras import Camera
 from research.datasets.integrity import DatasetError, read_or_fail
 from research.datasets.loader import StereoPair
+from research.datasets.stereo_pixels import linear_rgba
 
 FORMATS = ("middlebury", "kitti", "eth3d", "middlebury2003")
 RESOLUTIONS = {"full": 1, "half": 2, "quarter": 4}
@@ -188,12 +189,6 @@ def read_image(path: Path) -> np.ndarray:
     if c in (1, 2):
         return np.ascontiguousarray(pixels[..., 0])
     return np.ascontiguousarray(pixels[..., :3])
-
-
-def _linear_rgba(img: np.ndarray) -> np.ndarray:
-    unit = img.astype(np.float32) / np.float32(np.iinfo(img.dtype).max)
-    rgb = np.repeat(unit[..., None], 3, axis=2) if unit.ndim == 2 else unit
-    return np.concatenate([io.srgb_to_linear(rgb), np.ones(rgb.shape[:2] + (1,), np.float32)], axis=2)
 
 
 def read_kitti_disparity(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -353,7 +348,7 @@ def _middlebury_pair(folder: Path, k: int, resolution: str, benchmark: str) -> S
         right_cam = Camera(K1, c2w, W, H)
     except ValueError as e:
         raise DatasetError(f"{folder / 'calib.txt'}: {e}") from None
-    return StereoPair(folder.name, left_cam, right_cam, calib.baseline, _linear_rgba(left), _linear_rgba(right),
+    return StereoPair(folder.name, left_cam, right_cam, calib.baseline, linear_rgba(left), linear_rgba(right),
                       disparity, noc, known, depth.astype(np.float32), benchmark=benchmark, resolution=resolution,
                       left_image=left, right_image=right, doffs=calib.doffs, ndisp=calib.ndisp, vmin=calib.vmin,
                       vmax=calib.vmax, has_noc_mask=has_noc, source=str(folder))
@@ -447,7 +442,7 @@ def load_kitti(path: str | Path) -> list[StereoPair]:
                 raise DatasetError(f"{cpath}: {e}") from None
             with np.errstate(divide="ignore"):
                 depth = np.where(known, baseline * f / np.where(known, gt, 1.0), 0.0).astype(np.float32)
-        pairs.append(StereoPair(i, left_cam, right_cam, baseline, _linear_rgba(left), _linear_rgba(right),
+        pairs.append(StereoPair(i, left_cam, right_cam, baseline, linear_rgba(left), linear_rgba(right),
                                 np.where(known, gt, 0.0).astype(np.float32), noc, known, depth, benchmark="kitti",
                                 left_image=left, right_image=right, foreground=fg,
                                 source=str(root / ldir / name)))
