@@ -185,13 +185,24 @@ def _check_slam(m):
     assert _finite(m["held_out"]["psnr"]) and m["held_out"]["psnr"] > 5 and len(m["per_frame"]) == 8
 
 
+def _check_time_budget(m):
+    runs = m["runs"]
+    assert [r["iterations"] for r in runs if r["method"] == "splats"] == [10, 30]
+    assert [r["scale"] for r in runs if r["method"] == "hashgrid"] == [0.5, 1.0]
+    assert all(_finite(r["psnr"]) and r["psnr"] > 5 and r["wall_s"] > 0 and r["cpu_s"] > 0 for r in runs)
+    for row, budget in zip(m["budget_table"], m["budgets_min"]):  # the best run that fits in each budget
+        for method in ("splats", "hashgrid"):
+            fit = [r["psnr"] for r in runs if r["method"] == method and r["wall_s"] <= 60 * budget]
+            assert row[method].startswith(f"{max(fit):.2f} (") if fit else row[method].startswith("-")
+
+
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
           "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
           "volume_render_spheres": _check_volume, "sfm_poses": _check_sfm_poses, "real_photos": _check_real_photos,
           "oracle_conformance": _check_oracle,
           "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo,
-          "splat_slam": _check_slam}
+          "splat_slam": _check_slam, "time_budget": _check_time_budget}
 
 
 def test_every_registered_experiment_has_a_smoke_check():
