@@ -33,7 +33,7 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF
 from kernels.splat.rowblend import blend_row
-from kernels.splat.tiles import pixel_span
+from kernels.splat.spans import pixel_span
 from kernels.splat.tiles import TILE, TILE_PIXELS
 
 wp.set_module_options({"enable_backward": False})
