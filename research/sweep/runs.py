@@ -185,13 +185,30 @@ def _local_instance_on_loopback() -> None:
         ray_constants.ENABLE_RAY_CLUSTER = False
 
 
-def _remove_after_exit(folder: str, wait_s: float = 20.0) -> None:
-    """Remove a local instance's session folder once no process names it (raylet, GCS server and
-    workers exit shortly after ray.shutdown returns), waiting at most `wait_s`."""
+def _remove_after_exit(folder: str, wait_s: float = 90.0) -> None:
+    """Remove a local instance's session folder once no process names it, waiting at most `wait_s`.
+
+    The raylet, GCS server and workers exit after ray.shutdown returns: within a second on a quiet
+    machine, but tens of seconds on a loaded 2-core one, and a process still exiting can write its
+    last log lines into the folder after a first removal. So the removal is repeated until the folder
+    stays gone with no process naming it, or the time is up.
+    """
     deadline = time.monotonic() + wait_s
-    while time.monotonic() < deadline and _processes_naming(folder):
+    gone_since = None
+    while True:
+        if os.path.exists(folder) and not _processes_naming(folder):
+            shutil.rmtree(folder, ignore_errors=True)
+        now = time.monotonic()
+        if os.path.exists(folder):
+            gone_since = None
+        elif gone_since is None:
+            gone_since = now
+        elif now - gone_since >= 1.0:  # workers (whose command line does not name it) have stopped writing
+            return
+        if now >= deadline:
+            shutil.rmtree(folder, ignore_errors=True)
+            return
         time.sleep(0.2)
-    shutil.rmtree(folder, ignore_errors=True)
 
 
 def _processes_naming(text: str) -> bool:
