@@ -58,7 +58,7 @@ CPU_ONLY: dict[str, str] = {
         "`_common.sample_windows`",
     "kernels.corr.patch_cpu.patch_groups_cpu":
         f"8/16-lane dot products in {_VECTOR_EXT}, `__builtin_shufflevector`, `__builtin_convertvector`, "
-        "`__builtin_elementwise_fma` and `_Float16`; CUDA runs `onthefly._patch_level`",
+        "`__builtin_elementwise_fma` and `_Float16`; CUDA runs `onthefly_kernels._patch_level`",
     "kernels.corr.patch_cpu.widen_rows_cpu":
         f"float16 -> float32 rows by `__builtin_convertvector` on `_Float16` vectors of {_VECTOR_EXT}; "
         "CUDA runs `stored._widen_rows_v`",

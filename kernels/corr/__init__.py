@@ -50,7 +50,9 @@ Stages, one module each (each opens with its own math, adjoints and layout):
   * `window_cpu`: the dense lookup's window sampling on the CPU, in C++ (one kernel per
     radius and float type, 4 pixels a thread), bit-identical to `_common`'s;
   * `onthefly`: the same lookup from f1 and the pooled features P^l(f2) without
-    storing V, with its adjoint;
+    storing V, with its adjoint (its Warp kernels in `onthefly_kernels`, the channels-last
+    layout and BLAS full products in `onthefly_layout`, the every-level-at-once schedule on
+    several threads in `onthefly_phased`);
   * `patch_cpu`: the on-the-fly forward's patches on the CPU, in C++ (pixels grouped by
     window column so that up to 8 share each tap row's vectors; one kernel per radius,
     float type and storage dtype), bit-identical to `onthefly`'s Warp kernel;

@@ -1,4 +1,4 @@
-// kernels/stereo/adcensus.py, _cells16: the 16 cost cells (x, d0 + i) of a float32 volume whose lanes
+// kernels/stereo/adcensus_kernels.py, _cells16: the 16 cost cells (x, d0 + i) of a float32 volume whose lanes
 // are all in range: rho_census[popcount(a ^ cr[y, u - i])] + rho_grad[i] (+ rho_bt[i]), stored; the
 // fused kernel's lane loop with its operations in its order (contraction off on the CPU).
 

@@ -1,4 +1,4 @@
-// kernels/stereo/adcensus.py, _rho16: w rho(c) = w (1 - exp(-c inv)) on 16 float32 lanes, _robust_term's
+// kernels/stereo/adcensus_kernels.py, _rho16: w rho(c) = w (1 - exp(-c inv)) on 16 float32 lanes, _robust_term's
 // operations in its order on each lane, with vexp16.h's exp (glibc expf's bits, wp.exp's on the CPU);
 // contraction off. Where vexp16.h is not compiled (CUDA, CPUs without AVX2 / FMA) wp.exp lane by lane.
 

@@ -14,13 +14,15 @@ The chain, one module per stage:
     projection.py  Sigma = R S S^T R^T, p = W mu + t, EWA: mean2d, Sigma2d = J W Sigma W^T J^T
                    + 0.3 I, conic Q = Sigma2d^-1, radius, colour = max(0, sum_k f_k Y_k(d) + 1/2),
                    opacity sigmoid(a) (times Mip-Splatting's compensation); the per-splat math and
-                   its VJPs live in ewa.py, the SH basis in kernels/sh.py
+                   its VJPs live in ewa.py, the SH basis in kernels/sh.py, the Warp kernels in
+                   projection_kernels.py
     tiles.py       16 x 16 pixel tiles: each splat listed in the tiles its alpha >= 1/255 region
                    meets, sorted by tile then depth (a radix sort by depth, then a counting sort
-                   by tile on the CPU, a radix sort on CUDA); each splat's pixel spans
+                   by tile on the CPU, a radix sort on CUDA); each splat's pixel spans (spans.py)
     raster.py      per pixel, front to back: alpha_i = min(0.99, o_i G_i), T_{i+1} = T_i (1 - alpha_i),
                    rgb = sum_i c_i alpha_i T_i + T_final background, stopping at T < 1e-4
-                   (in the default mode; "gsplat": 0.999 and <= 1e-4)
+                   (in the default mode; "gsplat": 0.999 and <= 1e-4); the Warp kernels in
+                   raster_kernels.py
     render.py      the whole chain for one camera and its VJP
 
 Two conventions (`mode=`, every projecting or rasterising entry point; kernels/splat/modes.py has

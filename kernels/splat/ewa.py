@@ -1,6 +1,6 @@
 """Per-splat projection math, forward and vector-Jacobian product side by side (Warp functions).
 
-The projection kernels (kernels/splat/projection.py) call these: the forward kernel the forward
+The projection kernels (kernels/splat/projection_kernels.py) call these: the forward kernel the forward
 functions, the backward kernel the same forward functions where it needs intermediate values and
 then the VJPs, so the forward is written once (as gsplat's `quat_scale_to_covar_vjp` and
 `persp_proj_vjp` serve both directions). With q = (w, x, y, z) and log-scales l:

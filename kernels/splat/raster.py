@@ -29,7 +29,7 @@ kernels.launch.launch_split, and the result does not depend on the thread count.
 
 Loop order (speed only; every pixel's arithmetic and order are those above). On the CPU one
 thread per tile walks the tile's list once, splats outside (front to back; back to front in the backward),
-and for each splat only the pixels of its spans in the tile (kernels/splat/tiles.py: the box of
+and for each splat only the pixels of its spans in the tile (kernels/splat/spans.py: the box of
 the rows and columns inside its alpha >= 1/255 ellipse, widened for rounding; every other pixel
 would skip it). Each pixel's running T and sums live in arrays between splats; the forward marks
 a stopped pixel (n_contrib < 0 until the end) and ends the tile once all its pixels stopped.

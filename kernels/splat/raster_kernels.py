@@ -98,7 +98,7 @@ def _raster_forward_kernel(
         c1 = packed[g, 9]
         c2 = packed[g, 10]
         # The splat's rows inside its widened 1/255 ellipse in this tile, and the columns of any of
-        # those rows (tiles.py: pixel_span).
+        # those rows (spans.py: pixel_span).
         row0, row1, col0, col1 = pixel_span(packed, g, x_lo, x_hi, y_lo, y_hi)
         py = row0 - 1
         while py < row1 - 1:

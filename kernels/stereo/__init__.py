@@ -20,7 +20,9 @@ Stages, one module each
 * `bt`: the Birchfield-Tomasi sampling-insensitive dissimilarity (grey or colour, channel mean),
   window-averaged like SAD.
 * `adcensus`: census + BT on the clipped x-Sobel gradient (+ optionally BT on intensity), each term
-  squashed by 1 - exp(-c / lambda) and summed: robust to gain, offset and vignetting between cameras.
+  squashed by 1 - exp(-c / lambda) and summed: robust to gain, offset and vignetting between cameras
+  (its per-image passes in `adcensus_images`, the fused kernel in `adcensus_kernels`, compact mode's
+  vector rho in `adcensus_vrho`).
 * `sgm`: semi-global matching (Hirschmueller, PAMI 2008), S(p, k) = sum_r L_r(p, k) over 4 or 8
   path directions r, L_r penalising disparity steps by P1 (one step) and P2 (more).
 * compact mode: census costs (and adcensus costs quantised, step 1 / compact_levels) as uint8 and
