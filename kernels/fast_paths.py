@@ -1,10 +1,23 @@
 """One switch for every CPU fast path.
 
 Each operation has a plain Warp kernel that reads like its maths and is the CUDA path too. On the
-CPU some operations also have a fast path: C++ through `wp.func_native` (files in kernels/native; clang
-vector extensions: compositing, spheres, hash grid, correlation windows and patches, census rows, splat
-row blending, vector exp) or a NumPy/BLAS backend picked automatically on the CPU (the MLP's and the correlation
-volume's products, the stereo aggregation's sweep). The fast paths give the same results (bit for
+CPU some operations also have a fast path, and this switch turns off exactly these:
+
+  * C++ through `wp.func_native` (files in kernels/native, clang vector extensions): compositing
+    (volume/composite_cpu), the spheres' dense-render passes (volume/spheres_cpu), the hash grid
+    (volume/hashgrid_cpu), the correlation windows (corr/window_cpu) and the on-the-fly patches,
+    pixel grouping and float16 widening (corr/patch_cpu), the census rows (stereo/census's
+    census_rows_f32), and the splat row blend (splat/rowblend, with kernels._vexp's exp);
+  * NumPy, BLAS and host-side passes picked automatically on the CPU: the MLP's products
+    (volume/mlp) and the all-pairs correlation volume (corr/volume), both backend "numpy"; the
+    on-the-fly lookup's channels-last copies, full-product levels and every-level-at-once schedule
+    (corr/onthefly*); the compositing factors by NumPy's exp, or by its copy in the kernel
+    (volume/composite, kernels._npexp); the spheres' passes around NumPy's exp (volume/spheres);
+    the splat tiles' counting sort (splat/tiles) and the per-tile rasteriser (splat/raster).
+
+Not switched: C++ inside a Warp kernel with its own portable branch (the adcensus cost's 16-lane rho
+and cells, stereo/adcensus_kernels), and CPU launch schedules of the same Warp kernels (chunk sizes,
+the SGM sweeps of stereo/sweep, chosen by the device). The fast paths give the same results (bit for
 bit where the module says so, else within the bound its tests derive), but they rely on the CPU
 (AVX2 and FMA), on clang's vector extensions as Warp's CPU compiler builds them and on NumPy's float32
 exp loop, so it must be possible to run without them.
