@@ -22,6 +22,8 @@ oracle float32, and against the oracle float64), at the sizes the kernels run at
   * splat         3,000 Gaussians (SH degree 3) rendered at 256x256 in the default ("3dgs") mode
                   (rgb, alpha, depth, d means, log-scales, quaternions, opacity logits, SH, background,
                   and the camera's pose (6) and intrinsics (4)).
+  * points        the chamfer distance of two 4,096-point clouds (value, d x, d y; kernels/points/chamfer.py),
+                  the oracle by brute force over all pairs.
 
 Differences are normwise: max |drlab - oracle| over all outputs of a kind, and that divided by the
 oracle's largest value of the same outputs (the "rel" columns). Times: one call each (the oracle's
@@ -348,6 +350,27 @@ def case_splat(dt, S, seed):
     return f"{N} Gaussians, {px}x{px}, SH 3", drlab, oracle
 
 
+def case_chamfer(dt, S, seed):
+    from kernels import points as kp
+    from research.oracles.points import chamfer_oracle
+
+    rng = _Rounded(seed)
+    n = max(S["points"] // 16, 16)  # the oracle visits all n x n pairs
+    x, y = rng.normal(size=(n, 3)), rng.normal(0.3, 0.8, (n, 3))
+    g = float(rng.normal(size=1)[0])
+
+    def drlab(t):
+        res = kp.chamfer_distance(x.astype(t), y.astype(t))
+        grads = kp.chamfer_backward(x.astype(t), y.astype(t), res, g)
+        return [np.array([res.value])], [grads["x"], grads["y"]]
+
+    def oracle(t):
+        value, (gx, gy) = chamfer_oracle(x.astype(dt).astype(t), y.astype(dt).astype(t), g)
+        return [np.array([value])], [gx, gy]
+
+    return f"{n} x {n} points", drlab, oracle
+
+
 CASES = [
     ("ssim", "SSIM map", case_ssim),
     ("stereo", "SAD volume", case_window_cost("sad")),
@@ -360,6 +383,7 @@ CASES = [
     ("volume", "hash grid + MLP field", case_hashgrid),
     ("volume", "volume render camera gradients (pose, intrinsics)", case_volume_camera),
     ("splat", "3DGS render (projection, SH, raster, depth, camera)", case_splat),
+    ("points", "chamfer distance (both clouds' gradients)", case_chamfer),
 ]
 
 

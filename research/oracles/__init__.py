@@ -20,7 +20,7 @@ plain graph of element-wise operations, gathers and scatters, whose adjoints are
 rules. `drjit.eval` between iterations keeps the kernels small (one compile, reused).
 
 Modules: `ssim`, `stereo`, `corr`, `volume` (dense grid, hash grid, MLP), `rays` (the volume renderer's
-camera gradients) and `splat`.
+camera gradients), `splat` and `points` (the chamfer distance).
 """
 
 from __future__ import annotations
