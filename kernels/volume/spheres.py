@@ -24,6 +24,25 @@ contract), its argument checks and the launch schedules. The kernels are elsewhe
     spheres_passes   the CPU passes in Warp around NumPy's exp, four samples at a time ("quads")
     spheres_cpu      render_dense's CPU passes in C++, eight rays in vector lanes (float32, AVX2)
 
+render_dense has one NumPy reference (kernels.reference.volume), one plain Warp kernel and four CPU
+routes, all but the plain kernel bit for bit render_samples on dense_samples (tested). Each is kept
+for a measured reason: 64x64 rays x 64 samples of the textbook scene, medians of 21 interleaved
+calls, shared 2-core x86 host under load (the ratios held over repeated runs):
+
+    route (who runs it)                               float32   float64
+    plain kernel (CUDA; the CPU with fast paths off)  14.3 ms   46.9 ms   Warp's exp: not the
+                                                                          general path's bits
+    C++, one launch a chunk (AVX2, _npexp agrees)      1.7 ms      -      the CPU fast path
+    C++, three launches, np.exp between (AVX2, where   3.0 ms      -      vs 6.9 ms for the Warp
+      kernels._npexp's exp differs from np.exp)                            quads that would run
+    Warp passes, four samples a quad (S % 4 == 0;      6.9 ms   33.3 ms   2x the one-at-a-time
+      float64, CPUs without AVX2 such as ARM)                             passes in float32
+    Warp passes, one sample at a time (S % 4 != 0)    13.2 ms   40.0 ms   any sample count
+
+The switches _NATIVE_ON_CPU, _FUSED_EXP_ON_CPU, _QUADS_ON_CPU and _FUSED_ON_CPU below pick a route
+for the tests, which hold the CPU routes to each other's bits and the plain kernel to them within
+the rounding of its exponentials.
+
 `SphereField.render_dense` is the forward of kernels.volume.render_samples(field,
 dense_samples(o, d, t, delta)) fused, one thread per ray: x_k = o + t_k d, the field at x_k, and
 the compositing of kernels.volume.composite (z_k = t_k, early termination as there), without the
