@@ -3,7 +3,7 @@
 The C++ is in kernels/native/patch_groups.cpp, patch_group_pixels.cpp and patch_widen_rows.cpp,
 loaded by `kernels.native.source`.
 
-Same math, same operations and the same order per tap as `onthefly._patch_row` (then
+Same math, same operations and the same order per tap as `onthefly_kernels._patch_row` (then
 `_common.sample_window`, by `window_cpu.sample_patches_cpu`), so the same outputs bit for bit.
 For pixel p at level l, window origin (j0, i0) (`_common.pixel_window`), tap row ty and tap
 column tx (0 .. 2r+1), with x = f1[:, p] and y = P^l(f2)[:, (j0 + ty, i0 + tx)] channels-last in
@@ -47,7 +47,7 @@ F16C conversions for float16, exact), f1 from its widened rows (`stored.widen`, 
 for float32), so a float16 lookup computes on exactly the values a widened copy would hold,
 hence the same outputs bit for bit.
 
-The kernels run on the CPU only (CUDA keeps `onthefly._patch_level` and `sample_windows`); one
+The kernels run on the CPU only (CUDA keeps `onthefly_kernels._patch_level` and `sample_windows`); one
 kernel per (radius, working dtype, storage dtype), its own Warp module, compiled on first use.
 
 `widen_rows_cpu`: float16 rows (N, C8) widened to float32 by the same vector conversions (exact;
@@ -107,7 +107,7 @@ def patch_groups_cpu(radius: int, scalar: Any, storage: Any) -> Any:
     Arguments: (f1, f2l, order, sorted_j0, starts, height_l, width_l, inv, patch, offset), with f1
     (N, C8) rows of `scalar` (f1 widened), f2l (H_l W_l, C8) rows of `storage` (C8 a multiple of 8,
     rows contiguous), (order, sorted_j0, starts) from `group_pixels_cpu`, patch (N, 2r+2, 2r+2) as
-    `onthefly._patch_level`'s; thread = group, over W_l + 2r + 3 groups.
+    `onthefly_kernels._patch_level`'s; thread = group, over W_l + 2r + 3 groups.
     """
     return built_once(_group_kernels, (radius, scalar, storage), lambda: _build_group(radius, scalar, storage))
 

@@ -216,12 +216,12 @@ def onthefly_bytes(height: int, width: int, channels: int, levels: int, radius: 
     to 8), one level's channels-last copy at a time (the largest level sampled through patches),
     the patch buffer (whose memory a full-product level reuses for its blocks of V^l), at a
     full-product level the scaled P^l(f2), and on the CPU the pixels' grouping for the patch kernel
-    (`onthefly._group_pixels`: four int32 of N and the counting sort's (W_l + 2r + 3)(H_l + 2r + 3)
+    (`onthefly_layout._group_pixels`: four int32 of N and the counting sort's (W_l + 2r + 3)(H_l + 2r + 3)
     + 1 + W_l + 2r + 4 at the largest patched level). With float16 features
     (`lookup_onthefly_features`) the working copies are the widened f1 and level, of the same sizes,
     in the working dtype; on the CPU the patch kernel reads the stored level rows in place, so there
     the count is an upper bound (no level copy is made). On the CPU with several threads the lookups
-    form all levels at once (`onthefly._forward_phased`; the float32 `lookup_onthefly` where C is a
+    form all levels at once (`onthefly_phased._forward_phased`; the float32 `lookup_onthefly` where C is a
     multiple of 8): the count holds two patch buffers (the patched levels take turns), every
     full-product level's rows of V^l (N H_l W_l) and scaled P^l(f2), every patched level's grouping
     (kept between calls, per thread and size) and, for the float32 lookup, every patched level's

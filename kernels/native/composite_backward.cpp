@@ -1,5 +1,5 @@
 // kernels/volume/composite_cpu.py, composite_grads8_cpu: the compositing backward
-// (composite._composite_backward_kernel's hand-written adjoint) for the eight rays r0 .. r0 + 7, a ray a
+// (composite_kernels._composite_backward_kernel's hand-written adjoint) for the eight rays r0 .. r0 + 7, a ray a
 // vector lane, float32: per step w = T (1 - e_k), f = ((g_r c_r + g_g c_g) + g_b c_b) + g_D z_k,
 // prefix' = prefix + w f, T' = T e_k, dL/dsigma_k = delta_k ((T' f - (total - prefix')) + tail),
 // dL/dc_k = g_C w; the Warp kernel's float32 operations in its order, contraction off, so the same

@@ -2,7 +2,7 @@
 // (pixels whose windows share the column origin g - SIDE), level row by level row, up to 8 pixels at a
 // time sharing each converted tap vector (pairs of pixels in 16-lane vectors):
 // acc = x_0 y_0, acc = acc + x_k y_k (k = 1, 2, ...), T = (((acc[0] + acc[1]) + ...) + acc[7]) inv,
-// 0 outside the level; onthefly._patch_row's operations in its order. Template parameters: SIDE = 2r + 2
+// 0 outside the level; onthefly_kernels._patch_row's operations in its order. Template parameters: SIDE = 2r + 2
 // (taps a patch row), STORE (the stored features' C type: float, double or _Float16), FUSED (1: each
 // step one fused multiply-add, exact for float16 storage with float32 work; 0: a product, then a sum).
 

@@ -3,7 +3,7 @@
 The C++ is in kernels/native/composite_forward.cpp and composite_backward.cpp (with the shared
 lanes.h, blend8.h, transpose8.h and kernels._npexp's npexp16.h), loaded by `kernels.native.source`.
 
-The same quadrature as `composite._composite_forward_kernel` (its module docstring), with the
+The same quadrature as `composite_kernels._composite_forward_kernel` (its module docstring), with the
 factors e_k = exp(-sigma_k delta_k) given (NumPy's pass filled them), or, with `fused`, evaluated
 here: a group's samples [o_{r0}, o_{r0+8}) are contiguous, and 16 at a time each gets
 e_k = exp(-(sigma_k delta_k)) (the product rounded, then negated, as NumPy's pass computes it) with
