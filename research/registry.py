@@ -228,6 +228,7 @@ GRADCHECK_MODULES: list[str] = [
     "research.checks.volume",
     "research.checks.ba",
     "research.checks.slam",
+    "research.checks.points",
 ]
 
 # Benchmark families.
@@ -237,4 +238,5 @@ BENCH_MODULES: dict[str, str] = {
     "stereo": "research.bench.stereo",
     "splat": "research.bench.splat",
     "volume": "research.bench.volume",
+    "points": "research.bench.points",
 }

@@ -94,7 +94,7 @@ def test_every_module_that_defines_a_kernel_is_found(sources, labels):
 
 def test_discovery_is_not_suspiciously_small(labels):
     found = set(labels)
-    for family in ("kernels.volume.", "kernels.corr.", "kernels.splat.", "kernels.stereo."):
+    for family in ("kernels.volume.", "kernels.corr.", "kernels.splat.", "kernels.stereo.", "kernels.points."):
         assert sum(label.startswith(family) for label in found) >= 3, family
     for single in ("kernels.lucas_kanade", "kernels.ssim", "kernels.optim", "kernels.ba", "research.bench.launch"):
         assert single in found

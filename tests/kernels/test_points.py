@@ -332,3 +332,20 @@ def test_bad_input_raises_before_any_kernel(call, match, monkeypatch):
 def test_grid_margin_is_small():
     g = kgrid.build_grid(_cloud(22, 100, np.float32), 0.1)
     assert 0 < g.margin < 1e-3 and g.n == 100
+
+
+# --------------------------------------------------------------------------- CUDA
+
+
+@pytest.mark.parametrize("arch", [80, 90])
+def test_points_modules_compile_for_cuda(arch, tmp_path):
+    """The family's own modules through kernels.cuda_build (tests/kernels/test_cuda_compile.py compiles all)."""
+    from kernels import cuda_build
+
+    if not cuda_build.nvrtc_archs():
+        pytest.skip("this Warp build has no CUDA compiler (NVRTC)")
+    mods = [m for m in cuda_build.project_modules() if cuda_build.module_label(m).startswith("kernels.points.")]
+    assert {cuda_build.module_label(m) for m in mods} == {"kernels.points.grid", "kernels.points.sampling",
+                                                          "kernels.points.normals", "kernels.points.chamfer"}
+    results = cuda_build.compile_all(arch, tmp_path, mods)
+    assert all(r.ok for r in results), [r.error for r in results if not r.ok]
