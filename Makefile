@@ -29,7 +29,8 @@ $(STAMP): pyproject.toml
 PLAIN_TESTS := tests/kernels/test_fast_paths.py tests/kernels/test_volume_composite.py \
 	tests/kernels/test_reliability_volume_composite.py tests/kernels/test_volume_render.py \
 	tests/kernels/test_volume_fields.py tests/kernels/test_corr.py tests/kernels/test_corr_stored.py \
-	tests/kernels/test_splat.py tests/kernels/test_splat_tiles.py tests/kernels/test_stereo.py
+	tests/kernels/test_splat.py tests/kernels/test_splat_tiles.py tests/kernels/test_stereo.py \
+	tests/kernels/test_ssim.py
 
 test: $(STAMP)
 	$(VPY) -m pytest -q

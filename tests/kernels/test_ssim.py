@@ -79,3 +79,38 @@ def test_ssim_warp_inputs_give_warp_outputs():
     assert isinstance(grad_np, np.ndarray) and isinstance(grad_wp, wp.array)
     assert value_np == value_wp
     np.testing.assert_array_equal(grad_np, grad_wp.numpy())
+
+
+@pytest.mark.parametrize("shape", [(64, 71, 3), (9, 30, 2), (30, 4, 1), (3, 3, 3)])
+def test_ssim_cpu_fast_path_is_the_warp_kernel_bit_for_bit(shape, monkeypatch):
+    """The float32 row-at-a-time C++ blur (kernels/native/ssim_blur_row.cpp) adds the same terms in the
+    same order as _blur_kernel, each product and sum its own statement, so map, mean and both input
+    gradients are bit-identical with the fast path on and off; images narrower or lower than the
+    window exercise every zero-padded edge."""
+    from kernels import _arrays, fast_paths
+
+    rng = np.random.default_rng(7)
+    y = rng.uniform(0, 1, shape).astype(np.float32)
+    x = np.clip(y + rng.normal(0, 0.2, shape), 0, 1).astype(np.float32)
+    g = rng.normal(0, 1, shape).astype(np.float32)
+    launched = []
+    launch = _arrays.Inputs.launch
+    monkeypatch.setattr(_arrays.Inputs, "launch", lambda self, k, *a, **kw: (launched.append(k), launch(self, k, *a, **kw)))
+
+    def run():
+        state = kssim.ssim_map(x, y, device="cpu")
+        return (state.map, state.mean(), *kssim.ssim_map_backward(state, g))
+
+    fast_paths.set_enabled(True)  # also under DRLAB_FAST_PATHS=0 (make test's second pass)
+    try:
+        fast = run()
+    finally:
+        fast_paths.set_enabled(None)
+    assert kssim._blur_rows_cpu_kernel in launched and kssim._blur_kernel not in launched
+    launched.clear()
+    with fast_paths.disabled():
+        plain = run()
+    assert kssim._blur_kernel in launched and kssim._blur_rows_cpu_kernel not in launched
+    assert fast[1] == plain[1]
+    for a, b in zip(fast[:1] + fast[2:], plain[:1] + plain[2:]):
+        np.testing.assert_array_equal(a, b)
