@@ -57,8 +57,6 @@ wp.set_module_options({"enable_backward": False})
 
 # Cells per axis are int32; a grid finer than this along an axis is refused (cell_size too small).
 MAX_CELLS_PER_AXIS = 1 << 28
-# A clamp on cell coordinates of far-away queries, well inside int32.
-_FAR = 1 << 29
 
 
 # =========================================================================== device functions
@@ -75,7 +73,7 @@ def sq_dist(qx: Any, qy: Any, qz: Any, px: Any, py: Any, pz: Any):
 
 @wp.func
 def cell_coord(x: Any, o: Any, h: Any):
-    """floor((x - o) / h) as an int, clamped to [-_FAR, _FAR] for far-away queries."""
+    """floor((x - o) / h) as an int, clamped to [-2^29, 2^29] (far-away queries stay inside int32)."""
     c = wp.floor((x - o) / h)
     return int(wp.clamp(c, type(x)(-536870912.0), type(x)(536870912.0)))
 
@@ -176,7 +174,7 @@ class PointGrid:
 
 def check_cloud(a: A.Inputs, name: str, x: Any) -> wp.array:
     """An (N, 3) float cloud with N >= 1 and finite values; ValueError naming `name` otherwise."""
-    arr = a.floats(name, x, (None, 3), nonempty=False, finite=False)
+    arr = a.floats(name, x, (None, 3), finite=False)
     if x.shape[0] == 0:
         raise ValueError(f"{name}: expected a non-empty cloud of shape (N, 3) with N >= 1, got shape {tuple(x.shape)}")
     if A.values_checked() and not A.all_finite(x):
@@ -435,7 +433,6 @@ def _ball_kernel(queries: wp.array2d(dtype=typing.Any), g_pts: wp.array2d(dtype=
                                     m -= 1
                                 idx[q, m] = j
                                 cnt = wp.min(cnt + 1, kmax)
-                            # (count the found points beyond kmax only up to kmax)
     count[q] = cnt
     pad = int(-1)
     if cnt > 0:
