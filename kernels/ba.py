@@ -8,7 +8,7 @@ c with measured pixel (u_k, v_k) (pixel centres at half-integers, as the rendere
     pi(X) = (fx X / Z + cx,  fy Y / Z + cy)
     r_k = pi(X) - (u_k, v_k)                                     (2 residuals per observation)
 
-Pose convention (shared with kernels/splat, kernels/volume/rays.py and research/poses.py): a
+Pose convention (shared with kernels/splat, kernels/volume/rays.py and research/poses/se3.py): a
 LEFT-multiplied se(3) perturbation of world-to-camera, T_cw <- exp(xi^) T_cw, xi = (rho, phi),
 translation first. To first order at xi = 0, exp(xi^) X = X + rho + phi x X, so with
 

@@ -52,7 +52,7 @@ q <= 255 / (2 + w_bt) so that every cost (< 2 + w_bt) fits; the quantisation ste
 (compact_levels(0.3) = 110: a step of 0.0091, at most 0.0045 off), a quarter of float32's memory,
 and the volume kernels.stereo.sgm's compact mode takes with integer penalties P q.
 
-Vector rho (compact mode with `vector_rho`, float32 on the CPU; research.stereo's DEFAULT_CONFIG runs it): the
+Vector rho (compact mode with `vector_rho`, float32 on the CPU; research.stereo.matching's DEFAULT_CONFIG runs it): the
 two BT terms' rho on 16 lanes by a degree-8 polynomial and 5 squarings (kernels.stereo.adcensus_vrho), within
 about 2e-5 of 1 - exp(-z): a cell's uint8 value can differ from the scalar-exp volume's by one level near a half
 level (2.8e-6 of the cells at 741x500x64 on the bench pair; tests bound it).

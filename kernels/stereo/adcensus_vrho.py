@@ -1,6 +1,6 @@
 """The AD-census cost's compact mode with the vector rho: the BT terms' rho on 16 float32 lanes by a polynomial.
 
-Vector rho (compact mode with `vector_rho`, float32 on the CPU; research.stereo's DEFAULT_CONFIG runs it): the
+Vector rho (compact mode with `vector_rho`, float32 on the CPU; research.stereo.matching's DEFAULT_CONFIG runs it): the
 two BT terms' rho go through 16 lanes at once instead of one scalar exp per lane. For z = c / lambda,
 
     e^-z ~ p(min(z, 24) / 32)^32,   p(t) = sum_{n=0..8} (-t)^n / n!   (Horner, then 5 squarings),

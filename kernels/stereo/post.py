@@ -1,7 +1,7 @@
 """Post-processing of a disparity map: the row fill of invalid pixels, then a 3x3 median.
 
 `fill_median3(disp, valid)` returns M = median3(F), where F is KITTI's background fill along rows
-(research.stereo.fill_invalid): with l(x) and r(x) the disparities of the nearest valid pixels at or
+(research.stereo.matching.fill_invalid): with l(x) and r(x) the disparities of the nearest valid pixels at or
 left of x and at or right of x in the same row (+inf where there is none),
 
     F(x, y) = disp(x, y)                      where valid(x, y),

@@ -9,7 +9,7 @@ Camera (OpenCV axes, research/cameras.py): world-to-camera T_cw = [[R, t], [0, 1
 
 so that the sample o + s d has z-depth s z_scale (the renderer's depth z_k = s_k z_scale).
 
-Pose convention (shared with kernels/splat and research/poses.py): a LEFT-multiplied se(3)
+Pose convention (shared with kernels/splat and research/poses/se3.py): a LEFT-multiplied se(3)
 perturbation of world-to-camera, T_cw <- exp(xi^) T_cw, xi = (rho, phi) translation first. Then
 camera-to-world becomes T_wc exp(-xi^), and to first order at xi = 0
 
