@@ -104,10 +104,10 @@ _NOT_SIZES = {"bench", "device", "threads", "cpu", "ref", "ref_missing", "params
 
 
 def add_options(p: argparse.ArgumentParser) -> None:
-    from research.registry import BENCH_MODULES
+    from research.registry import family_modules
 
     p.add_argument("--families", nargs="+", default=None, metavar="FAMILY",
-                   help=f"bench families to run (default: all of {', '.join(BENCH_MODULES)})")
+                   help=f"bench families to run (default: all of {', '.join(family_modules('bench'))})")
     p.add_argument("--repeats", type=int, default=None, metavar="N",
                    help="run every family N times and report per-figure medians with the lowest and highest run "
                         "(default: 3 at full size, 1 for --quick / --smoke)")
@@ -195,13 +195,14 @@ def _target_status(row: dict, full: bool) -> list[tuple[str, str, Any, str]]:
 
 def run(ctx: Context) -> int:
     from research.bench import run_bench
-    from research.registry import BENCH_MODULES
+    from research.registry import family_modules
     from research.results import host
 
-    families = ctx.args.families or list(BENCH_MODULES)
-    unknown = [f for f in families if f not in BENCH_MODULES]
+    benches = family_modules("bench")
+    families = ctx.args.families or list(benches)
+    unknown = [f for f in families if f not in benches]
     if unknown:
-        raise ValueError(f"--families: unknown {unknown}; registered: {', '.join(BENCH_MODULES)}")
+        raise ValueError(f"--families: unknown {unknown}; registered: {', '.join(benches)}")
     full = ctx.mode == "full"
     repeats = ctx.args.repeats if ctx.args.repeats is not None else (3 if full else 1)
     if repeats < 1:

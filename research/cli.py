@@ -35,7 +35,7 @@ from pathlib import Path
 from research import atomic, registry
 from research.cli_common import (EXIT_INTERRUPTED, EXIT_USAGE, USER_ERRORS, Parser, UsageError, caused_by_interrupt,
                                  directory_path, experiment_env, one_line, seed_value)
-from research.registry import BENCH_MODULES, EXPERIMENTS
+from research.registry import EXPERIMENTS, family_modules
 
 
 def _check_device(value: str) -> str:
@@ -307,10 +307,10 @@ def _quiet_warp() -> None:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from research.bench import run_bench
 
-    unknown = [f for f in args.families if f not in BENCH_MODULES]
+    unknown = [f for f in args.families if f not in family_modules("bench")]
     if unknown:
         raise ValueError(f"families: unknown famil{'y' if len(unknown) == 1 else 'ies'} {unknown}; "
-                         f"registered: {sorted(BENCH_MODULES)}")
+                         f"registered: {sorted(family_modules('bench'))}")
     device = _check_device(args.device)
     _quiet_warp()
     rows = run_bench(args.families or None, device, args.quick, compare=args.compare)
@@ -345,7 +345,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
     print("gradient checks:")
     for name in CHECKS:
         print(f"  {name}")
-    print("bench families:", ", ".join(BENCH_MODULES))
+    print("bench families:", ", ".join(family_modules("bench")))
     return 0
 
 
@@ -437,7 +437,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.set_defaults(fn=_cmd_gradcheck)
 
     b = sub.add_parser("bench", help="timings of registered kernels")
-    b.add_argument("families", nargs="*", help=f"families (default: all of {', '.join(BENCH_MODULES)})")
+    b.add_argument("families", nargs="*", help=f"families (default: all of {', '.join(family_modules('bench'))})")
     b.add_argument("--json", action="store_true", help="one JSON object per line")
     b.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
     b.add_argument("--quick", action="store_true", help="smaller sizes, for smoke tests")

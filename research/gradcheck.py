@@ -301,10 +301,10 @@ def register_check(name: str) -> Callable[[CheckFn], CheckFn]:
 
 
 def load_checks() -> None:
-    """Import every module in research.registry.GRADCHECK_MODULES (which registers its checks)."""
-    from research.registry import GRADCHECK_MODULES
+    """Import the `checks` module of every family in research.registry.FAMILIES (which registers its checks)."""
+    from research.registry import family_modules
 
-    for module in GRADCHECK_MODULES:
+    for module in family_modules("checks").values():
         importlib.import_module(module)
 
 

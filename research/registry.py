@@ -1,17 +1,28 @@
-"""Registries: experiments, gradient checks and benchmarks, and where results and data go by default.
+"""Registries: kernel families and experiments, and where results and data go by default.
 
 Everything is registered by *name and module*, not by import, so that
 `drlab --help` stays fast and a broken optional module cannot break the CLI.
 
+* FAMILIES: name -> Family, the one table that `drlab gradcheck`, `drlab bench` and the
+  oracle_conformance experiment read. A family names, as module paths, each part it has (all optional):
+
+    kernels       its Warp kernels and entry points (`kernels.<family>`);
+    reference     its plain NumPy forward (`kernels.reference.<family>`), which the tests import;
+    checks        a module whose import registers its float64 gradient checks with
+                  `research.gradcheck.register_check`, named "<family>.<what>";
+    oracle_cases  a module holding `SIZES` (mode -> size keys) and `CASES` (research.oracles.cases.Case:
+                  drlab against its Dr.Jit oracle, research/oracles);
+    bench         a module exposing `cases(device: str, quick: bool, tiny: bool = False)`, an iterator
+                  of JSON-ready dicts (see research/bench/__init__.py).
+
+  `register_family` adds one (in the order below: the order of `drlab bench`, of the oracle table and
+  of `drlab list`'s checks); `family_modules(part)` lists the families that have a part.
+  `temporary_families()` drops whatever was registered inside it (tests register a toy family so).
 * EXPERIMENTS: name -> ExperimentSpec. Each is the module `experiments.<name>`
   (research.experiment's contract: `main(argv) -> int`, the shared options
   `--quick --smoke --device --out --seed --data --no-progress` and its own). The
   CLI runs it in a fresh process, `python -m experiments.<name>` (research never
   imports experiments).
-* GRADCHECK_MODULES: modules whose import registers gradient checks with
-  `research.gradcheck.register_check`.
-* BENCH_MODULES: family -> module exposing `cases(device: str, quick: bool, tiny: bool = False)`,
-  an iterator of JSON-ready dicts (see research/bench/__init__.py).
 
 Default folders: in a checkout (this package beside pyproject.toml and experiments/), results go to
 `<checkout>/results/<name>` (quick runs: `<checkout>/build/results-quick/<name>`, smoke runs:
@@ -21,8 +32,10 @@ Default folders: in a checkout (this package beside pyproject.toml and experimen
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import contextlib
+from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Iterator
 
 # The folder holding research/ and kernels/: a checkout's root, or site-packages when installed.
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -218,25 +231,84 @@ register_experiment(
     reproduce_seed=1,
 )
 
-# Modules that register gradient checks when imported.
-GRADCHECK_MODULES: list[str] = [
-    "research.checks.selftest",
-    "research.checks.corr",
-    "research.checks.stereo",
-    "research.checks.splat",
-    "research.checks.ssim",
-    "research.checks.volume",
-    "research.checks.ba",
-    "research.checks.slam",
-    "research.checks.points",
-]
+# --------------------------------------------------------------------------- kernel families
 
-# Benchmark families.
-BENCH_MODULES: dict[str, str] = {
-    "launch": "research.bench.launch",
-    "corr": "research.bench.corr",
-    "stereo": "research.bench.stereo",
-    "splat": "research.bench.splat",
-    "volume": "research.bench.volume",
-    "points": "research.bench.points",
-}
+
+@dataclass(frozen=True)
+class Family:
+    """One kernel family: the module path of each part it has (None where it has none)."""
+
+    name: str
+    description: str
+    kernels: str | None = None
+    reference: str | None = None
+    checks: str | None = None
+    oracle_cases: str | None = None
+    bench: str | None = None
+
+
+# The parts a family may name, in Family's order.
+PARTS = tuple(f.name for f in fields(Family) if f.name not in ("name", "description"))
+
+FAMILIES: dict[str, Family] = {}
+
+
+def register_family(name: str, description: str, *, kernels: str | None = None, reference: str | None = None,
+                    checks: str | None = None, oracle_cases: str | None = None,
+                    bench: str | None = None) -> Family:
+    """Add a family to FAMILIES (by module names: nothing is imported here) and return it."""
+    if not name.isidentifier():
+        raise ValueError(f"family name: expected an identifier, got {name!r}")
+    if name in FAMILIES:
+        raise ValueError(f"family {name!r} registered twice")
+    family = Family(name, description, kernels, reference, checks, oracle_cases, bench)
+    FAMILIES[name] = family
+    return family
+
+
+def family_modules(part: str) -> dict[str, str]:
+    """family name -> module of `part` ("checks", "bench", ...), for the families that have it, in order."""
+    if part not in PARTS:
+        raise ValueError(f"part: expected one of {', '.join(PARTS)}, got {part!r}")
+    return {name: getattr(f, part) for name, f in FAMILIES.items() if getattr(f, part) is not None}
+
+
+@contextlib.contextmanager
+def temporary_families() -> Iterator[None]:
+    """Families registered inside the block are unregistered at its end (FAMILIES as it was)."""
+    saved = dict(FAMILIES)
+    try:
+        yield
+    finally:
+        FAMILIES.clear()
+        FAMILIES.update(saved)
+
+
+register_family("selftest", "the gradient checker's own check, on an analytic function with a known gradient",
+                checks="research.checks.selftest")
+register_family("launch", "race-free split launches of CPU kernels over several threads",
+                kernels="kernels.launch", bench="research.bench.launch")
+register_family("corr", "RAFT all-pairs correlation: volume, pyramid, lookups (stored and on the fly)",
+                kernels="kernels.corr", reference="kernels.reference.corr", checks="research.checks.corr",
+                oracle_cases="research.oracles.cases.corr", bench="research.bench.corr")
+register_family("stereo", "stereo cost volumes, semi-global matching, disparity selection",
+                kernels="kernels.stereo", reference="kernels.reference.stereo", checks="research.checks.stereo",
+                oracle_cases="research.oracles.cases.stereo", bench="research.bench.stereo")
+register_family("splat", "3D Gaussian splatting: projection, tile binning, rasteriser, camera gradients",
+                kernels="kernels.splat", reference="kernels.reference.splat", checks="research.checks.splat",
+                oracle_cases="research.oracles.cases.splat", bench="research.bench.splat")
+register_family("ssim", "the SSIM map and its backward",
+                kernels="kernels.ssim", reference="kernels.reference.ssim", checks="research.checks.ssim",
+                oracle_cases="research.oracles.cases.ssim")
+register_family("volume", "NeRF volume rendering: sampling, compositing, fields, camera gradients through rays",
+                kernels="kernels.volume", reference="kernels.reference.volume", checks="research.checks.volume",
+                oracle_cases="research.oracles.cases.volume", bench="research.bench.volume")
+register_family("ba", "bundle adjustment: reprojection residuals and their pose/point Jacobians",
+                kernels="kernels.ba", reference="kernels.reference.ba", checks="research.checks.ba")
+register_family("slam", "the splat SLAM tracking and mapping losses (research/slam) through the splat renderer",
+                checks="research.checks.slam")
+register_family("points", "point clouds on a uniform hash grid: kNN, ball query, FPS, normals, chamfer distance",
+                kernels="kernels.points", reference="kernels.reference.points", checks="research.checks.points",
+                oracle_cases="research.oracles.cases.points", bench="research.bench.points")
+register_family("lucas_kanade", "Lucas-Kanade flow: structure tensor, pyramidal",
+                kernels="kernels.lucas_kanade", reference="kernels.reference.lucas_kanade")

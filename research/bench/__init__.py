@@ -1,6 +1,6 @@
-"""Benchmark infrastructure: median timings and the benchmark-family registry.
+"""Benchmark infrastructure: median timings, and running the benches of the registered families.
 
-A family is a module named in research.registry.BENCH_MODULES exposing
+A family's bench is the module its research.registry.FAMILIES entry names as `bench`, exposing
 `cases(device: str, quick: bool, tiny: bool = False)`, a generator of JSON-ready dicts, one per case
 (`tiny`: every case, with the same keys and phases, at sizes that run in about a second in total,
 so the tests can run it). A family may also accept `compare: bool = False`: with `compare=True`
@@ -110,16 +110,17 @@ def run_bench(families: list[str] | None, device: str, quick: bool, compare: boo
     `compare`: also time the reference libraries, in the families whose `cases` accept `compare`
     (the others run as without it). `tiny`: every case at its test size (experiments' --smoke).
     """
-    from research.registry import BENCH_MODULES
+    from research.registry import family_modules
 
-    names = list(families) if families else list(BENCH_MODULES)
-    unknown = [f for f in names if f not in BENCH_MODULES]
+    benches = family_modules("bench")
+    names = list(families) if families else list(benches)
+    unknown = [f for f in names if f not in benches]
     if unknown:
-        raise KeyError(f"unknown benchmark families {unknown}; known: {', '.join(BENCH_MODULES)}")
+        raise KeyError(f"unknown benchmark families {unknown}; known: {', '.join(benches)}")
     rows: list[dict] = []
     cpu = host()["cpu"]  # every figure names the machine it was measured on
     for family in names:
-        module = importlib.import_module(BENCH_MODULES[family])
+        module = importlib.import_module(benches[family])
         kwargs: dict[str, Any] = {"device": device, "quick": quick}
         if tiny:
             kwargs["tiny"] = True

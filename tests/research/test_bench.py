@@ -14,7 +14,7 @@ def _install_family(monkeypatch, name: str, cases) -> None:
     monkeypatch.setitem(sys.modules, mod.__name__, mod)
     from research import registry
 
-    monkeypatch.setitem(registry.BENCH_MODULES, name, mod.__name__)
+    monkeypatch.setitem(registry.FAMILIES, name, registry.Family(name, "a fake bench family", bench=mod.__name__))
 
 
 def test_compare_is_passed_only_to_families_that_accept_it(monkeypatch):

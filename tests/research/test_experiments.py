@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from research import experiment
-from research.registry import BENCH_MODULES, EXPERIMENTS, REPO_ROOT
+from research.registry import EXPERIMENTS, REPO_ROOT, family_modules
 
 SHARED_OPTIONS = ("--quick", "--smoke", "--device", "--out", "--seed", "--data", "--no-progress")
 
@@ -121,9 +121,7 @@ def _check_volume(m):
 
 
 def _check_performance(m):
-    from research.registry import BENCH_MODULES
-
-    assert {r["bench"].split(".")[0] for r in m["rows"]} == set(BENCH_MODULES)
+    assert {r["bench"].split(".")[0] for r in m["rows"]} == set(family_modules("bench"))
     assert all(r["threads"] >= 1 and r["cpu"] for r in m["rows"])
     assert m["targets"] and all(t["status"].startswith("n/a") for t in m["targets"])  # smoke sizes
 
@@ -500,9 +498,9 @@ def test_wheel_contains_experiments_and_drlab_run_works_from_it(tmp_path):
 
 
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize("family", list(BENCH_MODULES))
+@pytest.mark.parametrize("family", list(family_modules("bench")))
 def test_bench_family_tiny_cases(family):
-    module = importlib.import_module(BENCH_MODULES[family])
+    module = importlib.import_module(family_modules("bench")[family])
     t0 = time.perf_counter()
     rows = list(module.cases("cpu", quick=True, tiny=True))
     seconds = time.perf_counter() - t0
