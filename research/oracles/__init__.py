@@ -21,6 +21,11 @@ rules. `drjit.eval` between iterations keeps the kernels small (one compile, reu
 
 Modules: `ssim`, `stereo`, `corr`, `volume` (dense grid, hash grid, MLP), `rays` (the volume renderer's
 camera gradients), `splat` and `points` (the chamfer distance).
+
+`research.oracles.cases` holds the comparisons themselves, one module per family (the family's
+`oracle_cases` in research.registry.FAMILIES): each builds random inputs, runs drlab and the oracle
+on them and returns both results; experiments/oracle_conformance.py runs every registered family's
+cases at full size.
 """
 
 from __future__ import annotations
