@@ -140,6 +140,7 @@ def curve_figure(rows: list[dict], budgets: list[float], path, title: str) -> No
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FixedLocator, FormatStrFormatter, NullFormatter
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
     for ax, key, label in ((axes[0], "wall_s", "training wall time (min)"),
@@ -151,6 +152,9 @@ def curve_figure(rows: list[dict], budgets: list[float], path, title: str) -> No
             for b in budgets:
                 ax.axvline(b, color="0.75", lw=0.8, ls="--")
         ax.set_xscale("log")
+        ax.xaxis.set_major_locator(FixedLocator([0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 30, 60, 120, 240]))
+        ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel(label)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("test PSNR (dB)")
