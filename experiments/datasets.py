@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, image_panel, markdown_table
 
 SCENES = ("objects", "spheres", "cornell")
 
@@ -65,18 +65,10 @@ def preview(paths: dict[str, Path], out: Path) -> None:
                 np.ma.masked_where(~pair.mask, pair.disparity), pair.noc,
                 np.ma.masked_where(seq.depth[0] <= 0, seq.flow[0][..., 0]), seq.valid[0]]
         for col, img in enumerate(imgs):
-            ax = axes[row, col]
-            im = ax.imshow(img, cmap=None if img.ndim == 3 else "viridis")
-            if img.ndim == 2 and img.dtype != bool:
-                fig.colorbar(im, ax=ax, fraction=0.046)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if row == 0:
-                ax.set_title(cols[col], fontsize=9)
+            image_panel(fig, axes[row, col], img, cols[col] if row == 0 else None,
+                        colorbar=img.ndim == 2 and img.dtype != bool, cmap=None if img.ndim == 3 else "viridis")
         axes[row, 0].set_ylabel(scene)
-    fig.tight_layout()
-    save_figure(fig, out)
-    plt.close(fig)
+    finish_figure(fig, out)
 
 
 def run(ctx: Context) -> int:

@@ -41,7 +41,7 @@ import numpy as np
 
 from research.datasets import CACHE_ROOT_HELP
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, markdown_table
 
 LOOP_FRAMES = 60
 
@@ -102,9 +102,7 @@ def trajectory_figure(gt: np.ndarray, before: np.ndarray, after: np.ndarray, loo
     ax.set_ylabel("position error after alignment")
     ax.set_title("absolute trajectory error per frame", fontsize=10)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)
 
 
 def run(ctx: Context) -> int:

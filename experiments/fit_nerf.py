@@ -39,7 +39,7 @@ import numpy as np
 
 from experiments.fit_splats import DATA_HELP
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, image_panel, loss_figure, markdown_table
 
 FIELDS = ("grid", "hashgrid", "pe_mlp")
 
@@ -196,29 +196,11 @@ def figures(results: dict[str, Any], split, gt_srgb: np.ndarray, out: Path, n_vi
                 panels += [(np.ma.masked_where(~split.mask[v], split.depth[v]), "GT z-depth", (0, dmax)),
                            (np.ma.masked_where(img.opacity < 0.5, img.depth), "expected z-depth", (0, dmax))]
             for ax, (im, title, lim) in zip(axes[v], panels):
-                h = ax.imshow(im, cmap=None if np.ndim(im) == 3 else "viridis",
-                              vmin=None if lim is None else lim[0], vmax=None if lim is None else lim[1])
-                if np.ndim(im) == 2:
-                    fig.colorbar(h, ax=ax, fraction=0.046)
-                ax.set_xticks([])
-                ax.set_yticks([])
-                if v == 0 or "dB" in title:
-                    ax.set_title(title, fontsize=9)
-        fig.tight_layout()
-        save_figure(fig, out / f"renders_{name}.png")
-        plt.close(fig)
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    for name, r in results.items():
-        loss = np.asarray(r["train"]["losses"])
-        w = max(1, len(loss) // 100)
-        ax.plot(np.convolve(loss, np.ones(w) / w, mode="valid"), label=name)
-    ax.set_yscale("log")
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("training MSE (sRGB)")
-    ax.legend()
-    fig.tight_layout()
-    save_figure(fig, out / "loss.png")
-    plt.close(fig)
+                image_panel(fig, ax, im, title if v == 0 or "dB" in title else None, colorbar=np.ndim(im) == 2,
+                            cmap=None if np.ndim(im) == 3 else "viridis", vmin=None if lim is None else lim[0],
+                            vmax=None if lim is None else lim[1])
+        finish_figure(fig, out / f"renders_{name}.png")
+    loss_figure({name: r["train"]["losses"] for name, r in results.items()}, "training MSE (sRGB)", out / "loss.png")
 
 
 def add_options(p) -> None:

@@ -45,7 +45,7 @@ import numpy as np
 from research import registry
 from research.datasets import CACHE_ROOT_HELP
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, image_panel, markdown_table
 
 REPO = registry.REPO_ROOT
 DATA_HELP = ("a NeRF-synthetic/Blender, COLMAP / Mip-NeRF 360, LLFF or `drlab dataset` folder, read with its paper's "
@@ -87,19 +87,10 @@ def renders_figure(gt: np.ndarray, renders: np.ndarray, per_view: list[dict], pa
         for j, (img, title) in enumerate([(io.linear_to_srgb(a), gt_label),
                                           (io.linear_to_srgb(b), f"splats: {per_view[i]['psnr']:.2f} dB"),
                                           (err, "|error| (sRGB, mean over RGB)")]):
-            ax = axes[i, j]
-            im = ax.imshow(img, cmap="magma" if img.ndim == 2 else None, vmin=0, vmax=0.25 if img.ndim == 2 else 1)
-            if img.ndim == 2:
-                fig.colorbar(im, ax=ax, fraction=0.046)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if i == 0:
-                ax.set_title(title, fontsize=9)
-            elif j == 1:
-                ax.set_title(f"{per_view[i]['psnr']:.2f} dB", fontsize=9)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+            shown = title if i == 0 else f"{per_view[i]['psnr']:.2f} dB" if j == 1 else None
+            image_panel(fig, axes[i, j], img, shown, colorbar=img.ndim == 2, cmap="magma" if img.ndim == 2 else None,
+                        vmin=0, vmax=0.25 if img.ndim == 2 else 1)
+    finish_figure(fig, path)
 
 
 def training_figure(history: list[dict], events: list[dict], path: Path) -> None:
@@ -121,9 +112,7 @@ def training_figure(history: list[dict], events: list[dict], path: Path) -> None
             ax2.axvline(e["iteration"], color="0.7", lw=0.8, ls="--")
     ax2.set_xlabel("iteration")
     ax2.set_ylabel("splats (dashed: opacity reset)")
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)
 
 
 def add_data_options(p) -> None:

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, markdown_table
 from research.tracking import kalman
 from research.tracking.synthetic import circular_trajectory
 
@@ -202,9 +202,7 @@ def make_figure(truth, zs, outs, curve, q_hat, path: Path) -> None:
     ax2.set_ylabel("evaluation filter RMSE", color="#3498db")
     ax.set_title(f"tuning q by innovation likelihood (dotted: ML q = {q_hat:.3g})")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)
 
 
 def run(ctx: Context) -> int:

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, markdown_table
 
 SIZE, ROWS, COLS, SHIFT = 64, (20, 40), (15, 35), 5
 WINDOW = 7  # the textbook's window_size
@@ -114,9 +114,7 @@ def quiver_figure(f1: np.ndarray, f2: np.ndarray, panels: list[tuple[str, np.nda
     for ax in axes:
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)
 
 
 def run(ctx: Context) -> int:

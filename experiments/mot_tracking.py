@@ -52,7 +52,7 @@ import numpy as np
 
 from research import registry
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, markdown_table
 from research.tracking import ByteTrack, ByteTrackConfig, Sort, SortConfig
 from research.tracking.appearance import embed_boxes
 from research.tracking.boxes import InvalidDetectionWarning
@@ -219,9 +219,7 @@ def make_figures(seq: Sequence, outputs: dict[str, list[np.ndarray]], recall: di
         frames = [(o[:, 4].astype(int), o[:, :4]) for o in outputs[key]]
         track_panel(ax, frames, TRACKERS[key][0])
     fig.suptitle(f"sequence seed {seq.seed}, first {n_show} frames (colour = track id; grey bands: pillars)")
-    fig.tight_layout()
-    save_figure(fig, out_dir / "tracks.png", dpi=85)
-    plt.close(fig)
+    finish_figure(fig, out_dir / "tracks.png", dpi=85)
 
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
     centres = [0.5 * (a + b) for a, b in zip(VIS_BINS[:-1], VIS_BINS[1:])]
@@ -233,9 +231,7 @@ def make_figures(seq: Sequence, outputs: dict[str, list[np.ndarray]], recall: di
     ax.set_title("recall by visibility, all sequences")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    save_figure(fig, out_dir / "recall_vs_visibility.png")
-    plt.close(fig)
+    finish_figure(fig, out_dir / "recall_vs_visibility.png")
 
 
 def run(ctx: Context) -> int:

@@ -175,7 +175,7 @@ import numpy as np
 
 from research.datasets import CACHE_ROOT_HELP
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, loss_figure, markdown_table
 
 RUNS = ("gt", "noisy", "refined")
 SPLAT_DEPTH_WEIGHT = 0.5  # the RGB-D row's depth weight (--model splats); chosen on --seed 1, module docstring
@@ -404,29 +404,7 @@ def figure(c2w_gt: np.ndarray, c2w_noisy: np.ndarray, c2w_refined: np.ndarray, e
     ax.set_xlabel("training view")
     ax.set_ylabel("rotation error (degrees, aligned)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    save_figure(fig, out / "trajectories.png")
-    plt.close(fig)
-
-
-def loss_figure(logs: dict[str, dict], out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    for name, log in logs.items():
-        loss = np.asarray(log["losses"])
-        w = max(1, len(loss) // 100)
-        ax.plot(np.convolve(loss, np.ones(w) / w, mode="valid"), label=name)
-    ax.set_yscale("log")
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("training loss")
-    ax.legend()
-    fig.tight_layout()
-    save_figure(fig, out / "loss.png")
-    plt.close(fig)
+    finish_figure(fig, out / "trajectories.png")
 
 
 def add_options(p) -> None:
@@ -520,7 +498,7 @@ def run(ctx: Context) -> int:
     G = np.array(after["alignment"])
     figure(c2w_gt, c2w_noisy, apply_alignment(G, finals["refined"]),
            {"noisy": before, **{k: results[k]["errors"] for k in runs if k.startswith("refined")}}, ctx.out)
-    loss_figure(logs, ctx.out)
+    loss_figure({name: log["losses"] for name, log in logs.items()}, "training loss", ctx.out / "loss.png")
     stamps = np.arange(len(c2w_gt), dtype=float)
     for name, traj in (("gt", c2w_gt), ("noisy", c2w_noisy), *((k, finals[k]) for k in runs if k.startswith("ref"))):
         P.write_tum(ctx.out / f"train_poses_{name}.tum", stamps, traj)

@@ -67,7 +67,7 @@ import numpy as np
 
 from research import registry
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, image_panel, markdown_table
 
 DATA_NAMES = ("middlebury_mview/templeRing", "templeRing")  # looked for under --data (after --data itself)
 
@@ -230,13 +230,8 @@ def figure(gt_c2w, sfm_c2w, target, renders, labels, path: Path) -> None:
     ax.legend(fontsize=7)
     panels = [(target, "test view (photograph)")] + list(zip(renders, labels))
     for ax, (img, title) in zip(axes[1:], panels):
-        ax.imshow(io.linear_to_srgb(np.clip(img, 0, 1)))
-        ax.set_title(title, fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+        image_panel(fig, ax, io.linear_to_srgb(np.clip(img, 0, 1)), title)
+    finish_figure(fig, path)
 
 
 # --------------------------------------------------------------------------- run

@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, image_panel, markdown_table
 
 SCENE = "objects"
 DISTANCE, ELEVATION_DEG, ELEVATION_WOBBLE_DEG, RADIUS_WOBBLE = 3.2, 40.0, 15.0, 0.2
@@ -163,9 +163,7 @@ def trajectories_figure(gt: np.ndarray, aligned: np.ndarray, path: Path, rot_err
     axes[0].legend(fontsize=8, loc="upper right")
     fig.suptitle(f"camera centres and viewing directions; rotation error median {np.median(rot_err):.2f} deg",
                  fontsize=9)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)
 
 
 def renders_figure(target, sfm_render, gt_render, sfm_psnr, gt_psnr, name, path: Path) -> None:
@@ -182,15 +180,9 @@ def renders_figure(target, sfm_render, gt_render, sfm_psnr, gt_psnr, name, path:
               (np.abs(to_srgb(sfm_render) - to_srgb(gt_render)).mean(axis=2), "|SfM - GT fit| (sRGB)")]
     fig, axes = plt.subplots(1, 4, figsize=(12, 3.3))
     for ax, (img, title) in zip(axes, panels):
-        im = ax.imshow(img, cmap="magma" if img.ndim == 2 else None, vmin=0, vmax=0.25 if img.ndim == 2 else 1)
-        if img.ndim == 2:
-            fig.colorbar(im, ax=ax, fraction=0.046)
-        ax.set_title(title, fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+        image_panel(fig, ax, img, title, colorbar=img.ndim == 2, cmap="magma" if img.ndim == 2 else None, vmin=0,
+                    vmax=0.25 if img.ndim == 2 else 1)
+    finish_figure(fig, path)
 
 
 def add_options(p) -> None:

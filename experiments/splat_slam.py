@@ -38,7 +38,7 @@ import numpy as np
 
 from research.datasets import CACHE_ROOT_HELP
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, markdown_table
 
 TARGET_ATE_PCT = 1.0
 LOOP_FRAMES = 60  # the smoke run renders the 60-frame loop (at 32x32) and tracks its first frames
@@ -109,9 +109,7 @@ def trajectory_figure(gt: np.ndarray, est_aligned: np.ndarray, errors: np.ndarra
     ax.set_xlabel("frame")
     ax.set_ylabel("position error after alignment")
     ax.set_title("absolute trajectory error per frame", fontsize=10)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)
 
 
 def map_figure(gt_imgs: np.ndarray, renders: np.ndarray, psnrs: list[float], titles: list[str], path: Path) -> None:
@@ -131,9 +129,7 @@ def map_figure(gt_imgs: np.ndarray, renders: np.ndarray, psnrs: list[float], tit
         axes[1, i].set_title(f"map render, {psnrs[i]:.1f} dB", fontsize=8)
         for a in axes[:, i]:
             a.axis("off")
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)
 
 
 def feature_vo(rgba: np.ndarray, depth: np.ndarray, K: np.ndarray, gt: np.ndarray) -> dict:

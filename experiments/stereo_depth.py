@@ -78,7 +78,7 @@ from typing import Any, Callable
 import numpy as np
 
 from research.experiment import Context, Experiment, rendered_cache_help
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, image_panel, markdown_table
 from research.stereo.benchmark import DEFAULT_NAME, run_benchmark
 
 SCENES = ("objects", "cornell")
@@ -321,19 +321,11 @@ def figures(best: dict[str, Method], pairs: list[Pair], results: dict, out: Path
             err = np.abs(dense - p.gt)
             errs.append((np.ma.masked_where(~p.masks["all"], err), {"vmin": 0, "vmax": 5, "cmap": "inferno"}))
         for col, (img, kw) in enumerate(imgs + errs):
-            ax = axes[row, col]
-            im = ax.imshow(img, **kw)
-            if col >= 1:
-                fig.colorbar(im, ax=ax, fraction=0.046)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if row == 0:
-                ax.set_title(cols[col], fontsize=8)
+            image_panel(fig, axes[row, col], img, cols[col] if row == 0 else None, colorbar=col >= 1, fontsize=8,
+                        **kw)
         axes[row, 0].set_ylabel(f"{p.scene} {p.name}")
     fig.suptitle("Disparity (px) after KITTI fill; error clipped at 5 px; masked: no ground truth", fontsize=9)
-    fig.tight_layout()
-    save_figure(fig, out / "disparity_maps.png")
-    plt.close(fig)
+    finish_figure(fig, out / "disparity_maps.png")
 
     labels = list(results)
     fig, ax = plt.subplots(figsize=(max(8, 0.55 * len(labels)), 4))
@@ -344,9 +336,7 @@ def figures(best: dict[str, Method], pairs: list[Pair], results: dict, out: Path
     ax.set_xticklabels(labels, rotation=60, ha="right", fontsize=7)
     ax.set_ylabel("D1 (noc), evaluation pairs")
     ax.legend()
-    fig.tight_layout()
-    save_figure(fig, out / "d1_by_method.png")
-    plt.close(fig)
+    finish_figure(fig, out / "d1_by_method.png")
 
 
 # --------------------------------------------------------------------------- evaluation

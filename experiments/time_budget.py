@@ -32,7 +32,7 @@ from typing import Any
 
 from experiments.fit_splats import DATA_HELP
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, markdown_table
 
 LEGO = "nerf_synthetic/lego"
 
@@ -160,9 +160,7 @@ def curve_figure(rows: list[dict], budgets: list[float], path, title: str) -> No
     axes[0].set_ylabel("test PSNR (dB)")
     axes[0].legend(fontsize=8)
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)
 
 
 def run(ctx: Context) -> int:

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from research.experiment import Context, Experiment
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, image_panel, markdown_table
 
 AGREEMENT_TOL = 1e-5
 
@@ -156,15 +156,8 @@ def figure(ref: np.ndarray, warp64: np.ndarray, cv, path: Path) -> None:
               (np.clip(cv.rgb, 0, 1), "OpenCV camera (y down)"),
               (np.ma.masked_where(cv.opacity < 0.5, cv.depth), "expected z-depth")]
     for ax, (img, title) in zip(axes, panels):
-        im = ax.imshow(img, cmap=None if np.ndim(img) == 3 else "viridis")
-        if np.ndim(img) == 2:
-            fig.colorbar(im, ax=ax, fraction=0.046)
-        ax.set_title(title, fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+        image_panel(fig, ax, img, title, colorbar=np.ndim(img) == 2, cmap=None if np.ndim(img) == 3 else "viridis")
+    finish_figure(fig, path)
 
 
 main = Experiment("volume_render_spheres", __doc__, run, seed_help="unused: the task is deterministic; recorded",

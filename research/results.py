@@ -138,3 +138,45 @@ def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
     with atomic.atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
     return path
+
+
+def finish_figure(fig, path: str | Path, dpi: int = 110) -> Path:
+    """Lay out a finished matplotlib figure, save it (save_figure) and close it."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path = save_figure(fig, path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def loss_figure(losses: dict[str, Any], ylabel: str, path: str | Path) -> Path:
+    """Training-loss curves, one per name, each a running mean over 1/100 of its length, on a log axis."""
+    import matplotlib
+    import numpy as np
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for name, loss in losses.items():
+        loss = np.asarray(loss)
+        w = max(1, len(loss) // 100)
+        ax.plot(np.convolve(loss, np.ones(w) / w, mode="valid"), label=name)
+    ax.set_yscale("log")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel(ylabel)
+    ax.legend()
+    return finish_figure(fig, path)
+
+
+def image_panel(fig, ax, img, title: str | None, colorbar: bool = False, fontsize: int = 9, **imshow) -> None:
+    """One image panel of a figure: `ax.imshow(img, **imshow)`, a colour bar if asked, a small title (none if
+    title is None) and no ticks."""
+    im = ax.imshow(img, **imshow)
+    if colorbar:
+        fig.colorbar(im, ax=ax, fraction=0.046)
+    if title is not None:
+        ax.set_title(title, fontsize=fontsize)
+    ax.set_xticks([])
+    ax.set_yticks([])

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from research.experiment import Context
-from research.results import markdown_table, save_figure
+from research.results import finish_figure, markdown_table
 
 DEFAULT_NAME = "drlab default"
 # The Middlebury 2001/2003 scenes that took part in choosing research.stereo.matching.DEFAULT_CONFIG (its docstring).
@@ -93,9 +93,7 @@ def benchmark_figure(p: Any, runs: dict[str, tuple[np.ndarray, np.ndarray, float
     for ax in list(axes.flat)[len(panels):]:
         ax.axis("off")
     fig.suptitle(f"{p.benchmark} {p.name}: disparity (px) after KITTI fill; masked: no ground truth", fontsize=9)
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    finish_figure(fig, path)
 
 
 def _volume_bytes(shape: tuple[int, int], dmax: int) -> int:
