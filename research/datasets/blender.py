@@ -230,11 +230,7 @@ def load_blender(path: str | Path, factor: int = 1) -> Dataset:
     width, height = cams[0].width, cams[0].height
 
     def load_views(selected: list[View]) -> Split:
-        images = [external.downscale(external.read_srgb(files[v.name]), factor, files[v.name]) for v in selected]
-        for v, im in zip(selected, images):
-            if im.shape[:2] != (v.camera.height, v.camera.width):
-                raise DatasetError(f"{files[v.name]}: image changed on disk: now {im.shape[1]}x{im.shape[0]}")
-        return external.split_from_srgb([v.camera for v in selected], images, [str(files[v.name]) for v in selected])
+        return external.load_split(selected, files, factor)
 
     manifest = {"format": "blender", "content_hash": external.content_hash(root, read), "factor": factor,
                 "root": str(root)}

@@ -132,7 +132,7 @@ def pinhole_K(camera, cams_file: Path) -> np.ndarray:
 
 
 def mipnerf360_protocol(factor: int, width: int, height: int) -> Protocol:
-    folder = "images" if factor == 1 else f"images_{factor}"
+    folder = external.image_folder_name(factor)
     return Protocol("mipnerf360", "train", "test", f"{folder} ({width}x{height})", None,
                     f"Mip-NeRF 360 protocol (3DGS): every {LLFFHOLD}th image by name is a test view (llffhold "
                     f"{LLFFHOLD}); {folder}; opaque photographs; PSNR and SSIM (11x11 Gaussian window, sigma 1.5) "
@@ -159,10 +159,7 @@ def load_colmap(path: str | Path, factor: int | None = None) -> Dataset:
     d = model_dir(root)
     rec = read_model(d)
     cams_file, images_file = _model_file(d, "cameras"), _model_file(d, "images")
-    folder = root / ("images" if factor == 1 else f"images_{factor}")
-    if not folder.is_dir():
-        raise DatasetError(f"{folder}: missing (the images at 1/{factor} resolution; choose another factor "
-                           "or make the folder)")
+    folder = external.image_folder(root, factor)
     Ks = {cid: pinhole_K(cam, cams_file) for cid, cam in rec.cameras.items()}
     entries = []
     for image in sorted(rec.images.values(), key=lambda im: im.name):
@@ -203,12 +200,7 @@ def load_colmap(path: str | Path, factor: int | None = None) -> Dataset:
         width, height = max(sizes)
 
     def load_views(selected: list[View]) -> Split:
-        images = []
-        for v in selected:
-            im = external.read_srgb(files[v.name])
-            if im.shape[:2] != (v.camera.height, v.camera.width):
-                raise DatasetError(f"{files[v.name]}: image changed on disk: now {im.shape[1]}x{im.shape[0]}")
-            images.append(im)
+        images = external.read_views(selected, files)
         if len({im.shape for im in images}) > 1:
             raise DatasetError(f"{folder}: the {len(selected)} images of a split must have one size to be "
                                f"stacked, got {sorted({im.shape[1::-1] for im in images})}")

@@ -10,20 +10,35 @@ from __future__ import annotations
 
 import hashlib
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Mapping
 
 import numpy as np
 
 from research import io
 from research.cameras import Camera
 from research.datasets.integrity import DatasetError
-from research.datasets.loader import Split
+from research.datasets.loader import Split, View
 
 
 def check_factor(factor: object) -> int:
     if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
         raise ValueError(f"factor: expected a downscale factor, an integer >= 1, got {factor!r}")
     return int(factor)
+
+
+def image_folder_name(factor: int) -> str:
+    """The folder of the photographs at 1/factor size in COLMAP / Mip-NeRF 360 and LLFF captures."""
+    return "images" if factor == 1 else f"images_{factor}"
+
+
+def image_folder(root: Path, factor: int) -> Path:
+    """root's images/ (factor 1) or images_<factor>/; DatasetError naming the folders present if it is missing."""
+    folder = root / image_folder_name(factor)
+    if not folder.is_dir():
+        present = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name.startswith("images"))
+        raise DatasetError(f"{folder}: missing (the images at 1/{factor}; folders present: "
+                           f"{', '.join(present) or 'none'}; choose --resolution accordingly)")
+    return folder
 
 
 def read_srgb(path: Path) -> np.ndarray:
@@ -70,6 +85,25 @@ def split_from_srgb(cameras: list[Camera], srgb: list[np.ndarray], names: list[s
     alpha = s[..., 3:]
     rgba = np.concatenate([io.srgb_to_linear(s[..., :3]) * alpha, alpha], axis=-1).astype(np.float32)
     return Split(cameras, rgba, None, None, names, srgb=s)
+
+
+def read_views(selected: list[View], files: Mapping[str, Path], factor: int = 1) -> list[np.ndarray]:
+    """Each view's image from files[view.name] (read_srgb, then downscale), checked against its camera's size
+    (the reader checked the sizes without the pixels; a file rewritten since then is a DatasetError)."""
+    images = []
+    for v in selected:
+        path = files[v.name]
+        im = downscale(read_srgb(path), factor, path)
+        if im.shape[:2] != (v.camera.height, v.camera.width):
+            raise DatasetError(f"{path}: image changed on disk: now {im.shape[1]}x{im.shape[0]}")
+        images.append(im)
+    return images
+
+
+def load_split(selected: list[View], files: Mapping[str, Path], factor: int = 1) -> Split:
+    """The Split of the selected views: read_views, then split_from_srgb."""
+    return split_from_srgb([v.camera for v in selected], read_views(selected, files, factor),
+                           [str(files[v.name]) for v in selected])
 
 
 def content_hash(root: Path, files: Iterable[Path]) -> str:

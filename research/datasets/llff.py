@@ -67,12 +67,8 @@ NDC_NEAR = 1.0
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
-def image_folder(root: Path, factor: int) -> Path:
-    return root / ("images" if factor == 1 else f"images_{factor}")
-
-
 def llff_protocol(factor: int, width: int, height: int) -> Protocol:
-    folder = image_folder(Path("."), factor).name
+    folder = external.image_folder_name(factor)
     return Protocol("llff", "train", "test", f"{folder} ({width}x{height})", None,
                     f"LLFF protocol (NeRF): every {LLFFHOLD}th image by name is a test view (llffhold {LLFFHOLD}); "
                     f"{folder}; opaque photographs; PSNR and SSIM (11x11 Gaussian window, sigma 1.5) on sRGB in "
@@ -161,11 +157,7 @@ def load_llff(path: str | Path, factor: int | None = None) -> Dataset:
     if not pb.is_file():
         raise DatasetError(f"{pb}: missing (an LLFF folder has {POSES_BOUNDS} and images_N/)")
     c2w_raw, bounds, (H, W, focal) = read_poses_bounds(pb)
-    folder = image_folder(root, factor)
-    if not folder.is_dir():
-        present = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name.startswith("images"))
-        raise DatasetError(f"{folder}: missing (the images at 1/{factor}; folders present: "
-                           f"{', '.join(present) or 'none'}; choose --resolution accordingly)")
+    folder = external.image_folder(root, factor)
     names = sorted(p.name for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
     if len(names) != len(c2w_raw):
         raise DatasetError(f"{folder}: {len(names)} images, but {pb} holds {len(c2w_raw)} poses (one row per "
@@ -206,13 +198,7 @@ def load_llff(path: str | Path, factor: int | None = None) -> Dataset:
     ndc = NDC.of_camera(cams[0], NDC_NEAR)
 
     def load_views(selected: list[View]) -> Split:
-        images = []
-        for v in selected:
-            im = external.read_srgb(by_name[v.name])
-            if im.shape[:2] != (v.camera.height, v.camera.width):
-                raise DatasetError(f"{by_name[v.name]}: image changed on disk: now {im.shape[1]}x{im.shape[0]}")
-            images.append(im)
-        return external.split_from_srgb([v.camera for v in selected], images, [str(by_name[v.name]) for v in selected])
+        return external.load_split(selected, by_name)
 
     manifest = {"format": "llff", "content_hash": external.content_hash(root, [pb, *files]), "factor": factor,
                 "root": str(root), "scale": scale, "bd_factor": BD_FACTOR, "ndc_near": NDC_NEAR}

@@ -254,11 +254,7 @@ def load_middlebury_mview(path: str | Path, factor: int = 1) -> Dataset:
     bbox = box if box is not None else external.bound_from_cameras(cams)
 
     def load_views(selected: list[View]) -> Split:
-        images = [external.downscale(external.read_srgb(files[v.name]), factor, files[v.name]) for v in selected]
-        for v, im in zip(selected, images):
-            if im.shape[:2] != (v.camera.height, v.camera.width):
-                raise DatasetError(f"{files[v.name]}: image changed on disk: now {im.shape[1]}x{im.shape[0]}")
-        return external.split_from_srgb([v.camera for v in selected], images, [str(files[v.name]) for v in selected])
+        return external.load_split(selected, files, factor)
 
     read = [par] + list(files.values()) + ([root / "README.txt"] if box is not None else [])
     n_test = sum(v.split == "test" for v in views)

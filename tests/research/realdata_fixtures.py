@@ -8,12 +8,28 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from research import io
 from research.cameras import Camera, look_at
+
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def smoke_run(experiment: str, data: Path, tmp_path: Path, fields: tuple[str, ...] = ("grid",)) -> tuple[dict, Path]:
+    """`python -m experiments.<experiment> --smoke` on the dataset folder `data` (fit_splats writes its PLY into
+    tmp_path, fit_nerf fits `fields`); asserts it exits 0 and returns its metrics and its output folder."""
+    out = tmp_path / "out"
+    extra = ["--ply", str(tmp_path / "m.ply")] if experiment == "fit_splats" else ["--fields", *fields]
+    r = subprocess.run([sys.executable, "-m", f"experiments.{experiment}", "--smoke", "--no-progress", "--data",
+                        str(data), "--out", str(out), *extra], cwd=REPO, capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    return json.loads((out / "metrics.json").read_text())["metrics"], out
 
 
 def ring_cameras(n: int, width: int = 16, height: int = 16, fov_x_deg: float = 50.0, radius: float = 4.0):

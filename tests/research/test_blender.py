@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 import sys
 from pathlib import Path
 
@@ -17,9 +16,7 @@ from research.datasets.formats import protocol_target_linear, protocol_target_sr
 from research.metrics import srgb_on_black
 
 sys.path.insert(0, str(Path(__file__).parent))
-from realdata_fixtures import write_blender  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[2]
+from realdata_fixtures import smoke_run, write_blender  # noqa: E402
 
 
 @pytest.mark.parametrize("variant", [None, "global", "frame"], ids=["camera_angle_x", "nerfstudio-global",
@@ -126,12 +123,7 @@ def test_content_hash_follows_the_files(tmp_path):
 @pytest.mark.parametrize("experiment", ["fit_splats", "fit_nerf"])
 def test_experiment_smoke_on_a_blender_folder(tmp_path, experiment):
     write_blender(tmp_path / "lego", views={"train": 5, "test": 2})
-    out = tmp_path / "out"
-    extra = ["--ply", str(tmp_path / "m.ply")] if experiment == "fit_splats" else ["--fields", "grid", "pe_mlp"]
-    r = subprocess.run([sys.executable, "-m", f"experiments.{experiment}", "--smoke", "--no-progress", "--data",
-                        str(tmp_path / "lego"), "--out", str(out), *extra], cwd=REPO, capture_output=True, text=True)
-    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
-    m = json.loads((out / "metrics.json").read_text())["metrics"]
+    m, out = smoke_run(experiment, tmp_path / "lego", tmp_path, fields=("grid", "pe_mlp"))
     assert m["data"]["format"] == "blender" and m["data"]["scene"] == "lego"
     assert m["data"]["protocol"] == "nerf-synthetic" and m["data"]["background"] == [1.0, 1.0, 1.0]
     assert m["eval_protocol"].startswith("NeRF-synthetic protocol") and "white" in m["eval_protocol"]

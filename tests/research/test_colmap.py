@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 import sys
 from pathlib import Path
 
@@ -16,9 +15,7 @@ from research.datasets import detect_format, load_colmap
 from research.datasets.colmap import c2w_from_colmap, colmap_from_c2w, default_factor
 
 sys.path.insert(0, str(Path(__file__).parent))
-from realdata_fixtures import COLMAP_PARAMS, write_colmap  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[2]
+from realdata_fixtures import COLMAP_PARAMS, smoke_run, write_colmap  # noqa: E402
 
 
 def test_pose_conversion_both_directions_to_1e9():
@@ -80,12 +77,7 @@ def test_rounded_images_n_sizes_are_accepted(tmp_path):
 def test_experiment_smoke_on_a_mipnerf360_folder(tmp_path, experiment):
     root = tmp_path / "bonsai"  # indoor: images_2
     write_colmap(root, n=9, width=32, height=24, factors=(1, 2), text=True)
-    out = tmp_path / "out"
-    extra = ["--ply", str(tmp_path / "m.ply")] if experiment == "fit_splats" else ["--fields", "grid"]
-    r = subprocess.run([sys.executable, "-m", f"experiments.{experiment}", "--smoke", "--no-progress", "--data",
-                        str(root), "--out", str(out), *extra], cwd=REPO, capture_output=True, text=True)
-    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
-    m = json.loads((out / "metrics.json").read_text())["metrics"]
+    m, out = smoke_run(experiment, root, tmp_path)
     assert m["data"]["format"] == "colmap" and m["data"]["scene"] == "bonsai"
     assert m["data"]["protocol"] == "mipnerf360" and m["data"]["resolution"] == "images_2 (16x12)"
     assert "llffhold 8" in m["eval_protocol"] and "bonsai" in (out / "table.md").read_text()

@@ -3,10 +3,7 @@
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +12,8 @@ import pytest
 from research import io
 from research.datasets import DatasetError, detect_format, open_dataset
 from research.datasets.llff import load_llff, recenter
+from tests.research.realdata_fixtures import smoke_run
 
-REPO = Path(__file__).resolve().parents[2]
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
@@ -240,12 +237,7 @@ def test_frustum_init_points_lie_between_the_bounds(tmp_path):
 def test_experiment_smoke_on_an_llff_folder(tmp_path, experiment):
     root = tmp_path / "fern"
     write_llff(root, level_rig(9), full=(128, 96), focal=100.0, factors=(8,))
-    out = tmp_path / "out"
-    extra = ["--ply", str(tmp_path / "m.ply")] if experiment == "fit_splats" else ["--fields", "grid"]
-    r = subprocess.run([sys.executable, "-m", f"experiments.{experiment}", "--smoke", "--no-progress", "--data",
-                        str(root), "--out", str(out), *extra], cwd=REPO, capture_output=True, text=True)
-    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
-    m = json.loads((out / "metrics.json").read_text())["metrics"]
+    m, out = smoke_run(experiment, root, tmp_path)
     assert m["data"]["format"] == "llff" and m["data"]["protocol"] == "llff"
     assert m["data"]["resolution"] == "images_8 (16x12)" and "llffhold 8" in m["eval_protocol"]
     if experiment == "fit_splats":
