@@ -45,6 +45,30 @@ T_MIN = 1e-4
 _GRAD_COLS = 10
 
 
+@wp.func
+def tile_box(tile: int, ranges: wp.array2d(dtype=wp.int32), tiles_x: int, width: int, height: int):
+    """The pixel box [x_lo, x_hi) x [y_lo, y_hi) of a tile (row-major tiles, cut by the image's edges) and
+    its range [start, end) of the sorted list."""
+    tile_y = tile / tiles_x
+    x_lo = (tile - tile_y * tiles_x) * TILE
+    y_lo = tile_y * TILE
+    return x_lo, y_lo, wp.min(x_lo + TILE, width), wp.min(y_lo + TILE, height), ranges[tile, 0], ranges[tile, 1]
+
+
+@wp.func
+def packed_splat(packed: wp.array2d(dtype=Any), g: int):
+    """Splat g's packed row (kernels.splat.tiles): mean (u, v), conic (qa, qb, qc), opacity o, the exponent
+    threshold thr = -ln(255 o) (below it alpha < 1/255, so exp() is skipped), depth z, colour (c0, c1, c2)."""
+    return (packed[g, 0], packed[g, 1], packed[g, 2], packed[g, 3], packed[g, 4], packed[g, 5], packed[g, 6],
+            packed[g, 7], packed[g, 8], packed[g, 9], packed[g, 10])
+
+
+@wp.func
+def gauss_power(qa: Any, qb: Any, qc: Any, dx: Any, dy: Any):
+    """The exponent -1/2 d^T Q d of a splat's Gaussian at offset d = (dx, dy), conic Q = [[qa, qb], [qb, qc]]."""
+    return -type(dx)(0.5) * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
+
+
 @wp.kernel
 def _raster_forward_kernel(
     packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
@@ -64,13 +88,7 @@ def _raster_forward_kernel(
     zero = packed.dtype(0.0)
     one = packed.dtype(1.0)
     half = packed.dtype(0.5)
-    tile_y = tile / tiles_x
-    x_lo = (tile - tile_y * tiles_x) * TILE
-    y_lo = tile_y * TILE
-    x_hi = wp.min(x_lo + TILE, width)
-    y_hi = wp.min(y_lo + TILE, height)
-    start = ranges[tile, 0]
-    end = ranges[tile, 1]
+    x_lo, y_lo, x_hi, y_hi, start, end = tile_box(tile, ranges, tiles_x, width, height)
     for py in range(y_lo, y_hi):
         for px in range(x_lo, x_hi):
             final_T[py, px] = one
@@ -85,18 +103,7 @@ def _raster_forward_kernel(
     while s < end - 1:
         s += 1
         g = sorted_gid[s]
-        u = packed[g, 0]
-        v = packed[g, 1]
-        qa = packed[g, 2]
-        qb = packed[g, 3]
-        qc = packed[g, 4]
-        o = packed[g, 5]
-        # packed[g, 6] = -ln(255 o): below it alpha < 1/255, so exp() is skipped.
-        thr = packed[g, 6]
-        z = packed[g, 7]
-        c0 = packed[g, 8]
-        c1 = packed[g, 9]
-        c2 = packed[g, 10]
+        u, v, qa, qb, qc, o, thr, z, c0, c1, c2 = packed_splat(packed, g)
         # The splat's rows inside its widened 1/255 ellipse in this tile, and the columns of any of
         # those rows (spans.py: pixel_span).
         row0, row1, col0, col1 = pixel_span(packed, g, x_lo, x_hi, y_lo, y_hi)
@@ -114,7 +121,7 @@ def _raster_forward_kernel(
                     continue
                 dx = u - pxf
                 dy = v - pyf
-                power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
+                power = gauss_power(qa, qb, qc, dx, dy)
                 if power > zero or power < thr:
                     continue
                 alpha = wp.min(alpha_max, o * wp.exp(power))
@@ -164,13 +171,7 @@ def _raster_forward_rows_kernel(
     tile = wp.tid() + offset
     half = wp.float32(0.5)
     one = wp.float32(1.0)
-    tile_y = tile / tiles_x
-    x_lo = (tile - tile_y * tiles_x) * TILE
-    y_lo = tile_y * TILE
-    x_hi = wp.min(x_lo + TILE, width)
-    y_hi = wp.min(y_lo + TILE, height)
-    start = ranges[tile, 0]
-    end = ranges[tile, 1]
+    x_lo, y_lo, x_hi, y_hi, start, end = tile_box(tile, ranges, tiles_x, width, height)
     for k in range(TILE_PIXELS):
         state[tile, k] = one
         state[tile, TILE_PIXELS + k] = wp.float32(0.0)
@@ -193,17 +194,7 @@ def _raster_forward_rows_kernel(
         if col1 <= col0 or row1 <= row0:
             continue
         cols = ((int(1) << (col1 - col0)) - 1) << (col0 - x_lo)
-        u = packed[g, 0]
-        v = packed[g, 1]
-        qa = packed[g, 2]
-        qb = packed[g, 3]
-        qc = packed[g, 4]
-        o = packed[g, 5]
-        thr = packed[g, 6]
-        z = packed[g, 7]
-        c0 = packed[g, 8]
-        c1 = packed[g, 9]
-        c2 = packed[g, 10]
+        u, v, qa, qb, qc, o, thr, z, c0, c1, c2 = packed_splat(packed, g)
         py = row0 - 1
         while py < row1 - 1:
             py += 1
@@ -260,7 +251,7 @@ def _raster_forward_pixel_kernel(
         g = sorted_gid[s]
         dx = packed[g, 0] - pxf
         dy = packed[g, 1] - pyf
-        power = -half * (packed[g, 2] * dx * dx + packed[g, 4] * dy * dy) - packed[g, 3] * dx * dy
+        power = gauss_power(packed[g, 2], packed[g, 3], packed[g, 4], dx, dy)
         if power > zero or power < packed[g, 6]:
             continue
         alpha = wp.min(alpha_max, packed[g, 5] * wp.exp(power))
@@ -303,13 +294,7 @@ def _raster_backward_tile_kernel(
     zero = packed.dtype(0.0)
     one = packed.dtype(1.0)
     half = packed.dtype(0.5)
-    tile_y = tile / tiles_x
-    x_lo = (tile - tile_y * tiles_x) * TILE
-    y_lo = tile_y * TILE
-    x_hi = wp.min(x_lo + TILE, width)
-    y_hi = wp.min(y_lo + TILE, height)
-    start = ranges[tile, 0]
-    end = ranges[tile, 1]
+    x_lo, y_lo, x_hi, y_hi, start, end = tile_box(tile, ranges, tiles_x, width, height)
     bg0 = background[0]
     bg1 = background[1]
     bg2 = background[2]
@@ -339,27 +324,8 @@ def _raster_backward_tile_kernel(
     s = last - 1
     while s >= start:
         g = sorted_gid[s]
-        u = packed[g, 0]
-        v = packed[g, 1]
-        qa = packed[g, 2]
-        qb = packed[g, 3]
-        qc = packed[g, 4]
-        o = packed[g, 5]
-        thr = packed[g, 6]
-        z = packed[g, 7]
-        c0 = packed[g, 8]
-        c1 = packed[g, 9]
-        c2 = packed[g, 10]
-        a0 = zero
-        a1 = zero
-        a2 = zero
-        a3 = zero
-        a4 = zero
-        a5 = zero
-        a6 = zero
-        a7 = zero
-        a8 = zero
-        a9 = zero
+        u, v, qa, qb, qc, o, thr, z, c0, c1, c2 = packed_splat(packed, g)
+        grad = wp.vector(length=_GRAD_COLS, dtype=packed.dtype)  # this entry's row, zeros
         row0, row1, col0, col1 = pixel_span(packed, g, x_lo, x_hi, y_lo, y_hi)
         py = row0 - 1
         while py < row1 - 1:  # while loops and a stepped pixel centre, as in the forward
@@ -374,7 +340,7 @@ def _raster_backward_tile_kernel(
                     continue
                 dx = u - pxf
                 dy = v - pyf
-                power = -half * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
+                power = gauss_power(qa, qb, qc, dx, dy)
                 if power <= zero and power >= thr:
                     gauss = wp.exp(power)
                     raw = o * gauss
@@ -392,10 +358,10 @@ def _raster_backward_tile_kernel(
                         sb = state[py, px, 3]
                         sd = state[py, px, 4]
                         wgt = alpha * tr
-                        a6 += wgt * gr
-                        a7 += wgt * gg
-                        a8 += wgt * gb
-                        a9 += wgt * gd
+                        grad[6] += wgt * gr
+                        grad[7] += wgt * gg
+                        grad[8] += wgt * gb
+                        grad[9] += wgt * gd
                         g_a = tr * ((c0 - sr) * gr + (c1 - sg) * gg + (c2 - sb) * gb + (z - sd) * gd)
                         g_a += (g_alpha[py, px] - bg_dot) * tf / (one - alpha)
                         state[py, px, 0] = tr
@@ -404,24 +370,16 @@ def _raster_backward_tile_kernel(
                         state[py, px, 3] = alpha * c2 + (one - alpha) * sb
                         state[py, px, 4] = alpha * z + (one - alpha) * sd
                         if raw <= alpha_max:
-                            a5 += gauss * g_a
+                            grad[5] += gauss * g_a
                             g_p = alpha * g_a
-                            a0 += -(qa * dx + qb * dy) * g_p
-                            a1 += -(qb * dx + qc * dy) * g_p
-                            a2 += -half * dx * dx * g_p
-                            a3 += -dx * dy * g_p
-                            a4 += -half * dy * dy * g_p
+                            grad[0] += -(qa * dx + qb * dy) * g_p
+                            grad[1] += -(qb * dx + qc * dy) * g_p
+                            grad[2] += -half * dx * dx * g_p
+                            grad[3] += -dx * dy * g_p
+                            grad[4] += -half * dy * dy * g_p
         row = sorted_entry[s]
-        entry_grads[row, 0] = a0
-        entry_grads[row, 1] = a1
-        entry_grads[row, 2] = a2
-        entry_grads[row, 3] = a3
-        entry_grads[row, 4] = a4
-        entry_grads[row, 5] = a5
-        entry_grads[row, 6] = a6
-        entry_grads[row, 7] = a7
-        entry_grads[row, 8] = a8
-        entry_grads[row, 9] = a9
+        for j in range(_GRAD_COLS):
+            entry_grads[row, j] = grad[j]
         s -= 1
 
 
@@ -432,7 +390,7 @@ def _gather_entry_grads_kernel(
     g_colors: wp.array2d(dtype=Any), g_depths: wp.array(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
-    acc = wp.vector(length=10, dtype=entry_grads.dtype)
+    acc = wp.vector(length=_GRAD_COLS, dtype=entry_grads.dtype)
     e0 = starts[i]
     for e in range(e0, e0 + counts[i]):
         for j in range(_GRAD_COLS):
