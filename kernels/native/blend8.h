@@ -2,7 +2,8 @@
 // (composite_forward.cpp) and kernels/volume/spheres_cpu.py's pass 3 (spheres_pass3.h): where `run`,
 //     w = T (1 - e),  T' = T e,  C' = C + w c (each channel),  D' = D + w z,
 // each product and each sum rounded on its own (contraction off, as in Warp's generated code);
-// elsewhere T, C and D keep their values. Needs the v8f / v8i typedefs and lanes.h before it.
+// elsewhere T, C and D keep their values (the sums: blend_sums.h). Needs the v8f / v8i typedefs, lanes.h
+// and blend_sums.h before it.
 
     auto blend8 = [&](const v8i run, const v8f e, const v8f c0, const v8f c1, const v8f c2, const v8f zk, v8f& T,
                      v8f& R, v8f& G, v8f& B, v8f& D) __attribute__((always_inline)) {
@@ -10,17 +11,6 @@
         const v8f om = (v8f)1.0f - e;
         const v8f w = T * om;
         const v8f Tn = T * e;
-        const v8f wr = w * c0;
-        const v8f wg = w * c1;
-        const v8f wb = w * c2;
-        const v8f wd = w * zk;
-        const v8f Rn = R + wr;
-        const v8f Gn = G + wg;
-        const v8f Bn = B + wb;
-        const v8f Dn = D + wd;
+        blend_sums(run, w, c0, c1, c2, zk, R, G, B, D);
         T = sel(run, Tn, T);
-        R = sel(run, Rn, R);
-        G = sel(run, Gn, G);
-        B = sel(run, Bn, B);
-        D = sel(run, Dn, D);
     };

@@ -163,9 +163,7 @@
         transpose8(fr, 1, fc, 1);
         transpose8(zr, 1, zc, 1);
         transpose8(dr, 1, dc, 1);
-        transpose8(cr, 3, cc, 1);
-        transpose8(cr + 1, 3, cc + 8, 1);
-        transpose8(cr + 2, 3, cc + 16, 1);
+        transpose8_rgb(cr, cc);
         v8f gsc[8] __attribute__((aligned(64)));
         v8f gcc[24] __attribute__((aligned(64)));
         const int jn = maxused - i0 < 8 ? maxused - i0 : 8;
@@ -181,9 +179,7 @@
         }
         v8f gsr[8], gcr[24];
         transpose8(gsc, 1, gsr, 1);
-        transpose8(gcc, 1, gcr, 3);
-        transpose8(gcc + 8, 1, gcr + 1, 3);
-        transpose8(gcc + 16, 1, gcr + 2, 3);
+        untranspose8_rgb(gcc, gcr);
 #pragma clang loop unroll(full)
         for (int l = 0; l < 8; ++l) {
             const int k = start[l] + i0;

@@ -14,6 +14,7 @@
     typedef int v8i __attribute__((ext_vector_type(8)));
 #include "npexp_types.h"
 #include "lanes.h"
+#include "blend_sums.h"
 #include "blend8.h"
 
     typedef unsigned int v16u __attribute__((ext_vector_type(16)));
@@ -219,9 +220,7 @@
             v8f cc[24] __attribute__((aligned(64)));
             transpose8(fr, 1, fc, 1);
             transpose8(zr, 1, zc, 1);
-            transpose8(cr, 3, cc, 1);
-            transpose8(cr + 1, 3, cc + 8, 1);
-            transpose8(cr + 2, 3, cc + 16, 1);
+            transpose8_rgb(cr, cc);
             // the steps read the columns back from the stack (one copy of `step` in the loop: unrolling it eight
             // times, with the factor fill inlined into each, was not faster)
             const int jn = maxlen - i0 < 8 ? maxlen - i0 : 8;

@@ -13,11 +13,7 @@
         }
         _Pragma("unroll") for (int c = 0; c < 8; ++c) {
             _Pragma("unroll") for (int k = 0; k < K; ++k) {
-                const T wx = (c & 1) ? fx[k] : T(1) - fx[k];
-                const T wy = ((c >> 1) & 1) ? fy[k] : T(1) - fy[k];
-                const T wz = ((c >> 2) & 1) ? fz[k] : T(1) - fz[k];
-                const T wxy = wx * wy;
-                const T w = wxy * wz;
+                const T w = corner_weight(c, fx[k], fy[k], fz[k]);
                 const char* r = tb + (long long)row[c][k] * ts0;
                 const T t0 = *reinterpret_cast<const T*>(r);
                 const T t1 = *reinterpret_cast<const T*>(r + ts1);

@@ -14,11 +14,7 @@
         T w[8][K];
         _Pragma("unroll") for (int c = 0; c < 8; ++c) {
             _Pragma("unroll") for (int k = 0; k < K; ++k) {
-                const T wx = (c & 1) ? fx[k] : T(1) - fx[k];
-                const T wy = ((c >> 1) & 1) ? fy[k] : T(1) - fy[k];
-                const T wz = ((c >> 2) & 1) ? fz[k] : T(1) - fz[k];
-                const T wxy = wx * wy;
-                w[c][k] = wxy * wz;
+                w[c][k] = corner_weight(c, fx[k], fy[k], fz[k]);
             }
         }
         for (int k = 0; k < m; ++k) {

@@ -10,6 +10,7 @@
 #else
 #include "vexp_types.h"
 #include "lanes.h"
+#include "blend_sums.h"
 
     int* live_row = (int*)((char*)live.data + (size_t)tile * live.strides[0]) + row;
     const int todo = live_row[0] & cols;
@@ -76,18 +77,7 @@
     __builtin_memcpy(&D, pD, 64);
     __builtin_memcpy(&N, pN, 64);
     const v16f w = alpha * T;
-    const v16f wr = w * c0;
-    const v16f wg = w * c1;
-    const v16f wb = w * c2;
-    const v16f wd = w * z;
-    const v16f R2 = R + wr;
-    const v16f G2 = G + wg;
-    const v16f B2 = B + wb;
-    const v16f D2 = D + wd;
-    R = sel(blend, R2, R);
-    G = sel(blend, G2, G);
-    B = sel(blend, B2, B);
-    D = sel(blend, D2, D);
+    blend_sums(blend, w, c0, c1, c2, z, R, G, B, D);
     T = sel(blend, next_t, T);
     const v16i s16 = s1;
     N = sel(blend, s16, N);

@@ -1,6 +1,6 @@
 // The set-up shared by kernels/volume/spheres_cpu.py's C++ passes (spheres_exponents.cpp,
 // spheres_factors.cpp, spheres_composite.cpp, spheres_render.cpp): contraction off, the eight-lane
-// types, lanes.h and blend8.h, group g = g_lo + tid of eight rays r = 8 g + l (lanes past the last ray
+// types, lanes.h, blend_sums.h and blend8.h, group g = g_lo + tid of eight rays r = 8 g + l (lanes past the last ray
 // repeat it), lanes_at(base, s0, s1, j) (column j of an (R, S) float32 array for every lane's ray; one
 // load when s0 = 0), and the sphere tables G (K, 4: centre c_k, radius r_k) and P (K, 4: colour, s_k).
 
@@ -8,6 +8,7 @@
     typedef float v8f __attribute__((ext_vector_type(8)));
     typedef int v8i __attribute__((ext_vector_type(8)));
 #include "lanes.h"
+#include "blend_sums.h"
 #include "blend8.h"
     const int n_s = t.shape[1];
     const long long ts0 = t.strides[0];
