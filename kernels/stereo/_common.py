@@ -56,6 +56,15 @@ def image_pair(a: Inputs, left: Any, right: Any, ndim: int = 2, names: tuple[str
     return first, a.floats(names[1], right, first.shape)
 
 
+def grey_or_colour_pair(a: Inputs, left: Any, right: Any) -> tuple[wp.array, wp.array, int]:
+    """`image_pair` of grey (H, W) or colour (H, W, C) images, and their number of dimensions (2 or 3)."""
+    ndim = len(getattr(left, "shape", ()))
+    if ndim not in (2, 3):
+        raise ValueError(f"left: expected a grey (H, W) or colour (H, W, C) image, got shape "
+                         f"{tuple(getattr(left, 'shape', ()))}")
+    return (*image_pair(a, left, right, ndim), ndim)
+
+
 def compact_volume(a: Inputs, name: str, x: Any, dtype: Any) -> wp.array:
     """An integer volume (H, W, D) of `dtype` (wp.uint8 or wp.uint16; compact mode) as a wp.array on the call's
     device; its results are float32 (a.scalar)."""

@@ -67,7 +67,7 @@ import warp as wp
 
 from kernels._arrays import Inputs, check_float, check_int
 from kernels.launch import default_threads
-from kernels.stereo._common import check_range, image_pair
+from kernels.stereo._common import check_range, grey_or_colour_pair, image_pair
 from kernels.stereo.adcensus_images import (_census_eps, _half_ranges, _reverse_planar, _rho_table,
                                             _robust_term, sobel_x_clipped)
 from kernels.stereo.adcensus_kernels import LANES, VEC, _V32, _fused_cost, _rho_lanes
@@ -108,11 +108,7 @@ def adcensus_cost(left: Any, right: Any, dmin: int, dmax: int, *, grey: tuple[An
     Vector rho), not bit-identical to the scalar exp's volume: a cell may differ by one level.
     """
     a = Inputs(device, left, right)
-    ndim = len(getattr(left, "shape", ()))
-    if ndim not in (2, 3):
-        raise ValueError(f"left: expected a grey (H, W) or colour (H, W, C) image, got shape "
-                         f"{tuple(getattr(left, 'shape', ()))}")
-    l_img, r_img = image_pair(a, left, right, ndim)
+    l_img, r_img, ndim = grey_or_colour_pair(a, left, right)
     H, W = l_img.shape[:2]
     check_range(dmin, dmax, W)
     _census_radii(*census_radii)

@@ -49,23 +49,6 @@ wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_
                        "cpu_compiler_flags": "-march=native -mllvm=-inline-threshold=9000"})
 
 
-@wp.func
-def _bt_cell(L: wp.array3d(dtype=typing.Any), l_lo: wp.array3d(dtype=typing.Any), l_hi: wp.array3d(dtype=typing.Any),
-             R: wp.array3d(dtype=typing.Any), r_lo: wp.array3d(dtype=typing.Any), r_hi: wp.array3d(dtype=typing.Any),
-             y: int, x: int, u: int):
-    """bt(x, y, d) for u = x - d inside the image, the channel mean (kernels.stereo.bt's _bt_pixel)."""
-    zero = L.dtype(0.0)
-    acc = zero
-    C = L.shape[2]
-    for c in range(C):
-        lv = L[y, x, c]
-        rv = R[y, u, c]
-        e_lr = wp.max(wp.max(zero, lv - r_hi[y, u, c]), r_lo[y, u, c] - lv)
-        e_rl = wp.max(wp.max(zero, rv - l_hi[y, x, c]), l_lo[y, x, c] - rv)
-        acc += wp.min(e_lr, e_rl)
-    return acc * (L.dtype(1.0) / L.dtype(C))
-
-
 # Hypotheses go through in vectors of LANES (16 float32 or 8 float64; AVX-512 registers where the CPU has them):
 # every vector operation below is the scalar operation of the same name on each lane, so a lane's value is the
 # scalar loop's value bit for bit (module docstring: Vector form).

@@ -33,7 +33,7 @@ from typing import Any
 import warp as wp
 
 from kernels._arrays import Inputs, check_int, declare_float_overloads
-from kernels.stereo._common import check_range, image_pair, pixel
+from kernels.stereo._common import check_range, grey_or_colour_pair, pixel
 
 wp.set_module_options({"enable_backward": False})
 
@@ -117,11 +117,7 @@ def bt_cost(left: Any, right: Any, dmin: int, dmax: int, radius: int = 2, *, dev
     `left`, `right`: grey (H, W) or colour (H, W, C) float images of one shape and dtype.
     """
     a = Inputs(device, left, right)
-    ndim = len(getattr(left, "shape", ()))
-    if ndim not in (2, 3):
-        raise ValueError(f"left: expected a grey (H, W) or colour (H, W, C) image, got shape "
-                         f"{tuple(getattr(left, 'shape', ()))}")
-    l_img, r_img = image_pair(a, left, right, ndim)
+    l_img, r_img, ndim = grey_or_colour_pair(a, left, right)
     H, W = l_img.shape[:2]
     dmin, D = check_range(dmin, dmax, W)
     r = check_int("radius", radius, minimum=0)
