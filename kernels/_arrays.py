@@ -463,6 +463,17 @@ class Inputs:
             if not x.is_contiguous:
                 raise ValueError(f"{name}: expected a contiguous wp.array")
 
+    def float_dtype(self, name: str, x: Any) -> Any:
+        """The float dtype of argument x: the first float argument sets the call's scalar type, later ones
+        must match it (ValueError naming the argument)."""
+        dtype = float_dtype(name, x)
+        if self.scalar is None:
+            self.scalar = dtype
+        elif dtype != self.scalar:
+            raise ValueError(f"{name}: expected dtype {type_name(self.scalar)} like the other inputs, "
+                             f"got {type_name(dtype)}")
+        return dtype
+
     def floats(self, name: str, x: Any, shape: Sequence[Any] | None = None, *, ndim: int | None = None,
                finite: bool = True, nonempty: bool = False) -> wp.array:
         """A float argument as a wp.array of the call's scalar type on the call's device.
@@ -472,12 +483,7 @@ class Inputs:
         NaN and inf (while value checks are on); `nonempty` rejects a zero-sized array.
         """
         self._array(name, x)
-        dtype = float_dtype(name, x)
-        if self.scalar is None:
-            self.scalar = dtype
-        elif dtype != self.scalar:
-            raise ValueError(f"{name}: expected dtype {type_name(self.scalar)} like the other inputs, "
-                             f"got {type_name(dtype)}")
+        dtype = self.float_dtype(name, x)
         if shape is not None:
             check_shape(name, x, shape)
         if ndim is not None and len(x.shape) != ndim:

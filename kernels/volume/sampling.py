@@ -369,12 +369,7 @@ def dense_samples(
     named = (("origins", o, (None, 3)), ("dirs", d, (o.shape[0], 3)), ("t", t, (o.shape[0], None)),
              ("delta", delta, t.shape))
     for name, x, shape in named:
-        dtype = A.float_dtype(name, x)
-        if a.scalar is None:
-            a.scalar = dtype
-        elif dtype != a.scalar:
-            raise ValueError(f"{name}: expected dtype {A.type_name(a.scalar)} like the other inputs, "
-                             f"got {A.type_name(dtype)}")
+        a.float_dtype(name, x)
         A.check_shape(name, x, shape)
         A.check_finite(name, x)
     A.check_at_least("delta", delta, 0.0)

@@ -391,12 +391,7 @@ def _floats_in_place(a: A.Inputs, keep: list[np.ndarray], name: str, x: Any, sha
     while the kernels run."""
     if not (isinstance(x, np.ndarray) and a.device.is_cpu and x.size):
         return a.floats(name, x, shape, finite=finite)
-    dtype = A.float_dtype(name, x)
-    if a.scalar is None:
-        a.scalar = dtype
-    elif dtype != a.scalar:
-        raise ValueError(f"{name}: expected dtype {A.type_name(a.scalar)} like the other inputs, "
-                         f"got {A.type_name(dtype)}")
+    dtype = a.float_dtype(name, x)
     A.check_shape(name, x, shape)
     if _broadcast_rows(x, a):
         # every row is row 0: checked once, and read through a zero row stride
