@@ -23,6 +23,16 @@ def _follow_env():
     fast_paths.set_enabled(None)
 
 
+def _sphere_rays(rng: np.random.Generator, n_rays: int, n_samples: int):
+    """float32 rays from (0, 0, -3) towards +z (spread 0.1) through the textbook spheres, with n_samples equal
+    samples in [0.5, 5.5]: origins, dirs, t and delta for SphereField.render_dense."""
+    o = np.tile(np.array([0.0, 0.0, -3.0], np.float32), (n_rays, 1))
+    d = rng.normal(0, 0.1, (n_rays, 3)).astype(np.float32) + np.array([0, 0, 1], np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = np.tile(np.linspace(0.5, 5.5, n_samples, dtype=np.float32), (n_rays, 1))
+    return o, d, t, np.full_like(t, 5.0 / n_samples)
+
+
 # --------------------------------------------------------------------------- the switch itself
 
 
@@ -129,11 +139,7 @@ def test_volume_without_fast_paths(no_fast_path):
         composite_forward(-sigma, rgb, delta, z, off)
 
     field = SphereField.textbook(wp.float32)
-    o = np.tile(np.array([0.0, 0.0, -3.0], np.float32), (8, 1))
-    d = rng.normal(0, 0.1, (8, 3)).astype(np.float32) + np.array([0, 0, 1], np.float32)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    t = np.tile(np.linspace(0.5, 5.5, 16, dtype=np.float32), (8, 1))
-    dl = np.full_like(t, 5.0 / 16)
+    o, d, t, dl = _sphere_rays(rng, 8, 16)
     img, _, _ = field.render_dense(o, d, t, dl)
     assert img.shape == (8, 3) and np.all(np.isfinite(img))
     out = field.forward(rng.uniform(-1, 1, (40, 3)).astype(np.float32))
@@ -227,11 +233,7 @@ def test_composite_and_spheres_when_numpy_exp_is_not_reproduced(monkeypatch):
             rng.uniform(0.01, 0.2, n).astype(np.float32), np.arange(n, dtype=np.float32) * 0.1,
             np.arange(0, n + 1, per, dtype=np.int32))
     field = SphereField.textbook(wp.float32)
-    o = np.tile(np.array([0.0, 0.0, -3.0], np.float32), (24, 1))
-    d = rng.normal(0, 0.1, (24, 3)).astype(np.float32) + np.array([0, 0, 1], np.float32)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    t = np.tile(np.linspace(0.5, 5.5, 16, dtype=np.float32), (24, 1))
-    dl = np.full_like(t, 5.0 / 16)
+    o, d, t, dl = _sphere_rays(rng, 24, 16)
 
     def run():
         res = composite_forward(*args, keep_factor=False)
@@ -288,11 +290,7 @@ def test_spheres_without_avx2(monkeypatch):
         pytest.skip("this CPU has no AVX2: only the Warp passes exist")
     rng = np.random.default_rng(9)
     field = SphereField.textbook(wp.float32)
-    o = np.tile(np.array([0.0, 0.0, -3.0], np.float32), (13, 1))
-    d = rng.normal(0, 0.1, (13, 3)).astype(np.float32) + np.array([0, 0, 1], np.float32)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    t = np.tile(np.linspace(0.5, 5.5, 12, dtype=np.float32), (13, 1))
-    dl = np.full_like(t, 5.0 / 12)
+    o, d, t, dl = _sphere_rays(rng, 13, 12)
     want = field.render_dense(o, d, t, dl)
     monkeypatch.setattr(spheres_cpu, "available", lambda: False)
     monkeypatch.setattr(spheres_module.SphereField, "_native_passes", _refuse("spheres_cpu"))
@@ -386,7 +384,7 @@ def _avx2_and_fma() -> int: ...
 
 
 def _rho_without_avx2_kernel():
-    from kernels.stereo.adcensus import _V32, _rho_lanes, _robust_term
+    from tests.kernels.test_vexp import rho_block
 
     @wp.kernel(enable_backward=False, module="unique", module_options={"cpu_compiler_flags": ""})
     def rho_plain(c: wp.array(dtype=wp.float32), lam: wp.float64, weight: wp.float64,
@@ -394,13 +392,7 @@ def _rho_without_avx2_kernel():
         b = wp.tid()
         if b == 0:
             simd[0] = _avx2_and_fma()
-        v = _V32()
-        for i in range(16):
-            v[i] = c[b * 16 + i]
-        r = _rho_lanes(v, wp.float32(wp.float64(1.0) / lam), wp.float32(weight))
-        for i in range(16):
-            vec[b * 16 + i] = r[i]
-            lane[b * 16 + i] = _robust_term(c[b * 16 + i], lam, weight)
+        rho_block(c, lam, weight, vec, lane, b)
 
     return rho_plain
 

@@ -29,10 +29,11 @@ def test_vexp_is_expf_on_positive_inputs_and_past_the_fast_path():
         assert int(bad.numpy().sum()) == 0, (hex(lo), hex(hi))
 
 
-@wp.kernel(enable_backward=False)
-def _rho_both(c: wp.array(dtype=wp.float32), lam: wp.float64, weight: wp.float64, vec: wp.array(dtype=wp.float32),
-              lane: wp.array(dtype=wp.float32)):
-    b = wp.tid()
+@wp.func
+def rho_block(c: wp.array(dtype=wp.float32), lam: wp.float64, weight: wp.float64, vec: wp.array(dtype=wp.float32),
+              lane: wp.array(dtype=wp.float32), b: int):
+    """Costs 16 b .. 16 b + 15: vec gets _rho_lanes on them as one vector, lane the scalar _robust_term of each
+    (also tests/kernels/test_fast_paths.py's kernel built without AVX2)."""
     v = _V32()
     for i in range(16):
         v[i] = c[b * 16 + i]
@@ -40,6 +41,12 @@ def _rho_both(c: wp.array(dtype=wp.float32), lam: wp.float64, weight: wp.float64
     for i in range(16):
         vec[b * 16 + i] = r[i]
         lane[b * 16 + i] = _robust_term(c[b * 16 + i], lam, weight)
+
+
+@wp.kernel(enable_backward=False)
+def _rho_both(c: wp.array(dtype=wp.float32), lam: wp.float64, weight: wp.float64, vec: wp.array(dtype=wp.float32),
+              lane: wp.array(dtype=wp.float32)):
+    rho_block(c, lam, weight, vec, lane, wp.tid())
 
 
 @pytest.mark.parametrize("lam,weight", [(0.04, 1.0), (0.04, 0.3), (30.0, 1.0), (1e-3, 2.5)])
