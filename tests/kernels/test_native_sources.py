@@ -11,9 +11,6 @@ from __future__ import annotations
 
 import ast
 import re
-import shutil
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
@@ -22,6 +19,7 @@ import warp as wp
 
 from kernels import native
 from kernels.native import NativeSourceError, source
+from tests.wheel_build import build_wheel, can_build_wheels
 
 REPO = Path(__file__).resolve().parents[2]
 KERNELS = REPO / "kernels"
@@ -195,30 +193,10 @@ def test_the_scan_would_catch_an_old_snippet():
     assert _cpp_strings(tree) == [1, 5]
 
 
-def _can_build_wheels() -> bool:
-    try:
-        import setuptools
-    except ImportError:
-        return False
-    if tuple(int(x) for x in setuptools.__version__.split(".")[:2]) >= (70, 1):
-        return True
-    from importlib.metadata import entry_points
-
-    return any(ep.name == "bdist_wheel" for ep in entry_points(group="distutils.commands"))
-
-
 @pytest.mark.timeout(240)
-@pytest.mark.skipif(not _can_build_wheels(), reason="no bdist_wheel here (setuptools < 70.1 without `wheel`)")
+@pytest.mark.skipif(not can_build_wheels(), reason="no bdist_wheel here (setuptools < 70.1 without `wheel`)")
 def test_wheel_carries_every_native_file(tmp_path):
-    src = tmp_path / "src"
-    src.mkdir()
-    shutil.copytree(KERNELS, src / "kernels", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
-    for name in ("pyproject.toml", "README.md"):
-        shutil.copy(REPO / name, src / name)
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
-                        "-q", "-w", str(tmp_path / "dist"), str(src)], capture_output=True, text=True, timeout=200)
-    assert r.returncode == 0, r.stderr[-3000:]
-    (wheel,) = (tmp_path / "dist").glob("drlab-*.whl")
+    wheel = build_wheel(REPO, ("kernels",), tmp_path)
     with zipfile.ZipFile(wheel) as z:
         names = set(z.namelist())
     missing = [n for n in native.files() if f"kernels/native/{n}" not in names]

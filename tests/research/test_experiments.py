@@ -11,7 +11,6 @@ import importlib
 import json
 import math
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -25,6 +24,7 @@ import pytest
 
 from research import experiment
 from research.registry import EXPERIMENTS, REPO_ROOT, family_modules
+from tests.wheel_build import build_wheel, can_build_wheels
 
 SHARED_OPTIONS = ("--quick", "--smoke", "--device", "--out", "--seed", "--data", "--no-progress")
 
@@ -450,33 +450,11 @@ def test_drlab_run_reports_an_experiment_option_error():
     assert r.returncode == 2 and "--no-such-option" in r.stderr
 
 
-def _can_build_wheels() -> bool:
-    try:
-        import setuptools
-    except ImportError:
-        return False
-    if tuple(int(x) for x in setuptools.__version__.split(".")[:2]) >= (70, 1):
-        return True
-    from importlib.metadata import entry_points  # the `wheel` distribution registers bdist_wheel
-
-    return any(ep.name == "bdist_wheel" for ep in entry_points(group="distutils.commands"))
-
-
 @pytest.mark.timeout(240)
-@pytest.mark.skipif(not _can_build_wheels(), reason="no bdist_wheel here (setuptools < 70.1 without `wheel`; "
+@pytest.mark.skipif(not can_build_wheels(), reason="no bdist_wheel here (setuptools < 70.1 without `wheel`; "
                                                     "`make setup` installs it with the dev extras)")
 def test_wheel_contains_experiments_and_drlab_run_works_from_it(tmp_path):
-    src = tmp_path / "src"
-    src.mkdir()
-    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
-    for name in ("research", "kernels", "experiments"):
-        shutil.copytree(REPO_ROOT / name, src / name, ignore=ignore)
-    for name in ("pyproject.toml", "README.md"):
-        shutil.copy(REPO_ROOT / name, src / name)
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
-                        "-q", "-w", str(tmp_path / "dist"), str(src)], capture_output=True, text=True, timeout=200)
-    assert r.returncode == 0, r.stderr[-3000:]
-    (wheel,) = (tmp_path / "dist").glob("drlab-*.whl")
+    wheel = build_wheel(REPO_ROOT, ("research", "kernels", "experiments"), tmp_path)
     with zipfile.ZipFile(wheel) as z:
         names = z.namelist()
         assert "experiments/__init__.py" in names
