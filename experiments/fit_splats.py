@@ -169,21 +169,26 @@ def data_record(ds, path: Path) -> dict:
             "content_hash": ds.manifest.get("content_hash")}
 
 
-def add_options(p) -> None:
-    p.add_argument("--ply", type=Path, default=None,
-                   help="where to write the PLY (default build/fit_splats[-quick|-smoke]/point_cloud.ply, in the "
-                        "checkout when run from one, else under the current directory)")
+def add_splat_options(p) -> None:
+    """--init and --mode (shared with time_budget)."""
     p.add_argument("--init", choices=["depth", "random", "sfm", "frustum"], default=None,
                    help="initial points: ground-truth depth of the train views (drlab data), the SfM points (COLMAP "
                         "data), points in the train views' frusta between their near/far bounds (LLFF data), or "
                         "random in the scene box (default: depth for drlab data, sfm when the data has SfM points, "
                         "frustum when it has bounds, else random)")
-    add_data_options(p)
-    p.add_argument("--iterations", type=int, default=None, help="override the number of training iterations")
     p.add_argument("--mode", choices=["3dgs", "gsplat"], default="3dgs",
                    help="projection and compositing conventions (kernels/splat/modes.py): the original 3DGS "
                         "code's (default) or gsplat's (its frustum clamp, radius floor, 0.999 alpha clamp and "
                         "<= stop), for comparing against gsplat-trained numbers")
+
+
+def add_options(p) -> None:
+    p.add_argument("--ply", type=Path, default=None,
+                   help="where to write the PLY (default build/fit_splats[-quick|-smoke]/point_cloud.ply, in the "
+                        "checkout when run from one, else under the current directory)")
+    add_data_options(p)
+    p.add_argument("--iterations", type=int, default=None, help="override the number of training iterations")
+    add_splat_options(p)
 
 
 @dataclass
@@ -315,7 +320,8 @@ def run(ctx: Context) -> int:
         "scene": f"{scene}, {len(train_split.cameras)} train / {len(test_split.cameras)} test",
         "eval_protocol": data["eval_protocol"], "data": data,
         "test_psnr": ev.psnr, "test_ssim": ev.ssim, "test_psnr_linear": ev.psnr_linear,
-        "train_views_psnr": ev_train.psnr, "gaussians": model.n, "train_seconds": result.seconds, "train_cpu_seconds": train_cpu_s,
+        "train_views_psnr": ev_train.psnr, "gaussians": model.n, "train_seconds": result.seconds,
+        "train_cpu_seconds": train_cpu_s,
         "train_iterations": cfg.iterations, "render_fps": fps, "ply_bytes": ply_bytes,
         "ply_path": str(ply_path.relative_to(REPO)) if ply_path.is_relative_to(REPO) else str(ply_path),
         "ply_roundtrip_identical": same, "init": init, "init_points": len(points), "extent": extent,

@@ -48,7 +48,7 @@ def sizes(quick: bool, smoke: bool) -> dict[str, Any]:
 
 def add_options(p) -> None:
     from experiments.fit_nerf import FIELDS
-    from experiments.fit_splats import add_data_options
+    from experiments.fit_splats import add_data_options, add_splat_options
 
     add_data_options(p)
     p.add_argument("--splat-iterations", type=int, nargs="*", default=None, metavar="N",
@@ -61,9 +61,7 @@ def add_options(p) -> None:
                    help="multiples of each field's default schedule (default 1 4; quick and smoke 0.5 1)")
     p.add_argument("--budgets", type=float, nargs="+", default=None, metavar="MIN",
                    help="wall-time budgets of the budget table, in minutes (default 10 30 60)")
-    p.add_argument("--init", choices=["depth", "random", "sfm", "frustum"], default=None,
-                   help="the splats' initial points, as fit_splats --init (default: as fit_splats chooses)")
-    p.add_argument("--mode", choices=["3dgs", "gsplat"], default="3dgs", help="as fit_splats --mode")
+    add_splat_options(p)
 
 
 def resolve_data(ctx: Context) -> None:

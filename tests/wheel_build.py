@@ -1,4 +1,5 @@
-"""Whether this environment can build a wheel: the wheel tests (test_native_sources, test_experiments) skip without it."""
+"""Building drlab wheels in tests: whether this environment can (the wheel tests of test_native_sources
+and test_experiments skip without it), and the build itself."""
 
 from __future__ import annotations
 

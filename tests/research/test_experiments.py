@@ -489,3 +489,15 @@ def test_bench_family_tiny_cases(family):
         timings = {k: v for k, v in row.items() if k.endswith("_s")}
         assert any(isinstance(v, float) and v > 0 for v in timings.values()), row
     print(f"bench {family} tiny: {seconds:.2f} s")
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--splat-iterations", "0"], "--splat-iterations: expected positive values, got [0]"),
+    (["--budgets", "10", "-5"], "--budgets: expected positive values, got [10.0, -5.0]"),
+    (["--splat-iterations", "--fields"], "--splat-iterations and --fields are both empty: nothing to run"),
+])
+def test_time_budget_refuses_bad_schedules_in_one_line(tmp_path, argv, message):
+    r = _run(["-m", "experiments.time_budget", "--smoke", "--no-progress", "--out", str(tmp_path / "out"),
+              "--data", str(tmp_path / "data"), *argv])
+    assert r.returncode == 2 and message in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "data").exists()  # refused before any dataset is rendered
