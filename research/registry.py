@@ -299,7 +299,7 @@ register_family("splat", "3D Gaussian splatting: projection, tile binning, raste
                 oracle_cases="research.oracles.cases.splat", bench="research.bench.splat")
 register_family("ssim", "the SSIM map and its backward",
                 kernels="kernels.ssim", reference="kernels.reference.ssim", checks="research.checks.ssim",
-                oracle_cases="research.oracles.cases.ssim")
+                oracle_cases="research.oracles.cases.ssim", bench="research.bench.ssim")
 register_family("volume", "NeRF volume rendering: sampling, compositing, fields, camera gradients through rays",
                 kernels="kernels.volume", reference="kernels.reference.volume", checks="research.checks.volume",
                 oracle_cases="research.oracles.cases.volume", bench="research.bench.volume")
