@@ -312,3 +312,5 @@ register_family("points", "point clouds on a uniform hash grid: kNN, ball query,
                 oracle_cases="research.oracles.cases.points", bench="research.bench.points")
 register_family("lucas_kanade", "Lucas-Kanade flow: structure tensor, pyramidal",
                 kernels="kernels.lucas_kanade", reference="kernels.reference.lucas_kanade")
+register_family("icp", "ICP: point-to-point/plane residuals, pose Jacobians, robust weights, normal equations",
+                kernels="kernels.icp", reference="kernels.reference.icp", checks="research.checks.icp")
