@@ -231,6 +231,13 @@ register_experiment(
     reproduce_seed=1,
 )
 
+register_experiment(
+    "surface_recon",
+    "TSDF fusion + marching cubes (Warp) of Mitsuba GT, splat and field depth maps on `objects`, beside Open3D's "
+    "TSDF on the same depth maps: chamfer, F-score, normal consistency against the true shapes, fusion time.",
+    quick_budget_s=300,
+)
+
 # --------------------------------------------------------------------------- kernel families
 
 
@@ -310,6 +317,8 @@ register_family("slam", "the splat SLAM tracking and mapping losses (research/sl
 register_family("points", "point clouds on a uniform hash grid: kNN, ball query, FPS, normals, chamfer distance",
                 kernels="kernels.points", reference="kernels.reference.points", checks="research.checks.points",
                 oracle_cases="research.oracles.cases.points", bench="research.bench.points")
+register_family("tsdf", "TSDF fusion of depth maps and marching cubes (no gradient)",
+                kernels="kernels.tsdf", reference="kernels.reference.tsdf", bench="research.bench.tsdf")
 register_family("lucas_kanade", "Lucas-Kanade flow: structure tensor, pyramidal",
                 kernels="kernels.lucas_kanade", reference="kernels.reference.lucas_kanade")
 register_family("icp", "ICP: point-to-point/plane residuals, pose Jacobians, robust weights, normal equations",
