@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from research import values
 from research.io import linear_to_srgb
 
 _BITS = {8: np.uint8, 16: np.uint16}
@@ -64,9 +65,7 @@ class Stress:
 
     def __post_init__(self) -> None:
         for name in ("exposure_stops", "offset", "vignetting", "blur_sigma", "shot_noise", "read_noise"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-                raise ValueError(f"{name}: expected a finite number >= 0, got {value!r}")
+            values.number(name, getattr(self, name), 0)
         if self.vignetting > 1:
             raise ValueError(f"vignetting: expected a corner falloff in [0, 1], got {self.vignetting!r}")
         if isinstance(self.bits, bool) or self.bits not in _BITS:

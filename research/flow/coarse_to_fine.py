@@ -70,13 +70,8 @@ from scipy import ndimage
 
 from kernels import _arrays as A
 from kernels import corr
+from research import values
 from research.images import to_unit
-
-
-def _check_positive(name: str, value) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not np.isfinite(value) \
-            or value <= 0:
-        raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -99,10 +94,10 @@ class C2FConfig:
         A.check_int("patch", self.patch, minimum=3)
         if self.patch % 2 == 0:
             raise ValueError(f"patch: expected an odd side >= 3, got {self.patch}")
-        _check_positive("tv_weight", self.tv_weight)
+        values.number("tv_weight", self.tv_weight, 0, low_open=True)
         A.check_int("tv_iterations", self.tv_iterations, minimum=0)
-        _check_positive("texture_floor", self.texture_floor)
-        _check_positive("memory_budget_mib", self.memory_budget_mib)
+        values.number("texture_floor", self.texture_floor, 0, low_open=True)
+        values.number("memory_budget_mib", self.memory_budget_mib, 0, low_open=True)
 
 
 # --------------------------------------------------------------------------- pyramid, warping, features

@@ -57,6 +57,7 @@ from scipy import ndimage
 
 from kernels import _arrays as A
 from kernels import corr
+from research import values
 from research.images import to_unit, unit_grey_pair
 
 PATCH = 5
@@ -128,12 +129,6 @@ def upsample_flow(flow: np.ndarray, stride: int, height: int, width: int) -> np.
 # --------------------------------------------------------------------------- the estimator
 
 
-def _check_positive(name: str, value) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not np.isfinite(value) \
-            or value <= 0:
-        raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
-
-
 @dataclass(frozen=True)
 class CorrFlowConfig:
     """Settings of `CorrFlow.estimate` (module docstring); each is checked when the config is made."""
@@ -150,9 +145,9 @@ class CorrFlowConfig:
         A.check_int("levels", self.levels, minimum=1)
         A.check_int("radius", self.radius, minimum=1)  # the soft-argmax reads 3 x 3 samples around the peak
         A.check_int("iterations", self.iterations, minimum=1)
-        _check_positive("temperature", self.temperature)
+        values.number("temperature", self.temperature, 0, low_open=True)
         A.check_int("smooth_radius", self.smooth_radius, minimum=0)
-        _check_positive("min_confidence", self.min_confidence)
+        values.number("min_confidence", self.min_confidence, 0, low_open=True)
         A.check_int("aggregate", self.aggregate, minimum=0)
 
 
@@ -192,7 +187,7 @@ class CorrFlow:
         A.check_int("max_levels", max_levels, minimum=1)
         if not (onthefly is None or isinstance(onthefly, bool)):
             raise ValueError(f"onthefly: expected True, False or None (by the memory budget), got {onthefly!r}")
-        _check_positive("memory_budget_mib", memory_budget_mib)
+        values.number("memory_budget_mib", memory_budget_mib, 0, low_open=True)
         self.stride = stride
         self.image_shape = rgb1.shape[:2]
         self.f1 = fixed_features(rgb1, stride)

@@ -1,5 +1,6 @@
 """Domain checks of tracker and filter settings: each raises one ValueError naming the field.
 
+The scalar checks (integer, number, probability, flag) are research.values', re-exported here.
 Used by the configurations' `__post_init__` (SortConfig, ByteTrackConfig, HistogramConfig), the
 Kalman models (kalman.LinearGaussianModel, kinematic_model) and the box helpers (boxes.py), so a
 bad value (max_age -1, iou_threshold NaN, a negative q, an asymmetric covariance) is refused when
@@ -8,50 +9,12 @@ it is given, not silently used.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from research.values import flag, integer, number, probability  # noqa: F401 (re-exported)
 
 SYMMETRY_RTOL = 1e-9  # |A - A^T| allowed, relative to max |A| (and 1)
 PSD_RTOL = 1e-9  # smallest eigenvalue allowed below 0, relative to max |A| (and 1)
-
-
-def _is_number(value) -> bool:
-    return not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
-
-
-def integer(name: str, value, low: int = 0) -> int:
-    """An integer >= low (a bool or a float such as 1.0 is refused)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
-    return int(value)
-
-
-def number(name: str, value, low: float = -math.inf, high: float = math.inf, *, low_open: bool = False) -> float:
-    """A finite number in [low, high] (or (low, high] with low_open)."""
-    ok = _is_number(value) and math.isfinite(float(value))
-    if ok:
-        v = float(value)
-        ok = (v > low if low_open else v >= low) and v <= high
-    if not ok:
-        lo = "(" if low_open else "["
-        if math.isinf(high):
-            want = f"a finite number {'>' if low_open else '>='} {low:g}"
-        else:
-            want = f"a finite number in {lo}{low:g}, {high:g}]"
-        raise ValueError(f"{name}: expected {want}, got {value!r}")
-    return float(value)
-
-
-def probability(name: str, value) -> float:
-    """A finite number in [0, 1] (a score, an IoU or a 1 - IoU threshold, a fraction)."""
-    return number(name, value, 0.0, 1.0)
-
-
-def flag(name: str, value) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise ValueError(f"{name}: expected True or False, got {value!r}")
-    return bool(value)
 
 
 def covariance(name: str, a, size: int | None = None) -> np.ndarray:
