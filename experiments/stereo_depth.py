@@ -77,6 +77,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from research.cli_common import integer_type, number_type
 from research.experiment import Context, Experiment, rendered_cache_help
 from research.results import finish_figure, image_panel, markdown_table
 from research.stereo.benchmark import DEFAULT_NAME, run_benchmark
@@ -628,66 +629,30 @@ def add_options(p: Any) -> None:
                         "evaluation pairs, without OpenCV")
     p.add_argument("--aggregation", choices=AGGREGATIONS, default=None,
                    help="with --cost: the aggregation (default sgm8)")
-    p.add_argument("--radius", type=_nonnegative_int, default=None,
+    p.add_argument("--radius", type=integer_type(0), default=None,
                    help="with --cost: the window radius R of sad/zncc/bt/adcensus/corr; census uses radii (R, R + 1), a "
                         "(2R+1) x (2R+3) window, as the tuning grid (default 2)")
-    p.add_argument("--p1", type=_nonnegative_float, default=None,
+    p.add_argument("--p1", type=number_type(0), default=None,
                    help="with --cost and SGM: P1 in the cost's units (research.stereo.matching: [0, 1] intensity for "
                         "sad/bt/corr, bits for census, 1 - correlation for zncc, fractions of one squashed term "
                         "for adcensus); default: the grid's base "
                         f"({', '.join(f'{k} {v:g}' for k, v in P1_BASE.items())})")
-    p.add_argument("--p2", type=_nonnegative_float, default=None,
+    p.add_argument("--p2", type=number_type(0), default=None,
                    help="with --cost and SGM: P2 >= P1 (default 8 P1)")
-    p.add_argument("--zncc-eps", type=_nonnegative_float, default=None,
+    p.add_argument("--zncc-eps", type=number_type(0), default=None,
                    help="with --cost zncc: the variance floor (default 1e-4)")
 
     p.add_argument("--format", choices=FORMATS, default=None,
                    help="the benchmark layout of --data (default: detected from its files)")
     p.add_argument("--resolution", choices=tuple(RESOLUTIONS), default="full",
                    help="Middlebury/ETH3D: evaluate at this fraction of the stored files' size (default: full)")
-    p.add_argument("--gt-scale", type=_positive_float, default=None,
+    p.add_argument("--gt-scale", type=number_type(0, low_open=True), default=None,
                    help="--format middlebury2003: the ground-truth scale (disparity = stored value / scale) for "
                         "every scene, overriding the table of the known scenes (tsukuba 16, venus 8, teddy 4, "
                         "cones 4); required for any other scene")
     p.add_argument("--max-disp", type=_max_disp, default=None,
                    help="benchmarks: disparity range [0, N), N a multiple of 16 (default: each pair's ndisp "
                         "rounded up to 16; KITTI 256)")
-
-
-def _nonnegative_int(value: str) -> int:
-    import argparse
-
-    try:
-        n = int(value)
-    except ValueError:
-        n = -1
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value!r}")
-    return n
-
-
-def _nonnegative_float(value: str) -> float:
-    import argparse
-
-    try:
-        x = float(value)
-    except ValueError:
-        x = float("nan")
-    if not (np.isfinite(x) and x >= 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {value!r}")
-    return x
-
-
-def _positive_float(value: str) -> float:
-    import argparse
-
-    try:
-        x = float(value)
-    except ValueError:
-        x = float("nan")
-    if not (np.isfinite(x) and x > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {value!r}")
-    return x
 
 
 def _max_disp(value: str) -> int:

@@ -34,7 +34,7 @@ from pathlib import Path
 
 from research import atomic, registry
 from research.cli_common import (EXIT_INTERRUPTED, EXIT_USAGE, USER_ERRORS, Parser, UsageError, caused_by_interrupt,
-                                 directory_path, experiment_env, one_line, seed_value)
+                                 directory_path, experiment_env, integer_type, one_line, seed_value)
 from research.registry import EXPERIMENTS, family_modules
 
 
@@ -200,17 +200,6 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         print(f"drlab reproduce: failed: {', '.join(failed)}", file=sys.stderr)
         return 1
     return 0
-
-
-def _positive_int(value: str) -> int:
-    """argparse type of --jobs: an integer >= 1."""
-    try:
-        n = int(value)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value!r}")
-    return n
 
 
 def _ray_address(value: str) -> str:
@@ -418,7 +407,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "table.json, figure.png and runs.json there. Exit status: the number of failed runs (0: all "
                     "succeeded).")
     sw.add_argument("spec", help="sweep file (TOML), e.g. experiments/sweeps/raft_ablation.toml")
-    sw.add_argument("--jobs", type=_positive_int, default=None,
+    sw.add_argument("--jobs", type=integer_type(1), default=None,
                     help="runs at a time (local executor, default 1); with --ray, the CPUs of the local Ray instance")
     sw.add_argument("--ray", action="store_true",
                     help="run each run as a Ray task on a local Ray instance (no dashboard, loopback only)")

@@ -1,14 +1,16 @@
 """What the `drlab` command line (research.cli) and the experiment contract (research.experiment) share.
 
 Exit statuses and the exceptions that count as user mistakes, an argument parser whose errors are
-exceptions, one-line error messages, the argparse types of the shared folder and seed options, and
-the environment of an experiment's own process. Kept apart from the CLI so that research.experiment
-and research.sweep use them without importing the CLI (which imports both of them).
+exceptions, one-line error messages, the argparse types of the shared folder and seed options and of
+integer and number options, and the environment of an experiment's own process. Kept apart from the
+CLI so that research.experiment and research.sweep use them without importing the CLI (which imports
+both of them).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 
 from research.registry import REPO_ROOT, in_checkout
@@ -68,6 +70,33 @@ def seed_value(value: str) -> int:
     if not 0 <= seed < 2**32:
         raise argparse.ArgumentTypeError(f"expected an integer in [0, 2^32), got {value!r}")
     return seed
+
+
+def integer_type(low: int):
+    """argparse type of an integer option: an integer >= low."""
+    def parse(value: str) -> int:
+        try:
+            n = int(value)
+        except ValueError:
+            n = None
+        if n is None or n < low:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {value!r}")
+        return n
+    return parse
+
+
+def number_type(low: float = 0.0, *, low_open: bool = False):
+    """argparse type of a number option: a finite number >= low (> low with low_open)."""
+    def parse(value: str) -> float:
+        try:
+            x = float(value)
+        except ValueError:
+            x = math.nan
+        if not (math.isfinite(x) and (x > low if low_open else x >= low)):
+            raise argparse.ArgumentTypeError(f"expected a finite number {'>' if low_open else '>='} {low:g}, "
+                                             f"got {value!r}")
+        return x
+    return parse
 
 
 def experiment_env() -> dict[str, str]:
