@@ -81,6 +81,9 @@ def add_options(p) -> None:
     p.add_argument("--sources", nargs="+", choices=SOURCES, default=list(SOURCES),
                    help="depth maps to fuse: gt (Mitsuba), splats (a splat fit), field (a hash-grid fit); default all")
     p.add_argument("--no-open3d", action="store_true", help="skip Open3D's fusion (the baseline)")
+    p.add_argument("--ply-dir", type=Path, default=None,
+                   help="where to write the drlab meshes (default build/surface_recon[-quick|-smoke], in the checkout "
+                        "when run from one, else under the current directory)")
 
 
 def fit_splat_depths(ctx: Context, cfg: Setup, train) -> tuple[np.ndarray, dict]:
@@ -174,7 +177,7 @@ def run(ctx: Context) -> int:
         else:
             depth_maps[src], fits[src] = fit_field_depths(ctx, train, bbox)
     suffix = "" if ctx.mode == "full" else "-" + ctx.mode
-    ply_dir = registry.base_dir() / "build" / f"surface_recon{suffix}"
+    ply_dir = (args.ply_dir or registry.base_dir() / "build" / f"surface_recon{suffix}").absolute()
 
     results: dict[str, dict] = {}
     panels = []

@@ -89,15 +89,15 @@ class TSDFVolume:
         self.device = A.get_device(device)
         n = math.prod(self.shape)
         size = "x".join(map(str, self.shape))
-        if n * 3 > 2**31 - 1:
-            raise ValueError(f"shape: a volume of {size} voxels has more than the (2^31 - 1) / 3 the kernels "
-                             "index with int32")
         need = volume_bytes(self.shape, self.np_dtype, color)
         limit = available_bytes(self.device) if max_bytes is None else A.check_int("max_bytes", max_bytes, minimum=0)
         if need > limit:
             raise ValueError(f"shape: a TSDF volume of {size} voxels ({self.np_dtype}{', with colour' if color else ''})"
                              f" needs {_gb(need)} ({need} bytes); only {_gb(limit)} is available on {self.device}"
                              f"{'' if max_bytes is None else ' (max_bytes)'}: use a larger voxel_size or a smaller box")
+        if n * 3 > 2**31 - 1:
+            raise ValueError(f"shape: a volume of {size} voxels has more than the (2^31 - 1) / 3 the kernels "
+                             "index with int32")
         self.origin = origin
         self.n_voxels = n
         self.tsdf = wp.full(n, self.scalar(1.0), dtype=self.scalar, device=self.device)

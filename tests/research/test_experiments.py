@@ -194,13 +194,24 @@ def _check_time_budget(m):
             assert row[method].startswith(f"{max(fit):.2f} (") if fit else row[method].startswith("-")
 
 
+def _check_surface_recon(m):
+    rows = m["results"]
+    assert {"gt/drlab", "splats/drlab", "field/drlab"} <= set(rows)
+    for r in rows.values():
+        assert r["faces"] > 0 and _finite(r["chamfer"]) and 0 <= r["normal_consistency"] <= 1
+        assert all(0 <= t["fscore"] <= 1 for t in r["per_threshold"]) and r["views"] > 0
+    assert all(rows[f"{s}/drlab"]["ply"]["round_trip_identical"] for s in ("gt", "splats", "field"))
+    if m["open3d"] is not None:  # the same algorithm on the same voxels: the same mesh size
+        assert rows["gt/open3d"]["faces"] == rows["gt/drlab"]["faces"]
+
+
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
           "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
           "volume_render_spheres": _check_volume, "sfm_poses": _check_sfm_poses, "real_photos": _check_real_photos,
           "oracle_conformance": _check_oracle,
           "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo,
-          "splat_slam": _check_slam, "time_budget": _check_time_budget}
+          "splat_slam": _check_slam, "time_budget": _check_time_budget, "surface_recon": _check_surface_recon}
 
 
 def test_every_registered_experiment_has_a_smoke_check():
@@ -217,7 +228,8 @@ def data_dir(tmp_path_factory) -> Path:
 @pytest.mark.parametrize("name", list(EXPERIMENTS))
 def test_smoke_run(name, tmp_path, data_dir):
     out = tmp_path / "out"
-    extra = ["--ply", str(tmp_path / "model.ply")] if name == "fit_splats" else []
+    extra = (["--ply", str(tmp_path / "model.ply")] if name == "fit_splats"
+             else ["--ply-dir", str(tmp_path / "meshes")] if name == "surface_recon" else [])
     t0 = time.perf_counter()
     r = _run(["-m", f"experiments.{name}", "--smoke", "--no-progress", "--out", str(out), "--data", str(data_dir),
               "--seed", "3", *extra])
