@@ -162,6 +162,7 @@ def run(ctx: Context) -> int:
     h = float((bbox[1] - bbox[0]).max()) / cfg.voxels_per_side
     tau = cfg.truncation_voxels * h
     thresholds = [p / 100 * diag for p in THRESHOLDS_PCT]
+    grid = fusion.fusion_grid(bbox, h, tau)[1]
 
     gt_pts, gt_nrm, shapes = groundtruth.sample_scene_surface("objects", cfg.samples, ctx.seed)
     seen = groundtruth.observed(gt_pts, train.cameras, train.depth, VISIBLE_PCT / 100 * diag)
@@ -242,12 +243,14 @@ def run(ctx: Context) -> int:
              f"{cfg.samples:,} sampled); each mesh sampled with {cfg.samples:,} points. Distances in scene units "
              f"(box diagonal {diag:.3f}); F-score thresholds {', '.join(f'{t:.4f}' for t in thresholds)} "
              f"({', '.join(f'{p:g}%' for p in THRESHOLDS_PCT)} of the diagonal). Fusion s: integration of every "
-             "view plus mesh extraction, wall time, the same depth maps for both methods." + fit_text + derr_text
+             "view plus mesh extraction, wall time, the same depth maps for both methods; drlab's grid is "
+             f"{'x'.join(map(str, grid))} = {np.prod(grid):,} voxels, Open3D's uniform volume the cube of its largest "
+             f"side, {max(grid) ** 3:,} voxels with the same centres (it has no box shape)." + fit_text + derr_text
              + "\n\n" + markdown_table(headers, rows)
              + "\n![error-coloured samples of each mesh, top view](errors.png)\n")
     record = datasets.provenance(data)
     metrics_out = {"dataset": {"path": str(data), "config": dcfg.__dict__, "content_hash": record["content_hash"]},
-                   "voxel_size": h, "truncation": tau, "grid": list(fusion.fusion_grid(bbox, h, tau)[1]),
+                   "voxel_size": h, "truncation": tau, "grid": list(grid), "open3d_grid": [max(grid)] * 3,
                    "box_diagonal": diag, "thresholds": thresholds, "thresholds_pct_of_diagonal": list(THRESHOLDS_PCT),
                    "gt_points": int(len(gt_pts)), "gt_sampled": cfg.samples, "gt_shapes": shapes,
                    "open3d": None if o3d is None else o3d.__version__, "fits": fits, "depth_errors": derr,
