@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from kernels import splat as ks
-from research.checks.splat import PARAMS, _camera_inputs, depth_target, smooth_scene
+from research.checks.splat import PARAMS, _camera_inputs, camera_loss_fn, depth_target, smooth_scene
 from research.gradcheck import GradcheckResult, check_vjp, register_check
 
 MODE = "3dgs"
@@ -27,28 +27,6 @@ def _noisy(x: np.ndarray, rng: np.random.Generator, sd: float) -> np.ndarray:
         y = x + rng.normal(0.0, sd, x.shape)
         if np.min(np.abs(y - x)) >= 1e-4:
             return y
-
-
-def _loss_fn(scene, loss):
-    """`loss(render) -> (L, dL/dC, dL/dA, dL/dD)` as a function of the splats, xi and the intrinsics."""
-    base = scene.camera
-
-    def render(inputs):
-        g = ks.gaussian_inputs(*(inputs[k] for k in PARAMS))
-        cam = base.with_intrinsics(*inputs["intrinsics"]).perturbed(inputs["xi"])
-        return g, ks.render(g, cam, scene.background, mode=MODE)
-
-    def f(**inputs):
-        return {"loss": np.array([loss(render(inputs)[1])[0]])}
-
-    def vjp(inputs, cot):
-        g, r = render(inputs)
-        _, g_rgb, g_alpha, g_depth = loss(r)
-        c = float(cot["loss"][0])
-        grads = ks.render_backward(g, r, c * g_rgb, c * g_alpha, c * g_depth, want_camera=True)
-        return {**{k: grads[k] for k in PARAMS}, "xi": grads["pose"], "intrinsics": grads["intrinsics"]}
-
-    return f, vjp
 
 
 # Loss-of-a-mean checks: one scalar whose splat gradients are as small as 1e-7, so the splats take
@@ -70,7 +48,7 @@ def check_tracking_loss(seed: int) -> list[GradcheckResult]:
         value, g_rgb, g_alpha, g_depth, _ = tracking_loss(res, target, measured, cfg)
         return value, g_rgb, g_alpha, g_depth
 
-    f, vjp = _loss_fn(scene, loss)
+    f, vjp = camera_loss_fn(scene, MODE, loss)
     return check_vjp(f, vjp, _camera_inputs(scene), seed=seed, eps=EPS, name=f"slam.tracking_loss[seed={seed}]")
 
 
@@ -85,7 +63,7 @@ def check_mapping_loss(seed: int) -> list[GradcheckResult]:
     target = _noisy(r.rgb, np.random.default_rng([seed, 8]), 0.05)
     kf = Keyframe(0, scene.camera.viewmat, target, measured)
     cfg = MapConfig(depth_min_alpha=min_alpha)
-    f, vjp = _loss_fn(scene, lambda res: mapping_loss(res, kf, cfg))
+    f, vjp = camera_loss_fn(scene, MODE, lambda res: mapping_loss(res, kf, cfg))
     return check_vjp(f, vjp, _camera_inputs(scene), seed=seed, eps=EPS, name=f"slam.mapping_loss[seed={seed}]")
 
 

@@ -434,10 +434,9 @@ def depth_target(scene: Scene, mode: str, seed: int) -> tuple[np.ndarray, np.nda
     return measured, mask, min_alpha
 
 
-def depth_loss_fn(scene: Scene, mode: str, measured: np.ndarray, mask: np.ndarray, min_alpha: float, kind: str):
-    """research.splats.loss.depth_loss of the render, as a function of the splats, xi and the intrinsics."""
-    from research.splats.loss import depth_loss
-
+def camera_loss_fn(scene: Scene, mode: str, loss):
+    """A scalar loss of the render as a function of the splats, the pose twist xi and the intrinsics:
+    `loss(render) -> (L, dL/dC, dL/dA, dL/dD)`, dL/dC None where the loss does not read the colour."""
     base = scene.camera
 
     def render(inputs):
@@ -446,17 +445,28 @@ def depth_loss_fn(scene: Scene, mode: str, measured: np.ndarray, mask: np.ndarra
         return g, ks.render(g, cam, scene.background, mode=mode)
 
     def f(**inputs):
-        _, r = render(inputs)
-        return {"loss": np.array([depth_loss(r.depth, r.alpha, measured, mask, min_alpha=min_alpha, kind=kind)[0]])}
+        return {"loss": np.array([loss(render(inputs)[1])[0]])}
 
     def vjp(inputs, cot):
         g, r = render(inputs)
-        _, g_depth, g_alpha = depth_loss(r.depth, r.alpha, measured, mask, min_alpha=min_alpha, kind=kind)
+        _, g_rgb, g_alpha, g_depth = loss(r)
         c = float(cot["loss"][0])
-        grads = ks.render_backward(g, r, np.zeros(r.rgb.shape), c * g_alpha, c * g_depth, want_camera=True)
+        g_rgb = np.zeros(r.rgb.shape) if g_rgb is None else c * g_rgb
+        grads = ks.render_backward(g, r, g_rgb, c * g_alpha, c * g_depth, want_camera=True)
         return {**{k: grads[k] for k in PARAMS}, "xi": grads["pose"], "intrinsics": grads["intrinsics"]}
 
     return f, vjp
+
+
+def depth_loss_fn(scene: Scene, mode: str, measured: np.ndarray, mask: np.ndarray, min_alpha: float, kind: str):
+    """research.splats.loss.depth_loss of the render, as a function of the splats, xi and the intrinsics."""
+    from research.splats.loss import depth_loss
+
+    def loss(r):
+        value, g_depth, g_alpha = depth_loss(r.depth, r.alpha, measured, mask, min_alpha=min_alpha, kind=kind)
+        return value, None, g_alpha, g_depth
+
+    return camera_loss_fn(scene, mode, loss)
 
 
 def check_depth_loss(seed: int, mode: str, kind: str) -> list[GradcheckResult]:
