@@ -8,7 +8,7 @@ VENV   := .venv
 VPY    := $(VENV)/bin/python
 STAMP  := $(VENV)/.drlab-installed
 
-.PHONY: setup test reproduce reproduce-quick gradcheck bench clean-venv
+.PHONY: setup test test-avx2 reproduce reproduce-quick gradcheck bench clean-venv
 
 setup: $(STAMP)
 
@@ -35,6 +35,17 @@ PLAIN_TESTS := tests/kernels/test_fast_paths.py tests/kernels/test_volume_compos
 test: $(STAMP)
 	$(VPY) -m pytest -q
 	DRLAB_FAST_PATHS=0 $(VPY) -m pytest -q $(PLAIN_TESTS) -k "not adcensus"
+
+# `make test` as on an AVX2-only CPU (AMD Zen 3: AVX2 and FMA, no AVX-512), run on a machine that has
+# AVX-512: Warp's kernels and the C++ fast paths compiled for znver3 (kernels/cpu_target.py), OpenBLAS
+# on its Zen (Haswell) kernels, NumPy's SIMD dispatch without its AVX-512 loops. Dr.Jit and Mitsuba
+# still compile for the host (docs/warp.md, "Testing as on another CPU").
+AVX2_ENV := DRLAB_CPU_TARGET=znver3 OPENBLAS_CORETYPE=Zen
+AVX2_ENV += $(if $(shell grep -m1 -ow avx512f /proc/cpuinfo 2>/dev/null),NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR")
+
+test-avx2: $(STAMP)
+	$(AVX2_ENV) $(VPY) -m pytest -q
+	$(AVX2_ENV) DRLAB_FAST_PATHS=0 $(VPY) -m pytest -q $(PLAIN_TESTS) -k "not adcensus"
 
 reproduce: $(STAMP)
 	$(VENV)/bin/drlab reproduce

@@ -12,3 +12,7 @@ plain NumPy forward of each family for the tests.
 docs/kernels.md is the guide to using them and to adding a family. This package never imports
 `research`.
 """
+
+from kernels import cpu_target as _cpu_target
+
+_cpu_target.apply()  # DRLAB_CPU_TARGET: compile the kernels for another CPU (kernels/cpu_target.py)
