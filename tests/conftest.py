@@ -11,11 +11,17 @@ runs inside kernels._arrays.default_device_scope(device), so NumPy inputs go to 
 objects made without a `device` live there; results still come back as NumPy arrays. CI has no GPU,
 so there these tests run on the CPU only; .ci/cuda_check runs them on a GPU machine.
 `DRLAB_TEST_DEVICES` (comma-separated, e.g. "cuda:0") narrows the list.
+
+Ctrl-C: the interruption tests send SIGINT to pytest itself and to the runs they start. A shell
+that starts the suite as a background job (`make test &`, `nohup ... &` in a script) starts it
+with SIGINT ignored, which Python then keeps and every child inherits; pytest_configure puts
+Python's own handler back, so each test sees what a terminal's Ctrl-C does.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 
 import pytest
 
@@ -35,6 +41,8 @@ def warp_devices() -> list[str]:
 
 
 def pytest_configure(config):
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # see the module docstring
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     config.addinivalue_line("markers", "cpu_fast_path: tests a CPU fast path itself; skipped while the fast paths "
                                        "are off (DRLAB_FAST_PATHS=0)")
 
