@@ -310,6 +310,8 @@ register_family("ssim", "the SSIM map and its backward",
 register_family("volume", "NeRF volume rendering: sampling, compositing, fields, camera gradients through rays",
                 kernels="kernels.volume", reference="kernels.reference.volume", checks="research.checks.volume",
                 oracle_cases="research.oracles.cases.volume", bench="research.bench.volume")
+register_family("lens", "lens camera models (opencv, fisheye, orthographic) in the ray generator and the splat projection",
+                kernels="kernels.lens", reference="kernels.reference.lens", checks="research.checks.lens")
 register_family("ba", "bundle adjustment: reprojection residuals and their pose/point Jacobians",
                 kernels="kernels.ba", reference="kernels.reference.ba", checks="research.checks.ba")
 register_family("slam", "the splat SLAM tracking and mapping losses (research/slam) through the splat renderer",

@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from kernels.reference.sh import sh_basis
+from kernels.reference import lens as lens_reference
 
 
 def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
@@ -89,10 +90,19 @@ def project(params: dict, cam, sh_degree: int | None = None, antialiased: bool =
         R = quat_to_rotmat(quats[i])
         S = np.diag(np.exp(log_scales[i]))
         sigma_cam = Rw @ (R @ S @ S.T @ R.T) @ Rw.T
-        lxn, lxp, lyn, lyp = frustum_limits(cam, mode)
-        xc = z * min(max(x / z, -lxn), lxp)
-        yc = z * min(max(y / z, -lyn), lyp)
-        J = np.array([[fx / z, 0.0, -fx * xc / z**2], [0.0, fy / z, -fy * yc / z**2]])
+        lens = getattr(cam, "lens", None)
+        if lens is None:
+            lxn, lxp, lyn, lyp = frustum_limits(cam, mode)
+            xc = z * min(max(x / z, -lxn), lxp)
+            yc = z * min(max(y / z, -lyn), lyp)
+            J = np.array([[fx / z, 0.0, -fx * xc / z**2], [0.0, fy / z, -fy * yc / z**2]])
+            u, v = fx * x / z + cx, fy * y / z + cy
+        else:  # a lens model (kernels/reference/lens.py): J of the full projection at the mean, no clamp
+            uv, ok = lens_reference.pixels(lens, cam.K, np.array([[x, y, z]]))
+            if not ok[0]:
+                continue
+            J = np.diag([fx, fy]) @ lens_reference.jacobian(lens, np.array([[x, y, z]]))[0]
+            u, v = uv[0]
         cov = J @ sigma_cam @ J.T
         cov_dilated = cov + s * np.eye(2)
         det = np.linalg.det(cov_dilated)
@@ -101,7 +111,6 @@ def project(params: dict, cam, sh_degree: int | None = None, antialiased: bool =
         half_trace = 0.5 * np.trace(cov_dilated)
         lam_max = half_trace + math.sqrt(max(floor, half_trace**2 - det))
         radius = math.ceil(3.0 * math.sqrt(lam_max))
-        u, v = fx * x / z + cx, fy * y / z + cy
         if culled(u, v, radius, cam.width, cam.height, mode):
             continue
         conic = np.linalg.inv(cov_dilated)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kernels import _arrays as A
+from kernels.lens import Lens, check_lens
 from kernels.rotation import checked_rigid
 from kernels.splat.tiles import MAX_SIDE, TILE
 
@@ -34,7 +35,9 @@ class SplatCamera:
     """A pinhole camera for the splatting kernels (module docstring).
 
     viewmat: 4x4 world-to-camera; K: 3x3 intrinsics [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]
-    (no skew); splats with z-depth outside [near, far] are culled.
+    (no skew); splats with z-depth outside [near, far] are culled. `lens`: None (the pinhole) or a
+    kernels.lens.Lens (opencv, fisheye, orthographic; kernels/splat/lens_projection.py); a Lens
+    "pinhole" is stored as None.
     """
 
     viewmat: np.ndarray
@@ -43,6 +46,7 @@ class SplatCamera:
     height: int
     near: float = DEFAULT_NEAR
     far: float = DEFAULT_FAR
+    lens: Lens | None = None
 
     def __post_init__(self) -> None:
         view = np.asarray(self.viewmat, dtype=np.float64)
@@ -66,15 +70,17 @@ class SplatCamera:
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "width", width)
         object.__setattr__(self, "height", height)
+        object.__setattr__(self, "lens", check_lens("lens", self.lens))
 
     def perturbed(self, xi: np.ndarray) -> "SplatCamera":
         """This camera with viewmat <- se3_exp(xi) viewmat (module docstring)."""
-        return SplatCamera(se3_exp(xi) @ self.viewmat, self.K, self.width, self.height, self.near, self.far)
+        return SplatCamera(se3_exp(xi) @ self.viewmat, self.K, self.width, self.height, self.near, self.far,
+                           self.lens)
 
     def with_intrinsics(self, fx: float, fy: float, cx: float, cy: float) -> "SplatCamera":
         """This camera with other intrinsics."""
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-        return SplatCamera(self.viewmat, K, self.width, self.height, self.near, self.far)
+        return SplatCamera(self.viewmat, K, self.width, self.height, self.near, self.far, self.lens)
 
     def params(self) -> np.ndarray:
         """(fx, fy, cx, cy, near, far)."""

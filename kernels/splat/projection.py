@@ -51,7 +51,10 @@ and compensation, conic inverse and dilation, EWA projection, covariance. One th
 writes only that splat's gradients, so both kernels run split over CPU threads.
 
 The kernels are in kernels.splat.projection_kernels; this module holds the entry points, their
-checks and the value-check kernel of CUDA inputs.
+checks and the value-check kernel of CUDA inputs. A camera with a lens model (SplatCamera.lens:
+opencv, fisheye, orthographic) takes the kernels of kernels.splat.lens_projection instead, whose
+docstring states how the mean and the covariance go through the lens; the pinhole's kernels and
+results are unchanged by that route.
 """
 
 from __future__ import annotations
@@ -65,6 +68,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.splat.camera import SplatCamera
+from kernels.splat.lens_projection import _lens_project_backward_kernel, _lens_project_kernel
 from kernels.splat.modes import DEFAULT_MODE, dilation_of, mode_id
 from kernels.splat.projection_kernels import _project_backward_kernel, _project_kernel
 
@@ -200,6 +204,11 @@ def _camera_arrays(a: A.Inputs, camera: SplatCamera) -> tuple[wp.array, wp.array
     return view, cam
 
 
+def _lens_arrays(a: A.Inputs, camera: SplatCamera) -> list:
+    """[model id, lens parameter array] of a camera with a lens (kernels.lens)."""
+    return [camera.lens.model_id, wp.array(camera.lens.params().astype(a.np_dtype), dtype=a.scalar, device=a.device)]
+
+
 def project_wp(g: GaussianInputs, camera: SplatCamera, sh_degree: int, antialiased: bool,
                mode: str = DEFAULT_MODE, dilation: float | None = None) -> Projection:
     """`project` with wp.array results on g's device (the render chain's first stage)."""
@@ -212,6 +221,12 @@ def project_wp(g: GaussianInputs, camera: SplatCamera, sh_degree: int, antialias
     # large arrays recycle freed blocks (kernels/_arrays.py, HostPool).
     out = Projection(a.empty((n, 2)), a.empty((n, 3)), a.empty(n), a.empty(n, wp.int32), a.empty((n, 3)),
                      a.empty(n))
+    if camera.lens is not None:  # a lens model: kernels.splat.lens_projection
+        a.launch(_lens_project_kernel, n,
+                 [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, *_lens_arrays(a, camera),
+                  camera.width, camera.height, sh_degree, mid, wp.float64(s), int(bool(antialiased)), out.means2d,
+                  out.conics, out.depths, out.radii, out.colors, out.opacities], min_chunk=MIN_CHUNK)
+        return out
     a.launch(_project_kernel, n,
              [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, camera.width, camera.height,
               sh_degree, mid, wp.float64(s), int(bool(antialiased)), out.means2d, out.conics, out.depths, out.radii,
@@ -259,10 +274,14 @@ def project_backward(g: GaussianInputs, camera: SplatCamera, radii: Any, grad_me
     out = {"means": a.zeros((n, 3)), "log_scales": a.zeros((n, 3)), "quats": a.zeros((n, 4)),
            "opacity_logits": a.zeros(n), "sh": a.zeros(tuple(g.sh.shape))}
     rows = a.zeros((max(n, 1) if want_camera else 1, 10))
-    a.launch(_project_backward_kernel, n,
-             [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, camera.width, camera.height, deg,
-              mid, wp.float64(s), int(bool(antialiased)), r, gm, gc, gd, gcol, go, out["means"], out["log_scales"],
-              out["quats"], out["opacity_logits"], out["sh"], int(bool(want_camera)), rows], min_chunk=MIN_CHUNK)
+    kernel, lens_args = _project_backward_kernel, []
+    if camera.lens is not None:  # a lens model: kernels.splat.lens_projection
+        kernel, lens_args = _lens_project_backward_kernel, _lens_arrays(a, camera)
+    a.launch(kernel, n,
+             [g.means, g.log_scales, g.quats, g.opacity_logits, g.sh, view, cam, *lens_args, camera.width,
+              camera.height, deg, mid, wp.float64(s), int(bool(antialiased)), r, gm, gc, gd, gcol, go, out["means"],
+              out["log_scales"], out["quats"], out["opacity_logits"], out["sh"], int(bool(want_camera)), rows],
+             min_chunk=MIN_CHUNK)
     result = {k: a.out(v) for k, v in out.items()}
     if want_camera:
         total = rows.numpy()[:n].sum(axis=0, dtype=np.float64).astype(a.np_dtype)

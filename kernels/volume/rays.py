@@ -61,6 +61,9 @@ term by term (its p_z is computed, equal to -n up to rounding); the NumPy refere
 kernels.reference.volume.ndc_rays. Chained after `camera_rays`, `ndc_rays_backward` carries a
 render's ray gradients (render_backward_rays) back to the world rays and so to the camera.
 
+Lens models (opencv, fisheye, orthographic; kernels/lens.py): `camera_rays(..., lens=)` and its
+backward hand over to kernels.volume.lens_rays, which states their rays and gradients.
+
 Kernels: one thread per pixel or ray, each writing its own rows (launch_split); the per-pixel
 pose and intrinsics terms are summed on the host. Inputs follow the array contract
 (kernels._arrays): origins, dirs, z_scale come back in the kind of `pixels`; the per-ray
@@ -77,6 +80,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
+from kernels.lens import check_lens
 from kernels.rotation import checked_rigid
 from kernels.volume.composite import check_backpropagatable, composite_backward
 from kernels.volume.field import Field
@@ -289,10 +293,16 @@ def pixel_centers(width: int, height: int, dtype: Any = np.float64) -> np.ndarra
     return np.stack([i.ravel() + 0.5, j.ravel() + 0.5], axis=1).astype(dtype)
 
 
-def camera_rays(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, device: str | wp.Device | None = None
-                ) -> tuple[A.ArrayLike, A.ArrayLike, A.ArrayLike]:
+def camera_rays(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, device: str | wp.Device | None = None,
+                lens: Any = None) -> tuple[A.ArrayLike, A.ArrayLike, A.ArrayLike]:
     """(origins (P, 3), unit dirs (P, 3), z_scale (P,)) of pixels (P, 2) (module docstring), in the
-    kind and dtype of `pixels`. w2c is the 4x4 world-to-camera matrix, intrinsics (fx, fy, cx, cy)."""
+    kind and dtype of `pixels`. w2c is the 4x4 world-to-camera matrix, intrinsics (fx, fy, cx, cy).
+    `lens`: None (the pinhole) or a kernels.lens.Lens, whose rays kernels.volume.lens_rays makes
+    (pixels outside its domain get the optical axis; lens_rays also returns their mask)."""
+    if check_lens("lens", lens) is not None:
+        from kernels.volume.lens_rays import lens_rays  # it imports this module's helpers
+
+        return lens_rays(w2c, intrinsics, lens, pixels, device)[:3]
     M, K = check_camera(w2c, intrinsics)
     a = A.Inputs(device, pixels)
     px = a.floats("pixels", pixels, (None, 2))
@@ -314,13 +324,20 @@ class CameraGrad:
 
 def camera_rays_backward(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, grad_origins: A.ArrayLike | None = None,
                          grad_dirs: A.ArrayLike | None = None, grad_z_scale: A.ArrayLike | None = None,
-                         device: str | wp.Device | None = None, per_pixel: bool = False) -> CameraGrad:
+                         device: str | wp.Device | None = None, per_pixel: bool = False,
+                         lens: Any = None) -> CameraGrad:
     """Gradient of <g_o, origins> + <g_d, dirs> + <g_z, z_scale> of camera_rays (module docstring)
     with respect to the pose perturbation xi and the intrinsics; missing cotangents count as zero.
 
     `per_pixel`: return each pixel's term instead of the sum (xi (P, 6), intrinsics (P, 4)). Pixel p's
     ray depends only on p, so with the cotangent of one residual per pixel these rows are the rows of
-    the residuals' Jacobian (what a Gauss-Newton step needs)."""
+    the residuals' Jacobian (what a Gauss-Newton step needs). `lens` as in camera_rays
+    (kernels.volume.lens_rays.lens_rays_backward)."""
+    if check_lens("lens", lens) is not None:
+        from kernels.volume.lens_rays import lens_rays_backward  # it imports this module's helpers
+
+        return lens_rays_backward(w2c, intrinsics, lens, pixels, grad_origins, grad_dirs, grad_z_scale, device,
+                                  per_pixel)
     M, K = check_camera(w2c, intrinsics)
     a = A.Inputs(device, pixels, grad_origins, grad_dirs, grad_z_scale)
     px = a.floats("pixels", pixels, (None, 2))
@@ -434,11 +451,11 @@ def render_backward_rays(field: Field, result: RenderResult, grad_rgb: A.ArrayLi
 
 def render_backward_camera(field: Field, result: RenderResult, w2c: Any, intrinsics: Any, pixels: A.ArrayLike,
                            grad_rgb: A.ArrayLike | None = None, grad_depth: A.ArrayLike | None = None,
-                           grad_opacity: A.ArrayLike | None = None) -> CameraGrad:
-    """d L / d (xi, fx, fy, cx, cy) of a render of `camera_rays(w2c, intrinsics, pixels)`: the chain of
-    render_backward_rays and camera_rays_backward (module docstring)."""
+                           grad_opacity: A.ArrayLike | None = None, lens: Any = None) -> CameraGrad:
+    """d L / d (xi, fx, fy, cx, cy) of a render of `camera_rays(w2c, intrinsics, pixels, lens=lens)`: the
+    chain of render_backward_rays and camera_rays_backward (module docstring)."""
     go, gd, gz = render_backward_rays(field, result, grad_rgb, grad_depth, grad_opacity)
-    return camera_rays_backward(w2c, intrinsics, pixels, go, gd, gz, device=field.device)
+    return camera_rays_backward(w2c, intrinsics, pixels, go, gd, gz, device=field.device, lens=lens)
 
 
 for _k in (_rays_kernel, _rays_backward_kernel, _depth_grad_kernel, _gather_rays_kernel, _ndc_kernel,
