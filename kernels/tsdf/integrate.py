@@ -31,7 +31,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.rotation import checked_rigid
-from kernels.tsdf.volume import TSDFVolume
+from kernels.tsdf.volume import TSDFVolume, sees_volume
 
 wp.set_module_options({"enable_backward": False})
 
@@ -96,7 +96,7 @@ def integrate(volume: TSDFVolume, depth: Any, K: Any, w2c: Any, rgb: Any = None)
     with f_x, f_y > 0; w2c (4, 4): world-to-camera rigid transform (OpenCV axes). rgb (H, W, 3): the
     colours, required exactly when the volume keeps colour. The arrays take the volume's dtype and
     device; ValueError (naming the argument) on bad input before any kernel runs, including a depth map
-    with no measurement at all.
+    with no measurement at all and a camera that sees nothing of the volume (`sees_volume`).
     """
     if not isinstance(volume, TSDFVolume):
         raise ValueError(f"volume: expected a kernels.tsdf.TSDFVolume, got {type(volume).__name__}")
@@ -126,6 +126,9 @@ def integrate(volume: TSDFVolume, depth: Any, K: Any, w2c: Any, rgb: Any = None)
         raise ValueError("rgb: the volume keeps no colour (TSDFVolume(..., color=True) keeps it)")
     else:
         col = a.zeros((1, 1, 3))
+    if not sees_volume(volume, K, w2c, w_img, h_img):
+        raise ValueError("w2c: this camera sees nothing of the volume (the volume's box lies outside its view "
+                         "frustum); kernels.tsdf.sees_volume tells before the call")
     color = volume.color if volume.has_color else a.zeros((1, 3))
     pose = wp.array(w2c, dtype=volume.scalar, device=volume.device)
     intr = wp.array(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]), dtype=volume.scalar, device=volume.device)

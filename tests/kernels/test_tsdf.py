@@ -186,6 +186,9 @@ def test_bad_input_is_refused_before_any_kernel():
         args = {"depth": good, "K": K, "w2c": POSES[0], **kw}
         with pytest.raises(ValueError, match=msg):
             kt.integrate(vol, args["depth"], args["K"], args["w2c"], rgb=args.get("rgb"))
+    away = look_at((0.0, 0.0, 3.0), target=(0.0, 0.0, 6.0), up=(0.0, 1.0, 0.0))
+    with pytest.raises(ValueError, match="w2c: this camera sees nothing of the volume"):
+        kt.integrate(vol, good, K, away)
     np.testing.assert_array_equal(vol.numpy()["tsdf"], before)
     colored = kt.TSDFVolume(ORIGIN, VOXEL, SHAPE, TRUNC, color=True)
     with pytest.raises(ValueError, match=r"rgb: the volume keeps colour"):
