@@ -54,7 +54,8 @@ iteration: for a central model m(e) is constant along rays, so de/dm is the 3x2 
 
 The Warp functions take the lens as a model id (MODEL_IDS) and a parameter array `lens`
 (Lens.params: the five coefficients, then s_lim), both dtypes. This module also holds `Lens`,
-the host-side description that cameras carry.
+the host-side description that cameras carry, and `project_points` (points to pixels, one
+thread per point), the entry point research.cameras projects with.
 """
 
 from __future__ import annotations
@@ -65,6 +66,8 @@ from typing import Any
 
 import numpy as np
 import warp as wp
+
+from kernels import _arrays as A
 
 wp.set_module_options({"enable_backward": False})
 
@@ -433,3 +436,41 @@ def lens_unproject_vjp(model: int, e: Any, lens: wp.array(dtype=Any), g_q: Any, 
     Ai = wp.inverse(A)
     gm = wp.transpose(Ai) * g_e
     return gm[0], gm[1]
+
+
+# =========================================================================== entry point
+
+
+@wp.kernel
+def _project_points_kernel(points: wp.array2d(dtype=Any), intr: wp.array(dtype=Any), model: int,
+                           lens: wp.array(dtype=Any), out: wp.array2d(dtype=Any), valid: wp.array(dtype=wp.uint8),
+                           offset: int):
+    i = wp.tid() + offset
+    p = wp.vector(points[i, 0], points[i, 1], points[i, 2], length=3, dtype=points.dtype)
+    mx, my, Jm, ok = lens_project(model, p, lens)
+    out[i, 0] = intr[0] * mx + intr[2]
+    out[i, 1] = intr[1] * my + intr[3]
+    valid[i] = wp.uint8(0)
+    if ok:
+        valid[i] = wp.uint8(1)
+
+
+def project_points(lens: Any, intrinsics: Any, points: Any, device: Any = None) -> tuple[Any, Any]:
+    """(pixels (N, 2), valid (N,)) of camera-frame points (N, 3) through `lens` (None: the pinhole) and
+    intrinsics (fx, fy, cx, cy), in the kind and dtype of `points` (kernels/_arrays.py); invalid
+    points (module docstring) get valid = False and pixel values to be ignored."""
+    checked = check_lens("lens", lens) or Lens("opencv")  # the pinhole: opencv with zero coefficients
+    K = np.asarray(intrinsics, dtype=np.float64).reshape(-1)
+    if K.shape != (4,) or not np.all(np.isfinite(K)) or K[0] <= 0 or K[1] <= 0:
+        raise ValueError(f"intrinsics: expected finite (fx, fy, cx, cy) with fx, fy > 0, got {K.tolist()}")
+    a = A.Inputs(device, points)
+    pts = a.floats("points", points, (None, 3))
+    n = pts.shape[0]
+    out = a.empty((n, 2))
+    valid = wp.empty(n, dtype=wp.uint8, device=a.device)
+    arr = lambda x: wp.array(np.asarray(x, dtype=a.np_dtype), dtype=a.scalar, device=a.device)  # noqa: E731
+    a.launch(_project_points_kernel, n, [pts, arr(K), checked.model_id, arr(checked.params()), out, valid])
+    return a.out(out), a.out_mask(valid)
+
+
+A.declare_float_overloads(_project_points_kernel)

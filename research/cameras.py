@@ -24,6 +24,13 @@ Conventions (the Mitsuba facts behind them are in docs/mitsuba.md):
   can hold; the derivation is there) and det R > 0, else ValueError naming the argument; an accepted
   rotation is replaced by its nearest rotation (the orthogonal polar factor).
 
+* A camera may carry a lens model (`lens`: a kernels.lens.Lens, opencv radial-tangential, fisheye
+  or orthographic; None is the pinhole). Then pixel (u, v) = (fx m_x + cx, fy m_y + cy) for the
+  normalised image point m of the lens (kernels/lens.py states the models), and the ray methods
+  (`camera_directions`, `rays`, `project`, `backproject`) go through it (kernels.lens.project_points,
+  kernels.volume.lens_rays); pixels outside the lens's domain give NaN. `scaled` keeps the lens
+  (its coefficients act on normalised coordinates).
+
 This module is the only place where these conversions live.
 """
 
@@ -35,6 +42,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from kernels.lens import Lens, check_lens
 from kernels.rotation import checked_rigid, checked_rotation
 
 _CV_TO_MITSUBA = np.diag([-1.0, -1.0, 1.0, 1.0])  # self-inverse
@@ -73,12 +81,14 @@ def intrinsics_from_fov(fov_x_deg: float, width: int, height: int) -> np.ndarray
 
 @dataclass(frozen=True, eq=False)
 class Camera:
-    """A pinhole camera: intrinsics K, OpenCV camera-to-world c2w, and image size."""
+    """A camera: intrinsics K, OpenCV camera-to-world c2w, image size, and an optional lens model
+    (None: the pinhole; module docstring)."""
 
     K: np.ndarray
     c2w: np.ndarray
     width: int
     height: int
+    lens: Lens | None = None
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
@@ -96,6 +106,9 @@ class Camera:
         c2w.setflags(write=False)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "c2w", c2w)
+        object.__setattr__(self, "lens", check_lens("lens", self.lens))
+        if self.lens is not None and K[0, 1] != 0.0:
+            raise ValueError("K: a camera with a lens model takes no skew")
 
     # ------------------------------------------------------------------ basics
     @classmethod
@@ -147,7 +160,7 @@ class Camera:
         if w <= 0 or h <= 0 or not math.isclose(w / self.width, h / self.height, rel_tol=1e-9):
             raise ValueError(f"factor: {factor} does not give an integer image size from {self.width}x{self.height}")
         S = np.diag([w / self.width, h / self.height, 1.0])
-        return Camera(S @ self.K, self.c2w, w, h)
+        return Camera(S @ self.K, self.c2w, w, h, self.lens)
 
     # ------------------------------------------------------------------ rays
     def pixel_centers(self) -> tuple[np.ndarray, np.ndarray]:
@@ -156,9 +169,15 @@ class Camera:
         return u, v
 
     def camera_directions(self, u: np.ndarray | None = None, v: np.ndarray | None = None) -> np.ndarray:
-        """K^{-1}[u, v, 1] in the camera frame, shape (..., 3), with z = 1 (so t = z-depth)."""
+        """K^{-1}[u, v, 1] in the camera frame, shape (..., 3), with z = 1 (so t = z-depth); through the
+        lens when there is one (NaN outside its domain; an orthographic camera has no such rays)."""
         if u is None or v is None:
             u, v = self.pixel_centers()
+        if self.lens is not None:
+            if not self.lens.central:
+                raise ValueError("lens: an orthographic camera has parallel rays: use Camera.rays")
+            _, d, z, valid = self._lens_rays(np.eye(4), u, v)
+            return np.where(valid[..., None], d / z[..., None], np.nan)
         uv1 = np.stack([u, v, np.ones_like(u, dtype=np.float64)], axis=-1)
         return uv1 @ np.linalg.inv(self.K).T
 
@@ -166,13 +185,28 @@ class Camera:
         """World-space rays through every pixel centre: origins (H, W, 3), directions (H, W, 3).
 
         With normalize=False the directions have camera z-component 1, so a point at
-        parameter t along the ray has z-depth t.
+        parameter t along the ray has z-depth t. With a lens, pixels outside its domain get NaN.
         """
+        if self.lens is not None:
+            u, v = self.pixel_centers()
+            o, d, z, valid = self._lens_rays(self.w2c, u, v)
+            if not normalize:
+                d = d / z[..., None]
+            return np.where(valid[..., None], o, np.nan), np.where(valid[..., None], d, np.nan)
         d = self.camera_directions() @ self.R.T
         if normalize:
             d = d / np.linalg.norm(d, axis=-1, keepdims=True)
         o = np.broadcast_to(self.center, d.shape).copy()
         return o, d
+
+    def _lens_rays(self, w2c: np.ndarray, u: np.ndarray, v: np.ndarray):
+        from kernels.volume.lens_rays import lens_rays
+
+        u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
+        px = np.stack([u.ravel(), v.ravel()], axis=1)
+        o, d, z, valid = lens_rays(w2c, [self.fx, self.fy, self.cx, self.cy], self.lens, px, device="cpu")
+        shape = u.shape
+        return o.reshape(*shape, 3), d.reshape(*shape, 3), z.reshape(shape), valid.reshape(shape)
 
     def ray_cosines(self) -> np.ndarray:
         """cos(theta) between each pixel's ray and the optical axis, (H, W)."""
@@ -192,6 +226,13 @@ class Camera:
         """
         xc = self.world_to_camera(points)
         z = xc[..., 2]
+        if self.lens is not None:
+            from kernels.lens import project_points
+
+            flat = xc.reshape(-1, 3)
+            uv, valid = project_points(self.lens, [self.fx, self.fy, self.cx, self.cy], flat, device="cpu")
+            uv = np.where(valid[:, None], uv, np.nan)
+            return uv.reshape(*xc.shape[:-1], 2), z
         with np.errstate(divide="ignore", invalid="ignore"):
             uvw = xc @ self.K.T
             uv = uvw[..., :2] / uvw[..., 2:3]
@@ -203,6 +244,9 @@ class Camera:
         depth = np.asarray(depth, dtype=np.float64)
         if depth.shape != (self.height, self.width):
             raise ValueError(f"depth: expected shape {(self.height, self.width)}, got {depth.shape}")
+        if self.lens is not None:
+            o, d = self.rays(normalize=False)
+            return o + depth[..., None] * d
         return self.center + (depth[..., None] * self.camera_directions()) @ self.R.T
 
     # ------------------------------------------------------------------ conversions
@@ -212,6 +256,8 @@ class Camera:
 
     def mitsuba_intrinsics(self) -> dict[str, float]:
         """Mitsuba `perspective` parameters: fov (degrees, axis 'x') and principal point offsets."""
+        if self.lens is not None:
+            raise ValueError(f"lens: Mitsuba's perspective sensor is a pinhole, this camera has a {self.lens.model} lens")
         if not math.isclose(self.fx, self.fy, rel_tol=1e-12) or self.K[0, 1] != 0.0:
             raise ValueError("K: Mitsuba's perspective sensor needs square pixels (fx == fy) and zero skew")
         return {
@@ -274,14 +320,17 @@ class Camera:
         return cls(K, M @ _CV_TO_NERF, width, height)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"width": self.width, "height": self.height, "K": self.K.tolist(), "c2w": self.c2w.tolist()}
+        out = {"width": self.width, "height": self.height, "K": self.K.tolist(), "c2w": self.c2w.tolist()}
+        if self.lens is not None:
+            out["lens"] = self.lens.to_dict()
+        return out
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Camera":
         missing = {"width", "height", "K", "c2w"} - set(d)
         if missing:
             raise ValueError(f"camera: missing keys {sorted(missing)}")
-        return cls(np.asarray(d["K"], float), np.asarray(d["c2w"], float), d["width"], d["height"])
+        return cls(np.asarray(d["K"], float), np.asarray(d["c2w"], float), d["width"], d["height"], d.get("lens"))
 
 
 # ---------------------------------------------------------------------- poses

@@ -5,12 +5,22 @@ Layout (Mip-NeRF 360; `colmap image_undistorter` writes the same without the ima
     images/  images_2/  images_4/  images_8/     the photographs, the same names at 1/N size
     sparse/0/{cameras,images,points3D}.{bin,txt} the model (sparse/ itself is accepted too)
 
-The model is read by pycolmap (binary or text; no COLMAP file is parsed here). Cameras: PINHOLE and
-SIMPLE_PINHOLE are used as they are. SIMPLE_RADIAL, RADIAL and OPENCV are accepted only when every
-distortion coefficient is exactly zero (then they are pinholes); with distortion they are rejected
-with an error naming the model and the camera, to be undistorted first (`colmap image_undistorter`,
-or pycolmap.undistort_images): the 3DGS loader makes the same choice (it reads undistorted models
-only), and our rasterisers and ray generators are pinhole. Any other model is refused by name.
+The model is read by pycolmap (binary or text; no COLMAP file is parsed here). Cameras are read as
+they are, lens included (research.cameras.Camera.lens, kernels/lens.py), so a distorted model needs
+no undistortion step: the splat projection and the ray generator take the lens.
+
+    COLMAP model     params                                 drlab camera
+    SIMPLE_PINHOLE   f, cx, cy                              pinhole
+    PINHOLE          fx, fy, cx, cy                         pinhole
+    SIMPLE_RADIAL    f, cx, cy, k                           opencv (k1 = k)
+    RADIAL           f, cx, cy, k1, k2                      opencv (k1, k2)
+    OPENCV           fx, fy, cx, cy, k1, k2, p1, p2         opencv (k1, k2, p1, p2; k3 = 0)
+    OPENCV_FISHEYE   fx, fy, cx, cy, k1, k2, k3, k4         fisheye (k1, k2, k3, k4)
+
+COLMAP's formulas for these are OpenCV's (tests hold kernels/reference/lens.py to pycolmap's
+img_from_cam / cam_from_img). SIMPLE_RADIAL, RADIAL and OPENCV with every coefficient exactly 0 are
+pinholes (no lens is attached, so they take the pinhole path as before). Any other model is refused
+by name.
 
 Poses: COLMAP stores world-to-camera (cam_from_world: x_cam = R x_world + t) in the OpenCV camera
 frame (+x right, +y down, +z forward), drlab's own, so the OpenCV camera-to-world is its inverse,
@@ -30,7 +40,7 @@ the model has fewer than 8 points. `Dataset.points` / `point_colors` carry every
 sRGB colour, for 3DGS's initialisation.
 
 Errors (DatasetError, one line naming the file): sparse/0 missing, a model pycolmap cannot read
-(an unknown camera model is named), a distorted or unsupported camera model, an images_N folder
+(an unknown camera model is named), an unsupported camera model, an images_N folder
 missing, an image listed but absent, an image whose size does not match its camera.
 """
 
@@ -40,13 +50,14 @@ from pathlib import Path
 
 import numpy as np
 
+from kernels.lens import Lens
 from research.cameras import Camera, check_pose
 from research.datasets import external
 from research.datasets.integrity import DatasetError
 from research.datasets.loader import Dataset, Protocol, Split, View, _image_size
 
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
-ZERO_DISTORTION_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV")
+LENS_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "OPENCV_FISHEYE")
 MIPNERF360_OUTDOOR = ("bicycle", "flowers", "garden", "stump", "treehill")
 MIPNERF360_INDOOR = ("room", "counter", "kitchen", "bonsai")
 LLFFHOLD = 8
@@ -111,24 +122,25 @@ def read_model(d: Path):
             from None
 
 
-def pinhole_K(camera, cams_file: Path) -> np.ndarray:
-    """K of a pycolmap camera that is a pinhole (module docstring), else DatasetError naming the model."""
+def camera_model(camera, cams_file: Path) -> tuple[np.ndarray, Lens | None]:
+    """(K, lens) of a pycolmap camera (module docstring's table; lens None for a pinhole), else
+    DatasetError naming the model."""
     name = camera.model.name
     p = np.asarray(camera.params, dtype=np.float64)
-    if name == "SIMPLE_PINHOLE" or name in ("SIMPLE_RADIAL", "RADIAL"):
+    if name in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
         f, cx, cy, dist = p[0], p[1], p[2], p[3:]
         fx = fy = f
-    elif name in ("PINHOLE", "OPENCV"):
+    elif name in ("PINHOLE", "OPENCV", "OPENCV_FISHEYE"):
         fx, fy, cx, cy, dist = p[0], p[1], p[2], p[3], p[4:]
     else:
         raise DatasetError(f"{cams_file}: camera {camera.camera_id}: camera model {name} is not supported "
-                           f"(expected {', '.join(PINHOLE_MODELS)}, or {', '.join(ZERO_DISTORTION_MODELS)} without "
-                           "distortion)")
-    if np.any(dist != 0.0):
-        raise DatasetError(f"{cams_file}: camera {camera.camera_id}: camera model {name} has distortion "
-                           f"{dist.tolist()}; drlab reads undistorted models only: undistort the images first "
-                           "(colmap image_undistorter, or pycolmap.undistort_images)")
-    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+                           f"(expected one of {', '.join(PINHOLE_MODELS + LENS_MODELS)})")
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    if name == "OPENCV_FISHEYE":
+        return K, Lens("fisheye", tuple(dist))
+    if len(dist) and np.any(dist != 0.0):
+        return K, Lens("opencv", tuple(dist))
+    return K, None
 
 
 def mipnerf360_protocol(factor: int, width: int, height: int) -> Protocol:
@@ -160,7 +172,7 @@ def load_colmap(path: str | Path, factor: int | None = None) -> Dataset:
     rec = read_model(d)
     cams_file, images_file = _model_file(d, "cameras"), _model_file(d, "images")
     folder = external.image_folder(root, factor)
-    Ks = {cid: pinhole_K(cam, cams_file) for cid, cam in rec.cameras.items()}
+    models = {cid: camera_model(cam, cams_file) for cid, cam in rec.cameras.items()}
     entries = []
     for image in sorted(rec.images.values(), key=lambda im: im.name):
         if not image.has_pose:
@@ -178,7 +190,8 @@ def load_colmap(path: str | Path, factor: int | None = None) -> Dataset:
         M = pose.matrix()
         S = np.diag([w / cam.width, h / cam.height, 1.0])
         try:
-            camera = Camera(S @ Ks[image.camera_id], c2w_from_colmap(M[:, :3], M[:, 3]), w, h)
+            K, lens = models[image.camera_id]
+            camera = Camera(S @ K, c2w_from_colmap(M[:, :3], M[:, 3]), w, h, lens)
         except ValueError as e:
             raise DatasetError(f"{images_file}: image {image.name!r}: {e}") from None
         entries.append((image.name, img_path, camera))

@@ -176,7 +176,7 @@ def points_in_frusta(cameras: list[Camera], rgba: np.ndarray, near_far: np.ndarr
 
 
 def splat_camera(camera: Camera, near: float = ks.DEFAULT_NEAR) -> ks.SplatCamera:
-    return ks.SplatCamera(camera.w2c, camera.K, camera.width, camera.height, near=near)
+    return ks.SplatCamera(camera.w2c, camera.K, camera.width, camera.height, near=near, lens=camera.lens)
 
 
 def render(model: GaussianModel, camera: Camera, *, sh_degree: int = 3, background=(0.0, 0.0, 0.0),

@@ -178,10 +178,7 @@ def _rewrite_camera_model(root: Path, old: str, new: str) -> None:
 
 
 def _colmap_fixture(root: Path, case_id: str) -> None:
-    opts = {"text": True}
-    if case_id.startswith("distorted-"):
-        opts.update(model=case_id.removeprefix("distorted-"), distorted=True, text=False)
-    write_colmap(root, **opts)
+    write_colmap(root, text=True)
 
 
 COLMAP_BAD = [
@@ -192,10 +189,6 @@ COLMAP_BAD = [
     ("unsupported-camera-model-FOV", lambda r: _rewrite_camera_model(r, "PINHOLE 16 12 18 19 8.5 5.5",
                                                                      "FOV 16 12 18 19 8.5 5.5 0.1"), {},
      r"cameras\.txt: camera 1: camera model FOV is not supported"),
-    ("distorted-SIMPLE_RADIAL", lambda r: None, {},
-     r"cameras\.bin: camera 1: camera model SIMPLE_RADIAL has distortion \[0\.05\]; .*undistort"),
-    ("distorted-RADIAL", lambda r: None, {}, r"cameras\.bin: camera 1: camera model RADIAL has distortion"),
-    ("distorted-OPENCV", lambda r: None, {}, r"cameras\.bin: camera 1: camera model OPENCV has distortion"),
     ("image-listed-but-absent", lambda r: (r / "images" / "img_03.png").unlink(), {"factor": 1},
      r"images\.txt: image 'img_03\.png' is listed but .*images/img_03\.png is missing"),
     ("images_N-folder-missing", lambda r: None, {"factor": 4}, r"images_4: missing \(the images at 1/4"),

@@ -1,0 +1,90 @@
+"""COLMAP models with lens distortion (SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE) read as they are:
+fixtures written by pycolmap's own writer, binary and text; the cameras carry the lens and project
+as COLMAP does; a distorted folder trains (fit_splats --smoke) with no undistortion step."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kernels.lens import Lens
+from research.datasets import load_colmap
+from research.datasets.colmap import colmap_from_c2w
+from research.datasets.integrity import DatasetError
+
+sys.path.insert(0, str(Path(__file__).parent))
+from realdata_fixtures import ring_cameras, smoke_run, write_rgba  # noqa: E402
+
+MODELS = {  # params of a 32x24 camera, and the lens drlab should read
+    "SIMPLE_RADIAL": ([30.0, 16.0, 12.0, -0.12], Lens("opencv", (-0.12,))),
+    "RADIAL": ([30.0, 16.0, 12.0, -0.12, 0.03], Lens("opencv", (-0.12, 0.03))),
+    "OPENCV": ([30.0, 31.0, 16.5, 11.5, -0.12, 0.03, 0.002, -0.001], Lens("opencv", (-0.12, 0.03, 0.002, -0.001))),
+    "OPENCV_FISHEYE": ([30.0, 31.0, 16.5, 11.5, 0.05, -0.01, 0.002, -0.0005], Lens("fisheye", (0.05, -0.01, 0.002,
+                                                                                             -0.0005))),
+}
+
+
+def write_model(root: Path, model: str, params: list[float], text: bool, n: int = 9, width: int = 32,
+                height: int = 24, factors=(1,)) -> object:
+    """A Mip-NeRF 360-style folder with one `model` camera, written by pycolmap; returns the Reconstruction."""
+    import pycolmap
+
+    rng = np.random.default_rng(0)
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(model=model, width=width, height=height, params=params,
+                                                    camera_id=1))
+    for k, cam in enumerate(ring_cameras(n, width, height)):
+        R, t = colmap_from_c2w(cam.c2w)
+        rec.add_image_with_trivial_frame(pycolmap.Image(name=f"img_{k:02d}.png", camera_id=1, image_id=k + 1),
+                                         pycolmap.Rigid3d(pycolmap.Rotation3d(R), t))
+        for f in factors:
+            folder = root / ("images" if f == 1 else f"images_{f}")
+            write_rgba(folder / f"img_{k:02d}.png", rng, math.ceil(width / f), math.ceil(height / f), alpha=False)
+    for p in rng.uniform(-1.0, 1.0, (50, 3)):
+        rec.add_point3D(p, pycolmap.Track(), rng.integers(0, 256, 3).astype(np.uint8))
+    d = root / "sparse" / "0"
+    d.mkdir(parents=True, exist_ok=True)
+    (rec.write_text if text else rec.write_binary)(str(d))
+    return rec
+
+
+@pytest.mark.parametrize("text", [False, True], ids=["binary", "text"])
+@pytest.mark.parametrize("model", list(MODELS))
+def test_distorted_models_are_read_as_they_are(tmp_path, model, text):
+    params, lens = MODELS[model]
+    rec = write_model(tmp_path / "scene", model, params, text)
+    ds = load_colmap(tmp_path / "scene", factor=1)
+    cam_c = rec.cameras[1]
+    X = np.random.default_rng(1).uniform(-0.8, 0.8, (20, 3))
+    for v in ds.views:
+        assert v.camera.lens == lens
+        image = next(im for im in rec.images.values() if im.name == v.name)
+        xc = image.cam_from_world() * X  # COLMAP's own projection of the same points
+        uv, _ = v.camera.project(X)
+        np.testing.assert_allclose(uv, cam_c.img_from_cam(xc), rtol=0, atol=1e-9)
+
+
+def test_zero_distortion_is_a_pinhole_and_a_fisheye_is_not(tmp_path):
+    write_model(tmp_path / "a", "OPENCV", [30.0, 31.0, 16.5, 11.5, 0.0, 0.0, 0.0, 0.0], text=False)
+    assert all(v.camera.lens is None for v in load_colmap(tmp_path / "a", factor=1).views)
+    write_model(tmp_path / "b", "OPENCV_FISHEYE", [30.0, 31.0, 16.5, 11.5, 0.0, 0.0, 0.0, 0.0], text=False)
+    assert all(v.camera.lens == Lens("fisheye") for v in load_colmap(tmp_path / "b", factor=1).views)
+
+
+def test_other_models_are_refused_by_name(tmp_path):
+    write_model(tmp_path / "s", "FULL_OPENCV", [30.0, 31.0, 16.5, 11.5] + [0.01] * 8, text=True)
+    with pytest.raises(DatasetError, match=r"cameras\.txt: camera 1: camera model FULL_OPENCV is not supported "
+                                           r"\(expected one of .*OPENCV_FISHEYE\)"):
+        load_colmap(tmp_path / "s", factor=1)
+
+
+@pytest.mark.timeout(240)
+def test_fit_splats_smoke_on_a_distorted_folder(tmp_path):
+    root = tmp_path / "garden"  # outdoor: images_4 by default; factor 1 folders written here as images_4
+    write_model(root, "OPENCV_FISHEYE", MODELS["OPENCV_FISHEYE"][0], text=False, width=64, height=48, factors=(4,))
+    m, out = smoke_run("fit_splats", root, tmp_path)
+    assert m["data"]["format"] == "colmap" and math.isfinite(m["test_psnr"])
