@@ -52,11 +52,44 @@ def _sample_factor(sigma: wp.array(dtype=typing.Any), delta: wp.array(dtype=typi
 
 
 @wp.func
+def ray_start(like: typing.Any):
+    """(T, C, D) before a ray's first sample: T = 1, C = (0, 0, 0), D = 0, in like's type."""
+    zero = type(like)(0.0)
+    return type(like)(1.0), zero, zero, zero, zero
+
+
+@wp.func
+def blend_step(T: typing.Any, cr: typing.Any, cg: typing.Any, cb: typing.Any, d: typing.Any, e: typing.Any,
+               nr: typing.Any, ng: typing.Any, nb: typing.Any, zk: typing.Any):
+    """One sample of the quadrature given e = exp(-sigma delta) = 1 - alpha and the sample's colour
+    and depth: w = T (1 - e); (T e, C + w c, D + w z)."""
+    w = T * (type(T)(1.0) - e)
+    return T * e, cr + w * nr, cg + w * ng, cb + w * nb, d + w * zk
+
+
+@wp.func
 def _composite_step(T: typing.Any, cr: typing.Any, cg: typing.Any, cb: typing.Any, d: typing.Any, e: typing.Any,
                     c: typing.Any, zk: typing.Any):
-    """One sample of the quadrature: w = T (1 - e); (T e, C + w c, D + w z)."""
-    w = T * (type(T)(1.0) - e)
-    return T * e, cr + w * c[0], cg + w * c[1], cb + w * c[2], d + w * zk
+    """blend_step with the colour as a vec3."""
+    return blend_step(T, cr, cg, cb, d, e, c[0], c[1], c[2], zk)
+
+
+@wp.func
+def _steps_one_at_a_time(sigma: wp.array(dtype=typing.Any), rgb: wp.array(dtype=typing.Any),
+                         delta: wp.array(dtype=typing.Any), z: wp.array(dtype=typing.Any),
+                         factor: wp.array(dtype=typing.Any), factor_given: int, t_threshold: typing.Any,
+                         T: typing.Any, cr: typing.Any, cg: typing.Any, cb: typing.Any, d: typing.Any, k: int,
+                         stop: int, to_quad: int):
+    """The forward's samples k, k + 1, ... one at a time while k < stop (and, with to_quad, while k is
+    not a multiple of 4); early termination ends the ray (stop = k). Returns (T, C, D, k, stop)."""
+    while k < stop and (to_quad == 0 or k % 4 != 0):
+        if T < t_threshold:
+            stop = k
+        else:
+            e = _sample_factor(sigma, delta, factor, k, factor_given)
+            T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e, rgb[k], z[k])
+            k += 1
+    return T, cr, cg, cb, d, k, stop
 
 
 @wp.kernel
@@ -74,22 +107,12 @@ def _composite_forward_kernel(
     # check_values != 0: out_bad[r] = 1 if a colour or depth of the ray may be NaN or infinite (see below).
     r = wp.tid() + offset
     one = sigma.dtype(1.0)
-    T = one
-    cr = sigma.dtype(0.0)
-    cg = sigma.dtype(0.0)
-    cb = sigma.dtype(0.0)
-    d = sigma.dtype(0.0)
+    T, cr, cg, cb, d = ray_start(one)
     start = ray_offsets[r]
-    stop = ray_offsets[r + 1]
     k = start
     # Single samples up to a multiple of 4 (stop = k ends the ray: early termination) ...
-    while k < stop and k % 4 != 0:
-        if T < t_threshold:
-            stop = k
-        else:
-            e = _sample_factor(sigma, delta, out_factor, k, factor_given)
-            T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e, rgb[k], z[k])
-            k += 1
+    T, cr, cg, cb, d, k, stop = _steps_one_at_a_time(sigma, rgb, delta, z, out_factor, factor_given, t_threshold,
+                                                     T, cr, cg, cb, d, k, ray_offsets[r + 1], 1)
     # ... then four at a time while none of the four terminates (the same operations in the same
     # order as one at a time, so bit for bit the same sums; fewer loop and index computations) ...
     while k + 4 <= stop:
@@ -111,13 +134,8 @@ def _composite_forward_kernel(
         T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e4[3], rgb[k + 3], z_q[3])
         k += 4
     # ... and single samples for the rest (the tail, or the quad in which the ray terminates).
-    while k < stop:
-        if T < t_threshold:
-            stop = k
-        else:
-            e = _sample_factor(sigma, delta, out_factor, k, factor_given)
-            T, cr, cg, cb, d = _composite_step(T, cr, cg, cb, d, e, rgb[k], z[k])
-            k += 1
+    T, cr, cg, cb, d, k, stop = _steps_one_at_a_time(sigma, rgb, delta, z, out_factor, factor_given, t_threshold,
+                                                     T, cr, cg, cb, d, k, stop, 0)
     if check_values != 0:
         # The sums C and D are NaN or infinite if a processed colour or depth is (w_k is finite:
         # sigma and delta were checked), so only the samples after early termination are added

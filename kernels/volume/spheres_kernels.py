@@ -40,6 +40,7 @@ import typing
 import warp as wp
 
 from kernels import _arrays as A
+from kernels.volume.composite_kernels import blend_step, ray_start
 
 wp.set_module_options({"enable_backward": False})
 
@@ -49,12 +50,40 @@ _VEC4 = {wp.float32: wp.vec4f, wp.float64: wp.vec4d}
 
 
 @wp.func
+def offset_from(px: typing.Any, py: typing.Any, pz: typing.Any, cx: typing.Any, cy: typing.Any, cz: typing.Any):
+    """(p - c, |p - c|): the offset of the point p from the centre c, and its length."""
+    dx = px - cx
+    dy = py - cy
+    dz = pz - cz
+    return dx, dy, dz, wp.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@wp.func
 def center_offset(points: wp.array2d(dtype=typing.Any), i: int, centers: wp.array2d(dtype=typing.Any), k: int):
     """(p_i - c_k, |p_i - c_k|): point i's offset from the centre of sphere k, and its length."""
-    dx = points[i, 0] - centers[k, 0]
-    dy = points[i, 1] - centers[k, 1]
-    dz = points[i, 2] - centers[k, 2]
-    return dx, dy, dz, wp.sqrt(dx * dx + dy * dy + dz * dz)
+    return offset_from(points[i, 0], points[i, 1], points[i, 2], centers[k, 0], centers[k, 1], centers[k, 2])
+
+
+@wp.func
+def no_spheres(like: typing.Any):
+    """The field's sums (sigma, unnormalised colour) before any sphere: zeros of like's type."""
+    zero = type(like)(0.0)
+    return zero, zero, zero, zero
+
+
+@wp.func
+def add_sphere(sig: typing.Any, nr: typing.Any, ng: typing.Any, nb: typing.Any, d: typing.Any, cr: typing.Any,
+               cg: typing.Any, cb: typing.Any):
+    """The field's sums with one sphere added: (sigma + d_k, n + d_k col_k), n the unnormalised colour."""
+    return sig + d, nr + d * cr, ng + d * cg, nb + d * cb
+
+
+@wp.func
+def normalised_colour(sig: typing.Any, nr: typing.Any, ng: typing.Any, nb: typing.Any):
+    """(sigma, rgb): the colour sums divided by sigma where sigma > 1e-6, as they are below."""
+    if sig > type(sig)(1e-6):
+        return sig, nr / sig, ng / sig, nb / sig
+    return sig, nr, ng, nb
 
 
 @wp.func
@@ -74,26 +103,13 @@ def spheres_at(px: typing.Any, py: typing.Any, pz: typing.Any, centers: wp.array
                sharpness: wp.array(dtype=typing.Any)):
     """(sigma, r, g, b) of the spheres at the point (px, py, pz) (module docstring)."""
     zero = type(px)(0.0)
-    sig = zero
-    nr = zero
-    ng = zero
-    nb = zero
+    sig, nr, ng, nb = no_spheres(px)
     for k in range(radii.shape[0]):
-        dx = px - centers[k, 0]
-        dy = py - centers[k, 1]
-        dz = pz - centers[k, 2]
-        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz, dist = offset_from(px, py, pz, centers[k, 0], centers[k, 1], centers[k, 2])
         m = wp.max(zero, dist - radii[k])
         d = sharpness[k] * wp.exp(-sharpness[k] * m)
-        sig += d
-        nr += d * colors[k, 0]
-        ng += d * colors[k, 1]
-        nb += d * colors[k, 2]
-    if sig > type(px)(1e-6):
-        nr = nr / sig
-        ng = ng / sig
-        nb = nb / sig
-    return sig, nr, ng, nb
+        sig, nr, ng, nb = add_sphere(sig, nr, ng, nb, d, colors[k, 0], colors[k, 1], colors[k, 2])
+    return normalised_colour(sig, nr, ng, nb)
 
 
 @wp.func
@@ -104,28 +120,15 @@ def spheres_at_packed(px: typing.Any, py: typing.Any, pz: typing.Any, geometry: 
     CPU code computes and wraps every index). The same operations in the same order: bit for bit
     spheres_at."""
     zero = type(px)(0.0)
-    sig = zero
-    nr = zero
-    ng = zero
-    nb = zero
+    sig, nr, ng, nb = no_spheres(px)
     for k in range(geometry.shape[0]):
         g = geometry[k]
         a = appearance[k]
-        dx = px - g[0]
-        dy = py - g[1]
-        dz = pz - g[2]
-        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz, dist = offset_from(px, py, pz, g[0], g[1], g[2])
         m = wp.max(zero, dist - g[3])
         d = a[3] * wp.exp(-a[3] * m)
-        sig += d
-        nr += d * a[0]
-        ng += d * a[1]
-        nb += d * a[2]
-    if sig > type(px)(1e-6):
-        nr = nr / sig
-        ng = ng / sig
-        nb = nb / sig
-    return sig, nr, ng, nb
+        sig, nr, ng, nb = add_sphere(sig, nr, ng, nb, d, a[0], a[1], a[2])
+    return normalised_colour(sig, nr, ng, nb)
 
 
 @wp.kernel
@@ -143,18 +146,10 @@ def _spheres_forward_kernel(
 
 
 @wp.func
-def _blend_factor(T: typing.Any, cr: typing.Any, cg: typing.Any, cb: typing.Any, dep: typing.Any, e: typing.Any,
-                  nr: typing.Any, ng: typing.Any, nb: typing.Any, tk: typing.Any):
-    """One front-to-back step of the dense renders given e = exp(-sigma delta) = 1 - alpha: weight T alpha."""
-    w = T * (type(T)(1.0) - e)
-    return T * e, cr + w * nr, cg + w * ng, cb + w * nb, dep + w * tk
-
-
-@wp.func
 def _blend_sample(T: typing.Any, cr: typing.Any, cg: typing.Any, cb: typing.Any, dep: typing.Any, sig: typing.Any,
                   nr: typing.Any, ng: typing.Any, nb: typing.Any, tk: typing.Any, dk: typing.Any):
     """One front-to-back step of the dense renders: alpha = 1 - exp(-sigma delta), weight T alpha."""
-    return _blend_factor(T, cr, cg, cb, dep, wp.exp(-sig * dk), nr, ng, nb, tk)
+    return blend_step(T, cr, cg, cb, dep, wp.exp(-sig * dk), nr, ng, nb, tk)
 
 
 @wp.func
@@ -178,12 +173,7 @@ def _spheres_render_dense_kernel(
     # origins, dirs, out_rgb: (R, 3) arrays viewed as R vec3; background one vec3; geometry and
     # appearance: the packed sphere parameters (spheres_at_packed).
     r = wp.tid() + offset
-    one = t.dtype(1.0)
-    T = one
-    cr = t.dtype(0.0)
-    cg = t.dtype(0.0)
-    cb = t.dtype(0.0)
-    dep = t.dtype(0.0)
+    T, cr, cg, cb, dep = ray_start(t_threshold)
     o = origins[r]
     dr = dirs[r]
     for j in range(t.shape[1]):

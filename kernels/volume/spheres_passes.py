@@ -41,8 +41,10 @@ from typing import Any
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.volume.spheres_kernels import (_VEC3, _VEC4, _blend_factor, _spheres_render_dense_kernel,
-                                            _write_pixel)
+from kernels.volume.composite_kernels import blend_step, ray_start
+from kernels.volume.spheres_kernels import (_VEC3, _VEC4, _spheres_render_dense_kernel,
+                                            _write_pixel, add_sphere, no_spheres, normalised_colour,
+                                            offset_from)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -50,23 +52,11 @@ wp.set_module_options({"enable_backward": False})
 def spheres_from_falloff(falloff: wp.array(dtype=typing.Any), i: int, appearance: wp.array(dtype=typing.Any)):
     """spheres_at's (sigma, r, g, b) from falloff[i + k] = exp(-s_k m_k) given (the CPU passes):
     d_k = s_k falloff_k, then the same sums and normalisation in the same order."""
-    zero = falloff.dtype(0.0)
-    sig = zero
-    nr = zero
-    ng = zero
-    nb = zero
+    sig, nr, ng, nb = no_spheres(falloff[i])
     for k in range(appearance.shape[0]):
         a = appearance[k]
-        d = a[3] * falloff[i + k]
-        sig += d
-        nr += d * a[0]
-        ng += d * a[1]
-        nb += d * a[2]
-    if sig > falloff.dtype(1e-6):
-        nr = nr / sig
-        ng = ng / sig
-        nb = nb / sig
-    return sig, nr, ng, nb
+        sig, nr, ng, nb = add_sphere(sig, nr, ng, nb, a[3] * falloff[i + k], a[0], a[1], a[2])
+    return normalised_colour(sig, nr, ng, nb)
 
 
 @wp.func
@@ -76,10 +66,7 @@ def sphere_exponents(px: typing.Any, py: typing.Any, pz: typing.Any, geometry: w
     zero = type(px)(0.0)
     for k in range(geometry.shape[0]):
         g = geometry[k]
-        dx = px - g[0]
-        dy = py - g[1]
-        dz = pz - g[2]
-        dist = wp.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz, dist = offset_from(px, py, pz, g[0], g[1], g[2])
         out[i + k] = -appearance[k][3] * wp.max(zero, dist - g[3])
 
 
@@ -140,18 +127,13 @@ def _spheres_dense_composite_kernel(
     # (r - base) S + j).
     q = wp.tid() + offset
     r = base + q
-    one = t.dtype(1.0)
-    T = one
-    cr = t.dtype(0.0)
-    cg = t.dtype(0.0)
-    cb = t.dtype(0.0)
-    dep = t.dtype(0.0)
+    T, cr, cg, cb, dep = ray_start(t_threshold)
     n_s = t.shape[1]
     for j in range(n_s):
         if T < t_threshold:
             break
         sig, nr, ng, nb = spheres_from_falloff(falloff, (q * n_s + j) * appearance.shape[0], appearance)
-        T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, factor[q * n_s + j], nr, ng, nb, t[r, j])
+        T, cr, cg, cb, dep = blend_step(T, cr, cg, cb, dep, factor[q * n_s + j], nr, ng, nb, t[r, j])
     _write_pixel(out_rgb, out_depth, out_opacity, r, background, T, cr, cg, cb, dep)
 
 
@@ -194,11 +176,7 @@ def _spheres_from_falloff4(f4: wp.array(dtype=typing.Any), i: int, stride: int,
     nb = zero4
     for k in range(appearance.shape[0]):
         a = appearance[k]
-        d = a[3] * f4[i + k * stride]
-        sig = sig + d
-        nr = nr + d * a[0]
-        ng = ng + d * a[1]
-        nb = nb + d * a[2]
+        sig, nr, ng, nb = add_sphere(sig, nr, ng, nb, a[3] * f4[i + k * stride], a[0], a[1], a[2])
     for l in range(4):
         if sig[l] > type(sig[l])(1e-6):
             nr[l] = nr[l] / sig[l]
@@ -266,11 +244,7 @@ def _spheres_dense_composite4_kernel(
     # are not taken).
     q = wp.tid() + offset
     r = base + q
-    T = type(t_threshold)(1.0)
-    cr = type(t_threshold)(0.0)
-    cg = type(t_threshold)(0.0)
-    cb = type(t_threshold)(0.0)
-    dep = type(t_threshold)(0.0)
+    T, cr, cg, cb, dep = ray_start(t_threshold)
     n_q = t4.shape[1]
     done = int(0)
     for jq in range(n_q):
@@ -289,12 +263,12 @@ def _spheres_dense_composite4_kernel(
                 if T < t_threshold:
                     done = 1
                     break
-                T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[l], nr[l], ng[l], nb[l], tq[l])
+                T, cr, cg, cb, dep = blend_step(T, cr, cg, cb, dep, e[l], nr[l], ng[l], nb[l], tq[l])
         else:
-            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[0], nr[0], ng[0], nb[0], tq[0])
-            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[1], nr[1], ng[1], nb[1], tq[1])
-            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[2], nr[2], ng[2], nb[2], tq[2])
-            T, cr, cg, cb, dep = _blend_factor(T, cr, cg, cb, dep, e[3], nr[3], ng[3], nb[3], tq[3])
+            T, cr, cg, cb, dep = blend_step(T, cr, cg, cb, dep, e[0], nr[0], ng[0], nb[0], tq[0])
+            T, cr, cg, cb, dep = blend_step(T, cr, cg, cb, dep, e[1], nr[1], ng[1], nb[1], tq[1])
+            T, cr, cg, cb, dep = blend_step(T, cr, cg, cb, dep, e[2], nr[2], ng[2], nb[2], tq[2])
+            T, cr, cg, cb, dep = blend_step(T, cr, cg, cb, dep, e[3], nr[3], ng[3], nb[3], tq[3])
     _write_pixel(out_rgb, out_depth, out_opacity, r, background, T, cr, cg, cb, dep)
 
 
