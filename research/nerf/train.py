@@ -102,11 +102,25 @@ class TrainLog:
     seconds: float
 
 
-def _lr_factor(cfg: TrainConfig, it: int) -> float:
+def _lr_factor(cfg: Any, it: int) -> float:
     start = int(cfg.lr_decay_from * cfg.iters)
     if it < start or cfg.iters <= start:
         return 1.0
     return float(cfg.lr_decay_to ** ((it - start) / (cfg.iters - start)))
+
+
+def optimiser_step(opt: Adam, field: Any, grads: dict[str, Any], cfg: Any, it: int, base_lr: dict[str, float]) -> None:
+    """One step of iteration `it` (cfg: TrainConfig or research.poses.refine_volume's JointConfig): a
+    voxel grid's TV gradients (cfg.tv_weight per parameter, over the vertex count) added into
+    `grads`, the learning rates decayed from cfg.lr_decay_from of cfg.iters down to cfg.lr_decay_to
+    at the end, then the optimiser's step."""
+    if isinstance(field, GridField):
+        nv = field.params["density"].shape[0]
+        for name, w in cfg.tv_weight.items():
+            add_tv_grad(field.params[name], field.resolution, w / nv, grads[name])
+    f = _lr_factor(cfg, it)
+    opt.lr = {k: v * f for k, v in base_lr.items()}
+    opt.step(grads)
 
 
 def upsample_grid(field: GridField, resolution: tuple[int, int, int]) -> GridField:
@@ -173,13 +187,7 @@ def _train(field: Field, bank: RayBank, bbox: np.ndarray, cfg: TrainConfig, occu
             loss = float(np.mean(diff**2))
             grads = render_backward(field, res, (2.0 * diff / diff.size).astype(np_t),
                                     sigma_l1=cfg.sigma_l1 / cfg.batch_rays, workspace=workspace)
-            if isinstance(field, GridField):
-                nv = field.params["density"].shape[0]
-                for name, w in cfg.tv_weight.items():
-                    add_tv_grad(field.params[name], field.resolution, w / nv, grads[name])
-            f = _lr_factor(cfg, it)
-            opt.lr = {k: v * f for k, v in base_lr.items()}
-            opt.step(grads)
+            optimiser_step(opt, field, grads, cfg, it, base_lr)
             losses.append(loss)
             spr.append(res.samples.n_samples / cfg.batch_rays)
             if it % 50 == 0:

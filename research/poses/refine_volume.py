@@ -49,10 +49,10 @@ from kernels import _arrays as A
 from kernels.optim import Adam
 from kernels.rotation import checked_rigid
 from kernels.volume import GridField, OccupancyGrid, Workspace, render_backward, render_rays
-from kernels.volume.grid import add_tv_grad
 from kernels.volume.rays import camera_rays, camera_rays_backward, render_backward_rays
 from research.poses import se3 as P
 from research.cameras import Camera
+from research.nerf.train import optimiser_step
 
 
 @dataclass
@@ -114,13 +114,6 @@ def depth_loss(depth: np.ndarray, measured: np.ndarray, weight: float) -> tuple[
     n = max(int(valid.sum()), 1)
     diff = np.where(valid, depth - measured, 0.0)
     return float(weight * (diff ** 2).sum() / n), 2.0 * weight * diff / n
-
-
-def _lr_factor(cfg: JointConfig, it: int) -> float:
-    start = int(cfg.lr_decay_from * cfg.iters)
-    if it < start or cfg.iters <= start:
-        return 1.0
-    return float(cfg.lr_decay_to ** ((it - start) / (cfg.iters - start)))
 
 
 @dataclass
@@ -226,12 +219,7 @@ def _train(field: GridField, views: TrainingViews, xi: np.ndarray, bbox: np.ndar
                     cots.append((None, (depth_diff != 0).astype(np_t)))
                 rows = _pose_rows(field, res, vids, w2c, views, pix, per_view, np_t, cots)
             grads = render_backward(field, res, grad_rgb, grad_depth, workspace=workspace)
-            nv = field.params["density"].shape[0]
-            for name, tw in cfg.tv_weight.items():
-                add_tv_grad(field.params[name], field.resolution, tw / nv, grads[name])
-            f = _lr_factor(cfg, it)
-            opt.lr = {k: v * f for k, v in base_lr.items()}
-            opt.step(grads)
+            optimiser_step(opt, field, grads, cfg, it, base_lr)
             if update_poses:
                 steps = []
                 n_valid = max(1, int(np.count_nonzero(depth_diff))) if depth_diff is not None else 1
