@@ -28,7 +28,7 @@ term by term (opencv) or as 2 G' (w_l delta_ik + delta_il w_k + w_i delta_kl) + 
 (fisheye). G, G' and G'' are evaluated in float64 whatever the dtype: their closed forms cancel
 near the axis (relative error about eps / r^5 for G''), so below s = 1e-4 the series
 G = 1 + c1 s + c2 s^2 + c3 s^3 + c4 s^4 is used (c1 = k1 - 1/3, c2 = 1/5 - k1 + k2,
-c3 = -1/7 + 14/15 k1 - 5/3 k2 + k3, c4 = 1/9 - 37/45 k1 + 29/15 k2 - 7/3 k3 + k4; the dropped
+c3 = -1/7 + 14/15 k1 - 5/3 k2 + k3, c4 = 1/9 - 818/945 k1 + 19/9 k2 - 7/3 k3 + k4; the dropped
 terms are below 1e-16 there).
 
 Valid domain. A lens polynomial folds back beyond its first turning point, where points on two
@@ -78,6 +78,14 @@ N_PARAMS = 6  # five coefficient slots, then s_lim
 NEWTON_ITERS = 30
 S_LIMIT_CAP = 1e30  # s_lim stored when the model has no turning point (finite in float32)
 FISHEYE_SERIES_S = 1e-4
+# G(s) = 1 + sum_n c_n s^n with c_n = SERIES[n-1] . (1, k1, ..., k_{n-1}) + k_n (module docstring);
+# tests/kernels/test_lens.py derives them exactly from the series of atan.
+SERIES = ((-1.0 / 3.0,), (1.0 / 5.0, -1.0), (-1.0 / 7.0, 14.0 / 15.0, -5.0 / 3.0),
+          (1.0 / 9.0, -818.0 / 945.0, 19.0 / 9.0, -7.0 / 3.0))
+_S10 = wp.constant(SERIES[0][0])
+_S20, _S21 = (wp.constant(c) for c in SERIES[1])
+_S30, _S31, _S32 = (wp.constant(c) for c in SERIES[2])
+_S40, _S41, _S42, _S43 = (wp.constant(c) for c in SERIES[3])
 
 
 def _first_positive_root(coeffs_low_first: list[float], upper: float) -> float:
@@ -180,11 +188,10 @@ def fisheye_radial(s: Any, c1_: Any, c2_: Any, c3_: Any, c4_: Any):
     G1 = wp.float64(0.0)
     G2 = wp.float64(0.0)
     if s64 < wp.float64(FISHEYE_SERIES_S):
-        c1 = k1 - one / wp.float64(3.0)
-        c2 = one / wp.float64(5.0) - k1 + k2
-        c3 = -one / wp.float64(7.0) + wp.float64(14.0) / wp.float64(15.0) * k1 - wp.float64(5.0) / wp.float64(3.0) * k2 + k3
-        c4 = (one / wp.float64(9.0) - wp.float64(37.0) / wp.float64(45.0) * k1 + wp.float64(29.0) / wp.float64(15.0) * k2
-              - wp.float64(7.0) / wp.float64(3.0) * k3 + k4)
+        c1 = wp.float64(_S10) + k1
+        c2 = wp.float64(_S20) + wp.float64(_S21) * k1 + k2
+        c3 = wp.float64(_S30) + wp.float64(_S31) * k1 + wp.float64(_S32) * k2 + k3
+        c4 = wp.float64(_S40) + wp.float64(_S41) * k1 + wp.float64(_S42) * k2 + wp.float64(_S43) * k3 + k4
         G = one + s64 * (c1 + s64 * (c2 + s64 * (c3 + s64 * c4)))
         G1 = c1 + s64 * (two * c2 + s64 * (wp.float64(3.0) * c3 + s64 * wp.float64(4.0) * c4))
         G2 = two * c2 + s64 * (wp.float64(6.0) * c3 + s64 * wp.float64(12.0) * c4)

@@ -257,7 +257,8 @@ class Camera:
     def mitsuba_intrinsics(self) -> dict[str, float]:
         """Mitsuba `perspective` parameters: fov (degrees, axis 'x') and principal point offsets."""
         if self.lens is not None:
-            raise ValueError(f"lens: Mitsuba's perspective sensor is a pinhole, this camera has a {self.lens.model} lens")
+            raise ValueError(f"lens: Mitsuba's perspective sensor is a pinhole, this camera has a {self.lens.model} "
+                             "lens")
         if not math.isclose(self.fx, self.fy, rel_tol=1e-12) or self.K[0, 1] != 0.0:
             raise ValueError("K: Mitsuba's perspective sensor needs square pixels (fx == fy) and zero skew")
         return {

@@ -167,11 +167,39 @@ def test_fisheye_radial_series_and_closed_form():
     np.testing.assert_allclose(out[big, 2], (G1(s[big] + h + 0j) - G1(s[big] - h + 0j)) / (2 * h), rtol=2e-5)
 
 
+def test_fisheye_series_coefficients_are_exact():
+    # theta_d / r = sum_j k_j theta^(2j+1) / r (k_0 = 1), theta / r = sum_n (-1)^n s^n / (2n + 1): in exact fractions.
+    from fractions import Fraction
+
+    from kernels.lens import SERIES
+
+    n = 5
+    t = [Fraction((-1) ** i, 2 * i + 1) for i in range(n)]
+
+    def mul(a, b):
+        out = [Fraction(0)] * n
+        for i, x in enumerate(a):
+            for j, y in enumerate(b[:n - i]):
+                out[i + j] += x * y
+        return out
+
+    terms = []  # terms[j][m]: the coefficient of k_j in c_m
+    for j in range(5):
+        p = [Fraction(1)] + [Fraction(0)] * (n - 1)
+        for _ in range(2 * j + 1):
+            p = mul(p, t)
+        terms.append([Fraction(0)] * j + p[:n - j])
+    for m in range(1, 5):
+        assert terms[m][m] == 1
+        assert SERIES[m - 1] == pytest.approx([float(terms[j][m]) for j in range(m)], rel=1e-15)
+
+
 @pytest.mark.parametrize("model", ["opencv", "fisheye", "orthographic"])
 @pytest.mark.parametrize("np_t,tol", [(np.float32, 3e-6), (np.float64, 1e-13)])
 @pytest.mark.usefixtures("warp_device")
 def test_lens_rays_match_reference(model, np_t, tol):
-    lens = {"opencv": Lens("opencv", OPENCV), "fisheye": Lens("fisheye", FISHEYE), "orthographic": Lens("orthographic")}[model]
+    lens = {"opencv": Lens("opencv", OPENCV), "fisheye": Lens("fisheye", FISHEYE),
+            "orthographic": Lens("orthographic")}[model]
     rng = np.random.default_rng(4)
     w2c = np.linalg.inv(np.array([[1, 0, 0, 0.2], [0, 0, -1, -3.0], [0, 1, 0, 0.5], [0, 0, 0, 1.0]]))
     pixels = rng.uniform(0.0, [320.0, 240.0], (50, 2))

@@ -183,6 +183,13 @@ def _check_slam(m):
     assert _finite(m["held_out"]["psnr"]) and m["held_out"]["psnr"] > 5 and len(m["per_frame"]) == 8
 
 
+def _check_lens_distortion(m):
+    assert [(r["lens"], r["route"]) for r in m["rows"]] == [("opencv", r) for r in ("lens", "undistorted", "ignored")]
+    assert all(_finite(r[f"{es}_psnr"]) and r[f"{es}_psnr"] > 5 for r in m["rows"]
+               for es in ("distorted", "undistorted", "clean"))
+    assert m["lenses"]["opencv"]["undistorted_invalid_pixels"] == 0  # barrel: OpenCV finds a source for every pixel
+
+
 def _check_time_budget(m):
     runs = m["runs"]
     assert [r["iterations"] for r in runs if r["method"] == "splats"] == [10, 30]
@@ -211,7 +218,8 @@ CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalma
           "volume_render_spheres": _check_volume, "sfm_poses": _check_sfm_poses, "real_photos": _check_real_photos,
           "oracle_conformance": _check_oracle,
           "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo,
-          "splat_slam": _check_slam, "time_budget": _check_time_budget, "surface_recon": _check_surface_recon}
+          "splat_slam": _check_slam, "time_budget": _check_time_budget, "lens_distortion": _check_lens_distortion,
+          "surface_recon": _check_surface_recon}
 
 
 def test_every_registered_experiment_has_a_smoke_check():
