@@ -35,7 +35,6 @@ back to check the round trip.
 
 from __future__ import annotations
 
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any

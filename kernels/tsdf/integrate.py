@@ -109,7 +109,9 @@ def integrate(volume: TSDFVolume, depth: Any, K: Any, w2c: Any, rgb: Any = None)
                  (None, None))
     h_img, w_img = (int(s) for s in depth.shape)
     host = A.host_view(d)
-    if host is not None and not np.any(host > 0):
+    if host is None:  # on a CUDA device: one image's copy
+        host = d.numpy()
+    if not np.any(host > 0):
         raise ValueError("depth: no pixel has a measurement (every value <= 0)")
     K = np.asarray(K, dtype=np.float64)
     A.check_shape("K", K, (3, 3))

@@ -33,11 +33,9 @@ import warp as wp
 
 from kernels import _arrays as A
 
-# The CPU's available memory when /proc/meminfo is absent: free pages (a lower bound).
-
-
 def available_bytes(device: Any) -> int:
-    """Memory the device reports available, in bytes."""
+    """Memory the device reports available, in bytes: a CUDA device's free memory; on the CPU MemAvailable
+    of /proc/meminfo, or the free pages where that file is absent (a lower bound)."""
     dev = A.get_device(device)
     if dev.is_cuda:
         return int(dev.free_memory)
@@ -92,8 +90,9 @@ class TSDFVolume:
         need = volume_bytes(self.shape, self.np_dtype, color)
         limit = available_bytes(self.device) if max_bytes is None else A.check_int("max_bytes", max_bytes, minimum=0)
         if need > limit:
-            raise ValueError(f"shape: a TSDF volume of {size} voxels ({self.np_dtype}{', with colour' if color else ''})"
-                             f" needs {_gb(need)} ({need} bytes); only {_gb(limit)} is available on {self.device}"
+            kind = f"{self.np_dtype}{', with colour' if color else ''}"
+            raise ValueError(f"shape: a TSDF volume of {size} voxels ({kind}) needs {_gb(need)} ({need} bytes); "
+                             f"only {_gb(limit)} is available on {self.device}"
                              f"{'' if max_bytes is None else ' (max_bytes)'}: use a larger voxel_size or a smaller box")
         if n * 3 > 2**31 - 1:
             raise ValueError(f"shape: a volume of {size} voxels has more than the (2^31 - 1) / 3 the kernels "

@@ -44,7 +44,8 @@ def test_metrics_distances_agree_with_scipy_and_open3d():
     np.testing.assert_allclose(m["gt_distances"], d_ba, rtol=1e-12, atol=1e-15)
     assert m["per_threshold"][0]["precision"] == np.mean(d_ab < 0.02)
     o3d = pytest.importorskip("open3d", reason="open3d not installed (the [bench] extra: pip install open3d-cpu)")
-    pa, pb = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(a)), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(b))
+    pa = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(a))
+    pb = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(b))
     np.testing.assert_allclose(m["pred_distances"], np.asarray(pa.compute_point_cloud_distance(pb)), rtol=1e-9)
 
 
