@@ -167,6 +167,13 @@ register_experiment(
 )
 
 register_experiment(
+    "splat_antialiasing",
+    "Splats trained at one resolution, scored at 1/4 to 2x: 3DGS's dilation against Mip-Splatting's 2D filter, "
+    "3D filter and both, on Mitsuba renders box-averaged from 2x.",
+    quick_budget_s=600,
+)
+
+register_experiment(
     "time_budget",
     "PSNR against training time on the official lego at 1/4: splats and the hash-grid field at longer and "
     "longer schedules, wall and CPU time, the best fit in 10, 30 and 60 minutes.",
@@ -317,6 +324,9 @@ register_family("ssim", "the SSIM map and its backward",
 register_family("volume", "NeRF volume rendering: sampling, compositing, fields, camera gradients through rays",
                 kernels="kernels.volume", reference="kernels.reference.volume", checks="research.checks.volume",
                 oracle_cases="research.oracles.cases.volume", bench="research.bench.volume")
+register_family("mip_filter", "Mip-Splatting's 3D smoothing filter of the splats (scales and opacity)",
+                kernels="kernels.splat.filter3d", reference="kernels.reference.splat_filter3d",
+                checks="research.checks.mip_filter")
 register_family("lens", "lens camera models (opencv, fisheye, orthographic): ray generator, splat projection",
                 kernels="kernels.lens", reference="kernels.reference.lens", checks="research.checks.lens")
 register_family("ba", "bundle adjustment: reprojection residuals and their pose/point Jacobians",

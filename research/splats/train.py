@@ -8,6 +8,10 @@ prunes and resets opacities on the scaled 3DGS schedule (research.splats.densify
 The active SH degree grows by one every `sh_interval` iterations up to 3.
 The only ordering difference from 3DGS: the Adam step comes before (not after)
 densification in an iteration, so new splats get their first step one iteration later.
+With `filter_3d` = s > 0 the splats are rendered through Mip-Splatting's 3D smoothing filter
+(research/splats/mip.py: its size from the training cameras, recomputed at the start, after every
+densification and every densification interval; the gradients taken back through it), and the
+returned model has the last filter baked into its scales and opacities.
 
 Every stage runs on one device: `train`, `evaluate`, `render_fps` and `ply_round_trip_identical`
 take the Warp device (TrainResult.device is the one training used). The initial model is checked
@@ -34,6 +38,7 @@ from research import metrics
 from research.cameras import Camera
 from research.splats import ply
 from research.splats.densify import DensifyConfig, DensifyStats, Schedule, densify_and_prune, reset_opacity
+from research.splats import mip
 from research.splats.loss import LAMBDA_DSSIM, l1_dssim
 from research.splats.model import GaussianModel, render, splat_camera
 from research.splats.optim import LearningRates, expon_lr, make_adam
@@ -49,11 +54,17 @@ class TrainConfig:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     antialiased: bool = False
     mode: str = ks.DEFAULT_MODE  # "3dgs" (the original code's conventions) or "gsplat" (kernels/splat/modes.py)
+    dilation: float | None = None  # the projection's 2D low-pass variance (None: the mode's, 0.3)
+    filter_3d: float = 0.0  # Mip-Splatting's 3D filter variance s (0: off; mip.PAPER_S = 0.2 is the paper's)
     seed: int = 0
     log_every: int = 50
 
     def __post_init__(self) -> None:
         mode_id(self.mode)  # ValueError naming `mode` before any work
+        if not self.filter_3d >= 0:
+            raise ValueError(f"filter_3d: expected a filter variance >= 0 (0: off), got {self.filter_3d}")
+        if self.dilation is not None and not self.dilation >= 0:
+            raise ValueError(f"dilation: expected a variance >= 0 or None, got {self.dilation}")
 
 
 @dataclass
@@ -99,6 +110,7 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
     t0 = time.perf_counter()
     bar = tqdm(range(1, cfg.iterations + 1), desc="fit splats", disable=not progress, mininterval=2.0)
     degree = 0
+    sigma = mip.filter_sigma(model.means, cameras, cfg.filter_3d) if cfg.filter_3d > 0 else None
     with A.value_checks(False):
         for it in bar:
             adam.lr["means"] = expon_lr(it - 1, lr.means_init * extent, lr.means_final * extent, cfg.iterations)
@@ -106,13 +118,16 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
             if not order:
                 order = list(rng.permutation(len(cameras)))
             v = order.pop()
-            inputs = model.inputs(device)
+            inputs = _filtered(model, sigma).inputs(device) if sigma is not None else model.inputs(device)
             result = ks.render(inputs, splat_cams[v], background, sh_degree=degree, antialiased=cfg.antialiased,
-                               mode=cfg.mode)
+                               mode=cfg.mode, dilation=cfg.dilation)
             loss, grad_img, parts = l1_dssim(result.rgb.numpy(), images[v], cfg.lambda_dssim, device=device)
             if not np.isfinite(loss):
                 raise RuntimeError(f"iteration {it}: the loss is {loss}")
             g = {k: x.numpy() for k, x in ks.render_backward(inputs, result, grad_img).items()}
+            if sigma is not None:
+                g["log_scales"], g["opacity_logits"] = mip.unfiltered_grads(
+                    model.log_scales, model.opacity_logits, sigma, g["log_scales"], g["opacity_logits"])
             adam.step({"means": g["means"], "log_scales": g["log_scales"], "quats": g["quats"],
                        "opacity_logits": g["opacity_logits"], "sh_dc": np.ascontiguousarray(g["sh"][:, :1]),
                        "sh_rest": np.ascontiguousarray(g["sh"][:, 1:])}, params=model.arrays())
@@ -128,6 +143,8 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
                 if sched.reset_now(it):
                     reset_opacity(model, adam)
                     events.append({"iteration": it, "opacity_reset": True})
+            if sigma is not None and (len(sigma) != model.n or it % sched.densify_interval == 0):
+                sigma = mip.filter_sigma(model.means, cameras, cfg.filter_3d)
             running["loss"] += loss
             running["l1"] += parts["l1"]
             running["ssim"] += parts["ssim"]
@@ -138,7 +155,15 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
                                 **{key: val / k for key, val in running.items()}})
                 running = {"loss": 0.0, "l1": 0.0, "ssim": 0.0, "k": 0}
                 bar.set_postfix(loss=f"{history[-1]['loss']:.4f}", n=model.n)
+    if sigma is not None:
+        model = _filtered(model, sigma)  # what the last iterations rendered, baked in
     return TrainResult(model, time.perf_counter() - t0, history, events, degree, device)
+
+
+def _filtered(model: GaussianModel, sigma: np.ndarray) -> GaussianModel:
+    """`model` with Mip-Splatting's 3D filter of size `sigma` (N,) in its scales and opacities."""
+    log_scales, logits = mip.filtered(model.log_scales, model.opacity_logits, sigma)
+    return GaussianModel(model.means, log_scales, model.quats, logits, model.sh_dc, model.sh_rest)
 
 
 @dataclass
