@@ -72,7 +72,7 @@ def setup(quick: bool, smoke: bool) -> Setup:
     if quick:
         return Setup(views=40, res=64, render_factor=2, spp=16, iterations=800, init_points=3000,
                      max_gaussians=12_000)
-    return Setup(views=60, res=96, render_factor=2, spp=32, iterations=2000, init_points=6000, max_gaussians=20_000)
+    return Setup(views=48, res=80, render_factor=2, spp=16, iterations=1500, init_points=5000, max_gaussians=16_000)
 
 
 def add_options(p) -> None:
@@ -149,7 +149,7 @@ def renders_figure(per_lens: dict, path) -> None:
 
     cols = [("gt", "distorted"), ("lens", "distorted"), ("undistorted", "distorted"), ("gt", "undistorted"),
             ("lens", "undistorted"), ("undistorted", "undistorted")]
-    fig, axes = plt.subplots(len(per_lens), len(cols), figsize=(2.2 * len(cols), 2.4 * len(per_lens)), squeeze=False)
+    fig, axes = plt.subplots(len(per_lens), len(cols), figsize=(2.2 * len(cols), 2.8 * len(per_lens)), squeeze=False)
     for r, (name, res) in enumerate(per_lens.items()):
         for c, (who, es) in enumerate(cols):
             img = res["gt"][es] if who == "gt" else res["renders"][(who, es)]
@@ -213,5 +213,6 @@ def run(ctx: Context) -> int:
 
 main = Experiment("lens_distortion", __doc__, run, add_options,
                   seed_help="seed of the dataset render, the initial points and training",
-                  sizes="Quick: 40 views rendered at 128x128 and warped to 64x64, 800 iterations per fit, six fits; "
+                  sizes="Full: 48 views rendered at 160x160 and warped to 80x80, 1500 iterations per fit, six fits; "
+                        "quick: 40 views rendered at 128x128 and warped to 64x64, 800 iterations; "
                         "smoke: 8 views at 32x32, 20 iterations, the opencv lens only.").script(__name__)

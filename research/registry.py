@@ -328,7 +328,8 @@ register_family("mip_filter", "Mip-Splatting's 3D smoothing filter of the splats
                 kernels="kernels.splat.filter3d", reference="kernels.reference.splat_filter3d",
                 checks="research.checks.mip_filter")
 register_family("lens", "lens camera models (opencv, fisheye, orthographic): ray generator, splat projection",
-                kernels="kernels.lens", reference="kernels.reference.lens", checks="research.checks.lens")
+                kernels="kernels.lens", reference="kernels.reference.lens", checks="research.checks.lens",
+                oracle_cases="research.oracles.cases.lens")
 register_family("ba", "bundle adjustment: reprojection residuals and their pose/point Jacobians",
                 kernels="kernels.ba", reference="kernels.reference.ba", checks="research.checks.ba")
 register_family("slam", "the splat SLAM tracking and mapping losses (research/slam) through the splat renderer",
