@@ -41,7 +41,7 @@ from kernels.sh import sh_basis_grad
 from kernels.volume.field import Field, FieldOutput
 from kernels.volume.grid import GridField, corner_offsets, corner_vertex, corner_weight, grid_cell, \
     grid_raw_cotangents, sh_basis, view_dir
-from kernels.volume.spheres import SphereField, center_offset, sphere_density_cotangent
+from kernels.volume.spheres import SphereField, center_offset, point_cotangents, sphere_density_cotangent
 
 wp.set_module_options({"enable_backward": False})
 
@@ -55,16 +55,7 @@ def _spheres_points_kernel(
 ):
     i = wp.tid() + offset
     zero = points.dtype(0.0)
-    one = points.dtype(1.0)
-    sig = sigma[i]
-    normalized = sig > points.dtype(1e-6)
-    inv = one
-    if normalized:
-        inv = one / sig
-    gs = grad_sigma[i]
-    g0 = grad_rgb[i, 0]
-    g1 = grad_rgb[i, 1]
-    g2 = grad_rgb[i, 2]
+    normalized, inv, gs, g0, g1, g2 = point_cotangents(sigma, grad_sigma, grad_rgb, i)
     px = zero
     py = zero
     pz = zero

@@ -98,6 +98,13 @@ def pixel_ray(pixels: wp.array2d(dtype=typing.Any), i: int, intr: wp.array(dtype
     return cx_, cy_, wp.sqrt(cx_ * cx_ + cy_ * cy_ + pixels.dtype(1.0))
 
 
+@wp.func
+def pixel_dir(pixels: wp.array2d(dtype=typing.Any), i: int, intr: wp.array(dtype=typing.Any)):
+    """pixel_ray's (x, y, n) and the unit camera-frame direction e = (x, y, 1) / n."""
+    cx_, cy_, n = pixel_ray(pixels, i, intr)
+    return cx_, cy_, n, cx_ / n, cy_ / n, pixels.dtype(1.0) / n
+
+
 @wp.kernel
 def _rays_kernel(
     pixels: wp.array2d(dtype=typing.Any), rot: wp.array2d(dtype=typing.Any), trans: wp.array(dtype=typing.Any),
@@ -106,10 +113,7 @@ def _rays_kernel(
 ):
     i = wp.tid() + offset
     one = pixels.dtype(1.0)
-    cx_, cy_, n = pixel_ray(pixels, i, intr)
-    ex = cx_ / n
-    ey = cy_ / n
-    ez = one / n
+    cx_, cy_, n, ex, ey, ez = pixel_dir(pixels, i, intr)
     for a in range(3):
         out_o[i, a] = -(rot[0, a] * trans[0] + rot[1, a] * trans[1] + rot[2, a] * trans[2])
         out_d[i, a] = rot[0, a] * ex + rot[1, a] * ey + rot[2, a] * ez
@@ -124,9 +128,8 @@ def _rays_backward_kernel(
 ):
     # Row i of `out`: (g_o in the camera frame R g_o (3), dL/dphi (3), dL/d(fx, fy, cx, cy) (4)).
     i = wp.tid() + offset
-    one = pixels.dtype(1.0)
-    cx_, cy_, n = pixel_ray(pixels, i, intr)
-    e = wp.vector(cx_ / n, cy_ / n, one / n, length=3, dtype=pixels.dtype)
+    cx_, cy_, n, ex, ey, ez = pixel_dir(pixels, i, intr)
+    e = wp.vector(ex, ey, ez, length=3, dtype=pixels.dtype)
     go = wp.vector(pixels.dtype(0.0), pixels.dtype(0.0), pixels.dtype(0.0), length=3, dtype=pixels.dtype)
     ge = wp.vector(pixels.dtype(0.0), pixels.dtype(0.0), pixels.dtype(0.0), length=3, dtype=pixels.dtype)
     for a in range(3):

@@ -85,12 +85,15 @@ from kernels.volume.composite import DEFAULT_T_THRESHOLD
 from kernels.volume.field import Field, FieldOutput
 from kernels.launch import default_threads, guided_bounds, parallel_items
 from kernels.volume.spheres_kernels import (_VEC3, _VEC4, _pack_spheres_kernel, _spheres_backward_kernel,
-                                            _spheres_forward_kernel, center_offset, sphere_density_cotangent)
+                                            _spheres_forward_kernel, center_offset, point_cotangents,
+                                            sphere_density_cotangent)
 from kernels.volume.spheres_passes import _FIELD_PASSES, _RENDER_DENSE, _RENDER_DENSE4
 from kernels.volume.workspace import Workspace
 
-# center_offset and sphere_density_cotangent are imported from here by kernels.volume.field_points.
-__all__ = ["COLOR_NORMALIZE_EPS", "TEXTBOOK_SPHERES", "SphereField", "center_offset", "sphere_density_cotangent"]
+# center_offset, point_cotangents and sphere_density_cotangent are imported from here by
+# kernels.volume.field_points.
+__all__ = ["COLOR_NORMALIZE_EPS", "TEXTBOOK_SPHERES", "SphereField", "center_offset", "point_cotangents",
+           "sphere_density_cotangent"]
 
 COLOR_NORMALIZE_EPS = 1e-6
 # forward and render_dense on the CPU run the two-pass paths (NumPy's exp between Warp passes, and C++);

@@ -98,6 +98,20 @@ def sphere_density_cotangent(gs: typing.Any, g0: typing.Any, g1: typing.Any, g2:
 
 
 @wp.func
+def point_cotangents(sigma: wp.array(dtype=typing.Any), grad_sigma: wp.array(dtype=typing.Any),
+                     grad_rgb: wp.array2d(dtype=typing.Any), i: int):
+    """Point i's (normalized, 1/sigma (1 unless normalized), g_s, g): whether its colour was divided
+    by sigma (sigma > 1e-6), and the cotangents of its sigma and colour."""
+    one = sigma.dtype(1.0)
+    sig = sigma[i]
+    normalized = sig > sigma.dtype(1e-6)
+    inv = one
+    if normalized:
+        inv = one / sig
+    return normalized, inv, grad_sigma[i], grad_rgb[i, 0], grad_rgb[i, 1], grad_rgb[i, 2]
+
+
+@wp.func
 def spheres_at(px: typing.Any, py: typing.Any, pz: typing.Any, centers: wp.array2d(dtype=typing.Any),
                radii: wp.array(dtype=typing.Any), colors: wp.array2d(dtype=typing.Any),
                sharpness: wp.array(dtype=typing.Any)):
@@ -200,15 +214,7 @@ def _spheres_backward_kernel(
     i = wp.tid()
     zero = points.dtype(0.0)
     one = points.dtype(1.0)
-    sig = sigma[i]
-    normalized = sig > points.dtype(1e-6)
-    inv = one
-    if normalized:
-        inv = one / sig
-    gs = grad_sigma[i]
-    g0 = grad_rgb[i, 0]
-    g1 = grad_rgb[i, 1]
-    g2 = grad_rgb[i, 2]
+    normalized, inv, gs, g0, g1, g2 = point_cotangents(sigma, grad_sigma, grad_rgb, i)
     for k in range(radii.shape[0]):
         dx, dy, dz, dist = center_offset(points, i, centers, k)
         m = wp.max(zero, dist - radii[k])
@@ -234,18 +240,8 @@ def _pack_spheres_kernel(centers: wp.array2d(dtype=typing.Any), radii: wp.array(
                          colors: wp.array2d(dtype=typing.Any), sharpness: wp.array(dtype=typing.Any),
                          geometry: wp.array(dtype=typing.Any), appearance: wp.array(dtype=typing.Any)):
     k = wp.tid()
-    g = geometry[k]
-    g[0] = centers[k, 0]
-    g[1] = centers[k, 1]
-    g[2] = centers[k, 2]
-    g[3] = radii[k]
-    geometry[k] = g
-    a = appearance[k]
-    a[0] = colors[k, 0]
-    a[1] = colors[k, 1]
-    a[2] = colors[k, 2]
-    a[3] = sharpness[k]
-    appearance[k] = a
+    geometry[k] = type(geometry[k])(centers[k, 0], centers[k, 1], centers[k, 2], radii[k])
+    appearance[k] = type(appearance[k])(colors[k, 0], colors[k, 1], colors[k, 2], sharpness[k])
 
 
 
