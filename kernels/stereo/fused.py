@@ -53,6 +53,32 @@ KEY_NONE = 0xFFFFFFFF
 KEY_NONE_U32 = wp.constant(wp.uint32(KEY_NONE))
 
 
+@wp.func
+def _fold_block(v: typing.Any, j: int, nb: int, tail: typing.Any, lm_v: wp.array(dtype=typing.Any), y: int,
+                rm_v: wp.array(dtype=typing.Any), o: int):
+    """Block j of a pixel's nb blocks of hypotheses (keys or costs, the last raised by `tail` past D)
+    into the pixel's lane minima lm_v[y] and the right pixels' running minima at rm_v[o]."""
+    if j == nb - 1:
+        v = wp.max(v, tail)
+    if j == 0:
+        lm_v[y] = v
+    else:
+        lm_v[y] = wp.min(lm_v[y], v)
+    rm_v[o] = wp.min(rm_v[o], v)
+
+
+@wp.func
+def _check_row(disp_l: wp.array2d(dtype=typing.Any), valid_l: wp.array2d(dtype=wp.uint8),
+               disp_r: wp.array2d(dtype=typing.Any), valid_r: wp.array2d(dtype=wp.uint8),
+               valid: wp.array2d(dtype=wp.uint8), y: int, check: int, max_diff: wp.float64):
+    """Row y's validity: the left winners' own, and the left-right check unless check == 0."""
+    for x in range(disp_l.shape[1]):
+        ok = int(valid_l[y, x])
+        if check != 0:
+            ok = _consistent(disp_l, valid_l, disp_r, valid_r, y, x, max_diff)
+        valid[y, x] = wp.uint8(ok)
+
+
 @wp.kernel
 def _rows(agg_v: wp.array(dtype=sweep.AGG_U16_VEC), agg: wp.array3d(dtype=wp.uint16), rk: wp.array(dtype=wp.uint32),
           rk_v: wp.array(dtype=KEY_VEC), lk_v: wp.array(dtype=KEY_VEC), lk4_v: wp.array(dtype=KEY_QUARTER),
@@ -76,16 +102,8 @@ def _rows(agg_v: wp.array(dtype=sweep.AGG_U16_VEC), agg: wp.array3d(dtype=wp.uin
         ro = r0 + M + W - 1 - x + dmin
         for j in range(nb):
             key = KEY_VEC(agg_v[base + j]) * wp.uint32(65536) + lanes_k + KEY_VEC(wp.uint32(KEY_LANES * j))
-            if j == nb - 1:
-                key = wp.max(key, tail)
-            if j == 0:
-                lk_v[y] = key
-            else:
-                lk_v[y] = wp.min(lk_v[y], key)
-            o = ro + KEY_LANES * j
-            rk_v[o] = wp.min(rk_v[o], key)
-        q = 4 * y
-        kl = wp.min(wp.min(wp.min(lk4_v[q], lk4_v[q + 1]), wp.min(lk4_v[q + 2], lk4_v[q + 3])))
+            _fold_block(key, j, nb, tail, lk_v, y, rk_v, ro + KEY_LANES * j)
+        kl = sweep._lanes_min(lk4_v, 4 * y)
         best = int(kl % wp.uint32(65536))
         out, ok = _left_pixel(agg, disp_l, y, x, best, wp.float32(kl / wp.uint32(65536)), D, dmin, subpixel,
                               uniqueness)
@@ -101,11 +119,7 @@ def _rows(agg_v: wp.array(dtype=sweep.AGG_U16_VEC), agg: wp.array3d(dtype=wp.uin
         out, ok = _right_pixel(agg, disp_r, y, xr, best, cbest, D, dmin, subpixel)
         disp_r[y, xr] = out
         valid_r[y, xr] = wp.uint8(ok)
-    for x in range(W):
-        ok = int(valid_l[y, x])
-        if check != 0:
-            ok = _consistent(disp_l, valid_l, disp_r, valid_r, y, x, max_diff)
-        valid[y, x] = wp.uint8(ok)
+    _check_row(disp_l, valid_l, disp_r, valid_r, valid, y, check, max_diff)
 
 
 @wp.kernel
@@ -131,17 +145,8 @@ def _rows_float(agg_v: wp.array(dtype=typing.Any), agg: wp.array3d(dtype=typing.
         base = (y * W + x) * nb
         ro = r0 + M + W - 1 - x + dmin
         for j in range(nb):
-            v = agg_v[base + j]
-            if j == nb - 1:
-                v = wp.max(v, tail)
-            if j == 0:
-                lm_v[y] = v
-            else:
-                lm_v[y] = wp.min(lm_v[y], v)
-            o = ro + lanes * j
-            rv_v[o] = wp.min(rv_v[o], v)
-        q = 4 * y
-        cbest = wp.min(wp.min(wp.min(lm4_v[q], lm4_v[q + 1]), wp.min(lm4_v[q + 2], lm4_v[q + 3])))
+            _fold_block(agg_v[base + j], j, nb, tail, lm_v, y, rv_v, ro + lanes * j)
+        cbest = sweep._lanes_min(lm4_v, 4 * y)
         best = int(0)
         while agg[y, x, best] != cbest:
             best += 1
@@ -161,11 +166,7 @@ def _rows_float(agg_v: wp.array(dtype=typing.Any), agg: wp.array3d(dtype=typing.
         out, ok = _right_pixel(agg, disp_r, y, xr, best, cr, D, dmin, subpixel)
         disp_r[y, xr] = out
         valid_r[y, xr] = wp.uint8(ok)
-    for x in range(W):
-        ok = int(valid_l[y, x])
-        if check != 0:
-            ok = _consistent(disp_l, valid_l, disp_r, valid_r, y, x, max_diff)
-        valid[y, x] = wp.uint8(ok)
+    _check_row(disp_l, valid_l, disp_r, valid_r, valid, y, check, max_diff)
 
 
 for _s, _v in sweep.FLOAT_VEC.items():
