@@ -90,6 +90,18 @@ def _cells16(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho: wp.array(dtype=
 
 
 @wp.func
+def _cell(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(dtype=typing.Any), y: int, u: int,
+          rho_grad: typing.Any, rho_bt: typing.Any, T: int):
+    """One cell's cost with the right pixel u in range: rho_census[popcount(a ^ cr[y, u])] + rho_grad (+ rho_bt
+    when T > 1), added in that order."""
+    total = rho_census[int(wp.bit_count(a ^ cr[y, u]))]
+    total = total + rho_grad
+    if T > 1:
+        total = total + rho_bt
+    return total
+
+
+@wp.func
 def _cells(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(dtype=wp.float32), y: int, x: int,
            d0: int, rho_grad: _V32, rho_bt: _V32, T: int, out: wp.array3d(dtype=wp.float32), k0: int,
            levels: wp.float64):
@@ -99,30 +111,12 @@ def _cells(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(d
 
 
 @wp.func
-def _cells(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(dtype=wp.float32), y: int, x: int,
-           d0: int, rho_grad: _V32, rho_bt: _V32, T: int, out: wp.array3d(dtype=wp.uint8), k0: int,
+def _cells(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(dtype=typing.Any), y: int, x: int,
+           d0: int, rho_grad: typing.Any, rho_bt: typing.Any, T: int, out: wp.array3d(dtype=typing.Any), k0: int,
            levels: wp.float64):
-    """_cells of a compact volume, a lane at a time."""
-    for i in range(16):
-        total = rho_census[int(wp.bit_count(a ^ cr[y, x - d0 - i]))]
-        total = total + rho_grad[i]
-        if T > 1:
-            total = total + rho_bt[i]
-        _store(out, y, x, k0 + i, total, levels)
-    return 0
-
-
-@wp.func
-def _cells(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), rho_census: wp.array(dtype=wp.float64), y: int, x: int,
-           d0: int, rho_grad: _V64, rho_bt: _V64, T: int, out: wp.array3d(dtype=wp.float64), k0: int,
-           levels: wp.float64):
-    """_cells of a float64 volume, a lane at a time."""
-    for i in range(8):
-        total = rho_census[int(wp.bit_count(a ^ cr[y, x - d0 - i]))]
-        total = total + rho_grad[i]
-        if T > 1:
-            total = total + rho_bt[i]
-        _store(out, y, x, k0 + i, total, levels)
+    """_cells of a compact (uint8, 16 lanes) or float64 (8 lanes) volume, a lane at a time."""
+    for i in range(len(rho_grad)):
+        _store(out, y, x, k0 + i, _cell(a, cr, rho_census, y, x - d0 - i, rho_grad[i], rho_bt[i], T), levels)
     return 0
 
 
