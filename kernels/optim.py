@@ -157,6 +157,18 @@ class Adam:
         for state in (self.m[name], self.v[name]):
             state.zero_() if isinstance(state, wp.array) else state.fill(0.0)
 
+    def reset_rows(self, index: Any) -> None:
+        """Zero the moments of rows `index` (indices or a boolean mask over the first axis) in every group
+        (MCMC relocation: moved splats start afresh); the step counts go on."""
+        for k in self.m:
+            for state in (self.m[k], self.v[k]):
+                if isinstance(state, np.ndarray):
+                    state[index] = 0.0
+                else:
+                    h = state.numpy()
+                    h[index] = 0.0
+                    wp.copy(state, wp.array(h, dtype=state.dtype, device=state.device))
+
     @staticmethod
     def _rows(x: Any, index: Any) -> Any:
         if isinstance(x, np.ndarray):

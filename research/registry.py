@@ -174,6 +174,13 @@ register_experiment(
 )
 
 register_experiment(
+    "splat_densification",
+    "Splat density control on Mitsuba `objects`: 3DGS's clone/split/prune vs 3DGS-MCMC's relocation (gsplat's "
+    "defaults) at equal splat count and equal CPU time; PSNR/SSIM, splats, CPU and wall time.",
+    quick_budget_s=600,
+)
+
+register_experiment(
     "time_budget",
     "PSNR against training time on the official lego at 1/4: splats and the hash-grid field at longer and "
     "longer schedules, wall and CPU time, the best fit in 10, 30 and 60 minutes.",
@@ -327,6 +334,8 @@ register_family("volume", "NeRF volume rendering: sampling, compositing, fields,
 register_family("mip_filter", "Mip-Splatting's 3D smoothing filter of the splats (scales and opacity)",
                 kernels="kernels.splat.filter3d", reference="kernels.reference.splat_filter3d",
                 checks="research.checks.mip_filter")
+register_family("mcmc", "3DGS-MCMC densification: relocation's opacity/scale correction, position noise, regularisers",
+                checks="research.checks.mcmc")
 register_family("lens", "lens camera models (opencv, fisheye, orthographic): ray generator, splat projection",
                 kernels="kernels.lens", reference="kernels.reference.lens", checks="research.checks.lens",
                 oracle_cases="research.oracles.cases.lens")

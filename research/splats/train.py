@@ -8,6 +8,11 @@ prunes and resets opacities on the scaled 3DGS schedule (research.splats.densify
 The active SH degree grows by one every `sh_interval` iterations up to 3.
 The only ordering difference from 3DGS: the Adam step comes before (not after)
 densification in an iteration, so new splats get their first step one iteration later.
+With `strategy="mcmc"` the density control is instead 3DGS-MCMC's (research/splats/mcmc.py, in
+gsplat's order): the opacity and scale regularisers' gradients join the rendered loss's before the
+Adam step; after it, every refinement interval the dead splats are relocated and new ones added up
+to `mcmc.cap_max`, and then every iteration the means get the opacity-gated noise (at the position
+learning rate of the next step, as gsplat's scheduler hands it); no opacity reset, no pruning.
 With `filter_3d` = s > 0 the splats are rendered through Mip-Splatting's 3D smoothing filter
 (research/splats/mip.py: its size from the training cameras, recomputed at the start, after every
 densification and every densification interval; the gradients taken back through it), and the
@@ -38,10 +43,13 @@ from research import metrics
 from research.cameras import Camera
 from research.splats import ply
 from research.splats.densify import DensifyConfig, DensifyStats, Schedule, densify_and_prune, reset_opacity
-from research.splats import mip
+from research.splats import mcmc, mip
 from research.splats.loss import LAMBDA_DSSIM, l1_dssim
 from research.splats.model import GaussianModel, render, splat_camera
+from research.splats.mcmc import MCMCConfig, MCMCSchedule
 from research.splats.optim import LearningRates, expon_lr, make_adam
+
+STRATEGIES = ("3dgs", "mcmc")
 
 
 @dataclass(frozen=True)
@@ -58,9 +66,13 @@ class TrainConfig:
     filter_3d: float = 0.0  # Mip-Splatting's 3D filter variance s (0: off; mip.PAPER_S = 0.2 is the paper's)
     seed: int = 0
     log_every: int = 50
+    strategy: str = "3dgs"  # density control: "3dgs" (research.splats.densify, with `densify`) or "mcmc" (`mcmc`)
+    mcmc: MCMCConfig = field(default_factory=MCMCConfig)
 
     def __post_init__(self) -> None:
         mode_id(self.mode)  # ValueError naming `mode` before any work
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"strategy: expected one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
         if not self.filter_3d >= 0:
             raise ValueError(f"filter_3d: expected a filter variance >= 0 (0: off), got {self.filter_3d}")
         if self.dilation is not None and not self.dilation >= 0:
@@ -99,6 +111,8 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
     model.inputs(device)  # checks the initial model once (values included) before the unchecked loop
     rng = np.random.default_rng(cfg.seed)
     sched = Schedule.scaled(cfg.iterations)
+    use_mcmc = cfg.strategy == "mcmc"
+    msched = MCMCSchedule.scaled(cfg.iterations, cfg.mcmc)
     lr = cfg.lrs
     adam = make_adam(model, {"means": lr.means_init * extent, "log_scales": lr.log_scales, "quats": lr.quats,
                              "opacity_logits": lr.opacity_logits, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest})
@@ -106,7 +120,8 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
     background = np.asarray(cfg.background, dtype=np.float32)
     splat_cams = [splat_camera(c) for c in cameras]
     history, events, order = [], [], []
-    running = {"loss": 0.0, "l1": 0.0, "ssim": 0.0, "k": 0}
+    zero = {"loss": 0.0, "l1": 0.0, "ssim": 0.0, **({"reg": 0.0} if use_mcmc else {}), "k": 0}
+    running = dict(zero)
     t0 = time.perf_counter()
     bar = tqdm(range(1, cfg.iterations + 1), desc="fit splats", disable=not progress, mininterval=2.0)
     degree = 0
@@ -128,10 +143,25 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
             if sigma is not None:
                 g["log_scales"], g["opacity_logits"] = mip.unfiltered_grads(
                     model.log_scales, model.opacity_logits, sigma, g["log_scales"], g["opacity_logits"])
+            if use_mcmc:
+                reg, d_logits, d_log_scales = mcmc.regularizer(model.opacity_logits, model.log_scales,
+                                                               cfg.mcmc.opacity_reg, cfg.mcmc.scale_reg)
+                g["opacity_logits"] = g["opacity_logits"] + d_logits.astype(np.float32)
+                g["log_scales"] = g["log_scales"] + d_log_scales.astype(np.float32)
+                running["reg"] += reg
             adam.step({"means": g["means"], "log_scales": g["log_scales"], "quats": g["quats"],
                        "opacity_logits": g["opacity_logits"], "sh_dc": np.ascontiguousarray(g["sh"][:, :1]),
                        "sh_rest": np.ascontiguousarray(g["sh"][:, 1:])}, params=model.arrays())
-            if it < sched.densify_until:
+            refined = False
+            if use_mcmc:
+                if msched.refine_now(it):
+                    n_before = model.n
+                    model, counts = mcmc.refine(model, adam, cfg.mcmc, rng)
+                    refined = True
+                    events.append({"iteration": it, "before": n_before, "after": model.n, **counts})
+                next_lr = expon_lr(it, lr.means_init * extent, lr.means_final * extent, cfg.iterations)
+                mcmc.inject_noise(model, next_lr, cfg.mcmc.noise_lr, rng)
+            elif it < sched.densify_until:
                 cam = splat_cams[v]
                 stats.add(g["means2d"], result.projection.radii.numpy(), cam.width, cam.height)
                 if sched.densify_now(it):
@@ -143,7 +173,7 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
                 if sched.reset_now(it):
                     reset_opacity(model, adam)
                     events.append({"iteration": it, "opacity_reset": True})
-            if sigma is not None and (len(sigma) != model.n or it % sched.densify_interval == 0):
+            if sigma is not None and (refined or len(sigma) != model.n or it % sched.densify_interval == 0):
                 sigma = mip.filter_sigma(model.means, cameras, cfg.filter_3d)
             running["loss"] += loss
             running["l1"] += parts["l1"]
@@ -153,7 +183,7 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
                 k = running.pop("k")
                 history.append({"iteration": it, "gaussians": model.n, "sh_degree": degree,
                                 **{key: val / k for key, val in running.items()}})
-                running = {"loss": 0.0, "l1": 0.0, "ssim": 0.0, "k": 0}
+                running = dict(zero)
                 bar.set_postfix(loss=f"{history[-1]['loss']:.4f}", n=model.n)
     if sigma is not None:
         model = _filtered(model, sigma)  # what the last iterations rendered, baked in

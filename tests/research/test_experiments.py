@@ -212,11 +212,18 @@ def _check_surface_recon(m):
         assert rows["gt/open3d"]["faces"] == rows["gt/drlab"]["faces"]
 
 
+def _check_splat_densification(m):
+    base, equal_n, equal_t = (m["models"][k] for k in ("3DGS", "MCMC, equal count", "MCMC, equal time"))
+    assert m["cap"] == base["splats"] and equal_n["iterations"] == base["iterations"]
+    assert equal_n["strategy"] == equal_t["strategy"] == "mcmc" and base["strategy"] == "3dgs"
+    assert all(f["splats"] <= m["cap"] and _finite(f["psnr"]) and f["cpu_seconds"] > 0 for f in (equal_n, equal_t))
+
+
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
           "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
           "volume_render_spheres": _check_volume, "sfm_poses": _check_sfm_poses, "real_photos": _check_real_photos,
-          "oracle_conformance": _check_oracle,
+          "oracle_conformance": _check_oracle, "splat_densification": _check_splat_densification,
           "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo,
           "splat_slam": _check_slam, "time_budget": _check_time_budget, "lens_distortion": _check_lens_distortion,
           "surface_recon": _check_surface_recon}
