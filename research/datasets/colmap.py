@@ -60,7 +60,7 @@ PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
 LENS_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "OPENCV_FISHEYE")
 MIPNERF360_OUTDOOR = ("bicycle", "flowers", "garden", "stump", "treehill")
 MIPNERF360_INDOOR = ("room", "counter", "kitchen", "bonsai")
-LLFFHOLD = 8
+LLFFHOLD = external.LLFFHOLD
 _MODEL_FILES = ("cameras", "images", "points3D")
 
 
@@ -144,11 +144,7 @@ def camera_model(camera, cams_file: Path) -> tuple[np.ndarray, Lens | None]:
 
 
 def mipnerf360_protocol(factor: int, width: int, height: int) -> Protocol:
-    folder = external.image_folder_name(factor)
-    return Protocol("mipnerf360", "train", "test", f"{folder} ({width}x{height})", None,
-                    f"Mip-NeRF 360 protocol (3DGS): every {LLFFHOLD}th image by name is a test view (llffhold "
-                    f"{LLFFHOLD}); {folder}; opaque photographs; PSNR and SSIM (11x11 Gaussian window, sigma 1.5) "
-                    "on sRGB in [0,1]; research.metrics")
+    return external.llffhold_protocol("mipnerf360", "Mip-NeRF 360 protocol (3DGS)", factor, width, height)
 
 
 def _points_bound(points: np.ndarray) -> np.ndarray:

@@ -2,7 +2,8 @@
 
 Images in straight-alpha sRGB (PNG or JPEG), their downscaling and their conversion to the Split
 contract (linear, premultiplied), the downscale factor's check, a content hash over the files read,
-and a scene bound and up direction from the cameras. Which reader a folder needs is
+a scene bound and up direction from the cameras, and the every-8th-image test split of LLFF and
+Mip-NeRF 360 (LLFFHOLD, llffhold_protocol). Which reader a folder needs is
 research.datasets.formats, which imports the readers; the readers import this module, never that one.
 """
 
@@ -17,7 +18,20 @@ import numpy as np
 from research import io
 from research.cameras import Camera
 from research.datasets.integrity import DatasetError
-from research.datasets.loader import Split, View
+from research.datasets.loader import Protocol, Split, View
+
+
+LLFFHOLD = 8  # every 8th image by name is a test view (NeRF's and 3DGS's llffhold)
+
+
+def llffhold_protocol(name: str, method: str, factor: int, width: int, height: int, note: str = "") -> Protocol:
+    """The llffhold protocol of `method` (e.g. "LLFF protocol (NeRF)") on the photographs at 1/factor
+    (width x height): its test views, folder and metrics; `note` ("...; ") goes before the metrics module."""
+    folder = image_folder_name(factor)
+    return Protocol(name, "train", "test", f"{folder} ({width}x{height})", None,
+                    f"{method}: every {LLFFHOLD}th image by name is a test view (llffhold {LLFFHOLD}); {folder}; "
+                    f"opaque photographs; PSNR and SSIM (11x11 Gaussian window, sigma 1.5) on sRGB in [0,1]; "
+                    f"{note}research.metrics")
 
 
 def check_factor(factor: object) -> int:

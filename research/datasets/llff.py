@@ -60,7 +60,7 @@ from research.datasets.integrity import DatasetError
 from research.datasets.loader import Dataset, Protocol, Split, View, _image_size
 
 POSES_BOUNDS = "poses_bounds.npy"
-LLFFHOLD = 8
+LLFFHOLD = external.LLFFHOLD
 BD_FACTOR = 0.75
 DEFAULT_FACTOR = 8
 NDC_NEAR = 1.0
@@ -68,11 +68,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
 def llff_protocol(factor: int, width: int, height: int) -> Protocol:
-    folder = external.image_folder_name(factor)
-    return Protocol("llff", "train", "test", f"{folder} ({width}x{height})", None,
-                    f"LLFF protocol (NeRF): every {LLFFHOLD}th image by name is a test view (llffhold {LLFFHOLD}); "
-                    f"{folder}; opaque photographs; PSNR and SSIM (11x11 Gaussian window, sigma 1.5) on sRGB in "
-                    "[0,1]; LPIPS not computed; research.metrics")
+    return external.llffhold_protocol("llff", "LLFF protocol (NeRF)", factor, width, height, "LPIPS not computed; ")
 
 
 def _normalize(v: np.ndarray) -> np.ndarray:
