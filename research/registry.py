@@ -244,6 +244,13 @@ register_experiment(
 )
 
 register_experiment(
+    "lidar_odometry",
+    "ICP odometry on Mitsuba-ray-cast 360-degree LiDAR scans: point-to-point / point-to-plane, scan-to-scan / "
+    "scan-to-map vs KISS-ICP (ATE/RPE, ms per scan), and single scan pairs vs Open3D's ICP.",
+    quick_budget_s=300,
+)
+
+register_experiment(
     "splat_slam",
     "RGB-D SLAM with a Gaussian-splat map (SplaTAM-style) on a Mitsuba loop sequence: ATE/RPE (% of path), "
     "frames/s, tracking failures, held-out PSNR of the map.",

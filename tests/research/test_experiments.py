@@ -219,12 +219,24 @@ def _check_splat_densification(m):
     assert all(f["splats"] <= m["cap"] and _finite(f["psnr"]) and f["cpu_seconds"] > 0 for f in (equal_n, equal_t))
 
 
+def _check_lidar(m):
+    methods = m["methods"]
+    assert m["frames"] == 5 and m["returns_per_scan"] > 1000 and len(methods) == 4 + (m["kiss_icp"] is not None)
+    assert all(_finite(r["ate_rmse"]) and r["ms_per_scan"] > 0 for r in methods.values())
+    # smoke (seed 0) measured 0.020 m for point-to-plane scan-to-map, 0.13-0.18 m for point-to-point
+    assert methods["drlab point-to-plane, scan-to-map"]["ate_rmse"] < 0.05
+    pairs = m["single_registrations"]
+    if pairs["open3d"] is not None:  # the same objective and stopping point: the same pose (measured 2e-8 deg)
+        assert all(r["max_diff_to_other_library"]["rot_deg"] < 1e-4 for r in pairs["methods"].values())
+
+
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
           "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
           "volume_render_spheres": _check_volume, "sfm_poses": _check_sfm_poses, "real_photos": _check_real_photos,
           "oracle_conformance": _check_oracle, "splat_densification": _check_splat_densification,
           "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo,
+          "lidar_odometry": _check_lidar,
           "splat_slam": _check_slam, "time_budget": _check_time_budget, "lens_distortion": _check_lens_distortion,
           "surface_recon": _check_surface_recon}
 
