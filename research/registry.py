@@ -237,6 +237,13 @@ register_experiment(
 )
 
 register_experiment(
+    "pointnet_classify",
+    "PointNet and one-level PointNet++ on Warp kernels vs a D2 + PCA k-NN baseline: test accuracy on synthetic "
+    "posed, scaled, noisy shape clouds (9 classes), train time, confusion matrices.",
+    quick_budget_s=300,
+)
+
+register_experiment(
     "feature_vo",
     "Classical RGB-D feature VO on the Mitsuba `objects` loop (splat_slam's sequence): ORB, essential matrix, "
     "PnP RANSAC, local BA with Warp Jacobians, loop closure by pose graph: ATE/RPE before and after, FPS.",
@@ -355,6 +362,8 @@ register_family("points", "point clouds on a uniform hash grid: kNN, ball query,
                 oracle_cases="research.oracles.cases.points", bench="research.bench.points")
 register_family("tsdf", "TSDF fusion of depth maps and marching cubes (no gradient)",
                 kernels="kernels.tsdf", reference="kernels.reference.tsdf", bench="research.bench.tsdf")
+register_family("pointnet", "PointNet's max-pool, PointNet++'s grouping in local coordinates, the classifiers",
+                kernels="kernels.pointnet", reference="kernels.reference.pointnet", checks="research.checks.pointnet")
 register_family("lucas_kanade", "Lucas-Kanade flow: structure tensor, pyramidal",
                 kernels="kernels.lucas_kanade", reference="kernels.reference.lucas_kanade")
 register_family("icp", "ICP: point-to-point/plane residuals, pose Jacobians, robust weights, normal equations",

@@ -230,6 +230,16 @@ def _check_lidar(m):
         assert all(r["max_diff_to_other_library"]["rot_deg"] < 1e-4 for r in pairs["methods"].values())
 
 
+def _check_pointnet(m):
+    assert set(m["methods"]) == {"d2_pca_knn", "pointnet", "pointnet_sa"} and m["chance"] == pytest.approx(1 / 9)
+    assert all(0.0 <= r["test_accuracy"] <= 1.0 for r in m["methods"].values())
+    for k in ("pointnet", "pointnet_sa"):
+        assert m["methods"][k]["params"] > 0 and len(m["methods"][k]["train_loss"]) == 2
+    # the plain Warp MLP gives a permuted cloud's logits to the bit (research/pointnet/model.py)
+    assert m["permutation"]["pointnet"]["warp_backend"]["bit_equal"]
+    assert m["permutation"]["pointnet_sa"]["warp_backend"]["bit_equal"]
+
+
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
           "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
@@ -238,7 +248,7 @@ CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalma
           "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo,
           "lidar_odometry": _check_lidar,
           "splat_slam": _check_slam, "time_budget": _check_time_budget, "lens_distortion": _check_lens_distortion,
-          "surface_recon": _check_surface_recon}
+          "surface_recon": _check_surface_recon, "pointnet_classify": _check_pointnet}
 
 
 def test_every_registered_experiment_has_a_smoke_check():
