@@ -41,7 +41,7 @@ import numpy as np
 
 from research.datasets import CACHE_ROOT_HELP
 from research.experiment import Context, Experiment
-from research.results import finish_figure, markdown_table
+from research.results import finish_figure, markdown_table, trajectory_error_panel, trajectory_top_view
 
 LOOP_FRAMES = 60
 
@@ -89,19 +89,9 @@ def trajectory_figure(gt: np.ndarray, before: np.ndarray, after: np.ndarray, loo
     ax.plot(after[:, 0, 3], after[:, 1, 3], ".-", c="tab:blue", lw=1, ms=4, label="VO after loop closure")
     for i, j in loops:
         ax.plot([after[i, 0, 3], after[j, 0, 3]], [after[i, 1, 3], after[j, 1, 3]], "g--", lw=1)
-    ax.scatter(gt[:1, 0, 3], gt[:1, 1, 3], c="k", marker="s", s=30, label="start", zorder=4)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-    ax.set_title("camera centres, top view (SE(3)-aligned; dashed: loops)", fontsize=10)
-    ax.legend(fontsize=8)
-    ax = axes[1]
-    ax.plot(err_before, c="tab:orange", label="before loop closure")
-    ax.plot(err_after, c="tab:blue", label="after loop closure")
-    ax.set_xlabel("frame")
-    ax.set_ylabel("position error after alignment")
-    ax.set_title("absolute trajectory error per frame", fontsize=10)
-    ax.legend(fontsize=8)
+    trajectory_top_view(ax, gt, "camera centres, top view (SE(3)-aligned; dashed: loops)")
+    trajectory_error_panel(axes[1], {"before loop closure": (err_before, "tab:orange"),
+                                     "after loop closure": (err_after, "tab:blue")})
     finish_figure(fig, path)
 
 

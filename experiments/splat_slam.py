@@ -38,7 +38,7 @@ import numpy as np
 
 from research.datasets import CACHE_ROOT_HELP
 from research.experiment import Context, Experiment
-from research.results import finish_figure, markdown_table
+from research.results import finish_figure, markdown_table, trajectory_error_panel, trajectory_top_view
 
 TARGET_ATE_PCT = 1.0
 LOOP_FRAMES = 60  # the smoke run renders the 60-frame loop (at 32x32) and tracks its first frames
@@ -95,20 +95,11 @@ def trajectory_figure(gt: np.ndarray, est_aligned: np.ndarray, errors: np.ndarra
     if failures:
         ax.scatter(est_aligned[failures, 0, 3], est_aligned[failures, 1, 3], c="tab:red", marker="x", s=40,
                    label="tracking failure", zorder=4)
-    ax.scatter(gt[:1, 0, 3], gt[:1, 1, 3], c="k", marker="s", s=30, label="start", zorder=4)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-    ax.set_title("camera centres, top view", fontsize=10)
-    ax.legend(fontsize=8)
-    ax = axes[1]
-    ax.plot(errors, c="tab:blue", label="splat SLAM")
+    trajectory_top_view(ax, gt, "camera centres, top view")
+    curves = {"splat SLAM": (errors, "tab:blue")}
     if vo_aligned is not None:
-        ax.plot(np.linalg.norm(vo_aligned[:, :3, 3] - gt[:, :3, 3], axis=1), c="tab:orange", label="feature VO")
-    ax.legend(fontsize=8)
-    ax.set_xlabel("frame")
-    ax.set_ylabel("position error after alignment")
-    ax.set_title("absolute trajectory error per frame", fontsize=10)
+        curves["feature VO"] = (np.linalg.norm(vo_aligned[:, :3, 3] - gt[:, :3, 3], axis=1), "tab:orange")
+    trajectory_error_panel(axes[1], curves)
     finish_figure(fig, path)
 
 

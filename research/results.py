@@ -170,6 +170,27 @@ def loss_figure(losses: dict[str, Any], ylabel: str, path: str | Path) -> Path:
     return finish_figure(fig, path)
 
 
+def trajectory_top_view(ax, gt, title: str) -> None:
+    """Finish a top view (x, y) of camera centres whose lines are drawn: the ground truth's start
+    marked, equal axes, labels, a small title and the legend. gt: (N, 4, 4) camera-to-world."""
+    ax.scatter(gt[:1, 0, 3], gt[:1, 1, 3], c="k", marker="s", s=30, label="start", zorder=4)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+
+
+def trajectory_error_panel(ax, errors: dict[str, tuple[Any, str]]) -> None:
+    """Per-frame position errors after alignment, one curve per label: {label: (errors, colour)}."""
+    for label, (err, colour) in errors.items():
+        ax.plot(err, c=colour, label=label)
+    ax.set_xlabel("frame")
+    ax.set_ylabel("position error after alignment")
+    ax.set_title("absolute trajectory error per frame", fontsize=10)
+    ax.legend(fontsize=8)
+
+
 def image_panel(fig, ax, img, title: str | None, colorbar: bool = False, fontsize: int = 9, **imshow) -> None:
     """One image panel of a figure: `ax.imshow(img, **imshow)`, a colour bar if asked, a small title (none if
     title is None) and no ticks."""
