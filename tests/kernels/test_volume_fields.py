@@ -175,6 +175,15 @@ def test_hash_encoding_runs_of_points_split_over_threads_match_the_reference():
     np.testing.assert_allclose(got, hash_reference(enc, p, table), rtol=1e-12, atol=1e-12)
 
 
+def _mixed_levels_inputs(enc, rng, n, np_t, wp_t):
+    """n points around the box (some outside it, clamped) and a random table, for an encoding with both
+    dense and hashed levels."""
+    assert 0 < enc.dense.sum() < enc.n_levels
+    p = wp.array(rng.uniform(BOX[0] - 0.2, BOX[1] + 0.2, (n, 3)).astype(np_t), dtype=wp_t)
+    table = wp.array(rng.normal(size=enc.table_shape).astype(np_t), dtype=wp_t)
+    return p, table
+
+
 @pytest.mark.parametrize("np_t, wp_t", [(np.float32, wp.float32), (np.float64, wp.float64)])
 def test_hash_encoding_cpu_cpp_forward_equals_the_warp_kernel(np_t, wp_t):
     # The CPU encode with F = 2 runs kernels.volume.hashgrid_cpu (C++, 8 points at a time): bit for bit the
@@ -183,11 +192,8 @@ def test_hash_encoding_cpu_cpp_forward_equals_the_warp_kernel(np_t, wp_t):
     from kernels.launch import launch_split
     from kernels.volume.hashgrid import BLOCK, _hash_forward_kernel
     enc = HashEncoding(BOX, n_levels=6, n_features=2, log2_table_size=9, base_resolution=3, max_resolution=40)
-    assert 0 < enc.dense.sum() < enc.n_levels
-    rng = np.random.default_rng(17)
-    n = 8 * 611 + 5
-    p = wp.array(rng.uniform(BOX[0] - 0.2, BOX[1] + 0.2, (n, 3)).astype(np_t), dtype=wp_t)
-    table = wp.array(rng.normal(size=enc.table_shape).astype(np_t), dtype=wp_t)
+    rng, n = np.random.default_rng(17), 8 * 611 + 5
+    p, table = _mixed_levels_inputs(enc, rng, n, np_t, wp_t)
     got = enc.encode(p, table).numpy()
     want = wp.empty((enc.n_outputs, n), dtype=wp_t)
     launch_split(_hash_forward_kernel, -(-n // BLOCK) * enc.n_levels,
@@ -202,11 +208,8 @@ def test_hash_encoding_cpu_cpp_scatter_equals_the_warp_kernel(np_t, wp_t):
     # that many points, and corners of one point, add into the same rows.
     from kernels.volume.hashgrid import BLOCK, _hash_backward_kernel
     enc = HashEncoding(BOX, n_levels=5, n_features=2, log2_table_size=5, base_resolution=2, max_resolution=30)
-    assert 0 < enc.dense.sum() < enc.n_levels
-    rng = np.random.default_rng(19)
-    n = 8 * 377 + 3
-    p = wp.array(rng.uniform(BOX[0] - 0.2, BOX[1] + 0.2, (n, 3)).astype(np_t), dtype=wp_t)
-    table = wp.array(rng.normal(size=enc.table_shape).astype(np_t), dtype=wp_t)
+    rng, n = np.random.default_rng(19), 8 * 377 + 3
+    p, table = _mixed_levels_inputs(enc, rng, n, np_t, wp_t)
     g = wp.array(rng.normal(size=(enc.n_outputs, n)).astype(np_t), dtype=wp_t).transpose()
     got = enc.backward(p, table, g).numpy()
     want = wp.zeros(enc.table_shape, dtype=wp_t)
