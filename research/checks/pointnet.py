@@ -152,7 +152,11 @@ def check_model(kind: str, seed: int) -> list[GradcheckResult]:
         return {"points": d_pts, **{k: v.numpy() for k, v in grads.items()}}
 
     inputs = {"points": points, **model.state()}
-    return check_vjp(f, vjp, inputs, seed=seed, name=f"pointnet.{kind}[seed={seed}]")
+    # 4 random directions (each a projection of the whole gradient) and 8 random coordinates per input, fewer
+    # than check_vjp's defaults (8 and up to 64): each evaluation is a whole classifier's forward, and the
+    # max-pool and grouping kernels inside are checked coordinate by coordinate above
+    return check_vjp(f, vjp, inputs, seed=seed, n_directions=4, per_coord_limit=8,
+                     name=f"pointnet.{kind}[seed={seed}]")
 
 
 @register_check("pointnet.max_pool")
