@@ -197,6 +197,14 @@ def _window_cost(left: wp.array2d(dtype=typing.Any), right: wp.array2d(dtype=typ
 # =========================================================================== census
 
 
+@wp.func
+def _hamming(a: wp.uint64, cr: wp.array2d(dtype=wp.uint64), y: int, u: int, invalid: int) -> int:
+    """popcount(a ^ cr[y, u]), the census distance to the right pixel u of row y; `invalid` outside the row."""
+    if u >= 0 and u < cr.shape[1]:
+        return int(wp.bit_count(a ^ cr[y, u]))
+    return invalid
+
+
 @wp.kernel
 def _census_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64), out: wp.array3d(dtype=typing.Any),
                  dmin: int, invalid: int, offset: int):
@@ -204,11 +212,7 @@ def _census_cost(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint64
     y, x = pixel(wp.tid() + offset, W)
     a = cl[y, x]
     for k in range(out.shape[2]):
-        u = x - (dmin + k)
-        h = invalid
-        if u >= 0 and u < W:
-            h = int(wp.bit_count(a ^ cr[y, u]))
-        out[y, x, k] = out.dtype(h)
+        out[y, x, k] = out.dtype(_hamming(a, cr, y, x - (dmin + k), invalid))
 
 
 @wp.kernel
@@ -229,11 +233,7 @@ def _census_cost_v(cl: wp.array2d(dtype=wp.uint64), cr: wp.array2d(dtype=wp.uint
                 v[lane] = type(v[0])(wp.bit_count(a ^ cr[y, u0 - lane]))
         else:
             for lane in range(8):
-                u = u0 - lane
-                h = invalid
-                if u >= 0 and u < W:
-                    h = int(wp.bit_count(a ^ cr[y, u]))
-                v[lane] = type(v[0])(h)
+                v[lane] = type(v[0])(_hamming(a, cr, y, u0 - lane, invalid))
         out_v[base + j] = v
 
 
