@@ -74,6 +74,23 @@ def test_group_backward_equals_a_numpy_scatter(dtype):
     np.testing.assert_allclose(got, want, rtol=tol, atol=tol)
 
 
+def test_split_launches_equal_one_thread(monkeypatch):
+    """The forward kernels run split over CPU threads (each thread its own outputs): the thread count
+    changes no bit."""
+    from kernels import launch
+
+    x = _sets(3, (40, 20, 64), np.float32)  # 2560 (set, channel) threads
+    p = _clouds(4, 4, 200, np.float64)
+    idx = kpn.group_indices(p, 32, 0.3, 32)  # 4096 grouping threads
+    out = {}
+    for threads in ("1", "3"):
+        monkeypatch.setenv(launch.ENV_THREADS, threads)
+        res = kpn.max_pool(x)
+        out[threads] = (res.value, res.argmax, kpn.group_local(p, idx.centers, idx.neighbors, 0.3))
+    for a, b in zip(out["1"], out["3"]):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_gradient_checks_pass():
     assert_gradcheck(run_checks(["pointnet"]))
 
