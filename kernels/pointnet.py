@@ -21,7 +21,8 @@ piecewise linear: its gradient is the argmax routing
 one-sided where two entries tie (the gradient then goes to the first of them, a subgradient). Where
 the tied rows are copies of one point (ball-query padding, below), every choice gives the same
 gradient of the parameters and of the point, since the copies are the same function of both.
-A NaN never wins the strict comparison; inputs are checked finite instead.
+A NaN would make the result depend on where it sits (one in row 0 is never beaten, one later
+never wins), so inputs are checked finite instead.
 
 Grouping in local coordinates (`group_local`; PointNet++: Qi et al., "PointNet++: Deep Hierarchical
 Feature Learning on Point Sets in a Metric Space", NeurIPS 2017, its set-abstraction layer). For B
