@@ -19,9 +19,10 @@ The max-pools and the grouping are kernels.pointnet. Loss: softmax cross-entropy
 batch (`softmax_cross_entropy`).
 
 The FPS and ball-query indices depend on the points only through comparisons of distances, which
-rotations preserve, so they are computed once per cloud (`GroupIndices`) and reused for its rotated
-copies during training (tests/research/test_pointnet.py checks the indices are the same). They are
-piecewise constant: no gradient flows through them. `backend` picks the MLPs' backend
+rotations preserve (in floating point up to rounding, which can flip only near-ties), so they are
+computed once per cloud (`GroupIndices`) and reused for its rotated copies during training
+(tests/research/test_pointnet_classify.py checks that they are the same). They are piecewise
+constant: no gradient flows through them. `backend` picks the MLPs' backend
 (kernels.volume.mlp: "numpy" BLAS products on the CPU by default, "warp" the plain kernels).
 
 Order of the points. PointNet is invariant to it exactly: the MLPs treat each row alone and the
