@@ -20,12 +20,18 @@ train views back-projected, as fit_splats starts on Mitsuba data) and on fit_spl
   * ignored:     the distorted images with that pinhole (the distortion ignored: the floor).
 Held-out scoring (the test split), PSNR and SSIM as fit_splats scores them (research.metrics, sRGB):
   * distorted:   against the distorted test images, each model rendered through the lens camera;
-  * undistorted: against the OpenCV-undistorted test images, rendered with the pinhole K;
-  * clean:       against the Mitsuba pinhole test renders (box-averaged to this size), rendered with the
-                 render's own pinhole K (wider than the lens camera's view: its border is seen by few
-                 training pixels, alike for every route).
-The margin (MARGIN_DB = 0.5 dB, stated before the run): the lens route should score within 0.5 dB of
-the undistorted route on the undistorted and clean sets, or above it; the table says whether it did.
+  * undistorted: against the OpenCV-undistorted test images, rendered with the pinhole K (the images
+                 of the undistorted route: resampled twice, render -> distorted -> pinhole);
+  * pinhole:     against pinhole images of the same K made from the renders in one resampling (the
+                 warp above with a lens of zero distortion), rendered with that pinhole;
+  * wide:        against the Mitsuba pinhole test renders box-averaged to this size, rendered with the
+                 render's own K (a wider view than the lens camera's: its border is seen by few
+                 training pixels, more of them for the lens route, whose images reach further out).
+The margin (MARGIN_DB = 0.5 dB, stated before the first run): the lens route should score within
+0.5 dB of the undistorted route, or above it, on the sets other than `distorted`; the table says on
+which it did. The `pinhole` set was added after the first full run (at 38262b2, opencv only; the
+undistorted route won the `undistorted` set by 1.36 dB there, and lost `distorted` and `wide`), to
+separate the lens handling from the resampling each route's images went through.
 
 Settings. The lenses, the margin, the 2x render and supersampling were fixed before the first run;
 the training schedule is fit_splats' (chosen on drlab's Mitsuba data); `--seed` (default 0) seeds the
@@ -46,7 +52,8 @@ from research.results import finish_figure, image_panel, markdown_table
 
 MARGIN_DB = 0.5
 ROUTES = ("lens", "undistorted", "ignored")
-EVAL_SETS = ("distorted", "undistorted", "clean")
+EVAL_SETS = ("distorted", "undistorted", "pinhole", "wide")
+MARGIN_SETS = ("undistorted", "pinhole", "wide")
 
 
 def lenses():
@@ -89,7 +96,8 @@ def _box_down(images: np.ndarray, factor: int) -> np.ndarray:
 
 
 def build_views(split, lens, factor: int, size: int) -> dict[str, Any]:
-    """The distorted, undistorted and clean images (linear RGB) and cameras of one split."""
+    """The distorted, undistorted, pinhole and wide images (linear RGB) and cameras of one split."""
+    from kernels.lens import Lens
     from research.cameras import Camera
     from research.datasets import lens_warp
 
@@ -100,11 +108,12 @@ def build_views(split, lens, factor: int, size: int) -> dict[str, Any]:
     distorted = lens_warp.warp_to_lens(rgb, K_r, lens, K_d, (size, size), supersample=factor)
     undistorted, valid = lens_warp.undistort(distorted, lens, K_d)
     K_c = np.diag([1.0 / factor, 1.0 / factor, 1.0]) @ K_r
-    return {"K": K_d, "distorted": distorted, "undistorted": undistorted, "valid": valid,
-            "clean": _box_down(rgb, factor),
+    pinhole = lens_warp.warp_to_lens(rgb, K_r, Lens("opencv"), K_d, (size, size), supersample=factor)
+    return {"K": K_d, "distorted": distorted, "undistorted": undistorted, "valid": valid, "pinhole": pinhole,
+            "wide": _box_down(rgb, factor),
             "lens_cams": [Camera(K_d, c.c2w, size, size, lens) for c in cams],
             "pinhole_cams": [Camera(K_d, c.c2w, size, size) for c in cams],
-            "clean_cams": [Camera(K_c, c.c2w, size, size) for c in cams]}
+            "wide_cams": [Camera(K_c, c.c2w, size, size) for c in cams]}
 
 
 def run_lens(ctx: Context, name: str, lens, cfg: Setup, train_split, test_split, points, colors) -> dict:
@@ -115,7 +124,7 @@ def run_lens(ctx: Context, name: str, lens, cfg: Setup, train_split, test_split,
     data = {"lens": (tr["lens_cams"], tr["distorted"]), "undistorted": (tr["pinhole_cams"], tr["undistorted"]),
             "ignored": (tr["pinhole_cams"], tr["distorted"])}
     evals = {"distorted": (te["lens_cams"], te["distorted"]), "undistorted": (te["pinhole_cams"], te["undistorted"]),
-             "clean": (te["clean_cams"], te["clean"])}
+             "pinhole": (te["pinhole_cams"], te["pinhole"]), "wide": (te["wide_cams"], te["wide"])}
     rows, renders = [], {}
     for route in ROUTES:
         cams, images = data[route]
@@ -134,7 +143,7 @@ def run_lens(ctx: Context, name: str, lens, cfg: Setup, train_split, test_split,
     margins = {es: rows[0][f"{es}_psnr"] - rows[1][f"{es}_psnr"] for es in EVAL_SETS}
     info = {"K": tr["K"].tolist(), "coeffs": list(lens.coeffs), "undistorted_invalid_pixels": int((~tr["valid"]).sum()),
             "lens_minus_undistorted_db": margins,
-            "within_margin": bool(all(margins[es] >= -MARGIN_DB for es in ("undistorted", "clean")))}
+            "within_margin": {es: bool(margins[es] >= -MARGIN_DB) for es in MARGIN_SETS}}
     gt = {es: evals[es][1][0] for es in EVAL_SETS}
     return {"rows": rows, "info": info, "renders": renders, "gt": gt}
 
@@ -147,8 +156,8 @@ def renders_figure(per_lens: dict, path) -> None:
 
     from research.metrics import srgb_on_black
 
-    cols = [("gt", "distorted"), ("lens", "distorted"), ("undistorted", "distorted"), ("gt", "undistorted"),
-            ("lens", "undistorted"), ("undistorted", "undistorted")]
+    cols = [("gt", "distorted"), ("lens", "distorted"), ("undistorted", "distorted"), ("gt", "pinhole"),
+            ("lens", "pinhole"), ("undistorted", "pinhole")]
     fig, axes = plt.subplots(len(per_lens), len(cols), figsize=(2.2 * len(cols), 2.8 * len(per_lens)), squeeze=False)
     for r, (name, res) in enumerate(per_lens.items()):
         for c, (who, es) in enumerate(cols):
@@ -188,8 +197,8 @@ def run(ctx: Context) -> int:
             table_rows.append([name, r["route"], *scores, r["splats"], f"{r['train_s']:.0f} s"])
     margin_lines = [f"* {name}: lens - undistorted = " + ", ".join(
         f"{es} {res['info']['lens_minus_undistorted_db'][es]:+.2f} dB" for es in EVAL_SETS)
-        + f"; within the {MARGIN_DB} dB margin on the undistorted and clean sets: "
-        + ("yes" if res["info"]["within_margin"] else "NO")
+        + f"; within the {MARGIN_DB} dB margin (or above): "
+        + ", ".join(f"{es} {'yes' if ok else 'NO'}" for es, ok in res["info"]["within_margin"].items())
         + f" (OpenCV's undistortion left {res['info']['undistorted_invalid_pixels']} pixels without a source)"
         for name, res in per_lens.items()]
     cam0 = test_split.cameras[0]
@@ -198,9 +207,10 @@ def run(ctx: Context) -> int:
              f"to {cfg.res}x{cfg.res}), {cfg.iterations} iterations each, on Warp device `{ctx.device}`. Routes: "
              "`lens` trains on the distorted images with the lens camera, `undistorted` on OpenCV-undistorted images "
              "with a pinhole of the same K, `ignored` on the distorted images with that pinhole. Test PSNR (dB, sRGB) "
-             "/ SSIM against the distorted test images (through the lens), the undistorted ones (pinhole K) and the "
-             "clean Mitsuba pinhole renders (their own K). Lenses and margin fixed before the run "
-             "(experiments/lens_distortion.py).\n\n" + markdown_table(headers, table_rows) + "\n"
+             "/ SSIM against the distorted test images (through the lens), the OpenCV-undistorted ones (pinhole K), "
+             "pinhole images of that K resampled once from the renders, and the Mitsuba renders themselves (`wide`: "
+             "their own, wider K). Lenses and margin fixed before the first run; the `pinhole` set added after it "
+             "(experiments/lens_distortion.py says why).\n\n" + markdown_table(headers, table_rows) + "\n"
              + "\n".join(margin_lines) + "\n\n![test views](renders.png)\n")
     renders_figure(per_lens, ctx.out / "renders.png")
     metrics = {"rows": [r for res in per_lens.values() for r in res["rows"]],

@@ -46,9 +46,9 @@ Inverse (pixel -> unit ray e, `lens_unproject`), in float64 whatever the dtype:
            NEWTON_ITERS = 30 steps; e = (w, 1) / |(w, 1)|.
   fisheye  Newton on theta_d(theta) = |m| from theta = min(|m|, theta_lim), stopping when |step| <=
            1e-14 (1 + theta), at most 30 steps; e = (sin theta m / |m|, cos theta).
-A pixel is invalid when Newton does not meet its criterion, when the solution leaves s < s_lim
-(opencv) or theta < theta_lim = atan(sqrt(s_lim)) (fisheye: so theta > pi/2 is never returned),
-or for the pinhole when nothing fails. The inverse's derivative (`lens_unproject_vjp`) needs no
+A pixel is invalid when Newton does not meet its criterion or when the solution leaves s < s_lim
+(opencv) or theta < theta_lim = atan(sqrt(s_lim)) (fisheye: so theta > pi/2 is never returned);
+the pinhole's and the orthographic inverse are exact and always valid. The inverse's derivative (`lens_unproject_vjp`) needs no
 iteration: for a central model m(e) is constant along rays, so de/dm is the 3x2 block of
 [J_m(e); e^T]^-1 (J_m de/dm = I, e . de/dm = 0 since |e| = 1).
 
