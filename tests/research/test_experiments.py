@@ -212,14 +212,11 @@ def _check_surface_recon(m):
         assert rows["gt/open3d"]["faces"] == rows["gt/drlab"]["faces"]
 
 
-def _check_pointnet(m):
-    assert set(m["methods"]) == {"d2_pca_knn", "pointnet", "pointnet_sa"} and m["chance"] == pytest.approx(1 / 9)
-    assert all(0.0 <= r["test_accuracy"] <= 1.0 for r in m["methods"].values())
-    for k in ("pointnet", "pointnet_sa"):
-        assert m["methods"][k]["params"] > 0 and len(m["methods"][k]["train_loss"]) == 2
-    # the plain Warp MLP gives a permuted cloud's logits to the bit (research/pointnet/model.py)
-    assert m["permutation"]["pointnet"]["warp_backend"]["bit_equal"]
-    assert m["permutation"]["pointnet_sa"]["warp_backend"]["bit_equal"]
+def _check_splat_densification(m):
+    base, equal_n, equal_t = (m["models"][k] for k in ("3DGS", "MCMC, equal count", "MCMC, equal time"))
+    assert m["cap"] == base["splats"] and equal_n["iterations"] == base["iterations"]
+    assert equal_n["strategy"] == equal_t["strategy"] == "mcmc" and base["strategy"] == "3dgs"
+    assert all(f["splats"] <= m["cap"] and _finite(f["psnr"]) and f["cpu_seconds"] > 0 for f in (equal_n, equal_t))
 
 
 def _check_lidar(m):
@@ -233,11 +230,14 @@ def _check_lidar(m):
         assert all(r["max_diff_to_other_library"]["rot_deg"] < 1e-4 for r in pairs["methods"].values())
 
 
-def _check_splat_densification(m):
-    base, equal_n, equal_t = (m["models"][k] for k in ("3DGS", "MCMC, equal count", "MCMC, equal time"))
-    assert m["cap"] == base["splats"] and equal_n["iterations"] == base["iterations"]
-    assert equal_n["strategy"] == equal_t["strategy"] == "mcmc" and base["strategy"] == "3dgs"
-    assert all(f["splats"] <= m["cap"] and _finite(f["psnr"]) and f["cpu_seconds"] > 0 for f in (equal_n, equal_t))
+def _check_pointnet(m):
+    assert set(m["methods"]) == {"d2_pca_knn", "pointnet", "pointnet_sa"} and m["chance"] == pytest.approx(1 / 9)
+    assert all(0.0 <= r["test_accuracy"] <= 1.0 for r in m["methods"].values())
+    for k in ("pointnet", "pointnet_sa"):
+        assert m["methods"][k]["params"] > 0 and len(m["methods"][k]["train_loss"]) == 2
+    # the plain Warp MLP gives a permuted cloud's logits to the bit (research/pointnet/model.py)
+    assert m["permutation"]["pointnet"]["warp_backend"]["bit_equal"]
+    assert m["permutation"]["pointnet_sa"]["warp_backend"]["bit_equal"]
 
 
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
