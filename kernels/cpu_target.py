@@ -9,7 +9,8 @@ the resolved flags into each module's cache key, so objects for the host and for
 
 What it is for: running the tests on an AVX-512 machine with the kernels compiled as on an AVX2-only
 CPU (`make test-avx2`, which also points NumPy's SIMD dispatch and OpenBLAS at AVX2; docs/warp.md).
-It reaches only Warp's kernels: Dr.Jit and Mitsuba still compile for the host.
+It reaches only Warp's kernels: Dr.Jit and Mitsuba still compile for the host. A module that sets
+its own flags takes them from `module_flags(extra)`, which names the same CPU.
 
 Reliance on Warp: Warp passes the flag string to its clang frontend (`-target-cpu` is a frontend flag;
 `-march=NAME` other than `native` is refused by it), checked on Warp 1.19.
@@ -47,6 +48,14 @@ def flags_for(name: str, flags: str | None) -> str:
             kept.append(parts[i])
         i += 1
     return " ".join(["-target-cpu", name, *kept])
+
+
+def module_flags(extra: str = "") -> str:
+    """CPU compiler flags for a module that sets its own (`module_options={"cpu_compiler_flags": ...}`):
+    the CPU named by DRLAB_CPU_TARGET, else `-march=native` (the host), followed by `extra`."""
+    name = requested()
+    cpu = _NATIVE if name is None else f"-target-cpu {name}"
+    return f"{cpu} {extra}".strip()
 
 
 def apply() -> str | None:

@@ -25,14 +25,16 @@ from typing import Any
 
 import warp as wp
 
+from kernels import cpu_target
 from kernels._arrays import Inputs, check_float, declare_float_overloads
 from kernels.stereo._common import pixel
 from kernels.stereo.bt import _half_range
 
-# The host's vector width (-march=native, as kernels.stereo.sweep); fuse_fp off: no multiply-add is ever contracted
-# into an FMA, so every value is the same on hosts with and without FMA units.
+# The host's vector width (-march=native, or DRLAB_CPU_TARGET's CPU: kernels/cpu_target.py);
+# fuse_fp off: no multiply-add is ever contracted into an FMA, so every value is the same on hosts with and
+# without FMA units.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False,
-                       "cpu_compiler_flags": "-march=native -mllvm=-inline-threshold=9000"})
+                       "cpu_compiler_flags": cpu_target.module_flags("-mllvm=-inline-threshold=9000")})
 
 
 # The per-image passes below (_sobel_x, _half_ranges, _reverse_planar) run one thread per row: a thread per pixel

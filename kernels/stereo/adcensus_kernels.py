@@ -39,14 +39,16 @@ import typing
 
 import warp as wp
 
+from kernels import cpu_target
 from kernels._arrays import declare_float_overloads
 from kernels.native import source
 from kernels.stereo.adcensus_images import _robust_term
 
-# The host's vector width (-march=native, as kernels.stereo.sweep); fuse_fp off: no multiply-add is ever contracted
-# into an FMA, so every value is the same on hosts with and without FMA units.
+# The host's vector width (-march=native, or DRLAB_CPU_TARGET's CPU: kernels/cpu_target.py);
+# fuse_fp off: no multiply-add is ever contracted into an FMA, so every value is the same on hosts with and
+# without FMA units.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False,
-                       "cpu_compiler_flags": "-march=native -mllvm=-inline-threshold=9000"})
+                       "cpu_compiler_flags": cpu_target.module_flags("-mllvm=-inline-threshold=9000")})
 
 
 # Hypotheses go through in vectors of LANES (16 float32 or 8 float64; AVX-512 registers where the CPU has them):

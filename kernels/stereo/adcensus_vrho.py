@@ -26,12 +26,14 @@ import typing
 
 import warp as wp
 
+from kernels import cpu_target
 from kernels.stereo.adcensus_kernels import LANES, VEC, _col_mean, _col_mean_v, _fill_terms, _row_sums
 
-# The host's vector width (-march=native, as kernels.stereo.sweep); fuse_fp off: no multiply-add is ever contracted
-# into an FMA, so every value is the same on hosts with and without FMA units.
+# The host's vector width (-march=native, or DRLAB_CPU_TARGET's CPU: kernels/cpu_target.py);
+# fuse_fp off: no multiply-add is ever contracted into an FMA, so every value is the same on hosts with and
+# without FMA units.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False,
-                       "cpu_compiler_flags": "-march=native -mllvm=-inline-threshold=9000"})
+                       "cpu_compiler_flags": cpu_target.module_flags("-mllvm=-inline-threshold=9000")})
 
 # Vector rho (compact mode with vector_rho): e^-z for z = c / lambda clipped to [0, RHO_ZMAX], as (e^-(z / 32))^32 with
 # e^-(z / 32) (z / 32 <= 0.75) by its Taylor polynomial of degree 8 (module docstring: Vector rho).

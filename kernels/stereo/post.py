@@ -25,11 +25,12 @@ from typing import Any
 
 import warp as wp
 
+from kernels import cpu_target
 from kernels._arrays import Inputs, declare_float_overloads
 from kernels.stereo._common import pixel
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3,
-                       "cpu_compiler_flags": "-march=native -mllvm=-inline-threshold=9000"})
+                       "cpu_compiler_flags": cpu_target.module_flags("-mllvm=-inline-threshold=9000")})
 
 
 @wp.kernel

@@ -43,8 +43,10 @@ import typing
 import numpy as np
 import warp as wp
 
+from kernels import cpu_target
+
 wp.set_module_options({"enable_backward": False, "optimization_level": 3,
-                       "cpu_compiler_flags": "-march=native -mllvm=-inline-threshold=9000"})
+                       "cpu_compiler_flags": cpu_target.module_flags("-mllvm=-inline-threshold=9000")})
 
 INT_INF = 16383
 INT_MAX_P2 = 7936
