@@ -38,3 +38,11 @@ def test_apply_sets_warps_flags_only_when_asked(monkeypatch):
     monkeypatch.setenv(cpu_target.ENV, "znver3")
     assert cpu_target.apply() == "znver3"
     assert wp.config.cpu_compiler_flags.startswith("-target-cpu znver3 ")
+
+
+def test_module_flags_name_the_same_cpu(monkeypatch):
+    monkeypatch.delenv(cpu_target.ENV, raising=False)
+    assert cpu_target.module_flags("-mllvm=-inline-threshold=9000") == "-march=native -mllvm=-inline-threshold=9000"
+    monkeypatch.setenv(cpu_target.ENV, "znver3")
+    assert cpu_target.module_flags("-O3") == "-target-cpu znver3 -O3"
+    assert cpu_target.module_flags() == "-target-cpu znver3"
