@@ -240,6 +240,18 @@ def _check_pointnet(m):
     assert m["permutation"]["pointnet_sa"]["warp_backend"]["bit_equal"]
 
 
+def _check_splat_antialiasing(m):
+    assert m["scales"] == [0.25, 0.5, 1.0, 2.0]
+    models = m["models"]
+    assert list(models) == ["3DGS", "2D Mip filter", "3D filter", "Mip-Splatting (3D + 2D)"]
+    assert [r["model"]["filter_3d"] for r in models.values()] == [0.0, 0.0, 0.2, 0.2]
+    for r in models.values():
+        scores = r["per_scale"]
+        assert list(scores) == ["0.25x", "0.5x", "1x", "2x"] and r["splats"] > 0 and r["train_seconds"] > 0
+        assert all(_finite(s["psnr"]) and s["psnr"] > 5 and 0 <= s["ssim"] <= 1 for s in scores.values())
+        assert r["mean_psnr"] == pytest.approx(sum(s["psnr"] for s in scores.values()) / 4)
+
+
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
           "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
@@ -248,7 +260,8 @@ CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalma
           "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo,
           "lidar_odometry": _check_lidar,
           "splat_slam": _check_slam, "time_budget": _check_time_budget, "lens_distortion": _check_lens_distortion,
-          "surface_recon": _check_surface_recon, "pointnet_classify": _check_pointnet}
+          "surface_recon": _check_surface_recon, "pointnet_classify": _check_pointnet,
+          "splat_antialiasing": _check_splat_antialiasing}
 
 
 def test_every_registered_experiment_has_a_smoke_check():
