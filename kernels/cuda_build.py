@@ -61,7 +61,7 @@ CPU_ONLY: dict[str, str] = {
         "`__builtin_elementwise_fma` and `_Float16`; CUDA runs `onthefly_kernels._patch_level`",
     "kernels.corr.patch_cpu.widen_rows_cpu":
         f"float16 -> float32 rows by `__builtin_convertvector` on `_Float16` vectors of {_VECTOR_EXT}; "
-        "CUDA runs `stored._widen_rows_v`",
+        "CUDA runs `_common._pack_rows_v`",
 }
 
 

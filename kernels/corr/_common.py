@@ -259,7 +259,8 @@ for _k in (sample_windows, sample_levels, sample_windows_adjoint):
 
 @wp.kernel
 def _pack_rows_v(x: wp.array2d(dtype=typing.Any), out_v: wp.array2d(dtype=typing.Any), offset: int):
-    """out_v[k, j] = x[k, 8j : 8j + 8] as one vector, zero past x's last column."""
+    """out_v[k, j] = x[k, 8j : 8j + 8] as one vector of out_v's type, zero past x's last column (float16 rows
+    widen exactly)."""
     t = wp.tid() + offset
     k = t // out_v.shape[1]
     j = t % out_v.shape[1]
@@ -267,15 +268,18 @@ def _pack_rows_v(x: wp.array2d(dtype=typing.Any), out_v: wp.array2d(dtype=typing
     for t in range(VEC):
         col = j * VEC + t
         if col < x.shape[1]:
-            v[t] = x[k, col]
+            v[t] = v.dtype(x[k, col])
     out_v[k, j] = v
 
 
 declare_float_overloads(_pack_rows_v, vector_types=VEC_OF)
+for _vec in VEC_OF.values():  # float16 features widened (kernels.corr.stored off the CPU)
+    wp.overload(_pack_rows_v, {"x": wp.array2d(dtype=wp.float16), "out_v": wp.array2d(dtype=_vec)})
 
 
 def pack_rows(x: wp.array, n_vec: int, a: Inputs) -> wp.array:
-    """x (K, M) as (K, n_vec) 8-wide vectors, row by row, zero past x's last column (n_vec >= M / 8).
+    """x (K, M) as (K, n_vec) 8-wide vectors of the call's scalar type, row by row, zero past x's last
+    column (n_vec >= M / 8); x float16 or of the call's type.
 
     x may be a strided view: the on-the-fly lookup packs f (C, N) channels-last as pack_rows(f^T).
     """

@@ -46,7 +46,6 @@ float32 features, and the entry points refuse `feature_dtype="float16"` there.
 
 from __future__ import annotations
 
-import typing
 from dataclasses import dataclass
 from typing import Any
 
@@ -56,28 +55,12 @@ import warp as wp
 from kernels import fast_paths
 from kernels._arrays import Inputs
 from kernels.corr import patch_cpu
-from kernels.corr._common import VEC, VEC_OF, full_product_level, level_shapes
+from kernels.corr._common import VEC, VEC_OF, full_product_level, level_shapes, pack_rows
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 FEATURE_DTYPES = {"float32": (wp.float32, np.float32, 4), "float16": (wp.float16, np.float16, 2)}
 FLOAT16_MAX = 65504.0
-
-
-@wp.kernel
-def _widen_rows_v(x: wp.array2d(dtype=wp.float16), out_v: wp.array2d(dtype=typing.Any), offset: int):
-    """out_v[n, j] = x[n, 8j : 8j + 8] as one vector of the working dtype (exact); thread = (n, j)."""
-    t = wp.tid() + offset
-    n = t // out_v.shape[1]
-    j = t % out_v.shape[1]
-    v = out_v.dtype()
-    for q in range(VEC):
-        v[q] = v.dtype(x[n, j * VEC + q])
-    out_v[n, j] = v
-
-
-for _vec in VEC_OF.values():
-    wp.overload(_widen_rows_v, {"x": wp.array2d(dtype=wp.float16), "out_v": wp.array2d(dtype=_vec)})
 
 
 def check_feature_dtype(feature_dtype: Any) -> str:
@@ -189,9 +172,7 @@ def widen(x: wp.array, a: Inputs) -> wp.array:
         else:
             rows = x.numpy().astype(a.np_dtype).reshape(n, c8 // VEC, VEC)
         return wp.array(rows, dtype=vec, device=a.device, copy=False)  # keeps `rows` alive
-    out = a.empty((n, c8 // VEC), vec)
-    a.launch(_widen_rows_v, out.size, [x, out])
-    return out
+    return pack_rows(x, c8 // VEC, a)
 
 
 def onthefly_held_bytes(height: int, width: int, channels: int, levels: int, itemsize: int = 4, *,

@@ -8,7 +8,7 @@ import warp as wp
 
 from kernels import corr
 from kernels._arrays import Inputs
-from kernels.corr import stored
+from kernels.corr import _common, stored
 from kernels.reference import corr as ref
 
 # (C, H, W, levels, radius): C a multiple of 8 and not (padded channels), levels through patches
@@ -100,14 +100,15 @@ def test_widen_cpu_exact_for_every_finite_half():
 
 
 def test_widen_kernel_matches_host_conversion():
-    # The device path (`_widen_rows_v`, used off the CPU) run on the CPU against the host conversion.
+    # The device path (`_common._pack_rows_v` on float16 rows, used off the CPU) run on the CPU against the
+    # host conversion.
     rng = np.random.default_rng(6)
     rows = (rng.standard_normal((7, 16)) * np.exp(rng.uniform(-12, 9, (7, 16)))).clip(-65504, 65504)
     x = wp.array(rows.astype(np.float16), dtype=wp.float16, device="cpu")
     a = Inputs("cpu")
     a.scalar = wp.float32
     out = a.empty((7, 2), corr.vec8f)
-    wp.launch(stored._widen_rows_v, dim=out.size, inputs=[x, out, 0], device="cpu")
+    wp.launch(_common._pack_rows_v, dim=out.size, inputs=[x, out, 0], device="cpu")
     want = stored.float16_to_float32(rows.astype(np.float16))
     np.testing.assert_array_equal(out.numpy().reshape(7, 16), want)
 
