@@ -133,3 +133,13 @@ def sanitize_detections(dets: np.ndarray | None, *, warn: bool = True) -> CleanD
             stacklevel=3,
         )
     return CleanDetections(arr[keep], keep, n_nonfinite, n_degenerate)
+
+
+def frame_detections(stats: dict[str, int], dets: np.ndarray | None) -> CleanDetections:
+    """A tracker's frame: sanitize_detections(dets), counted into its `stats` (frames, dropped_nonfinite,
+    dropped_degenerate)."""
+    stats["frames"] += 1
+    clean = sanitize_detections(dets)
+    stats["dropped_nonfinite"] += clean.n_nonfinite
+    stats["dropped_degenerate"] += clean.n_degenerate
+    return clean

@@ -57,7 +57,7 @@ from research.tracking import checks
 from research.tracking.appearance import cosine_distance, ema_feature
 from research.tracking.assignment import gated_assignment
 from research.tracking.box_track import KalmanBoxTrack
-from research.tracking.boxes import pairwise_iou, sanitize_detections
+from research.tracking.boxes import frame_detections, pairwise_iou
 from research.tracking.sort import empty_output
 
 
@@ -159,10 +159,7 @@ class ByteTrack:
     def update(self, dets: np.ndarray | None, embeddings: np.ndarray | None = None) -> np.ndarray:
         cfg = self.config
         self.frame_id += 1
-        self.stats["frames"] += 1
-        clean = sanitize_detections(dets)
-        self.stats["dropped_nonfinite"] += clean.n_nonfinite
-        self.stats["dropped_degenerate"] += clean.n_degenerate
+        clean = frame_detections(self.stats, dets)
         d = clean.dets
         feats = None
         if cfg.use_appearance:

@@ -30,7 +30,7 @@ import numpy as np
 from research.tracking import checks
 from research.tracking.assignment import max_iou_assignment
 from research.tracking.box_track import KalmanBoxTrack
-from research.tracking.boxes import pairwise_iou, sanitize_detections
+from research.tracking.boxes import frame_detections, pairwise_iou
 
 
 @dataclass(frozen=True)
@@ -72,10 +72,7 @@ class Sort:
         """Advance one frame. `embeddings` is accepted for a common interface and ignored."""
         cfg = self.config
         self.frame_count += 1
-        self.stats["frames"] += 1
-        clean = sanitize_detections(dets)
-        self.stats["dropped_nonfinite"] += clean.n_nonfinite
-        self.stats["dropped_degenerate"] += clean.n_degenerate
+        clean = frame_detections(self.stats, dets)
         d = clean.dets[clean.dets[:, 4] >= cfg.det_thresh]
 
         predicted = [t.predict() for t in self.tracks]
