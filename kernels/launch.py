@@ -71,7 +71,7 @@ import operator
 import os
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import warp as wp
 
@@ -161,32 +161,7 @@ def parallel_ranges(fn: Callable[[int, int], None], n: int, *, threads: int | No
         if n > 0:
             fn(0, n)
         return
-    bounds = chunk_bounds(n, n_parts)
-    it = iter(bounds)
-    lock = threading.Lock()
-    errors: list[BaseException] = []
-
-    def work() -> None:
-        # Every thread, the caller's included, pulls the next range until none is left (so the
-        # ranges finish even while the pool's workers are busy with another caller's work).
-        while True:
-            with lock:
-                b = None if errors else next(it, None)
-            if b is None:
-                return
-            try:
-                fn(b[0], b[0] + b[1])
-            except BaseException as exc:
-                with lock:
-                    errors.append(exc)
-                return
-
-    futures = _submit(work, n_parts - 1)
-    work()
-    for fut in futures:  # wait for every worker, even after a failure: they use the caller's arrays
-        fut.result()
-    if errors:
-        raise errors[0]
+    _pull_all(iter(chunk_bounds(n, n_parts)), lambda b: fn(b[0], b[0] + b[1]), n_parts)
 
 
 def parallel_items(fn: Callable[[int], None], n: int, *, threads: int | None = None) -> None:
@@ -197,19 +172,25 @@ def parallel_items(fn: Callable[[int], None], n: int, *, threads: int | None = N
     workers; an exception raised by any item is re-raised here after all workers have stopped.
     """
     n_threads = default_threads() if threads is None else threads
-    n_workers = max(1, min(n_threads, n))
-    items = iter(range(n))
+    _pull_all(iter(range(n)), fn, max(1, min(n_threads, n)))
+
+
+def _pull_all(items: Iterator[Any], fn: Callable[[Any], None], n_workers: int) -> None:
+    """Call `fn(item)` for every item on n_workers threads, the caller's one of them: each pulls the
+    next item when free (so the items finish even while the pool's workers are busy with another
+    caller's work). After a failure no new item starts; the first exception is re-raised once every
+    worker has stopped (they use the caller's arrays)."""
     lock = threading.Lock()
     errors: list[BaseException] = []
 
     def work() -> None:
         while True:
             with lock:
-                i = None if errors else next(items, None)
-            if i is None:
+                item = None if errors else next(items, None)
+            if item is None:
                 return
             try:
-                fn(i)
+                fn(item)
             except BaseException as exc:
                 with lock:
                     errors.append(exc)
@@ -286,37 +267,13 @@ def launch_split(
         return
 
     bounds = guided_bounds(dim, n_threads, min_chunk)
-    n_chunks = len(bounds)
-    n_workers = min(n_threads, n_chunks)
-    next_chunk = iter(range(n_chunks))
-    take_lock = threading.Lock()
-    errors: list[BaseException] = []
-
-    def work() -> None:
-        # Each worker pulls chunks until none are left, so a faster core takes more of them.
-        while True:
-            with take_lock:
-                j = None if errors else next(next_chunk, None)
-            if j is None:
-                return
-            offset, size = bounds[j]
-            try:
-                wp.launch(kernel, dim=size, inputs=[*inputs, offset], device=device)
-            except BaseException as exc:
-                with take_lock:
-                    errors.append(exc)
-                return
-
+    n_workers = min(n_threads, len(bounds))
+    chunks = iter(bounds)
     if key not in _loaded:
         # First use: one chunk alone compiles and loads the module (or overload), so that
         # the threads do not each compile it at once (correct, but n times the work).
-        offset, size = bounds[next(next_chunk)]
+        offset, size = next(chunks)
         wp.launch(kernel, dim=size, inputs=[*inputs, offset], device=device)
         _loaded.add(key)
-
-    futures = _submit(work, n_workers - 1)
-    work()  # the calling thread is one of the workers
-    for fut in futures:  # wait for every worker, even after a failure: they use the caller's arrays
-        fut.result()
-    if errors:
-        raise errors[0]
+    # Each worker pulls chunks until none are left, so a faster core takes more of them.
+    _pull_all(chunks, lambda b: wp.launch(kernel, dim=b[1], inputs=[*inputs, b[0]], device=device), n_workers)
