@@ -1,6 +1,6 @@
 """kernels/icp against its NumPy reference (kernels/reference/icp.py); the pose Jacobians and the robust
 cost's gradient by float64 finite differences (research/checks/icp.py); the array kinds, thread counts and
-block sizes; bad input."""
+block sizes; bad input. (Its CUDA build is in tests/kernels/test_cuda_compile.py, with every module.)"""
 
 from __future__ import annotations
 
@@ -124,15 +124,3 @@ def test_bad_input_raises_before_any_kernel(call, match, monkeypatch):
     with pytest.raises(ValueError, match=match):
         call()
     assert not launched
-
-
-@pytest.mark.parametrize("arch", [80])
-def test_icp_module_compiles_for_cuda(arch, tmp_path):
-    from kernels import cuda_build
-
-    if not cuda_build.nvrtc_archs():
-        pytest.skip("this Warp build has no CUDA compiler (NVRTC)")
-    mods = [m for m in cuda_build.project_modules() if cuda_build.module_label(m) == "kernels.icp"]
-    assert len(mods) == 1
-    results = cuda_build.compile_all(arch, tmp_path, mods)
-    assert all(r.ok for r in results), [r.error for r in results if not r.ok]
