@@ -100,24 +100,18 @@ def _file(name):
     return make
 
 
-def _user_folder(tmp):
-    (tmp / "thesis").mkdir()
-    (tmp / "thesis" / "thesis.txt").write_text("three years of work\n")
+def _folder_with(folder, name, text):
+    """A maker of the folder `folder` holding the file `name` with `text`."""
+    def make(tmp):
+        (tmp / folder).mkdir()
+        (tmp / folder / name).write_text(text)
+    return make
 
 
-def _foreign_manifest(tmp):
-    (tmp / "other").mkdir()
-    (tmp / "other" / "manifest.json").write_text(json.dumps({"name": "someone else's", "files": {}}))
-
-
-def _broken_manifest(tmp):
-    (tmp / "other").mkdir()
-    (tmp / "other" / "manifest.json").write_text("{not json")
-
-
-def _drlab_dataset(tmp):
-    (tmp / "ds").mkdir()
-    (tmp / "ds" / "manifest.json").write_text(json.dumps({"generator": "drlab dataset", "files": {}}))
+_user_folder = _folder_with("thesis", "thesis.txt", "three years of work\n")
+_foreign_manifest = _folder_with("other", "manifest.json", json.dumps({"name": "someone else's", "files": {}}))
+_broken_manifest = _folder_with("other", "manifest.json", "{not json")
+_drlab_dataset = _folder_with("ds", "manifest.json", json.dumps({"generator": "drlab dataset", "files": {}}))
 
 
 def _broken_link(tmp):
@@ -125,10 +119,7 @@ def _broken_link(tmp):
 
 
 def _partial_of(**kw):
-    def make(tmp):
-        (tmp / "ds.partial").mkdir()
-        (tmp / "ds.partial" / PARTIAL_CONFIG).write_text(json.dumps(asdict(DatasetConfig(**{**TINY, **kw}))))
-    return make
+    return _folder_with("ds.partial", PARTIAL_CONFIG, json.dumps(asdict(DatasetConfig(**{**TINY, **kw}))))
 
 
 def _ensure(**kw):
