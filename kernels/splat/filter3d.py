@@ -45,6 +45,16 @@ def _filtered_log_scale(l: Any, var: Any):
     return type(l)(0.5) * wp.log(s2 + var), s2 / (s2 + var)
 
 
+@wp.func
+def _log_compensation(log_scales: wp.array2d(dtype=typing.Any), i: int, var: typing.Any):
+    """log c = sum_k (l_k - l'_k): the log of the opacity factor sqrt(det Sigma / det Sigma')."""
+    log_c = type(var)(0.0)
+    for k in range(3):
+        lk, _ak = _filtered_log_scale(log_scales[i, k], var)
+        log_c += log_scales[i, k] - lk
+    return log_c
+
+
 @wp.kernel
 def _filter_kernel(log_scales: wp.array2d(dtype=typing.Any), logits: wp.array(dtype=typing.Any),
                    sigma: wp.array(dtype=typing.Any), out_scales: wp.array2d(dtype=typing.Any),
@@ -52,12 +62,10 @@ def _filter_kernel(log_scales: wp.array2d(dtype=typing.Any), logits: wp.array(dt
     i = wp.tid() + offset
     one = type(sigma[i])(1.0)
     var = sigma[i] * sigma[i]
-    log_c = type(var)(0.0)
     for k in range(3):
         lk, _ak = _filtered_log_scale(log_scales[i, k], var)
         out_scales[i, k] = lk
-        log_c += log_scales[i, k] - lk
-    q = wp.exp(log_c) / (one + wp.exp(-logits[i]))
+    q = wp.exp(_log_compensation(log_scales, i, var)) / (one + wp.exp(-logits[i]))
     out_logits[i] = wp.log(q) - wp.log(one - q)
 
 
@@ -69,12 +77,8 @@ def _filter_backward_kernel(log_scales: wp.array2d(dtype=typing.Any), logits: wp
     i = wp.tid() + offset
     one = type(sigma[i])(1.0)
     var = sigma[i] * sigma[i]
-    log_c = type(var)(0.0)
-    for k in range(3):
-        lk, _ak = _filtered_log_scale(log_scales[i, k], var)
-        log_c += log_scales[i, k] - lk
     o = one / (one + wp.exp(-logits[i]))
-    q = wp.exp(log_c) * o
+    q = wp.exp(_log_compensation(log_scales, i, var)) * o
     ga = g_logits[i] / (one - q)
     for k in range(3):
         _lk, ak = _filtered_log_scale(log_scales[i, k], var)
