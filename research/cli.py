@@ -317,7 +317,8 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
     intrinsics = sfm.parse_intrinsics(args.intrinsics) if args.intrinsics is not None else None
     opts = sfm.SfmOptions(matcher=args.matcher, overlap=args.overlap, shared_camera=args.shared_camera,
                           camera_model=args.camera_model, intrinsics=intrinsics, min_registered=args.min_registered,
-                          max_features=args.max_features, threads=args.threads, seed=args.seed)
+                          max_features=args.max_features, threads=args.threads, seed=args.seed,
+                          undistort=not args.no_undistort)
     result = sfm.run_sfm(args.images_dir, args.out, opts, force=args.force, progress=not args.no_progress,
                          verbose=args.verbose)
     print(f"drlab sfm: {sfm.describe(result)}")
@@ -439,9 +440,9 @@ def build_parser() -> argparse.ArgumentParser:
     sf = sub.add_parser(
         "sfm", help="structure from motion: a folder of photos -> a COLMAP model (pycolmap, CPU)",
         description="Run pycolmap's SIFT feature extraction, matching and incremental mapping on the images "
-                    "directly in IMAGES_DIR, then undistort them, and write a COLMAP folder that fit_splats/fit_nerf "
-                    "--data read: OUT/images/, OUT/sparse/0/ and OUT/sfm.json (research/poses/sfm.py). OUT appears only "
-                    "when complete. Fewer registered images than --min-registered is an error (exit 2).")
+                    "directly in IMAGES_DIR, then undistort them (unless --no-undistort), and write a COLMAP "
+                    "folder that fit_splats/fit_nerf --data read: OUT/images/, OUT/sparse/0/ and OUT/sfm.json "
+                    "(research/poses/sfm.py). OUT appears only when complete. Fewer registered images than --min-registered is an error (exit 2).")
     sf.add_argument("images_dir", type=directory_path, help="folder of .png/.jpg images (sub-folders are ignored)")
     sf.add_argument("--out", required=True, type=directory_path, help="output folder (must not exist; see --force)")
     sf.add_argument("--matcher", choices=["exhaustive", "sequential"], default="exhaustive",
@@ -451,9 +452,13 @@ def build_parser() -> argparse.ArgumentParser:
     sf.add_argument("--shared-camera", action="store_true",
                     help="one camera for every image (COLMAP's single-camera mode; the images must have one size)")
     sf.add_argument("--camera-model", default="SIMPLE_RADIAL",
-                    choices=["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"],
+                    choices=["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "OPENCV_FISHEYE"],
                     help="camera model to estimate (default SIMPLE_RADIAL, COLMAP's; a distorted model is "
-                         "undistorted at the end)")
+                         "undistorted at the end unless --no-undistort)")
+    sf.add_argument("--no-undistort", action="store_true",
+                    help="write the estimated cameras as they are (with their distortion) and copy the registered "
+                         "images unchanged: fit_splats and fit_nerf read SIMPLE_RADIAL, RADIAL, OPENCV and "
+                         "OPENCV_FISHEYE through their lens models (kernels/lens.py)")
     sf.add_argument("--intrinsics", default=None, metavar="FX,FY,CX,CY",
                     help="known intrinsics in pixels: one PINHOLE camera for every image, kept fixed in bundle "
                          "adjustment (overrides --camera-model)")

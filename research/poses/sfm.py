@@ -15,14 +15,19 @@ Stages (each a pycolmap call; nothing of COLMAP is re-implemented here):
 3. Incremental mapping (`pycolmap.incremental_mapping`); the model with most registered images is
    kept. Fewer than `min_registered` registered images (default: half of them, at least 3) is an
    error (SfmError, a ValueError: `drlab sfm` exits 2) saying how many registered of how many.
-4. Undistortion (`pycolmap.undistort_images`): the images resampled to pinhole cameras, as
-   research.datasets.colmap reads them (a PINHOLE or SIMPLE_PINHOLE model is copied unchanged).
+4. Undistortion (`pycolmap.undistort_images`): the images resampled to pinhole cameras (a PINHOLE or
+   SIMPLE_PINHOLE model is copied unchanged). With `undistort=False` (`--no-undistort`) this stage only
+   writes the model as estimated and copies the registered images as they are: research.datasets.colmap
+   reads SIMPLE_RADIAL, RADIAL, OPENCV and OPENCV_FISHEYE cameras with their lens (kernels/lens.py), so
+   the fits train on the photographs without resampling them.
 
 Output, written into `<out>.partial-<pid>` and renamed to `<out>` only when complete (the results
 folder protocol of research.experiment; an interrupted run leaves no `<out>`):
 
-    <out>/images/        the undistorted registered images, under their own names
-    <out>/sparse/0/      cameras.bin, images.bin, points3D.bin (PINHOLE cameras), for load_colmap
+    <out>/images/        the undistorted registered images (as they are, without undistortion), under
+                         their own names
+    <out>/sparse/0/      cameras.bin, images.bin, points3D.bin (PINHOLE cameras; the estimated model
+                         without undistortion), for load_colmap
     <out>/sfm.json       options, registered / total, the names left out, the cameras as estimated
                          (before undistortion), points, mean reprojection error, stage timings
 
@@ -46,7 +51,7 @@ from research import atomic
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MATCHERS = ("exhaustive", "sequential")
-CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "OPENCV_FISHEYE")
 SUMMARY = "sfm.json"
 
 
@@ -68,6 +73,7 @@ class SfmOptions:
     # were identical.
     threads: int = -1
     seed: int = 0  # the mapper's RANSAC and initial-pair draws
+    undistort: bool = True  # False: keep the estimated (distorted) cameras and the original images
 
     def validate(self) -> None:
         if self.matcher not in MATCHERS:
@@ -81,6 +87,8 @@ class SfmOptions:
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or not (self.threads == -1
                                                                                        or self.threads >= 1):
             raise SfmError(f"--threads: expected -1 (every core) or an integer >= 1, got {self.threads!r}")
+        if not isinstance(self.undistort, bool):
+            raise SfmError(f"undistort: expected True or False, got {self.undistort!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**31:
             raise SfmError(f"--seed: expected an integer in [0, 2^31), got {self.seed!r}")
         if self.intrinsics is not None:
@@ -102,7 +110,7 @@ class SfmResult:
     unregistered: list[str]
     points: int
     mean_reprojection_error: float
-    cameras: list[dict]  # as estimated, before undistortion: {"id", "model", "width", "height", "params"}
+    cameras: list[dict]  # as estimated (before any undistortion): {"id", "model", "width", "height", "params"}
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -265,21 +273,29 @@ def run_sfm(images_dir: str | Path, out: str | Path, options: SfmOptions = SfmOp
                                f"{need} needed; --min-registered): give more overlapping views, more texture or a "
                                "higher resolution, or try --matcher exhaustive / --shared-camera")
             stages.update()
-            # 4. undistortion
-            stages.set_postfix_str("undistortion")
+            # 4. undistortion, or the estimated model and the images as they are
+            stages.set_postfix_str("undistortion" if options.undistort else "model as estimated")
             t0 = time.perf_counter()
-            model_in = work / "model"
-            model_in.mkdir()
-            rec.write(str(model_in))
-            undist = work / "undistorted"
-            pycolmap.undistort_images(undist, model_in, images_dir, output_type="COLMAP",
-                                      num_threads=options.threads)
             (tmp / "sparse" / "0").mkdir(parents=True)
-            for f in (undist / "sparse").iterdir():
-                if f.is_file():
-                    os.replace(f, tmp / "sparse" / "0" / f.name)
-            os.replace(undist / "images", tmp / "images")
-            seconds["undistortion"] = time.perf_counter() - t0
+            if options.undistort:
+                model_in = work / "model"
+                model_in.mkdir()
+                rec.write(str(model_in))
+                undist = work / "undistorted"
+                pycolmap.undistort_images(undist, model_in, images_dir, output_type="COLMAP",
+                                          num_threads=options.threads)
+                for f in (undist / "sparse").iterdir():
+                    if f.is_file():
+                        os.replace(f, tmp / "sparse" / "0" / f.name)
+                os.replace(undist / "images", tmp / "images")
+                seconds["undistortion"] = time.perf_counter() - t0
+            else:
+                rec.write(str(tmp / "sparse" / "0"))
+                (tmp / "images").mkdir()
+                for im in rec.images.values():
+                    if im.has_pose:
+                        shutil.copyfile(images_dir / im.name, tmp / "images" / im.name)
+                seconds["model"] = time.perf_counter() - t0
             stages.update()
         registered = sorted(im.name for im in rec.images.values() if im.has_pose)
         result = SfmResult(out, total, registered, sorted(set(names) - set(registered)), rec.num_points3D(),

@@ -98,6 +98,19 @@ def test_sequential_matching_registers_the_ring(capture):
     every run)."""
     root, _ = capture
     assert cli.main(["sfm", str(root / "photos"), "--out", str(root / "model-seq"), "--shared-camera",
-                     "--matcher", "sequential", "--overlap", "6", "--threads", "2", "--no-progress"]) == 0
+                     "--matcher", "sequential", "--overlap", "6", "--threads", "2", "--no-progress",
+                     "--no-undistort"]) == 0
     summary = json.loads((root / "model-seq" / "sfm.json").read_text())
     assert summary["options"]["matcher"] == "sequential" and len(summary["registered"]) >= VIEWS - 2
+    # --no-undistort: the model as estimated (COLMAP's SIMPLE_RADIAL) and the photographs bit for bit,
+    # read back with the camera's lens (research/datasets/colmap.py)
+    assert not summary["options"]["undistort"] and "undistortion" not in summary["seconds"]
+    (cam,) = summary["cameras"]
+    assert cam["model"] == "SIMPLE_RADIAL" and cam["params"][3] != 0.0
+    out = root / "model-seq"
+    assert sorted(p.name for p in (out / "images").iterdir()) == summary["registered"]
+    for name in summary["registered"]:
+        assert (out / "images" / name).read_bytes() == (root / "photos" / name).read_bytes()
+    ds = load_colmap(out, factor=1)
+    lens = ds.views[0].camera.lens
+    assert lens is not None and lens.coeffs[0] == pytest.approx(cam["params"][3])
