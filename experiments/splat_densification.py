@@ -18,6 +18,11 @@ Three models, in one run, in this order:
                    its cost per iteration. Its own CPU time is reported beside it (the match is only as
                    good as that prediction).
 
+MCMC grows by gsplat's 1.05x per refinement, so the cap is reached only when the scaled schedule has
+enough refinements: the full run's 48 (every 50 iterations from 100 to 2450) take 8000 splats to the
+cap; quick's 13 (800 iterations) allow at most 3000 x 1.05^13 ~ 5660 of its ~12000, so there the MCMC
+rows are at a cap, not at an equal count (the table's splat column says which).
+
 CPU time is time.process_time() around training (every thread of the process); wall time beside it.
 The MCMC models start from the same points with gsplat's "mcmc" initialisation (opacity 0.5, scales
 0.1 x 3DGS's kNN scale: research.splats.mcmc.INIT_OPACITY, INIT_SCALE_FACTOR); 3DGS from 3DGS's
