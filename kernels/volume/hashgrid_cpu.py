@@ -57,11 +57,11 @@ def _built(scalar: Any) -> Any:
     return built_once(_kernels, scalar, lambda: _build(scalar))
 
 
-def _native(stub: Any, name: str, scalar: Any, cpp: str) -> Any:
-    """The Warp native function of `stub`'s signature whose body is kernels/native/<cpp>, named
-    <name>_<scalar> (a name of its own per type: Warp keys native functions by name)."""
+def _native(stub: Any, name: str, scalar: Any, body: str) -> Any:
+    """The Warp native function of `stub`'s signature whose body is the C++ `body` (a kernels/native file's
+    `source`), named <name>_<scalar> (a name of its own per type: Warp keys native functions by name)."""
     stub.__name__ = stub.__qualname__ = f"{name}_{scalar.__name__}"
-    return wp.func_native(source(cpp))(stub)
+    return wp.func_native(body)(stub)
 
 
 def _build(scalar: Any) -> Any:
@@ -72,7 +72,7 @@ def _build(scalar: Any) -> Any:
     def encode_run(x: array2, table: array2, out: array2, l: int, res: int, dense: int, table_size: int,
                    lo: int, hi: int, zero: scalar): ...
 
-    encode_run = _native(encode_run, "hash_encode_run_cpu", scalar, "hashgrid_encode.cpp")
+    encode_run = _native(encode_run, "hash_encode_run_cpu", scalar, source("hashgrid_encode.cpp"))
 
     @wp.kernel(module="unique", module_options={"enable_backward": False})
     def hash_forward_cpu(x: array2, resolutions: wp.array(dtype=wp.int32), dense: wp.array(dtype=wp.int32),
@@ -89,7 +89,7 @@ def _build(scalar: Any) -> Any:
     def scatter_run(x: array2, grad_out: array2, table: array2, l: int, res: int, dense: int, table_size: int,
                     lo: int, hi: int, zero: scalar): ...
 
-    scatter_run = _native(scatter_run, "hash_scatter_run_cpu", scalar, "hashgrid_scatter.cpp")
+    scatter_run = _native(scatter_run, "hash_scatter_run_cpu", scalar, source("hashgrid_scatter.cpp"))
 
     @wp.kernel(module="unique", module_options={"enable_backward": False})
     def hash_backward_cpu(x: array2, resolutions: wp.array(dtype=wp.int32), dense: wp.array(dtype=wp.int32),
