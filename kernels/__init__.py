@@ -2,7 +2,8 @@
 
 One layout per kernel family. A family that outgrows one module (about 600 lines) is a package
 split by stage: `volume`, `splat`, `stereo`, `corr`; the others are single modules:
-`lucas_kanade`, `ssim`, `icp` (ICP residuals, pose Jacobians and normal equations), `sh` (the real
+`lucas_kanade`, `ssim`, `icp` (ICP residuals, pose Jacobians and normal equations), `appearance`
+(per-image bilateral-grid / affine colour transforms), `sh` (the real
 spherical-harmonics basis shared by splats and voxel grids) and `optim` (the Adam optimiser every
 fit uses). Each kernel module opens with the math it implements. `kernels._arrays` is the array
 contract every entry point follows (NumPy or wp.array in, the same kind out, checked arguments),

@@ -174,6 +174,14 @@ register_experiment(
 )
 
 register_experiment(
+    "splat_appearance",
+    "Per-image appearance for splats on training views whose exposure and colour vary (Mitsuba `objects` through the "
+    "radiometric stress set; LLFF fern with a known per-image exposure): none vs per-image affine vs gsplat's "
+    "bilateral grid; held-out PSNR/SSIM and colour-corrected PSNR.",
+    quick_budget_s=600,
+)
+
+register_experiment(
     "splat_densification",
     "Splat density control on Mitsuba `objects`: 3DGS's clone/split/prune vs 3DGS-MCMC's relocation (gsplat's "
     "defaults) at equal splat count and equal CPU time; PSNR/SSIM, splats, CPU and wall time.",
@@ -348,6 +356,9 @@ register_family("volume", "NeRF volume rendering: sampling, compositing, fields,
 register_family("mip_filter", "Mip-Splatting's 3D smoothing filter of the splats (scales and opacity)",
                 kernels="kernels.splat.filter3d", reference="kernels.reference.splat_filter3d",
                 checks="research.checks.mip_filter")
+register_family("appearance", "per-image appearance: a bilateral grid (or one affine) of 3x4 colour transforms, sliced",
+                kernels="kernels.appearance", reference="kernels.reference.appearance",
+                checks="research.checks.appearance")
 register_family("mcmc", "3DGS-MCMC densification: relocation's opacity/scale correction, position noise, regularisers",
                 checks="research.checks.mcmc")
 register_family("lens", "lens camera models (opencv, fisheye, orthographic): ray generator, splat projection",

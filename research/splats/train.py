@@ -17,6 +17,9 @@ With `filter_3d` = s > 0 the splats are rendered through Mip-Splatting's 3D smoo
 (research/splats/mip.py: its size from the training cameras, recomputed at the start, after every
 densification and every densification interval; the gradients taken back through it), and the
 returned model has the last filter baked into its scales and opacities.
+With `appearance` of kind "affine" or "bilateral", each view's render passes through its own colour
+model before the loss (research/splats/appearance.py: gsplat's bilateral grid, or one 3x4 affine per
+image), whose Adam step runs before the splats' backward; TrainResult.appearance holds the models.
 
 Every stage runs on one device: `train`, `evaluate`, `render_fps` and `ply_round_trip_identical`
 take the Warp device (TrainResult.device is the one training used). The initial model is checked
@@ -43,7 +46,7 @@ from research import metrics
 from research.cameras import Camera
 from research.splats import ply
 from research.splats.densify import DensifyConfig, DensifyStats, Schedule, densify_and_prune, reset_opacity
-from research.splats import mcmc, mip
+from research.splats import appearance, mcmc, mip
 from research.splats.loss import LAMBDA_DSSIM, l1_dssim
 from research.splats.model import GaussianModel, render, splat_camera
 from research.splats.mcmc import MCMCConfig, MCMCSchedule
@@ -68,6 +71,8 @@ class TrainConfig:
     log_every: int = 50
     strategy: str = "3dgs"  # density control: "3dgs" (research.splats.densify, with `densify`) or "mcmc" (`mcmc`)
     mcmc: MCMCConfig = field(default_factory=MCMCConfig)
+    # per-image colour model before the loss: none / affine / bilateral grid (research/splats/appearance.py)
+    appearance: appearance.AppearanceConfig = field(default_factory=appearance.AppearanceConfig)
 
     def __post_init__(self) -> None:
         mode_id(self.mode)  # ValueError naming `mode` before any work
@@ -87,6 +92,7 @@ class TrainResult:
     events: list[dict]
     sh_degree: int
     device: wp.Device  # the device training ran on: pass it to evaluate, render_fps, ...
+    appearance: appearance.Appearance | None = None  # the trained per-image colour models (None: none)
 
 
 def _check_views(cameras: list[Camera], images: np.ndarray) -> None:
@@ -126,6 +132,7 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
     bar = tqdm(range(1, cfg.iterations + 1), desc="fit splats", disable=not progress, mininterval=2.0)
     degree = 0
     sigma = mip.filter_sigma(model.means, cameras, cfg.filter_3d) if cfg.filter_3d > 0 else None
+    app = appearance.make(cfg.appearance, len(cameras), cfg.iterations, device)
     with A.value_checks(False):
         for it in bar:
             adam.lr["means"] = expon_lr(it - 1, lr.means_init * extent, lr.means_final * extent, cfg.iterations)
@@ -136,7 +143,10 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
             inputs = _filtered(model, sigma).inputs(device) if sigma is not None else model.inputs(device)
             result = ks.render(inputs, splat_cams[v], background, sh_degree=degree, antialiased=cfg.antialiased,
                                mode=cfg.mode, dilation=cfg.dilation)
-            loss, grad_img, parts = l1_dssim(result.rgb.numpy(), images[v], cfg.lambda_dssim, device=device)
+            rgb = result.rgb.numpy() if app is None else app.apply(v, result.rgb.numpy())
+            loss, grad_img, parts = l1_dssim(rgb, images[v], cfg.lambda_dssim, device=device)
+            if app is not None:  # the view's colour model and the grids' TV loss: Adam step, dL/drender back
+                grad_img = app.step(grad_img, it)
             if not np.isfinite(loss):
                 raise RuntimeError(f"iteration {it}: the loss is {loss}")
             g = {k: x.numpy() for k, x in ks.render_backward(inputs, result, grad_img).items()}
@@ -187,7 +197,7 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
                 bar.set_postfix(loss=f"{history[-1]['loss']:.4f}", n=model.n)
     if sigma is not None:
         model = _filtered(model, sigma)  # what the last iterations rendered, baked in
-    return TrainResult(model, time.perf_counter() - t0, history, events, degree, device)
+    return TrainResult(model, time.perf_counter() - t0, history, events, degree, device, app)
 
 
 def _filtered(model: GaussianModel, sigma: np.ndarray) -> GaussianModel:

@@ -253,6 +253,19 @@ def _check_splat_antialiasing(m):
         assert r["mean_psnr"] == pytest.approx(sum(s["psnr"] for s in scores.values()) / 4)
 
 
+
+def _check_splat_appearance(m):
+    assert m["models"] == ["none", "affine", "bilateral"] and len(m["sets"]) == 2
+    for s in m["sets"].values():
+        assert len(s["responses"]) == s["train_views"] and s["test_views"] >= 1
+        rows = s["models"]
+        assert rows["none"]["gain_vs_exposure_corr"] is None
+        for r in rows.values():
+            assert _finite(r["psnr"]) and r["psnr"] > 5 and 0 <= r["ssim"] <= 1 and r["splats"] > 0
+            # the best affine fit of the render can only lower the squared error in linear RGB; on sRGB after
+            # clipping it may differ slightly, never by much
+            assert r["psnr_corrected"] > r["psnr"] - 1.0
+
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
           "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
@@ -262,7 +275,7 @@ CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalma
           "lidar_odometry": _check_lidar,
           "splat_slam": _check_slam, "time_budget": _check_time_budget, "lens_distortion": _check_lens_distortion,
           "surface_recon": _check_surface_recon, "pointnet_classify": _check_pointnet,
-          "splat_antialiasing": _check_splat_antialiasing}
+          "splat_antialiasing": _check_splat_antialiasing, "splat_appearance": _check_splat_appearance}
 
 
 def test_every_registered_experiment_has_a_smoke_check():
