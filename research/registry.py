@@ -359,6 +359,10 @@ register_family("mip_filter", "Mip-Splatting's 3D smoothing filter of the splats
 register_family("appearance", "per-image appearance: a bilateral grid (or one affine) of 3x4 colour transforms, sliced",
                 kernels="kernels.appearance", reference="kernels.reference.appearance",
                 checks="research.checks.appearance")
+register_family("unbounded", "unbounded scenes for the fields: mip-NeRF 360's contraction, s-space spacing, "
+                "proposal weights, inverse-CDF resampling, interlevel loss",
+                kernels="kernels.volume.proposal", reference="kernels.reference.volume_unbounded",
+                checks="research.checks.unbounded")
 register_family("mcmc", "3DGS-MCMC densification: relocation's opacity/scale correction, position noise, regularisers",
                 checks="research.checks.mcmc")
 register_family("lens", "lens camera models (opencv, fisheye, orthographic): ray generator, splat projection",

@@ -23,10 +23,15 @@ equations:
     render     sampling -> field -> compositing, and the chain rule back to the parameters
     rays       pinhole camera rays, NeRF's NDC map of rays, and the render's gradient wrt the camera
     field_points  a field's gradient wrt its sample points and view directions (spheres, grid)
+    contract   mip-NeRF 360's scene contraction (L2) and its VJP, the s-space spacing of samples,
+               ContractedField (any field on [-2, 2]^3 made to cover all of space)        Field
+    proposal   proposal sampling: interval weights and their VJP, inverse-CDF resampling, the
+               interlevel loss and its VJP (mip-NeRF 360, nerfacc's PropNetEstimator)
     workspace  reusable output buffers (fresh large arrays cost page faults on every call)
     _act, _checks  activations shared by the fields; the family's own argument checks
 
-The plain NumPy forward passes the tests compare against are in kernels/reference/volume.py.
+The plain NumPy forward passes the tests compare against are in kernels/reference/volume.py
+(kernels/reference/volume_unbounded.py for contract and proposal).
 
 Everything is generic over float32 and float64 and takes a `device`; the CPU is the tested path.
 Inputs and outputs follow the array contract of kernels._arrays (NumPy in, NumPy out; wp.arrays
