@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
-"""Splat density control: 3DGS's clone / split / prune against 3DGS-MCMC's relocation, at equal splat
-count and at equal CPU time.
+"""Splat density control: 3DGS's clone / split / prune against 3DGS-MCMC's relocation and against AbsGS's
+absolute-gradient densification, at equal splat count and at equal CPU time.
 
 Data and schedule are fit_splats' (experiments/fit_splats.py Setup): the Mitsuba `objects` scene
 (100 views at 128x128, 64 spp; quick 40 views at 64x64; smoke 8 at 32x32), splats initialised from
 the train views' ground-truth depth, trained by research.splats.train on the 3DGS schedule scaled to
 the iteration count, scored on the test split (PSNR and SSIM on sRGB, research.metrics).
 
-Three models, in one run, in this order:
+Five models, in one run, in this order:
 
   3DGS             the default density control (research.splats.densify; fit_splats' cap on the count);
   MCMC, equal count   TrainConfig(strategy="mcmc") (research/splats/mcmc.py) with its hard cap set to the
@@ -16,7 +16,12 @@ Three models, in one run, in this order:
                    3DGS's training CPU time: iterations x (3DGS CPU s) / (equal-count MCMC CPU s),
                    rounded, i.e. the MCMC run's CPU time per iteration measured in this run is taken as
                    its cost per iteration. Its own CPU time is reported beside it (the match is only as
-                   good as that prediction).
+                   good as that prediction);
+  AbsGS, equal count  3DGS's density control on AbsGS's absolute mean2d gradient
+                   (DensifyConfig.absgs(): absgrad=True, threshold 0.0008), with the count capped at the
+                   count 3DGS ended with (max_gaussians; pruning may leave it below), the same iterations;
+  AbsGS, equal time   the same, with the iterations chosen as for MCMC's equal-time row, from the
+                   equal-count AbsGS run's CPU time.
 
 MCMC grows by gsplat's 1.05x per refinement, so the cap is reached only when the scaled schedule has
 enough refinements: the full run's 48 (every 50 iterations from 100 to 2450) take 8000 splats to the
@@ -28,7 +33,9 @@ The MCMC models start from the same points with gsplat's "mcmc" initialisation (
 0.1 x 3DGS's kNN scale: research.splats.mcmc.INIT_OPACITY, INIT_SCALE_FACTOR); 3DGS from 3DGS's
 (0.1, 1 x). Settings: MCMC's are gsplat's MCMCStrategy / simple_trainer defaults (set by gsplat for
 30k-iteration runs on its benchmark scenes), iteration numbers scaled to the run; the schedule and
-cap are fit_splats'. Nothing was tuned on this experiment's data. Writes
+cap are fit_splats'. AbsGS's threshold 0.0008 is the value gsplat's DefaultStrategy documentation
+gives for absgrad=True (research.splats.densify.ABSGRAD_GRAD_THRESHOLD), everything else 3DGS's.
+Nothing was tuned on this experiment's data. Writes
 results/splat_densification/{table.md, metrics.json, figure.png}.
 """
 
@@ -116,7 +123,7 @@ def run(ctx: Context) -> int:
     base = st.TrainConfig(iterations=iterations, seed=ctx.seed,
                           densify=st.DensifyConfig(max_gaussians=cfg.max_gaussians))
     fits = {}
-    bar = ctx.tqdm(total=3, desc="models")
+    bar = ctx.tqdm(total=5, desc="models")
     fits["3DGS"] = fit("3DGS", init_3dgs, base)
     bar.update()
     cap = fits["3DGS"]["splats"]
@@ -127,6 +134,14 @@ def run(ctx: Context) -> int:
     iters_t = max(1, round(iterations * fits["3DGS"]["cpu_seconds"] / fits["MCMC, equal count"]["cpu_seconds"]))
     equal_t = st.TrainConfig(iterations=iters_t, seed=ctx.seed, strategy="mcmc", mcmc=mcfg)
     fits["MCMC, equal time"] = fit("MCMC, equal time", init_mcmc, equal_t)
+    bar.update()
+    abs_cfg = st.DensifyConfig.absgs(max_gaussians=min(cfg.max_gaussians, cap))
+    abs_n = st.TrainConfig(iterations=iterations, seed=ctx.seed, densify=abs_cfg)
+    fits["AbsGS, equal count"] = fit("AbsGS, equal count", init_3dgs, abs_n)
+    bar.update()
+    iters_abs = max(1, round(iterations * fits["3DGS"]["cpu_seconds"] / fits["AbsGS, equal count"]["cpu_seconds"]))
+    abs_t = st.TrainConfig(iterations=iters_abs, seed=ctx.seed, densify=abs_cfg)
+    fits["AbsGS, equal time"] = fit("AbsGS, equal time", init_3dgs, abs_t)
     bar.update()
     bar.close()
 
@@ -143,11 +158,16 @@ def run(ctx: Context) -> int:
              f"{len(test_split.cameras)} test views (fit_splats' data and schedule; {cfg.init_points} initial points "
              f"from depth). 3DGS: default density control, at most {cfg.max_gaussians} splats. MCMC: "
              f"research.splats.mcmc with gsplat's defaults and a hard cap of {cap} (the count 3DGS ended with); "
-             "equal time: iterations = 3DGS iterations x 3DGS CPU s / equal-count MCMC CPU s. CPU s: process "
+             "equal time: iterations = 3DGS iterations x 3DGS CPU s / equal-count MCMC CPU s. AbsGS: 3DGS's "
+             f"density control on the absolute mean2d gradient, threshold {abs_cfg.grad_threshold:g} (gsplat's "
+             f"documented value for absgrad, not tuned here), at most {abs_cfg.max_gaussians} splats; its equal "
+             "time likewise from the equal-count AbsGS CPU s. CPU s: process "
              "time of training (all threads); wall s on this machine, shared. PSNR/SSIM on sRGB, test split.\n\n"
              + markdown_table(headers, rows) + "\n\n![a test view and the training curves](figure.png)\n")
     metrics = {"dataset": {"path": str(path), "config": dcfg.__dict__}, "cap": cap,
-               "equal_time_rule": "iterations x 3DGS CPU s / equal-count MCMC CPU s",
+               "equal_time_rule": "iterations x 3DGS CPU s / equal-count (MCMC or AbsGS) CPU s",
+               "absgrad_threshold": {"value": abs_cfg.grad_threshold,
+                                     "source": "gsplat DefaultStrategy docstring (absgrad=True), not tuned here"},
                "models": {k: {kk: vv for kk, vv in f.items() if kk != "render"} for k, f in fits.items()}}
     ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "iterations": iterations}, metrics=metrics,
                       table_md=table)
@@ -156,6 +176,6 @@ def run(ctx: Context) -> int:
 
 main = Experiment("splat_densification", __doc__, run, add_options,
                   seed_help="seed of the dataset's cameras, the initial points and training",
-                  sizes="Full: fit_splats' (100 views at 128x128, 64 spp, 3000 iterations, cap 30000; ~20 min on 2 "
-                        "cores); quick: 40 views at 64x64, 800 iterations; smoke: 8 views at 32x32, 40 iterations.",
+                  sizes="Full: fit_splats' (100 views at 128x128, 64 spp, 3000 iterations, cap 30000; ~55 min on 2 "
+                        "shared cores); quick: 40 views at 64x64, 800 iterations; smoke: 8 views at 32x32, 40 iterations.",
                   data_help=CACHE_ROOT_HELP).script(__name__)

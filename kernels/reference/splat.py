@@ -6,7 +6,9 @@ kernels/splat/modes.py: "3dgs" writes the equations of the original 3DGS code (c
 preprocessCUDA with getRect, renderCUDA), "gsplat" those of gsplat (persp_proj,
 fully_fused_projection, isect_tiles, rasterize_to_pixels). `rasterize` blends the splats of the
 mode's square tile sets; the kernels bin by a smaller box that only leaves out pixels with
-alpha < 1/255, so both give the same image. `render` is the whole chain.
+alpha < 1/255, so both give the same image. `render` is the whole chain. `mean2d_pixel_terms`
+sums each pixel's term of the rasteriser's mean2d gradient per splat, plain and in absolute value
+(AbsGS's densification statistic, the backward's `absgrad` output).
 """
 
 from __future__ import annotations
@@ -160,38 +162,82 @@ def tile_lists(m2, conics, opacities, radii, depths, width, height, square=False
     return lists
 
 
+def _pixel_blends(m2, conics, opacities, lists, tiles_x, px, py, mode):
+    """The splats pixel (px, py) blends, front to back: (i, alpha_i, T_i, clamped_i, d_i = mean2d_i - p),
+    and T_final."""
+    a_max = ALPHA_MAX[mode]
+    T, blended = 1.0, []
+    for i in lists[(py // 16) * tiles_x + px // 16]:
+        d = m2[i] - (px + 0.5, py + 0.5)
+        Q = np.array([[conics[i, 0], conics[i, 1]], [conics[i, 1], conics[i, 2]]])
+        power = -0.5 * d @ Q @ d
+        if power > 0:
+            continue
+        raw = opacities[i] * math.exp(power)
+        a = min(a_max, raw)
+        if a < 1.0 / 255.0:
+            continue
+        test_T = T * (1 - a)
+        if test_T < 1e-4 or (mode == "gsplat" and test_T <= 1e-4):
+            break
+        blended.append((int(i), a, T, raw > a_max, d))
+        T *= 1 - a
+    return blended, T
+
+
 def rasterize(m2, conics, colors, opacities, depths, radii, width, height, background, mode: str = "3dgs"):
     """The mode's rasteriser (3DGS's renderCUDA or gsplat's rasterize_to_pixels): each pixel blends
     the splats whose square mean2d +- radius lists its tile, front to back.
 
     (The kernel bins by a smaller box that only leaves out pixels with alpha < 1/255,
     so it must give the same image.)"""
-    a_max = ALPHA_MAX[mode]
     lists = tile_lists(m2, conics, opacities, radii, depths, width, height, square=True, mode=mode)
     tiles_x = (width + 15) // 16
     rgb, alpha, depth = np.zeros((height, width, 3)), np.zeros((height, width)), np.zeros((height, width))
     for py in range(height):
         for px in range(width):
-            T, C, D = 1.0, np.zeros(3), 0.0
-            for i in lists[(py // 16) * tiles_x + px // 16]:
-                d = m2[i] - (px + 0.5, py + 0.5)
-                Q = np.array([[conics[i, 0], conics[i, 1]], [conics[i, 1], conics[i, 2]]])
-                power = -0.5 * d @ Q @ d
-                if power > 0:
-                    continue
-                a = min(a_max, opacities[i] * math.exp(power))
-                if a < 1.0 / 255.0:
-                    continue
-                test_T = T * (1 - a)
-                if test_T < 1e-4 or (mode == "gsplat" and test_T <= 1e-4):
-                    break
-                C += colors[i] * a * T
-                D += depths[i] * a * T
-                T *= 1 - a
+            C, D = np.zeros(3), 0.0
+            blended, T = _pixel_blends(m2, conics, opacities, lists, tiles_x, px, py, mode)
+            for i, a, t_i, _, _ in blended:
+                C += colors[i] * a * t_i
+                D += depths[i] * a * t_i
             rgb[py, px] = C + T * background
             alpha[py, px] = 1 - T
             depth[py, px] = D
     return rgb, alpha, depth
+
+
+def mean2d_pixel_terms(m2, conics, colors, opacities, depths, radii, width, height, background, grad_rgb,
+                       grad_alpha, grad_depth, mode: str = "3dgs") -> tuple[np.ndarray, np.ndarray]:
+    """Each pixel's term of dL/dmean2d, summed per splat two ways: (sum_p g_p, sum_p |g_p| per component),
+    the second AbsGS's statistic (kernels/splat/raster.py, `absgrad`).
+
+    Written from the forward, not the kernel's back-to-front recursion: with pixel p's blended splats
+    front to back, out = sum_i f_i alpha_i T_i + T_final bg (f = colour and depth, bg 0 for depth) and
+    alpha_out = 1 - T_final,
+        dout/dalpha_i = f_i T_i - (sum_{j > i} f_j alpha_j T_j + T_final bg) / (1 - alpha_i),
+        dalpha_out/dalpha_i = T_final / (1 - alpha_i),
+        g_p = dL/dalpha_i * (-alpha_i Q_i d_i), zero where the clamp alpha = a_max is active."""
+    lists = tile_lists(m2, conics, opacities, radii, depths, width, height, square=True, mode=mode)
+    tiles_x = (width + 15) // 16
+    total, absolute = np.zeros((len(m2), 2)), np.zeros((len(m2), 2))
+    for py in range(height):
+        for px in range(width):
+            blended, T = _pixel_blends(m2, conics, opacities, lists, tiles_x, px, py, mode)
+            g_f = np.append(grad_rgb[py, px], grad_depth[py, px])  # cotangents of (r, g, b, depth)
+            f = [np.append(colors[i], depths[i]) for i, *_ in blended]
+            behind = T * np.append(background, 0.0)  # sum over j > i of f_j alpha_j T_j, plus T_final bg
+            for k in range(len(blended) - 1, -1, -1):
+                i, a, t_i, clamped, d = blended[k]
+                dl_da = (f[k] * t_i - behind / (1 - a)) @ g_f + grad_alpha[py, px] * T / (1 - a)
+                behind = behind + f[k] * a * t_i
+                if clamped:
+                    continue
+                Q = np.array([[conics[i, 0], conics[i, 1]], [conics[i, 1], conics[i, 2]]])
+                g_p = dl_da * (-a * Q @ d)
+                total[i] += g_p
+                absolute[i] += np.abs(g_p)
+    return total, absolute
 
 
 def render(params: dict, cam, background: np.ndarray, sh_degree: int | None = None,

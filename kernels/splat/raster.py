@@ -22,6 +22,14 @@ and with S_i the colour composited behind splat i (S <- alpha_j c_j + (1 - alpha
 depth like a colour channel with background 0. Through alpha = o G (zero where the a_max clamp is
 active) the gradients reach o, Q and mean2d:
     dalpha/do = G,  dalpha/dQ = -alpha/2 (dx^2, 2 dx dy, dy^2),  dalpha/dmean2d = -alpha Q d.
+With `absgrad=True` the backward also returns AbsGS's densification statistic (Ye et al., "AbsGS:
+Recovering Fine Details for 3D Gaussian Splatting", 2024; gsplat's `absgrad=True`): with
+g_p = dL/dmean2d|_p the term pixel p adds to splat i's mean2d gradient (dL/dmean2d_i = sum_p g_p),
+
+    means2d_abs_i = sum_p (|g_p,x|, |g_p,y|),
+
+whose norm is never below the norm of the summed gradient (terms of opposite sign do not cancel). It
+has no gradient of its own; the other outputs are the same bits whether it is asked for or not.
 Every tile's backward runs on one thread and writes one gradient row per (tile, splat) pair,
 which a second kernel sums per splat: no Warp atomic is atomic between concurrent CPU launches
 (docs/warp.md), so with no shared accumulator the tiles run in parallel through
@@ -164,11 +172,14 @@ def rasterize(s: Splats2D, width: int, height: int, background: Any = None,
 
 def rasterize_backward(s: Splats2D, width: int, height: int, background: Any, tiles: Tiles, raster: Raster,
                        grad_rgb: Any, grad_alpha: Any = None, grad_depth: Any = None, *,
-                       mode: str = DEFAULT_MODE) -> dict[str, Any]:
+                       mode: str = DEFAULT_MODE, absgrad: bool = False) -> dict[str, Any]:
     """VJP of `rasterize` (with the same `mode`).
 
     Returns a dict with the gradients of "means2d", "conics", "colors", "opacities", "depths"
     (shaped like the splats' arrays) and "background" (3,), in the kind of the splats' inputs.
+    With `absgrad`, also "means2d_abs" (N, 2): per splat, the sum over pixels of the absolute value
+    of each pixel's term of dL/dmean2d, per component (AbsGS; module docstring). It is a statistic
+    for densification, not a gradient, and the other outputs are the same bits with it or without.
     """
     mode_id(mode)
     width = A.check_int("width", width, minimum=1, maximum=MAX_SIDE)
@@ -176,13 +187,15 @@ def rasterize_backward(s: Splats2D, width: int, height: int, background: Any, ti
     a = s.inputs()
     return {k: a.out(v) for k, v in rasterize_backward_wp(
         a, s, width, height, background_array(a, background), tiles, raster, grad_rgb, grad_alpha,
-        grad_depth, mode).items()}
+        grad_depth, mode, absgrad).items()}
 
 
 def rasterize_backward_wp(a: A.Inputs, s: Splats2D, width: int, height: int, bg: wp.array, tiles: Tiles,
                           raster: Raster, grad_rgb: Any, grad_alpha: Any, grad_depth: Any,
-                          mode: str = DEFAULT_MODE) -> dict[str, wp.array]:
+                          mode: str = DEFAULT_MODE, absgrad: bool = False) -> dict[str, wp.array]:
     """`rasterize_backward` with wp.array results."""
+    if not isinstance(absgrad, bool):
+        raise ValueError(f"absgrad: expected True or False, got {absgrad!r}")
     _check_tiles_mode(tiles, mode)
     n = s.n
     final_t = a.floats("raster.final_T", raster.final_T, (height, width))
@@ -198,12 +211,15 @@ def rasterize_backward_wp(a: A.Inputs, s: Splats2D, width: int, height: int, bg:
     state = wp.empty((height, width, 5), dtype=a.scalar, device=dev)
     a.launch(_raster_backward_tile_kernel, n_tiles,
              [tiles.packed, bg, tiles.sorted_gid, tiles.sorted_entry, tiles.ranges, width, height,
-              tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]), final_t, n_contrib, g_rgb, g_a, g_d, state, entry_grads, tile_bg],
-             min_chunk=1)
+              tiles.tiles_x, a.s(ALPHA_MAX_OF[mode]), final_t, n_contrib, g_rgb, g_a, g_d, int(absgrad), state,
+              entry_grads, tile_bg], min_chunk=1)
     out = {"means2d": a.zeros((n, 2)), "conics": a.zeros((n, 3)), "opacities": a.zeros(n), "colors": a.zeros((n, 3)),
            "depths": a.zeros(n)}
+    g_abs = a.zeros((n, 2)) if absgrad else a.zeros((1, 2))  # written only with absgrad
     a.launch(_gather_entry_grads_kernel, n,
              [tiles.starts, tiles.counts, entry_grads, out["means2d"], out["conics"], out["opacities"],
-              out["colors"], out["depths"]], min_chunk=MIN_CHUNK)
+              out["colors"], out["depths"], int(absgrad), g_abs], min_chunk=MIN_CHUNK)
     out["background"] = wp.array(tile_bg.numpy().sum(axis=0), dtype=a.scalar, device=a.device)
+    if absgrad:
+        out["means2d_abs"] = g_abs
     return out

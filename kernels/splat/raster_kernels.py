@@ -19,7 +19,8 @@ the colour composited behind splat i:
     dalpha/do = G,  dalpha/dQ = -alpha/2 (dx^2, 2 dx dy, dy^2),  dalpha/dmean2d = -alpha Q d
 
 (zero where the a_max clamp is active: the gradient is one-sided there; depth like a colour channel
-with background 0). `_raster_backward_tile_kernel` runs a tile per thread and writes one gradient
+with background 0). With the `absgrad` flag the reverse pass also sums, per splat, the absolute values
+|dL/dmean2d|_p| of every pixel's term of the mean2d gradient, per component (AbsGS; kernels.splat.raster). `_raster_backward_tile_kernel` runs a tile per thread and writes one gradient
 row of _GRAD_COLS per (tile, splat) pair; `_gather_entry_grads_kernel` sums each splat's rows (no
 shared accumulator, so the tiles run in parallel and the result does not depend on the thread count).
 """
@@ -41,8 +42,9 @@ wp.set_module_options({"enable_backward": False})
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = ALPHA_MAX_OF["3dgs"]  # the default mode's clamp; "gsplat" clamps at ALPHA_MAX_OF["gsplat"]
 T_MIN = 1e-4
-# Columns of the per-(tile, splat) gradient rows: mean2d (2), conic (3), opacity, colour (3), depth.
-_GRAD_COLS = 10
+# Columns of the per-(tile, splat) gradient rows: mean2d (2), conic (3), opacity, colour (3), depth, and
+# (zero unless the backward is asked for them) the sums of |per-pixel dL/dmean2d| (2).
+_GRAD_COLS = 12
 
 
 @wp.func
@@ -282,7 +284,7 @@ def _raster_backward_tile_kernel(
     sorted_gid: wp.array(dtype=wp.int32), sorted_entry: wp.array(dtype=wp.int32), ranges: wp.array2d(dtype=wp.int32),
     width: int, height: int, tiles_x: int, alpha_max: Any, final_T: wp.array2d(dtype=Any),
     n_contrib: wp.array2d(dtype=wp.int32), g_rgb: wp.array3d(dtype=Any), g_alpha: wp.array2d(dtype=Any),
-    g_depth: wp.array2d(dtype=Any), state: wp.array3d(dtype=Any),
+    g_depth: wp.array2d(dtype=Any), absgrad: int, state: wp.array3d(dtype=Any),
     entry_grads: wp.array2d(dtype=Any), tile_bg_grads: wp.array2d(dtype=Any), offset: int,
 ):
     # One thread per tile: it alone writes the rows of its (tile, splat) entries and its background
@@ -372,8 +374,13 @@ def _raster_backward_tile_kernel(
                         if raw <= alpha_max:
                             grad[5] += gauss * g_a
                             g_p = alpha * g_a
-                            grad[0] += -(qa * dx + qb * dy) * g_p
-                            grad[1] += -(qb * dx + qc * dy) * g_p
+                            g_u = -(qa * dx + qb * dy) * g_p
+                            g_v = -(qb * dx + qc * dy) * g_p
+                            grad[0] += g_u
+                            grad[1] += g_v
+                            if absgrad != 0:  # AbsGS: this pixel's contribution, per component, in absolute value
+                                grad[10] += wp.abs(g_u)
+                                grad[11] += wp.abs(g_v)
                             grad[2] += -half * dx * dx * g_p
                             grad[3] += -dx * dy * g_p
                             grad[4] += -half * dy * dy * g_p
@@ -387,7 +394,8 @@ def _raster_backward_tile_kernel(
 def _gather_entry_grads_kernel(
     starts: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32), entry_grads: wp.array2d(dtype=Any),
     g_means2d: wp.array2d(dtype=Any), g_conics: wp.array2d(dtype=Any), g_opacities: wp.array(dtype=Any),
-    g_colors: wp.array2d(dtype=Any), g_depths: wp.array(dtype=Any), offset: int,
+    g_colors: wp.array2d(dtype=Any), g_depths: wp.array(dtype=Any), absgrad: int,
+    g_means2d_abs: wp.array2d(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
     acc = wp.vector(length=_GRAD_COLS, dtype=entry_grads.dtype)
@@ -405,6 +413,9 @@ def _gather_entry_grads_kernel(
     g_colors[i, 1] = acc[7]
     g_colors[i, 2] = acc[8]
     g_depths[i] = acc[9]
+    if absgrad != 0:
+        g_means2d_abs[i, 0] = acc[10]
+        g_means2d_abs[i, 1] = acc[11]
 
 
 for _k in (_raster_forward_kernel, _raster_forward_pixel_kernel, _raster_backward_tile_kernel,

@@ -74,7 +74,7 @@ def render(g: GaussianInputs, camera: SplatCamera, background: Any = None, *, sh
 
 
 def render_backward(g: GaussianInputs, result: Render, grad_rgb: Any, grad_alpha: Any = None,
-                    grad_depth: Any = None, *, want_camera: bool = False) -> dict[str, Any]:
+                    grad_depth: Any = None, *, want_camera: bool = False, absgrad: bool = False) -> dict[str, Any]:
     """VJP of `render` for the cotangents of rgb (and optionally alpha and depth).
 
     Returns a dict of arrays in the kind of g's inputs: the gradients of "means", "log_scales",
@@ -82,18 +82,22 @@ def render_backward(g: GaussianInputs, result: Render, grad_rgb: Any, grad_alpha
     "means2d" (N, 2), the screen-space (pixel) gradient of every splat's 2D mean, which
     densification uses. With `want_camera`, also the camera's: "pose" (6,), dL/dxi for the
     left perturbation viewmat <- exp(xi^) viewmat at xi = 0, xi = (rho, phi) translation first
-    (SplatCamera.perturbed), and "intrinsics" (4,), dL/d(fx, fy, cx, cy).
+    (SplatCamera.perturbed), and "intrinsics" (4,), dL/d(fx, fy, cx, cy). With `absgrad`, also
+    "means2d_abs" (N, 2), AbsGS's sum over pixels of |each pixel's term of dL/dmean2d| per component
+    (kernels/splat/raster.py), which densification reads with DensifyConfig(absgrad=True).
     """
     if not isinstance(result, Render):
         raise ValueError(f"result: expected the Render of kernels.splat.render, got {type(result).__name__}")
     cam, proj = result.camera, result.projection
     a = g.inputs()
     g2 = rasterize_backward_wp(a, _splats_2d(g, proj), cam.width, cam.height, result.background, result.tiles,
-                               result.raster, grad_rgb, grad_alpha, grad_depth, result.mode)
+                               result.raster, grad_rgb, grad_alpha, grad_depth, result.mode, absgrad)
     with A.value_checks(False):  # the screen-space gradients were computed here from checked inputs
         g3 = project_backward(g, cam, proj.radii, g2["means2d"], g2["conics"], g2["depths"], g2["colors"],
                               g2["opacities"], sh_degree=result.sh_degree, antialiased=result.antialiased,
                               mode=result.mode, dilation=result.dilation, want_camera=want_camera)
     g3["background"] = a.out(g2["background"])
     g3["means2d"] = a.out(g2["means2d"])
+    if absgrad:
+        g3["means2d_abs"] = a.out(g2["means2d_abs"])
     return g3

@@ -4,7 +4,9 @@ Each iteration renders one training view (a fresh random permutation of the view
 per epoch, as 3DGS), takes the L1 + D-SSIM loss against the ground truth, runs
 the hand-written backward, steps Adam (per-parameter learning rates, position
 rate decaying log-linearly), then gathers densification statistics and densifies,
-prunes and resets opacities on the scaled 3DGS schedule (research.splats.densify).
+prunes and resets opacities on the scaled 3DGS schedule (research.splats.densify); with
+DensifyConfig(absgrad=True) (`DensifyConfig.absgs()`) the backward also returns AbsGS's absolute
+mean2d gradient, and the statistics are gathered from it instead.
 The active SH degree grows by one every `sh_interval` iterations up to 3.
 The only ordering difference from 3DGS: the Adam step comes before (not after)
 densification in an iteration, so new splats get their first step one iteration later.
@@ -82,6 +84,9 @@ class TrainConfig:
             raise ValueError(f"filter_3d: expected a filter variance >= 0 (0: off), got {self.filter_3d}")
         if self.dilation is not None and not self.dilation >= 0:
             raise ValueError(f"dilation: expected a variance >= 0 or None, got {self.dilation}")
+        if self.densify.absgrad and self.strategy != "3dgs":
+            raise ValueError(f"densify: absgrad=True is 3DGS density control's statistic, expected "
+                             f"strategy='3dgs', got {self.strategy!r}")
 
 
 @dataclass
@@ -118,6 +123,7 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
     rng = np.random.default_rng(cfg.seed)
     sched = Schedule.scaled(cfg.iterations)
     use_mcmc = cfg.strategy == "mcmc"
+    absgrad = cfg.densify.absgrad  # 3DGS strategy only (TrainConfig checks)
     msched = MCMCSchedule.scaled(cfg.iterations, cfg.mcmc)
     lr = cfg.lrs
     adam = make_adam(model, {"means": lr.means_init * extent, "log_scales": lr.log_scales, "quats": lr.quats,
@@ -149,7 +155,7 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
                 grad_img = app.step(grad_img, it)
             if not np.isfinite(loss):
                 raise RuntimeError(f"iteration {it}: the loss is {loss}")
-            g = {k: x.numpy() for k, x in ks.render_backward(inputs, result, grad_img).items()}
+            g = {k: x.numpy() for k, x in ks.render_backward(inputs, result, grad_img, absgrad=absgrad).items()}
             if sigma is not None:
                 g["log_scales"], g["opacity_logits"] = mip.unfiltered_grads(
                     model.log_scales, model.opacity_logits, sigma, g["log_scales"], g["opacity_logits"])
@@ -173,7 +179,8 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
                 mcmc.inject_noise(model, next_lr, cfg.mcmc.noise_lr, rng)
             elif it < sched.densify_until:
                 cam = splat_cams[v]
-                stats.add(g["means2d"], result.projection.radii.numpy(), cam.width, cam.height)
+                stats.add(g["means2d_abs" if absgrad else "means2d"], result.projection.radii.numpy(), cam.width,
+                          cam.height)
                 if sched.densify_now(it):
                     n_before = model.n
                     model, counts = densify_and_prune(model, adam, stats, extent, cfg.densify, rng,

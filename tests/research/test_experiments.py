@@ -217,6 +217,12 @@ def _check_splat_densification(m):
     assert m["cap"] == base["splats"] and equal_n["iterations"] == base["iterations"]
     assert equal_n["strategy"] == equal_t["strategy"] == "mcmc" and base["strategy"] == "3dgs"
     assert all(f["splats"] <= m["cap"] and _finite(f["psnr"]) and f["cpu_seconds"] > 0 for f in (equal_n, equal_t))
+    abs_n, abs_t = m["models"]["AbsGS, equal count"], m["models"]["AbsGS, equal time"]
+    assert abs_n["iterations"] == base["iterations"] and m["absgrad_threshold"]["value"] == 0.0008
+    for f in (abs_n, abs_t):
+        assert f["strategy"] == "3dgs" and f["train"]["densify"]["absgrad"] and f["splats"] <= m["cap"]
+        assert f["train"]["densify"]["grad_threshold"] == 0.0008 and _finite(f["psnr"]) and f["cpu_seconds"] > 0
+    assert not base["train"]["densify"]["absgrad"]
 
 
 def _check_lidar(m):
