@@ -363,6 +363,9 @@ register_family("unbounded", "unbounded scenes for the fields: mip-NeRF 360's co
                 "proposal weights, inverse-CDF resampling, interlevel loss",
                 kernels="kernels.volume.proposal", reference="kernels.reference.volume_unbounded",
                 checks="research.checks.unbounded")
+register_family("splat_geometry", "splat median and expected depth, shortest-axis and depth normals, depth-normal "
+                "consistency loss", kernels="kernels.splat.depth", reference="kernels.reference.splat_geometry",
+                checks="research.checks.splat_geometry")
 register_family("mcmc", "3DGS-MCMC densification: relocation's opacity/scale correction, position noise, regularisers",
                 checks="research.checks.mcmc")
 register_family("lens", "lens camera models (opencv, fisheye, orthographic): ray generator, splat projection",

@@ -121,36 +121,45 @@ def quat_scale_to_covar(q: Any, log_scale: Any):
 
 
 @wp.func
-def quat_scale_to_covar_vjp(q: Any, log_scale: Any, g_sigma: Any):
-    """(dL/dq, dL/dlog_scale) for dL/dSigma = g_sigma (module docstring)."""
-    qn, R, s, M = rotation_scale(q, log_scale)
+def rotation_vjp(q: Any, g_R: Any):
+    """dL/dq of R(q / |q|) for dL/dR = g_R (module docstring: through R's entries and the normalisation)."""
+    qn = wp.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     two = type(qn)(2.0)
     w = q[0] / qn
     x = q[1] / qn
     y = q[2] / qn
     z = q[3] / qn
-    g_M = two * g_sigma * M
-    g_l = wp.vector(length=3, dtype=type(qn))
-    for j in range(3):
-        gs = g_M[0, j] * R[0, j] + g_M[1, j] * R[1, j] + g_M[2, j] * R[2, j]
-        g_l[j] = gs * s[j]
-    g00 = g_M[0, 0] * s[0]
-    g01 = g_M[0, 1] * s[1]
-    g02 = g_M[0, 2] * s[2]
-    g10 = g_M[1, 0] * s[0]
-    g11 = g_M[1, 1] * s[1]
-    g12 = g_M[1, 2] * s[2]
-    g20 = g_M[2, 0] * s[0]
-    g21 = g_M[2, 1] * s[1]
-    g22 = g_M[2, 2] * s[2]
+    g00 = g_R[0, 0]
+    g01 = g_R[0, 1]
+    g02 = g_R[0, 2]
+    g10 = g_R[1, 0]
+    g11 = g_R[1, 1]
+    g12 = g_R[1, 2]
+    g20 = g_R[2, 0]
+    g21 = g_R[2, 1]
+    g22 = g_R[2, 2]
     gw = two * (-z * g01 + y * g02 + z * g10 - x * g12 - y * g20 + x * g21)
     gx = two * (y * g01 + z * g02 + y * g10 - two * x * g11 - w * g12 + z * g20 + w * g21 - two * x * g22)
     gy = two * (-two * y * g00 + x * g01 + w * g02 + x * g10 + z * g12 - w * g20 + z * g21 - two * y * g22)
     gz = two * (-two * z * g00 - w * g01 + x * g02 + w * g10 - two * z * g11 + y * g12 + x * g20 + y * g21)
     dot = w * gw + x * gx + y * gy + z * gz
-    g_q = wp.vector((gw - w * dot) / qn, (gx - x * dot) / qn, (gy - y * dot) / qn, (gz - z * dot) / qn,
-                    length=4, dtype=type(qn))
-    return g_q, g_l
+    return wp.vector((gw - w * dot) / qn, (gx - x * dot) / qn, (gy - y * dot) / qn, (gz - z * dot) / qn,
+                     length=4, dtype=type(qn))
+
+
+@wp.func
+def quat_scale_to_covar_vjp(q: Any, log_scale: Any, g_sigma: Any):
+    """(dL/dq, dL/dlog_scale) for dL/dSigma = g_sigma (module docstring)."""
+    qn, R, s, M = rotation_scale(q, log_scale)
+    g_M = type(qn)(2.0) * g_sigma * M
+    g_l = wp.vector(length=3, dtype=type(qn))
+    for j in range(3):
+        gs = g_M[0, j] * R[0, j] + g_M[1, j] * R[1, j] + g_M[2, j] * R[2, j]
+        g_l[j] = gs * s[j]
+    g_R = wp.matrix(g_M[0, 0] * s[0], g_M[0, 1] * s[1], g_M[0, 2] * s[2],
+                    g_M[1, 0] * s[0], g_M[1, 1] * s[1], g_M[1, 2] * s[2],
+                    g_M[2, 0] * s[0], g_M[2, 1] * s[1], g_M[2, 2] * s[2], shape=(3, 3), dtype=type(qn))
+    return rotation_vjp(q, g_R), g_l
 
 
 @wp.func
