@@ -189,6 +189,13 @@ register_experiment(
 )
 
 register_experiment(
+    "splat_geometry",
+    "Splat depth and normals on Mitsuba `objects` against the stored depth and normals: expected vs median depth, "
+    "with and without 2DGS's depth-normal consistency loss (shortest-axis splat normals); AbsRel, RMSE, angles.",
+    quick_budget_s=600,
+)
+
+register_experiment(
     "time_budget",
     "PSNR against training time on the official lego at 1/4: splats and the hash-grid field at longer and "
     "longer schedules, wall and CPU time, the best fit in 10, 30 and 60 minutes.",

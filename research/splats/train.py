@@ -15,6 +15,11 @@ gsplat's order): the opacity and scale regularisers' gradients join the rendered
 Adam step; after it, every refinement interval the dead splats are relocated and new ones added up
 to `mcmc.cap_max`, and then every iteration the means get the opacity-gated noise (at the position
 learning rate of the next step, as gsplat's scheduler hands it); no opacity reset, no pruning.
+With `normal_weight` = lambda > 0 the loss gains lambda L_n, 2DGS's depth-normal consistency loss
+(research/splats/geometry.py: the blended shortest-axis splat normals against the normals of the
+rendered `normal_depth` map, "expected" or "median"), from iteration round(NORMAL_FROM * iterations)
+on: 2DGS's lambda_n = 0.05 from iteration 7000 of 30000 (NORMAL_WEIGHT_2DGS, NORMAL_FROM); its
+gradient joins the image's before the projection backward, and so the densification statistics.
 With `filter_3d` = s > 0 the splats are rendered through Mip-Splatting's 3D smoothing filter
 (research/splats/mip.py: its size from the training cameras, recomputed at the start, after every
 densification and every densification interval; the gradients taken back through it), and the
@@ -48,13 +53,16 @@ from research import metrics
 from research.cameras import Camera
 from research.splats import ply
 from research.splats.densify import DensifyConfig, DensifyStats, Schedule, densify_and_prune, reset_opacity
-from research.splats import appearance, mcmc, mip
+from research.splats import appearance, geometry, mcmc, mip
 from research.splats.loss import LAMBDA_DSSIM, l1_dssim
 from research.splats.model import GaussianModel, render, splat_camera
 from research.splats.mcmc import MCMCConfig, MCMCSchedule
 from research.splats.optim import LearningRates, expon_lr, make_adam
 
 STRATEGIES = ("3dgs", "mcmc")
+# 2DGS's depth-normal consistency weight and start (lambda_normal = 0.05 after 7000 of 30000 iterations).
+NORMAL_WEIGHT_2DGS = 0.05
+NORMAL_FROM = 7000 / 30000
 
 
 @dataclass(frozen=True)
@@ -75,6 +83,8 @@ class TrainConfig:
     mcmc: MCMCConfig = field(default_factory=MCMCConfig)
     # per-image colour model before the loss: none / affine / bilateral grid (research/splats/appearance.py)
     appearance: appearance.AppearanceConfig = field(default_factory=appearance.AppearanceConfig)
+    normal_weight: float = 0.0  # lambda of 2DGS's depth-normal consistency loss (0: off; NORMAL_WEIGHT_2DGS)
+    normal_depth: str = "expected"  # the depth map its normals come from: "expected" or "median"
 
     def __post_init__(self) -> None:
         mode_id(self.mode)  # ValueError naming `mode` before any work
@@ -84,6 +94,10 @@ class TrainConfig:
             raise ValueError(f"filter_3d: expected a filter variance >= 0 (0: off), got {self.filter_3d}")
         if self.dilation is not None and not self.dilation >= 0:
             raise ValueError(f"dilation: expected a variance >= 0 or None, got {self.dilation}")
+        if not self.normal_weight >= 0:
+            raise ValueError(f"normal_weight: expected a weight >= 0 (0: off), got {self.normal_weight}")
+        if self.normal_depth not in geometry.DEPTHS:
+            raise ValueError(f"normal_depth: expected one of {', '.join(geometry.DEPTHS)}, got {self.normal_depth!r}")
         if self.densify.absgrad and self.strategy != "3dgs":
             raise ValueError(f"densify: absgrad=True is 3DGS density control's statistic, expected "
                              f"strategy='3dgs', got {self.strategy!r}")
@@ -132,7 +146,10 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
     background = np.asarray(cfg.background, dtype=np.float32)
     splat_cams = [splat_camera(c) for c in cameras]
     history, events, order = [], [], []
-    zero = {"loss": 0.0, "l1": 0.0, "ssim": 0.0, **({"reg": 0.0} if use_mcmc else {}), "k": 0}
+    use_normals = cfg.normal_weight > 0
+    normal_from = round(NORMAL_FROM * cfg.iterations)
+    zero = {"loss": 0.0, "l1": 0.0, "ssim": 0.0, **({"reg": 0.0} if use_mcmc else {}),
+            **({"normal": 0.0} if use_normals else {}), "k": 0}
     running = dict(zero)
     t0 = time.perf_counter()
     bar = tqdm(range(1, cfg.iterations + 1), desc="fit splats", disable=not progress, mininterval=2.0)
@@ -155,7 +172,16 @@ def train(model: GaussianModel, cameras: list[Camera], images: np.ndarray, exten
                 grad_img = app.step(grad_img, it)
             if not np.isfinite(loss):
                 raise RuntimeError(f"iteration {it}: the loss is {loss}")
-            g = {k: x.numpy() for k, x in ks.render_backward(inputs, result, grad_img, absgrad=absgrad).items()}
+            if use_normals and it > normal_from:
+                geo = geometry.render_geometry(inputs, splat_cams[v], background, depth=cfg.normal_depth,
+                                               render=result)
+                l_n = geometry.consistency_loss(geo)
+                extra = geometry.consistency_backward(inputs, geo, cfg.normal_weight)
+                g = geometry.render_backward_with(inputs, result, grad_img, extra, absgrad=absgrad)
+                running["normal"] += l_n
+                loss += cfg.normal_weight * l_n
+            else:
+                g = {k: x.numpy() for k, x in ks.render_backward(inputs, result, grad_img, absgrad=absgrad).items()}
             if sigma is not None:
                 g["log_scales"], g["opacity_logits"] = mip.unfiltered_grads(
                     model.log_scales, model.opacity_logits, sigma, g["log_scales"], g["opacity_logits"])

@@ -225,6 +225,17 @@ def _check_splat_densification(m):
     assert not base["train"]["densify"]["absgrad"]
 
 
+def _check_splat_geometry(m):
+    rows, models = m["rows"], m["models"]
+    assert set(rows) == {f"{k}, {d}" for k in ("3DGS", "3DGS + L_n") for d in ("expected", "median")}
+    for r in rows.values():
+        assert r["absrel"] >= 0 and r["rmse"] >= 0 and 0 <= r["normal_mean_deg"] <= 180 and r["pixels"] > 0
+    assert models["3DGS"]["train"]["normal_weight"] == 0 and models["3DGS + L_n"]["train"]["normal_weight"] == 0.05
+    assert all(_finite(f["psnr"]) for f in models.values())
+    # the operator on the true depth is far better than chance (90 degrees)
+    assert m["operator_floor"]["normal_median_deg"] < 30
+
+
 def _check_lidar(m):
     methods = m["methods"]
     assert m["frames"] == 5 and m["returns_per_scan"] > 1000 and len(methods) == 4 + (m["kiss_icp"] is not None)
@@ -277,6 +288,7 @@ CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalma
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
           "volume_render_spheres": _check_volume, "sfm_poses": _check_sfm_poses, "real_photos": _check_real_photos,
           "oracle_conformance": _check_oracle, "splat_densification": _check_splat_densification,
+          "splat_geometry": _check_splat_geometry,
           "pose_refinement": _check_pose_refinement, "feature_vo": _check_feature_vo,
           "lidar_odometry": _check_lidar,
           "splat_slam": _check_slam, "time_budget": _check_time_budget, "lens_distortion": _check_lens_distortion,
