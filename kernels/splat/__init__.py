@@ -24,6 +24,10 @@ The chain, one module per stage:
                    (in the default mode; "gsplat": 0.999 and <= 1e-4); the Warp kernels in
                    raster_kernels.py
     render.py      the whole chain for one camera and its VJP
+    depth.py       median depth (2DGS: the z where the transmittance first crosses 1/2) and
+                   expected depth D / A, with their backward
+    normals.py     each splat's shortest-axis normal (PGSR) and normals from a depth map (central
+                   differences of the back-projected depth), with their backward
 
 Two conventions (`mode=`, every projecting or rasterising entry point; kernels/splat/modes.py has
 the full table): "3dgs", the default, follows the original 3DGS code (graphdeco-inria's
@@ -33,6 +37,9 @@ option as `antialiased=True`. "gsplat" follows gsplat: clamp x/z to [-cx/fx - 0.
 (W - cx)/fx + 0.15 W/fx], radius floor 0.01, its tile rule, alpha clamp 0.999, stop when
 T (1 - alpha) <= 1e-4, and its rasterize_mode="antialiased" as `antialiased=True`. Both dilate
 Sigma2d by 0.3 I (the entry points' `dilation` replaces 0.3) and skip alpha < 1/255.
+
+The rasteriser's backward can also return AbsGS's densification statistic (`absgrad=True`: per
+splat, the sum over pixels of |each pixel's term of dL/dmean2d|, per component; raster.py).
 
 Every backward is written by hand; each module's docstring gives its math. Non-smooth points,
 where gradients are one-sided: the 1/255 skip, the alpha clamp, the T stop, the colour
