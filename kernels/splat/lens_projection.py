@@ -34,12 +34,12 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.lens import lens_project, lens_project_vjp
-from kernels.sh import sh_basis, sh_basis_grad
 from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
                                dilate_cov2d_vjp, pose_vjp, quat_scale_to_covar, quat_scale_to_covar_vjp, sigmoid,
-                               transform_cov, transform_cov_vjp, view_direction, view_direction_vjp)
-from kernels.splat.projection_kernels import (RADIUS_FLOOR_3DGS, RADIUS_FLOOR_GSPLAT, _camera_frame, _load_splat,
-                                              _load_view, _store_screen, clamp_radius, culled, sh_color)
+                               transform_cov, transform_cov_vjp)
+from kernels.splat.projection_kernels import (_camera_frame, _load_splat, _load_view, _store_screen, clamp_radius,
+                                              clear_grads, clear_outputs, color_vjp, culled, screen_radius,
+                                              store_colors, store_pose_grad, store_vec3)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -54,16 +54,6 @@ def lens_ewa(model: int, lens: wp.array(dtype=Any), p: Any, cov_c: Any, fx: Any,
     return fx * mx + cx, fy * my + cy, J * cov_c * wp.transpose(J), Jm, mx, my, valid
 
 
-@wp.func
-def lens_radius(a1: Any, c1: Any, det: Any, mode: int):
-    """ceil(3 sqrt(lambda_max)) with the mode's floor (kernels.splat.projection)."""
-    bb = type(det)(0.5) * (a1 + c1)
-    floor = type(det)(RADIUS_FLOOR_GSPLAT)
-    if mode == 0:
-        floor = type(det)(RADIUS_FLOOR_3DGS)
-    return wp.ceil(type(det)(3.0) * wp.sqrt(bb + wp.sqrt(wp.max(floor, bb * bb - det))))
-
-
 @wp.kernel
 def _lens_project_kernel(
     means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
@@ -75,12 +65,7 @@ def _lens_project_kernel(
 ):
     i = wp.tid() + offset
     zero = means.dtype(0.0)
-    radii[i] = 0
-    _store_screen(means2d, conics, depths, i, zero, zero, zero, zero, zero, zero)
-    colors[i, 0] = zero
-    colors[i, 1] = zero
-    colors[i, 2] = zero
-    opacities[i] = zero
+    clear_outputs(means2d, conics, depths, radii, colors, opacities, i)
 
     Wr, tv, mu, q, l, p = _camera_frame(view, means, log_scales, quats, i)
     tz = p[2]
@@ -94,7 +79,7 @@ def _lens_project_kernel(
     det, qa, qb, qc = conic_inverse(a1, b, c1)
     if not (det > zero) or wp.isinf(det):
         return
-    r = lens_radius(a1, c1, det, mode)
+    r = screen_radius(a1, c1, det, mode)
     if culled(u, v, r, width, height, mode):
         return
     rc = clamp_radius(r, u, v, width, height)
@@ -103,11 +88,7 @@ def _lens_project_kernel(
     radii[i] = int(rc)
     _store_screen(means2d, conics, depths, i, u, v, qa, qb, qc, tz)
 
-    d, dn = view_direction(mu, Wr, tv)
-    basis = sh_basis(d[0], d[1], d[2])
-    n_coeffs = (sh_degree + 1) * (sh_degree + 1)
-    for ch in range(3):
-        colors[i, ch] = wp.max(sh_color(sh, i, ch, basis, n_coeffs), zero)
+    store_colors(sh, i, sh_degree, mu, Wr, tv, colors)
     o = sigmoid(opacity_logits[i])
     if antialiased != 0:
         o = o * aa_compensation(det0, det, mode)
@@ -131,18 +112,7 @@ def _lens_project_backward_kernel(
     zero = means.dtype(0.0)
     one = means.dtype(1.0)
     two = means.dtype(2.0)
-    if want_camera != 0:
-        for j in range(10):
-            d_camera[i, j] = zero
-    for k in range(sh.shape[1]):
-        for ch in range(3):
-            d_sh[i, k, ch] = zero
-    for j in range(3):
-        d_means[i, j] = zero
-        d_log_scales[i, j] = zero
-    for j in range(4):
-        d_quats[i, j] = zero
-    d_opacity_logits[i] = zero
+    clear_grads(i, d_means, d_log_scales, d_quats, d_opacity_logits, d_sh, want_camera, d_camera)
     if radii[i] == 0:
         return
 
@@ -187,38 +157,15 @@ def _lens_project_backward_kernel(
     for j in range(4):
         d_quats[i, j] = g_q[j]
 
-    # Colour = max(0, sum_k f_k Y_k(d) + 1/2).
-    d, dn = view_direction(mu, Wr, tv)
-    basis = sh_basis(d[0], d[1], d[2])
-    bdx, bdy, bdz = sh_basis_grad(d[0], d[1], d[2])
-    n_coeffs = (sh_degree + 1) * (sh_degree + 1)
-    g_d = wp.vector(zero, zero, zero, length=3, dtype=means.dtype)
-    for ch in range(3):
-        acc = sh_color(sh, i, ch, basis, n_coeffs)
-        if acc > zero:
-            gcol = g_colors[i, ch]
-            for k in range(n_coeffs):
-                d_sh[i, k, ch] = basis[k] * gcol
-                f = sh[i, k, ch] * gcol
-                g_d = g_d + wp.vector(bdx[k] * f, bdy[k] * f, bdz[k] * f, length=3, dtype=means.dtype)
-    g_view = view_direction_vjp(d, dn, g_d)
-    g_mu = g_mu + g_view
-
+    g_view = color_vjp(sh, i, sh_degree, mu, Wr, tv, g_colors, d_sh)
     if want_camera != 0:
         g_rho, g_phi = pose_vjp(p, g_p, cov_c, g_cov_c)
-        g_rho = g_rho + Wr * g_view  # the camera centre's share (kernels.splat.projection_kernels)
-        for j in range(3):
-            d_camera[i, j] = g_rho[j]
-            d_camera[i, 3 + j] = g_phi[j]
+        store_pose_grad(d_camera, i, g_rho, g_phi, Wr, g_view)
         d_camera[i, 6] = gu * mx + g_J[0, 0] * Jm[0, 0] + g_J[0, 1] * Jm[0, 1] + g_J[0, 2] * Jm[0, 2]
         d_camera[i, 7] = gv * my + g_J[1, 0] * Jm[1, 0] + g_J[1, 1] * Jm[1, 1] + g_J[1, 2] * Jm[1, 2]
         d_camera[i, 8] = gu
         d_camera[i, 9] = gv
-
-    d_means[i, 0] = g_mu[0]
-    d_means[i, 1] = g_mu[1]
-    d_means[i, 2] = g_mu[2]
-
+    store_vec3(d_means, i, g_mu + g_view)
 
 for _k in (_lens_project_kernel, _lens_project_backward_kernel):
     A.declare_float_overloads(_k)

@@ -129,14 +129,19 @@ def _screen_conic(mu: Any, q: Any, l: Any, Wr: Any, tv: Any, fx: Any, fy: Any, c
     """(u, v, det0, det, Q00, Q01, Q11, unclamped radius) of one splat (module docstring)."""
     cov_c, u, v, a, b, c, det0, a1, c1, det, qa, qb, qc = _conic_chain(Wr, q, l, Wr * mu + tv, fx, fy, cx, cy,
                                                                        width, height, mode, dilation)
-    half = type(det)(0.5)
-    bb = half * (a1 + c1)
+    return u, v, det0, det, qa, qb, qc, screen_radius(a1, c1, det, mode)
+
+
+@wp.func
+def screen_radius(a1: Any, c1: Any, det: Any, mode: int):
+    """ceil(3 sqrt(lambda_max)) of the dilated 2D covariance (a1, b, c1) with determinant det,
+    lambda_max = h + sqrt(max(f, h^2 - det)), h = (a1 + c1)/2, f the mode's floor (module docstring)."""
+    bb = type(det)(0.5) * (a1 + c1)
     floor = type(det)(RADIUS_FLOOR_GSPLAT)
     if mode == 0:
         floor = type(det)(RADIUS_FLOOR_3DGS)
     lam = bb + wp.sqrt(wp.max(floor, bb * bb - det))
-    r = wp.ceil(type(det)(3.0) * wp.sqrt(lam))
-    return u, v, det0, det, qa, qb, qc, r
+    return wp.ceil(type(det)(3.0) * wp.sqrt(lam))
 
 
 @wp.func
@@ -213,6 +218,90 @@ def clamp_radius(r: Any, u: Any, v: Any, width: int, height: int):
     return out
 
 
+@wp.func
+def clear_outputs(means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), depths: wp.array(dtype=Any),
+                  radii: wp.array(dtype=wp.int32), colors: wp.array2d(dtype=Any), opacities: wp.array(dtype=Any),
+                  i: int):
+    """Splat i's outputs as for a culled splat: radius 0 and every value 0."""
+    zero = means2d.dtype(0.0)
+    radii[i] = 0
+    _store_screen(means2d, conics, depths, i, zero, zero, zero, zero, zero, zero)
+    colors[i, 0] = zero
+    colors[i, 1] = zero
+    colors[i, 2] = zero
+    opacities[i] = zero
+
+
+@wp.func
+def store_colors(sh: wp.array3d(dtype=Any), i: int, sh_degree: int, mu: Any, Wr: Any, tv: Any,
+                 colors: wp.array2d(dtype=Any)):
+    """colour = max(0, sum_k f_k Y_k(d) + 1/2) of splat i, seen along d = (mu - camera centre) / |.|."""
+    d, dn = view_direction(mu, Wr, tv)
+    basis = sh_basis(d[0], d[1], d[2])
+    n_coeffs = (sh_degree + 1) * (sh_degree + 1)
+    for ch in range(3):
+        colors[i, ch] = wp.max(sh_color(sh, i, ch, basis, n_coeffs), sh.dtype(0.0))
+
+
+@wp.func
+def clear_grads(i: int, d_means: wp.array2d(dtype=Any), d_log_scales: wp.array2d(dtype=Any),
+                d_quats: wp.array2d(dtype=Any), d_opacity_logits: wp.array(dtype=Any), d_sh: wp.array3d(dtype=Any),
+                want_camera: int, d_camera: wp.array2d(dtype=Any)):
+    """Splat i's gradient rows set to 0 (what a culled splat keeps)."""
+    zero = d_means.dtype(0.0)
+    if want_camera != 0:
+        for j in range(10):
+            d_camera[i, j] = zero
+    for k in range(d_sh.shape[1]):
+        for ch in range(3):
+            d_sh[i, k, ch] = zero
+    for j in range(3):
+        d_means[i, j] = zero
+        d_log_scales[i, j] = zero
+    for j in range(4):
+        d_quats[i, j] = zero
+    d_opacity_logits[i] = zero
+
+
+@wp.func
+def color_vjp(sh: wp.array3d(dtype=Any), i: int, sh_degree: int, mu: Any, Wr: Any, tv: Any,
+              g_colors: wp.array2d(dtype=Any), d_sh: wp.array3d(dtype=Any)):
+    """The VJP of `store_colors`: writes dL/df (d_sh) of splat i and returns dL/dmu through the view
+    direction (sh.sh_basis_grad, view_direction_vjp); a channel clamped at 0 passes nothing."""
+    zero = sh.dtype(0.0)
+    d, dn = view_direction(mu, Wr, tv)
+    basis = sh_basis(d[0], d[1], d[2])
+    bdx, bdy, bdz = sh_basis_grad(d[0], d[1], d[2])
+    n_coeffs = (sh_degree + 1) * (sh_degree + 1)
+    g_d = wp.vector(zero, zero, zero, length=3, dtype=sh.dtype)
+    for ch in range(3):
+        acc = sh_color(sh, i, ch, basis, n_coeffs)
+        if acc > zero:
+            gcol = g_colors[i, ch]
+            for k in range(n_coeffs):
+                d_sh[i, k, ch] = basis[k] * gcol
+                f = sh[i, k, ch] * gcol
+                g_d = g_d + wp.vector(bdx[k] * f, bdy[k] * f, bdz[k] * f, length=3, dtype=sh.dtype)
+    return view_direction_vjp(d, dn, g_d)
+
+
+@wp.func
+def store_pose_grad(d_camera: wp.array2d(dtype=Any), i: int, g_rho: Any, g_phi: Any, Wr: Any, g_view: Any):
+    """Splat i's row of dL/d(rho, phi). The camera centre -W^T t moves by -W^T rho, so the view
+    direction's share of dL/drho is W g_view."""
+    g_r = g_rho + Wr * g_view
+    for j in range(3):
+        d_camera[i, j] = g_r[j]
+        d_camera[i, 3 + j] = g_phi[j]
+
+
+@wp.func
+def store_vec3(out: wp.array2d(dtype=Any), i: int, x: Any):
+    out[i, 0] = x[0]
+    out[i, 1] = x[1]
+    out[i, 2] = x[2]
+
+
 @wp.kernel
 def _project_kernel(
     means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
@@ -224,12 +313,7 @@ def _project_kernel(
 ):
     i = wp.tid() + offset
     zero = means.dtype(0.0)
-    radii[i] = 0
-    _store_screen(means2d, conics, depths, i, zero, zero, zero, zero, zero, zero)
-    colors[i, 0] = zero
-    colors[i, 1] = zero
-    colors[i, 2] = zero
-    opacities[i] = zero
+    clear_outputs(means2d, conics, depths, radii, colors, opacities, i)
 
     Wr, tv, mu, q, l, p = _camera_frame(view, means, log_scales, quats, i)
     tz = p[2]
@@ -267,12 +351,7 @@ def _project_kernel(
     radii[i] = int(rc)
     _store_screen(means2d, conics, depths, i, u, v, qa, qb, qc, tz)
 
-    d, dn = view_direction(mu, Wr, tv)
-    basis = sh_basis(d[0], d[1], d[2])
-    n_coeffs = (sh_degree + 1) * (sh_degree + 1)
-    for ch in range(3):
-        acc = sh_color(sh, i, ch, basis, n_coeffs)
-        colors[i, ch] = wp.max(acc, zero)
+    store_colors(sh, i, sh_degree, mu, Wr, tv, colors)
 
     o = sigmoid(opacity_logits[i])
     if antialiased != 0:
@@ -294,20 +373,8 @@ def _project_backward_kernel(
     d_camera: wp.array2d(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
-    zero = means.dtype(0.0)
     one = means.dtype(1.0)
-    if want_camera != 0:
-        for j in range(10):
-            d_camera[i, j] = zero
-    for k in range(sh.shape[1]):
-        for ch in range(3):
-            d_sh[i, k, ch] = zero
-    for j in range(3):
-        d_means[i, j] = zero
-        d_log_scales[i, j] = zero
-    for j in range(4):
-        d_quats[i, j] = zero
-    d_opacity_logits[i] = zero
+    clear_grads(i, d_means, d_log_scales, d_quats, d_opacity_logits, d_sh, want_camera, d_camera)
     if radii[i] == 0:
         return
 
@@ -349,35 +416,12 @@ def _project_backward_kernel(
     for j in range(4):
         d_quats[i, j] = g_q[j]
 
-    # Colour = max(0, sum_k f_k Y_k(d) + 1/2).
-    d, dn = view_direction(mu, Wr, tv)
-    basis = sh_basis(d[0], d[1], d[2])
-    bdx, bdy, bdz = sh_basis_grad(d[0], d[1], d[2])
-    n_coeffs = (sh_degree + 1) * (sh_degree + 1)
-    g_d = wp.vector(zero, zero, zero, length=3, dtype=means.dtype)
-    for ch in range(3):
-        acc = sh_color(sh, i, ch, basis, n_coeffs)
-        if acc > zero:
-            gcol = g_colors[i, ch]
-            for k in range(n_coeffs):
-                d_sh[i, k, ch] = basis[k] * gcol
-                f = sh[i, k, ch] * gcol
-                g_d = g_d + wp.vector(bdx[k] * f, bdy[k] * f, bdz[k] * f, length=3, dtype=means.dtype)
-    g_view = view_direction_vjp(d, dn, g_d)
-    g_mu = g_mu + g_view
-
+    g_view = color_vjp(sh, i, sh_degree, mu, Wr, tv, g_colors, d_sh)
     if want_camera != 0:
-        # The camera centre -W^T t moves by -W^T rho: the view direction's share of dL/drho is W g_view.
-        g_rho = g_rho + Wr * g_view
-        for j in range(3):
-            d_camera[i, j] = g_rho[j]
-            d_camera[i, 3 + j] = g_phi[j]
+        store_pose_grad(d_camera, i, g_rho, g_phi, Wr, g_view)
         for j in range(4):
             d_camera[i, 6 + j] = g_intr[j]
-
-    d_means[i, 0] = g_mu[0]
-    d_means[i, 1] = g_mu[1]
-    d_means[i, 2] = g_mu[2]
+    store_vec3(d_means, i, g_mu + g_view)
 
 
 for _k in (_project_kernel, _project_backward_kernel):

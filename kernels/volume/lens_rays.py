@@ -35,7 +35,7 @@ import warp as wp
 
 from kernels import _arrays as A
 from kernels.lens import Lens, check_lens, lens_unproject, lens_unproject_vjp
-from kernels.volume.rays import CameraGrad, _camera_arrays, check_camera
+from kernels.volume.rays import CameraGrad, _camera_arrays, check_camera, rotate_row, store_camera_row
 
 wp.set_module_options({"enable_backward": False})
 
@@ -85,21 +85,12 @@ def _lens_rays_backward_kernel(
     q, e, valid = lens_unproject(model, mx, my, lens)
     if not valid:
         return
-    gq = wp.vector(zero, zero, zero, length=3, dtype=pixels.dtype)
-    ge = wp.vector(zero, zero, zero, length=3, dtype=pixels.dtype)
-    for a in range(3):
-        gq[a] = rot[a, 0] * g_o[i, 0] + rot[a, 1] * g_o[i, 1] + rot[a, 2] * g_o[i, 2]
-        ge[a] = rot[a, 0] * g_d[i, 0] + rot[a, 1] * g_d[i, 1] + rot[a, 2] * g_d[i, 2]
+    gq = rotate_row(rot, g_o, i)
+    ge = rotate_row(rot, g_d, i)
     gphi = wp.cross(ge, e) + wp.cross(gq, q)
     ge[2] = ge[2] + g_z[i]
     gmx, gmy = lens_unproject_vjp(model, e, lens, gq, ge)
-    for a in range(3):
-        out[i, a] = gq[a]
-        out[i, 3 + a] = gphi[a]
-    out[i, 6] = -gmx * mx / intr[0]
-    out[i, 7] = -gmy * my / intr[1]
-    out[i, 8] = -gmx / intr[0]
-    out[i, 9] = -gmy / intr[1]
+    store_camera_row(out, i, gq, gphi, gmx, gmy, mx, my, intr)
 
 
 for _k in (_lens_rays_kernel, _lens_rays_backward_kernel):

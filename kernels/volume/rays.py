@@ -105,6 +105,29 @@ def pixel_dir(pixels: wp.array2d(dtype=typing.Any), i: int, intr: wp.array(dtype
     return cx_, cy_, n, cx_ / n, cy_ / n, pixels.dtype(1.0) / n
 
 
+@wp.func
+def rotate_row(rot: wp.array2d(dtype=typing.Any), g: wp.array2d(dtype=typing.Any), i: int):
+    """R g_i: row i of g (a world-frame cotangent) in the camera frame."""
+    return wp.vector(rot[0, 0] * g[i, 0] + rot[0, 1] * g[i, 1] + rot[0, 2] * g[i, 2],
+                     rot[1, 0] * g[i, 0] + rot[1, 1] * g[i, 1] + rot[1, 2] * g[i, 2],
+                     rot[2, 0] * g[i, 0] + rot[2, 1] * g[i, 1] + rot[2, 2] * g[i, 2], length=3, dtype=g.dtype)
+
+
+@wp.func
+def store_camera_row(out: wp.array2d(dtype=typing.Any), i: int, g_cam: typing.Any, g_phi: typing.Any,
+                     g_mx: typing.Any, g_my: typing.Any, mx: typing.Any, my: typing.Any,
+                     intr: wp.array(dtype=typing.Any)):
+    """Row i of the camera gradient: (the camera-frame origin cotangent (3), dL/dphi (3),
+    dL/d(fx, fy, cx, cy) from dL/dm of m = ((u - cx)/fx, (v - cy)/fy))."""
+    for a in range(3):
+        out[i, a] = g_cam[a]
+        out[i, 3 + a] = g_phi[a]
+    out[i, 6] = -g_mx * mx / intr[0]
+    out[i, 7] = -g_my * my / intr[1]
+    out[i, 8] = -g_mx / intr[0]
+    out[i, 9] = -g_my / intr[1]
+
+
 @wp.kernel
 def _rays_kernel(
     pixels: wp.array2d(dtype=typing.Any), rot: wp.array2d(dtype=typing.Any), trans: wp.array(dtype=typing.Any),
@@ -130,22 +153,13 @@ def _rays_backward_kernel(
     i = wp.tid() + offset
     cx_, cy_, n, ex, ey, ez = pixel_dir(pixels, i, intr)
     e = wp.vector(ex, ey, ez, length=3, dtype=pixels.dtype)
-    go = wp.vector(pixels.dtype(0.0), pixels.dtype(0.0), pixels.dtype(0.0), length=3, dtype=pixels.dtype)
-    ge = wp.vector(pixels.dtype(0.0), pixels.dtype(0.0), pixels.dtype(0.0), length=3, dtype=pixels.dtype)
-    for a in range(3):
-        go[a] = rot[a, 0] * g_o[i, 0] + rot[a, 1] * g_o[i, 1] + rot[a, 2] * g_o[i, 2]
-        ge[a] = rot[a, 0] * g_d[i, 0] + rot[a, 1] * g_d[i, 1] + rot[a, 2] * g_d[i, 2]
+    go = rotate_row(rot, g_o, i)
+    ge = rotate_row(rot, g_d, i)
     gphi = wp.cross(ge, e)
     ee = wp.dot(e, ge)
     gcx = (ge[0] - e[0] * ee) / n - g_z[i] * e[0] / (n * n)
     gcy = (ge[1] - e[1] * ee) / n - g_z[i] * e[1] / (n * n)
-    for a in range(3):
-        out[i, a] = go[a]
-        out[i, 3 + a] = gphi[a]
-    out[i, 6] = -gcx * cx_ / intr[0]
-    out[i, 7] = -gcy * cy_ / intr[1]
-    out[i, 8] = -gcx / intr[0]
-    out[i, 9] = -gcy / intr[1]
+    store_camera_row(out, i, go, gphi, gcx, gcy, cx_, cy_, intr)
 
 
 @wp.kernel

@@ -27,8 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from research.oracles import check_array
-from research.oracles.splat import DILATION, SPLAT_INPUTS, _camera, _rows, _splat_leaves
-from research.oracles.volume import sh_basis
+from research.oracles.splat import DILATION, SPLAT_INPUTS, _camera, _camera_gaussians, _sh_colors, _splat_leaves
 
 
 def _lens_point(dr, p, model: str, coeffs):
@@ -85,21 +84,7 @@ def lens_project_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K
     camera = {"pose": be.leaf(np.zeros(6)), "intrinsics": be.leaf([Kn[0, 0], Kn[1, 1], Kn[0, 2], Kn[1, 2]])}
     Wr, tv, (fx, fy, cx, cy) = _camera(be, viewmat, K, camera)
 
-    mx, my, mz = _rows(be, leaves["means"], n, 3)
-    l0, l1, l2 = _rows(be, leaves["log_scales"], n, 3)
-    qw, qx, qy, qz = _rows(be, leaves["quats"], n, 4)
-    qn = dr.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-    w, x, y, z = qw / qn, qx / qn, qy / qn, qz / qn
-    R = [[1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-         [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-         [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)]]
-    sc = [dr.exp(l0), dr.exp(l1), dr.exp(l2)]
-    M = [[R[i][j] * sc[j] for j in range(3)] for i in range(3)]
-    Sig = [[sum(M[i][k] * M[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
-    mu = (mx, my, mz)
-    p = [sum(Wr[i][j] * mu[j] for j in range(3)) + tv[i] for i in range(3)]
-    WS = [[sum(Wr[i][k] * Sig[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
-    Sc = [[sum(WS[i][k] * Wr[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+    mu, p, Sc = _camera_gaussians(be, leaves, n, Wr, tv)
 
     m_x, m_y, Jm = _lens_point(dr, p, model, coeffs)
     J = [[fx * Jm[0][j] for j in range(3)], [fy * Jm[1][j] for j in range(3)]]
@@ -109,16 +94,7 @@ def lens_project_oracle(means, log_scales, quats, opacity_logits, sh, viewmat, K
     det = a * c - b * b
     u, v = fx * m_x + cx, fy * m_y + cy
 
-    centre = [-sum(Wr[k][i] * tv[k] for k in range(3)) for i in range(3)]
-    dv = [mu[i] - centre[i] for i in range(3)]
-    dn = dr.sqrt(dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2])
-    Y = sh_basis(dv[0] / dn, dv[1] / dn, dv[2] / dn, n_coeffs)
-    colors = []
-    for ch in range(3):
-        acc = dr.zeros(be.Float, n)
-        for k in range(n_coeffs):
-            acc = acc + Y[k] * dr.gather(be.Float, leaves["sh"], be.arange(n) * (n_coeffs * 3) + k * 3 + ch)
-        colors.append(dr.maximum(acc + 0.5, 0.0))
+    colors = _sh_colors(be, leaves, n, n_coeffs, mu, Wr, tv)
     opac = 1.0 / (1.0 + dr.exp(-leaves["opacity_logits"]))
     outs = {"means2d": [u, v], "conics": [c / det, -b / det, a / det], "depths": [p[2]], "colors": colors,
             "opacities": [opac]}

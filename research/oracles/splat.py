@@ -97,10 +97,9 @@ def _camera(be: Backend, viewmat: np.ndarray, K: np.ndarray, camera: dict | None
     return Wr, tv, intr
 
 
-def _project(be: Backend, leaves: dict, n: int, n_coeffs: int, viewmat: np.ndarray, K: np.ndarray,
-             width: int, height: int, near: float, far: float, camera: dict | None = None) -> dict:
-    """Per-splat screen-space values (Dr.Jit arrays) of the module docstring's projection; `camera`:
-    the pose and intrinsics leaves (`_camera`) when their gradients are wanted."""
+def _camera_gaussians(be: Backend, leaves: dict, n: int, Wr: list, tv: list) -> tuple[tuple, list, list]:
+    """(mu, p = W mu + t, Sigma_c = W R S S^T R^T W^T) of every splat (Dr.Jit rows), with
+    R = R(q / |q|) and S = diag(exp l)."""
     dr = be.dr
     mx, my, mz = _rows(be, leaves["means"], n, 3)
     l0, l1, l2 = _rows(be, leaves["log_scales"], n, 3)
@@ -113,11 +112,35 @@ def _project(be: Backend, leaves: dict, n: int, n_coeffs: int, viewmat: np.ndarr
     s = [dr.exp(l0), dr.exp(l1), dr.exp(l2)]
     M = [[R[i][j] * s[j] for j in range(3)] for i in range(3)]
     Sig = [[sum(M[i][k] * M[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
-    Wr, tv, (fx, fy, cx, cy) = _camera(be, viewmat, K, camera)
     mu = (mx, my, mz)
     p = [sum(Wr[i][j] * mu[j] for j in range(3)) + tv[i] for i in range(3)]
     WS = [[sum(Wr[i][k] * Sig[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
-    Sc = [[sum(WS[i][k] * Wr[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+    return mu, p, [[sum(WS[i][k] * Wr[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+
+
+def _sh_colors(be: Backend, leaves: dict, n: int, n_coeffs: int, mu: tuple, Wr: list, tv: list) -> list:
+    """max(0, sum_k f_k Y_k(d) + 1/2) per channel, d the unit direction from the camera centre -W^T t."""
+    dr = be.dr
+    centre = [-sum(Wr[k][i] * tv[k] for k in range(3)) for i in range(3)]
+    dv = [mu[i] - centre[i] for i in range(3)]
+    dn = dr.sqrt(dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2])
+    Y = sh_basis(dv[0] / dn, dv[1] / dn, dv[2] / dn, n_coeffs)
+    colors = []
+    for ch in range(3):
+        acc = dr.zeros(be.Float, n)
+        for k in range(n_coeffs):
+            acc = acc + Y[k] * dr.gather(be.Float, leaves["sh"], be.arange(n) * (n_coeffs * 3) + k * 3 + ch)
+        colors.append(dr.maximum(acc + 0.5, 0.0))
+    return colors
+
+
+def _project(be: Backend, leaves: dict, n: int, n_coeffs: int, viewmat: np.ndarray, K: np.ndarray,
+             width: int, height: int, near: float, far: float, camera: dict | None = None) -> dict:
+    """Per-splat screen-space values (Dr.Jit arrays) of the module docstring's projection; `camera`:
+    the pose and intrinsics leaves (`_camera`) when their gradients are wanted."""
+    dr = be.dr
+    Wr, tv, (fx, fy, cx, cy) = _camera(be, viewmat, K, camera)
+    mu, p, Sc = _camera_gaussians(be, leaves, n, Wr, tv)
     tz = p[2]
     lim_x = FRUSTUM * width / (2.0 * fx)
     lim_y = FRUSTUM * height / (2.0 * fy)
@@ -134,19 +157,7 @@ def _project(be: Backend, leaves: dict, n: int, n_coeffs: int, viewmat: np.ndarr
     mid = 0.5 * (a + c)
     lam = mid + dr.sqrt(dr.maximum(EIG_FLOOR, mid * mid - det))
     radius = dr.ceil(3.0 * dr.sqrt(lam))
-    # Colour from SH in the direction from the camera centre -W^T t.
-    centre = [-sum(Wr[k][i] * tv[k] for k in range(3)) for i in range(3)]
-    dv = [mu[i] - centre[i] for i in range(3)]
-    dn = dr.sqrt(dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2])
-    Y = sh_basis(dv[0] / dn, dv[1] / dn, dv[2] / dn, n_coeffs)
-    sh = leaves["sh"]
-    colors = []
-    for ch in range(3):
-        acc = dr.zeros(be.Float, n)
-        for k in range(n_coeffs):
-            acc = acc + Y[k] * dr.gather(be.Float, sh, be.arange(n) * (n_coeffs * 3) + k * 3 + ch)
-        colors.append(dr.maximum(acc + 0.5, 0.0))
-    opac = 1.0 / (1.0 + dr.exp(-leaves["opacity_logits"]))
+    colors, opac = _sh_colors(be, leaves, n, n_coeffs, mu, Wr, tv), 1.0 / (1.0 + dr.exp(-leaves["opacity_logits"]))
     out = dict(u=u, v=v, qa=c / det, qb=-b / det, qc=a / det, det=det, z=tz, radius=radius, o=opac,
                c0=colors[0], c1=colors[1], c2=colors[2], in_depth=(tz >= near) & (tz <= far))
     dr.eval(*(x for x in out.values()))
