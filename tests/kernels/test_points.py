@@ -62,7 +62,7 @@ def test_knn_ties_on_a_lattice_go_to_the_smaller_index():
     assert list(got.idx[0]) == sorted(got.idx[0])
 
 
-@pytest.mark.parametrize("cell_size", [0.01, 0.3, 5.0, 100.0])
+@pytest.mark.parametrize("cell_size", [0.04, 0.3, 5.0, 100.0])  # 0.04: ~1 point per 600 cells
 def test_knn_does_not_depend_on_the_cell_size(cell_size):
     p, q = _cloud(2, 800, np.float64), _cloud(3, 100, np.float64, scale=3.0)
     got = kp.knn(p, 5, q, cell_size=cell_size)
@@ -332,20 +332,3 @@ def test_bad_input_raises_before_any_kernel(call, match, monkeypatch):
 def test_grid_margin_is_small():
     g = kgrid.build_grid(_cloud(22, 100, np.float32), 0.1)
     assert 0 < g.margin < 1e-3 and g.n == 100
-
-
-# --------------------------------------------------------------------------- CUDA
-
-
-@pytest.mark.parametrize("arch", [80, 90])
-def test_points_modules_compile_for_cuda(arch, tmp_path):
-    """The family's own modules through kernels.cuda_build (tests/kernels/test_cuda_compile.py compiles all)."""
-    from kernels import cuda_build
-
-    if not cuda_build.nvrtc_archs():
-        pytest.skip("this Warp build has no CUDA compiler (NVRTC)")
-    mods = [m for m in cuda_build.project_modules() if cuda_build.module_label(m).startswith("kernels.points.")]
-    assert {cuda_build.module_label(m) for m in mods} == {"kernels.points.grid", "kernels.points.sampling",
-                                                          "kernels.points.normals", "kernels.points.chamfer"}
-    results = cuda_build.compile_all(arch, tmp_path, mods)
-    assert all(r.ok for r in results), [r.error for r in results if not r.ok]
