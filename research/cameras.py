@@ -375,12 +375,13 @@ def orbit_poses(
     hemisphere: bool = True,
     min_elevation_deg: float = 5.0,
     seed: int | None = None,
+    max_elevation_deg: float = 90.0,
 ) -> list[np.ndarray]:
     """`n` cameras on a sphere (or the upper hemisphere) of `radius` around `center`, looking at it.
 
     Directions follow a Fibonacci spiral, which covers the sphere almost uniformly;
     with a `seed` the spiral is rotated about `up` by a random angle. In
-    hemisphere mode elevations lie in [min_elevation_deg, 90) degrees.
+    hemisphere mode elevations lie in [min_elevation_deg, max_elevation_deg) degrees.
     """
     if n <= 0:
         raise ValueError(f"n: expected a positive number of views, got {n}")
@@ -391,10 +392,14 @@ def orbit_poses(
     golden = math.pi * (3.0 - math.sqrt(5.0))
     phase = 0.0 if seed is None else float(np.random.default_rng(seed).uniform(0, 2 * math.pi))
     zmin = math.sin(math.radians(min_elevation_deg)) if hemisphere else -1.0
+    zmax = math.sin(math.radians(max_elevation_deg)) if hemisphere else 1.0
+    if not zmax > zmin:
+        raise ValueError(f"max_elevation_deg: expected more than min_elevation_deg ({min_elevation_deg}), "
+                         f"got {max_elevation_deg}")
     poses = []
     for k in range(n):
-        # Heights equally spaced in [zmin, 1) give equal areas on the sphere.
-        h = zmin + (1.0 - zmin) * (k + 0.5) / n
+        # Heights equally spaced in [zmin, zmax) give equal areas on the sphere.
+        h = zmin + (zmax - zmin) * (k + 0.5) / n
         r = math.sqrt(max(0.0, 1.0 - h * h))
         phi = phase + golden * k
         d = r * math.cos(phi) * a + r * math.sin(phi) * b + h * upv

@@ -126,8 +126,11 @@ def _filter_valid(img: np.ndarray, g: np.ndarray) -> np.ndarray:
     return out[r:img.shape[0] - r, r:img.shape[1] - r]
 
 
-def ssim(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0) -> float:
-    """Mean SSIM (module docstring); images (H, W) or (H, W, C) with H, W >= 11, in [0, data_range]."""
+def ssim(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0, mask: np.ndarray | None = None) -> float:
+    """Mean SSIM (module docstring); images (H, W) or (H, W, C) with H, W >= 11, in [0, data_range].
+
+    With `mask` (H, W) bool, the mean of the SSIM map over the windows whose centre pixel it selects
+    (the map's windows lie inside the image, so a border of 5 pixels is never a centre)."""
     data_range = _check_data_range(data_range)
     a, b = _pair(pred, target)
     _check_in_range(a, "pred", data_range)
@@ -136,6 +139,15 @@ def ssim(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0) -> float
         raise ValueError(f"pred: SSIM needs images at least {SSIM_WINDOW}x{SSIM_WINDOW}, got {a.shape[:2]}")
     if a.ndim == 2:
         a, b = a[..., None], b[..., None]
+    centres = None
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape != a.shape[:2]:
+            raise ValueError(f"mask: expected shape {a.shape[:2]}, got {m.shape}")
+        r = (SSIM_WINDOW - 1) // 2
+        centres = m[r:m.shape[0] - r, r:m.shape[1] - r]
+        if not centres.any():
+            raise ValueError(f"mask: selects no window centre (pixels at least {r} from the border)")
     g = gaussian_window_1d()
     c1 = (SSIM_K1 * data_range) ** 2
     c2 = (SSIM_K2 * data_range) ** 2
@@ -147,5 +159,5 @@ def ssim(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0) -> float
         syy = _filter_valid(y * y, g) - my * my
         sxy = _filter_valid(x * y, g) - mx * my
         s = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
-        values.append(s.mean())
+        values.append(s.mean() if centres is None else s[centres].mean())
     return float(np.mean(values))

@@ -209,6 +209,12 @@ register_experiment(
     quick_budget_s=120,
 )
 register_experiment(
+    "unbounded_fields",
+    "Unbounded scenes: the hash-grid field behind mip-NeRF 360's contraction with a proposal sampler vs the bounded "
+    "box, on Mitsuba `backdrop` (distant panorama wall, sky) and LLFF fern: PSNR/SSIM on full images and background.",
+    quick_budget_s=900,
+)
+register_experiment(
     "fit_nerf",
     "Voxel grid, hash grid + MLP and PE-MLP radiance fields fitted to Mitsuba `objects`: test PSNR/SSIM, "
     "depth MAE, train and render seconds.",

@@ -11,6 +11,11 @@ vector, and how cameras are placed around it.
   ground plane, lit by a procedural sky environment map and a directional sun; z up.
 * `cornell`: Mitsuba's Cornell box (`mi.cornell_box()`), y up, open towards +z;
   cameras sit on a cap in front of the opening.
+* `backdrop`: an unbounded scene for mip-NeRF 360-style fields: a small group of objects (checker
+  sphere, cube, cylinder) on a table in the middle of a ground disk of radius 14, surrounded by a
+  distant panorama wall (an emitting open cylinder of radius 15 with a procedural mountain and
+  forest texture) under the sky environment map and a sun; z up. Cameras orbit at 2.6 looking in,
+  so most pixels are background beyond the objects' box (`bbox`, radius ~1).
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ class SceneSpec:
     fov_x_deg: float
     hemisphere: bool = True
     min_elevation_deg: float = 10.0
+    max_elevation_deg: float = 90.0
     # Cameras on a cap of this half-angle around `cap_axis` (used instead of an orbit when set).
     cap_axis: tuple[float, float, float] | None = None
     cap_half_angle_deg: float = 0.0
@@ -54,7 +60,8 @@ class SceneSpec:
     def view_poses(self, n: int, seed: int) -> list[np.ndarray]:
         """Camera-to-world (OpenCV) poses for `n` multi-view cameras."""
         if self.cap_axis is None:
-            return orbit_poses(n, self.radius, self.target, self.up, self.hemisphere, self.min_elevation_deg, seed)
+            return orbit_poses(n, self.radius, self.target, self.up, self.hemisphere, self.min_elevation_deg, seed,
+                               self.max_elevation_deg)
         return _cap_poses(n, self.radius, np.array(self.target), np.array(self.cap_axis),
                           np.array(self.up), self.cap_half_angle_deg, seed)
 
@@ -164,6 +171,65 @@ def _rotz_translate_scale(deg: float, t, s: float) -> np.ndarray:
     return M
 
 
+def _panorama_bitmap(height: int = 64) -> np.ndarray:
+    """The backdrop's texture (u around the wall, v up): hills and tree stripes under a hazy band."""
+    width = 4 * height
+    u = (np.arange(width) + 0.5) / width
+    v = (np.arange(height) + 0.5) / height
+    ridge = 0.45 + 0.12 * np.sin(2 * math.pi * 3 * u) + 0.07 * np.sin(2 * math.pi * 11 * u + 1.0)
+    img = np.empty((height, width, 3))
+    sky = (1 - v)[:, None, None] * np.array([0.85, 0.8, 0.7]) + v[:, None, None] * np.array([0.45, 0.6, 0.95])
+    img[:] = sky
+    hill = v[:, None] < ridge[None, :]
+    shade = 0.6 + 0.4 * (v[:, None] / ridge[None, :])
+    trees = 0.75 + 0.25 * np.sign(np.sin(2 * math.pi * 40 * u))[None, :]
+    hill_rgb = np.array([0.25, 0.45, 0.2])[None, None, :] * (shade * trees)[..., None]
+    img = np.where(hill[..., None], hill_rgb, img)
+    img[: height // 8] = np.array([0.35, 0.3, 0.25])  # the wall's foot: dark earth
+    return np.ascontiguousarray(img[::-1].astype(np.float32))  # bitmap rows run from the top (v = 1)
+
+
+def _build_backdrop() -> dict[str, Any]:
+    import mitsuba as mi
+
+    scene = _build_objects_group()
+    env_to_world = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+    scene.update({
+        "sky": {"type": "envmap", "bitmap": mi.Bitmap(_sky_bitmap()), "scale": 0.8, "to_world": _T(env_to_world)},
+        "sun": {"type": "directional", "direction": [-0.4, -0.3, -0.85],
+                "irradiance": {"type": "rgb", "value": [2.6, 2.4, 2.1]}},
+        "ground": {"type": "disk", "to_world": _T(_translate_scale([0, 0, 0], [14.0, 14.0, 1.0])),
+                   "bsdf": {"type": "diffuse", "reflectance": {
+                       "type": "checkerboard", "color0": {"type": "rgb", "value": [0.5, 0.45, 0.35]},
+                       "color1": {"type": "rgb", "value": [0.35, 0.4, 0.3]},
+                       "to_uv": _T(np.diag([8.0, 8.0, 1.0, 1.0]))}}},
+        "wall": {"type": "cylinder", "p0": [0.0, 0.0, -0.5], "p1": [0.0, 0.0, 7.0], "radius": 15.0,
+                 "flip_normals": True,
+                 "emitter": {"type": "area", "radiance": {"type": "bitmap", "bitmap": mi.Bitmap(_panorama_bitmap())}},
+                 "bsdf": _diffuse((0.0, 0.0, 0.0))},
+    })
+    return scene
+
+
+def _build_objects_group() -> dict[str, Any]:
+    """The backdrop scene's foreground: a checker ball, a box and a can on a round table top."""
+    return {
+        "type": "scene",
+        "table": {"type": "disk", "to_world": _T(_translate_scale([0, 0, 0.01], 0.9)), "bsdf": _diffuse((0.8, 0.75, 0.7))},
+        "ball": {"type": "sphere", "center": [-0.3, -0.25, 0.3], "radius": 0.3,
+                 "bsdf": {"type": "diffuse", "reflectance": {
+                     "type": "checkerboard", "color0": {"type": "rgb", "value": [0.85, 0.15, 0.1]},
+                     "color1": {"type": "rgb", "value": [0.95, 0.85, 0.2]},
+                     "to_uv": _T(np.diag([8.0, 4.0, 1.0, 1.0]))}}},
+        "box": {"type": "cube", "to_world": _T(_rotz_translate_scale(25.0, [0.35, -0.15, 0.22], 0.22)),
+                "bsdf": _diffuse((0.15, 0.35, 0.8))},
+        "can": {"type": "cylinder", "p0": [0.05, 0.4, 0.0], "p1": [0.05, 0.4, 0.6], "radius": 0.18,
+                "bsdf": _diffuse((0.2, 0.7, 0.3))},
+        "can_lid": {"type": "disk", "to_world": _T(_translate_scale([0.05, 0.4, 0.6], 0.18)),
+                    "bsdf": _diffuse((0.9, 0.9, 0.85))},
+    }
+
+
 def _build_cornell() -> dict[str, Any]:
     import mitsuba as mi
 
@@ -188,6 +254,11 @@ SCENES: dict[str, SceneSpec] = {
         build=_build_cornell, bbox_min=(-1.0, -1.0, -1.0), bbox_max=(1.0, 1.0, 1.0), up=(0.0, 1.0, 0.0),
         target=(0.0, 0.0, 0.0), radius=3.9, fov_x_deg=39.3077, cap_axis=(0.0, 0.0, 1.0),
         cap_half_angle_deg=12.0, near_clip=0.05, hide_emitters=False),
+    "backdrop": SceneSpec(
+        name="backdrop", description="objects on a table inside a distant panorama wall; ground disk, sky + sun",
+        build=_build_backdrop, bbox_min=(-1.0, -1.0, -0.01), bbox_max=(1.0, 1.0, 1.0), up=(0.0, 0.0, 1.0),
+        target=(0.0, 0.0, 0.3), radius=2.6, fov_x_deg=60.0, hemisphere=True, min_elevation_deg=3.0,
+        max_elevation_deg=30.0, near_clip=0.05, far_clip=100.0, hide_emitters=False),
 }
 
 

@@ -283,6 +283,16 @@ def _check_splat_appearance(m):
             # clipping it may differ slightly, never by much
             assert r["psnr_corrected"] > r["psnr"] - 1.0
 
+def _check_unbounded_fields(m):
+    scene = m["scenes"]["backdrop"]
+    assert set(scene["methods"]) == {"baseline", "contracted"} and 0.3 < scene["background_fraction"] < 1.0
+    for r in scene["methods"].values():
+        mean = r["mean"]
+        assert all(_finite(mean[k]) for k in ("psnr", "ssim", "bg_psnr", "bg_ssim")) and r["train_s"] > 0
+        assert mean["psnr"] > 3 and -1 <= mean["ssim"] <= 1 and r["params"] > 0
+    assert scene["methods"]["contracted"]["config"]["n_main"] == 8 and "fern" not in m["scenes"]
+
+
 CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalman_tracking": _check_kalman,
           "mot_tracking": _check_mot, "lucas_kanade": _check_lucas_kanade, "raft_flow": _check_raft,
           "stereo_depth": _check_stereo, "fit_splats": _check_splats, "fit_nerf": _check_nerf,
@@ -293,7 +303,8 @@ CHECKS = {"performance": _check_performance, "datasets": _check_datasets, "kalma
           "lidar_odometry": _check_lidar,
           "splat_slam": _check_slam, "time_budget": _check_time_budget, "lens_distortion": _check_lens_distortion,
           "surface_recon": _check_surface_recon, "pointnet_classify": _check_pointnet,
-          "splat_antialiasing": _check_splat_antialiasing, "splat_appearance": _check_splat_appearance}
+          "splat_antialiasing": _check_splat_antialiasing, "splat_appearance": _check_splat_appearance,
+          "unbounded_fields": _check_unbounded_fields}
 
 
 def test_every_registered_experiment_has_a_smoke_check():

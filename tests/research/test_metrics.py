@@ -81,3 +81,22 @@ def test_evaluation_image_is_the_srgb_of_the_composite_on_black():
     assert targets.dtype == np.float32 and targets.shape == (1, 1, 2, 4)
     np.testing.assert_allclose(targets[..., :3], expected, atol=1e-6)
     np.testing.assert_array_equal(targets[..., 3], rgba[..., 3].astype(np.float32))
+
+
+def test_ssim_mask_averages_the_map_over_the_selected_window_centres():
+    rng = np.random.default_rng(4)
+    a = rng.uniform(0, 1, (40, 40, 3))
+    b = a.copy()
+    b[:, 20:] = rng.uniform(0, 1, (40, 20, 3))  # the right half differs
+    full = np.ones((40, 40), bool)
+    assert ssim(a, b, mask=full) == pytest.approx(ssim(a, b), rel=1e-12)
+    left = np.zeros((40, 40), bool)
+    left[:, :12] = True  # windows centred here (radius 5) see only equal pixels
+    assert ssim(a, b, mask=left) == pytest.approx(1.0, abs=1e-12)
+    assert ssim(a, b, mask=~left) < ssim(a, b)
+    with pytest.raises(ValueError, match="^mask: expected shape"):
+        ssim(a, b, mask=full[:-1])
+    border = np.zeros((40, 40), bool)
+    border[:3] = True
+    with pytest.raises(ValueError, match="^mask: selects no window centre"):
+        ssim(a, b, mask=border)
