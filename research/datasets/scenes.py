@@ -51,6 +51,9 @@ class SceneSpec:
     far_clip: float = 100.0
     # Hide directly seen emitters so alpha = coverage. Only scenes without an environment may show them.
     hide_emitters: bool = True
+    # Unbounded scenes: the box bounds the foreground only (what a bounded field models); geometry and
+    # emitters extend beyond it (the background that mip-NeRF 360-style fields are measured on).
+    unbounded: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -258,7 +261,7 @@ SCENES: dict[str, SceneSpec] = {
         name="backdrop", description="objects on a table inside a distant panorama wall; ground disk, sky + sun",
         build=_build_backdrop, bbox_min=(-1.0, -1.0, -0.01), bbox_max=(1.0, 1.0, 1.0), up=(0.0, 0.0, 1.0),
         target=(0.0, 0.0, 0.3), radius=2.6, fov_x_deg=60.0, hemisphere=True, min_elevation_deg=3.0,
-        max_elevation_deg=30.0, near_clip=0.05, far_clip=100.0, hide_emitters=False),
+        max_elevation_deg=30.0, near_clip=0.05, far_clip=100.0, hide_emitters=False, unbounded=True),
 }
 
 
