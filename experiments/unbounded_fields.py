@@ -16,8 +16,8 @@ ground disk of radius 14, under a sky; cameras orbit at 2.6 looking in, elevatio
 rendered by Mitsuba; and the real LLFF `fern` (forward-facing; its images_8 box-averaged 2x to 252x189,
 LLFF's every-8th-image test split). Scores: test PSNR and SSIM (sRGB) on the full image and on the
 background pixels alone -- on `backdrop` the pixels whose ground-truth surface lies outside the
-baseline's box (or that see the sky); `fern` has no ground-truth geometry, so it is scored on full
-images only.
+baseline's box (or that see the sky), and the foreground (the rest) beside them; `fern` has no
+ground-truth geometry, so it is scored on full images only.
 
 Which data chose each setting: the contraction's frame follows mip-NeRF 360's normalisation
 (centre = the orbit's target, radius = the cameras' distance, so the cameras lie on the unit sphere
@@ -123,6 +123,8 @@ def _scores(pred: np.ndarray, gt: np.ndarray, bg: np.ndarray | None) -> dict[str
     if bg is not None:
         row["bg_psnr"] = psnr(pred, gt, mask=bg)
         row["bg_ssim"] = ssim(pred, gt, mask=bg)
+        row["fg_psnr"] = psnr(pred, gt, mask=~bg)
+        row["fg_ssim"] = ssim(pred, gt, mask=~bg)
         row["bg_fraction"] = float(bg.mean())
     return row
 
@@ -228,8 +230,11 @@ def run(ctx: Context) -> int:
             rows.append([scene["name"], m, f"{mean['psnr']:.2f}", f"{mean['ssim']:.3f}",
                          f"{mean['bg_psnr']:.2f}" if "bg_psnr" in mean else "-",
                          f"{mean['bg_ssim']:.3f}" if "bg_ssim" in mean else "-",
+                         f"{mean['fg_psnr']:.2f}" if "fg_psnr" in mean else "-",
+                         f"{mean['fg_ssim']:.3f}" if "fg_ssim" in mean else "-",
                          r["iters"], r["batch_rays"], f"{r['params']:,}", f"{r['train_s']:.0f}", f"{r['render_s']:.1f}"])
     headers = ["scene", "field", "test PSNR (dB)", "test SSIM", "background PSNR (dB)", "background SSIM",
+               "foreground PSNR (dB)", "foreground SSIM",
                "iterations", "rays / iteration", "parameters", "train s", "s / test image"]
     lines = [f"- `{s['name']}`: {s['data']}; {len(s['train_cams'])} training and {len(s['test_cams'])} test views"
              + (f", background = {100 * s['background_mask'].mean():.0f}% of the test pixels (outside the box "

@@ -288,7 +288,8 @@ def _check_unbounded_fields(m):
     assert set(scene["methods"]) == {"baseline", "contracted"} and 0.3 < scene["background_fraction"] < 1.0
     for r in scene["methods"].values():
         mean = r["mean"]
-        assert all(_finite(mean[k]) for k in ("psnr", "ssim", "bg_psnr", "bg_ssim")) and r["train_s"] > 0
+        assert all(_finite(mean[k]) for k in ("psnr", "ssim", "bg_psnr", "bg_ssim", "fg_psnr", "fg_ssim"))
+        assert r["train_s"] > 0
         assert mean["psnr"] > 3 and -1 <= mean["ssim"] <= 1 and r["params"] > 0
     assert scene["methods"]["contracted"]["config"]["n_main"] == 8 and "fern" not in m["scenes"]
 
