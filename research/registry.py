@@ -179,6 +179,7 @@ register_experiment(
     "radiometric stress set; LLFF fern with a known per-image exposure): none vs per-image affine vs gsplat's "
     "bilateral grid; held-out PSNR/SSIM and colour-corrected PSNR.",
     quick_budget_s=600,
+    needs_data="nerf_llff_data/fern",
 )
 
 register_experiment(
