@@ -149,7 +149,7 @@ def _partial_folder(tmp):
 
 BAD_INPUTS = {
     # DatasetConfig fields, named by their `drlab dataset` option
-    "scene-unknown": (_cfg(scene="nope"), r"--scene: expected one of spheres, objects, cornell, got 'nope'"),
+    "scene-unknown": (_cfg(scene="nope"), r"--scene: expected one of spheres, objects, cornell, backdrop, got 'nope'"),
     "scene-empty": (_cfg(scene=""), r"--scene: expected one of .*, got ''"),
     "scene-none": (_cfg(scene=None), r"--scene: expected one of .*, got None"),
     "views-zero": (_cfg(views=0), r"--views: expected a positive integer, got 0"),
