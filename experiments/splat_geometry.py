@@ -212,6 +212,7 @@ def run(ctx: Context) -> int:
 
 main = Experiment("splat_geometry", __doc__, run, add_options,
                   seed_help="seed of the dataset's cameras, the initial points and training",
-                  sizes="Full: fit_splats' (100 views at 128x128, 64 spp, 3000 iterations, cap 30000); quick: 40 "
+                  sizes="Full: fit_splats' (100 views at 128x128, 64 spp, 3000 iterations, cap 30000; ~23 min on 2 shared "
+                        "cores); quick: 40 "
                         "views at 64x64, 800 iterations; smoke: 8 views at 32x32, 40 iterations.",
                   data_help=CACHE_ROOT_HELP).script(__name__)
