@@ -189,7 +189,7 @@ def _panorama_bitmap(height: int = 64) -> np.ndarray:
     hill_rgb = np.array([0.25, 0.45, 0.2])[None, None, :] * (shade * trees)[..., None]
     img = np.where(hill[..., None], hill_rgb, img)
     img[: height // 8] = np.array([0.35, 0.3, 0.25])  # the wall's foot: dark earth
-    return np.ascontiguousarray(img[::-1].astype(np.float32))  # bitmap rows run from the top (v = 1)
+    return np.ascontiguousarray(img.astype(np.float32))  # row 0 is v = 0, the wall's foot (checked in a render)
 
 
 def _build_backdrop() -> dict[str, Any]:
