@@ -39,8 +39,8 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
 from kernels.splat.raster import Raster, _check_tiles_mode
-from kernels.splat.raster_kernels import ALPHA_MIN, gauss_power, tile_box
-from kernels.splat.tiles import TILE, TILE_PIXELS, Splats2D, Tiles
+from kernels.splat.raster_kernels import ALPHA_MIN, gauss_power, tile_box, tile_pixel
+from kernels.splat.tiles import TILE_PIXELS, Splats2D, Tiles
 
 wp.set_module_options({"enable_backward": False})
 
@@ -56,12 +56,7 @@ def _median_kernel(packed: wp.array2d(dtype=Any), sorted_gid: wp.array(dtype=wp.
                    out_entry: wp.array2d(dtype=wp.int32), offset: int):
     # One thread per pixel, its tile's list up to the forward's n_contrib (past it nothing was blended),
     # with the forward's per-pixel arithmetic (kernels.splat.raster_kernels: the same T's).
-    t = wp.tid() + offset
-    tile = t / TILE_PIXELS
-    local = t - tile * TILE_PIXELS
-    tile_y = tile / tiles_x
-    px = (tile - tile_y * tiles_x) * TILE + local % TILE
-    py = tile_y * TILE + local / TILE
+    tile, px, py = tile_pixel(wp.tid() + offset, tiles_x)
     if px >= width or py >= height:
         return
     zero = packed.dtype(0.0)

@@ -218,6 +218,16 @@ def _raster_forward_rows_kernel(
             n_contrib[py, px] = nc[tile, k]
 
 
+@wp.func
+def tile_pixel(t: int, tiles_x: int):
+    """(tile, px, py) of thread t when threads run tile by tile, TILE_PIXELS per tile, row-major
+    within the tile (the per-pixel kernels' layout)."""
+    tile = t / TILE_PIXELS
+    local = t - tile * TILE_PIXELS
+    tile_y = tile / tiles_x
+    return tile, (tile - tile_y * tiles_x) * TILE + local % TILE, tile_y * TILE + local / TILE
+
+
 @wp.kernel
 def _raster_forward_pixel_kernel(
     packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
@@ -228,12 +238,7 @@ def _raster_forward_pixel_kernel(
 ):
     # The same forward with one thread per pixel walking its tile's whole list: the layout for CUDA,
     # whose threads are many and cheap (the CPU runs _raster_forward_kernel).
-    t = wp.tid() + offset
-    tile = t / TILE_PIXELS
-    local = t - tile * TILE_PIXELS
-    tile_y = tile / tiles_x
-    px = (tile - tile_y * tiles_x) * TILE + local % TILE
-    py = tile_y * TILE + local / TILE
+    tile, px, py = tile_pixel(wp.tid() + offset, tiles_x)
     if px >= width or py >= height:
         return
     zero = packed.dtype(0.0)
