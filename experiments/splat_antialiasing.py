@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from research.datasets import CACHE_ROOT_HELP
+from research import values
 from research.experiment import Context, Experiment
 from research.results import finish_figure, image_panel, markdown_table
 
@@ -99,9 +100,7 @@ def run(ctx: Context) -> int:
 
     size = sizes(ctx.quick, ctx.smoke)
     if ctx.args.iterations is not None:
-        if ctx.args.iterations < 1:
-            raise ValueError(f"--iterations: expected a positive integer, got {ctx.args.iterations}")
-        size["iterations"] = ctx.args.iterations
+        size["iterations"] = values.integer("--iterations", ctx.args.iterations, low=1)
     dcfg = datasets.DatasetConfig("objects", views=size["views"], res=2 * size["res"], spp=size["spp"],
                                   seed=ctx.seed)
     path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, ctx.data), show_progress=ctx.progress)

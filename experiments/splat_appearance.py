@@ -45,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
+from research import values
 from research.experiment import Context, Experiment
 from research.results import finish_figure, image_panel, markdown_table
 
@@ -244,9 +245,7 @@ def figure(sets: list[dict], fits: list[dict], path: Path) -> None:
 def run(ctx: Context) -> int:
     size = sizes(ctx.quick, ctx.smoke)
     if ctx.args.iterations is not None:
-        if ctx.args.iterations < 1:
-            raise ValueError(f"--iterations: expected a positive integer, got {ctx.args.iterations}")
-        size["iterations"] = ctx.args.iterations
+        size["iterations"] = values.integer("--iterations", ctx.args.iterations, low=1)
     mitsuba = mitsuba_set(ctx, size)
     fern = fern_set(ctx, size, smoke_split=mitsuba["split"])
     sets = [mitsuba, fern]

@@ -48,6 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from research.datasets import CACHE_ROOT_HELP
+from research import values
 from research.experiment import Context, Experiment
 from research.results import finish_figure, image_panel, markdown_table
 
@@ -92,9 +93,8 @@ def run(ctx: Context) -> int:
     from research.splats import mcmc, model as sm, train as st
 
     cfg = setup(ctx.quick, ctx.smoke)
-    iterations = cfg.iterations if ctx.args.iterations is None else ctx.args.iterations
-    if iterations < 1:
-        raise ValueError(f"--iterations: expected a positive integer, got {iterations}")
+    iterations = cfg.iterations if ctx.args.iterations is None else values.integer("--iterations",
+                                                                                     ctx.args.iterations, low=1)
     dcfg = datasets.DatasetConfig("objects", views=cfg.views, res=cfg.res, spp=cfg.spp, seed=ctx.seed)
     path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, ctx.data), show_progress=ctx.progress)
     ds = datasets.load(path)

@@ -340,6 +340,15 @@ def test_smoke_run(name, tmp_path, data_dir):
     print(f"{name} --smoke: {seconds:.1f} s")
 
 
+@pytest.mark.parametrize("name", ["splat_geometry", "splat_appearance"])  # the two ways the splat studies read it
+def test_bad_iterations_are_refused_in_one_line_before_any_work(name, tmp_path):
+    r = _run(["-m", f"experiments.{name}", "--smoke", "--no-progress", "--iterations", "0", "--out",
+              str(tmp_path / "out"), "--data", str(tmp_path / "data")])
+    assert r.returncode != 0
+    assert r.stderr.strip().splitlines()[-1].endswith("--iterations: expected an integer >= 1, got 0"), r.stderr
+    assert not (tmp_path / "data").exists() and not (tmp_path / "out").exists()
+
+
 @pytest.mark.timeout(240)
 def test_fit_splats_gsplat_mode_is_recorded(tmp_path, data_dir):
     """`fit_splats --mode gsplat` trains and evaluates with gsplat's conventions and says so in the table."""
