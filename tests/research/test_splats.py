@@ -16,6 +16,7 @@ from kernels import splat as ks
 from research.cameras import Camera, look_at
 from research.gradcheck import assert_gradcheck, check_vjp
 from research.splats import densify, loss, model as sm, optim, ply, train as st
+from tests.research.splat_fixtures import ring_cameras, training_scene
 
 
 def random_model(n: int, seed: int = 0) -> sm.GaussianModel:
@@ -321,14 +322,10 @@ def test_reset_opacity():
 
 
 def test_training_reduces_the_loss():
-    cams = [Camera.from_fov(50.0, 32, 32, look_at(3.0 * np.array([math.cos(a), math.sin(a), 0.6]), [0, 0, 0]))
-            for a in np.linspace(0, 2 * math.pi, 6, endpoint=False)]
     truth = random_model(40, seed=5)
     truth.means *= 0.4
-    truth.log_scales[:] = np.log(0.15)
-    truth.opacity_logits[:] = 3.0
     truth.sh_rest[:] = 0.0
-    images = np.stack([sm.render(truth, c, sh_degree=0).rgb.numpy() for c in cams])
+    cams, images = training_scene(truth)
     start = truth.copy()
     start.means += np.random.default_rng(0).normal(0, 0.1, start.means.shape).astype(np.float32)
     start.sh_dc[:] = 0.0
@@ -374,8 +371,7 @@ def test_every_stage_runs_on_the_training_device(monkeypatch, tmp_path):
 
     monkeypatch.setattr(sm.GaussianModel, "inputs", model_inputs)
     monkeypatch.setattr(ks, "gaussian_inputs", gaussian_inputs)
-    cams = [Camera.from_fov(50.0, 16, 16, look_at(3.0 * np.array([math.cos(a), math.sin(a), 0.6]), [0, 0, 0]))
-            for a in (0.0, 2.0, 4.0)]
+    cams = ring_cameras(16, (0.0, 2.0, 4.0))
     truth = random_model(10, seed=5)
     truth.means *= 0.4
     truth.log_scales[:] = np.log(0.2)

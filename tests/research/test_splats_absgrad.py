@@ -3,14 +3,13 @@ training loop gathering its statistics from the backward's absolute mean2d gradi
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
 
-from research.cameras import Camera, look_at
 from research.splats import densify, model as sm, train as st
 from tests.bad_input import assert_refused
+from tests.research.splat_fixtures import point_splats, training_scene
 
 
 def test_absgs_config():
@@ -25,13 +24,9 @@ def test_absgs_config():
 
 
 def _scene():
-    cams = [Camera.from_fov(50.0, 32, 32, look_at(3.0 * np.array([math.cos(a), math.sin(a), 0.6]), [0, 0, 0]))
-            for a in np.linspace(0, 2 * math.pi, 6, endpoint=False)]
     rng = np.random.default_rng(5)
-    truth = sm.from_points(rng.uniform(-0.4, 0.4, (40, 3)), rng.uniform(0.1, 0.9, (40, 3)))
-    truth.log_scales[:] = np.log(0.15)
-    truth.opacity_logits[:] = 3.0
-    images = np.stack([sm.render(truth, c, sh_degree=0).rgb.numpy() for c in cams])
+    truth = point_splats(rng)
+    cams, images = training_scene(truth)
     start = truth.copy()
     start.means += rng.normal(0, 0.1, start.means.shape).astype(np.float32)
     start.sh_dc[:] = 0.0

@@ -3,14 +3,13 @@ consistency loss it adds, and bad settings are refused."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
 from kernels import splat as ks
-from research.cameras import Camera, look_at
 from research.splats import geometry, model as sm, train as st
 from tests.bad_input import assert_refused
+from tests.research.splat_fixtures import point_splats, training_scene
 
 
 def _consistency(model, cams, depth):
@@ -23,13 +22,9 @@ def _consistency(model, cams, depth):
 
 
 def test_the_consistency_loss_trains_down():
-    cams = [Camera.from_fov(50.0, 32, 32, look_at(3.0 * np.array([math.cos(a), math.sin(a), 0.6]), [0, 0, 0]))
-            for a in np.linspace(0, 2 * math.pi, 6, endpoint=False)]
     rng = np.random.default_rng(5)
-    truth = sm.from_points(rng.uniform(-0.4, 0.4, (40, 3)), rng.uniform(0.1, 0.9, (40, 3)))
-    truth.log_scales[:] = np.log(0.15)
-    truth.opacity_logits[:] = 3.0
-    images = np.stack([sm.render(truth, c, sh_degree=0).rgb.numpy() for c in cams])
+    truth = point_splats(rng)
+    cams, images = training_scene(truth)
     start = truth.copy()
     start.means += rng.normal(0, 0.05, start.means.shape).astype(np.float32)
     start.log_scales += rng.normal(0, 0.3, start.log_scales.shape).astype(np.float32)  # distinct shortest axes

@@ -11,10 +11,10 @@ from scipy.integrate import quad
 from scipy.spatial.transform import Rotation
 
 from kernels.optim import Adam
-from research.cameras import Camera, look_at
 from research.checks.mcmc import check_regularizer
 from research.gradcheck import assert_gradcheck
 from research.splats import mcmc, model as sm, train as st
+from tests.research.splat_fixtures import training_scene
 
 
 def paper_eq9(o_old: float, s_old: float, n: int) -> tuple[float, float]:
@@ -168,15 +168,11 @@ def test_adam_reset_rows():
 
 
 def test_mcmc_training_reaches_the_cap_and_reduces_the_loss():
-    cams = [Camera.from_fov(50.0, 32, 32, look_at(3.0 * np.array([math.cos(a), math.sin(a), 0.6]), [0, 0, 0]))
-            for a in np.linspace(0, 2 * math.pi, 6, endpoint=False)]
     rng = np.random.default_rng(5)
     truth = _model(40, seed=5)
     truth.means *= 0.4
-    truth.log_scales[:] = np.log(0.15)
-    truth.opacity_logits[:] = 3.0
     truth.sh_rest[:] = 0.0
-    images = np.stack([sm.render(truth, c, sh_degree=0).rgb.numpy() for c in cams])
+    cams, images = training_scene(truth)
     start = truth.copy()
     start.means += rng.normal(0, 0.1, start.means.shape).astype(np.float32)
     start.sh_dc[:] = 0.0
