@@ -112,8 +112,20 @@ class _Classifier:
     def _wp(self, x: np.ndarray) -> wp.array:
         return wp.array(np.ascontiguousarray(x, dtype=self.np_dtype), dtype=self.dtype, device=self.device)
 
-    def _grads(self, name: str, grads: dict[str, wp.array], out: dict[str, wp.array]) -> None:
-        out.update({f"{name}.{k}": v for k, v in grads.items()})
+    def _mlp_backward(self, name: str, cache: dict[str, Any], d_out: wp.array, grads: dict[str, wp.array],
+                      need_input_grad: bool = True) -> wp.array | None:
+        """Backward of MLP `name` (its forward cache is cache[name]) for the cotangent `d_out` of its output:
+        its parameter gradients go into `grads` as "<name>.<param>"; returns its input gradient (None unless
+        need_input_grad)."""
+        g, d_in = self.mlps[name].backward(cache[name], d_out, need_input_grad=need_input_grad)
+        grads.update({f"{name}.{k}": v for k, v in g.items()})
+        return d_in
+
+    @staticmethod
+    def _unpool(pool: kpn.MaxPoolResult, d_pooled: wp.array, count: int) -> wp.array:
+        """The gradient through max pool `pool` (groups of `count` rows), one row per row of the pool's input."""
+        d = kpn.max_pool_backward(pool, d_pooled, count)["x"]
+        return d.reshape((d.shape[0] * d.shape[1], d.shape[2]))
 
 
 @dataclass
@@ -150,12 +162,8 @@ class PointNet(_Classifier):
         c = fwd.cache
         b, n = c["shape"]
         grads: dict[str, wp.array] = {}
-        g_head, d_pooled = self.mlps["head"].backward(c["head"], self._wp(grad_logits), need_input_grad=True)
-        self._grads("head", g_head, grads)
-        d_h = kpn.max_pool_backward(c["pool"], d_pooled, n)["x"]
-        g_point, d_pts = self.mlps["point"].backward(c["point"], d_h.reshape((b * n, d_h.shape[2])),
-                                                     need_input_grad=need_points_grad)
-        self._grads("point", g_point, grads)
+        d_pooled = self._mlp_backward("head", c, self._wp(grad_logits), grads)
+        d_pts = self._mlp_backward("point", c, self._unpool(c["pool"], d_pooled, n), grads, need_points_grad)
         return grads, (d_pts.numpy().reshape(b, n, 3) if need_points_grad else None)
 
 
@@ -210,18 +218,9 @@ class PointNetSA(_Classifier):
         b, n, s, k = c["shape"]
         idx = c["indices"]
         grads: dict[str, wp.array] = {}
-        g_head, d_g = self.mlps["head"].backward(c["head"], self._wp(grad_logits), need_input_grad=True)
-        self._grads("head", g_head, grads)
-        d_h2 = kpn.max_pool_backward(c["pool2"], d_g, s)["x"]
-        g_global, d_z = self.mlps["global"].backward(c["global"], d_h2.reshape((b * s, d_h2.shape[2])),
-                                                     need_input_grad=True)
-        self._grads("global", g_global, grads)
-        d_z = d_z.numpy()
-        d_f1 = self._wp(d_z[:, 3:])
-        d_h1 = kpn.max_pool_backward(c["pool1"], d_f1, k)["x"]
-        g_sa, d_u = self.mlps["sa"].backward(c["sa"], d_h1.reshape((b * s * k, d_h1.shape[2])),
-                                             need_input_grad=need_points_grad)
-        self._grads("sa", g_sa, grads)
+        d_g = self._mlp_backward("head", c, self._wp(grad_logits), grads)
+        d_z = self._mlp_backward("global", c, self._unpool(c["pool2"], d_g, s), grads).numpy()
+        d_u = self._mlp_backward("sa", c, self._unpool(c["pool1"], self._wp(d_z[:, 3:]), k), grads, need_points_grad)
         if not need_points_grad:
             return grads, None
         d_pts = kpn.group_local_backward(c["points"], idx.centers, idx.neighbors, self.radius,
