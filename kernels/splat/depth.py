@@ -39,7 +39,7 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
 from kernels.splat.raster import Raster, _check_tiles_mode
-from kernels.splat.raster_kernels import ALPHA_MIN, gauss_power, tile_box, tile_pixel
+from kernels.splat.raster_kernels import ALPHA_MIN, splat_alpha, tile_box, tile_pixel
 from kernels.splat.tiles import TILE_PIXELS, Splats2D, Tiles
 
 wp.set_module_options({"enable_backward": False})
@@ -71,10 +71,7 @@ def _median_kernel(packed: wp.array2d(dtype=Any), sorted_gid: wp.array(dtype=wp.
         g = sorted_gid[s]
         dx = packed[g, 0] - pxf
         dy = packed[g, 1] - pyf
-        power = gauss_power(packed[g, 2], packed[g, 3], packed[g, 4], dx, dy)
-        if power > zero or power < packed[g, 6]:
-            continue
-        alpha = wp.min(alpha_max, packed[g, 5] * wp.exp(power))
+        alpha = splat_alpha(packed[g, 2], packed[g, 3], packed[g, 4], packed[g, 5], packed[g, 6], dx, dy, alpha_max)
         if alpha < packed.dtype(ALPHA_MIN):
             continue
         # blended, with T_i = tr > 1/2 (the walk stops once T <= 1/2)

@@ -71,6 +71,16 @@ def gauss_power(qa: Any, qb: Any, qc: Any, dx: Any, dy: Any):
     return -type(dx)(0.5) * (qa * dx * dx + qc * dy * dy) - qb * dx * dy
 
 
+@wp.func
+def splat_alpha(qa: Any, qb: Any, qc: Any, o: Any, thr: Any, dx: Any, dy: Any, alpha_max: Any):
+    """alpha = min(a_max, o G) of a splat at offset d = (dx, dy), or 0 where its exponent is positive or
+    below thr (alpha < 1/255 there, so exp() is skipped); the caller skips alpha < 1/255."""
+    power = gauss_power(qa, qb, qc, dx, dy)
+    if power > type(dx)(0.0) or power < thr:
+        return type(dx)(0.0)
+    return wp.min(alpha_max, o * wp.exp(power))
+
+
 @wp.kernel
 def _raster_forward_kernel(
     packed: wp.array2d(dtype=Any), background: wp.array(dtype=Any),
@@ -123,10 +133,7 @@ def _raster_forward_kernel(
                     continue
                 dx = u - pxf
                 dy = v - pyf
-                power = gauss_power(qa, qb, qc, dx, dy)
-                if power > zero or power < thr:
-                    continue
-                alpha = wp.min(alpha_max, o * wp.exp(power))
+                alpha = splat_alpha(qa, qb, qc, o, thr, dx, dy, alpha_max)
                 if alpha < packed.dtype(ALPHA_MIN):
                     continue
                 tr = final_T[py, px]
@@ -258,10 +265,7 @@ def _raster_forward_pixel_kernel(
         g = sorted_gid[s]
         dx = packed[g, 0] - pxf
         dy = packed[g, 1] - pyf
-        power = gauss_power(packed[g, 2], packed[g, 3], packed[g, 4], dx, dy)
-        if power > zero or power < packed[g, 6]:
-            continue
-        alpha = wp.min(alpha_max, packed[g, 5] * wp.exp(power))
+        alpha = splat_alpha(packed[g, 2], packed[g, 3], packed[g, 4], packed[g, 5], packed[g, 6], dx, dy, alpha_max)
         if alpha < packed.dtype(ALPHA_MIN):
             continue
         next_t = tr * (one - alpha)
