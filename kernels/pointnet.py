@@ -96,19 +96,24 @@ def _max_pool_backward_kernel(grad_y: wp.array2d(dtype=typing.Any), arg: wp.arra
     grad_x[g, arg[g, c], c] = grad_y[g, c]
 
 
-@wp.kernel
-def _group_kernel(points: wp.array3d(dtype=typing.Any), centers: wp.array2d(dtype=wp.int32),
-                  neighbors: wp.array3d(dtype=wp.int32), inv_r: typing.Any, out: wp.array4d(dtype=typing.Any),
-                  offset: int):
-    t = wp.tid() + offset
+@wp.func
+def _group_slot(t: int, centers: wp.array2d(dtype=wp.int32), neighbors: wp.array3d(dtype=wp.int32)):
+    """Thread t's slot (b, s, k) of the (B, S, K) grouping, row-major, with its centre c[b, s] and
+    neighbour j[b, s, k]."""
     n_s = neighbors.shape[1]
     n_k = neighbors.shape[2]
     b = t / (n_s * n_k)
     rest = t - b * n_s * n_k
     s = rest / n_k
     k = rest - s * n_k
-    c = centers[b, s]
-    j = neighbors[b, s, k]
+    return b, s, k, centers[b, s], neighbors[b, s, k]
+
+
+@wp.kernel
+def _group_kernel(points: wp.array3d(dtype=typing.Any), centers: wp.array2d(dtype=wp.int32),
+                  neighbors: wp.array3d(dtype=wp.int32), inv_r: typing.Any, out: wp.array4d(dtype=typing.Any),
+                  offset: int):
+    b, s, k, c, j = _group_slot(wp.tid() + offset, centers, neighbors)
     for a in range(3):
         out[b, s, k, a] = (points[b, j, a] - points[b, c, a]) * inv_r
 
@@ -118,15 +123,7 @@ def _group_backward_kernel(grad: wp.array4d(dtype=typing.Any), centers: wp.array
                            neighbors: wp.array3d(dtype=wp.int32), inv_r: typing.Any,
                            grad_points: wp.array3d(dtype=typing.Any)):
     # A scatter into shared slots: launched once, never split (module docstring).
-    t = wp.tid()
-    n_s = neighbors.shape[1]
-    n_k = neighbors.shape[2]
-    b = t / (n_s * n_k)
-    rest = t - b * n_s * n_k
-    s = rest / n_k
-    k = rest - s * n_k
-    c = centers[b, s]
-    j = neighbors[b, s, k]
+    b, s, k, c, j = _group_slot(wp.tid(), centers, neighbors)
     for a in range(3):
         v = grad[b, s, k, a] * inv_r
         wp.atomic_add(grad_points, b, j, a, v)
