@@ -19,6 +19,7 @@ from kernels.points import grid as kgrid
 from kernels.reference import points as ref
 from research.checks import points as cpoints
 from research.gradcheck import assert_gradcheck
+from tests.bad_input import launches_before_refusal
 
 DTYPES = [np.float32, np.float64]
 
@@ -320,11 +321,7 @@ BAD = [
 
 @pytest.mark.parametrize("call, match", [b[1:] for b in BAD], ids=[b[0] for b in BAD])
 def test_bad_input_raises_before_any_kernel(call, match, monkeypatch):
-    launched = []
-    real = wp.launch
-    monkeypatch.setattr(wp, "launch", lambda *a, **k: launched.append(a) or real(*a, **k))
-    with pytest.raises(ValueError, match=match):
-        call()
+    launched = launches_before_refusal(call, match, monkeypatch)
     if "result" not in match and "grad" not in match:  # those two build their result first
         assert not launched
 
