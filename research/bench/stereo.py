@@ -100,6 +100,12 @@ def _sgbm(disparities: int) -> Any:
                                  speckleWindowSize=100, speckleRange=32, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
 
 
+def _head(case: str, device: str, threads: int, height: int, width: int, disparities: int) -> dict[str, Any]:
+    """The keys every stereo row starts with: its case, where it ran, and the size of its problem."""
+    return {"bench": f"stereo.{case}", "device": str(wp.get_device(device)), "threads": threads, "height": height,
+            "width": width, "disparities": disparities}
+
+
 def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare: bool = False) -> Iterator[dict]:
     from research.stereo.matching import StereoConfig, match, peak_volume_bytes
 
@@ -135,12 +141,7 @@ def cases(device: str = "cpu", quick: bool = False, tiny: bool = False, compare:
         _reference(fns, row, cv2, compare, disparities, left_np, right_np)
         t = time_medians(fns, sync=lambda: wp.synchronize_device(device), settle_s=SETTLE_S)
         yield {
-            "bench": "stereo.sgm",
-            "device": str(dev),
-            "threads": threads,
-            "height": height,
-            "width": width,
-            "disparities": disparities,
+            **_head("sgm", device, threads, height, width, disparities),
             "paths": PATHS,
             "cost": f"census{2 * CENSUS_RADII[0] + 1}x{2 * CENSUS_RADII[1] + 1}",
             "cost_s": t["cost"],
@@ -202,12 +203,7 @@ def _default_case(device: str, threads: int, height: int, width: int, disparitie
     t = time_medians(fns, sync=lambda: wp.synchronize_device(device), settle_s=SETTLE_S)
     del volume
     return {
-        "bench": "stereo.default",
-        "device": str(wp.get_device(device)),
-        "threads": threads,
-        "height": height,
-        "width": width,
-        "disparities": disparities,
+        **_head("default", device, threads, height, width, disparities),
         "paths": paths,
         "config": cfg.label,
         "compact": compact,
@@ -239,12 +235,7 @@ def _memory_case(device: str, threads: int, height: int, width: int, disparities
     match(left, right, 0, disparities, cfg, device)
     seconds = time.perf_counter() - t0
     return {
-        "bench": "stereo.memory",
-        "device": str(wp.get_device(device)),
-        "threads": threads,
-        "height": height,
-        "width": width,
-        "disparities": disparities,
+        **_head("memory", device, threads, height, width, disparities),
         "compact": uses_compact(cfg, height, width, disparities),
         "peak_mb": peak_volume_bytes(cfg, height, width, disparities) / 2**20,
         "rss_peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,  # KiB on Linux
