@@ -62,6 +62,15 @@ SGM_VEC = {wp.float32: wp.types.vector(length=SGM_LANES, dtype=wp.float32),
 
 
 @wp.func
+def _store_path(agg_v: wp.array(dtype=typing.Any), i: int, lr: typing.Any, write: int):
+    """agg_v[i] = L_r (when `write`, the first axis) or agg_v[i] + L_r, in L_r's vector type."""
+    if write != 0:
+        agg_v[i] = agg_v.dtype(lr)
+    else:
+        agg_v[i] = agg_v.dtype(type(lr)(agg_v[i]) + lr)
+
+
+@wp.func
 def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any), win_v: wp.array(dtype=typing.Any),
               nb: int, b0: int, b1: int, base: int, step: int, n: int, p1: typing.Any, p2: typing.Any, write: int):
     """L_r along one scanline of n + 1 pixels starting at flat vector index `base`, moving by `step`.
@@ -78,10 +87,7 @@ def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.A
     for j in range(nb):
         c = win_v.dtype(cost_v[base + j])
         win_v[b0 + 8 * j] = c
-        if write != 0:
-            agg_v[base + j] = agg_v.dtype(c)
-        else:
-            agg_v[base + j] = agg_v.dtype(win_v.dtype(agg_v[base + j]) + c)
+        _store_path(agg_v, base + j, c, write)
         lanes_min = wp.min(lanes_min, c)
     prev_min = wp.min(lanes_min)
     src = b0
@@ -100,10 +106,7 @@ def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.A
             best = wp.min(wp.min(win_v[o], jump_v), wp.min(win_v[o - 1], win_v[o + 1]) + p1_v)
             lr = win_v.dtype(cost_v[base + j]) + best - prev_v
             win_v[dst + 8 * j] = lr
-            if write != 0:
-                agg_v[base + j] = agg_v.dtype(lr)
-            else:
-                agg_v[base + j] = agg_v.dtype(win_v.dtype(agg_v[base + j]) + lr)
+            _store_path(agg_v, base + j, lr, write)
             lanes_min = wp.min(lanes_min, lr)
         prev_min = wp.min(lanes_min)
         t = src

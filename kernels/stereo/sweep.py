@@ -133,7 +133,8 @@ def _sweep(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.Any)
             for j in range(nb):
                 c = win.dtype(cost_v[base + j])
                 o = lanes * j + 1
-                # L_r(p) = C + min(L(k), L(k -+ 1) + P1, min L + P2) - min L, per path (inlined).
+                # L_r(p) = C + min(L(k), L(k -+ 1) + P1, min L + P2) - min L, per path (inlined: with
+                # this expression, or a whole path's step, as a @wp.func the sweep ran 2.3-3x slower).
                 s = h_src * R + o
                 lh = c + wp.min(wp.min(win[s], jh), wp.min(win[s - 1], win[s + 1]) + p1_v) - ph_v
                 s = v_src * R + o
