@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from research.experiment import Context, Experiment
-from research.results import finish_figure, image_panel, markdown_table
+from research.results import image_grid, markdown_table
 
 MARGIN_DB = 0.5
 ROUTES = ("lens", "undistorted", "ignored")
@@ -149,22 +149,13 @@ def run_lens(ctx: Context, name: str, lens, cfg: Setup, train_split, test_split,
 
 
 def renders_figure(per_lens: dict, path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from research.metrics import srgb_on_black
 
     cols = [("gt", "distorted"), ("lens", "distorted"), ("undistorted", "distorted"), ("gt", "pinhole"),
             ("lens", "pinhole"), ("undistorted", "pinhole")]
-    fig, axes = plt.subplots(len(per_lens), len(cols), figsize=(2.2 * len(cols), 2.8 * len(per_lens)), squeeze=False)
-    for r, (name, res) in enumerate(per_lens.items()):
-        for c, (who, es) in enumerate(cols):
-            img = res["gt"][es] if who == "gt" else res["renders"][(who, es)]
-            title = f"{name}: {'ground truth' if who == 'gt' else who + ' route'}\n({es} test view)"
-            image_panel(fig, axes[r, c], srgb_on_black(img), title, fontsize=7)
-    finish_figure(fig, path)
+    image_grid([[(srgb_on_black(res["gt"][es] if who == "gt" else res["renders"][(who, es)]),
+                  f"{name}: {'ground truth' if who == 'gt' else who + ' route'}\n({es} test view)") for who, es in cols]
+                for name, res in per_lens.items()], path, cell=(2.2, 2.8), fontsize=7)
 
 
 def run(ctx: Context) -> int:

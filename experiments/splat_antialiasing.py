@@ -32,9 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from research.datasets import CACHE_ROOT_HELP
-from research import values
 from research.experiment import Context, Experiment
-from research.results import finish_figure, image_panel, markdown_table
+from research.results import image_grid, markdown_table
 
 SCALES = (0.25, 0.5, 1.0, 2.0)  # test resolution / training resolution
 
@@ -77,18 +76,11 @@ def add_options(p) -> None:
 
 
 def figure(gt: dict[float, np.ndarray], renders: dict[str, dict[float, np.ndarray]], path: Path) -> None:
-    import matplotlib.pyplot as plt
-
     from research.metrics import srgb_on_black
 
-    rows = ["ground truth", *renders]
-    fig, axes = plt.subplots(len(rows), len(SCALES), figsize=(2.2 * len(SCALES), 2.2 * len(rows)), squeeze=False)
-    for r, label in enumerate(rows):
-        for c, s in enumerate(SCALES):
-            img = gt[s] if label == "ground truth" else renders[label][s]
-            image_panel(fig, axes[r, c], srgb_on_black(img), f"{label}, {s:g}x" if c == 0 else f"{s:g}x",
-                        fontsize=7, interpolation="nearest")
-    finish_figure(fig, path)
+    rows = {"ground truth": gt, **renders}
+    image_grid([[(srgb_on_black(images[s]), f"{label}, {s:g}x" if c == 0 else f"{s:g}x") for c, s in enumerate(SCALES)]
+                for label, images in rows.items()], path, cell=(2.2, 2.2), fontsize=7, interpolation="nearest")
 
 
 def run(ctx: Context) -> int:
@@ -99,8 +91,7 @@ def run(ctx: Context) -> int:
     from research.splats import model as sm, train as st
 
     size = sizes(ctx.quick, ctx.smoke)
-    if ctx.args.iterations is not None:
-        size["iterations"] = values.integer("--iterations", ctx.args.iterations, low=1)
+    size["iterations"] = ctx.int_option("--iterations", size["iterations"])
     dcfg = datasets.DatasetConfig("objects", views=size["views"], res=2 * size["res"], spp=size["spp"],
                                   seed=ctx.seed)
     path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, ctx.data), show_progress=ctx.progress)

@@ -45,9 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from research import values
 from research.experiment import Context, Experiment
-from research.results import finish_figure, image_panel, markdown_table
+from research.results import image_grid, markdown_table
 
 MODELS = ("none", "affine", "bilateral")
 LLFF_NAME = "nerf_llff_data/fern"
@@ -226,26 +225,19 @@ def fit_set(ctx: Context, data: dict, size: dict) -> dict:
 
 
 def figure(sets: list[dict], fits: list[dict], path: Path) -> None:
-    import matplotlib.pyplot as plt
-
     from research.metrics import srgb_on_black
 
-    cols = ["a training view (as trained on)", "held-out view", *(f"{k}: held-out" for k in MODELS)]
-    fig, axes = plt.subplots(len(sets), len(cols), figsize=(2.3 * len(cols), 2.1 * len(sets)), squeeze=False)
-    for r, (data, fit) in enumerate(zip(sets, fits)):
-        panels = [data["train_rgb"][0], data["test_rgb"][0], *(fit[k]["render"] for k in MODELS)]
-        for c, (img, title) in enumerate(zip(panels, cols)):
-            if c >= 2:
-                title = f"{MODELS[c - 2]}: {fit[MODELS[c - 2]]['per_view'][0]['psnr']:.2f} dB"
-            image_panel(fig, axes[r, c], srgb_on_black(img), f"{data['name']}\n{title}" if c == 0 else title,
-                        fontsize=7, interpolation="nearest")
-    finish_figure(fig, path)
+    rows = [[(data["train_rgb"][0], f"{data['name']}\na training view (as trained on)"),
+             (data["test_rgb"][0], "held-out view"),
+             *((fit[k]["render"], f"{k}: {fit[k]['per_view'][0]['psnr']:.2f} dB") for k in MODELS)]
+            for data, fit in zip(sets, fits)]
+    image_grid([[(srgb_on_black(img), title) for img, title in row] for row in rows], path, cell=(2.3, 2.1),
+               fontsize=7, interpolation="nearest")
 
 
 def run(ctx: Context) -> int:
     size = sizes(ctx.quick, ctx.smoke)
-    if ctx.args.iterations is not None:
-        size["iterations"] = values.integer("--iterations", ctx.args.iterations, low=1)
+    size["iterations"] = ctx.int_option("--iterations", size["iterations"])
     mitsuba = mitsuba_set(ctx, size)
     fern = fern_set(ctx, size, smoke_split=mitsuba["split"])
     sets = [mitsuba, fern]

@@ -48,7 +48,6 @@ from pathlib import Path
 import numpy as np
 
 from research.datasets import CACHE_ROOT_HELP
-from research import values
 from research.experiment import Context, Experiment
 from research.results import finish_figure, image_panel, markdown_table
 
@@ -93,8 +92,7 @@ def run(ctx: Context) -> int:
     from research.splats import mcmc, model as sm, train as st
 
     cfg = setup(ctx.quick, ctx.smoke)
-    iterations = cfg.iterations if ctx.args.iterations is None else values.integer("--iterations",
-                                                                                     ctx.args.iterations, low=1)
+    iterations = ctx.int_option("--iterations", cfg.iterations)
     dcfg = datasets.DatasetConfig("objects", views=cfg.views, res=cfg.res, spp=cfg.spp, seed=ctx.seed)
     path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, ctx.data), show_progress=ctx.progress)
     ds = datasets.load(path)

@@ -43,7 +43,6 @@ from pathlib import Path
 import numpy as np
 
 from research.datasets import CACHE_ROOT_HELP
-from research import values
 from research.experiment import Context, Experiment
 from research.results import finish_figure, image_panel, markdown_table
 
@@ -120,8 +119,7 @@ def run(ctx: Context) -> int:
     from research.splats import geometry, model as sm, train as st
 
     cfg = setup(ctx.quick, ctx.smoke)
-    iterations = cfg.iterations if ctx.args.iterations is None else values.integer("--iterations",
-                                                                                     ctx.args.iterations, low=1)
+    iterations = ctx.int_option("--iterations", cfg.iterations)
     weight = st.NORMAL_WEIGHT_2DGS if ctx.args.normal_weight is None else ctx.args.normal_weight
     if not weight > 0:
         raise ValueError(f"--normal-weight: expected a positive weight, got {weight}")

@@ -261,6 +261,14 @@ class Context:
     def elapsed(self) -> float:
         return time.perf_counter() - self.t_start
 
+    def int_option(self, name: str, default: int, low: int = 1) -> int:
+        """Option `name` ("--iterations": an int option whose argparse default is None) as an integer >= low
+        (research.values.integer), or `default`, the mode's setting, when it was not given."""
+        from research import values
+
+        value = getattr(self.args, name.lstrip("-").replace("-", "_"))
+        return default if value is None else values.integer(name, value, low=low)
+
     def tqdm(self, iterable: Iterable | None = None, **kwargs: Any):
         """tqdm over `iterable`, hidden under --no-progress."""
         from tqdm import tqdm

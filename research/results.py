@@ -201,3 +201,20 @@ def image_panel(fig, ax, img, title: str | None, colorbar: bool = False, fontsiz
         ax.set_title(title, fontsize=fontsize)
     ax.set_xticks([])
     ax.set_yticks([])
+
+
+def image_grid(panels: Sequence[Sequence[tuple[Any, str | None]]], path: str | Path, cell: tuple[float, float],
+               fontsize: int = 9, **imshow) -> Path:
+    """A figure of image panels, `panels[r][c] = (image, title)` (image_panel with `fontsize` and `imshow`), each
+    cell `cell` = (width, height) inches; laid out, saved to `path` and closed (finish_figure)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = len(panels[0])
+    fig, axes = plt.subplots(len(panels), cols, figsize=(cell[0] * cols, cell[1] * len(panels)), squeeze=False)
+    for r, row in enumerate(panels):
+        for c, (img, title) in enumerate(row):
+            image_panel(fig, axes[r, c], img, title, fontsize=fontsize, **imshow)
+    return finish_figure(fig, path)
