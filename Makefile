@@ -32,9 +32,15 @@ PLAIN_TESTS := tests/kernels/test_fast_paths.py tests/kernels/test_volume_compos
 	tests/kernels/test_splat.py tests/kernels/test_splat_tiles.py tests/kernels/test_stereo.py \
 	tests/kernels/test_ssim.py
 
+# The suite runs in one pytest-xdist worker per core, at most 4 (`make test TEST_WORKERS=0` runs it in
+# one process). --dist loadfile keeps each test module in one worker, so a module's fixtures (the one
+# local Ray instance, a rendered scene) are made once and its tests never run beside each other.
+TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ "$$n" -gt 4 ] && n=4; echo $$n)
+XDIST := -n $(TEST_WORKERS) --dist loadfile
+
 test: $(STAMP)
-	$(VPY) -m pytest -q
-	DRLAB_FAST_PATHS=0 $(VPY) -m pytest -q $(PLAIN_TESTS) -k "not adcensus"
+	$(VPY) -m pytest -q $(XDIST)
+	DRLAB_FAST_PATHS=0 $(VPY) -m pytest -q $(XDIST) $(PLAIN_TESTS) -k "not adcensus"
 
 # `make test` as on an AVX2-only CPU (AMD Zen 3: AVX2 and FMA, no AVX-512), run on a machine that has
 # AVX-512: Warp's kernels and the C++ fast paths compiled for znver3 (kernels/cpu_target.py), OpenBLAS
@@ -44,8 +50,8 @@ AVX2_ENV := DRLAB_CPU_TARGET=znver3 OPENBLAS_CORETYPE=Zen
 AVX2_ENV += $(if $(shell grep -m1 -ow avx512f /proc/cpuinfo 2>/dev/null),NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR")
 
 test-avx2: $(STAMP)
-	$(AVX2_ENV) $(VPY) -m pytest -q
-	$(AVX2_ENV) DRLAB_FAST_PATHS=0 $(VPY) -m pytest -q $(PLAIN_TESTS) -k "not adcensus"
+	$(AVX2_ENV) $(VPY) -m pytest -q $(XDIST)
+	$(AVX2_ENV) DRLAB_FAST_PATHS=0 $(VPY) -m pytest -q $(XDIST) $(PLAIN_TESTS) -k "not adcensus"
 
 reproduce: $(STAMP)
 	$(VENV)/bin/drlab reproduce
