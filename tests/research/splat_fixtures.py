@@ -3,7 +3,7 @@
 `ring_cameras` are square pinhole cameras (50 degree field of view) at distance 3 from the origin,
 0.6 x 3 above the ground plane, looking at the origin; `training_scene` makes a model the target of a
 training test (every splat of scale 0.15 and opacity logit 3) and renders it from six of them at
-32x32, SH degree 0. Each test makes its own start model from the target.
+32x32, SH degree 0; `moved_copy` is the start of a training test: the target with its means moved.
 """
 
 from __future__ import annotations
@@ -36,3 +36,10 @@ def training_scene(truth: sm.GaussianModel) -> tuple[list[Camera], np.ndarray]:
     truth.opacity_logits[:] = 3.0
     cams = ring_cameras()
     return cams, np.stack([sm.render(truth, c, sh_degree=0).rgb.numpy() for c in cams])
+
+
+def moved_copy(truth: sm.GaussianModel, rng: np.random.Generator, sigma: float) -> sm.GaussianModel:
+    """A copy of `truth` whose means are moved by normal noise of standard deviation `sigma` (float32)."""
+    start = truth.copy()
+    start.means += rng.normal(0, sigma, start.means.shape).astype(np.float32)
+    return start

@@ -16,7 +16,7 @@ from kernels import splat as ks
 from research.cameras import Camera, look_at
 from research.gradcheck import assert_gradcheck, check_vjp
 from research.splats import densify, loss, model as sm, optim, ply, train as st
-from tests.research.splat_fixtures import ring_cameras, training_scene
+from tests.research.splat_fixtures import moved_copy, ring_cameras, training_scene
 
 
 def random_model(n: int, seed: int = 0) -> sm.GaussianModel:
@@ -326,8 +326,7 @@ def test_training_reduces_the_loss():
     truth.means *= 0.4
     truth.sh_rest[:] = 0.0
     cams, images = training_scene(truth)
-    start = truth.copy()
-    start.means += np.random.default_rng(0).normal(0, 0.1, start.means.shape).astype(np.float32)
+    start = moved_copy(truth, np.random.default_rng(0), 0.1)
     start.sh_dc[:] = 0.0
     cfg = st.TrainConfig(iterations=60, max_sh_degree=1, log_every=10)
     result = st.train(start, cams, images, extent=sm.scene_extent(cams), cfg=cfg, progress=False)

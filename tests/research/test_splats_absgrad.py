@@ -9,7 +9,7 @@ import pytest
 
 from research.splats import densify, model as sm, train as st
 from tests.bad_input import assert_refused
-from tests.research.splat_fixtures import point_splats, training_scene
+from tests.research.splat_fixtures import moved_copy, point_splats, training_scene
 
 
 def test_absgs_config():
@@ -27,8 +27,7 @@ def _scene():
     rng = np.random.default_rng(5)
     truth = point_splats(rng)
     cams, images = training_scene(truth)
-    start = truth.copy()
-    start.means += rng.normal(0, 0.1, start.means.shape).astype(np.float32)
+    start = moved_copy(truth, rng, 0.1)
     start.sh_dc[:] = 0.0
     return cams, images, start
 

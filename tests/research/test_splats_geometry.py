@@ -9,7 +9,7 @@ import numpy as np
 from kernels import splat as ks
 from research.splats import geometry, model as sm, train as st
 from tests.bad_input import assert_refused
-from tests.research.splat_fixtures import point_splats, training_scene
+from tests.research.splat_fixtures import moved_copy, point_splats, training_scene
 
 
 def _consistency(model, cams, depth):
@@ -25,8 +25,7 @@ def test_the_consistency_loss_trains_down():
     rng = np.random.default_rng(5)
     truth = point_splats(rng)
     cams, images = training_scene(truth)
-    start = truth.copy()
-    start.means += rng.normal(0, 0.05, start.means.shape).astype(np.float32)
+    start = moved_copy(truth, rng, 0.05)
     start.log_scales += rng.normal(0, 0.3, start.log_scales.shape).astype(np.float32)  # distinct shortest axes
     out = {}
     for weight in (0.0, 1.0):

@@ -14,7 +14,7 @@ from kernels.optim import Adam
 from research.checks.mcmc import check_regularizer
 from research.gradcheck import assert_gradcheck
 from research.splats import mcmc, model as sm, train as st
-from tests.research.splat_fixtures import training_scene
+from tests.research.splat_fixtures import moved_copy, training_scene
 
 
 def paper_eq9(o_old: float, s_old: float, n: int) -> tuple[float, float]:
@@ -173,8 +173,7 @@ def test_mcmc_training_reaches_the_cap_and_reduces_the_loss():
     truth.means *= 0.4
     truth.sh_rest[:] = 0.0
     cams, images = training_scene(truth)
-    start = truth.copy()
-    start.means += rng.normal(0, 0.1, start.means.shape).astype(np.float32)
+    start = moved_copy(truth, rng, 0.1)
     start.sh_dc[:] = 0.0
     start.opacity_logits[:5] = sm.logit(0.001)  # dead from the start: relocated at the first refinement
     cfg = st.TrainConfig(iterations=150, max_sh_degree=1, log_every=10, strategy="mcmc",
