@@ -386,12 +386,17 @@ def test_tampered_file_is_named(case, reference, tmp_path):
     assert load(reference) is not None  # the original is untouched
 
 
+def _set_pixel(path, read, write, yx, value):
+    """Rewrite the image at `path` (read/write: its io functions) with one pixel set to `value`; returns path."""
+    image = read(path)
+    image[yx] = value
+    write(path, image)
+    return path
+
+
 def _gt_edit(root, what):
     if what == "negative-disparity":
-        p = root / "stereo" / "p_000_disp.pfm"
-        d = io.read_pfm(p)
-        d[0, 0] = -2.0
-        io.write_pfm(p, d)
+        p = _set_pixel(root / "stereo" / "p_000_disp.pfm", io.read_pfm, io.write_pfm, (0, 0), -2.0)
         return p, load_stereo, r"disparity must be >= 0, found -2"
     if what in ("nan-baseline", "negative-baseline"):
         p = root / "stereo" / "stereo.json"
@@ -400,10 +405,7 @@ def _gt_edit(root, what):
         p.write_text(json.dumps(doc))
         return p, load_stereo, r"baseline must be a finite distance > 0, got " + ("nan" if "nan" in what else "-0.4")
     if what == "negative-depth":
-        p = root / "flow" / "f_001_depth.exr"
-        d = io.read_exr(p)
-        d[3, 3] = -1.0
-        io.write_exr(p, d)
+        p = _set_pixel(root / "flow" / "f_001_depth.exr", io.read_exr, io.write_exr, (3, 3), -1.0)
         return p, load_flow, r"depth must be >= 0, found -1"
     if what == "nan-flow":
         p = root / "flow" / "f_000_flow.flo"  # io.write_flo refuses NaN: patch the bytes
