@@ -73,26 +73,32 @@ def _luma(r: Any, g: Any, b: Any):
     return type(r)(0.299) * r + type(r)(0.587) * g + type(r)(0.114) * b
 
 
-@wp.kernel
-def _slice_kernel(grid: wp.array2d(dtype=typing.Any), rgb: wp.array3d(dtype=typing.Any),
-                  out: wp.array3d(dtype=typing.Any), gl: int, gh: int, gw: int, offset: int):
-    p = wp.tid() + offset
+@wp.func
+def _pixel_nodes(rgb: wp.array3d(dtype=Any), p: int, gl: int, gh: int, gw: int):
+    """Pixel p's row i and column j (row-major), its luma and the grid nodes around it on each axis
+    (t0, t1, f for x and y from the pixel centre, z from the luma: module docstring)."""
     h = rgb.shape[0]
     w = rgb.shape[1]
     i = p // w
     j = p - i * w
-    half = type(rgb[i, j, 0])(0.5)
     r = rgb[i, j, 0]
-    g = rgb[i, j, 1]
-    b = rgb[i, j, 2]
+    half = type(r)(0.5)
+    lum = _luma(r, rgb[i, j, 1], rgb[i, j, 2])
     x0, x1, fx = _axis((type(r)(float(j)) + half) / type(r)(float(w)) * type(r)(float(gw - 1)), gw)
     y0, y1, fy = _axis((type(r)(float(i)) + half) / type(r)(float(h)) * type(r)(float(gh - 1)), gh)
-    z0, z1, fz = _axis(_luma(r, g, b) * type(r)(float(gl - 1)), gl)
+    z0, z1, fz = _axis(lum * type(r)(float(gl - 1)), gl)
+    return i, j, lum, x0, x1, fx, y0, y1, fy, z0, z1, fz
+
+
+@wp.kernel
+def _slice_kernel(grid: wp.array2d(dtype=typing.Any), rgb: wp.array3d(dtype=typing.Any),
+                  out: wp.array3d(dtype=typing.Any), gl: int, gh: int, gw: int, offset: int):
+    i, j, _lum, x0, x1, fx, y0, y1, fy, z0, z1, fz = _pixel_nodes(rgb, wp.tid() + offset, gl, gh, gw)
     for c in range(3):
-        acc = type(r)(0.0)
+        acc = type(fx)(0.0)
         for k in range(4):
             e = 4 * c + k
-            a = type(r)(0.0)
+            a = type(fx)(0.0)
             for corner in range(8):
                 zi, wz, _sz = _corner(corner // 4, z0, z1, fz)
                 yi, wy, _sy = _corner((corner // 2) % 2, y0, y1, fy)
@@ -110,21 +116,9 @@ def _slice_backward_kernel(grid: wp.array2d(dtype=typing.Any), rgb: wp.array3d(d
                            g_out: wp.array3d(dtype=typing.Any), d_grid: wp.array2d(dtype=typing.Any),
                            d_rgb: wp.array3d(dtype=typing.Any), gl: int, gh: int, gw: int, offset: int):
     # one launch (never split): the grid gradient is a scatter over the pixels
-    p = wp.tid() + offset
-    h = rgb.shape[0]
-    w = rgb.shape[1]
-    i = p // w
-    j = p - i * w
-    zero = type(rgb[i, j, 0])(0.0)
-    one = type(rgb[i, j, 0])(1.0)
-    half = type(rgb[i, j, 0])(0.5)
-    r = rgb[i, j, 0]
-    g = rgb[i, j, 1]
-    b = rgb[i, j, 2]
-    lum = _luma(r, g, b)
-    x0, x1, fx = _axis((type(r)(float(j)) + half) / type(r)(float(w)) * type(r)(float(gw - 1)), gw)
-    y0, y1, fy = _axis((type(r)(float(i)) + half) / type(r)(float(h)) * type(r)(float(gh - 1)), gh)
-    z0, z1, fz = _axis(lum * type(r)(float(gl - 1)), gl)
+    i, j, lum, x0, x1, fx, y0, y1, fy, z0, z1, fz = _pixel_nodes(rgb, wp.tid() + offset, gl, gh, gw)
+    zero = type(lum)(0.0)
+    one = type(lum)(1.0)
     dz = zero  # dL/dz = sum_e q_e dA_e/dz
     d0 = zero
     d1 = zero
@@ -156,10 +150,10 @@ def _slice_backward_kernel(grid: wp.array2d(dtype=typing.Any), rgb: wp.array3d(d
                 d2 += gc * a
     dlum = zero
     if gl > 1 and lum > zero and lum < one:
-        dlum = dz * type(r)(float(gl - 1))
-    d_rgb[i, j, 0] = d0 + type(r)(0.299) * dlum
-    d_rgb[i, j, 1] = d1 + type(r)(0.587) * dlum
-    d_rgb[i, j, 2] = d2 + type(r)(0.114) * dlum
+        dlum = dz * type(lum)(float(gl - 1))
+    d_rgb[i, j, 0] = d0 + type(lum)(0.299) * dlum
+    d_rgb[i, j, 1] = d1 + type(lum)(0.587) * dlum
+    d_rgb[i, j, 2] = d2 + type(lum)(0.114) * dlum
 
 
 A.declare_float_overloads(_slice_kernel)
