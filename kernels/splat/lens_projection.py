@@ -37,9 +37,8 @@ from kernels.lens import lens_project, lens_project_vjp
 from kernels.splat.ewa import (aa_compensation, aa_compensation_vjp, conic_inverse, conic_inverse_vjp, dilate_cov2d,
                                dilate_cov2d_vjp, pose_vjp, quat_scale_to_covar, quat_scale_to_covar_vjp, sigmoid,
                                transform_cov, transform_cov_vjp)
-from kernels.splat.projection_kernels import (_camera_frame, _load_splat, _load_view, _store_screen, clamp_radius,
-                                              clear_grads, clear_outputs, color_vjp, culled, screen_radius,
-                                              store_colors, store_pose_grad, store_vec3)
+from kernels.splat.projection_kernels import (_camera_frame, _load_splat, _load_view, clear_grads, clear_outputs,
+                                              screen_radius, store_pose_grad, store_splat_grads, store_visible)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -79,20 +78,11 @@ def _lens_project_kernel(
     det, qa, qb, qc = conic_inverse(a1, b, c1)
     if not (det > zero) or wp.isinf(det):
         return
-    r = screen_radius(a1, c1, det, mode)
-    if culled(u, v, r, width, height, mode):
-        return
-    rc = clamp_radius(r, u, v, width, height)
-    if rc <= zero:
-        return
-    radii[i] = int(rc)
-    _store_screen(means2d, conics, depths, i, u, v, qa, qb, qc, tz)
-
-    store_colors(sh, i, sh_degree, mu, Wr, tv, colors)
-    o = sigmoid(opacity_logits[i])
+    comp = means.dtype(1.0)
     if antialiased != 0:
-        o = o * aa_compensation(det0, det, mode)
-    opacities[i] = o
+        comp = aa_compensation(det0, det, mode)
+    store_visible(means2d, conics, depths, radii, colors, opacities, i, u, v, screen_radius(a1, c1, det, mode), qa, qb,
+                  qc, tz, comp, antialiased, width, height, mode, sh, sh_degree, mu, Wr, tv, opacity_logits)
 
 
 @wp.kernel
@@ -135,7 +125,6 @@ def _lens_project_backward_kernel(
     if antialiased != 0:
         comp = aa_compensation(det0, det, mode)
         g_det0, g_det = aa_compensation_vjp(det0, det, g_o * sig, mode)
-    d_opacity_logits[i] = g_o * comp * sig * (one - sig)
 
     g_a1, g_b1, g_c1 = conic_inverse_vjp(a1, b, c1, g_conics[i, 0], g_conics[i, 1], g_conics[i, 2], g_det)
     g_cov2d = dilate_cov2d_vjp(a, b, c, g_a1, g_b1, g_c1, g_det0)
@@ -150,14 +139,9 @@ def _lens_project_backward_kernel(
     g_p = lens_project_vjp(model, p, lens, fx * gu, fy * gv, F * g_J)
     g_p = g_p + wp.vector(zero, zero, g_depths[i], length=3, dtype=means.dtype)
 
-    g_mu = wp.transpose(Wr) * g_p
     g_q, g_l = quat_scale_to_covar_vjp(q, l, transform_cov_vjp(Wr, g_cov_c))
-    for j in range(3):
-        d_log_scales[i, j] = g_l[j]
-    for j in range(4):
-        d_quats[i, j] = g_q[j]
-
-    g_view = color_vjp(sh, i, sh_degree, mu, Wr, tv, g_colors, d_sh)
+    g_view = store_splat_grads(i, g_o, comp, sig, wp.transpose(Wr) * g_p, g_q, g_l, sh, sh_degree, mu, Wr, tv,
+                               g_colors, d_sh, d_means, d_log_scales, d_quats, d_opacity_logits)
     if want_camera != 0:
         g_rho, g_phi = pose_vjp(p, g_p, cov_c, g_cov_c)
         store_pose_grad(d_camera, i, g_rho, g_phi, Wr, g_view)
@@ -165,7 +149,6 @@ def _lens_project_backward_kernel(
         d_camera[i, 7] = gv * my + g_J[1, 0] * Jm[1, 0] + g_J[1, 1] * Jm[1, 1] + g_J[1, 2] * Jm[1, 2]
         d_camera[i, 8] = gu
         d_camera[i, 9] = gv
-    store_vec3(d_means, i, g_mu + g_view)
 
 for _k in (_lens_project_kernel, _lens_project_backward_kernel):
     A.declare_float_overloads(_k)

@@ -302,6 +302,47 @@ def store_vec3(out: wp.array2d(dtype=Any), i: int, x: Any):
     out[i, 2] = x[2]
 
 
+@wp.func
+def store_visible(means2d: wp.array2d(dtype=Any), conics: wp.array2d(dtype=Any), depths: wp.array(dtype=Any),
+                  radii: wp.array(dtype=wp.int32), colors: wp.array2d(dtype=Any), opacities: wp.array(dtype=Any),
+                  i: int, u: Any, v: Any, r: Any, qa: Any, qb: Any, qc: Any, tz: Any, comp: Any, antialiased: int,
+                  width: int, height: int, mode: int, sh: wp.array3d(dtype=Any), sh_degree: int, mu: Any, Wr: Any,
+                  tv: Any, opacity_logits: wp.array(dtype=Any)):
+    """Splat i's outputs once its conic is valid: none (it stays culled) when `culled` or its clamped
+    radius is 0, else the radius, mean2d, conic, depth, colour and opacity sigmoid(a) (times the
+    compensation `comp` when antialiased)."""
+    if culled(u, v, r, width, height, mode):
+        return
+    rc = clamp_radius(r, u, v, width, height)
+    if rc <= type(r)(0.0):
+        return
+    radii[i] = int(rc)
+    _store_screen(means2d, conics, depths, i, u, v, qa, qb, qc, tz)
+    store_colors(sh, i, sh_degree, mu, Wr, tv, colors)
+    o = sigmoid(opacity_logits[i])
+    if antialiased != 0:
+        o = o * comp
+    opacities[i] = o
+
+
+@wp.func
+def store_splat_grads(i: int, g_o: Any, comp: Any, sig: Any, g_mu: Any, g_q: Any, g_l: Any, sh: wp.array3d(dtype=Any),
+                      sh_degree: int, mu: Any, Wr: Any, tv: Any, g_colors: wp.array2d(dtype=Any),
+                      d_sh: wp.array3d(dtype=Any), d_means: wp.array2d(dtype=Any), d_log_scales: wp.array2d(dtype=Any),
+                      d_quats: wp.array2d(dtype=Any), d_opacity_logits: wp.array(dtype=Any)):
+    """Splat i's gradient rows from the geometry's VJP (g_mu, g_q, g_l) and the opacity's
+    (dL/da = g_o comp sig (1 - sig)), with the colour's VJP (d_sh, and its dL/dmu added to d_means);
+    returns that view-direction dL/dmu (the pose gradient's share, store_pose_grad)."""
+    d_opacity_logits[i] = g_o * comp * sig * (type(sig)(1.0) - sig)
+    for j in range(3):
+        d_log_scales[i, j] = g_l[j]
+    for j in range(4):
+        d_quats[i, j] = g_q[j]
+    g_view = color_vjp(sh, i, sh_degree, mu, Wr, tv, g_colors, d_sh)
+    store_vec3(d_means, i, g_mu + g_view)
+    return g_view
+
+
 @wp.kernel
 def _project_kernel(
     means: wp.array2d(dtype=Any), log_scales: wp.array2d(dtype=Any), quats: wp.array2d(dtype=Any),
@@ -342,21 +383,8 @@ def _project_kernel(
         comp = aa_compensation(det0, det, mode)
     if det <= zero:
         return
-    if culled(u, v, r, width, height, mode):
-        return
-
-    rc = clamp_radius(r, u, v, width, height)
-    if rc <= zero:
-        return
-    radii[i] = int(rc)
-    _store_screen(means2d, conics, depths, i, u, v, qa, qb, qc, tz)
-
-    store_colors(sh, i, sh_degree, mu, Wr, tv, colors)
-
-    o = sigmoid(opacity_logits[i])
-    if antialiased != 0:
-        o = o * comp
-    opacities[i] = o
+    store_visible(means2d, conics, depths, radii, colors, opacities, i, u, v, r, qa, qb, qc, tz, comp, antialiased,
+                  width, height, mode, sh, sh_degree, mu, Wr, tv, opacity_logits)
 
 
 @wp.kernel
@@ -373,7 +401,6 @@ def _project_backward_kernel(
     d_camera: wp.array2d(dtype=Any), offset: int,
 ):
     i = wp.tid() + offset
-    one = means.dtype(1.0)
     clear_grads(i, d_means, d_log_scales, d_quats, d_opacity_logits, d_sh, want_camera, d_camera)
     if radii[i] == 0:
         return
@@ -410,18 +437,12 @@ def _project_backward_kernel(
                           dtype=means.dtype)
         g_intr = wp.vector(means.dtype(g_intr64[0]), means.dtype(g_intr64[1]), means.dtype(g_intr64[2]),
                            means.dtype(g_intr64[3]), length=4, dtype=means.dtype)
-    d_opacity_logits[i] = g_o * comp * sig * (one - sig)
-    for j in range(3):
-        d_log_scales[i, j] = g_l[j]
-    for j in range(4):
-        d_quats[i, j] = g_q[j]
-
-    g_view = color_vjp(sh, i, sh_degree, mu, Wr, tv, g_colors, d_sh)
+    g_view = store_splat_grads(i, g_o, comp, sig, g_mu, g_q, g_l, sh, sh_degree, mu, Wr, tv, g_colors, d_sh, d_means,
+                               d_log_scales, d_quats, d_opacity_logits)
     if want_camera != 0:
         store_pose_grad(d_camera, i, g_rho, g_phi, Wr, g_view)
         for j in range(4):
             d_camera[i, 6 + j] = g_intr[j]
-    store_vec3(d_means, i, g_mu + g_view)
 
 
 for _k in (_project_kernel, _project_backward_kernel):
