@@ -49,13 +49,33 @@ from kernels.volume.spheres_kernels import (_VEC3, _VEC4, _spheres_render_dense_
 wp.set_module_options({"enable_backward": False})
 
 @wp.func
-def spheres_from_falloff(falloff: wp.array(dtype=typing.Any), i: int, appearance: wp.array(dtype=typing.Any)):
-    """spheres_at's (sigma, r, g, b) from falloff[i + k] = exp(-s_k m_k) given (the CPU passes):
-    d_k = s_k falloff_k, then the same sums and normalisation in the same order."""
+def falloff_sums(falloff: wp.array(dtype=typing.Any), i: int, stride: int, appearance: wp.array(dtype=typing.Any)):
+    """spheres_at's sums (sigma, unnormalised colour) from falloff[i + k stride] = exp(-s_k m_k) given
+    (the CPU passes): d_k = s_k falloff_k added sphere by sphere in spheres_at's order; scalars, or
+    vec4s of four samples lane by lane (the quads)."""
     sig, nr, ng, nb = no_spheres(falloff[i])
     for k in range(appearance.shape[0]):
         a = appearance[k]
-        sig, nr, ng, nb = add_sphere(sig, nr, ng, nb, a[3] * falloff[i + k], a[0], a[1], a[2])
+        sig, nr, ng, nb = add_sphere(sig, nr, ng, nb, a[3] * falloff[i + k * stride], a[0], a[1], a[2])
+    return sig, nr, ng, nb
+
+
+@wp.func
+def sigma_from_falloff(falloff: wp.array(dtype=typing.Any), i: int, stride: int,
+                       appearance: wp.array(dtype=typing.Any)):
+    """The sigma of falloff_sums alone: the same products and sums in the same order."""
+    sig = type(falloff[i])(0.0)
+    for k in range(appearance.shape[0]):
+        d = appearance[k][3] * falloff[i + k * stride]
+        sig = sig + d
+    return sig
+
+
+@wp.func
+def spheres_from_falloff(falloff: wp.array(dtype=typing.Any), i: int, appearance: wp.array(dtype=typing.Any)):
+    """spheres_at's (sigma, r, g, b) from falloff[i + k] = exp(-s_k m_k) given (the CPU passes):
+    falloff_sums, then spheres_at's normalisation."""
+    sig, nr, ng, nb = falloff_sums(falloff, i, 1, appearance)
     return normalised_colour(sig, nr, ng, nb)
 
 
@@ -90,16 +110,6 @@ def _spheres_dense_exponent_kernel(
                          out_exponent, (q * n_s + j) * geometry.shape[0])
 
 
-@wp.func
-def sigma_from_falloff(falloff: wp.array(dtype=typing.Any), i: int, appearance: wp.array(dtype=typing.Any)):
-    """The sigma of spheres_from_falloff alone: the same products and sums in the same order."""
-    sig = falloff.dtype(0.0)
-    for k in range(appearance.shape[0]):
-        d = appearance[k][3] * falloff[i + k]
-        sig += d
-    return sig
-
-
 @wp.kernel
 def _spheres_dense_factor_kernel(
     falloff: wp.array(dtype=typing.Any), delta: wp.array2d(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
@@ -111,7 +121,7 @@ def _spheres_dense_factor_kernel(
     r = base + q
     n_s = delta.shape[1]
     for j in range(n_s):
-        sig = sigma_from_falloff(falloff, (q * n_s + j) * appearance.shape[0], appearance)
+        sig = sigma_from_falloff(falloff, (q * n_s + j) * appearance.shape[0], 1, appearance)
         out_exponent[q * n_s + j] = -(sig * delta[r, j])
 
 
@@ -169,14 +179,7 @@ def _spheres_from_falloff4(f4: wp.array(dtype=typing.Any), i: int, stride: int,
     """spheres_from_falloff for four samples, the falloffs of sphere k at f4[i + k stride]:
     (sigma, r, g, b) as vec4s; the same sums in the same order, lane by lane, then the colour
     normalised in the lanes where sigma > 1e-6."""
-    zero4 = type(f4[i])()
-    sig = zero4
-    nr = zero4
-    ng = zero4
-    nb = zero4
-    for k in range(appearance.shape[0]):
-        a = appearance[k]
-        sig, nr, ng, nb = add_sphere(sig, nr, ng, nb, a[3] * f4[i + k * stride], a[0], a[1], a[2])
+    sig, nr, ng, nb = falloff_sums(f4, i, stride, appearance)
     for l in range(4):
         if sig[l] > type(sig[l])(1e-6):
             nr[l] = nr[l] / sig[l]
@@ -206,16 +209,6 @@ def _spheres_dense_exponent4_kernel(
                            q * geometry.shape[0] * n_q + jq, n_q)
 
 
-@wp.func
-def _sigma_from_falloff4(f4: wp.array(dtype=typing.Any), i: int, stride: int, appearance: wp.array(dtype=typing.Any)):
-    """The sigma of _spheres_from_falloff4 alone (vec4): the same products and sums in the same order."""
-    sig = type(f4[i])()
-    for k in range(appearance.shape[0]):
-        d = appearance[k][3] * f4[i + k * stride]
-        sig = sig + d
-    return sig
-
-
 @wp.kernel
 def _spheres_dense_factor4_kernel(
     f4: wp.array(dtype=typing.Any), delta4: wp.array2d(dtype=typing.Any), appearance: wp.array(dtype=typing.Any),
@@ -227,7 +220,7 @@ def _spheres_dense_factor4_kernel(
     r = base + q
     n_q = delta4.shape[1]
     for jq in range(n_q):
-        sig = _sigma_from_falloff4(f4, q * appearance.shape[0] * n_q + jq, n_q, appearance)
+        sig = sigma_from_falloff(f4, q * appearance.shape[0] * n_q + jq, n_q, appearance)
         out4[q * n_q + jq] = -wp.cw_mul(sig, delta4[r, jq])
 
 
