@@ -287,8 +287,7 @@ def run(ctx: Context) -> int:
 
     args = ctx.args
     cfg = setup(ctx.quick, ctx.smoke)
-    if args.iterations is not None:
-        cfg = Setup(**{**asdict(cfg), "iterations": args.iterations})
+    cfg = Setup(**{**asdict(cfg), "iterations": ctx.int_option("--iterations", cfg.iterations)})
     suffix = "" if ctx.mode == "full" else "-" + ctx.mode
     prep = prepare(ctx, cfg)
     ds, path, points, init = prep.ds, prep.path, prep.points, prep.init

@@ -164,10 +164,7 @@ def run(ctx: Context) -> int:
 
     args = ctx.args
     cfg = setup(ctx.quick, ctx.smoke)
-    if args.iterations is not None:
-        if args.iterations <= 0:
-            raise ValueError(f"--iterations: expected a positive number, got {args.iterations}")
-        cfg = Setup(**{**asdict(cfg), "iterations": args.iterations})
+    cfg = Setup(**{**asdict(cfg), "iterations": ctx.int_option("--iterations", cfg.iterations)})
     dcfg = datasets.DatasetConfig("objects", views=cfg.views, res=cfg.res * cfg.render_factor, spp=cfg.spp,
                                   seed=ctx.seed)
     path = datasets.ensure(dcfg, datasets.cache_dir(dcfg, ctx.data), show_progress=ctx.progress)
