@@ -182,6 +182,14 @@ def check_cloud(a: A.Inputs, name: str, x: Any) -> wp.array:
     return arr
 
 
+def check_count(name: str, v: Any, minimum: int, n: int) -> int:
+    """An integer in [minimum, n], n the cloud's number of points; ValueError naming `name` otherwise."""
+    v = A.check_int(name, v, minimum=minimum)
+    if v > n:
+        raise ValueError(f"{name}: expected an integer in [{minimum}, {n}] (at most the number of points), got {v}")
+    return v
+
+
 def _host(pts: wp.array) -> np.ndarray:
     """A host view (CPU) or copy (CUDA) of a checked cloud."""
     h = A.host_view(pts)
@@ -370,9 +378,7 @@ def knn(points: Any, k: int, queries: Any = None, *, cell_size: float | None = N
     pts = check_cloud(a, "points", points)
     qs = pts if queries is None else check_cloud(a, "queries", queries)
     n = int(pts.shape[0])
-    k = A.check_int("k", k, minimum=1)
-    if k > n:
-        raise ValueError(f"k: expected an integer in [1, {n}] (at most the number of points), got {k}")
+    k = check_count("k", k, 1, n)
     if cell_size is None:
         h = density_cell_size(_host(pts), k)
     else:

@@ -28,7 +28,7 @@ from typing import Any
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.points.grid import _build, _host, check_cloud, density_cell_size, knn_grid
+from kernels.points.grid import _build, _host, check_cloud, check_count, density_cell_size, knn_grid
 
 wp.set_module_options({"enable_backward": False})
 
@@ -124,9 +124,7 @@ def estimate_normals(points: Any, k: int = 16, *, viewpoint=(0.0, 0.0, 0.0), deg
     a = A.Inputs(device, points)
     pts = check_cloud(a, "points", points)
     n = int(pts.shape[0])
-    k = A.check_int("k", k, minimum=3)
-    if k > n:
-        raise ValueError(f"k: expected an integer in [3, {n}] (at most the number of points), got {k}")
+    k = check_count("k", k, 3, n)
     try:
         v = [A.check_float("viewpoint", c) for c in viewpoint]
     except TypeError:

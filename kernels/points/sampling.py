@@ -29,7 +29,7 @@ import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
-from kernels.points.grid import check_cloud, sq_dist
+from kernels.points.grid import check_cloud, check_count, sq_dist
 
 wp.set_module_options({"enable_backward": False})
 
@@ -82,9 +82,7 @@ def farthest_point_sampling(points: Any, n_samples: int, *, start: int = 0, devi
     a = A.Inputs(device, points)
     pts = check_cloud(a, "points", points)
     n = int(pts.shape[0])
-    s_count = A.check_int("n_samples", n_samples, minimum=1)
-    if s_count > n:
-        raise ValueError(f"n_samples: expected an integer in [1, {n}] (at most the number of points), got {s_count}")
+    s_count = check_count("n_samples", n_samples, 1, n)
     start = A.check_int("start", start, minimum=0, maximum=n - 1)
     dev = a.device
     samples = wp.array(np.full(s_count, start, np.int32), dtype=wp.int32, device=dev)
