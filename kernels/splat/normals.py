@@ -112,17 +112,24 @@ def _diffs(depth: wp.array2d(dtype=Any), x: int, y: int, fx: Any, fy: Any, cx: A
     return pd - pu, pr - pl, rd, ru, rr, rl
 
 
-@wp.kernel
-def _depth_normals_kernel(depth: wp.array2d(dtype=Any), fx: Any, fy: Any, cx: Any, cy: Any,
-                          out: wp.array3d(dtype=Any), offset: int):
-    t = wp.tid() + offset
+@wp.func
+def _depth_pixel(t: int, depth: wp.array2d(dtype=Any)):
+    """Pixel (x, y) of thread t (row-major) and whether it is interior (its four neighbours exist:
+    elsewhere the normal is 0 and passes no gradient)."""
     w = depth.shape[1]
     h = depth.shape[0]
     y = t / w
     x = t - y * w
+    return x, y, x >= 1 and x <= w - 2 and y >= 1 and y <= h - 2
+
+
+@wp.kernel
+def _depth_normals_kernel(depth: wp.array2d(dtype=Any), fx: Any, fy: Any, cx: Any, cy: Any,
+                          out: wp.array3d(dtype=Any), offset: int):
+    x, y, interior = _depth_pixel(wp.tid() + offset, depth)
     zero = type(fx)(0.0)
     n = wp.vector(zero, zero, zero, length=3, dtype=type(fx))
-    if x >= 1 and x <= w - 2 and y >= 1 and y <= h - 2:
+    if interior:
         a, b, rd, ru, rr, rl = _diffs(depth, x, y, fx, fy, cx, cy)
         c = wp.cross(a, b)
         n = c / wp.max(wp.length(c), type(fx)(EPS))
@@ -134,15 +141,11 @@ def _depth_normals_kernel(depth: wp.array2d(dtype=Any), fx: Any, fy: Any, cx: An
 def _depth_normals_backward_kernel(depth: wp.array2d(dtype=Any), fx: Any, fy: Any, cx: Any, cy: Any,
                                    g_n: wp.array3d(dtype=Any), slots: wp.array3d(dtype=Any), offset: int):
     # slots[y, x] = the terms output pixel (x, y) adds to dL/dz of (x, y + 1), (x, y - 1), (x + 1, y), (x - 1, y)
-    t = wp.tid() + offset
-    w = depth.shape[1]
-    h = depth.shape[0]
-    y = t / w
-    x = t - y * w
+    x, y, interior = _depth_pixel(wp.tid() + offset, depth)
     zero = type(fx)(0.0)
     for j in range(4):
         slots[y, x, j] = zero
-    if x >= 1 and x <= w - 2 and y >= 1 and y <= h - 2:
+    if interior:
         a, b, rd, ru, rr, rl = _diffs(depth, x, y, fx, fy, cx, cy)
         c = wp.cross(a, b)
         ln = wp.length(c)
