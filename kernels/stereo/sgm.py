@@ -62,12 +62,16 @@ SGM_VEC = {wp.float32: wp.types.vector(length=SGM_LANES, dtype=wp.float32),
 
 
 @wp.func
-def _store_path(agg_v: wp.array(dtype=typing.Any), i: int, lr: typing.Any, write: int):
-    """agg_v[i] = L_r (when `write`, the first axis) or agg_v[i] + L_r, in L_r's vector type."""
+def _store_path(win_v: wp.array(dtype=typing.Any), w: int, agg_v: wp.array(dtype=typing.Any), i: int, lr: typing.Any,
+                write: int, lanes_min: typing.Any):
+    """One vector of L_r: into the scanline's row at win_v[w] and the aggregate agg_v[i] (assigned when
+    `write`, the first axis, else added, in L_r's vector type); returns the lane minima with it folded in."""
+    win_v[w] = lr
     if write != 0:
         agg_v[i] = agg_v.dtype(lr)
     else:
         agg_v[i] = agg_v.dtype(type(lr)(agg_v[i]) + lr)
+    return wp.min(lanes_min, lr)
 
 
 @wp.func
@@ -86,9 +90,7 @@ def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.A
     lanes_min = win_v.dtype(cost_v[base])
     for j in range(nb):
         c = win_v.dtype(cost_v[base + j])
-        win_v[b0 + 8 * j] = c
-        _store_path(agg_v, base + j, c, write)
-        lanes_min = wp.min(lanes_min, c)
+        lanes_min = _store_path(win_v, b0 + 8 * j, agg_v, base + j, c, write, lanes_min)
     prev_min = wp.min(lanes_min)
     src = b0
     dst = b1
@@ -105,9 +107,7 @@ def _sgm_walk(cost_v: wp.array(dtype=typing.Any), agg_v: wp.array(dtype=typing.A
             o = src + 8 * j
             best = wp.min(wp.min(win_v[o], jump_v), wp.min(win_v[o - 1], win_v[o + 1]) + p1_v)
             lr = win_v.dtype(cost_v[base + j]) + best - prev_v
-            win_v[dst + 8 * j] = lr
-            _store_path(agg_v, base + j, lr, write)
-            lanes_min = wp.min(lanes_min, lr)
+            lanes_min = _store_path(win_v, dst + 8 * j, agg_v, base + j, lr, write, lanes_min)
         prev_min = wp.min(lanes_min)
         t = src
         src = dst
