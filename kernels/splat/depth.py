@@ -39,7 +39,7 @@ import warp as wp
 from kernels import _arrays as A
 from kernels.splat.modes import ALPHA_MAX_OF, DEFAULT_MODE, mode_id
 from kernels.splat.raster import Raster, _check_tiles_mode
-from kernels.splat.raster_kernels import ALPHA_MIN, splat_alpha, tile_box, tile_pixel
+from kernels.splat.raster_kernels import ALPHA_MIN, packed_alpha, tile_box, tile_pixel
 from kernels.splat.tiles import TILE_PIXELS, Splats2D, Tiles
 
 wp.set_module_options({"enable_backward": False})
@@ -56,22 +56,17 @@ def _median_kernel(packed: wp.array2d(dtype=Any), sorted_gid: wp.array(dtype=wp.
                    out_entry: wp.array2d(dtype=wp.int32), offset: int):
     # One thread per pixel, its tile's list up to the forward's n_contrib (past it nothing was blended),
     # with the forward's per-pixel arithmetic (kernels.splat.raster_kernels: the same T's).
-    tile, px, py = tile_pixel(wp.tid() + offset, tiles_x)
-    if px >= width or py >= height:
+    tile, px, py, pxf, pyf, inside = tile_pixel(wp.tid() + offset, tiles_x, width, height, alpha_max)
+    if not inside:
         return
     zero = packed.dtype(0.0)
     one = packed.dtype(1.0)
-    half = packed.dtype(0.5)
-    pxf = packed.dtype(float(px)) + half
-    pyf = packed.dtype(float(py)) + half
     tr = one
     med = zero
     idx = int(-1)
     for s in range(ranges[tile, 0], n_contrib[py, px]):
         g = sorted_gid[s]
-        dx = packed[g, 0] - pxf
-        dy = packed[g, 1] - pyf
-        alpha = splat_alpha(packed[g, 2], packed[g, 3], packed[g, 4], packed[g, 5], packed[g, 6], dx, dy, alpha_max)
+        alpha = packed_alpha(packed, g, pxf, pyf, alpha_max)
         if alpha < packed.dtype(ALPHA_MIN):
             continue
         # blended, with T_i = tr > 1/2 (the walk stops once T <= 1/2)

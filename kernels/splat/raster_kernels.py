@@ -72,13 +72,14 @@ def gauss_power(qa: Any, qb: Any, qc: Any, dx: Any, dy: Any):
 
 
 @wp.func
-def splat_alpha(qa: Any, qb: Any, qc: Any, o: Any, thr: Any, dx: Any, dy: Any, alpha_max: Any):
-    """alpha = min(a_max, o G) of a splat at offset d = (dx, dy), or 0 where its exponent is positive or
-    below thr (alpha < 1/255 there, so exp() is skipped); the caller skips alpha < 1/255."""
-    power = gauss_power(qa, qb, qc, dx, dy)
-    if power > type(dx)(0.0) or power < thr:
-        return type(dx)(0.0)
-    return wp.min(alpha_max, o * wp.exp(power))
+def packed_alpha(packed: wp.array2d(dtype=Any), g: int, pxf: Any, pyf: Any, alpha_max: Any):
+    """alpha = min(a_max, o G) of splat g's packed row at the pixel centre (pxf, pyf), or 0 where its
+    exponent is positive or below thr (alpha < 1/255 there, so exp() is skipped, and so is the load of
+    o); the caller skips alpha < 1/255."""
+    power = gauss_power(packed[g, 2], packed[g, 3], packed[g, 4], packed[g, 0] - pxf, packed[g, 1] - pyf)
+    if power > type(pxf)(0.0) or power < packed[g, 6]:
+        return type(pxf)(0.0)
+    return wp.min(alpha_max, packed[g, 5] * wp.exp(power))
 
 
 @wp.kernel
@@ -133,7 +134,10 @@ def _raster_forward_kernel(
                     continue
                 dx = u - pxf
                 dy = v - pyf
-                alpha = splat_alpha(qa, qb, qc, o, thr, dx, dy, alpha_max)
+                power = gauss_power(qa, qb, qc, dx, dy)
+                if power > zero or power < thr:
+                    continue
+                alpha = wp.min(alpha_max, o * wp.exp(power))
                 if alpha < packed.dtype(ALPHA_MIN):
                     continue
                 tr = final_T[py, px]
@@ -226,13 +230,17 @@ def _raster_forward_rows_kernel(
 
 
 @wp.func
-def tile_pixel(t: int, tiles_x: int):
-    """(tile, px, py) of thread t when threads run tile by tile, TILE_PIXELS per tile, row-major
-    within the tile (the per-pixel kernels' layout)."""
+def tile_pixel(t: int, tiles_x: int, width: int, height: int, like: Any):
+    """(tile, px, py, the pixel centre px + 1/2, py + 1/2 in like's type, whether the pixel is in the
+    image) of thread t when threads run tile by tile, TILE_PIXELS per tile, row-major within the tile
+    (the per-pixel kernels' layout)."""
     tile = t / TILE_PIXELS
     local = t - tile * TILE_PIXELS
     tile_y = tile / tiles_x
-    return tile, (tile - tile_y * tiles_x) * TILE + local % TILE, tile_y * TILE + local / TILE
+    px = (tile - tile_y * tiles_x) * TILE + local % TILE
+    py = tile_y * TILE + local / TILE
+    half = type(like)(0.5)
+    return tile, px, py, type(like)(float(px)) + half, type(like)(float(py)) + half, px < width and py < height
 
 
 @wp.kernel
@@ -245,14 +253,11 @@ def _raster_forward_pixel_kernel(
 ):
     # The same forward with one thread per pixel walking its tile's whole list: the layout for CUDA,
     # whose threads are many and cheap (the CPU runs _raster_forward_kernel).
-    tile, px, py = tile_pixel(wp.tid() + offset, tiles_x)
-    if px >= width or py >= height:
+    tile, px, py, pxf, pyf, inside = tile_pixel(wp.tid() + offset, tiles_x, width, height, alpha_max)
+    if not inside:
         return
     zero = packed.dtype(0.0)
     one = packed.dtype(1.0)
-    half = packed.dtype(0.5)
-    pxf = packed.dtype(float(px)) + half
-    pyf = packed.dtype(float(py)) + half
     start = ranges[tile, 0]
     end = ranges[tile, 1]
     tr = one
@@ -263,9 +268,7 @@ def _raster_forward_pixel_kernel(
     last = start
     for s in range(start, end):
         g = sorted_gid[s]
-        dx = packed[g, 0] - pxf
-        dy = packed[g, 1] - pyf
-        alpha = splat_alpha(packed[g, 2], packed[g, 3], packed[g, 4], packed[g, 5], packed[g, 6], dx, dy, alpha_max)
+        alpha = packed_alpha(packed, g, pxf, pyf, alpha_max)
         if alpha < packed.dtype(ALPHA_MIN):
             continue
         next_t = tr * (one - alpha)
