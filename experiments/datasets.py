@@ -111,7 +111,7 @@ def run(ctx: Context) -> int:
              "the camera ray grazes an occluder's edge that the visibility ray misses).\n\n"
              + markdown_table(headers, rows))
     preview(paths, ctx.out / "preview.png")
-    ctx.write_results(config={"quick": ctx.quick, "scenes": list(SCENES)}, device="cpu",
+    ctx.write_results(config={"scenes": list(SCENES)}, device="cpu",
                       metrics={"mitsuba_variant": variant, "scenes": metrics}, table_md=table)
     return 0
 

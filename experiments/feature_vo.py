@@ -197,7 +197,7 @@ def run(ctx: Context) -> int:
                                                       "matches": lp.matches, "inliers": lp.inliers} for lp in loops],
         "loop_candidates": tried, "pose_graph": pgo, "bundle_adjustments": vo.ba, "per_frame": vo.frames,
     }
-    config = {"quick": ctx.quick, **size, "frames": n, "vo": asdict(cfg), "loop": asdict(loop_cfg)}
+    config = {**size, "frames": n, "vo": asdict(cfg), "loop": asdict(loop_cfg)}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
     return 0
 

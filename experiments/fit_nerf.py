@@ -337,7 +337,7 @@ def run(ctx: Context) -> int:
                                  "config": {k: v for k, v in r["train"]["config"].items()},
                                  "final_loss": float(np.mean(r["train"]["losses"][-100:]))}
                           for name, r in results.items()}}
-    ctx.write_results(config={"quick": ctx.quick, "fields": args.fields}, metrics=metrics, table_md=table,
+    ctx.write_results(config={"fields": args.fields}, metrics=metrics, table_md=table,
                       compare=True)
     return 0
 

@@ -346,7 +346,7 @@ def run(ctx: Context) -> int:
                    gt_label="ground truth (Mitsuba)" if ds.format == "drlab" else f"ground truth ({ds.scene})")
     training_figure(result.history, result.events, ctx.out / "training.png")
     train_config = {k: (asdict(v) if hasattr(v, "__dataclass_fields__") else v) for k, v in asdict(tcfg).items()}
-    ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "train": train_config},
+    ctx.write_results(config={**asdict(cfg), "train": train_config},
                       metrics=metrics, table_md=table, compare=True)
     return 0
 

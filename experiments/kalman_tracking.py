@@ -279,7 +279,6 @@ def run(ctx: Context) -> int:
         "q_sweep": {"q": qs.tolist(), "heldout_loglik": ll_curve, "eval_filter_rmse": err_curve},
     }
     config = {
-        "quick": ctx.quick,
         "n_steps": N_STEPS,
         "radius": RADIUS,
         "centre": list(CENTRE),

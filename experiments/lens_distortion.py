@@ -204,7 +204,7 @@ def run(ctx: Context) -> int:
     metrics = {"rows": [r for res in per_lens.values() for r in res["rows"]],
                "lenses": {name: res["info"] for name, res in per_lens.items()}, "margin_db": MARGIN_DB,
                "dataset": str(path), "scene": "objects", "render": f"{cam0.width}x{cam0.height}"}
-    ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "lenses": names}, metrics=metrics,
+    ctx.write_results(config={**asdict(cfg), "lenses": names}, metrics=metrics,
                       table_md=table)
     return 0
 

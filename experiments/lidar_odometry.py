@@ -286,7 +286,7 @@ def run(ctx: Context) -> int:
     metrics = {"frames": n_frames, "path_length": length, "mean_step": step, "returns_per_scan": float(np.mean(n_pts)),
                "ray_cast_seconds": scan_s, "methods": stats, "kiss_icp": None if kiss_missing else "ran",
                "skipped_kiss_icp": kiss_missing, "single_registrations": pairs}
-    config = {"quick": ctx.quick, **size, "frames": n_frames, "pairs": n_pairs, "voxel_size": args.voxel_size,
+    config = {**size, "frames": n_frames, "pairs": n_pairs, "voxel_size": args.voxel_size,
               "scanner": sc.config(), "hall": spec.__dict__, "icp": registration.IcpConfig().config(),
               "pair_gap": PAIR_GAP, "pair_distance": PAIR_DISTANCE}
     ctx.write_results(config=config, metrics=metrics, table_md=table)

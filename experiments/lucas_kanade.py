@@ -170,7 +170,7 @@ def run(ctx: Context) -> int:
                            ("axes fixed, single scale", *flows["textbook, axes fixed"]),
                            ("pyramidal LK (valid pixels)", *flows["kernels.lucas_kanade pyramidal, 3 levels x 10 steps"])],
                   ctx.out / "quiver.png")
-    ctx.write_results(config={"quick": ctx.quick, "size": SIZE, "rows": ROWS, "cols": COLS, "shift": SHIFT,
+    ctx.write_results(config={"size": SIZE, "rows": ROWS, "cols": COLS, "shift": SHIFT,
                               "window": WINDOW, "min_eigenvalue": 1e-4},
                       metrics={"runs": runs, "truth_u": float(SHIFT)}, table_md=table)
     return 0

@@ -299,7 +299,6 @@ def run(ctx: Context) -> int:
         }
     table = table_markdown(metrics, n_seq, n_frames, args.objects)
     config = {
-        "quick": ctx.quick,
         "sequences": n_seq,
         "frames": n_frames,
         "scene": scene.__dict__,
@@ -545,7 +544,6 @@ def run_on_data(ctx: Context, dirs: list[Path]) -> int:
             "per_sequence": per_seq[key],
         }
     config = {
-        "quick": ctx.quick,
         "data": str(ctx.data),
         "sequences": len(seqs),
         "max_frames": max_frames,

@@ -252,7 +252,7 @@ def run(ctx: Context) -> int:
                                          for c, t, v, s in targets],
                "host": cpu,
                "n_with_reference": sum(ln["ref_s"] is not None for ln in lines)}
-    config = {"quick": ctx.quick, "smoke": ctx.smoke, "families": families, "compare": True, "repeats": repeats}
+    config = {"smoke": ctx.smoke, "families": families, "compare": True, "repeats": repeats}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
     if full and registry.in_checkout() and ctx.final_out.resolve() == registry.default_out("performance").resolve():
         ctx.after_commit(lambda: refresh_readme(registry.REPO_ROOT / "docs" / "performance.md", table))

@@ -228,7 +228,7 @@ def run(ctx: Context) -> int:
                "clouds": {k: int(len(s.labels)) for k, s in splits.items()}, "data_seconds": data_s,
                "methods": methods, "permutation": perm,
                "confusion": {k: v.tolist() for k, v in mats.items()}}
-    config = {"quick": ctx.quick, "points": size["points"], "per_class": size["per_class"], "epochs": epochs,
+    config = {"points": size["points"], "per_class": size["per_class"], "epochs": epochs,
               "lr": LR, "batch_size": BATCH, "pose": shapes.PoseConfig().__dict__}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
     return 0

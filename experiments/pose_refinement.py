@@ -584,7 +584,7 @@ def run(ctx: Context) -> int:
                "target_mean_met": bool(after["rot_mean_deg"] < TARGET_DEG),
                "target_mean_met_rgbd": (bool(results["refined_rgbd"]["errors"]["rot_mean_deg"] < TARGET_DEG)
                                         if "refined_rgbd" in results else None)}
-    ctx.write_results(config={"quick": ctx.quick, "model": args.model, "rot_deg": args.rot_deg,
+    ctx.write_results(config={"model": args.model, "rot_deg": args.rot_deg,
                               "trans_frac": args.trans_frac, "depth_weight": args.depth_weight,
                               "dilation": args.dilation},
                       metrics=metrics, table_md=table)

@@ -395,7 +395,7 @@ def run_benchmark(ctx: Context, bench) -> int:
                              "pass": bench.pass_, "root": str(bench.root), "pairs_evaluated": n_pairs,
                              "pairs_in_folder": bench.pairs, "sequences": [i.name for i in items]},
                "methods": methods, "lookup": sorted(lookup_paths), "seconds": time.perf_counter() - t_start}
-    config = {"quick": ctx.quick, "format": bench.format, "pass": bench.pass_, "stride": STRIDE, "headline": HEADLINE,
+    config = {"format": bench.format, "pass": bench.pass_, "stride": STRIDE, "headline": HEADLINE,
               "corrflow": CorrFlowConfig().__dict__, "memory_budget_mib": MEMORY_BUDGET_MIB}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
     return 0
@@ -607,7 +607,7 @@ def run_rendered(ctx: Context) -> int:
     ablation_figure(grid, levels, radii, ctx.out / "ablation.png")
     from research.flow.coarse_to_fine import C2FConfig
 
-    config = {"quick": ctx.quick, "scenes": list(paths), "res": res, "spp": spp, "flow_step_deg": STEP_DEG,
+    config = {"scenes": list(paths), "res": res, "spp": spp, "flow_step_deg": STEP_DEG,
               "stride": STRIDE, "headline": headline, "corrflow": CorrFlowConfig().__dict__,
               "c2f": C2FConfig().__dict__, "levels": levels, "radii": radii, "cell_mode": cell_mode}
     ctx.write_results(config=config, metrics=metrics, table_md=table)

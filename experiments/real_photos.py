@@ -427,7 +427,7 @@ def run(ctx: Context) -> int:
     figure(gt_c2w, aligned, test_rgb[0], [ev_cal.renders[0], ev_sfm.renders[0]],
            [f"calibrated cameras: {ev_cal.per_view[0]['psnr']:.2f} dB",
             f"SfM cameras: {ev_sfm.per_view[0]['psnr']:.2f} dB"], ctx.out / "real_photos.png")
-    ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "sfm_threads": args.threads}, metrics=metrics,
+    ctx.write_results(config={**asdict(cfg), "sfm_threads": args.threads}, metrics=metrics,
                       table_md=table)
     return 0
 

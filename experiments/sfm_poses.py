@@ -310,7 +310,7 @@ def run(ctx: Context) -> int:
     trajectories_figure(np.array([c.c2w for c in gt]), aligned, ctx.out / "trajectories.png", pe.rotation_deg)
     renders_figure(test_small[0], ev_sfm.renders[0], ev_gt.renders[0], ev_sfm.per_view[0]["psnr"],
                    ev_gt.per_view[0]["psnr"], test_names[0], ctx.out / "renders.png")
-    ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "matcher": args.matcher}, metrics=metrics,
+    ctx.write_results(config={**asdict(cfg), "matcher": args.matcher}, metrics=metrics,
                       table_md=table)
     return 0
 

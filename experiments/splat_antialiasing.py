@@ -143,7 +143,7 @@ def run(ctx: Context) -> int:
              "opacity compensation); 3DGS dilates by 0.3 px^2. Train time: wall, this machine.\n\n"
              + markdown_table(headers, rows, floatfmt=".4g") + "\n\n![every model at every scale](figure.png)\n")
     metrics = {"dataset": {"path": str(path), "config": dcfg.__dict__}, "scales": list(SCALES), "models": results}
-    ctx.write_results(config={"quick": ctx.quick, **size}, metrics=metrics, table_md=table)
+    ctx.write_results(config={**size}, metrics=metrics, table_md=table)
     return 0
 
 

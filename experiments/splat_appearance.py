@@ -276,7 +276,7 @@ def run(ctx: Context) -> int:
     metrics = {"sets": record, "models": list(MODELS),
                "settings": {"exposure_stops": EXPOSURE_STOPS, "wb_stops": WB_STOPS, "gamma_stops": GAMMA_STOPS,
                             "fern_box": FERN_BOX}}
-    ctx.write_results(config={"quick": ctx.quick, **size}, metrics=metrics, table_md=table)
+    ctx.write_results(config={**size}, metrics=metrics, table_md=table)
     return 0
 
 

@@ -167,7 +167,7 @@ def run(ctx: Context) -> int:
                "absgrad_threshold": {"value": abs_cfg.grad_threshold,
                                      "source": "gsplat DefaultStrategy docstring (absgrad=True), not tuned here"},
                "models": {k: {kk: vv for kk, vv in f.items() if kk != "render"} for k, f in fits.items()}}
-    ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "iterations": iterations}, metrics=metrics,
+    ctx.write_results(config={**asdict(cfg), "iterations": iterations}, metrics=metrics,
                       table_md=table)
     return 0
 

@@ -203,7 +203,7 @@ def run(ctx: Context) -> int:
                    "normal_from_iteration": round(st.NORMAL_FROM * iterations), "loss_depth": ctx.args.loss_depth,
                    "settings_source": "lambda 0.05 from 7000/30000: 2DGS's defaults; schedule: fit_splats'",
                    "rows": rows, "operator_floor": operator, "models": models}
-    ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "iterations": iterations}, metrics=metrics_out,
+    ctx.write_results(config={**asdict(cfg), "iterations": iterations}, metrics=metrics_out,
                       table_md=table)
     return 0
 

@@ -252,7 +252,7 @@ def run(ctx: Context) -> int:
         "vo_baseline": {k: v for k, v in vo.items() if k != "c2w"},
         "target_ate_pct": TARGET_ATE_PCT, "target_met": bool(pct < TARGET_ATE_PCT and not failed),
     }
-    config = {"quick": ctx.quick, **size, "frames": frames, "track": asdict(slam_cfg.track),
+    config = {**size, "frames": frames, "track": asdict(slam_cfg.track),
               "map": asdict(slam_cfg.map), "keyframe_every": slam_cfg.keyframe_every, "window": slam_cfg.window}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
     return 0

@@ -494,7 +494,7 @@ def run(ctx: Context) -> int:
     )
     figures({best_drlab: chosen[best_drlab], "OpenCV StereoSGBM": chosen["OpenCV StereoSGBM"]}, clean_eval, results,
             ctx.out)
-    config = {"quick": ctx.quick, "scenes": list(SCENES), **asdict(st), "tuning_pairs": [f"{p.scene}/{p.name}"
+    config = {"scenes": list(SCENES), **asdict(st), "tuning_pairs": [f"{p.scene}/{p.name}"
               for p in tuning], "stressed_tuning_pairs": [f"{p.scene}/{p.name}" for p in stressed_tuning],
               "evaluation_pairs": [f"{p.scene}/{p.name}" for p in clean_eval],
               "conditions": list(CONDITIONS), "stress": STRESS.to_dict(),
@@ -568,7 +568,7 @@ def run_single(ctx: Context, cfg: Any, st: Setup, tuning: list[Pair], evaluation
                                 f"{r[POOLED[c]]['bad2']:.4f}", f"{r[POOLED[c]]['d1']:.4f}",
                                 f"{r[POOLED[c]]['d1_all']:.4f}", f"{1000 * r['time_s_mean']:.1f}"]
                                for c in CONDITIONS]))
-    config = {"quick": ctx.quick, "scenes": list(SCENES), **asdict(st), "single": cfg.to_dict(),
+    config = {"scenes": list(SCENES), **asdict(st), "single": cfg.to_dict(),
               "tuning_pairs": [f"{p.scene}/{p.name}" for p in tuning], "stress": STRESS.to_dict(),
               "evaluation_pairs": [f"{p.scene}/{p.name}" for p in evaluation if p.condition == "clean"]}
     ctx.write_results(config=config, table_md=table,

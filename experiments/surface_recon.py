@@ -254,7 +254,7 @@ def run(ctx: Context) -> int:
                    "gt_points": int(len(gt_pts)), "gt_sampled": cfg.samples, "gt_shapes": shapes,
                    "open3d": None if o3d is None else o3d.__version__, "fits": fits, "depth_errors": derr,
                    "results": results}
-    ctx.write_results(config={"quick": ctx.quick, **asdict(cfg), "sources": args.sources}, metrics=metrics_out,
+    ctx.write_results(config={**asdict(cfg), "sources": args.sources}, metrics=metrics_out,
                       table_md=table)
     return 0
 

@@ -213,7 +213,7 @@ def run(ctx: Context) -> int:
     metrics = {"scene": scene, "data": record, "eval_protocol": record["eval_protocol"], "cpus": cpus,
                "runs": rows, "budgets_min": budgets,
                "budget_table": [dict(zip(bh, r)) for r in brows]}
-    ctx.write_results(config={"quick": ctx.quick, "splat_iterations": iterations, "fields": args.fields,
+    ctx.write_results(config={"splat_iterations": iterations, "fields": args.fields,
                               "field_scales": scales, "budgets": budgets, "resolution": args.resolution,
                               "splat_setup": asdict(fs.setup(ctx.quick, ctx.smoke))},
                       metrics=metrics, table_md=table)

@@ -252,7 +252,7 @@ def run(ctx: Context) -> int:
                                                                                             "interlevel")}
                                 | {"final_loss": float(np.mean(results[s["name"]][m]["losses"][-50:]))}
                                 for m in METHODS}} for s in scenes}}
-    ctx.write_results(config={"quick": ctx.quick, "scenes": [s["name"] for s in scenes]}, metrics=metrics,
+    ctx.write_results(config={"scenes": [s["name"] for s in scenes]}, metrics=metrics,
                       table_md=table)
     return 0
 

@@ -132,7 +132,7 @@ def run(ctx: Context) -> int:
                "render_dense_vs_general_path": vs_general,
                "image_min": float(ref.min()), "image_max": float(ref.max()),
                "opencv_render": {"mean_opacity": float(cv.opacity.mean()), "n_samples": cv.n_samples}}
-    config = {"quick": ctx.quick, "height": h, "width": w, "focal": focal,
+    config = {"height": h, "width": w, "focal": focal,
               "n_samples": tb.N_SAMPLES, "t_near": tb.T_NEAR, "t_far": tb.T_FAR, "repeats": repeats}
     ctx.write_results(config=config, metrics=metrics, table_md=table)
     if not err["warp_float64"] <= AGREEMENT_TOL:

@@ -452,7 +452,7 @@ def test_a_finished_run_replaces_the_folder_whole(tmp_path):
     (out / "stale.png").write_bytes(b"from an older run")
 
     def body(ctx):
-        ctx.write_results(config={"quick": ctx.quick}, metrics={"value": 1.5}, table_md="| x |\n")
+        ctx.write_results(config={}, metrics={"value": 1.5}, table_md="| x |\n")
         ctx.after_commit(lambda: f"after commit: {(ctx.final_out / 'metrics.json').is_file()}")
 
     assert experiment.Experiment("dummy", None, body, sizes="-", warp=False).main(["--out", str(out),
@@ -460,6 +460,7 @@ def test_a_finished_run_replaces_the_folder_whole(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["metrics.json", "table.md"]
     doc = json.loads((out / "metrics.json").read_text())
     assert doc["metrics"] == {"value": 1.5} and doc["seed"] == 4 and doc["experiment"] == "dummy"
+    assert doc["config"] == {"quick": False}  # recorded by the Context for every experiment
     assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
 
 
