@@ -105,6 +105,14 @@ def _diffuse(rgb) -> dict[str, Any]:
     return {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(rgb)}}
 
 
+def _checker_diffuse(rgb0, rgb1, uv_scale: tuple[float, float]) -> dict[str, Any]:
+    """A diffuse BSDF whose reflectance is a checkerboard of rgb0 and rgb1; (u, v) scaled by `uv_scale`."""
+    return {"type": "diffuse", "reflectance": {
+        "type": "checkerboard", "color0": {"type": "rgb", "value": list(rgb0)},
+        "color1": {"type": "rgb", "value": list(rgb1)},
+        "to_uv": _T(np.diag([*uv_scale, 1.0, 1.0]))}}
+
+
 def _build_spheres() -> dict[str, Any]:
     # World = the textbook camera's OpenCV frame: x right, y down, z forward.
     spheres = {
@@ -135,32 +143,44 @@ def _sky_bitmap(height: int = 64) -> np.ndarray:
     return np.ascontiguousarray(img.astype(np.float32))
 
 
-def _build_objects() -> dict[str, Any]:
+def _sky_and_sun() -> dict[str, Any]:
+    """The z-up scenes' light: the procedural sky environment map and a directional sun."""
     import mitsuba as mi
 
     # Mitsuba's envmap has +y as its pole; rotate it so the pole is world +z.
     env_to_world = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
     return {
-        "type": "scene",
         "sky": {"type": "envmap", "bitmap": mi.Bitmap(_sky_bitmap()), "scale": 0.8, "to_world": _T(env_to_world)},
         "sun": {"type": "directional", "direction": [-0.4, -0.3, -0.85],
                 "irradiance": {"type": "rgb", "value": [2.6, 2.4, 2.1]}},
+    }
+
+
+def _checker_ball() -> dict[str, Any]:
+    """The red and yellow checker BSDF of the ball (objects and backdrop)."""
+    return _checker_diffuse((0.85, 0.15, 0.1), (0.95, 0.85, 0.2), (8.0, 4.0))
+
+
+def _can_with_lid(x: float, y: float, radius: float, height: float) -> dict[str, Any]:
+    """The green can standing on z = 0 at (x, y) (an open cylinder) and the white disk that closes its top."""
+    return {
+        "can": {"type": "cylinder", "p0": [x, y, 0.0], "p1": [x, y, height], "radius": radius,
+                "bsdf": _diffuse((0.2, 0.7, 0.3))},
+        "can_lid": {"type": "disk", "to_world": _T(_translate_scale([x, y, height], radius)),
+                    "bsdf": _diffuse((0.9, 0.9, 0.85))},
+    }
+
+
+def _build_objects() -> dict[str, Any]:
+    return {
+        "type": "scene",
+        **_sky_and_sun(),
         "ground": {"type": "rectangle", "to_world": _T(_translate_scale([0, 0, 0], [2.0, 2.0, 1.0])),
-                   "bsdf": {"type": "diffuse", "reflectance": {
-                       "type": "checkerboard", "color0": {"type": "rgb", "value": [0.55, 0.55, 0.5]},
-                       "color1": {"type": "rgb", "value": [0.35, 0.35, 0.32]},
-                       "to_uv": _T(np.diag([6.0, 6.0, 1.0, 1.0]))}}},
-        "ball": {"type": "sphere", "center": [-0.6, -0.5, 0.5], "radius": 0.5,
-                 "bsdf": {"type": "diffuse", "reflectance": {
-                     "type": "checkerboard", "color0": {"type": "rgb", "value": [0.85, 0.15, 0.1]},
-                     "color1": {"type": "rgb", "value": [0.95, 0.85, 0.2]},
-                     "to_uv": _T(np.diag([8.0, 4.0, 1.0, 1.0]))}}},
+                   "bsdf": _checker_diffuse((0.55, 0.55, 0.5), (0.35, 0.35, 0.32), (6.0, 6.0))},
+        "ball": {"type": "sphere", "center": [-0.6, -0.5, 0.5], "radius": 0.5, "bsdf": _checker_ball()},
         "box": {"type": "cube", "to_world": _T(_rotz_translate_scale(25.0, [0.7, -0.3, 0.35], 0.35)),
                 "bsdf": _diffuse((0.15, 0.35, 0.8))},
-        "can": {"type": "cylinder", "p0": [0.2, 0.8, 0.0], "p1": [0.2, 0.8, 0.9], "radius": 0.28,
-                "bsdf": _diffuse((0.2, 0.7, 0.3))},
-        "can_lid": {"type": "disk", "to_world": _T(_translate_scale([0.2, 0.8, 0.9], 0.28)),
-                    "bsdf": _diffuse((0.9, 0.9, 0.85))},
+        **_can_with_lid(0.2, 0.8, 0.28, 0.9),
         "coaster": {"type": "disk", "to_world": _T(_translate_scale([-0.7, 0.7, 0.01], 0.4)),
                     "bsdf": _diffuse((0.8, 0.5, 0.2))},
     }
@@ -196,16 +216,10 @@ def _build_backdrop() -> dict[str, Any]:
     import mitsuba as mi
 
     scene = _build_objects_group()
-    env_to_world = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
     scene.update({
-        "sky": {"type": "envmap", "bitmap": mi.Bitmap(_sky_bitmap()), "scale": 0.8, "to_world": _T(env_to_world)},
-        "sun": {"type": "directional", "direction": [-0.4, -0.3, -0.85],
-                "irradiance": {"type": "rgb", "value": [2.6, 2.4, 2.1]}},
+        **_sky_and_sun(),
         "ground": {"type": "disk", "to_world": _T(_translate_scale([0, 0, 0], [14.0, 14.0, 1.0])),
-                   "bsdf": {"type": "diffuse", "reflectance": {
-                       "type": "checkerboard", "color0": {"type": "rgb", "value": [0.5, 0.45, 0.35]},
-                       "color1": {"type": "rgb", "value": [0.35, 0.4, 0.3]},
-                       "to_uv": _T(np.diag([8.0, 8.0, 1.0, 1.0]))}}},
+                   "bsdf": _checker_diffuse((0.5, 0.45, 0.35), (0.35, 0.4, 0.3), (8.0, 8.0))},
         "wall": {"type": "cylinder", "p0": [0.0, 0.0, -0.5], "p1": [0.0, 0.0, 7.0], "radius": 15.0,
                  "flip_normals": True,
                  "emitter": {"type": "area", "radiance": {"type": "bitmap", "bitmap": mi.Bitmap(_panorama_bitmap())}},
@@ -219,17 +233,10 @@ def _build_objects_group() -> dict[str, Any]:
     return {
         "type": "scene",
         "table": {"type": "disk", "to_world": _T(_translate_scale([0, 0, 0.01], 0.9)), "bsdf": _diffuse((0.8, 0.75, 0.7))},
-        "ball": {"type": "sphere", "center": [-0.3, -0.25, 0.3], "radius": 0.3,
-                 "bsdf": {"type": "diffuse", "reflectance": {
-                     "type": "checkerboard", "color0": {"type": "rgb", "value": [0.85, 0.15, 0.1]},
-                     "color1": {"type": "rgb", "value": [0.95, 0.85, 0.2]},
-                     "to_uv": _T(np.diag([8.0, 4.0, 1.0, 1.0]))}}},
+        "ball": {"type": "sphere", "center": [-0.3, -0.25, 0.3], "radius": 0.3, "bsdf": _checker_ball()},
         "box": {"type": "cube", "to_world": _T(_rotz_translate_scale(25.0, [0.35, -0.15, 0.22], 0.22)),
                 "bsdf": _diffuse((0.15, 0.35, 0.8))},
-        "can": {"type": "cylinder", "p0": [0.05, 0.4, 0.0], "p1": [0.05, 0.4, 0.6], "radius": 0.18,
-                "bsdf": _diffuse((0.2, 0.7, 0.3))},
-        "can_lid": {"type": "disk", "to_world": _T(_translate_scale([0.05, 0.4, 0.6], 0.18)),
-                    "bsdf": _diffuse((0.9, 0.9, 0.85))},
+        **_can_with_lid(0.05, 0.4, 0.18, 0.6),
     }
 
 
