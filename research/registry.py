@@ -369,14 +369,14 @@ register_family("volume", "NeRF volume rendering: sampling, compositing, fields,
                 oracle_cases="research.oracles.cases.volume", bench="research.bench.volume")
 register_family("mip_filter", "Mip-Splatting's 3D smoothing filter of the splats (scales and opacity)",
                 kernels="kernels.splat.filter3d", reference="kernels.reference.splat_filter3d",
-                checks="research.checks.mip_filter")
+                checks="research.checks.mip_filter", oracle_cases="research.oracles.cases.mip_filter")
 register_family("appearance", "per-image appearance: a bilateral grid (or one affine) of 3x4 colour transforms, sliced",
                 kernels="kernels.appearance", reference="kernels.reference.appearance",
-                checks="research.checks.appearance")
+                checks="research.checks.appearance", oracle_cases="research.oracles.cases.appearance")
 register_family("unbounded", "unbounded scenes for the fields: mip-NeRF 360's contraction, s-space spacing, "
                 "proposal weights, inverse-CDF resampling, interlevel loss",
                 kernels="kernels.volume.proposal", reference="kernels.reference.volume_unbounded",
-                checks="research.checks.unbounded")
+                checks="research.checks.unbounded", oracle_cases="research.oracles.cases.unbounded")
 register_family("splat_geometry", "splat median and expected depth, shortest-axis and depth normals, depth-normal "
                 "consistency loss", kernels="kernels.splat.depth", reference="kernels.reference.splat_geometry",
                 checks="research.checks.splat_geometry")

@@ -20,7 +20,9 @@ plain graph of element-wise operations, gathers and scatters, whose adjoints are
 rules. `drjit.eval` between iterations keeps the kernels small (one compile, reused).
 
 Modules: `ssim`, `stereo`, `corr`, `volume` (dense grid, hash grid, MLP), `rays` (the volume renderer's
-camera gradients), `splat` and `points` (the chamfer distance).
+camera gradients), `splat`, `lens` (the splat projection through each lens model), `points` (the
+chamfer distance), `appearance` (the bilateral-grid slice), `mip` (Mip-Splatting's 3D filter) and
+`proposal` (the proposal sampler's interval weights and interlevel loss).
 
 `research.oracles.cases` holds the comparisons themselves, one module per family (the family's
 `oracle_cases` in research.registry.FAMILIES): each builds random inputs, runs drlab and the oracle

@@ -6,7 +6,10 @@ import numpy as np
 import pytest
 
 from research.oracles import backend
+from research.oracles.appearance import bilateral_slice_oracle
 from research.oracles.corr import lookup_oracle
+from research.oracles.mip import filter_3d_oracle
+from research.oracles.proposal import interlevel_loss_oracle, interval_weights_oracle
 from research.oracles.rays import camera_rays_oracle, render_camera_oracle
 from research.oracles.splat import render_oracle
 from research.oracles.ssim import ssim_oracle
@@ -65,10 +68,17 @@ def _render(**change):
     (_render(field={"kind": "hash"}), "field: expected a dict with kind 'spheres' or 'grid'"),
     (_render(delta=-np.ones((3, 4))), "delta: expected interval lengths >= 0"),
     (_render(t_threshold=1.0), r"t_threshold: expected a value in \[0, 1\), got 1.0"),
+    (lambda: bilateral_slice_oracle(Z((1, 1, 1, 9)), IMG, IMG), r"grid: expected shape \(N, N, N, 12\)"),
+    (lambda: bilateral_slice_oracle(Z((1, 1, 1, 12)), IMG, Z((6, 5))), r"grad_out: expected shape \(6, 5, 3\)"),
+    (lambda: filter_3d_oracle(Z((2, 3)), Z(2), -np.ones(2), Z((2, 3)), Z(2)), "sigma: expected values >= 0"),
+    (lambda: interval_weights_oracle(Z((2, 3)), -np.ones((2, 3)), Z((2, 3))), "delta: expected values >= 0"),
+    (lambda: interlevel_loss_oracle(Z((2, 4)), Z((2, 2)), Z((2, 5)), Z((2, 4)), Z(2)),
+     r"weights: expected shape \(2, 3\), got \(2, 2\)"),
 ], ids=["dtype", "ssim-y-shape", "ssim-x-list", "ssim-x-nan", "ssim-x-int", "cost-kind", "cost-dmax",
         "softargmin-temperature", "softargmin-grad-shape", "corr-levels", "corr-radius", "corr-coords",
         "mlp-missing-bias", "splat-quats", "splat-sh", "splat-tile-rule", "splat-grad-rgb",
-        "rays-fx", "rays-w2c-shape", "rays-grad-dirs", "render-field-kind", "render-delta", "render-t-threshold"])
+        "rays-fx", "rays-w2c-shape", "rays-grad-dirs", "render-field-kind", "render-delta", "render-t-threshold",
+        "slice-grid-entries", "slice-grad-shape", "mip-sigma", "weights-delta", "interlevel-weights-shape"])
 def test_bad_input_raises_one_line_naming_the_argument(call, match):
     with pytest.raises(ValueError, match=match) as info:
         call()
