@@ -379,7 +379,7 @@ register_family("unbounded", "unbounded scenes for the fields: mip-NeRF 360's co
                 checks="research.checks.unbounded", oracle_cases="research.oracles.cases.unbounded")
 register_family("splat_geometry", "splat median and expected depth, shortest-axis and depth normals, depth-normal "
                 "consistency loss", kernels="kernels.splat.depth", reference="kernels.reference.splat_geometry",
-                checks="research.checks.splat_geometry")
+                checks="research.checks.splat_geometry", oracle_cases="research.oracles.cases.splat_geometry")
 register_family("mcmc", "3DGS-MCMC densification: relocation's opacity/scale correction, position noise, regularisers",
                 checks="research.checks.mcmc")
 register_family("lens", "lens camera models (opencv, fisheye, orthographic): ray generator, splat projection",
