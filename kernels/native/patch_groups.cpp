@@ -100,6 +100,16 @@
             out_row[c * col_step] = col_ok[c] ? tap : outside;
         }
     };
+    // one accumulation step acc + x y, lane by lane (8 or 16 lanes): one fused multiply-add (FUSED), else
+    // the product, then the sum
+    auto step = [](auto x, auto y, auto acc) {
+#if @FUSED@
+        return __builtin_elementwise_fma(x, y, acc);
+#else
+        const auto prod = x * y;
+        return acc + prod;
+#endif
+    };
     // K pixels (sorted positions q .. q + K - 1; K = 1 here) against level row r: their tap rows r - j0,
     // half a row's taps at a time, each tap vector converted once for the K pixels
     auto block = [&](auto tag, int q, long long r) {
@@ -130,14 +140,8 @@
                     y[c] = __builtin_convertvector(ys[c][k], V);
                 _Pragma("unroll") for (int i = 0; i < K; ++i) {
                     const V x = xs[i][k];
-                    _Pragma("unroll") for (int c = 0; c < half; ++c) {
-#if @FUSED@
-                        a[i][c] = __builtin_elementwise_fma(x, y[c], a[i][c]);
-#else
-                        const V prod = x * y[c];
-                        a[i][c] = a[i][c] + prod;
-#endif
-                    }
+                    _Pragma("unroll") for (int c = 0; c < half; ++c)
+                        a[i][c] = step(x, y[c], a[i][c]);
                 }
             }
             _Pragma("unroll") for (int i = 0; i < K; ++i)
@@ -188,14 +192,8 @@
                     const V x0 = xs[2 * i][k];
                     const V x1 = xs[2 * i + 1][k];
                     const W2 x = __builtin_shufflevector(x0, x1, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-                    _Pragma("unroll") for (int c = 0; c < half; ++c) {
-#if @FUSED@
-                        a[i][c] = __builtin_elementwise_fma(x, y[c], a[i][c]);
-#else
-                        const W2 prod = x * y[c];
-                        a[i][c] = a[i][c] + prod;
-#endif
-                    }
+                    _Pragma("unroll") for (int c = 0; c < half; ++c)
+                        a[i][c] = step(x, y[c], a[i][c]);
                 }
             }
             _Pragma("unroll") for (int i = 0; i < P; ++i)
