@@ -21,31 +21,27 @@
     int row0[@LANES@], col0[@LANES@];
     const char* slice[@LANES@];
     long long pixel_offset[@LANES@];  // of out[0, h, w]
+    // one axis of a pixel's window from its coordinate x: u = x scale - 1/2 - r, the origin floor(u) (0 when
+    // the window is read from the pixel's patch) in `origin`, the fraction u - floor(u) returned
+    auto window_axis = [&](const char* coord, int& origin) {
+        T u = *reinterpret_cast<const T*>(coord) * scale;
+        u = u - T(0.5);
+        u = u - radius;
+        const T i = wp::floor(u);
+#if @FROM_PATCH@
+        origin = 0;
+#else
+        origin = (int)i;
+#endif
+        return u - i;
+    };
     _Pragma("unroll") for (int l = 0; l < @LANES@; ++l) {
         const int p = p0 + l;
         const int h = p / frame_width;
         const int w = p % frame_width;
         const long long at = (long long)h * coords.strides[1] + (long long)w * coords.strides[2];
-        T u = *reinterpret_cast<const T*>(xy + at) * scale;
-        u = u - T(0.5);
-        u = u - radius;
-        const T i = wp::floor(u);
-        T v = *reinterpret_cast<const T*>(xy + coords.strides[0] + at) * scale;
-        v = v - T(0.5);
-        v = v - radius;
-        const T j = wp::floor(v);
-#if @FROM_PATCH@
-        col0[l] = 0;
-#else
-        col0[l] = (int)i;
-#endif
-        fx[l] = u - i;
-#if @FROM_PATCH@
-        row0[l] = 0;
-#else
-        row0[l] = (int)j;
-#endif
-        fy[l] = v - j;
+        fx[l] = window_axis(xy + at, col0[l]);
+        fy[l] = window_axis(xy + coords.strides[0] + at, row0[l]);
         slice[l] = reinterpret_cast<const char*>(s.data) + (long long)p * s.strides[0];
         pixel_offset[l] = (long long)h * out.strides[1] + (long long)w * out.strides[2];
     }
