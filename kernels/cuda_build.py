@@ -90,6 +90,7 @@ def _factories() -> list[tuple[str, Callable[[], Any]]]:
     from kernels import _npexp
     from kernels._arrays import FLOATS
     from kernels.corr import patch_cpu, window_cpu
+    from kernels.splat import rowblend
     from kernels.stereo import census
     from kernels.volume import composite_cpu, hashgrid_cpu, spheres_cpu
 
@@ -99,6 +100,9 @@ def _factories() -> list[tuple[str, Callable[[], Any]]]:
         ("kernels.volume.composite_cpu.backward_kernel", composite_cpu.backward_kernel),
         ("kernels.volume.spheres_cpu.kernels", spheres_cpu.kernels),
         ("kernels.corr.patch_cpu.widen_rows_cpu", patch_cpu.widen_rows_cpu),
+        # the fast paths' probes (kernels.native.native_flag builds a kernel per probe)
+        ("kernels.splat.rowblend.rowblend_available", rowblend.rowblend_available),
+        ("kernels.volume.spheres_cpu.available", spheres_cpu.available),
     ]
     for s in FLOATS:
         n = s.__name__

@@ -22,7 +22,8 @@ the files and what each relies on in Warp, clang and NumPy.
     choice between code paths is made in the file with `#if @FLAG@` ... `#else` ... `#endif`.
 
 `built_once(cache, key, build)` is the cache every factory of a native kernel uses: one build per
-key even when launch threads ask for it at the same time.
+key even when launch threads ask for it at the same time. `native_flag(probe)` runs a fast path's
+`*_available.cpp` probe (1 where its C++ was compiled to do its work) in a CPU kernel.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ import re
 import threading
 from pathlib import Path
 from typing import Any, Callable
+
+import warp as wp
 
 DIR = Path(__file__).resolve().parent
 _PLACEHOLDER = re.compile(r"@([A-Z][A-Z0-9_]*)@")
@@ -145,3 +148,15 @@ def built_once(cache: dict, key: Any, build: Callable[[], Any]) -> Any:
         if value is None:
             value = cache[key] = build()
     return value
+
+
+def native_flag(probe: Callable[[], int]) -> int:
+    """What `probe`, a `wp.func_native` of no arguments returning an int (a `*_available.cpp` file), returns
+    in a CPU kernel compiled with the CPU flags every kernel gets (each call launches one kernel)."""
+    @wp.kernel(enable_backward=False, module="unique")
+    def native_flag_kernel(out: wp.array(dtype=wp.int32)):
+        out[0] = probe()
+
+    out = wp.zeros(1, dtype=wp.int32, device="cpu")
+    wp.launch(native_flag_kernel, 1, [out], device="cpu")
+    return int(out.numpy()[0])

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from kernels.native import source
+from kernels.native import native_flag, source
 from kernels._vexp import exp16_mismatches  # noqa: F401  (tests import it from here)
 
 @wp.func_native(source("rowblend.cpp"))
@@ -51,13 +51,6 @@ def blend_row(state: wp.array2d(dtype=wp.float32), nc: wp.array2d(dtype=wp.int32
 def _rowblend_available() -> int: ...
 
 
-@wp.kernel(enable_backward=False)
-def _available_kernel(out: wp.array(dtype=wp.int32)):
-    out[0] = _rowblend_available()
-
-
 def rowblend_available() -> bool:
     """Whether the CPU kernels were compiled with AVX2 and FMA (blend_row is active)."""
-    out = wp.zeros(1, dtype=wp.int32, device="cpu")
-    wp.launch(_available_kernel, 1, [out], device="cpu")
-    return bool(out.numpy()[0])
+    return native_flag(_rowblend_available) == 1

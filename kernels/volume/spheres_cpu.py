@@ -52,7 +52,7 @@ from typing import Any
 
 import warp as wp
 
-from kernels.native import built_once, source
+from kernels.native import built_once, native_flag, source
 
 LANES = 8  # rays per group (one thread of each kernel)
 
@@ -69,22 +69,11 @@ def kernels() -> tuple[Any, Any, Any, Any]:
 
 def available() -> bool:
     """Whether the C++ passes were compiled to do their work (a CPU with AVX2), checked once."""
-    return built_once(_kernels, "available", _check_available) == 1
+    return built_once(_kernels, "available", lambda: native_flag(_spheres_cpu_available)) == 1
 
 
 @wp.func_native(source("spheres_available.cpp"))
 def _spheres_cpu_available() -> int: ...
-
-
-@wp.kernel(enable_backward=False)
-def _available_kernel(out: wp.array(dtype=wp.int32)):
-    out[0] = _spheres_cpu_available()
-
-
-def _check_available() -> int:
-    out = wp.zeros(1, dtype=wp.int32, device="cpu")
-    wp.launch(_available_kernel, 1, [out], device="cpu")
-    return int(out.numpy()[0])
 
 
 def _build() -> tuple[Any, Any, Any, Any]:
