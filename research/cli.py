@@ -52,7 +52,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
                         stereo=args.stereo, stereo_pairs=args.stereo_pairs, baseline=args.baseline,
                         flow=args.flow, flow_frames=args.flow_frames, flow_path=args.flow_path)
     ray = None
-    if args.ray or args.ray_address is not None:
+    if _uses_ray(args):
         from research.sweep import RayOptions, require_ray
 
         cfg.validate()  # its one-line errors before Ray starts
@@ -187,7 +187,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             selected.remove(name)
     results_dir = registry.results_dir(quick=args.quick)
     failed = []
-    if args.ray or args.ray_address is not None:
+    if _uses_ray(args):
         failed = _reproduce_on_ray(args, selected, results_dir)
     else:
         for name in selected:
@@ -200,6 +200,17 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         print(f"drlab reproduce: failed: {', '.join(failed)}", file=sys.stderr)
         return 1
     return 0
+
+
+def _add_ray_options(p: argparse.ArgumentParser, local_help: str, cluster_help: str) -> None:
+    """--ray (the command's work as Ray tasks on a local Ray instance) and --ray-address (on a cluster)."""
+    p.add_argument("--ray", action="store_true", help=local_help)
+    p.add_argument("--ray-address", type=_ray_address, default=None, help=cluster_help)
+
+
+def _uses_ray(args: argparse.Namespace) -> bool:
+    """--ray, or --ray-address (which implies it)."""
+    return bool(args.ray or args.ray_address is not None)
 
 
 def _ray_address(value: str) -> str:
@@ -218,8 +229,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     root = Path(args.results) if args.results is not None else registry.results_dir()
     if (root / spec.name).exists() and not (root / spec.name).is_dir():
         raise ValueError(f"--results: {root / spec.name} is a file, expected the sweep's folder")
-    use_ray = args.ray or args.ray_address is not None
-    if use_ray:
+    if _uses_ray(args):
         sweep.require_ray()
         opts = sweep.RayOptions(address=args.ray_address, num_cpus=args.jobs)
         executor = sweep.ray_executor(opts, spec.cpus, spec.gpus, spec.max_retries)
@@ -362,11 +372,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", required=True, type=directory_path, help="output directory")
     d.add_argument("--resume", action="store_true", help="finish an interrupted run (<out>.partial)")
     d.add_argument("--force", action="store_true", help="replace an existing dataset")
-    d.add_argument("--ray", action="store_true",
-                   help="render the views as Ray tasks on a local Ray instance; same manifest and content hash as a "
-                        "single-process render on the same kind of machine")
-    d.add_argument("--ray-address", type=_ray_address, default=None,
-                   help="render them on this Ray cluster instead (implies --ray); --out must be a path every node sees")
+    _add_ray_options(d, "render the views as Ray tasks on a local Ray instance; same manifest and content hash "
+                        "as a single-process render on the same kind of machine",
+                     "render them on this Ray cluster instead (implies --ray); --out must be a path every node sees")
     d.set_defaults(fn=_cmd_dataset)
 
     r = sub.add_parser(
@@ -394,11 +402,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="quick settings, written to build/results-quick (in the checkout, else under the current "
                          "directory)")
     rp.add_argument("--device", default="cpu", help="Warp device: cpu, cuda or cuda:N (default cpu)")
-    rp.add_argument("--ray", action="store_true",
-                    help="run the experiments as Ray tasks on a local Ray instance (no dashboard, loopback only)")
-    rp.add_argument("--ray-address", type=_ray_address, default=None,
-                    help="run them on this Ray cluster instead (implies --ray); results/ must be a path every node "
-                         "sees")
+    _add_ray_options(rp, "run the experiments as Ray tasks on a local Ray instance (no dashboard, loopback only)",
+                     "run them on this Ray cluster instead (implies --ray); results/ must be a path every node sees")
     rp.set_defaults(fn=_cmd_reproduce)
 
     sw = sub.add_parser(
@@ -410,10 +415,8 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("spec", help="sweep file (TOML), e.g. experiments/sweeps/raft_ablation.toml")
     sw.add_argument("--jobs", type=integer_type(1), default=None,
                     help="runs at a time (local executor, default 1); with --ray, the CPUs of the local Ray instance")
-    sw.add_argument("--ray", action="store_true",
-                    help="run each run as a Ray task on a local Ray instance (no dashboard, loopback only)")
-    sw.add_argument("--ray-address", type=_ray_address, default=None,
-                    help="join this Ray cluster instead (`ray start --head` prints it; implies --ray)")
+    _add_ray_options(sw, "run each run as a Ray task on a local Ray instance (no dashboard, loopback only)",
+                     "join this Ray cluster instead (`ray start --head` prints it; implies --ray)")
     sw.add_argument("--results", type=directory_path, default=None,
                     help="results root (default: results/ in the checkout, else ./results)")
     sw.add_argument("--smoke", action="store_true",
