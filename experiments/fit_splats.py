@@ -70,6 +70,16 @@ def setup(quick: bool, smoke: bool = False) -> Setup:
     return Setup(views=100, res=128, spp=64, iterations=3000, init_points=8000, max_gaussians=30_000)
 
 
+def setup_sizes(full_time: str) -> str:
+    """The --help sizes of an experiment that trains on `setup`'s data and schedule; `full_time`: how long
+    its full run takes."""
+    full, quick, smoke = setup(False), setup(True), setup(False, smoke=True)
+    return (f"Full: fit_splats' ({full.views} views at {full.res}x{full.res}, {full.spp} spp, {full.iterations} "
+            f"iterations, cap {full.max_gaussians}; {full_time}); quick: {quick.views} views at "
+            f"{quick.res}x{quick.res}, {quick.iterations} iterations; smoke: {smoke.views} views at "
+            f"{smoke.res}x{smoke.res}, {smoke.iterations} iterations.")
+
+
 def renders_figure(gt: np.ndarray, renders: np.ndarray, per_view: list[dict], path: Path, n: int = 4,
                    gt_label: str = "ground truth (Mitsuba)") -> None:
     import matplotlib

@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.fit_splats import setup_sizes
 from research.datasets import CACHE_ROOT_HELP
 from research.experiment import Context, Experiment
 from research.results import finish_figure, image_panel, markdown_table
@@ -210,7 +211,5 @@ def run(ctx: Context) -> int:
 
 main = Experiment("splat_geometry", __doc__, run, add_options,
                   seed_help="seed of the dataset's cameras, the initial points and training",
-                  sizes="Full: fit_splats' (100 views at 128x128, 64 spp, 3000 iterations, cap 30000; ~23 min on 2 shared "
-                        "cores); quick: 40 "
-                        "views at 64x64, 800 iterations; smoke: 8 views at 32x32, 40 iterations.",
+                  sizes=setup_sizes("~23 min on 2 shared cores"),
                   data_help=CACHE_ROOT_HELP).script(__name__)
