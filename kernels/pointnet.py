@@ -67,13 +67,17 @@ from kernels import points as kp
 wp.set_module_options({"enable_backward": False})
 
 
+@wp.func
+def _set_channel(t: int, n_ch: int):
+    """Thread t's (set g, channel c) of a (G, C) max-pool output, row-major."""
+    g = t / n_ch
+    return g, t - g * n_ch
+
+
 @wp.kernel
 def _max_pool_kernel(x: wp.array3d(dtype=typing.Any), y: wp.array2d(dtype=typing.Any),
                      arg: wp.array2d(dtype=wp.int32), offset: int):
-    t = wp.tid() + offset
-    n_ch = x.shape[2]
-    g = t / n_ch
-    c = t - g * n_ch
+    g, c = _set_channel(wp.tid() + offset, x.shape[2])
     best = x[g, 0, c]
     best_k = int(0)
     for k in range(1, x.shape[1]):
@@ -89,10 +93,7 @@ def _max_pool_kernel(x: wp.array3d(dtype=typing.Any), y: wp.array2d(dtype=typing
 def _max_pool_backward_kernel(grad_y: wp.array2d(dtype=typing.Any), arg: wp.array2d(dtype=wp.int32),
                               grad_x: wp.array3d(dtype=typing.Any), offset: int):
     # grad_x is zero on entry; thread (g, c) writes only grad_x[g, arg[g, c], c]: disjoint slots.
-    t = wp.tid() + offset
-    n_ch = grad_y.shape[1]
-    g = t / n_ch
-    c = t - g * n_ch
+    g, c = _set_channel(wp.tid() + offset, grad_y.shape[1])
     grad_x[g, arg[g, c], c] = grad_y[g, c]
 
 
