@@ -31,7 +31,11 @@ file reads back as ``(H, W)``. Values are stored bit-exactly, inf and NaN includ
 3 channels), then float32 samples. A negative scale means little-endian; we
 write ``-1.0``, and read either byte order. Rows are stored BOTTOM-TO-TOP, so they
 are flipped on both write and read. Infinity (Middlebury's "unknown") is allowed,
-NaN is rejected.
+NaN is rejected. The reader takes the header as Middlebury's own readers do
+(Scharstein's pfmLib and the MiddEval3 SDK): the magic, then width, height and
+scale as tokens separated by any whitespace (one line each, as pfmLib writes
+them, or ``W H`` on one line), ``#`` comment lines between them, and exactly one
+newline (``\\r\\n`` too, spaces before it allowed) after the scale before the samples.
 
 **.flo** (Middlebury optical flow), little-endian: float32 magic 202021.25 (the
 bytes ``PIEH``), int32 width, int32 height, then H*W*2 float32 interleaved
@@ -389,27 +393,52 @@ def write_pfm(path: PathLike, disp: npt.ArrayLike) -> None:
         _write_binary(tmp, [header, data])
 
 
+def _pfm_header(p: Path, raw: bytes) -> tuple[bytes, int, int, float, int]:
+    """(magic, width, height, scale, offset of the samples) of a PFM's bytes (module docstring)."""
+    kind, pos, tokens = raw[:2], 2, []
+    while len(tokens) < 3:
+        while pos < len(raw) and raw[pos:pos + 1] in b" \t\r\n":
+            pos += 1
+        if raw[pos:pos + 1] == b"#":  # a comment runs to the end of its line
+            end = raw.find(b"\n", pos)
+            pos = len(raw) if end < 0 else end + 1
+            continue
+        start = pos
+        while pos < len(raw) and raw[pos:pos + 1] not in b" \t\r\n#":
+            pos += 1
+        if start == pos:
+            raise ValueError(f"{p}: corrupt PFM header (ends before width, height and scale)")
+        tokens.append(raw[start:pos])
+    while raw[pos:pos + 1] in (b" ", b"\t"):  # tolerated before the newline, as line-based readers do
+        pos += 1
+    if raw[pos:pos + 2] == b"\r\n":
+        pos += 2
+    elif raw[pos:pos + 1] == b"\n":
+        pos += 1
+    else:
+        raise ValueError(f"{p}: corrupt PFM header (expected one newline after the scale, got {raw[pos:pos + 1]!r})")
+    try:
+        w, h, scale = int(tokens[0]), int(tokens[1]), float(tokens[2])
+    except ValueError as e:
+        raise ValueError(f"{p}: corrupt PFM header ({e})") from None
+    if kind not in (b"Pf", b"PF") or w <= 0 or h <= 0 or scale == 0 or not np.isfinite(scale):
+        raise ValueError(f"{p}: corrupt PFM header (type {kind!r}, size {w} {h}, scale {scale})")
+    return kind, w, h, scale, pos
+
+
 def read_pfm(path: PathLike) -> np.ndarray:
-    """Read a PFM (either byte order) as float32 (H, W) or (H, W, 3), top row first."""
+    """Read a PFM (either byte order; header as in the module docstring) as float32 (H, W) or (H, W, 3),
+    top row first."""
     p = Path(path)
     if not p.is_file():
         raise _missing(p)
-    with open(p, "rb") as f:
-        try:
-            kind = f.readline().strip()
-            dims = f.readline().split()
-            scale = float(f.readline().strip())
-            w, h = int(dims[0]), int(dims[1])
-        except (ValueError, IndexError, UnicodeDecodeError) as e:
-            raise ValueError(f"{p}: corrupt PFM header ({e})") from None
-        data = f.read()
-    if kind not in (b"Pf", b"PF") or len(dims) != 2 or w <= 0 or h <= 0 or scale == 0 or not np.isfinite(scale):
-        raise ValueError(f"{p}: corrupt PFM header (type {kind!r}, size {dims!r}, scale {scale})")
+    raw = p.read_bytes()
+    kind, w, h, scale, offset = _pfm_header(p, raw)
     c = 3 if kind == b"PF" else 1
     n = w * h * c * 4
-    if len(data) != n:
-        raise ValueError(f"{p}: expected {n} bytes of PFM data for {w}x{h}x{c}, got {len(data)}")
-    a = np.frombuffer(data, dtype="<f4" if scale < 0 else ">f4").reshape(h, w, c)[::-1]
+    if len(raw) - offset != n:
+        raise ValueError(f"{p}: expected {n} bytes of PFM data for {w}x{h}x{c}, got {len(raw) - offset}")
+    a = np.frombuffer(raw, dtype="<f4" if scale < 0 else ">f4", offset=offset).reshape(h, w, c)[::-1]
     a = a.astype(np.float32)  # native byte order, contiguous copy
     return a[..., 0] if c == 1 else a
 

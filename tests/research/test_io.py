@@ -257,6 +257,20 @@ def test_pfm_hand_made_orientation(tmp_path):
     assert (tmp_path / "w.pfm").read_bytes() == (tmp_path / "le.pfm").read_bytes()
 
 
+@pytest.mark.parametrize("header", [
+    b"Pf\n3 2\n-1.0\n",             # Middlebury 2014 / MiddEval3 files
+    b"Pf\n3\n2\n-1\n",              # Scharstein's pfmLib writer: one token a line
+    b"Pf\r\n3 2\r\n-1.0\r\n",       # Windows line endings
+    b"Pf\n# written by hand\n3 2\n-1.0\n",  # a comment line (MiddEval3 SDK's skip_comment)
+    b"Pf 3 2 -1.0\n",               # the whole header on one line
+    b"Pf\n3 2\n-1.0 \n",            # a space before the last newline (line-based readers strip it)
+], ids=["middlebury", "pfmlib", "crlf", "comment", "one-line", "trailing-space"])
+def test_pfm_headers_middlebury_readers_accept(tmp_path, header):
+    bottom, top = [1.0, 2.0, float("inf")], [4.0, 5.0, 6.0]
+    (tmp_path / "d.pfm").write_bytes(header + struct.pack("<6f", *bottom, *top))
+    assert _bits_equal(rio.read_pfm(tmp_path / "d.pfm"), np.array([top, bottom], np.float32))
+
+
 def test_pfm_bad_input_and_files(tmp_path):
     with pytest.raises(ValueError, match="disp: expected no NaN"):
         rio.write_pfm(tmp_path / "x.pfm", np.array([[1.0, np.nan]], np.float32))
@@ -279,6 +293,12 @@ def test_pfm_bad_input_and_files(tmp_path):
     (tmp_path / "junk.pfm").write_bytes(b"Pf\nthree two\n-1\n")
     with pytest.raises(ValueError, match="junk.pfm"):
         rio.read_pfm(tmp_path / "junk.pfm")
+    (tmp_path / "nonl.pfm").write_bytes(b"Pf\n3 2\n-1.0X" + bytes(23))
+    with pytest.raises(ValueError, match="nonl.pfm: corrupt PFM header .expected one newline"):
+        rio.read_pfm(tmp_path / "nonl.pfm")
+    (tmp_path / "cut.pfm").write_bytes(b"Pf\n3 2\n")
+    with pytest.raises(ValueError, match="cut.pfm: corrupt PFM header"):
+        rio.read_pfm(tmp_path / "cut.pfm")
 
 
 # ----------------------------------------------------------------------------- .flo
