@@ -2,12 +2,16 @@
 
 Layout of one sequence folder `<seq>/` (the benchmark's train and test splits hold one per sequence):
 
-    seqinfo.ini   [Sequence] name, imDir, frameRate, seqLength, imWidth, imHeight (imExt, default .jpg)
+    seqinfo.ini   [Sequence] name, imDir, frameRate, seqLength, imWidth, imHeight (imExt, default .jpg);
+                  keys in any case (seqlength, SEQLENGTH), other keys and sections ignored, as TrackEval's
+                  ConfigParser reads it
     det/det.txt   frame, id (-1), bb_left, bb_top, bb_width, bb_height, conf[, x, y, z]   (7 to 10 columns)
     gt/gt.txt     frame, id, bb_left, bb_top, bb_width, bb_height, consider, class, visibility   (9 columns;
                   absent in the test split)
     <imDir>/000001<imExt> ...   the frames (optional here: only the appearance tracker reads them)
 
+Text files are comma-separated (spaces around the commas and one trailing comma allowed) or, a
+row without a comma, whitespace-separated, as TrackEval's reader takes them; blank lines are skipped.
 Frames are numbered from 1 to seqLength; boxes are the top-left pixel corner and the size. drlab's
 trackers take xyxy rows, with x2 = bb_left + bb_width and y2 = bb_top + bb_height (the same sums the
 evaluation does, so no rounding differs). Detection scores are kept as the file gives them.
@@ -128,8 +132,7 @@ def read_seqinfo(path: str | Path) -> SeqInfo:
     if not path.is_file():
         raise DatasetError(f"{path}: missing (a MOTChallenge sequence folder has seqinfo.ini)")
     text = path.read_text(errors="replace")
-    cp = configparser.ConfigParser(interpolation=None)
-    cp.optionxform = str  # keys are camelCase
+    cp = configparser.ConfigParser(interpolation=None)  # keys lower-cased, as TrackEval's ConfigParser reads them
     try:
         cp.read_string(text, source=str(path))
     except configparser.Error as e:
@@ -143,7 +146,7 @@ def read_seqinfo(path: str | Path) -> SeqInfo:
         raise DatasetError(f"{where}: not a valid ini file ({kind})") from None
     if not cp.has_section("Sequence"):
         raise DatasetError(f"{path}: expected a [Sequence] section")
-    sec = cp["Sequence"]
+    sec = cp["Sequence"]  # a SectionProxy: its keys are looked up case-insensitively
     head = _ini_line(text, r"\[Sequence\]")
     for key in SEQINFO_KEYS:
         if key not in sec:
@@ -186,7 +189,9 @@ def _read_table(path: Path, columns: Seq[str], min_cols: int, max_cols: int, n_f
             s = line.strip()
             if not s:
                 continue
-            toks = [t.strip() for t in s.split(",")]
+            toks = [t.strip() for t in s.split(",")] if "," in s else s.split()
+            if len(toks) > 1 and toks[-1] == "":  # a trailing comma, which TrackEval drops too
+                toks.pop()
             if not (min_cols <= len(toks) <= max_cols):
                 span = f"{min_cols}" if min_cols == max_cols else f"{min_cols} to {max_cols}"
                 raise DatasetError(f"{path}:{lineno}: expected {span} comma-separated columns "

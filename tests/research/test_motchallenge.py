@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from mot_fixtures import CLASSES, tracker_output, write_sequence
+from mot_fixtures import fmt as mot_fmt
 
 from research.tracking import motchallenge as mc
 from research.tracking.metrics import HOTA_ALPHAS, HOTACounts, evaluate_sequence, hota_sequence
@@ -252,3 +253,25 @@ def test_read_frame(tmp_path):
     img = seq.read_image(2)
     assert img.dtype == np.uint8 and img.shape == (72, 96, 3)
     assert seq.missing_images() == [] and seq.image_path(2).name == "000003.jpg"
+
+
+def test_files_as_trackeval_reads_them(tmp_path):
+    """seqinfo.ini keys in another case and extra keys and sections; det.txt of 7, 9 and 10 columns;
+    rows with spaces, a trailing comma, or whitespace-separated: all read as TrackEval reads them."""
+    seq_dir, gt, dets = write_sequence(tmp_path, n_frames=12, seed=2)
+    (seq_dir / "seqinfo.ini").write_text(
+        "[Sequence]\r\nNAME=MOT17-02-FRCNN\r\nimdir = img1\r\nframerate=30\r\nSeqLength=12\r\nimWidth=320\r\n"
+        "IMHEIGHT=240\r\nimExt=.jpg\r\ncomment=extra key\r\n\r\n[Extra]\r\nanything=1\r\n")
+    rows = [",".join(mot_fmt(v) for v in r) for r in dets]
+    styles = [lambda r: r, lambda r: ",".join(r.split(",")[:7]), lambda r: ",".join(r.split(",")[:9]),
+              lambda r: r.replace(",", ", "), lambda r: r + ",", lambda r: r.replace(",", " ")]
+    (seq_dir / "det" / "det.txt").write_text("".join(styles[i % len(styles)](r) + "\n" for i, r in enumerate(rows)))
+    (seq_dir / "gt" / "gt.txt").write_text("".join(",".join(mot_fmt(v) for v in r) + ",\n" for r in gt))
+    seq = mc.load_sequence(seq_dir)
+    assert seq.info == mc.SeqInfo("MOT17-02-FRCNN", "img1", 30.0, 12, 320, 240, ".jpg")
+    for t in range(12):
+        d = dets[dets[:, 0] == t + 1]
+        np.testing.assert_array_equal(seq.dets[t][:, :4], np.stack([d[:, 2], d[:, 3], d[:, 2] + d[:, 4],
+                                                                     d[:, 3] + d[:, 5]], axis=1))
+        np.testing.assert_array_equal(seq.dets[t][:, 4], d[:, 6])
+        np.testing.assert_array_equal(seq.gt.ids[t], gt[gt[:, 0] == t + 1][:, 1])
