@@ -12,6 +12,18 @@ radians; square pixels, centred principal point), or nerfstudio's `fl_x`, `fl_y`
 `h`, given once at the top of the file or per frame (a frame's own values win). Without `w`/`h` the
 image's own size is used; every image of the folder must have the same size.
 
+Lens (nerfstudio's `camera_model` and `k1`, `k2`, `k3`, `k4`, `p1`, `p2`, top level or per frame, the
+frame's winning; absent coefficients are 0, an absent camera_model is "OPENCV", nerfstudio's default
+perspective camera). The cameras carry it (research.cameras.Camera.lens, kernels/lens.py), as the
+COLMAP reader's do:
+
+    camera_model                                           drlab lens
+    OPENCV, PINHOLE, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL  opencv (k1, k2, p1, p2, k3); none when all are 0
+    OPENCV_FISHEYE                                          fisheye (k1, k2, k3, k4)
+
+nerfstudio's perspective k4 (an r^8 radial term), p1/p2 on a fisheye and any other camera_model
+(EQUIRECTANGULAR, FISHEYE624, ...) are refused, naming the file, the frame and the key.
+
 nerfstudio's single `transforms.json` (no split files beside it) is read too, with the same keys; its
 split rule is nerfstudio's `interval` evaluation mode with interval 8 (the llffhold 8 of Mip-NeRF 360
 and 3DGS): the frames sorted by `file_path`, every 8th (index % 8 == 0) is a test view, the rest
@@ -31,7 +43,7 @@ Errors (research.datasets.DatasetError, a ValueError; one line naming the file):
 transforms_train.json or transforms_test.json (when there is no single transforms.json), a single
 transforms.json with fewer than 2 frames, a frame without `file_path` or `transform_matrix`,
 a transform whose rotation part is not a rotation, an image listed but absent, images of different
-sizes, a size not divisible by `factor`. "A rotation" is kernels/rotation.py's one check: max
+sizes, a size not divisible by `factor`, a lens the table above does not hold. "A rotation" is kernels/rotation.py's one check: max
 |R^T R - I| <= 1e-5 and det R > 0. The official files store float32 matrices (max |R^T R - I| up to
 about 1.3e-6 in lego's transforms_train.json), which pass and are re-orthonormalised (the polar factor).
 """
@@ -44,6 +56,7 @@ from typing import Any
 
 import numpy as np
 
+from kernels.lens import Lens
 from research.cameras import Camera
 from research.datasets import external
 from research.datasets.integrity import DatasetError
@@ -53,6 +66,9 @@ WHITE = (1.0, 1.0, 1.0)
 SINGLE_TRANSFORMS = "transforms.json"
 EVAL_INTERVAL = 8  # a single transforms.json: every 8th frame (by file_path) is a test view
 _INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x")
+_DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
+PERSPECTIVE_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL")
+FISHEYE_MODELS = ("OPENCV_FISHEYE",)
 
 
 def _read_json(path: Path) -> Any:
@@ -80,6 +96,30 @@ def _number(tpath: Path, index: int, key: str, value: Any) -> float:
     return float(value)
 
 
+def _lens(tpath: Path, index: int, doc: dict[str, Any], frame: dict[str, Any]) -> Lens | None:
+    """The frame's lens (module docstring's table), None for a pinhole; DatasetError otherwise."""
+    model = frame.get("camera_model", doc.get("camera_model", "OPENCV"))
+    if model not in PERSPECTIVE_MODELS + FISHEYE_MODELS:
+        raise DatasetError(f"{tpath}: frame {index}: camera_model {model!r} is not supported (expected one of "
+                           f"{', '.join(PERSPECTIVE_MODELS + FISHEYE_MODELS)})")
+    k = {}
+    for key in _DISTORTION:
+        value = frame.get(key, doc.get(key, 0.0))
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+            raise DatasetError(f"{tpath}: frame {index}: {key} must be a finite number, got {value!r}")
+        k[key] = float(value)
+    if model in FISHEYE_MODELS:
+        if k["p1"] or k["p2"]:
+            raise DatasetError(f"{tpath}: frame {index}: p1, p2 = {k['p1']:g}, {k['p2']:g}: a {model} camera has no "
+                               "tangential terms")
+        return Lens("fisheye", (k["k1"], k["k2"], k["k3"], k["k4"]))
+    if k["k4"]:
+        raise DatasetError(f"{tpath}: frame {index}: k4 = {k['k4']:g} (nerfstudio's r^8 radial term) is not supported "
+                           "for a perspective camera (expected k1, k2, k3, p1, p2)")
+    coeffs = (k["k1"], k["k2"], k["p1"], k["p2"], k["k3"])
+    return Lens("opencv", coeffs) if any(coeffs) else None
+
+
 def _camera(tpath: Path, index: int, doc: dict[str, Any], frame: dict[str, Any], size: tuple[int, int],
             factor: int) -> Camera:
     """The frame's camera at the file's size `size` (w, h), then downscaled by `factor`."""
@@ -104,10 +144,11 @@ def _camera(tpath: Path, index: int, doc: dict[str, Any], frame: dict[str, Any],
         if isinstance(e, DatasetError):
             raise
         raise DatasetError(f"{tpath}: frame {index} ({frame.get('file_path')}): {e}") from None
-    if factor == 1:
+    lens = _lens(tpath, index, doc, frame)
+    if factor == 1 and lens is None:
         return cam
     S = np.diag([1.0 / factor, 1.0 / factor, 1.0])
-    return Camera(S @ cam.K, cam.c2w, w // factor, h // factor)
+    return Camera(S @ cam.K, cam.c2w, w // factor, h // factor, lens)
 
 
 def _declared_box(root: Path, train_doc: dict[str, Any], train_file: Path) -> np.ndarray | None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -158,3 +159,53 @@ def test_a_drlab_dataset_read_as_blender_agrees_with_the_drlab_loader(tmp_path):
     # bound: sRGB step 0.5/255 times the steepest slope of the decoding curve (2.27) plus alpha step 0.5/255
     assert np.abs(s_png.rgba[..., :3] - expected).max() < 0.5 / 255 * 2.27 + 0.5 / 255 + 1e-6
     assert np.abs(s_png.rgba[..., 3] - s_exr.rgba[..., 3]).max() <= 0.5 / 255 + 1e-6
+
+
+@pytest.mark.parametrize("model,keys,lens_model", [
+    ("OPENCV", {"k1": -0.12, "k2": 0.03, "p1": 0.002, "p2": -0.001}, "opencv"),
+    ("OPENCV", {"k1": -0.1, "k2": 0.02, "k3": 0.004, "p1": 0.001, "p2": 0.0}, "opencv"),
+    ("OPENCV_FISHEYE", {"k1": 0.05, "k2": -0.01, "k3": 0.002, "k4": -0.0005}, "fisheye"),
+], ids=["opencv", "opencv-k3", "fisheye"])
+def test_nerfstudio_distortion_is_read_as_the_lens(tmp_path, model, keys, lens_model):
+    """nerfstudio's camera_model and k1..k4, p1, p2 (what colmap2nerf / ns-process-data write): the cameras
+    carry the lens and project as OpenCV does (cv2.projectPoints, cv2.fisheye.projectPoints)."""
+    import cv2
+
+    root = tmp_path / "ns"
+    write_blender(root, nerfstudio="global")
+    for split in ("train", "val", "test"):
+        p = root / f"transforms_{split}.json"
+        doc = json.loads(p.read_text())
+        p.write_text(json.dumps({**doc, "camera_model": model, **keys}))
+    ds = load_blender(root, factor=2)
+    X = np.random.default_rng(3).uniform(-0.8, 0.8, (20, 3))
+    for v in ds.views:
+        cam = v.camera
+        assert cam.lens is not None and cam.lens.model == lens_model and cam.width == 8
+        xc = (X - cam.center) @ cam.R  # camera-frame points (OpenCV frame)
+        K = cam.K
+        if lens_model == "fisheye":
+            d = np.array([keys.get(k, 0.0) for k in ("k1", "k2", "k3", "k4")])
+            uv = cv2.fisheye.projectPoints(xc[None], np.zeros(3), np.zeros(3), K, d)[0][0]
+        else:
+            d = np.array([keys.get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")])
+            uv = cv2.projectPoints(xc, np.zeros(3), np.zeros(3), K, d)[0][:, 0]
+        np.testing.assert_allclose(cam.project(X)[0], uv, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("extra,message", [
+    ({"camera_model": "EQUIRECTANGULAR"}, r"frame 0: camera_model 'EQUIRECTANGULAR' is not supported \(expected one "
+                                          r"of OPENCV, .*OPENCV_FISHEYE\)"),
+    ({"camera_model": "OPENCV", "k1": 0.1, "k4": 0.01}, r"frame 0: k4 = 0.01 \(nerfstudio's r\^8 radial term\) is "
+                                                         r"not supported for a perspective camera"),
+    ({"camera_model": "OPENCV_FISHEYE", "p1": 0.01}, r"frame 0: p1, p2 = 0.01, 0: a OPENCV_FISHEYE camera has no "
+                                                      r"tangential terms"),
+    ({"k1": "0.1"}, r"frame 0: k1 must be a finite number, got '0.1'"),
+], ids=["equirectangular", "perspective-k4", "fisheye-tangential", "k1-text"])
+def test_nerfstudio_lenses_drlab_cannot_hold_are_refused(tmp_path, extra, message):
+    root = tmp_path / "ns"
+    write_blender(root, nerfstudio="global")
+    p = root / "transforms_train.json"
+    p.write_text(json.dumps({**json.loads(p.read_text()), **extra}))
+    with pytest.raises(ValueError, match=re.escape(str(p)) + ": " + message):
+        load_blender(root)
