@@ -118,8 +118,22 @@ def read_model(d: Path):
                 fields = line.split()
                 if fields and not line.startswith("#") and len(fields) > 1 and fields[1] not in known:
                     raise DatasetError(f"{cams}: camera {fields[0]}: unknown camera model {fields[1]!r}") from None
-        raise DatasetError(f"{cams if 'camera' in msg.lower() else d}: pycolmap cannot read the model ({msg})") \
-            from None
+        raise DatasetError(f"{_failing_file(d, msg)}: pycolmap cannot read the model ({msg})") from None
+
+
+# Words of pycolmap's messages that tell which file of a model it failed on (its messages name none):
+# an image line (its pose, its POINTS2D, a camera it names that does not exist), a 3D point, a camera.
+_FAILURE_WORDS = (("images", ("image_id", "cam_from_world", "line_stream2", "point3d_id_signed", "rig with id")),
+                  ("points3D", ("point3d", "track")), ("cameras", ("camera",)), ("images", ("image",)))
+
+
+def _failing_file(d: Path, msg: str) -> Path:
+    """The model file that pycolmap's message `msg` is about, else the model folder."""
+    low = msg.lower()
+    for stem, words in _FAILURE_WORDS:
+        if any(w in low for w in words):
+            return _model_file(d, stem)
+    return d
 
 
 def camera_model(camera, cams_file: Path) -> tuple[np.ndarray, Lens | None]:

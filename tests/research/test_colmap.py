@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -133,3 +134,64 @@ def test_jpeg_photographs_as_in_mipnerf360(tmp_path):
     assert split.names[0].endswith("img_00.JPG") and np.all(split.srgb[..., 3] == 1)
     # JPEG (lossy, chroma subsampled) of a smooth ramp: within a few levels of the written pixels
     assert np.abs(split.srgb[0, ..., :3] * 255 - pixels["img_00.JPG"]).max() < 6
+
+
+def test_hand_written_text_model_as_colmap_writes_and_users_edit_it(tmp_path):
+    """A text model written by hand as COLMAP's format allows: comment and blank lines, CRLF line ends,
+    two cameras shared by nine images, image ids out of order, POINTS2D lines empty or not, image names
+    in sub-folders (cam0/0001.png), no rigs.txt / frames.txt (models of COLMAP before 3.12), and an
+    extra model under sparse/1 (sparse/0 is read)."""
+    from scipy.spatial.transform import Rotation
+
+    from realdata_fixtures import ring_cameras, write_rgba
+
+    root = tmp_path / "scene"
+    d = root / "sparse" / "0"
+    d.mkdir(parents=True)
+    (root / "sparse" / "1").mkdir()
+    (d / "cameras.txt").write_text("# Camera list with one line of data per camera:\r\n#   CAMERA_ID, MODEL, WIDTH, "
+                                   "HEIGHT, PARAMS[]\r\n\r\n1 PINHOLE 16 12 18 19 8.5 5.5\r\n"
+                                   "2 SIMPLE_PINHOLE 16 12 17 8 6\r\n")
+    cams, rng = ring_cameras(9, 16, 12), np.random.default_rng(0)
+    lines = ["# Image list with two lines of data per image:", "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, "
+             "NAME", "#   POINTS2D[] as (X, Y, POINT3D_ID)", ""]
+    for k in (5, 2, 8, 0, 1, 7, 3, 6, 4):
+        R, t = colmap_from_c2w(cams[k].c2w)
+        x, y, z, w = Rotation.from_matrix(R).as_quat()
+        name = f"cam{k % 2}/{k:04d}.png"
+        write_rgba(root / "images" / name, rng, 16, 12, alpha=False)
+        lines += [" ".join(map(repr, [k + 10, *map(float, (w, x, y, z, *t)), 1 + k % 2])) + f" {name}",
+                  "" if k % 3 else "1.5 2.5 -1 3.5 4.5 -1", ""]
+    (d / "images.txt").write_text("\n".join(lines) + "\n")
+    pts = rng.uniform(-1, 1, (20, 3))
+    (d / "points3D.txt").write_text("# 3D point list\n\n" + "".join(f"{i + 1} {p[0]:.17g} {p[1]:.17g} {p[2]:.17g} 10 20 30 0.5\n"
+                                                                    for i, p in enumerate(pts)))
+    ds = load_colmap(root, factor=1)
+    names = sorted(f"cam{k % 2}/{k:04d}.png" for k in range(9))
+    assert [v.name for v in ds.views] == names
+    for v in ds.views:
+        k = int(v.name[5:9])
+        fx, fy, cx, cy = (18.0, 19.0, 8.5, 5.5) if k % 2 == 0 else (17.0, 17.0, 8.0, 6.0)
+        assert np.abs(v.camera.c2w - cams[k].c2w).max() < 1e-9
+        np.testing.assert_array_equal(v.camera.K, [[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
+    np.testing.assert_allclose(np.sort(ds.points, axis=0), np.sort(pts, axis=0), rtol=0, atol=1e-12)
+    assert ds.load_split("train").rgba.shape == (7, 12, 16, 4)
+
+
+@pytest.mark.parametrize("stem,line,bad", [
+    ("images", 5, "1 a b c d e f g 1 img_00.png"),  # pose not numbers
+    ("images", 5, "1 1 0 0 0 0 0 0 7 img_00.png"),  # a camera id the model lacks
+    ("points3D", 4, "1 a b c 1 2 3 0.5"),
+    ("cameras", 4, "1 PINHOLE 16 12 18"),  # too few parameters
+], ids=["image-pose", "image-camera", "point", "camera-params"])
+def test_a_model_pycolmap_refuses_is_named_by_its_file(tmp_path, stem, line, bad):
+    from research.datasets import DatasetError
+
+    root = tmp_path / "scene"
+    write_colmap(root, n=3, text=True, factors=(1,))
+    f = root / "sparse" / "0" / f"{stem}.txt"
+    lines = f.read_text().splitlines()
+    lines[line - 1] = bad
+    f.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=re.escape(f"{f}: pycolmap cannot read the model (")):
+        load_colmap(root, factor=1)
