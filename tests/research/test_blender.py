@@ -209,3 +209,26 @@ def test_nerfstudio_lenses_drlab_cannot_hold_are_refused(tmp_path, extra, messag
     p.write_text(json.dumps({**json.loads(p.read_text()), **extra}))
     with pytest.raises(ValueError, match=re.escape(str(p)) + ": " + message):
         load_blender(root)
+
+
+def test_file_path_spellings_extra_keys_and_rgb_pngs(tmp_path):
+    """file_path with and without "./" and ".png" (the NeRF loader appends ".png"; nerfstudio writes it),
+    extra per-frame keys (rotation, time), and an RGB PNG among the RGBA ones (read as opaque)."""
+    from realdata_fixtures import write_rgba
+
+    root = tmp_path / "lego"
+    cams = write_blender(root, float32=True)
+    for split in ("train", "val", "test"):
+        p = root / f"transforms_{split}.json"
+        doc = json.loads(p.read_text())
+        for i, frame in enumerate(doc["frames"]):
+            frame["file_path"] = [frame["file_path"][2:], frame["file_path"] + ".png", frame["file_path"]][i % 3]
+            frame["time"] = 0.25 * i
+        p.write_text(json.dumps(doc))
+    write_rgba(root / "train" / "r_1.png", np.random.default_rng(9), 16, 16, alpha=False)
+    ds = load_blender(root)
+    for split, expected in cams.items():
+        for v, c in zip(ds.split_views(split), expected):
+            assert np.abs(v.camera.c2w - c.c2w).max() < 1e-5 and np.abs(v.camera.K - c.K).max() < 1e-9
+    train = ds.load_split("train")
+    assert train.rgba.shape == (4, 16, 16, 4) and np.all(train.rgba[1, ..., 3] == 1.0)

@@ -246,3 +246,18 @@ def test_experiment_smoke_on_an_llff_folder(tmp_path, experiment):
         assert m["dataset"]["ndc"]["near"] == 1.0 and m["dataset"]["bbox"][0][2] == -1.0
         assert "in NDC" in (out / "table.md").read_text()
         assert math.isfinite(m["fields"]["grid"]["eval"]["mean"]["psnr"])
+
+
+def test_upper_case_jpg_names_and_float32_poses_bounds(tmp_path):
+    """fern's layout: IMG_xxxx.JPG names (upper-case extension) and poses_bounds.npy stored as float32 or
+    float64; the float32 file gives the same cameras to float32 precision."""
+    root = tmp_path / "fern"
+    write_llff(root, level_rig(9), factors=(8,), names=[f"IMG_{4026 + i}.JPG" for i in range(9)])
+    ds64 = load_llff(root)
+    pb = root / "poses_bounds.npy"
+    np.save(pb, np.load(pb).astype(np.float32))
+    ds32 = load_llff(root)
+    assert [v.name for v in ds32.views] == [f"IMG_{4026 + i}.JPG" for i in range(9)]
+    for a, b in zip(ds64.views, ds32.views):
+        assert np.abs(a.camera.c2w - b.camera.c2w).max() < 1e-6 and np.abs(a.camera.K - b.camera.K).max() < 1e-6
+    assert ds32.load_split("test").rgba.shape == (2, 6, 8, 4)
