@@ -1,11 +1,13 @@
 """Reader of the classic Middlebury 2001/2003 stereo pairs (tsukuba, venus, teddy, cones).
 
 Layout: one folder per scene, holding the left and right images and the left ground truth as 8-bit
-images, in one of two namings:
-  * `im2.png` (left), `im6.png` (right), `disp2.png` or `disp2.pgm` (venus, teddy, cones, ...);
-  * `im3.png` (left), `im4.png` (right), `disp3.png` or `disp3.pgm` (tsukuba).
-The images are 8-bit PNG, grey or colour, kept exactly as stored. The ground truth is an 8-bit grey
-image (PNG or binary PGM) storing the disparity times a per-scene scale, 0 = unknown:
+images, in one of three namings:
+  * `im2`, `im6` (left, right), `disp2` (venus, teddy, cones, ...);
+  * `im3`, `im4`, `disp3` (tsukuba, as repackaged);
+  * `scene1.row3.col3`, `scene1.row3.col4`, `truedisp.row3.col3` (tsukuba as the 2001 release names it).
+The images are 8-bit PNG or binary PPM/PGM (the sets' "png" and "ppm" archives), grey or colour, kept
+exactly as stored; `.png` is read when both exist. The ground truth is an 8-bit grey image (PNG or
+binary PGM) storing the disparity times a per-scene scale, 0 = unknown:
 
     d = value / scale,  known where value > 0.
 
@@ -39,21 +41,26 @@ from research.datasets.stereo_pixels import linear_rgba
 
 SCALES = {"tsukuba": 16, "venus": 8, "teddy": 4, "cones": 4}
 NDISP = {"tsukuba": 16, "venus": 20, "teddy": 60, "cones": 60}
-NAMINGS = (("im2.png", "im6.png", "disp2"), ("im3.png", "im4.png", "disp3"))
+NAMINGS = (("im2", "im6", "disp2"), ("im3", "im4", "disp3"),
+           ("scene1.row3.col3", "scene1.row3.col4", "truedisp.row3.col3"))  # (left, right, ground truth) stems
+IMAGE_EXTS = (".png", ".ppm", ".pgm")
+GT_EXTS = (".png", ".pgm")
 BENCHMARK = "middlebury2003"
 
 
 def _naming(folder: Path) -> tuple[str, str, str] | None:
+    """(left file name, right file name, ground-truth stem) of the first naming whose images are there."""
     for left, right, gt in NAMINGS:
-        if (folder / left).is_file() and (folder / right).is_file():
-            return left, right, gt
+        for ext in IMAGE_EXTS:
+            if (folder / (left + ext)).is_file() and (folder / (right + ext)).is_file():
+                return left + ext, right + ext, gt
     return None
 
 
 def is_scene(folder: Path) -> bool:
     """Whether `folder` holds one scene in this layout (a left/right image pair and a disparity file)."""
     n = _naming(folder)
-    return n is not None and any((folder / f"{n[2]}{ext}").is_file() for ext in (".png", ".pgm"))
+    return n is not None and any((folder / f"{n[2]}{ext}").is_file() for ext in GT_EXTS)
 
 
 def scene_folders(root: str | Path) -> list[Path]:
@@ -67,8 +74,8 @@ def scene_folders(root: str | Path) -> list[Path]:
 
 
 def _read_u8(path: Path, what: str) -> np.ndarray:
-    """An 8-bit PNG or PGM as uint8 (H, W, C); DatasetError naming the file otherwise."""
-    if path.suffix.lower() == ".pgm":
+    """An 8-bit PNG, PGM or PPM as uint8 (H, W, C); DatasetError naming the file otherwise."""
+    if path.suffix.lower() in (".pgm", ".ppm"):
         pixels = read_or_fail(lambda p: io._oiio_read(p, "pnm", None)[0], path)
     else:
         pixels = read_or_fail(io.read_png_raw, path)
@@ -89,10 +96,10 @@ def read_scene(folder: str | Path, scale: float | None = None) -> StereoPair:
     folder = Path(folder)
     naming = _naming(folder)
     if naming is None:
-        raise DatasetError(f"{folder / 'im2.png'}: missing (a Middlebury 2001/2003 scene holds im2.png and im6.png, "
-                           "or im3.png and im4.png)")
+        raise DatasetError(f"{folder / 'im2.png'}: missing (a Middlebury 2001/2003 scene holds im2 and im6, im3 and "
+                           "im4, or scene1.row3.col3 and scene1.row3.col4, as .png or .ppm)")
     lname, rname, gname = naming
-    gt_path = next((folder / f"{gname}{ext}" for ext in (".png", ".pgm") if (folder / f"{gname}{ext}").is_file()),
+    gt_path = next((folder / f"{gname}{ext}" for ext in GT_EXTS if (folder / f"{gname}{ext}").is_file()),
                    folder / f"{gname}.png")
     if scale is None:
         if folder.name not in SCALES:
@@ -131,6 +138,7 @@ def load_middlebury2003(path: str | Path, scale: float | None = None) -> list[St
         raise DatasetError(f"{root}: no such benchmark folder")
     folders = scene_folders(root)
     if not folders:
-        raise DatasetError(f"{root}: holds no Middlebury 2001/2003 scene (a folder with im2.png, im6.png and "
-                           "disp2.png/.pgm, or im3.png, im4.png and disp3.png/.pgm)")
+        raise DatasetError(f"{root}: holds no Middlebury 2001/2003 scene (a folder with im2, im6 and disp2, im3, "
+                           "im4 and disp3, or scene1.row3.col3, scene1.row3.col4 and truedisp.row3.col3; images "
+                           ".png or .ppm, disparity .png or .pgm)")
     return [read_scene(f, scale) for f in folders]

@@ -345,3 +345,45 @@ def test_kitti_2012_grey_pairs_use_P0_and_P1(tmp_path):
     assert detect_format(tmp_path) == "kitti"
     (p,) = load_kitti(tmp_path)
     assert p.left_image.ndim == 2 and p.baseline == pytest.approx(0.3, rel=1e-12)
+
+
+def test_calib_txt_and_pfm_spellings_middlebury_tools_accept(tmp_path):
+    """calib.txt with Windows line endings, spaces around '=' and inside the matrices, a tab, and keys
+    the reader does not know; disp0.pfm with the header Scharstein's pfmLib writes (one token a line)."""
+    w = fx.middlebury_pair(tmp_path / "Motorcycle")
+    f, cx, cy, doffs = fx.CALIB["f"], fx.CALIB["cx"], fx.CALIB["cy"], fx.CALIB["doffs"]
+    (tmp_path / "Motorcycle" / "calib.txt").write_bytes(
+        (f"cam0 = [{f} 0 {cx};0 {f} {cy};0 0 1]\r\ncam1= [ {f}  0  {cx + doffs} ; 0 {f} {cy} ; 0 0 1 ]\r\n"
+         f"doffs =\t{doffs}\r\nbaseline={fx.CALIB['baseline']}\r\nwidth={fx.W}\r\nheight={fx.H}\r\n"
+         f"ndisp={fx.NDISP}\r\nisint=0\r\nvmin=2\r\nvmax=7\r\ndyavg=0\r\ndymax=0\r\nscene=motorcycle\r\n\r\n").encode())
+    gt = w["gt"]
+    (tmp_path / "Motorcycle" / "disp0.pfm").write_bytes(f"Pf\n{fx.W}\n{fx.H}\n-1\n".encode()
+                                                        + np.ascontiguousarray(gt[::-1], "<f4").tobytes())
+    (p,) = load_middlebury(tmp_path / "Motorcycle")
+    assert p.left_camera.fx == f and p.right_camera.cx == cx + doffs and p.doffs == doffs
+    assert p.ndisp == fx.NDISP and (p.vmin, p.vmax) == (2.0, 7.0)
+    known = np.isfinite(gt)
+    assert np.array_equal(p.mask, known) and np.array_equal(p.disparity, np.where(known, gt, 0))
+
+
+@pytest.mark.parametrize("name,stems", [
+    ("venus", ("im2", "im6", "disp2")),  # the sets' "ppm" archives: im2.ppm, im6.ppm, disp2.pgm
+    ("tsukuba", ("scene1.row3.col3", "scene1.row3.col4", "truedisp.row3.col3")),  # the 2001 release's names
+], ids=["venus-ppm", "tsukuba-2001-names"])
+def test_middlebury2003_ppm_images_and_the_2001_tsukuba_names(tmp_path, name, stems):
+    from research.datasets.middlebury2003 import SCALES, load_middlebury2003
+
+    left, right, disp = fx.scene(3)
+    raw = np.rint(disp * SCALES[name]).astype(np.uint8)
+    raw[:, :2] = 0
+    folder = tmp_path / name
+    folder.mkdir()
+    for stem, img in zip(stems[:2], (left, right)):  # binary P6 PPM, RGB as stored
+        (folder / f"{stem}.ppm").write_bytes(f"P6\n{fx.W} {fx.H}\n255\n".encode() + np.ascontiguousarray(img).tobytes())
+    fx.write_pgm(folder / f"{stems[2]}.pgm", raw)
+    assert detect_format(tmp_path) == "middlebury2003"
+    (p,) = load_middlebury2003(folder)
+    np.testing.assert_array_equal(p.left_image, left)
+    np.testing.assert_array_equal(p.right_image, right)
+    np.testing.assert_array_equal(p.mask, raw > 0)
+    np.testing.assert_allclose(p.disparity, np.where(raw > 0, raw / SCALES[name], 0.0), rtol=0, atol=1e-6)
