@@ -155,3 +155,20 @@ def test_ate_zero_for_rigidly_moved_copy():
     G = P.se3_exp([1.0, -2.0, 0.5, 0.3, 0.2, -0.1])
     assert P.ate(G @ ref, ref, "se3").rmse < 1e-12
     assert P.ate(G @ ref, ref, "none").rmse > 0.1
+
+
+def test_tum_file_as_the_benchmark_ships_it(tmp_path):
+    """A TUM RGB-D groundtruth.txt: its three '#' header lines, 4-decimal values (quaternion norm off 1 by
+    ~1e-4), a blank line, and the separators the benchmark's read_file_list accepts (tabs, commas, CRLF)."""
+    path = tmp_path / "groundtruth.txt"
+    path.write_bytes(b"# ground truth trajectory\n# file: 'rgbd_dataset_freiburg1_xyz.bag'\n"
+                     b"# timestamp tx ty tz qx qy qz qw\n"
+                     b"1305031098.6659 1.3563 0.6305 1.6380 0.6132 0.5962 -0.3311 -0.3986\n\n"
+                     b"1305031098.6758\t1.3543\t0.6306\t1.6360\t0.6129\t0.5966\t-0.3316\t-0.3980\r\n"
+                     b"1305031098.6858,1.3524,0.6306,1.6342,0.6129,0.5967,-0.3316,-0.3979\n")
+    stamps, c2w = P.read_tum(path)
+    np.testing.assert_array_equal(stamps, [1305031098.6659, 1305031098.6758, 1305031098.6858])
+    np.testing.assert_array_equal(c2w[:, :3, 3], [[1.3563, 0.6305, 1.6380], [1.3543, 0.6306, 1.6360],
+                                                  [1.3524, 0.6306, 1.6342]])
+    q = np.array([0.6132, 0.5962, -0.3311, -0.3986])
+    np.testing.assert_allclose(c2w[0, :3, :3], P.quat_to_matrix(q / np.linalg.norm(q)), atol=1e-15)
