@@ -9,12 +9,13 @@ Each transforms file holds `frames` with `file_path` and an OpenGL camera-to-wor
 `transform_matrix` (+x right, +y up, +z backward; converted to drlab's OpenCV convention by
 research.cameras.Camera.from_nerf). Intrinsics: NeRF's `camera_angle_x` (horizontal field of view,
 radians; square pixels, centred principal point), or nerfstudio's `fl_x`, `fl_y`, `cx`, `cy`, `w`,
-`h`, given once at the top of the file or per frame (a frame's own values win). Without `w`/`h` the
-image's own size is used; every image of the folder must have the same size.
+`h`, given once at the top of the file or per frame (a frame's own values win); instant-ngp's
+`camera_angle_y` gives fl_y where fl_y is absent. Without `w`/`h` the image's own size is used;
+every image of the folder must have the same size.
 
 Lens (nerfstudio's `camera_model` and `k1`, `k2`, `k3`, `k4`, `p1`, `p2`, top level or per frame, the
 frame's winning; absent coefficients are 0, an absent camera_model is "OPENCV", nerfstudio's default
-perspective camera). The cameras carry it (research.cameras.Camera.lens, kernels/lens.py), as the
+perspective camera, or "OPENCV_FISHEYE" where instant-ngp's `"is_fisheye": true` is given). The cameras carry it (research.cameras.Camera.lens, kernels/lens.py), as the
 COLMAP reader's do:
 
     camera_model                                           drlab lens
@@ -51,6 +52,7 @@ about 1.3e-6 in lego's transforms_train.json), which pass and are re-orthonormal
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -65,7 +67,7 @@ from research.datasets.loader import SPLITS, Dataset, Protocol, Split, View, _im
 WHITE = (1.0, 1.0, 1.0)
 SINGLE_TRANSFORMS = "transforms.json"
 EVAL_INTERVAL = 8  # a single transforms.json: every 8th frame (by file_path) is a test view
-_INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x")
+_INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
 _DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
 PERSPECTIVE_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL")
 FISHEYE_MODELS = ("OPENCV_FISHEYE",)
@@ -98,7 +100,8 @@ def _number(tpath: Path, index: int, key: str, value: Any) -> float:
 
 def _lens(tpath: Path, index: int, doc: dict[str, Any], frame: dict[str, Any]) -> Lens | None:
     """The frame's lens (module docstring's table), None for a pinhole; DatasetError otherwise."""
-    model = frame.get("camera_model", doc.get("camera_model", "OPENCV"))
+    fisheye = frame.get("is_fisheye", doc.get("is_fisheye", False)) is True  # instant-ngp's spelling
+    model = frame.get("camera_model", doc.get("camera_model", "OPENCV_FISHEYE" if fisheye else "OPENCV"))
     if model not in PERSPECTIVE_MODELS + FISHEYE_MODELS:
         raise DatasetError(f"{tpath}: frame {index}: camera_model {model!r} is not supported (expected one of "
                            f"{', '.join(PERSPECTIVE_MODELS + FISHEYE_MODELS)})")
@@ -137,6 +140,8 @@ def _camera(tpath: Path, index: int, doc: dict[str, Any], frame: dict[str, Any],
         angle = None if intr["camera_angle_x"] is None else _number(tpath, index, "camera_angle_x",
                                                                       intr["camera_angle_x"])
         fl_y = None if intr["fl_y"] is None else _number(tpath, index, "fl_y", intr["fl_y"])
+        if fl_y is None and intr["camera_angle_y"] is not None:  # instant-ngp: the vertical field of view
+            fl_y = (h / 2.0) / math.tan(_number(tpath, index, "camera_angle_y", intr["camera_angle_y"]) / 2.0)
         cam = Camera.from_nerf(frame["transform_matrix"], w, h, camera_angle_x=angle, fl_x=fl_x, fl_y=fl_y,
                                cx=None if intr["cx"] is None else float(intr["cx"]),
                                cy=None if intr["cy"] is None else float(intr["cy"]))

@@ -165,7 +165,8 @@ def test_a_drlab_dataset_read_as_blender_agrees_with_the_drlab_loader(tmp_path):
     ("OPENCV", {"k1": -0.12, "k2": 0.03, "p1": 0.002, "p2": -0.001}, "opencv"),
     ("OPENCV", {"k1": -0.1, "k2": 0.02, "k3": 0.004, "p1": 0.001, "p2": 0.0}, "opencv"),
     ("OPENCV_FISHEYE", {"k1": 0.05, "k2": -0.01, "k3": 0.002, "k4": -0.0005}, "fisheye"),
-], ids=["opencv", "opencv-k3", "fisheye"])
+    (None, {"is_fisheye": True, "k1": 0.05, "k2": -0.01}, "fisheye"),  # instant-ngp's colmap2nerf
+], ids=["opencv", "opencv-k3", "fisheye", "instant-ngp-fisheye"])
 def test_nerfstudio_distortion_is_read_as_the_lens(tmp_path, model, keys, lens_model):
     """nerfstudio's camera_model and k1..k4, p1, p2 (what colmap2nerf / ns-process-data write): the cameras
     carry the lens and project as OpenCV does (cv2.projectPoints, cv2.fisheye.projectPoints)."""
@@ -176,7 +177,7 @@ def test_nerfstudio_distortion_is_read_as_the_lens(tmp_path, model, keys, lens_m
     for split in ("train", "val", "test"):
         p = root / f"transforms_{split}.json"
         doc = json.loads(p.read_text())
-        p.write_text(json.dumps({**doc, "camera_model": model, **keys}))
+        p.write_text(json.dumps({**doc, **({"camera_model": model} if model else {}), **keys}))
     ds = load_blender(root, factor=2)
     X = np.random.default_rng(3).uniform(-0.8, 0.8, (20, 3))
     for v in ds.views:
@@ -232,3 +233,18 @@ def test_file_path_spellings_extra_keys_and_rgb_pngs(tmp_path):
             assert np.abs(v.camera.c2w - c.c2w).max() < 1e-5 and np.abs(v.camera.K - c.K).max() < 1e-9
     train = ds.load_split("train")
     assert train.rgba.shape == (4, 16, 16, 4) and np.all(train.rgba[1, ..., 3] == 1.0)
+
+
+def test_instant_ngp_camera_angle_y_gives_fl_y(tmp_path):
+    """instant-ngp's transforms: camera_angle_x and camera_angle_y (non-square pixels), no fl_x / fl_y."""
+    root = tmp_path / "ngp"
+    write_blender(root)
+    fy = 20.0
+    for split in ("train", "val", "test"):
+        p = root / f"transforms_{split}.json"
+        p.write_text(json.dumps({**json.loads(p.read_text()), "camera_angle_y": 2 * math.atan(8.0 / fy)}))
+    ds = load_blender(root)
+    angle_x = json.loads((root / "transforms_train.json").read_text())["camera_angle_x"]
+    for v in ds.views:
+        assert v.camera.fy == pytest.approx(fy, rel=1e-12)
+        assert v.camera.fx == pytest.approx(8.0 / math.tan(angle_x / 2), rel=1e-12)
