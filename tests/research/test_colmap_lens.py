@@ -75,9 +75,15 @@ def test_zero_distortion_is_a_pinhole_and_a_fisheye_is_not(tmp_path):
     assert all(v.camera.lens == Lens("fisheye") for v in load_colmap(tmp_path / "b", factor=1).views)
 
 
-def test_other_models_are_refused_by_name(tmp_path):
-    write_model(tmp_path / "s", "FULL_OPENCV", [30.0, 31.0, 16.5, 11.5] + [0.01] * 8, text=True)
-    with pytest.raises(DatasetError, match=r"cameras\.txt: camera 1: camera model FULL_OPENCV is not supported "
+@pytest.mark.parametrize("model,params", [("FULL_OPENCV", [30.0, 31.0, 16.5, 11.5] + [0.01] * 8),
+                                          ("FOV", [30.0, 31.0, 16.5, 11.5, 0.9]),
+                                          ("THIN_PRISM_FISHEYE", [30.0, 31.0, 16.5, 11.5] + [0.01] * 8),
+                                          ("SIMPLE_RADIAL_FISHEYE", [30.0, 16.0, 12.0, 0.01])])
+@pytest.mark.parametrize("text", [False, True], ids=["binary", "text"])
+def test_other_models_are_refused_by_name(tmp_path, model, params, text):
+    write_model(tmp_path / "s", model, params, text=text)
+    ext = "txt" if text else "bin"
+    with pytest.raises(DatasetError, match=rf"cameras\.{ext}: camera 1: camera model {model} is not supported "
                                            r"\(expected one of .*OPENCV_FISHEYE\)"):
         load_colmap(tmp_path / "s", factor=1)
 
