@@ -386,7 +386,8 @@ register_family("lens", "lens camera models (opencv, fisheye, orthographic): ray
                 kernels="kernels.lens", reference="kernels.reference.lens", checks="research.checks.lens",
                 oracle_cases="research.oracles.cases.lens")
 register_family("ba", "bundle adjustment: reprojection residuals and their pose/point Jacobians",
-                kernels="kernels.ba", reference="kernels.reference.ba", checks="research.checks.ba")
+                kernels="kernels.ba", reference="kernels.reference.ba", checks="research.checks.ba",
+                oracle_cases="research.oracles.cases.ba")
 register_family("slam", "the splat SLAM tracking and mapping losses (research/slam) through the splat renderer",
                 checks="research.checks.slam")
 register_family("points", "point clouds on a uniform hash grid: kNN, ball query, FPS, normals, chamfer distance",
@@ -395,7 +396,8 @@ register_family("points", "point clouds on a uniform hash grid: kNN, ball query,
 register_family("tsdf", "TSDF fusion of depth maps and marching cubes (no gradient)",
                 kernels="kernels.tsdf", reference="kernels.reference.tsdf", bench="research.bench.tsdf")
 register_family("pointnet", "PointNet's max-pool, PointNet++'s grouping in local coordinates, the classifiers",
-                kernels="kernels.pointnet", reference="kernels.reference.pointnet", checks="research.checks.pointnet")
+                kernels="kernels.pointnet", reference="kernels.reference.pointnet", checks="research.checks.pointnet",
+                oracle_cases="research.oracles.cases.pointnet")
 register_family("lucas_kanade", "Lucas-Kanade flow: structure tensor, pyramidal",
                 kernels="kernels.lucas_kanade", reference="kernels.reference.lucas_kanade")
 register_family("icp", "ICP: point-to-point/plane residuals, pose Jacobians, robust weights, normal equations",

@@ -22,8 +22,8 @@ rules. `drjit.eval` between iterations keeps the kernels small (one compile, reu
 Modules: `ssim`, `stereo`, `corr`, `volume` (dense grid, hash grid, MLP), `rays` (the volume renderer's
 camera gradients), `splat`, `lens` (the splat projection through each lens model), `points` (the
 chamfer distance), `geometry` (splat normals and expected depth), `appearance` (the bilateral-grid
-slice), `mip` (Mip-Splatting's 3D filter) and `proposal` (the proposal sampler's interval weights and
-interlevel loss).
+slice), `mip` (Mip-Splatting's 3D filter), `proposal` (the proposal sampler's interval weights and
+interlevel loss), `ba` (the reprojection and its Jacobians) and `pointnet` (max-pool, grouping).
 
 `research.oracles.cases` holds the comparisons themselves, one module per family (the family's
 `oracle_cases` in research.registry.FAMILIES): each builds random inputs, runs drlab and the oracle

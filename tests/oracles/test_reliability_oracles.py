@@ -7,9 +7,11 @@ import pytest
 
 from research.oracles import backend
 from research.oracles.appearance import bilateral_slice_oracle
+from research.oracles.ba import reproject_oracle
 from research.oracles.corr import lookup_oracle
 from research.oracles.geometry import depth_normals_oracle, expected_depth_oracle, splat_normals_oracle
 from research.oracles.mip import filter_3d_oracle
+from research.oracles.pointnet import group_local_oracle, max_pool_oracle
 from research.oracles.proposal import interlevel_loss_oracle, interval_weights_oracle
 from research.oracles.rays import camera_rays_oracle, render_camera_oracle
 from research.oracles.splat import render_oracle
@@ -79,12 +81,19 @@ def _render(**change):
     (lambda: splat_normals_oracle(Z((2, 3)), Z((2, 3)), Z((2, 3)), np.eye(4), Z((2, 3))),
      r"quats: expected shape \(2, 4\), got \(2, 3\)"),
     (lambda: expected_depth_oracle(Z((2, 3)), -np.ones((2, 3)), Z((2, 3))), "alpha: expected values >= 0"),
+    (lambda: reproject_oracle(Z((1, 2, 4)), Z((2, 3)), Z((1, 2)), [0], [0], (1, 1, 0, 0)),
+     r"poses: expected shape \(C, 3, 4\) or \(C, 4, 4\)"),
+    (lambda: reproject_oracle(Z((1, 3, 4)), Z((2, 3)), Z((1, 2)), [0], [0], (1, -1, 0, 0)),
+     "intrinsics: expected fx, fy > 0"),
+    (lambda: max_pool_oracle(Z((2, 3, 4)), Z((2, 3))), r"grad: expected shape \(2, 4\), got \(2, 3\)"),
+    (lambda: group_local_oracle(Z((1, 5, 3)), [[0]], [[[1, 2]]], 0.0, Z((1, 1, 2, 3))), "radius: expected > 0"),
 ], ids=["dtype", "ssim-y-shape", "ssim-x-list", "ssim-x-nan", "ssim-x-int", "cost-kind", "cost-dmax",
         "softargmin-temperature", "softargmin-grad-shape", "corr-levels", "corr-radius", "corr-coords",
         "mlp-missing-bias", "splat-quats", "splat-sh", "splat-tile-rule", "splat-grad-rgb",
         "rays-fx", "rays-w2c-shape", "rays-grad-dirs", "render-field-kind", "render-delta", "render-t-threshold",
         "slice-grid-entries", "slice-grad-shape", "mip-sigma", "weights-delta", "interlevel-weights-shape",
-        "depth-normals-fx", "splat-normals-quats", "expected-depth-alpha"])
+        "depth-normals-fx", "splat-normals-quats", "expected-depth-alpha",
+        "ba-poses-shape", "ba-intrinsics", "maxpool-grad-shape", "group-radius"])
 def test_bad_input_raises_one_line_naming_the_argument(call, match):
     with pytest.raises(ValueError, match=match) as info:
         call()
