@@ -3,8 +3,9 @@
 `detect_format(path)`: "drlab" (a folder written by `drlab dataset`: manifest.json), "blender"
 (NeRF-synthetic / nerfstudio: transforms_train.json, or nerfstudio's single transforms.json),
 "llff" (LLFF forward-facing: poses_bounds.npy, even beside a sparse/ folder; `--format colmap` reads
-that as COLMAP), "colmap" (a COLMAP layout: sparse/0 or
-sparse/ holding a model), "middlebury_mview" (a Middlebury multi-view folder: one *_par.txt),
+that as COLMAP), "colmap" (a COLMAP layout: sparse/0 or sparse/ holding a model; also a
+poses_bounds.npy beside sparse/ whose cameras do not all face one way, `llff.faces_one_way`:
+Mip-NeRF 360's scenes ship both, and are read as the 3DGS evaluation reads them), "middlebury_mview" (a Middlebury multi-view folder: one *_par.txt),
 or None (not a dataset folder: the experiments then treat --data as the
 cache root of their own renders, as before). `open_dataset(path, fmt, factor)` loads it.
 
@@ -36,6 +37,10 @@ def detect_format(path: str | Path) -> str | None:
     if (root / "transforms_train.json").is_file() or (root / "transforms.json").is_file():
         return "blender"
     if (root / "poses_bounds.npy").is_file():
+        from research.datasets.llff import faces_one_way
+
+        if (root / "sparse").is_dir() and not faces_one_way(root / "poses_bounds.npy"):
+            return "colmap"  # Mip-NeRF 360: poses_bounds.npy of cameras all around, beside the COLMAP model
         return "llff"
     if (root / "sparse").is_dir():
         return "colmap"

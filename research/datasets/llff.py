@@ -119,6 +119,21 @@ def read_poses_bounds(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return c2w, bounds, hwf[0]
 
 
+def faces_one_way(path: Path) -> bool:
+    """Whether poses_bounds.npy's cameras form a forward-facing capture: no two viewing axes more than
+    90 degrees apart. Mip-NeRF 360's scenes ship a poses_bounds.npy too, for cameras all around the
+    object (facing cameras on opposite sides look about 180 degrees apart, less twice their elevation),
+    beside their COLMAP model; `formats.detect_format` reads those as COLMAP. An unreadable file counts
+    as forward-facing (load_llff then names its fault)."""
+    try:
+        c2w_gl, _, _ = read_poses_bounds(path)
+    except DatasetError:
+        return True
+    view = c2w_gl[:, :3, 2]  # the back axes: their pairwise angles are the viewing axes'
+    view = view / np.linalg.norm(view, axis=1, keepdims=True)
+    return bool(np.min(view @ view.T) > 0.0)
+
+
 def _check_rotations(path: Path, c2w_gl: np.ndarray, names: list[str]) -> None:
     for i, name in enumerate(names):
         R_llff = np.stack([-c2w_gl[i, :3, 1], c2w_gl[i, :3, 0], c2w_gl[i, :3, 2]], axis=1)  # (down, right, back)

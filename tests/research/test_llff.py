@@ -261,3 +261,21 @@ def test_upper_case_jpg_names_and_float32_poses_bounds(tmp_path):
     for a, b in zip(ds64.views, ds32.views):
         assert np.abs(a.camera.c2w - b.camera.c2w).max() < 1e-6 and np.abs(a.camera.K - b.camera.K).max() < 1e-6
     assert ds32.load_split("test").rgba.shape == (2, 6, 8, 4)
+
+
+def test_a_mipnerf360_folder_with_poses_bounds_is_read_as_colmap(tmp_path):
+    """Mip-NeRF 360's scenes ship poses_bounds.npy beside sparse/0: cameras all around the object are not
+    a forward-facing (NDC) capture, so the folder is detected as COLMAP; a forward-facing one stays LLFF."""
+    from tests.research.realdata_fixtures import write_colmap
+
+    root = tmp_path / "garden"
+    cams = write_colmap(root, n=9, factors=(1, 4))
+    rows = np.stack([llff_row(c.c2w, (12.0, 16.0, 18.0), 1.0, 10.0) for c in cams])
+    np.save(root / "poses_bounds.npy", rows)
+    assert detect_format(root) == "colmap"
+    assert open_dataset(root, detect_format(root)).format == "colmap"
+    assert open_dataset(root, "llff", 4).format == "llff"  # still readable as LLFF when asked for
+    fern = tmp_path / "fern"
+    write_llff(fern, level_rig(3), factors=(8,))
+    write_colmap(fern, n=3, factors=())
+    assert detect_format(fern) == "llff"
