@@ -15,8 +15,8 @@ every image of the folder must have the same size.
 
 Lens (nerfstudio's `camera_model` and `k1`, `k2`, `k3`, `k4`, `p1`, `p2`, top level or per frame, the
 frame's winning; absent coefficients are 0, an absent camera_model is "OPENCV", nerfstudio's default
-perspective camera, or "OPENCV_FISHEYE" where instant-ngp's `"is_fisheye": true` is given). The cameras carry it (research.cameras.Camera.lens, kernels/lens.py), as the
-COLMAP reader's do:
+perspective camera, or "OPENCV_FISHEYE" where instant-ngp's `"is_fisheye": true` is given). The
+cameras carry it (research.cameras.Camera.lens, kernels/lens.py), as the COLMAP reader's do:
 
     camera_model                                           drlab lens
     OPENCV, PINHOLE, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL  opencv (k1, k2, p1, p2, k3); none when all are 0
@@ -42,11 +42,12 @@ scene record of a drlab cameras.json beside it), else `external.bound_from_camer
 
 Errors (research.datasets.DatasetError, a ValueError; one line naming the file): a missing
 transforms_train.json or transforms_test.json (when there is no single transforms.json), a single
-transforms.json with fewer than 2 frames, a frame without `file_path` or `transform_matrix`,
-a transform whose rotation part is not a rotation, an image listed but absent, images of different
-sizes, a size not divisible by `factor`, a lens the table above does not hold. "A rotation" is kernels/rotation.py's one check: max
-|R^T R - I| <= 1e-5 and det R > 0. The official files store float32 matrices (max |R^T R - I| up to
-about 1.3e-6 in lego's transforms_train.json), which pass and are re-orthonormalised (the polar factor).
+transforms.json with fewer than 2 frames, a frame without `file_path` or `transform_matrix`, a
+transform whose rotation part is not a rotation, an image listed but absent, images of different
+sizes, a size not divisible by `factor`, a lens the table above does not hold. "A rotation" is
+kernels/rotation.py's one check: max |R^T R - I| <= 1e-5 and det R > 0. The official files store
+float32 matrices (max |R^T R - I| up to about 1.3e-6 in lego's transforms_train.json), which pass
+and are re-orthonormalised (the polar factor).
 """
 
 from __future__ import annotations

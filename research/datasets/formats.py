@@ -1,13 +1,13 @@
 """Which reader a data folder needs, and the evaluation targets of a dataset's protocol.
 
 `detect_format(path)`: "drlab" (a folder written by `drlab dataset`: manifest.json), "blender"
-(NeRF-synthetic / nerfstudio: transforms_train.json, or nerfstudio's single transforms.json),
-"llff" (LLFF forward-facing: poses_bounds.npy, even beside a sparse/ folder; `--format colmap` reads
-that as COLMAP), "colmap" (a COLMAP layout: sparse/0 or sparse/ holding a model; also a
-poses_bounds.npy beside sparse/ whose cameras do not all face one way, `llff.faces_one_way`:
-Mip-NeRF 360's scenes ship both, and are read as the 3DGS evaluation reads them), "middlebury_mview" (a Middlebury multi-view folder: one *_par.txt),
-or None (not a dataset folder: the experiments then treat --data as the
-cache root of their own renders, as before). `open_dataset(path, fmt, factor)` loads it.
+(NeRF-synthetic / nerfstudio: transforms_train.json, or nerfstudio's single transforms.json), "llff"
+(LLFF forward-facing: poses_bounds.npy, even beside a sparse/ folder; `--format colmap` reads that
+as COLMAP), "colmap" (a COLMAP layout: sparse/0 or sparse/ holding a model; also a poses_bounds.npy
+beside sparse/ whose cameras do not all face one way, `llff.faces_one_way`: Mip-NeRF 360's scenes
+ship both, and are read as the 3DGS evaluation reads them), "middlebury_mview" (a Middlebury
+multi-view folder: one *_par.txt), or None (not a dataset folder: the experiments then treat --data
+as the cache root of their own renders, as before). `open_dataset(path, fmt, factor)` loads it.
 
 The protocol's targets (`protocol_srgb`, `protocol_target_srgb`, `protocol_target_linear`): the
 images composited on the protocol's background in sRGB, as the NeRF/3DGS evaluations do. What the
