@@ -164,8 +164,8 @@ def test_hand_written_text_model_as_colmap_writes_and_users_edit_it(tmp_path):
                   "" if k % 3 else "1.5 2.5 -1 3.5 4.5 -1", ""]
     (d / "images.txt").write_text("\n".join(lines) + "\n")
     pts = rng.uniform(-1, 1, (20, 3))
-    (d / "points3D.txt").write_text("# 3D point list\n\n" + "".join(f"{i + 1} {p[0]:.17g} {p[1]:.17g} {p[2]:.17g} 10 20 30 0.5\n"
-                                                                    for i, p in enumerate(pts)))
+    rows = [f"{i + 1} {x:.17g} {y:.17g} {z:.17g} 10 20 30 0.5" for i, (x, y, z) in enumerate(pts)]
+    (d / "points3D.txt").write_text("# 3D point list\n\n" + "\n".join(rows) + "\n")
     ds = load_colmap(root, factor=1)
     names = sorted(f"cam{k % 2}/{k:04d}.png" for k in range(9))
     assert [v.name for v in ds.views] == names
