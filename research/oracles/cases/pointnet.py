@@ -26,7 +26,11 @@ def case_max_pool(dt, S, seed):
 
     rng = Rounded(seed)
     g = S["pointnet_sets"]
-    x = rng.normal(size=(g, ROWS, CHANNELS))  # continuous draws: no ties
+    # Each column a shuffled ladder 0.01 k above a random offset: no two rows tie (float32 normal draws
+    # would tie at the maximum somewhere among 500k columns, where the first-argmax rule and Dr.Jit's
+    # maximum route the cotangent differently).
+    ladder = 0.01 * np.argsort(rng.uniform(size=(g, ROWS, CHANNELS)), axis=1)
+    x = (rng.normal(size=(g, 1, CHANNELS)) + ladder).astype(np.float32).astype(np.float64)
     cot = rng.normal(size=(g, CHANNELS))
 
     def drlab(t):
