@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """drlab's kernels against their second oracle, Dr.Jit's AD (research/oracles), at full size.
 
-Every kernel family's forward is written again in Dr.Jit (LLVM backend, its own reverse-mode AD)
-from the equations in the kernel modules' docstrings; the splat chain follows the original 3DGS
-code. For random inputs, each case compares drlab's forward and its hand-written backward (the VJP
-for a random cotangent) with the oracle's, in float64 and in float32 (drlab float32 against the
-oracle float32, and against the oracle float64), at the sizes the kernels run at:
+Every kernel family with an oracle (docs/conformance.md says which have none) has its forward
+written again in Dr.Jit (LLVM backend, its own reverse-mode AD) from the equations in the kernel
+modules' docstrings; the splat chain follows the original 3DGS code. For random inputs, each case
+compares drlab's forward and its hand-written backward (the VJP for a random cotangent) with the
+oracle's, in float64 and in float32 (drlab float32 against the oracle float32, and against the
+oracle float64), at the sizes the kernels run at:
 
   * ssim          a 256x256x3 image pair (map, d/dx, d/dy);
   * stereo        SAD (r 2) and ZNCC (r 3) volumes 256x256x64; feature correlation 32 channels,
@@ -23,7 +24,20 @@ oracle float32, and against the oracle float64), at the sizes the kernels run at
                   (rgb, alpha, depth, d means, log-scales, quaternions, opacity logits, SH, background,
                   and the camera's pose (6) and intrinsics (4)).
   * points        the chamfer distance of two 4,096-point clouds (value, d x, d y; kernels/points/chamfer.py),
-                  the oracle by brute force over all pairs.
+                  the oracle by brute force over all pairs;
+  * lens          4,000 Gaussians projected through the opencv, fisheye and orthographic lenses (mean,
+                  conic, depth, colour, opacity; d splat parameters, pose and intrinsics);
+  * splat_geometry normals from a 256x256 depth map (d depth), 100,000 splats' shortest-axis normals
+                  (d quaternions), the expected depth of a 256x256 image (d depth, d alpha);
+  * mip_filter    Mip-Splatting's 3D filter of 200,000 Gaussians (d log-scales, d opacity logits);
+  * appearance    a 256x256 image through an 8x16x16 bilateral grid and through one affine (d grid,
+                  d image);
+  * unbounded     the interval weights of 4,096 rays x 48 intervals (d density) and the interlevel
+                  loss of 32 main against 48 proposal intervals (d proposal weights);
+  * ba            200,000 reprojections into 20 cameras (residuals, depths; the pose, point and depth
+                  Jacobians in the VJP columns);
+  * pointnet      the max-pool of 4,096 sets of 32 rows x 128 channels and the grouping of 4,096
+                  centres x 32 neighbours (d x, d points).
 
 The cases are those of every family registered in research.registry.FAMILIES with an `oracle_cases`
 module (research/oracles/cases/<family>.py: its sizes per mode and its case builders), in the
@@ -62,7 +76,7 @@ def run(ctx: Context) -> int:
                          "-" if td is None else f"{td:.2f}", "-" if to is None else f"{to:.2f}"])
         metrics[case.name] = entry
     worst64 = max(max(e["float64"]["fwd_rel"], np.nan_to_num(e["float64"]["vjp_rel"])) for e in metrics.values())
-    table = ("Every kernel family against its Dr.Jit oracle (research/oracles), normwise: abs = max |drlab - "
+    table = ("Every kernel family that has a Dr.Jit oracle against it (research/oracles), normwise: abs = max |drlab - "
              "oracle| over the outputs, rel = abs / max |oracle|; fwd = forward outputs, VJP = every input's "
              "vector-Jacobian product for one random cotangent. `float32` compares drlab and the oracle both "
              "in float32; `float32 vs oracle64` drlab's float32 result against the float64 oracle on the same "

@@ -245,7 +245,7 @@ register_experiment(
 
 register_experiment(
     "oracle_conformance",
-    "Every kernel family against its Dr.Jit AD oracle (research/oracles) at full size: max abs/rel difference, "
+    "Every kernel family with a Dr.Jit AD oracle against it (research/oracles) at full size: max abs/rel difference, "
     "forward and VJP, float32 and float64, with timings.",
     quick_budget_s=300,
 )
