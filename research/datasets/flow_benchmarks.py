@@ -14,20 +14,21 @@ Layouts (the folder given may be the benchmark's root or its `training/` folder)
   FlowSequence per scene; `invalid` pixels are left out of every region of the Sintel protocol.
 * **KITTI flow** (`kitti`): `training/flow_occ/NNNNNN_10.png` and `training/flow_noc/NNNNNN_10.png`,
   16-bit 3-channel PNGs holding u = (R - 2^15) / 64, v = (G - 2^15) / 64 and B = 1 where the flow is
-  known (0: unknown); frames `image_2/NNNNNN_{10,11}.png` (KITTI 2015), else `colored_0/` or the grey
-  `image_0/` (KITTI 2012). One two-frame FlowSequence per pair: `flow` from flow_occ, `valid` = flow_noc's
-  known pixels, `valid_all` = flow_occ's, `occluded` = known in flow_occ only.
+  known (0: unknown; any B > 0 is read as known, as the KITTI devkit's readFlowField does); frames
+  `image_2/NNNNNN_{10,11}.png` (KITTI 2015), else `colored_0/` or the grey `image_0/` (KITTI 2012). One
+  two-frame FlowSequence per pair: `flow` from flow_occ, `valid` = flow_noc's known pixels, `valid_all` =
+  flow_occ's, `occluded` = known in flow_occ only.
 * **Middlebury flow** (`middlebury`): `other-gt-flow/<scene>/flow10.flo` and `other-data/<scene>/
   frame10.png`, `frame11.png` (or `other-data-gray/`). Flow components above 1e9 mean unknown: such
   pixels are left out of `valid` and their flow is set to 0 (Middlebury gives no occlusion masks, so
   `valid` here is every known pixel, occluded or not).
 
-`open_benchmark` checks the whole layout from file headers, before any pixel is read: every file a
-pair needs exists, every image is a PNG of the expected bit depth and channels, every .flo's magic,
-size and length are right, and the files of a pair share one size. Pixels are read per sequence by
-`FlowBenchmark.load`, which checks them for meaning (a KITTI flow PNG's validity channel is 0 or 1 and
-flow_noc knows no pixel flow_occ does not; a .flo holds no NaN; a PNG decodes to its end).
-`FlowBenchmark.verify` runs those reads over the pairs an experiment will use before it starts work.
+`open_benchmark` checks the whole layout from file headers, before any pixel is read: every file a pair
+needs exists, every image is a PNG of the expected bit depth and channels, every .flo's magic, size and
+length are right, and the files of a pair share one size. Pixels are read per sequence by
+`FlowBenchmark.load`, which checks them for meaning (flow_noc knows no pixel flow_occ does not; a .flo
+holds no NaN; a PNG decodes to its end). `FlowBenchmark.verify` runs those reads over the pairs an
+experiment will use before it starts work.
 Every error is a DatasetError (a ValueError) of one line naming the file.
 
 Frames are returned as drlab's sequences hold them: linear RGBA with alpha 1 (research.io.read_png
@@ -105,8 +106,8 @@ class FlowBenchmark:
 
     def verify(self, items: list[FlowItem] | None = None) -> None:
         """Read every file of `items` (default: all) once and drop the pixels: what the header check cannot
-        see (a PNG cut short after its header, NaN in a .flo, a bad KITTI validity code) is refused before
-        an experiment starts work, one sequence in memory at a time."""
+        see (a PNG cut short after its header, NaN in a .flo, a flow_noc that knows more than flow_occ) is
+        refused before an experiment starts work, one sequence in memory at a time."""
         for item in self.items if items is None else items:
             self.load(item)
 
@@ -350,15 +351,12 @@ def _flo(path: Path) -> np.ndarray:
 def kitti_decode(codes: np.ndarray, path: Path | str = "flow") -> tuple[np.ndarray, np.ndarray]:
     """Flow (H, W, 2) float32 and known (H, W) bool from a KITTI flow PNG's uint16 (H, W, 3) codes.
 
-    u = (R - 2^15) / 64, v = (G - 2^15) / 64, known where B is 1; unknown pixels get flow 0.
+    u = (R - 2^15) / 64, v = (G - 2^15) / 64, known where B > 0 (the devkit's test; KITTI writes 1);
+    unknown pixels get flow 0.
     """
     if codes.dtype != np.uint16 or codes.ndim != 3 or codes.shape[2] != 3:
         raise DatasetError(f"{path}: expected 16-bit 3-channel KITTI flow codes, got {codes.dtype} {codes.shape}")
-    bad = codes[..., 2] > 1
-    if bad.any():
-        raise DatasetError(f"{path}: the validity channel (blue) must be 0 or 1, found {int(codes[..., 2].max())} "
-                           f"at {int(bad.sum())} pixels")
-    known = codes[..., 2] == 1
+    known = codes[..., 2] > 0
     flow = (codes[..., :2].astype(np.float32) - np.float32(2 ** 15)) / np.float32(64.0)
     return np.where(known[..., None], flow, np.float32(0.0)), known
 

@@ -88,6 +88,10 @@ def test_kitti_codes_by_hand():
     np.testing.assert_array_equal(known, [[True, True, False]])
     np.testing.assert_array_equal(kitti_encode(flow, known), [[[32768, 32768, 1], [32832, 32640, 1],
                                                                [32768, 32768, 0]]])
+    # Any B > 0 is known, as the KITTI devkit's readFlowField tests it (KITTI itself writes 1).
+    flow7, known7 = kitti_decode(np.array([[[32768 + 32, 32768, 7], [32768, 32768, 65535]]], np.uint16))
+    np.testing.assert_array_equal(known7, [[True, True]])
+    np.testing.assert_array_equal(flow7, [[[0.5, 0], [0, 0]]])
     rec = kitti_pair(7)
     f2, k2 = kitti_decode(kitti_encode(rec["flow"], rec["known_occ"]))
     np.testing.assert_array_equal(k2, rec["known_occ"])

@@ -82,19 +82,14 @@ def _nan_flo(rel):
     return f
 
 
-def _kitti_codes(valid_value=1, noc_extra=False):
-    """A KITTI flow PNG whose validity channel holds `valid_value`, or a flow_noc marking an unknown pixel known."""
+def _noc_knows_more():
+    """A flow_noc marking a pixel known that flow_occ leaves unknown."""
     def f(root):
-        if noc_extra:
-            occ = io.read_png_u16(root / KITTI_OCC)
-            noc = io.read_png_u16(root / KITTI_NOC)
-            y, x = np.argwhere(occ[..., 2] == 0)[0]
-            noc[y, x, 2] = 1
-            io.write_png_u16(root / KITTI_NOC, noc)
-        else:
-            codes = io.read_png_u16(root / KITTI_OCC)
-            codes[3, 4, 2] = valid_value
-            io.write_png_u16(root / KITTI_OCC, codes)
+        occ = io.read_png_u16(root / KITTI_OCC)
+        noc = io.read_png_u16(root / KITTI_NOC)
+        y, x = np.argwhere(occ[..., 2] == 0)[0]
+        noc[y, x, 2] = 1
+        io.write_png_u16(root / KITTI_NOC, noc)
     return f
 
 
@@ -125,9 +120,7 @@ BAD_INPUTS = [
      "holds no frame folder (expected image_2/ for KITTI 2015, colored_0/ or image_0/ for KITTI 2012)"),
     ("kitti-empty-flow-occ", "kitti", lambda r: [p.unlink() for p in (r / "training/flow_occ").iterdir()], "open",
      {}, "training/flow_occ", "holds no NNNNNN_10.png flow maps"),
-    ("kitti-validity-channel-7", "kitti", _kitti_codes(valid_value=7), "load", {}, KITTI_OCC,
-     "the validity channel (blue) must be 0 or 1, found 7 at 1 pixels"),
-    ("kitti-noc-known-where-occ-unknown", "kitti", _kitti_codes(noc_extra=True), "load", {}, KITTI_NOC,
+    ("kitti-noc-known-where-occ-unknown", "kitti", _noc_knows_more(), "load", {}, KITTI_NOC,
      "marks 1 pixels known that 000000_10.png in flow_occ does not"),
     ("kitti-pass-option", "kitti", _nothing, "open", {"pass_": "final"}, "",
      "only MPI-Sintel has clean and final passes"),
