@@ -1,4 +1,4 @@
-"""MOTChallenge (MOT17, MOT20) sequence folders: reader, the evaluation's preprocessing, result files.
+"""MOTChallenge (MOT15, MOT16, MOT17, MOT20) sequence folders: reader, the evaluation's preprocessing, result files.
 
 Layout of one sequence folder `<seq>/` (the benchmark's train and test splits hold one per sequence):
 
@@ -7,7 +7,9 @@ Layout of one sequence folder `<seq>/` (the benchmark's train and test splits ho
                   ConfigParser reads it
     det/det.txt   frame, id (-1), bb_left, bb_top, bb_width, bb_height, conf[, x, y, z]   (7 to 10 columns)
     gt/gt.txt     frame, id, bb_left, bb_top, bb_width, bb_height, consider, class, visibility   (9 columns;
-                  absent in the test split)
+                  8, without the visibility, as TrackEval reads it; absent in the test split)
+                  MOT15 (2D MOT 2015): frame, id, bb_left, bb_top, bb_width, bb_height, consider, x, y, z
+                  (10 columns, the world coordinates -1): no classes, every box a pedestrian
     <imDir>/000001<imExt> ...   the frames (optional here: only the appearance tracker reads them)
 
 Text files are comma-separated (spaces around the commas and one trailing comma allowed) or, a
@@ -26,7 +28,11 @@ Evaluation (`evaluation_frames`), as TrackEval's MotChallenge2DBox preprocessing
    matched to a distractor class (2, 7, 8, 12, and for MOT20 also 6) is removed: it is neither a
    true nor a false positive;
 2. only ground truth of class 1 (pedestrian) with a non-zero consider flag is kept.
-The visibility column is read and returned but does not enter the evaluation.
+The visibility column is read and returned (NaN where the file has none: MOT15, 8-column rows) but does
+not enter the evaluation. MOT15 has no classes, so TrackEval skips step 1 for it and step 2 keeps every
+box with a non-zero consider flag; here its boxes are all pedestrians and it has no distractor class,
+which gives the same. The benchmark is the caller's (`load_sequence(benchmark=)`), else MOT20 for a
+sequence named MOT20-..., MOT15 for a gt.txt of 10 columns (MOT15's world coordinates), else MOT17.
 
 Result files (`write_results`) follow the MOTChallenge result format, one row per box:
 `frame,id,bb_left,bb_top,bb_width,bb_height,conf,-1,-1,-1` (conf -1: the trackers report none).
@@ -54,11 +60,12 @@ CLASS_NAMES = {1: "pedestrian", 2: "person_on_vehicle", 3: "car", 4: "bicycle", 
                6: "non_mot_vehicle", 7: "static_person", 8: "distractor", 9: "occluder",
                10: "occluder_on_ground", 11: "occluder_full", 12: "reflection", 13: "crowd"}
 PEDESTRIAN = 1
-DISTRACTORS = {"MOT17": (2, 7, 8, 12), "MOT20": (2, 6, 7, 8, 12)}
+DISTRACTORS = {"MOT15": (), "MOT17": (2, 7, 8, 12), "MOT20": (2, 6, 7, 8, 12)}  # MOT16 reads as MOT17
 BENCHMARKS = tuple(DISTRACTORS)
 SEQINFO_KEYS = ("name", "imDir", "frameRate", "seqLength", "imWidth", "imHeight")
 DET_COLUMNS = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height", "conf", "x", "y", "z")
 GT_COLUMNS = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height", "consider", "class", "visibility")
+GT15_COLUMNS = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height", "consider", "x", "y", "z")
 _EPS = np.finfo(float).eps
 
 
@@ -91,7 +98,7 @@ class GroundTruth:
 class MOTSequence:
     root: Path
     info: SeqInfo
-    benchmark: str  # "MOT17" or "MOT20": which classes are distractors
+    benchmark: str  # "MOT15", "MOT17" or "MOT20": which classes are distractors
     dets: list[np.ndarray]  # per frame (N, 5) rows [x1, y1, x2, y2, score]
     gt: GroundTruth | None  # None when the folder has no gt/gt.txt (the test split)
 
@@ -178,9 +185,9 @@ def read_seqinfo(path: str | Path) -> SeqInfo:
 
 
 def _read_table(path: Path, columns: Seq[str], min_cols: int, max_cols: int, n_frames: int,
-                what: str) -> tuple[np.ndarray, np.ndarray]:
+                what: str, fill: float = -1.0) -> tuple[np.ndarray, np.ndarray]:
     """Rows of a MOTChallenge text file as float64 (N, max_cols), optional trailing columns that a row
-    leaves out filled with -1, and each row's line number. Every check names the file and line."""
+    leaves out filled with `fill`, and each row's line number. Every check names the file and line."""
     if not path.is_file():
         raise DatasetError(f"{path}: missing")
     rows, lines = [], []
@@ -204,7 +211,7 @@ def _read_table(path: Path, columns: Seq[str], min_cols: int, max_cols: int, n_f
                 except ValueError:
                     raise DatasetError(f"{path}:{lineno}: column {c + 1} ({columns[c]}) expected a number, "
                                        f"got {tok!r}") from None
-            vals += [-1.0] * (max_cols - len(vals))
+            vals += [fill] * (max_cols - len(vals))
             rows.append(vals)
             lines.append(lineno)
     data = np.array(rows, dtype=float).reshape(-1, max_cols)
@@ -244,11 +251,16 @@ def read_detections(path: str | Path, n_frames: int) -> list[np.ndarray]:
     return [rows[idx] for idx in _by_frame(data[:, 0], n_frames)]
 
 
-def read_ground_truth(path: str | Path, n_frames: int) -> GroundTruth:
-    """gt/gt.txt (9 columns) -> GroundTruth; ids must be unique within a frame, classes 1..13,
-    consider 0 or 1, visibility in [0, 1]."""
+def read_ground_truth(path: str | Path, n_frames: int, benchmark: str = "MOT17") -> GroundTruth:
+    """gt/gt.txt -> GroundTruth (module docstring: 8 or 9 columns, MOT15's 10); ids must be unique within
+    a frame, classes 1..13, consider 0 or 1, visibility in [0, 1] where given."""
     path = Path(path)
-    data, lines = _read_table(path, GT_COLUMNS, 9, 9, n_frames, "gt.txt")
+    if benchmark == "MOT15":
+        data, lines = _read_table(path, GT15_COLUMNS, 8, 10, n_frames, "MOT15 gt.txt")
+        data = np.concatenate([data[:, :7], np.full((len(data), 1), float(PEDESTRIAN)),
+                               np.full((len(data), 1), np.nan)], axis=1)
+    else:
+        data, lines = _read_table(path, GT_COLUMNS, 8, 9, n_frames, "gt.txt", fill=np.nan)
     checks = [
         (~np.isin(data[:, 7], list(CLASS_NAMES)), lambda r: f"class expected an integer in 1..13, got {r[7]:g}"),
         (~np.isin(data[:, 6], (0, 1)), lambda r: f"consider expected 0 or 1, got {r[6]:g}"),
@@ -276,24 +288,41 @@ def read_ground_truth(path: str | Path, n_frames: int) -> GroundTruth:
     )
 
 
-def benchmark_of(name: str) -> str:
-    """"MOT20" for a sequence named MOT20-..., else "MOT17" (MOT16 and MOT17 share the classes)."""
-    return "MOT20" if name.upper().startswith("MOT20") else "MOT17"
+def _first_row_columns(path: Path) -> int:
+    """The column count of a MOTChallenge file's first non-blank row (0 when it has none)."""
+    with open(path, errors="replace") as f:
+        for line in f:
+            s = line.strip()
+            if s:
+                toks = [t.strip() for t in s.split(",")] if "," in s else s.split()
+                return len(toks) - (len(toks) > 1 and toks[-1] == "")
+    return 0
+
+
+def benchmark_of(name: str, gt_path: Path | None = None) -> str:
+    """"MOT20" for a sequence named MOT20-..., "MOT15" for a gt.txt of 10 columns, else "MOT17" (MOT16 and
+    MOT17 share the classes)."""
+    if name.upper().startswith("MOT20"):
+        return "MOT20"
+    if gt_path is not None and gt_path.is_file() and _first_row_columns(gt_path) == 10:
+        return "MOT15"
+    return "MOT17"
 
 
 def load_sequence(path: str | Path, benchmark: str | None = None) -> MOTSequence:
-    """One sequence folder (module docstring). `benchmark`: "MOT17" or "MOT20"; by default from the name."""
+    """One sequence folder (module docstring). `benchmark`: "MOT15", "MOT17" or "MOT20"; by default from the
+    name and gt.txt (`benchmark_of`)."""
     root = Path(path)
     if not root.is_dir():
         raise DatasetError(f"{root}: no such sequence folder")
     info = read_seqinfo(root / "seqinfo.ini")
+    gt_path = root / "gt" / "gt.txt"
     if benchmark is None:
-        benchmark = benchmark_of(info.name)
+        benchmark = benchmark_of(info.name, gt_path)
     if benchmark not in DISTRACTORS:
         raise ValueError(f"benchmark: expected one of {BENCHMARKS}, got {benchmark!r}")
     dets = read_detections(root / "det" / "det.txt", info.seq_length)
-    gt_path = root / "gt" / "gt.txt"
-    gt = read_ground_truth(gt_path, info.seq_length) if gt_path.is_file() else None
+    gt = read_ground_truth(gt_path, info.seq_length, benchmark) if gt_path.is_file() else None
     return MOTSequence(root, info, benchmark, dets, gt)
 
 

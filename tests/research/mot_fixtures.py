@@ -1,6 +1,7 @@
 """MOTChallenge sequence folders written by the tests, in the benchmark's exact layout.
 
-`write_sequence` writes seqinfo.ini, det/det.txt (10 columns, id -1) and gt/gt.txt (9 columns) of a
+`write_sequence` writes seqinfo.ini, det/det.txt (10 columns, id -1) and gt/gt.txt (9 columns; 8 without
+the visibility; 10 in MOT15's layout, its class replaced by the world coordinates -1, -1, -1) of a
 random sequence whose ground truth mixes pedestrians with distractor classes (person on vehicle,
 static person, distractor, reflection, non-motorized vehicle), other classes (car, occluder) and
 pedestrians with consider flag 0, and whose detections cover all of them with noise, misses and
@@ -83,9 +84,21 @@ def fmt(v: float) -> str:
     return repr(float(v)) if v != int(v) else str(int(v))
 
 
+def _gt_text(gt: np.ndarray, gt_columns: int) -> str:
+    """gt.txt of the 9-column rows `gt` in 9 columns, 8 (no visibility) or MOT15's 10 (no class, x y z = -1)."""
+    if gt_columns == 10:
+        gt = np.concatenate([gt[:, :7], -np.ones((len(gt), 3))], axis=1)
+    elif gt_columns == 8:
+        gt = gt[:, :8]
+    elif gt_columns != 9:
+        raise ValueError(f"gt_columns: expected 8, 9 or 10, got {gt_columns}")
+    return "".join(",".join(fmt(v) for v in r) + "\n" for r in gt)
+
+
 def write_sequence(root: Path, name: str = "MOT17-02-FRCNN", n_frames: int = 30, seed: int = 0,
-                   images: bool = False, width: int = 320, height: int = 240) -> tuple[Path, np.ndarray, np.ndarray]:
-    """Write a sequence folder root/name; returns (folder, gt rows, det rows)."""
+                   images: bool = False, width: int = 320, height: int = 240,
+                   gt_columns: int = 9) -> tuple[Path, np.ndarray, np.ndarray]:
+    """Write a sequence folder root/name; returns (folder, gt rows (9 columns), det rows)."""
     rng = np.random.default_rng(seed)
     seq = root / name
     (seq / "det").mkdir(parents=True, exist_ok=True)
@@ -95,7 +108,7 @@ def write_sequence(root: Path, name: str = "MOT17-02-FRCNN", n_frames: int = 30,
         f"imHeight={height}\nimExt=.jpg\n")
     gt = make_gt(rng, n_frames, width, height)
     dets = make_dets(rng, gt, n_frames)
-    (seq / "gt" / "gt.txt").write_text("".join(",".join(fmt(v) for v in r) + "\n" for r in gt))
+    (seq / "gt" / "gt.txt").write_text(_gt_text(gt, gt_columns))
     (seq / "det" / "det.txt").write_text("".join(",".join(fmt(v) for v in r) + "\n" for r in dets))
     if images:
         import OpenImageIO as oiio

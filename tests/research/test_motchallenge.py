@@ -155,18 +155,22 @@ def _compare(ours: HOTACounts, theirs: dict) -> None:
     np.testing.assert_array_equal(ours.fp, theirs["HOTA_FP"])
 
 
-@pytest.mark.parametrize("benchmark,names", [
-    ("MOT17", ["MOT17-02-FRCNN", "MOT17-04-SDP", "MOT17-05-DPM"]),
-    ("MOT20", ["MOT20-01", "MOT20-03"]),
-], ids=["mot17-three-sequences", "mot20-two-sequences"])
-def test_hota_equals_trackeval(tmp_path, benchmark, names):
+@pytest.mark.parametrize("benchmark,names,gt_columns", [
+    ("MOT17", ["MOT17-02-FRCNN", "MOT17-04-SDP", "MOT17-05-DPM"], 9),
+    ("MOT20", ["MOT20-01", "MOT20-03"], 9),
+    ("MOT15", ["ADL-Rundle-6", "TUD-Campus"], 10),
+    ("MOT17", ["MOT16-02", "MOT16-09"], 8),
+], ids=["mot17-three-sequences", "mot20-two-sequences", "mot15-two-sequences", "mot16-gt-without-visibility"])
+def test_hota_equals_trackeval(tmp_path, benchmark, names, gt_columns):
     """Per sequence and combined, HOTA, DetA, AssA, LocA (and their parts) equal trackeval's to 1e-6
-    after the same distractor preprocessing; TP/FN/FP counts are equal. MOTA and IDF1 (py-motmetrics'
-    definitions) equal trackeval's CLEAR and Identity on these sequences too."""
+    after the same preprocessing (distractors; none for MOT15, whose gt has no classes); TP/FN/FP counts
+    are equal. MOTA and IDF1 (py-motmetrics' definitions) equal trackeval's CLEAR and Identity on these
+    sequences too. The benchmark is detected from the files (MOT15: its 10-column gt.txt)."""
     seqs = {}
     for k, name in enumerate(names):
         n = 25 + 5 * k
-        seq_dir, gt, _ = write_sequence(tmp_path / "gt", name=name, n_frames=n, seed=10 + k)
+        seq_dir, gt, _ = write_sequence(tmp_path / "gt", name=name, n_frames=n, seed=10 + k, gt_columns=gt_columns)
+        assert mc.load_sequence(seq_dir).benchmark == benchmark
         rng = np.random.default_rng(100 + k)
         mc.write_results(tmp_path / "trackers" / "drlab" / "data" / f"{name}.txt", tracker_output(rng, gt, n))
         seqs[name] = n
