@@ -26,7 +26,7 @@ must not crash or drop tracks.
 
 Writes results/mot_tracking/: metrics.json, table.md, tracks.png, recall_vs_visibility.png.
 
-With `--data PATH` naming a MOTChallenge (MOT17/MOT20) sequence folder, or a folder of them such as
+With `--data PATH` naming a MOTChallenge (MOT15/16/17/20) sequence folder, or a folder of them such as
 MOT17/train (research.tracking.motchallenge), it runs SORT, ByteTrack and ByteTrack + appearance on
 each sequence's det/det.txt instead, and scores them with TrackEval's MOTChallenge protocol
 (pedestrians with the consider flag; tracker boxes on distractor classes removed): HOTA, DetA, AssA,
