@@ -441,10 +441,10 @@ def table_markdown(metrics: dict, n_seq: int, n_frames: int, n_obj: int) -> str:
 
 DATA_TRACKERS = ("sort", "bytetrack", "bytetrack_app")
 PROTOCOL = (
-    "TrackEval's MOTChallenge2DBox protocol (the official MOT17/MOT20 evaluation): ground truth of class 1 "
+    "TrackEval's MOTChallenge2DBox protocol (the official MOTChallenge evaluation): ground truth of class 1 "
     "(pedestrian) with consider flag 1; per frame, tracker boxes matched (Hungarian, IoU ≥ 0.5) to a distractor "
     "class (person on vehicle, static person, distractor, reflection; MOT20 also non-motorized vehicle) are "
-    "removed. HOTA, DetA, AssA, LocA: TrackEval's definitions, means over α = 0.05…0.95, combined over "
+    "removed (MOT15 has no classes: every ground-truth box with consider flag 1 is kept, none removed). HOTA, DetA, AssA, LocA: TrackEval's definitions, means over α = 0.05…0.95, combined over "
     "sequences as TrackEval's COMBINED_SEQ. MOTA, IDF1, ID switches, FP, FN: py-motmetrics' definitions at "
     "IoU ≥ 0.5 on the same preprocessed boxes, counts summed over sequences."
 )
