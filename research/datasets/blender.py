@@ -53,6 +53,7 @@ and are re-orthonormalised (the polar factor).
 from __future__ import annotations
 
 import json
+import os
 import math
 from pathlib import Path
 from typing import Any
@@ -85,7 +86,9 @@ def _image_path(root: Path, tpath: Path, index: int, frame: dict[str, Any]) -> P
     fp = frame.get("file_path")
     if not isinstance(fp, str) or not fp:
         raise DatasetError(f"{tpath}: frame {index} has no file_path")
-    p = (root / fp).resolve()
+    # Lexically normalised ("./train/r_0" -> "train/r_0"), not resolved: a root given as a relative path
+    # or through a symbolic link keeps its files under it (content_hash takes them relative to the root).
+    p = Path(os.path.normpath(root / fp))
     if p.suffix.lower() not in (".png", ".jpg", ".jpeg"):
         p = p.with_name(p.name + ".png")
     if not p.is_file():

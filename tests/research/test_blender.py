@@ -120,6 +120,22 @@ def test_content_hash_follows_the_files(tmp_path):
     assert load_blender(tmp_path / "lego").manifest["content_hash"] != h1
 
 
+def test_a_folder_given_by_a_relative_path_or_through_a_link(tmp_path, monkeypatch):
+    """The same dataset (cameras, content hash) whether the folder is named absolutely, relatively or
+    through a symbolic link to it (a data/ folder of links to the datasets is a common layout)."""
+    write_blender(tmp_path / "real" / "lego")
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "lego").symlink_to(tmp_path / "real" / "lego", target_is_directory=True)
+    want = load_blender(tmp_path / "real" / "lego")
+    monkeypatch.chdir(tmp_path)
+    for path in (Path("real/lego"), tmp_path / "data" / "lego", Path("data/lego")):
+        got = load_blender(path)
+        assert got.manifest["content_hash"] == want.manifest["content_hash"], path
+        assert [v.name for v in got.views] == [v.name for v in want.views]
+        np.testing.assert_array_equal(got.views[0].camera.c2w, want.views[0].camera.c2w)
+        np.testing.assert_array_equal(got.load_split("test").rgba, want.load_split("test").rgba)
+
+
 @pytest.mark.timeout(240)
 @pytest.mark.parametrize("experiment", ["fit_splats", "fit_nerf"])
 def test_experiment_smoke_on_a_blender_folder(tmp_path, experiment):
