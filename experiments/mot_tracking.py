@@ -444,7 +444,8 @@ PROTOCOL = (
     "TrackEval's MOTChallenge2DBox protocol (the official MOTChallenge evaluation): ground truth of class 1 "
     "(pedestrian) with consider flag 1; per frame, tracker boxes matched (Hungarian, IoU ≥ 0.5) to a distractor "
     "class (person on vehicle, static person, distractor, reflection; MOT20 also non-motorized vehicle) are "
-    "removed (MOT15 has no classes: every ground-truth box with consider flag 1 is kept, none removed). HOTA, DetA, AssA, LocA: TrackEval's definitions, means over α = 0.05…0.95, combined over "
+    "removed (MOT15 has no classes: every ground-truth box with consider flag 1 is kept, none removed). "
+    "HOTA, DetA, AssA, LocA: TrackEval's definitions, means over α = 0.05…0.95, combined over "
     "sequences as TrackEval's COMBINED_SEQ. MOTA, IDF1, ID switches, FP, FN: py-motmetrics' definitions at "
     "IoU ≥ 0.5 on the same preprocessed boxes, counts summed over sequences."
 )
