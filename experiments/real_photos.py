@@ -268,12 +268,8 @@ def run(ctx: Context) -> int:
 
     args = ctx.args
     cfg = setup(ctx.quick, ctx.smoke)
-    for k, attr in (("iterations", "iterations"), ("resolution", "factor")):
-        v = getattr(args, k)
-        if v is not None:
-            if v < 1:
-                raise ValueError(f"--{k}: expected an integer >= 1, got {v}")
-            cfg = Setup(**{**asdict(cfg), attr: v})
+    cfg = Setup(**{**asdict(cfg), "iterations": ctx.int_option("--iterations", cfg.iterations),
+                   "factor": ctx.int_option("--resolution", cfg.factor)})
     opts = sfm.SfmOptions(shared_camera=True, camera_model="SIMPLE_PINHOLE", threads=args.threads,
                           seed=ctx.seed % 2**31)
     opts.validate()

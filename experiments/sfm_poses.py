@@ -205,11 +205,9 @@ def run(ctx: Context) -> int:
 
     args = ctx.args
     cfg = setup(ctx.quick, ctx.smoke)
-    overrides = {k: getattr(args, k) for k in ("views", "res", "iterations") if getattr(args, k) is not None}
-    for k, v in overrides.items():
-        if v < (8 if k == "views" else 1):
-            raise ValueError(f"--{k}: expected an integer >= {8 if k == 'views' else 1}, got {v}")
-    cfg = Setup(**{**asdict(cfg), **overrides})
+    cfg = Setup(**{**asdict(cfg), "views": ctx.int_option("--views", cfg.views, low=8),
+                   "res": ctx.int_option("--res", cfg.res),
+                   "iterations": ctx.int_option("--iterations", cfg.iterations)})
     if cfg.res % cfg.fit_factor or cfg.res < 16 * cfg.fit_factor:  # splats fit at res / fit_factor >= 16 (SSIM)
         raise ValueError(f"--res: expected a multiple of {cfg.fit_factor}, at least {16 * cfg.fit_factor}, got "
                          f"{cfg.res}")

@@ -340,7 +340,7 @@ def test_smoke_run(name, tmp_path, data_dir):
     print(f"{name} --smoke: {seconds:.1f} s")
 
 
-@pytest.mark.parametrize("name", ["splat_geometry", "splat_appearance", "fit_splats", "lens_distortion"])
+@pytest.mark.parametrize("name", ["splat_geometry", "splat_appearance", "fit_splats", "lens_distortion", "real_photos"])
 def test_bad_iterations_are_refused_in_one_line_before_any_work(name, tmp_path):
     r = _run(["-m", f"experiments.{name}", "--smoke", "--no-progress", "--iterations", "0", "--out",
               str(tmp_path / "out"), "--data", str(tmp_path / "data")])
