@@ -89,8 +89,7 @@ def run(ctx: Context) -> int:
     S = merged_sizes(families, ctx.mode)
     ctx.write_results(config={"mode": ctx.mode, "sizes": {k: list(v) if isinstance(v, tuple) else v
                                                           for k, v in S.items()}},
-                      metrics={"cases": metrics, "worst_float64_rel": worst64}, table_md=table, device="cpu",
-                      record_quick=False)
+                      metrics={"cases": metrics, "worst_float64_rel": worst64}, table_md=table, device="cpu")
     return 0
 
 

@@ -282,20 +282,15 @@ class Context:
         self._after.append(fn)
 
     def write_results(self, *, config: dict[str, Any], metrics: dict[str, Any], table_md: str,
-                      device: str | None = None, compare: bool = False, record_quick: bool = True) -> Path:
+                      device: str | None = None, compare: bool = False) -> Path:
         """metrics.json (with provenance and wall time so far) and table.md, into `out`; prints the table.
 
-        The recorded config is `config` after `"quick": ctx.quick` (unless `record_quick` is False: a
-        config that names its size otherwise, such as oracle_conformance's "mode"), with `"smoke": true`
-        last on a smoke run.
+        The recorded config is `config` after `"quick": ctx.quick`, with `"smoke": true` last on a smoke run.
 
         `compare`: after a full run, refresh the comparison table of the results root
         (research.comparison), once the folder is in place (it reads this run's metrics.json).
         """
-        if record_quick:
-            config = {"quick": self.quick, **config}
-        if self.smoke:
-            config = {**config, "smoke": True}
+        config = {"quick": self.quick, **config, **({"smoke": True} if self.smoke else {})}
         path = results.write_results(self.out, experiment=self.name, config=config, seed=self.seed,
                                      device=device or self.device, wall_time_s=self.elapsed(), metrics=metrics,
                                      table_md=table_md)

@@ -256,7 +256,7 @@ def run_benchmark(ctx: Context, fmt: str) -> int:
               "drlab_volume_peak_bytes": peak,
               "image_sizes": res, "disparity_ranges": dranges, "protocol": PROTOCOL_NAMES[fmt],
               "opencv": cv2.__version__, "drlab_threads": default_threads(), "opencv_threads": cv2.getNumThreads()}
-    ctx.write_results(config=config, table_md=table, record_quick=False,
+    ctx.write_results(config=config, table_md=table,
                       metrics={"benchmark": fmt, "protocol": PROTOCOL_NAMES[fmt], "methods": results})
     return 0
 
