@@ -53,8 +53,8 @@ and are re-orthonormalised (the polar factor).
 from __future__ import annotations
 
 import json
-import os
 import math
+import os
 from pathlib import Path
 from typing import Any
 

@@ -184,6 +184,15 @@ def read_seqinfo(path: str | Path) -> SeqInfo:
 # --------------------------------------------------------------------------- text files
 
 
+def _tokens(line: str) -> list[str]:
+    """The columns of one non-blank row: comma-separated (spaces around the commas and one trailing comma
+    allowed), or whitespace-separated when the row has no comma, as TrackEval's reader takes them."""
+    toks = [t.strip() for t in line.split(",")] if "," in line else line.split()
+    if len(toks) > 1 and toks[-1] == "":  # a trailing comma, which TrackEval drops too
+        toks.pop()
+    return toks
+
+
 def _read_table(path: Path, columns: Seq[str], min_cols: int, max_cols: int, n_frames: int,
                 what: str, fill: float = -1.0) -> tuple[np.ndarray, np.ndarray]:
     """Rows of a MOTChallenge text file as float64 (N, max_cols), optional trailing columns that a row
@@ -196,9 +205,7 @@ def _read_table(path: Path, columns: Seq[str], min_cols: int, max_cols: int, n_f
             s = line.strip()
             if not s:
                 continue
-            toks = [t.strip() for t in s.split(",")] if "," in s else s.split()
-            if len(toks) > 1 and toks[-1] == "":  # a trailing comma, which TrackEval drops too
-                toks.pop()
+            toks = _tokens(s)
             if not (min_cols <= len(toks) <= max_cols):
                 span = f"{min_cols}" if min_cols == max_cols else f"{min_cols} to {max_cols}"
                 raise DatasetError(f"{path}:{lineno}: expected {span} comma-separated columns "
@@ -294,8 +301,7 @@ def _first_row_columns(path: Path) -> int:
         for line in f:
             s = line.strip()
             if s:
-                toks = [t.strip() for t in s.split(",")] if "," in s else s.split()
-                return len(toks) - (len(toks) > 1 and toks[-1] == "")
+                return len(_tokens(s))
     return 0
 
 

@@ -284,21 +284,17 @@ def test_pfm_bad_input_and_files(tmp_path):
 
     with pytest.raises(FileNotFoundError, match="missing.pfm"):
         rio.read_pfm(tmp_path / "missing.pfm")
-    (tmp_path / "bad.pfm").write_bytes(b"P6\n3 2\n255\n" + bytes(18))
-    with pytest.raises(ValueError, match="bad.pfm"):
-        rio.read_pfm(tmp_path / "bad.pfm")
-    (tmp_path / "short.pfm").write_bytes(b"Pf\n3 2\n-1.0\n" + bytes(20))
-    with pytest.raises(ValueError, match="short.pfm.*24 bytes"):
-        rio.read_pfm(tmp_path / "short.pfm")
-    (tmp_path / "junk.pfm").write_bytes(b"Pf\nthree two\n-1\n")
-    with pytest.raises(ValueError, match="junk.pfm"):
-        rio.read_pfm(tmp_path / "junk.pfm")
-    (tmp_path / "nonl.pfm").write_bytes(b"Pf\n3 2\n-1.0X" + bytes(23))
-    with pytest.raises(ValueError, match="nonl.pfm: corrupt PFM header .expected one newline"):
-        rio.read_pfm(tmp_path / "nonl.pfm")
-    (tmp_path / "cut.pfm").write_bytes(b"Pf\n3 2\n")
-    with pytest.raises(ValueError, match="cut.pfm: corrupt PFM header"):
-        rio.read_pfm(tmp_path / "cut.pfm")
+    bad_files = [  # (name, bytes, what the error says after the name)
+        ("bad", b"P6\n3 2\n255\n" + bytes(18), ""),
+        ("short", b"Pf\n3 2\n-1.0\n" + bytes(20), ".*24 bytes"),
+        ("junk", b"Pf\nthree two\n-1\n", ""),
+        ("nonl", b"Pf\n3 2\n-1.0X" + bytes(23), ": corrupt PFM header .expected one newline"),
+        ("cut", b"Pf\n3 2\n", ": corrupt PFM header"),
+    ]
+    for name, raw, message in bad_files:
+        (tmp_path / f"{name}.pfm").write_bytes(raw)
+        with pytest.raises(ValueError, match=f"{name}.pfm{message}"):
+            rio.read_pfm(tmp_path / f"{name}.pfm")
 
 
 # ----------------------------------------------------------------------------- .flo
