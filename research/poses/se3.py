@@ -205,13 +205,18 @@ def matrix_to_quat(R: Any) -> np.ndarray:
 def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """(timestamps (N,), camera-to-world poses (N, 4, 4)) of a TUM trajectory file.
 
-    Raises ValueError naming the file and line for a line without 8 numbers, a non-finite value,
-    a quaternion whose norm is not 1 (to 1e-3; it is then normalised), or timestamps that do not
-    increase, and for a file without poses.
+    Reads what evo's `read_tum_trajectory_file` reads: the poses stay in the file's order, so
+    timestamps that repeat or go back are kept as they stand; a quaternion of any non-zero norm is
+    normalised (evo and the TUM benchmark's evaluate_rpe do the same); a UTF-8 byte-order mark is
+    skipped. Also takes the tabs, commas and CRLF that the benchmark's own read_file_list accepts.
+
+    Raises ValueError naming the file and line for a line without 8 numbers, a non-finite value or
+    a zero quaternion (evo would read it as the identity; it holds no rotation), and for a file
+    without poses.
     """
     path = os.fspath(path)
     stamps, poses = [], []
-    with open(path, encoding="utf-8") as f:
+    with open(path, encoding="utf-8-sig") as f:
         for lineno, line in enumerate(f, 1):
             text = line.split("#", 1)[0].strip()
             if not text:
@@ -228,10 +233,9 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
                 raise ValueError(f"{where}: expected finite numbers, got {text[:60]!r}")
             q = np.array(vals[4:])
             norm = float(np.linalg.norm(q))
-            if abs(norm - 1.0) > 1e-3:
-                raise ValueError(f"{where}: quaternion (qx qy qz qw) has norm {norm:.6g}, expected 1 (not a rotation)")
-            if stamps and not vals[0] > stamps[-1]:
-                raise ValueError(f"{where}: timestamp {vals[0]} does not increase (previous {stamps[-1]})")
+            if not norm > 1e-12:
+                raise ValueError(f"{where}: quaternion (qx qy qz qw) has norm {norm:.6g}, expected a non-zero "
+                                 "quaternion (a rotation)")
             T = np.eye(4)
             T[:3, :3] = quat_to_matrix(q / norm)
             T[:3, 3] = vals[1:4]

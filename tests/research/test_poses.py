@@ -107,6 +107,22 @@ def test_tum_round_trip_through_evo(tmp_path):
     np.testing.assert_allclose(c2w2, ref, atol=1e-14)
 
 
+def test_tum_file_that_evo_reads_is_read_the_same(tmp_path):
+    """evo's reader keeps a file's order (timestamps that go back or repeat), normalises quaternions of
+    any norm and skips a byte-order mark: drlab reads such a file to the same stamps and poses."""
+    rng = np.random.default_rng(11)
+    lines = []
+    for k, t in enumerate([3.0, 1.0, 2.0, 2.0, 0.5]):
+        q = rng.normal(size=4) * rng.uniform(0.2, 3.0)  # norms far from 1
+        lines.append(" ".join(repr(float(v)) for v in [t, *rng.normal(size=3), *q]))
+    path = tmp_path / "unsorted.txt"
+    path.write_bytes(("\ufeff# timestamp tx ty tz qx qy qz qw\n" + "\n".join(lines) + "\n").encode("utf-8"))
+    t = evo_files.read_tum_trajectory_file(str(path))
+    stamps, c2w = P.read_tum(path)
+    np.testing.assert_array_equal(stamps, t.timestamps)
+    np.testing.assert_allclose(c2w, np.array(t.poses_se3), rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("align,scale", [("none", 1.0), ("se3", 1.0), ("sim3", 1.0), ("sim3", 0.37)])
 def test_ate_matches_evo(align, scale):
     ref = _trajectory(40, 3)

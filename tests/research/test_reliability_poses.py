@@ -56,10 +56,8 @@ def test_bad_input_raises_one_line(fn, args, kwargs, message, tmp_path, monkeypa
 TUM_CASES = [
     ("seven-numbers", "0 1 2 3 0 0 0\n", r"t\.txt:1: expected 8 numbers"),
     ("text-field", "# header\n0 1 2 3 0 0 0 x\n", r"t\.txt:2: expected 8 numbers"),
-    ("not-unit-quaternion", "0 1 2 3 0 0 0 2\n", r"t\.txt:1: quaternion \(qx qy qz qw\) has norm 2, expected 1 \(not a rotation\)"),
-    ("zero-quaternion", "0 1 2 3 0 0 0 0\n", r"t\.txt:1: quaternion .* has norm 0"),
+    ("zero-quaternion", "0 1 2 3 0 0 0 0\n", r"t\.txt:1: quaternion \(qx qy qz qw\) has norm 0, expected a non-zero"),
     ("nan", "0 nan 2 3 0 0 0 1\n", r"t\.txt:1: expected finite numbers"),
-    ("time-goes-back", "1 0 0 0 0 0 0 1\n0.5 0 0 0 0 0 0 1\n", r"t\.txt:2: timestamp 0.5 does not increase"),
     ("empty", "# nothing\n\n", r"t\.txt: no poses"),
 ]
 
