@@ -30,7 +30,10 @@ KITTI 2012 / 2015 stereo: the `training` folder (or its parent):
   * ground truth `disp_occ_0` and `disp_noc_0` (2015) or `disp_occ` and `disp_noc` (2012), 16-bit
     grey PNG, disparity = value / 256, 0 = invalid; `disp_occ` is the "all" mask, `disp_noc` the
     non-occluded one;
-  * optional `obj_map/<id>_10.png` (2015, 8-bit): > 0 marks the foreground objects, for D1-fg/bg;
+  * optional `obj_map/<id>_10.png` (2015): > 0 marks the foreground objects, for D1-fg/bg. It is
+    read as the devkit reads it (png++'s gray_pixel image over libpng): a palette or RGB image by
+    libpng's luminance (`_devkit_gray`), 16-bit grey cut to its high byte, alpha dropped; a 16-bit
+    colour map is refused;
   * optional calibration, `calib_cam_to_cam/<id>.txt` (2015: `P_rect_02`, `P_rect_03`) or
     `calib/<id>.txt` (2012: `P0`..`P3`); the focal length and baseline come from the projection
     matrices (baseline = (P_left[0, 3] - P_right[0, 3]) / f, metres). Without it the pair has no
@@ -211,6 +214,34 @@ def _read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
     if m.shape != shape:
         raise DatasetError(f"{path}: expected a {shape[1]}x{shape[0]} mask like im0.png, got {m.shape[1]}x{m.shape[0]}")
     return m
+
+
+# libpng's rgb_to_gray weights (1.6, no cHRM chunk), in 1/32768: gray = (r R + g G + b B) >> 15
+_LIBPNG_GRAY_WEIGHTS = (6968, 23434, 2366)
+
+
+def _devkit_gray(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """The 8-bit grey image that png++'s `image<gray_pixel>` reads from the PNG at `path` (the KITTI
+    devkit's IntegerImage): alpha stripped, R = G = B kept as it is, other colours (a palette is
+    expanded to its RGB entries) by libpng's truncated integer luminance, 16-bit grey cut to its
+    high byte. A 16-bit colour PNG is refused: libpng converts it through gamma tables that this
+    does not reproduce."""
+    raw = read_or_fail(io.read_png_raw, path)
+    m = raw.astype(np.int64)
+    if m.shape[2] in (2, 4):
+        m = m[..., :-1]
+    if m.shape[2] == 3:
+        if raw.dtype == np.uint16:
+            raise DatasetError(f"{path}: a 16-bit colour object map; expected an 8-bit or a grey PNG")
+        r, g, b = m[..., 0], m[..., 1], m[..., 2]
+        wr, wg, wb = _LIBPNG_GRAY_WEIGHTS
+        m = np.where((r == g) & (r == b), r, (wr * r + wg * g + wb * b) >> 15)[..., None]
+    m = m[..., 0]
+    if raw.dtype == np.uint16:
+        m = m >> 8
+    if m.shape != shape:
+        raise DatasetError(f"{path}: expected a {shape[1]}x{shape[0]} mask like im0.png, got {m.shape[1]}x{m.shape[0]}")
+    return m.astype(np.uint8)
 
 
 def _same_size(path: Path, img: np.ndarray, shape: tuple[int, int], what: str) -> None:
@@ -420,7 +451,7 @@ def load_kitti(path: str | Path) -> list[StereoPair]:
         fg = None
         obj = root / "obj_map" / name
         if obj.is_file():
-            fg = _read_mask(obj, shape) > 0
+            fg = _devkit_gray(obj, shape) > 0
         left_cam = right_cam = None
         baseline, depth = float("nan"), np.zeros(shape, np.float32)
         if calib_dir is not None:

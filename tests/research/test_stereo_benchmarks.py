@@ -166,6 +166,77 @@ def test_kitti_round_trip(tmp_path, version):
         assert p.depth[tuple(k)] == pytest.approx(fx.KITTI_B * fx.KITTI_F / p.disparity[tuple(k)], rel=1e-6)
 
 
+def _object_maps(folder: Path, shape: tuple[int, int]) -> list[Path]:
+    """Object maps in every PNG form png++'s gray_pixel image takes, written by Pillow: palette (with
+    and without a transparent entry), RGB, RGBA, grey, grey + alpha, 16-bit grey and 1-bit."""
+    from PIL import Image
+
+    rng = np.random.default_rng(5)
+    index = rng.integers(0, 6, shape).astype(np.uint8)
+    # black, red, blues just below and at libpng's luminance threshold (2366 b >> 15 > 0 from b = 14), grey
+    palette = [0, 0, 0, 255, 0, 0, 0, 0, 13, 0, 0, 14, 1, 1, 1, 3, 0, 0]
+    rgb = rng.integers(0, 20, (*shape, 3)).astype(np.uint8)
+    rgb[rng.random(shape) < 0.3] = 0
+    grey = rng.integers(0, 3, shape).astype(np.uint8)
+    grey16 = (rng.integers(0, 3, shape) * rng.choice([1, 256, 300], shape)).astype(np.int32)
+    images = {"palette": Image.fromarray(index, "P"), "palette-trns": Image.fromarray(index, "P"),
+              "rgb": Image.fromarray(rgb, "RGB"), "rgba": Image.fromarray(np.dstack([rgb, grey * 100]), "RGBA"),
+              "grey": Image.fromarray(grey, "L"), "grey-alpha": Image.fromarray(np.dstack([grey, grey]), "LA"),
+              "grey16": Image.fromarray(grey16, "I").convert("I;16"), "1-bit": Image.fromarray(grey > 0)}
+    paths = []
+    for name, image in images.items():
+        if image.mode == "P":
+            image.putpalette(palette)
+        path = folder / f"{name}.png"
+        image.save(path, **({"transparency": 2} if name == "palette-trns" else {}))
+        paths.append(path)
+    return paths
+
+
+def test_kitti_object_map_in_palette_form(tmp_path):
+    """A palette obj_map marks as foreground the pixels whose colour has a non-zero libpng luminance,
+    as the devkit's png++ reader sees them; an RGB one the same."""
+    from PIL import Image
+
+    fx.kitti_folder(tmp_path, 2015, ids=("000000",))
+    (grey,) = load_kitti(tmp_path)
+    index = np.zeros((fx.H, fx.W), np.uint8)
+    index[6:18, 14:30] = 1   # the fixture's objects, in red
+    index[0:3, 0:5] = 2      # blue 13: luminance 2366 * 13 >> 15 = 0, background for the devkit
+    index[20:, 40:] = 3      # blue 14: luminance 1, foreground
+    image = Image.fromarray(index, "P")
+    image.putpalette([0, 0, 0, 255, 0, 0, 0, 0, 13, 0, 0, 14])
+    image.save(tmp_path / "training" / "obj_map" / "000000_10.png")
+    (p,) = load_kitti(tmp_path)
+    expect = grey.foreground.copy()
+    expect[20:, 40:] = True
+    np.testing.assert_array_equal(p.foreground, expect)
+    image.convert("RGB").save(tmp_path / "training" / "obj_map" / "000000_10.png")
+    np.testing.assert_array_equal(load_kitti(tmp_path)[0].foreground, expect)
+
+
+def test_kitti_object_map_read_as_libpng_reads_it(tmp_path):
+    """Every PNG form of an object map reads to the grey values that libpng gives with png++'s
+    gray_pixel transforms (tests/research/libpng_gray.c, built here with the system's libpng)."""
+    import shutil
+
+    from research.datasets.stereo_benchmarks import _devkit_gray
+
+    source = Path(__file__).with_name("libpng_gray.c")
+    exe = tmp_path / "libpng_gray"
+    if shutil.which("cc") is None or not Path("/usr/include/png.h").is_file():
+        pytest.skip("no C compiler or libpng headers to build the libpng reference")
+    build = subprocess.run(["cc", str(source), "-o", str(exe), "-lpng16"], capture_output=True, text=True)
+    if build.returncode != 0:
+        pytest.skip(f"libpng reference did not build: {build.stderr.strip()[:200]}")
+    shape = (7, 9)
+    for path in _object_maps(tmp_path, shape):
+        out = subprocess.run([str(exe), str(path)], capture_output=True, text=True, check=True).stdout.split()
+        assert [int(v) for v in out[:2]] == [shape[1], shape[0]]
+        np.testing.assert_array_equal(_devkit_gray(path, shape), np.array(out[2:], int).reshape(shape),
+                                      err_msg=path.name)
+
+
 def test_kitti_without_calibration_and_non_integer_disparities(tmp_path):
     fx.kitti_folder(tmp_path, 2015, ids=("000007",), calib=False)
     raw = np.full((fx.H, fx.W), 3 * 256 + 77, np.uint16)  # 3.30078125 px
