@@ -258,12 +258,7 @@ def prepare(ctx: Context, cfg: Setup) -> Prepared:
         points, colors = sm.points_from_depth(train_split.cameras, train_split.rgba, train_split.depth,
                                               cfg.init_points, ctx.seed)
     elif init == "sfm":
-        from research.io import srgb_to_linear
-
-        points, colors = ds.points, srgb_to_linear(ds.point_colors)
-        if len(points) > cfg.max_gaussians:
-            keep = np.sort(np.random.default_rng(ctx.seed).choice(len(points), cfg.max_gaussians, replace=False))
-            points, colors = points[keep], colors[keep]
+        points, colors = sm.points_from_sfm(ds.points, ds.point_colors, cfg.max_gaussians, ctx.seed)
     elif init == "frustum":
         bounds = ds.near_far[[i for i, v in enumerate(ds.views) if v.split == splits[0]]]
         points, colors = sm.points_in_frusta(train_split.cameras, train_split.rgba, bounds, cfg.init_points, ctx.seed)

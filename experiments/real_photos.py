@@ -264,7 +264,7 @@ def run(ctx: Context) -> int:
     from research.poses.align import pose_errors
     from research.datasets import formats, load_colmap
     from research.datasets.middlebury_mview import box_mask, load_middlebury_mview, read_object_box, scene_radius
-    from research.io import srgb_to_linear
+    from research.splats import model as sm
 
     args = ctx.args
     cfg = setup(ctx.quick, ctx.smoke)
@@ -321,10 +321,7 @@ def run(ctx: Context) -> int:
     cal_train, cal_test = train_split.cameras, test_split.cameras
     sfm_train = small([est[v.name] for v in train_views], cfg.factor)
     sfm_test = small([est[v.name] for v in test_views], cfg.factor)
-    points, colors = sds.points, srgb_to_linear(sds.point_colors)
-    if len(points) > cfg.max_gaussians:
-        keep = np.sort(np.random.default_rng(ctx.seed).choice(len(points), cfg.max_gaussians, replace=False))
-        points, colors = points[keep], colors[keep]
+    points, colors = sm.points_from_sfm(sds.points, sds.point_colors, cfg.max_gaussians, ctx.seed)
     fit_cal, ev_cal = fit(ctx, cfg, pe.sim3.apply(points), colors, cal_train, train_rgb, cal_test, test_rgb,
                           "calibrated")
     fit_sfm, ev_sfm = fit(ctx, cfg, points, colors, sfm_train, train_rgb, sfm_test, test_rgb, "SfM")

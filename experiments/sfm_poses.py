@@ -201,7 +201,7 @@ def run(ctx: Context) -> int:
     from research.poses import sfm
     from research.poses.align import pose_errors
     from research.datasets import formats, load_colmap
-    from research.io import srgb_to_linear
+    from research.splats import model as sm
 
     args = ctx.args
     cfg = setup(ctx.quick, ctx.smoke)
@@ -242,10 +242,7 @@ def run(ctx: Context) -> int:
     sfm_test_c, test_small = downscaled(test_split.cameras, test_rgb, f)
     gt_train_c, _ = downscaled(gt_train, train_rgb, f)
     gt_test_c, _ = downscaled(gt_test, test_rgb, f)
-    points, colors = ds.points, srgb_to_linear(ds.point_colors)
-    if len(points) > cfg.max_gaussians:
-        keep = np.sort(np.random.default_rng(ctx.seed).choice(len(points), cfg.max_gaussians, replace=False))
-        points, colors = points[keep], colors[keep]
+    points, colors = sm.points_from_sfm(ds.points, ds.point_colors, cfg.max_gaussians, ctx.seed)
     fit_sfm, ev_sfm = fit(ctx, cfg, points, colors, sfm_train_c, train_small, sfm_test_c, test_small, "SfM")
     fit_gt, ev_gt = fit(ctx, cfg, pe.sim3.apply(points), colors, gt_train_c, train_small, gt_test_c, test_small,
                         "ground-truth")

@@ -136,6 +136,19 @@ def points_from_depth(cameras: list[Camera], rgba: np.ndarray, depth: np.ndarray
     return points, colors
 
 
+def points_from_sfm(points: np.ndarray, colors_srgb: np.ndarray, max_points: int,
+                    seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """SfM points with their colours, sRGB-encoded, decoded to linear RGB; a random subset of `max_points`,
+    kept in the points' order."""
+    from research.io import srgb_to_linear
+
+    colors = srgb_to_linear(colors_srgb)
+    if len(points) > max_points:
+        keep = np.sort(np.random.default_rng(seed).choice(len(points), max_points, replace=False))
+        points, colors = points[keep], colors[keep]
+    return points, colors
+
+
 def random_points(bbox: np.ndarray, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """`n` points uniform in the box (2, 3) with uniform random colours (3DGS's synthetic-scene init)."""
     bbox = np.asarray(bbox, dtype=np.float64)

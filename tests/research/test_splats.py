@@ -181,6 +181,20 @@ def test_points_from_depth_and_random_points():
     assert np.all(pts >= box[0]) and np.all(pts <= box[1]) and cols.shape == (200, 3)
 
 
+def test_points_from_sfm_decodes_srgb_and_keeps_a_subset_in_order():
+    from research.io import srgb_to_linear
+
+    pts = np.arange(30.0).reshape(10, 3)
+    srgb = np.linspace(0.0, 1.0, 30).reshape(10, 3)
+    same, cols = sm.points_from_sfm(pts, srgb, 10, 0)
+    assert same is pts
+    np.testing.assert_array_equal(cols, srgb_to_linear(srgb))
+    kept, kept_cols = sm.points_from_sfm(pts, srgb, 4, 0)
+    rows = (kept[:, 0] // 3).astype(int)
+    assert len(kept) == 4 and np.all(np.diff(rows) > 0)
+    np.testing.assert_array_equal(kept_cols, srgb_to_linear(srgb)[rows])
+
+
 # --------------------------------------------------------------------------- Adam and schedules
 
 
