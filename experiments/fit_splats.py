@@ -82,7 +82,7 @@ def setup_sizes(full_time: str) -> str:
 
 def train_record(tcfg) -> dict[str, Any]:
     """A TrainConfig as the plain dict that metrics.json records (its config or a model's entry)."""
-    return {k: (asdict(v) if hasattr(v, "__dataclass_fields__") else v) for k, v in asdict(tcfg).items()}
+    return asdict(tcfg)  # nested dataclasses (densify, MCMC) become dicts too
 
 
 def renders_figure(gt: np.ndarray, renders: np.ndarray, per_view: list[dict], path: Path, n: int = 4,
