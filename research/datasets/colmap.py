@@ -16,11 +16,18 @@ no undistortion step: the splat projection and the ray generator take the lens.
     RADIAL           f, cx, cy, k1, k2                      opencv (k1, k2)
     OPENCV           fx, fy, cx, cy, k1, k2, p1, p2         opencv (k1, k2, p1, p2; k3 = 0)
     OPENCV_FISHEYE   fx, fy, cx, cy, k1, k2, k3, k4         fisheye (k1, k2, k3, k4)
+    SIMPLE_RADIAL_FISHEYE  f, cx, cy, k                     fisheye (k1 = k)
+    RADIAL_FISHEYE   f, cx, cy, k1, k2                      fisheye (k1, k2)
+    SIMPLE_FISHEYE   f, cx, cy                              fisheye (no coefficients)
+    FISHEYE          fx, fy, cx, cy                         fisheye (no coefficients)
 
 COLMAP's formulas for these are OpenCV's (tests hold kernels/reference/lens.py to pycolmap's
-img_from_cam / cam_from_img). SIMPLE_RADIAL, RADIAL and OPENCV with every coefficient exactly 0 are
-pinholes (no lens is attached, so they take the pinhole path as before). Any other model is refused
-by name.
+img_from_cam / cam_from_img); its other fisheyes are the same equidistant model
+theta_d = theta (1 + k1 theta^2 + k2 theta^4 + ...) with fewer terms (the radial two as nerfstudio
+reads them; SIMPLE_FISHEYE and FISHEYE, pycolmap 3.12 on, with none).
+SIMPLE_RADIAL, RADIAL and OPENCV with every coefficient exactly 0 are pinholes (no lens is attached,
+so they take the pinhole path as before); a fisheye stays one at 0. Any other model (FULL_OPENCV's
+rational terms, FOV, the thin-prism fisheyes) is refused by name.
 
 Poses: COLMAP stores world-to-camera (cam_from_world: x_cam = R x_world + t) in the OpenCV camera
 frame (+x right, +y down, +z forward), drlab's own, so the OpenCV camera-to-world is its inverse,
@@ -57,7 +64,8 @@ from research.datasets.integrity import DatasetError
 from research.datasets.loader import Dataset, Protocol, Split, View, _image_size
 
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
-LENS_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "OPENCV_FISHEYE")
+FISHEYE_MODELS = ("OPENCV_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "SIMPLE_FISHEYE", "FISHEYE")
+LENS_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV") + FISHEYE_MODELS
 MIPNERF360_OUTDOOR = ("bicycle", "flowers", "garden", "stump", "treehill")
 MIPNERF360_INDOOR = ("room", "counter", "kitchen", "bonsai")
 LLFFHOLD = external.LLFFHOLD
@@ -141,16 +149,17 @@ def camera_model(camera, cams_file: Path) -> tuple[np.ndarray, Lens | None]:
     DatasetError naming the model."""
     name = camera.model.name
     p = np.asarray(camera.params, dtype=np.float64)
-    if name in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+    if name in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE",
+                "SIMPLE_FISHEYE"):
         f, cx, cy, dist = p[0], p[1], p[2], p[3:]
         fx = fy = f
-    elif name in ("PINHOLE", "OPENCV", "OPENCV_FISHEYE"):
+    elif name in ("PINHOLE", "OPENCV", "OPENCV_FISHEYE", "FISHEYE"):
         fx, fy, cx, cy, dist = p[0], p[1], p[2], p[3], p[4:]
     else:
         raise DatasetError(f"{cams_file}: camera {camera.camera_id}: camera model {name} is not supported "
                            f"(expected one of {', '.join(PINHOLE_MODELS + LENS_MODELS)})")
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    if name == "OPENCV_FISHEYE":
+    if name in FISHEYE_MODELS:
         return K, Lens("fisheye", tuple(dist))
     if len(dist) and np.any(dist != 0.0):
         return K, Lens("opencv", tuple(dist))

@@ -71,11 +71,16 @@ def test_reference_matches_opencv_fisheye():
     ("RADIAL", [300.0, 160.0, 120.0, -0.15, 0.04], Lens("opencv", (-0.15, 0.04))),
     ("OPENCV", [300.0, 310.0, 160.0, 120.0, -0.2, 0.05, 0.001, -0.002], Lens("opencv", OPENCV[:4])),
     ("OPENCV_FISHEYE", [300.0, 310.0, 160.0, 120.0, *FISHEYE], Lens("fisheye", FISHEYE)),
+    ("SIMPLE_RADIAL_FISHEYE", [300.0, 160.0, 120.0, FISHEYE[0]], Lens("fisheye", FISHEYE[:1])),
+    ("RADIAL_FISHEYE", [300.0, 160.0, 120.0, *FISHEYE[:2]], Lens("fisheye", FISHEYE[:2])),
+    ("SIMPLE_FISHEYE", [300.0, 160.0, 120.0], Lens("fisheye")),
+    ("FISHEYE", [300.0, 310.0, 160.0, 120.0], Lens("fisheye")),
 ])
 def test_reference_matches_colmap(model, params, lens):
     cam = pycolmap.Camera(model=model, width=320, height=240, params=params)
-    f = params[:2] if model.startswith("OPENCV") else [params[0], params[0]]
-    c = params[2:4] if model.startswith("OPENCV") else params[1:3]
+    two_focal = model in ("OPENCV", "OPENCV_FISHEYE", "FISHEYE")
+    f = params[:2] if two_focal else [params[0], params[0]]
+    c = params[2:4] if two_focal else params[1:3]
     Kc = np.array([[f[0], 0.0, c[0]], [0.0, f[1], c[1]], [0.0, 0.0, 1.0]])
     p = _points(2, spread=0.6)
     uv, ok = ref.pixels(lens, Kc, p)

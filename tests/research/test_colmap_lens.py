@@ -1,4 +1,5 @@
-"""COLMAP models with lens distortion (SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE) read as they are:
+"""COLMAP models with lens distortion (SIMPLE_RADIAL, RADIAL, OPENCV and the fisheyes OPENCV_FISHEYE,
+SIMPLE_RADIAL_FISHEYE, RADIAL_FISHEYE, SIMPLE_FISHEYE, FISHEYE) read as they are:
 fixtures written by pycolmap's own writer, binary and text; the cameras carry the lens and project
 as COLMAP does; a distorted folder trains through its lens with no undistortion step."""
 
@@ -25,6 +26,10 @@ MODELS = {  # params of a 32x24 camera, and the lens drlab should read
     "OPENCV": ([30.0, 31.0, 16.5, 11.5, -0.12, 0.03, 0.002, -0.001], Lens("opencv", (-0.12, 0.03, 0.002, -0.001))),
     "OPENCV_FISHEYE": ([30.0, 31.0, 16.5, 11.5, 0.05, -0.01, 0.002, -0.0005], Lens("fisheye", (0.05, -0.01, 0.002,
                                                                                              -0.0005))),
+    "SIMPLE_RADIAL_FISHEYE": ([30.0, 16.0, 12.0, 0.04], Lens("fisheye", (0.04,))),
+    "RADIAL_FISHEYE": ([30.0, 16.5, 11.5, 0.04, -0.008], Lens("fisheye", (0.04, -0.008))),
+    "SIMPLE_FISHEYE": ([30.0, 16.0, 12.0], Lens("fisheye")),
+    "FISHEYE": ([30.0, 31.0, 16.5, 11.5], Lens("fisheye")),
 }
 
 
@@ -78,13 +83,13 @@ def test_zero_distortion_is_a_pinhole_and_a_fisheye_is_not(tmp_path):
 @pytest.mark.parametrize("model,params", [("FULL_OPENCV", [30.0, 31.0, 16.5, 11.5] + [0.01] * 8),
                                           ("FOV", [30.0, 31.0, 16.5, 11.5, 0.9]),
                                           ("THIN_PRISM_FISHEYE", [30.0, 31.0, 16.5, 11.5] + [0.01] * 8),
-                                          ("SIMPLE_RADIAL_FISHEYE", [30.0, 16.0, 12.0, 0.01])])
+                                          ("RAD_TAN_THIN_PRISM_FISHEYE", [30.0, 31.0, 16.5, 11.5] + [0.01] * 12)])
 @pytest.mark.parametrize("text", [False, True], ids=["binary", "text"])
 def test_other_models_are_refused_by_name(tmp_path, model, params, text):
     write_model(tmp_path / "s", model, params, text=text)
     ext = "txt" if text else "bin"
     with pytest.raises(DatasetError, match=rf"cameras\.{ext}: camera 1: camera model {model} is not supported "
-                                           r"\(expected one of .*OPENCV_FISHEYE\)"):
+                                           r"\(expected one of SIMPLE_PINHOLE, .*, SIMPLE_FISHEYE, FISHEYE\)"):
         load_colmap(tmp_path / "s", factor=1)
 
 
