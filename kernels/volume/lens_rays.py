@@ -30,12 +30,12 @@ from __future__ import annotations
 import typing
 from typing import Any
 
-import numpy as np
 import warp as wp
 
 from kernels import _arrays as A
 from kernels.lens import Lens, check_lens, lens_unproject, lens_unproject_vjp
-from kernels.volume.rays import CameraGrad, _camera_arrays, check_camera, rotate_row, store_camera_row
+from kernels.volume.rays import (_camera_arrays, _camera_grad, _ray_cotangents, check_camera, rotate_row,
+                                 store_camera_row)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -136,15 +136,9 @@ def lens_rays_backward(w2c: Any, intrinsics: Any, lens: Any, pixels: A.ArrayLike
     px = a.floats("pixels", pixels, (None, 2))
     model, lens_arr = _lens_inputs(a, lens)
     n = px.shape[0]
-    go, gd = (a.zeros((n, 3)) if g is None else a.floats(name, g, (n, 3))
-              for name, g in (("grad_origins", grad_origins), ("grad_dirs", grad_dirs)))
-    gz = a.zeros(n) if grad_z_scale is None else a.floats("grad_z_scale", grad_z_scale, (n,))
+    go, gd, gz = _ray_cotangents(a, n, grad_origins, grad_dirs, grad_z_scale)
     rot, _, intr = _camera_arrays(a, M, K)
     rows = a.zeros((n, 10))
     if n:
         a.launch(_lens_rays_backward_kernel, n, [px, rot, intr, model, lens_arr, go, gd, gz, rows])
-    rows_np = rows.numpy().astype(np.float64)
-    if per_pixel:
-        return CameraGrad(np.concatenate([-rows_np[:, :3], rows_np[:, 3:6]], axis=1), rows_np[:, 6:10])
-    total = rows_np.sum(axis=0)
-    return CameraGrad(np.concatenate([-total[:3], total[3:6]]), total[6:10])
+    return _camera_grad(rows, per_pixel)

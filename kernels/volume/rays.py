@@ -339,6 +339,26 @@ class CameraGrad:
     intrinsics: np.ndarray
 
 
+def _ray_cotangents(a: A.Inputs, n: int, grad_origins: A.ArrayLike | None, grad_dirs: A.ArrayLike | None,
+                   grad_z_scale: A.ArrayLike | None) -> tuple[wp.array, wp.array, wp.array]:
+    """(g_o (n, 3), g_d (n, 3), g_z (n,)) of n rays for a camera backward, each checked, or zeros where missing."""
+    go, gd = (a.zeros((n, 3)) if g is None else a.floats(name, g, (n, 3))
+              for name, g in (("grad_origins", grad_origins), ("grad_dirs", grad_dirs)))
+    gz = a.zeros(n) if grad_z_scale is None else a.floats("grad_z_scale", grad_z_scale, (n,))
+    return go, gd, gz
+
+
+def _camera_grad(rows: wp.array, per_pixel: bool) -> CameraGrad:
+    """The CameraGrad of a camera backward kernel's rows (store_camera_row: the camera-frame origin
+    cotangent, whose negative is dL/drho, then dL/dphi and the intrinsics' four), summed over the pixels
+    in float64 unless `per_pixel`."""
+    rows_np = rows.numpy().astype(np.float64)
+    if per_pixel:
+        return CameraGrad(np.concatenate([-rows_np[:, :3], rows_np[:, 3:6]], axis=1), rows_np[:, 6:10])
+    total = rows_np.sum(axis=0)
+    return CameraGrad(np.concatenate([-total[:3], total[3:6]]), total[6:10])
+
+
 def camera_rays_backward(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, grad_origins: A.ArrayLike | None = None,
                          grad_dirs: A.ArrayLike | None = None, grad_z_scale: A.ArrayLike | None = None,
                          device: str | wp.Device | None = None, per_pixel: bool = False,
@@ -359,17 +379,11 @@ def camera_rays_backward(w2c: Any, intrinsics: Any, pixels: A.ArrayLike, grad_or
     a = A.Inputs(device, pixels, grad_origins, grad_dirs, grad_z_scale)
     px = a.floats("pixels", pixels, (None, 2))
     n = px.shape[0]
-    go, gd = (a.zeros((n, 3)) if g is None else a.floats(name, g, (n, 3))
-              for name, g in (("grad_origins", grad_origins), ("grad_dirs", grad_dirs)))
-    gz = a.zeros(n) if grad_z_scale is None else a.floats("grad_z_scale", grad_z_scale, (n,))
+    go, gd, gz = _ray_cotangents(a, n, grad_origins, grad_dirs, grad_z_scale)
     rot, _, intr = _camera_arrays(a, M, K)
     rows = a.empty((n, 10))
     a.launch(_rays_backward_kernel, n, [px, rot, intr, go, gd, gz, rows])
-    rows_np = rows.numpy().astype(np.float64)
-    if per_pixel:
-        return CameraGrad(np.concatenate([-rows_np[:, :3], rows_np[:, 3:6]], axis=1), rows_np[:, 6:10])
-    total = rows_np.sum(axis=0)
-    return CameraGrad(np.concatenate([-total[:3], total[3:6]]), total[6:10])
+    return _camera_grad(rows, per_pixel)
 
 
 # =========================================================================== NDC
