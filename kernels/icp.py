@@ -63,32 +63,20 @@ _COLS = 43
 
 
 @wp.func
-def robust_weight(e2: typing.Any, robust: int, s: typing.Any):
-    """w(e^2) of the module docstring (robust: 0 none, 1 Huber with c = s, 2 Geman-McClure with scale s)."""
+def robust_terms(e2: typing.Any, robust: int, s: typing.Any):
+    """(w(e^2), rho(e)) of the module docstring, from e^2 (robust: 0 none, 1 Huber with c = s, 2 Geman-McClure
+    with scale s)."""
     one = type(e2)(1.0)
-    if robust == 1:
-        e = wp.sqrt(e2)
-        if e > s:
-            return s / e
-        return one
-    if robust == 2:
-        den = s + e2
-        return s * s / (den * den)
-    return one
-
-
-@wp.func
-def robust_rho(e2: typing.Any, robust: int, s: typing.Any):
-    """rho(e) of the module docstring, from e^2."""
     half = type(e2)(0.5)
     if robust == 1:
         e = wp.sqrt(e2)
         if e > s:
-            return s * e - half * s * s
-        return half * e2
+            return s / e, s * e - half * s * s
+        return one, half * e2
     if robust == 2:
-        return half * s * e2 / (s + e2)
-    return half * e2
+        den = s + e2
+        return s * s / (den * den), half * s * e2 / den
+    return one, half * e2
 
 
 @wp.func
@@ -136,8 +124,9 @@ def _residual_kernel(source: wp.array2d(dtype=typing.Any), target: wp.array2d(dt
     """Row i: r_i (R), J_i (R x 6), w(e_i^2), rho(e_i)."""
     i = wp.tid() + offset
     p, u, n, e2 = correspondence(source, target, normals, plane, i)
-    weight[i] = robust_weight(e2, robust, s)
-    rho[i] = robust_rho(e2, robust, s)
+    w, rho_i = robust_terms(e2, robust, s)
+    weight[i] = w
+    rho[i] = rho_i
     for a in range(rows):
         d = row_direction(n, plane, a)
         pxd = wp.cross(p, d)
@@ -160,8 +149,8 @@ def _normal_equations_kernel(source: wp.array2d(dtype=typing.Any), target: wp.ar
     end = wp.min(start + block, n_pairs)
     for i in range(start, end):
         p, u, n, e2 = correspondence(source, target, normals, plane, i)
-        w = robust_weight(e2, robust, s)
-        partial[b, _COST] += robust_rho(e2, robust, s)
+        w, rho = robust_terms(e2, robust, s)
+        partial[b, _COST] += rho
         for a in range(rows):
             d = row_direction(n, plane, a)
             pxd = wp.cross(p, d)
@@ -280,4 +269,4 @@ def normal_equations(source: Any, target: Any, normals: Any = None, *, robust: s
 
 
 __all__ = ["ROBUST", "NormalEquations", "Residuals", "check_robust", "icp_residuals", "normal_equations",
-           "robust_rho", "robust_weight"]
+           "robust_terms"]
