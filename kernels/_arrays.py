@@ -496,6 +496,11 @@ class Inputs:
             return x
         return wp.array(np.ascontiguousarray(x), dtype=dtype, device=self.device)
 
+    def floats_or_zeros(self, name: str, x: Any, shape: Sequence[Any]) -> wp.array:
+        """`floats(name, x, shape)`, or zeros of `shape` where `x` is None (a missing cotangent or a
+        missing initial value counts as zero)."""
+        return self.zeros(shape) if x is None else self.floats(name, x, shape)
+
     def ints(self, name: str, x: Any, shape: Sequence[Any] | None = None, *, minimum: int | None = None) -> wp.array:
         """An integer argument as an int32 wp.array (NumPy integers must fit in int32)."""
         self._array(name, x)

@@ -310,7 +310,7 @@ def lucas_kanade(frame1: Array, frame2: Array, *, half_window: int = 3, iteratio
     img1 = _frame(a, "frame1", frame1)
     img2 = a.floats("frame2", frame2, tuple(img1.shape))
     shape = (*img1.shape, 2)
-    flow = a.zeros(shape) if flow_init is None else a.floats("flow_init", flow_init, shape)
+    flow = a.floats_or_zeros("flow_init", flow_init, shape)
     flow, min_eig, valid = _refine(img1, img2, flow, half_window, iterations, min_eigenvalue, a)
     return a.out(flow), a.out_mask(valid), a.out(min_eig)
 

@@ -201,8 +201,8 @@ def rasterize_backward_wp(a: A.Inputs, s: Splats2D, width: int, height: int, bg:
     final_t = a.floats("raster.final_T", raster.final_T, (height, width))
     n_contrib = a.ints("raster.n_contrib", raster.n_contrib, (height, width))
     g_rgb = a.floats("grad_rgb", grad_rgb, (height, width, 3))
-    g_a = a.zeros((height, width)) if grad_alpha is None else a.floats("grad_alpha", grad_alpha, (height, width))
-    g_d = a.zeros((height, width)) if grad_depth is None else a.floats("grad_depth", grad_depth, (height, width))
+    g_a = a.floats_or_zeros("grad_alpha", grad_alpha, (height, width))
+    g_d = a.floats_or_zeros("grad_depth", grad_depth, (height, width))
     n_tiles = tiles.tiles_x * tiles.tiles_y
     # Every entry's row and every tile's background row is written by its tile's thread.
     dev = a.device

@@ -474,10 +474,9 @@ def composite_backward(
         res[k] = (a.ints(f"result.{k}", x, shape) if t == wp.int32
                   else a.floats(f"result.{k}", x, shape, finite=False))  # factor: entries past termination unset
     bg, per_ray = _background(a, background, n_rays)
-    grads = []
-    for name, g, shape in (("grad_rgb", grad_rgb, (n_rays, 3)), ("grad_depth", grad_depth, (n_rays,)),
-                           ("grad_opacity", grad_opacity, (n_rays,))):
-        grads.append(a.zeros(shape) if g is None else a.floats(name, g, shape))
+    grads = [a.floats_or_zeros("grad_rgb", grad_rgb, (n_rays, 3)),
+             a.floats_or_zeros("grad_depth", grad_depth, (n_rays,)),
+             a.floats_or_zeros("grad_opacity", grad_opacity, (n_rays,))]
     if out is None:
         grad_sigma, grad_sample_rgb = a.empty(n), a.empty((n, 3))
     else:

@@ -90,8 +90,7 @@ class Field(ABC):
             raise ValueError(f"out: expected the FieldOutput of forward, got {type(out).__name__}")
         sigma = a.floats("out.sigma", out.sigma, (n,), finite=False)
         rgb = a.floats("out.rgb", out.rgb, (n, 3), finite=False)
-        gs, gr = (a.zeros(shape) if g is None else a.floats(name, g, shape)
-                  for name, g, shape in (("grad_sigma", grad_sigma, (n,)), ("grad_rgb", grad_rgb, (n, 3))))
+        gs, gr = a.floats_or_zeros("grad_sigma", grad_sigma, (n,)), a.floats_or_zeros("grad_rgb", grad_rgb, (n, 3))
         return a, p, d, sigma, rgb, gs, gr
 
     def _result(self, a: A.Inputs, sigma: wp.array, rgb: wp.array, cache: dict[str, Any] | None = None

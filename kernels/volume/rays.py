@@ -342,10 +342,8 @@ class CameraGrad:
 def _ray_cotangents(a: A.Inputs, n: int, grad_origins: A.ArrayLike | None, grad_dirs: A.ArrayLike | None,
                    grad_z_scale: A.ArrayLike | None) -> tuple[wp.array, wp.array, wp.array]:
     """(g_o (n, 3), g_d (n, 3), g_z (n,)) of n rays for a camera backward, each checked, or zeros where missing."""
-    go, gd = (a.zeros((n, 3)) if g is None else a.floats(name, g, (n, 3))
-              for name, g in (("grad_origins", grad_origins), ("grad_dirs", grad_dirs)))
-    gz = a.zeros(n) if grad_z_scale is None else a.floats("grad_z_scale", grad_z_scale, (n,))
-    return go, gd, gz
+    return (a.floats_or_zeros("grad_origins", grad_origins, (n, 3)), a.floats_or_zeros("grad_dirs", grad_dirs, (n, 3)),
+            a.floats_or_zeros("grad_z_scale", grad_z_scale, (n,)))
 
 
 def _camera_grad(rows: wp.array, per_pixel: bool) -> CameraGrad:
@@ -438,8 +436,7 @@ def ndc_rays_backward(origins: A.ArrayLike, dirs: A.ArrayLike, near: float, foca
     a = A.Inputs(device, origins, dirs, grad_origins, grad_dirs)
     o, d = _ndc_inputs(a, origins, dirs)
     n = o.shape[0]
-    go, gd = (a.zeros((n, 3)) if g is None else a.floats(name, g, (n, 3))
-              for name, g in (("grad_origins", grad_origins), ("grad_dirs", grad_dirs)))
+    go, gd = a.floats_or_zeros("grad_origins", grad_origins, (n, 3)), a.floats_or_zeros("grad_dirs", grad_dirs, (n, 3))
     out_o, out_d = a.empty((n, 3)), a.empty((n, 3))
     if n:
         a.launch(_ndc_backward_kernel, n, [o, d, a.s(near), a.s(ax), a.s(ay), int(bool(normalize)), go, gd,
@@ -469,7 +466,7 @@ def render_backward_rays(field: Field, result: RenderResult, grad_rgb: A.ArrayLi
     n_rays, n = s.n_rays, s.n_samples
     g_sigma, g_rgb = composite_backward(out.sigma, out.rgb, s.delta, s.z, s.ray_offsets, comp, grad_rgb, grad_depth,
                                         grad_opacity, result.background, field.device)
-    gdep = a.zeros(n_rays) if grad_depth is None else a.floats("grad_depth", grad_depth, (n_rays,))
+    gdep = a.floats_or_zeros("grad_depth", grad_depth, (n_rays,))
     g_z = a.empty(n)
     o, d, zs = a.empty((n_rays, 3)), a.empty((n_rays, 3)), a.empty(n_rays)
     if n_rays:
