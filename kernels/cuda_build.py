@@ -22,7 +22,8 @@ CPU-only by design: C++ fast paths (`wp.func_native`) written in clang's vector 
 builtins, which NVRTC's front end does not know, with no `#if !defined(__CUDA_ARCH__)` guard. Their
 callers launch them on the CPU only and run the plain Warp kernels on CUDA. The other fast paths
 compile for CUDA: they either guard their C++ with `#if` on `__CUDA_ARCH__` (composite, spheres,
-NumPy's exp, splat rows, census rows, AD-census), or are plain C++ (hash grid, pixel grouping).
+NumPy's exp, splat rows, census rows, AD-census, the farthest-point step), or are plain C++ (hash
+grid, pixel grouping).
 
 `compile_all(arch, out_dir)` compiles every module outside `CPU_ONLY` for one architecture and
 returns one `CompileResult` (label, Warp module name, ok, error text) per module; `use_ptx=True`

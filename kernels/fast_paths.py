@@ -7,8 +7,8 @@ CPU some operations also have a fast path, and this switch turns off exactly the
     (volume/composite_cpu), the spheres' dense-render passes (volume/spheres_cpu), the hash grid
     (volume/hashgrid_cpu), the correlation windows (corr/window_cpu) and the on-the-fly patches,
     pixel grouping and float16 widening (corr/patch_cpu), the census rows (stereo/census's
-    census_rows_f32), the splat row blend (splat/rowblend, with kernels._vexp's exp) and the
-    SSIM filter's rows (ssim);
+    census_rows_f32), the splat row blend (splat/rowblend, with kernels._vexp's exp), the
+    SSIM filter's rows (ssim) and the farthest-point sampling step (points/sampling);
   * NumPy, BLAS and host-side passes picked automatically on the CPU: the MLP's products
     (volume/mlp) and the all-pairs correlation volume (corr/volume), both backend "numpy"; the
     on-the-fly lookup's channels-last copies, full-product levels and every-level-at-once schedule

@@ -100,6 +100,7 @@ def _refuse(name):
 def no_fast_path(monkeypatch):
     """Every fast path's entry point fails; the switch is off."""
     from kernels.corr import onthefly, patch_cpu, window_cpu
+    from kernels.points import sampling
     from kernels.splat import raster, tiles
     from kernels.stereo import costs
     from kernels.volume import composite, composite_cpu, hashgrid, mlp, spheres, spheres_cpu
@@ -113,7 +114,8 @@ def no_fast_path(monkeypatch):
                       (onthefly, "_channels_last_later"), (costs, "census_rows_f32"),
                       (raster, "_raster_forward_rows_kernel"), (raster, "_raster_forward_kernel"),
                       (tiles, "_counting_sort"), (spheres.SphereField, "_two_passes"),
-                      (mlp, "_forward_blas"), (mlp, "_input_grads_blas"), (mlp, "_weight_grad_blas")]:
+                      (mlp, "_forward_blas"), (mlp, "_input_grads_blas"), (mlp, "_weight_grad_blas"),
+                      (sampling, "_step_cpu_kernel")]:
         monkeypatch.setattr(mod, name, _refuse(f"{getattr(mod, '__name__', mod)}.{name}"))
     with fast_paths.disabled():
         yield
@@ -211,6 +213,86 @@ def test_stereo_and_splat_without_fast_paths(no_fast_path):
     r = ks.render(ks.gaussian_inputs(*(params[k] for k in cs.PARAMS)), scene.camera,
                   scene.background.astype(np.float32))
     np.testing.assert_allclose(r.rgb, want[0], rtol=1e-4, atol=1e-5)
+
+
+def test_points_without_fast_paths(no_fast_path):
+    from kernels import points as kp
+    from kernels.reference import points as ref
+
+    p = np.random.default_rng(10).normal(size=(5000, 3)).astype(np.float32)
+    np.testing.assert_array_equal(kp.farthest_point_sampling(p, 200, start=7),
+                                  ref.farthest_point_sampling(p, 200, start=7))
+
+
+# --------------------------------------------------------------------------- farthest-point sampling's C++ step
+
+
+def _fps_clouds():
+    """pytest.param(float32 cloud (N, 3), S, start, id=what it is): random clouds across and inside one
+    block of the step, and clouds full of ties (a lattice, duplicated points, a single repeated point) whose
+    argmax has many equal candidates within a block and across blocks."""
+    from kernels.points.sampling import BLOCK
+
+    rng = np.random.default_rng(11)
+    g = np.arange(17, dtype=np.float32)
+    lattice = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)  # 4913 points: two blocks
+    small = lattice[rng.choice(len(lattice), 40, replace=False)]
+    dup = small[rng.integers(0, 40, 3 * BLOCK + 5)]  # 40 distinct points, each many times, four blocks
+    return [
+        pytest.param(rng.normal(size=(5000, 3)).astype(np.float32), 300, 0, id="random"),
+        pytest.param(rng.uniform(-1, 1, (2 * BLOCK + 37, 3)).astype(np.float32), 500, 17,
+                     id="random, N = 2 blocks + 37"),
+        pytest.param(rng.normal(size=(3 * BLOCK, 3)).astype(np.float32), 64, 3 * BLOCK - 1, id="random, N = 3 blocks"),
+        pytest.param(rng.normal(size=(100, 3)).astype(np.float32), 100, 5, id="random, N < one block, S = N"),
+        pytest.param(rng.normal(size=(7, 3)).astype(np.float32), 7, 0, id="random, N < the 16-point group"),
+        pytest.param(np.ones((1, 3), np.float32), 1, 0, id="one point"),
+        pytest.param(lattice, len(lattice), 0, id="lattice, S = N"),
+        pytest.param(dup, 200, 3, id="duplicated points, S past the distinct ones"),
+        pytest.param(np.full((BLOCK + 9, 3), 0.5, np.float32), 20, 2, id="one repeated point"),
+    ]
+
+
+@pytest.mark.cpu_fast_path
+@pytest.mark.parametrize("p, s, start", _fps_clouds())
+def test_fps_cpu_step_is_the_warp_kernel_bit_for_bit(p, s, start, monkeypatch):
+    """farthest_point_sampling's float32 step in C++ (kernels/native/fps_step.cpp) evaluates d2 and the
+    running minimum as `_step_kernel` does and returns each block's first maximum, so the samples equal
+    the plain kernel's, index for index, on random clouds and on clouds full of ties."""
+    from kernels.points import sampling
+
+    launched = []
+    real_launch = wp.launch
+    monkeypatch.setattr(wp, "launch", lambda k, *a, **kw: (launched.append(k), real_launch(k, *a, **kw))[1])
+    fast_paths.set_enabled(True)  # also under DRLAB_FAST_PATHS=0 (make test's second pass)
+    try:
+        fast = sampling.farthest_point_sampling(p, s, start=start)
+    finally:
+        fast_paths.set_enabled(None)
+    assert sampling._step_cpu_kernel in launched and sampling._step_kernel not in launched
+    launched.clear()
+    with fast_paths.disabled():
+        plain = sampling.farthest_point_sampling(p, s, start=start)
+    assert sampling._step_kernel in launched and sampling._step_cpu_kernel not in launched
+    np.testing.assert_array_equal(fast, plain)
+
+
+@pytest.mark.cpu_fast_path
+def test_fps_float64_takes_the_warp_kernel(monkeypatch):
+    """Only float32 clouds take the C++ step: float64 runs `_step_kernel` with the fast paths on."""
+    from kernels.points import sampling
+    from kernels.reference import points as ref
+
+    p = np.random.default_rng(12).normal(size=(600, 3))
+    launched = []
+    real_launch = wp.launch
+    monkeypatch.setattr(wp, "launch", lambda k, *a, **kw: (launched.append(k), real_launch(k, *a, **kw))[1])
+    fast_paths.set_enabled(True)
+    try:
+        got = sampling.farthest_point_sampling(p, 50)
+    finally:
+        fast_paths.set_enabled(None)
+    assert sampling._step_kernel in launched and sampling._step_cpu_kernel not in launched
+    np.testing.assert_array_equal(got, ref.farthest_point_sampling(p, 50))
 
 
 # --------------------------------------------------------------------------- fall-backs of the fast paths' own checks
