@@ -43,7 +43,8 @@ folder (detected from its layout, or named by `--format sintel|kitti|middlebury`
 clean|final` picks Sintel's pass, clean by default) runs the headline CorrFlow and the same baselines
 on every pair of it (quick: the first pair of each sequence; smoke: the first pair only) and writes
 that benchmark's protocol (research.flow.metrics): Sintel EPE all / matched / unmatched, KITTI Fl-all
-and EPE on noc and occ, Middlebury EPE and angular error per sequence. The table names the dataset,
+and EPE on noc and occ (with KITTI 2015's obj_map also Fl-bg and Fl-fg), Middlebury EPE and angular
+error per sequence. The table names the dataset,
 the protocol and the pass. CorrFlow keeps the dense correlation pyramid only while it fits in
 MEMORY_BUDGET_MIB; above it, it uses the on-the-fly lookup (the same flow to float rounding), and
 the table says which ran. Without such a folder, --data is the cache root above and nothing changes.
@@ -353,6 +354,9 @@ def run_benchmark(ctx: Context, bench) -> int:
     bar.close()
 
     columns = _COLUMNS[bench.format]
+    if bench.items and all(i.objects for i in bench.items):  # KITTI 2015's Fl-bg / Fl-fg split
+        columns = columns[:2] + [(f"{r}_{part}", "fl_percent", f"Fl-{part} {r} %")
+                                 for r in ("noc", "occ") for part in ("bg", "fg")] + columns[2:]
     if bench.year == "2012":  # KITTI 2012's tables count EPE > 3 px alone
         columns = columns[:2] + [("noc", "out3_percent", "Out-Noc (> 3 px) %"),
                                  ("occ", "out3_percent", "Out-All (> 3 px) %")] + columns[2:]

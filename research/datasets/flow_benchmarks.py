@@ -17,7 +17,9 @@ Layouts (the folder given may be the benchmark's root or its `training/` folder)
   known (0: unknown; any B > 0 is read as known, as the KITTI devkit's readFlowField does); frames
   `image_2/NNNNNN_{10,11}.png` (KITTI 2015), else `colored_0/` or the grey `image_0/` (KITTI 2012). One
   two-frame FlowSequence per pair: `flow` from flow_occ, `valid` = flow_noc's known pixels, `valid_all` =
-  flow_occ's, `occluded` = known in flow_occ only.
+  flow_occ's, `occluded` = known in flow_occ only. With KITTI 2015's `obj_map/` folder every pair needs its
+  `NNNNNN_10.png` there: `foreground` = its objects (> 0, read as the devkit reads it:
+  research.datasets.stereo_benchmarks.read_kitti_object_map), for the Fl-bg / Fl-fg split.
 * **Middlebury flow** (`middlebury`): `other-gt-flow/<scene>/flow10.flo` and `other-data/<scene>/
   frame10.png`, `frame11.png` (or `other-data-gray/`). Flow components above 1e9 mean unknown: such
   pixels are left out of `valid` and their flow is set to 0 (Middlebury gives no occlusion masks, so
@@ -39,7 +41,7 @@ grey frames repeated into three channels. The flow PNGs and .flo files go throug
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +50,7 @@ import OpenImageIO as oiio
 from research import io
 from research.datasets.integrity import DatasetError, read_or_fail
 from research.datasets.loader import FlowSequence
+from research.datasets.stereo_benchmarks import read_kitti_object_map
 
 FORMATS = ("sintel", "kitti", "middlebury")
 PASSES = ("clean", "final")
@@ -77,6 +80,7 @@ class FlowItem:
     noc: tuple[Path, ...] = ()  # KITTI flow_noc PNGs
     occlusions: tuple[Path, ...] = ()  # Sintel occlusion masks
     invalid: tuple[Path, ...] = ()  # Sintel invalid masks (empty: none invalid)
+    objects: tuple[Path, ...] = ()  # KITTI 2015 obj_map PNGs (empty: no foreground split)
     size: tuple[int, int] = (0, 0)  # width, height
 
     @property
@@ -178,7 +182,9 @@ def _check_item(item: FlowItem, flow_sizer) -> FlowItem:
         _same_size(p, flow_sizer(p), ref, ref_size)
     for p in item.occlusions + item.invalid:
         _same_size(p, _check_png(p, 8, (1,), "an 8-bit grey mask"), ref, ref_size)
-    return FlowItem(item.name, item.frames, item.flows, item.noc, item.occlusions, item.invalid, ref_size)
+    for p in item.objects:  # any PNG form the devkit reads: here only its presence and size
+        _same_size(p, _png_header(p)[:2], ref, ref_size)
+    return replace(item, size=ref_size)
 
 
 def _kitti_flow_size(path: Path) -> tuple[int, int]:
@@ -297,14 +303,18 @@ def _open_kitti(root: Path, pass_: str | None) -> FlowBenchmark:
     pairs = _numbered(base / "flow_occ", r"(\d{6})_10\.png")
     if not pairs:
         raise DatasetError(f"{base / 'flow_occ'}: holds no NNNNNN_10.png flow maps")
+    obj_dir = base / "obj_map"
     items = []
     for n in sorted(pairs):
         stem = f"{n:06d}"
+        objects = (obj_dir / f"{stem}_10.png",) if obj_dir.is_dir() else ()
         item = FlowItem(stem, (image_dir / f"{stem}_10.png", image_dir / f"{stem}_11.png"), (pairs[n],),
-                        noc=(noc_dir / f"{stem}_10.png",))
+                        noc=(noc_dir / f"{stem}_10.png",), objects=objects)
         items.append(_check_item(item, _kitti_flow_size))
     protocol = PROTOCOLS["kitti"] + ("; KITTI 2012's Out (% of pixels with EPE > 3 px) beside it" if year == "2012"
                                      else "")
+    if obj_dir.is_dir():
+        protocol += "; Fl-bg and Fl-fg over obj_map's background and objects (> 0)"
     return FlowBenchmark("kitti", f"KITTI {year} flow training ({image_dir.name})", protocol, root, None, items,
                          year)
 
@@ -390,9 +400,10 @@ def _load_kitti(item: FlowItem) -> FlowSequence:
     if (known_noc & ~known_all).any():
         raise DatasetError(f"{item.noc[0]}: marks {int((known_noc & ~known_all).sum())} pixels known that "
                            f"{item.flows[0].name} in flow_occ does not")
+    foreground = (read_kitti_object_map(item.objects[0], known_all.shape)[None] if item.objects else None)
     return FlowSequence([], frames, None, flow[None], known_noc[None], name=item.name,
                         occluded=(known_all & ~known_noc)[None], invalid=np.zeros((1,) + known_all.shape, bool),
-                        valid_all=known_all[None])
+                        valid_all=known_all[None], foreground=foreground)
 
 
 def _load_middlebury(item: FlowItem) -> FlowSequence:

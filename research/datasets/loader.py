@@ -294,6 +294,7 @@ class FlowSequence:
     occluded: np.ndarray | None = None  # (N - 1, H, W) bool: ground truth known, pixel occluded in frame k + 1
     invalid: np.ndarray | None = None  # (N - 1, H, W) bool: pixels the protocol leaves out of every region
     valid_all: np.ndarray | None = None  # (N - 1, H, W) bool: ground truth known, occluded or not (KITTI flow_occ)
+    foreground: np.ndarray | None = None  # (N - 1, H, W) bool: KITTI 2015 obj_map's objects (Fl-fg; the rest Fl-bg)
 
 
 def load_flow(path: str | Path, *, verify_hashes: bool = True) -> FlowSequence:

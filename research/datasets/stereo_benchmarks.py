@@ -244,6 +244,12 @@ def _devkit_gray(path: Path, shape: tuple[int, int]) -> np.ndarray:
     return m.astype(np.uint8)
 
 
+def read_kitti_object_map(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: the foreground (objects) of a KITTI 2015 `obj_map` PNG, its grey value > 0 as the
+    devkit reads it (`_devkit_gray`); the stereo and the flow readers both use it."""
+    return _devkit_gray(path, shape) > 0
+
+
 def _same_size(path: Path, img: np.ndarray, shape: tuple[int, int], what: str) -> None:
     if img.shape[:2] != shape:
         raise DatasetError(f"{path}: is {img.shape[1]}x{img.shape[0]}, but {what} is {shape[1]}x{shape[0]}")
@@ -451,7 +457,7 @@ def load_kitti(path: str | Path) -> list[StereoPair]:
         fg = None
         obj = root / "obj_map" / name
         if obj.is_file():
-            fg = _devkit_gray(obj, shape) > 0
+            fg = read_kitti_object_map(obj, shape)
         left_cam = right_cam = None
         baseline, depth = float("nan"), np.zeros(shape, np.float32)
         if calib_dir is not None:

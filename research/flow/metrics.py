@@ -127,10 +127,17 @@ def sintel_regions(occluded: np.ndarray, invalid: np.ndarray | None = None) -> d
     return {"all": keep, "matched": keep & ~occluded, "unmatched": keep & occluded}
 
 
-def kitti_regions(valid_noc: np.ndarray, valid_occ: np.ndarray) -> dict[str, np.ndarray]:
-    """noc / occ: the known pixels of flow_noc and of flow_occ."""
+def kitti_regions(valid_noc: np.ndarray, valid_occ: np.ndarray,
+                  foreground: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """noc / occ: the known pixels of flow_noc and of flow_occ; with KITTI 2015's object map also each
+    split into noc_bg / noc_fg and occ_bg / occ_fg (Fl-bg, Fl-fg)."""
     valid_occ = np.asarray(valid_occ).astype(bool)
-    return {"noc": _bool("valid_noc", valid_noc, valid_occ.shape), "occ": valid_occ}
+    regions = {"noc": _bool("valid_noc", valid_noc, valid_occ.shape), "occ": valid_occ}
+    if foreground is not None:
+        fg = _bool("foreground", foreground, valid_occ.shape)
+        for r in ("noc", "occ"):
+            regions[f"{r}_bg"], regions[f"{r}_fg"] = regions[r] & ~fg, regions[r] & fg
+    return regions
 
 
 def middlebury_regions(valid: np.ndarray) -> dict[str, np.ndarray]:
@@ -144,7 +151,7 @@ def protocol_regions(fmt: str, seq: FlowSequence, k: int) -> dict[str, np.ndarra
         occluded = seq.occluded[k] if seq.occluded is not None else np.zeros(seq.valid[k].shape, bool)
         return sintel_regions(occluded, invalid)
     if fmt == "kitti":
-        return kitti_regions(seq.valid[k], seq.valid_all[k])
+        return kitti_regions(seq.valid[k], seq.valid_all[k], None if seq.foreground is None else seq.foreground[k])
     if fmt == "middlebury":
         return middlebury_regions(seq.valid[k])
     raise ValueError(f"fmt: expected 'sintel', 'kitti' or 'middlebury', got {fmt!r}")
@@ -164,14 +171,15 @@ def sintel_metrics(flow: np.ndarray, gt: np.ndarray, occluded: np.ndarray,
         f"pixels_{r}": s[r]["pixels"] for r in ("all", "matched", "unmatched")}
 
 
-def kitti_metrics(flow: np.ndarray, gt: np.ndarray, valid_noc: np.ndarray,
-                  valid_occ: np.ndarray) -> dict[str, float | None]:
+def kitti_metrics(flow: np.ndarray, gt: np.ndarray, valid_noc: np.ndarray, valid_occ: np.ndarray,
+                  foreground: np.ndarray | None = None) -> dict[str, float | None]:
     """fl_noc, fl_occ (% outliers), out3_noc, out3_occ (% EPE > 3 px), epe_noc, epe_occ (px) of one pair,
-    and their pixel counts."""
-    s = _one(flow, gt, kitti_regions(valid_noc, _bool("valid_occ", valid_occ, np.shape(gt)[:2])))
-    return {f"{m}_{r}": s[r][key] for r in ("noc", "occ")
+    and their pixel counts; with `foreground` (KITTI 2015's obj_map) the same for noc_bg, noc_fg, occ_bg
+    and occ_fg."""
+    s = _one(flow, gt, kitti_regions(valid_noc, _bool("valid_occ", valid_occ, np.shape(gt)[:2]), foreground))
+    return {f"{m}_{r}": s[r][key] for r in s
             for m, key in (("fl", "fl_percent"), ("out3", "out3_percent"), ("epe", "epe"))} | {
-        f"pixels_{r}": s[r]["pixels"] for r in ("noc", "occ")}
+        f"pixels_{r}": s[r]["pixels"] for r in s}
 
 
 def middlebury_metrics(flow: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> dict[str, float | None]:

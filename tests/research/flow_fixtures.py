@@ -88,8 +88,21 @@ def kitti_pair(seed: int) -> dict:
             "known_noc": known_noc}
 
 
-def write_kitti(root: Path, year: str = "2015", pairs: int = 2) -> dict:
-    """training/{image_2|colored_0}/NNNNNN_1{0,1}.png, training/flow_{occ,noc}/NNNNNN_10.png."""
+def write_object_map(path: Path, foreground: np.ndarray) -> None:
+    """A KITTI 2015 obj_map as a palette PNG (Pillow): index 0 black background, objects 1 and 2 in colour."""
+    from PIL import Image
+
+    index = foreground.astype(np.uint8)
+    index[:, : foreground.shape[1] // 2] *= 2  # two objects, two palette entries
+    image = Image.fromarray(index, "P")
+    image.putpalette([0, 0, 0, 142, 0, 0, 0, 0, 230])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    image.save(path)
+
+
+def write_kitti(root: Path, year: str = "2015", pairs: int = 2, objects: bool = False) -> dict:
+    """training/{image_2|colored_0}/NNNNNN_1{0,1}.png, training/flow_{occ,noc}/NNNNNN_10.png, and with
+    `objects` training/obj_map/NNNNNN_10.png (its foreground in the record)."""
     base = root / "training"
     image_dir = base / ("image_2" if year == "2015" else "colored_0")
     for d in (image_dir, base / "flow_occ", base / "flow_noc"):
@@ -102,6 +115,10 @@ def write_kitti(root: Path, year: str = "2015", pairs: int = 2) -> dict:
         io.write_png_u8(image_dir / f"{stem}_11.png", rec["frames"][1])
         io.write_png_u16(base / "flow_occ" / f"{stem}_10.png", kitti_encode(rec["flow"], rec["known_occ"]))
         io.write_png_u16(base / "flow_noc" / f"{stem}_10.png", kitti_encode(rec["flow"], rec["known_noc"]))
+        if objects:
+            rec["foreground"] = np.zeros((H, W), bool)
+            rec["foreground"][10 + 4 * n:30, 8:40] = True
+            write_object_map(base / "obj_map" / f"{stem}_10.png", rec["foreground"])
         out[stem] = rec
     return out
 

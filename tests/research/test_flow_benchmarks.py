@@ -33,6 +33,7 @@ def folders(tmp_path_factory):
     return {"sintel": (root / "sintel", write_sintel(root / "sintel")),
             "kitti": (root / "kitti", write_kitti(root / "kitti")),
             "kitti2012": (root / "kitti2012", write_kitti(root / "kitti2012", year="2012")),
+            "kitti_objects": (root / "kitti_objects", write_kitti(root / "kitti_objects", objects=True)),
             "middlebury": (root / "middlebury", write_middlebury(root / "middlebury"))}
 
 
@@ -159,12 +160,16 @@ def test_sintel_metrics_by_hand():
     assert none["epe_unmatched"] is None and none["pixels_unmatched"] == 0 and none["epe_all"] == pytest.approx(3.75)
 
 
-def test_kitti_metrics_by_hand_and_pooled_over_pixels():
+def _kitti_hand_case() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(flow, gt, noc, occ) of four pixels whose KITTI outliers are no, yes, no, yes."""
     gt = np.zeros((1, 4, 2))
     gt[0, 0] = (100.0, 0.0)
-    flow = gt + np.array([[[4.0, 0.0], [0.0, 3.5], [0.0, 1.0], [10.0, 0.0]]])  # outliers: no, yes, no, yes
-    noc = np.array([[True, True, True, False]])
-    occ = np.ones((1, 4), bool)
+    flow = gt + np.array([[[4.0, 0.0], [0.0, 3.5], [0.0, 1.0], [10.0, 0.0]]])
+    return flow, gt, np.array([[True, True, True, False]]), np.ones((1, 4), bool)
+
+
+def test_kitti_metrics_by_hand_and_pooled_over_pixels():
+    flow, gt, noc, occ = _kitti_hand_case()
     m = kitti_metrics(flow, gt, noc, occ)
     assert m["fl_noc"] == pytest.approx(100 / 3) and m["fl_occ"] == pytest.approx(50.0)
     assert m["epe_noc"] == pytest.approx(8.5 / 3) and m["epe_occ"] == pytest.approx(18.5 / 4)
@@ -177,6 +182,30 @@ def test_kitti_metrics_by_hand_and_pooled_over_pixels():
     s = tally.summary()
     assert s["noc"]["fl_percent"] == pytest.approx(50.0) and s["noc"]["pixels"] == 4
     assert s["occ"]["fl_percent"] == pytest.approx(60.0)
+
+
+def test_kitti_metrics_split_by_the_object_map():
+    """Fl-bg / Fl-fg: the noc and occ regions split by obj_map's objects, each pooled over its own pixels."""
+    flow, gt, noc, occ = _kitti_hand_case()
+    fg = np.array([[False, True, False, True]])
+    m = kitti_metrics(flow, gt, noc, occ, fg)
+    assert m["fl_noc_bg"] == 0.0 and m["fl_noc_fg"] == 100.0 and m["pixels_noc_fg"] == 1
+    assert m["fl_occ_bg"] == 0.0 and m["fl_occ_fg"] == 100.0 and m["pixels_occ_bg"] == 2
+    assert m["epe_occ_fg"] == pytest.approx((3.5 + 10.0) / 2)
+    assert m["fl_noc"] == pytest.approx(100 / 3) and "fl_noc_bg" not in kitti_metrics(flow, gt, noc, occ)
+
+
+def test_kitti_object_map_read_as_the_foreground(folders):
+    root, written = folders["kitti_objects"]
+    bench = open_flow_benchmark(root)
+    assert "Fl-bg and Fl-fg" in bench.protocol and all(i.objects for i in bench.items)
+    for item in bench.items:
+        seq = bench.load(item)
+        np.testing.assert_array_equal(seq.foreground[0], written[item.name]["foreground"])
+        r = protocol_regions("kitti", seq, 0)
+        np.testing.assert_array_equal(r["noc_fg"], written[item.name]["known_noc"] & written[item.name]["foreground"])
+        np.testing.assert_array_equal(r["occ_bg"] | r["occ_fg"], r["occ"])
+    assert load_flow_benchmark(folders["kitti"][0])[0].foreground is None
 
 
 def test_middlebury_metrics_by_hand():
@@ -229,6 +258,8 @@ def test_flow_metrics_bad_inputs_name_the_argument(call, message):
     ("sintel", ["--pass", "final"], "MPI-Sintel training (final pass)", ["EPE all", "EPE matched", "EPE unmatched"]),
     ("kitti", ["--format", "kitti"], "KITTI 2015 flow training (image_2)",
      ["Fl-all noc %", "Fl-all occ %", "EPE noc", "EPE occ"]),
+    ("kitti_objects", [], "KITTI 2015 flow training (image_2)",
+     ["Fl-all noc %", "Fl-all occ %", "Fl-bg noc %", "Fl-fg noc %", "Fl-bg occ %", "Fl-fg occ %", "EPE noc"]),
     ("kitti2012", [], "KITTI 2012 flow training (colored_0)",
      ["Fl-all noc %", "Fl-all occ %", "Out-Noc (> 3 px) %", "Out-All (> 3 px) %", "EPE noc", "EPE occ"]),
     ("middlebury", [], "Middlebury flow (other-data, other-gt-flow)", ["EPE", "AE (deg)"]),
@@ -243,7 +274,7 @@ def test_raft_flow_on_benchmark_folders(folders, tmp_path, key, extra, dataset, 
     metrics = json.loads((out / "metrics.json").read_text())["metrics"]
     assert f"Dataset: {dataset}" in table and "Protocol: " in table and all(c in table for c in columns)
     bench = metrics["benchmark"]
-    assert bench["format"] == key.removesuffix("2012") and bench["dataset"] == dataset
+    assert bench["format"] == key.removesuffix("2012").removesuffix("_objects") and bench["dataset"] == dataset
     assert bench["pairs_evaluated"] == len(written)  # quick: the first pair of each sequence
     methods = metrics["methods"]
     assert set(methods) == {"CorrFlow (L=4, r=4)", "C2F correlation flow (default)", "pyramidal LK (4 levels, 9x9)",
@@ -262,7 +293,11 @@ def test_raft_flow_on_benchmark_folders(folders, tmp_path, key, extra, dataset, 
         assert zero["pooled"]["noc"]["epe"] == pytest.approx(noc.mean(), rel=1e-6)
         assert zero["pooled"]["noc"]["fl_percent"] == pytest.approx(100 * (noc > 3).mean())
         assert zero["pooled"]["noc"]["out3_percent"] == pytest.approx(100 * (noc > 3).mean())
-        assert ("Out-Noc" in table) == (key == "kitti2012")
+        assert ("Out-Noc" in table) == (key == "kitti2012") and ("Fl-fg" in table) == (key == "kitti_objects")
+        if key == "kitti_objects":
+            fg = np.concatenate([np.linalg.norm(r["flow"], axis=-1)[r["known_occ"] & r["foreground"]]
+                                 for r in written.values()])
+            assert zero["pooled"]["occ_fg"]["fl_percent"] == pytest.approx(100 * (fg > 3).mean())
     else:
         means = [np.linalg.norm(r["flow"], axis=-1)[~r["unknown"]].mean() for r in written.values()]
         assert zero["sequence_mean"]["epe"] == pytest.approx(np.mean(means), rel=1e-6)
