@@ -240,7 +240,8 @@ def _devkit_gray(path: Path, shape: tuple[int, int]) -> np.ndarray:
     if raw.dtype == np.uint16:
         m = m >> 8
     if m.shape != shape:
-        raise DatasetError(f"{path}: expected a {shape[1]}x{shape[0]} mask like im0.png, got {m.shape[1]}x{m.shape[0]}")
+        raise DatasetError(f"{path}: expected a {shape[1]}x{shape[0]} object map like the left image, got "
+                           f"{m.shape[1]}x{m.shape[0]}")
     return m.astype(np.uint8)
 
 

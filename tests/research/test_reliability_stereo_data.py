@@ -147,7 +147,7 @@ KITTI_CASES = [
     ("calib-file-missing", _remove("training/calib_cam_to_cam/000001.txt"),
      r"calib_cam_to_cam/000001\.txt: missing \(its folder holds the other pairs' calibration\)"),
     ("obj-map-wrong-size", _write("training/obj_map/000000_10.png", lambda: np.zeros((24, 40), np.uint8)),
-     r"obj_map/000000_10\.png: expected a 48x24 mask like im0\.png, got 40x24"),
+     r"obj_map/000000_10\.png: expected a 48x24 object map like the left image, got 40x24"),
     ("obj-map-16-bit-colour", _write("training/obj_map/000000_10.png", lambda: np.ones((24, 48, 3), np.uint16)),
      r"obj_map/000000_10\.png: a 16-bit colour object map; expected an 8-bit or a grey PNG"),
 ]
