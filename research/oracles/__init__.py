@@ -23,7 +23,8 @@ Modules: `ssim`, `stereo`, `corr`, `volume` (dense grid, hash grid, MLP), `rays`
 camera gradients), `splat`, `lens` (the splat projection through each lens model), `points` (the
 chamfer distance), `geometry` (splat normals and expected depth), `appearance` (the bilateral-grid
 slice), `mip` (Mip-Splatting's 3D filter), `proposal` (the proposal sampler's interval weights and
-interlevel loss), `ba` (the reprojection and its Jacobians) and `pointnet` (max-pool, grouping).
+interlevel loss), `ba` (the reprojection and its Jacobians), `pointnet` (max-pool, grouping) and `icp`
+(residual rows, pose Jacobians, robust weights, normal equations).
 
 `research.oracles.cases` holds the comparisons themselves, one module per family (the family's
 `oracle_cases` in research.registry.FAMILIES): each builds random inputs, runs drlab and the oracle

@@ -10,6 +10,7 @@ from research.oracles.appearance import bilateral_slice_oracle
 from research.oracles.ba import reproject_oracle
 from research.oracles.corr import lookup_oracle
 from research.oracles.geometry import depth_normals_oracle, expected_depth_oracle, splat_normals_oracle
+from research.oracles.icp import icp_oracle
 from research.oracles.mip import filter_3d_oracle
 from research.oracles.pointnet import group_local_oracle, max_pool_oracle
 from research.oracles.proposal import interlevel_loss_oracle, interval_weights_oracle
@@ -87,13 +88,19 @@ def _render(**change):
      "intrinsics: expected fx, fy > 0"),
     (lambda: max_pool_oracle(Z((2, 3, 4)), Z((2, 3))), r"grad: expected shape \(2, 4\), got \(2, 3\)"),
     (lambda: group_local_oracle(Z((1, 5, 3)), [[0]], [[[1, 2]]], 0.0, Z((1, 1, 2, 3))), "radius: expected > 0"),
+    (lambda: icp_oracle(Z((0, 3)), Z((0, 3))), "source: expected at least one correspondence"),
+    (lambda: icp_oracle(Z((2, 3)), Z((3, 3))), r"target: expected shape \(2, 3\), got \(3, 3\)"),
+    (lambda: icp_oracle(Z((2, 3)), Z((2, 3)), Z((2, 3))), "normals: expected unit vectors"),
+    (lambda: icp_oracle(Z((2, 3)), Z((2, 3)), robust="cauchy"), "robust: expected one of none, huber, gm"),
+    (lambda: icp_oracle(Z((2, 3)), Z((2, 3)), robust="huber", scale=0.0), "scale: expected a finite value > 0"),
 ], ids=["dtype", "ssim-y-shape", "ssim-x-list", "ssim-x-nan", "ssim-x-int", "cost-kind", "cost-dmax",
         "softargmin-temperature", "softargmin-grad-shape", "corr-levels", "corr-radius", "corr-coords",
         "mlp-missing-bias", "splat-quats", "splat-sh", "splat-tile-rule", "splat-grad-rgb",
         "rays-fx", "rays-w2c-shape", "rays-grad-dirs", "render-field-kind", "render-delta", "render-t-threshold",
         "slice-grid-entries", "slice-grad-shape", "mip-sigma", "weights-delta", "interlevel-weights-shape",
         "depth-normals-fx", "splat-normals-quats", "expected-depth-alpha",
-        "ba-poses-shape", "ba-intrinsics", "maxpool-grad-shape", "group-radius"])
+        "ba-poses-shape", "ba-intrinsics", "maxpool-grad-shape", "group-radius",
+        "icp-empty", "icp-target-shape", "icp-normals-unit", "icp-robust", "icp-scale"])
 def test_bad_input_raises_one_line_naming_the_argument(call, match):
     with pytest.raises(ValueError, match=match) as info:
         call()
