@@ -37,7 +37,11 @@ oracle float64), at the sizes the kernels run at:
   * ba            200,000 reprojections into 20 cameras (residuals, depths; the pose, point and depth
                   Jacobians in the VJP columns);
   * pointnet      the max-pool of 4,096 sets of 32 rows x 128 channels and the grouping of 4,096
-                  centres x 32 neighbours (d x, d points).
+                  centres x 32 neighbours (d x, d points);
+  * icp           200,000 correspondences with one in ten an outlier, point-to-point with Huber and
+                  point-to-plane with Geman-McClure weights (residuals, weights, rho; the pose Jacobians
+                  in the VJP columns) and their normal equations (cost; H and g, g also against the
+                  oracle's AD gradient of the robust cost).
 
 The cases are those of every family registered in research.registry.FAMILIES with an `oracle_cases`
 module (research/oracles/cases/<family>.py: its sizes per mode and its case builders), in the

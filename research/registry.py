@@ -401,4 +401,5 @@ register_family("pointnet", "PointNet's max-pool, PointNet++'s grouping in local
 register_family("lucas_kanade", "Lucas-Kanade flow: structure tensor, pyramidal",
                 kernels="kernels.lucas_kanade", reference="kernels.reference.lucas_kanade")
 register_family("icp", "ICP: point-to-point/plane residuals, pose Jacobians, robust weights, normal equations",
-                kernels="kernels.icp", reference="kernels.reference.icp", checks="research.checks.icp")
+                kernels="kernels.icp", reference="kernels.reference.icp", checks="research.checks.icp",
+                oracle_cases="research.oracles.cases.icp")
