@@ -80,11 +80,6 @@ def setup_sizes(full_time: str) -> str:
             f"{smoke.res}x{smoke.res}, {smoke.iterations} iterations.")
 
 
-def train_record(tcfg) -> dict[str, Any]:
-    """A TrainConfig as the plain dict that metrics.json records (its config or a model's entry)."""
-    return asdict(tcfg)  # nested dataclasses (densify, MCMC) become dicts too
-
-
 def renders_figure(gt: np.ndarray, renders: np.ndarray, per_view: list[dict], path: Path, n: int = 4,
                    gt_label: str = "ground truth (Mitsuba)") -> None:
     import matplotlib
@@ -355,7 +350,7 @@ def run(ctx: Context) -> int:
     renders_figure(test_rgb, ev.renders, ev.per_view, ctx.out / "renders.png",
                    gt_label="ground truth (Mitsuba)" if ds.format == "drlab" else f"ground truth ({ds.scene})")
     training_figure(result.history, result.events, ctx.out / "training.png")
-    ctx.write_results(config={**asdict(cfg), "train": train_record(tcfg)},
+    ctx.write_results(config={**asdict(cfg), "train": asdict(tcfg)},
                       metrics=metrics, table_md=table, compare=True)
     return 0
 

@@ -44,10 +44,9 @@ clean|final` picks Sintel's pass, clean by default) runs the headline CorrFlow a
 on every pair of it (quick: the first pair of each sequence; smoke: the first pair only) and writes
 that benchmark's protocol (research.flow.metrics): Sintel EPE all / matched / unmatched, KITTI Fl-all
 and EPE on noc and occ (with KITTI 2015's obj_map also Fl-bg and Fl-fg), Middlebury EPE and angular
-error per sequence. The table names the dataset,
-the protocol and the pass. CorrFlow keeps the dense correlation pyramid only while it fits in
-MEMORY_BUDGET_MIB; above it, it uses the on-the-fly lookup (the same flow to float rounding), and
-the table says which ran. Without such a folder, --data is the cache root above and nothing changes.
+error per sequence. The table names the dataset, the protocol and the pass. CorrFlow keeps the dense
+correlation pyramid only while it fits in MEMORY_BUDGET_MIB; above it, it uses the on-the-fly lookup
+(the same flow to float rounding), and the table says which ran. Without such a folder, --data is the cache root above and nothing changes.
 """
 
 from __future__ import annotations

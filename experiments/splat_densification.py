@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.fit_splats import setup_sizes, train_record
+from experiments.fit_splats import setup_sizes
 from research.datasets import CACHE_ROOT_HELP
 from research.experiment import Context, Experiment
 from research.results import finish_figure, image_panel, markdown_table
@@ -116,7 +116,7 @@ def run(ctx: Context) -> int:
         return {"label": label, "strategy": tcfg.strategy, "iterations": tcfg.iterations, "psnr": ev.psnr,
                 "ssim": ev.ssim, "psnr_linear": ev.psnr_linear, "splats": res.model.n, "cpu_seconds": cpu_s,
                 "wall_seconds": wall_s, "relocated": relocated, "history": res.history, "events": res.events,
-                "render": ev.renders[0], "train": train_record(tcfg)}
+                "render": ev.renders[0], "train": asdict(tcfg)}
 
     base = st.TrainConfig(iterations=iterations, seed=ctx.seed,
                           densify=st.DensifyConfig(max_gaussians=cfg.max_gaussians))

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.fit_splats import setup_sizes, train_record
+from experiments.fit_splats import setup_sizes
 from research.datasets import CACHE_ROOT_HELP
 from research.experiment import Context, Experiment
 from research.results import finish_figure, image_panel, markdown_table
@@ -168,7 +168,7 @@ def run(ctx: Context) -> int:
         splat_err = normal_errors(splat_ang)
         models[label] = {"psnr": ev.psnr, "ssim": ev.ssim, "splats": res.model.n, "cpu_seconds": cpu_s,
                          "wall_seconds": wall_s, "splat_normals": splat_err, "history": res.history,
-                         "train": train_record(tcfg)}
+                         "train": asdict(tcfg)}
         for kind in DEPTHS:
             d = np.stack(per_depth[kind]["d"])
             errs = depth_errors(d, test_split.depth, np.stack(depth_masks))

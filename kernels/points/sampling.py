@@ -19,7 +19,7 @@ a replay costs a few microseconds where a split launch over CPU threads cost abo
 256 samples: 47 ms split, 25 ms replayed, measured on the 2-core machine), so on the CPU the step runs
 as one launch (one thread). No gradients: the result is indices.
 
-CPU fast path (kernels.fast_paths): for a contiguous float32 cloud on the CPU the step's block runs in
+CPU fast path (kernels.fast_paths): for a float32 cloud on the CPU the step's block runs in
 C++ (kernels/native/fps_step.cpp, through `_step_cpu_kernel`) as plain loops that clang runs in vector
 lanes: d_i = min(d_i, d2(p_i, p_{s_t})) with sq_dist's operations in its order, each its own statement
 (so no multiply-add is fused where Warp fuses none), then the block's maximum and its first index.
@@ -121,7 +121,7 @@ def farthest_point_sampling(points: Any, n_samples: int, *, start: int = 0, devi
     best_i = a.empty(n_blocks, dtype=wp.int32)
     # Both launches are recorded once and replayed: their arguments never change (the step reads the
     # last sample from the device), and a replay costs microseconds where wp.launch costs tens.
-    fast = pts.dtype == wp.float32 and fast_paths.on(dev) and pts.is_contiguous
+    fast = pts.dtype == wp.float32 and fast_paths.on(dev)  # inputs are contiguous (kernels._arrays)
     step_kernel = _step_cpu_kernel if fast else _step_kernel
     step = wp.launch(step_kernel, dim=n_blocks, inputs=[pts, mind, samples, t, block, n, best, best_i, 0],
                      device=dev, record_cmd=True)

@@ -400,7 +400,7 @@ def _load_kitti(item: FlowItem) -> FlowSequence:
     if (known_noc & ~known_all).any():
         raise DatasetError(f"{item.noc[0]}: marks {int((known_noc & ~known_all).sum())} pixels known that "
                            f"{item.flows[0].name} in flow_occ does not")
-    foreground = (read_kitti_object_map(item.objects[0], known_all.shape)[None] if item.objects else None)
+    foreground = read_kitti_object_map(item.objects[0], known_all.shape)[None] if item.objects else None
     return FlowSequence([], frames, None, flow[None], known_noc[None], name=item.name,
                         occluded=(known_all & ~known_noc)[None], invalid=np.zeros((1,) + known_all.shape, bool),
                         valid_all=known_all[None], foreground=foreground)

@@ -24,6 +24,7 @@ from kernels import _arrays as A
 from kernels import splat as ks
 from kernels.sh import SH_C0
 from research.cameras import Camera
+from research.io import srgb_to_linear
 
 SH_COEFFS = 16
 
@@ -140,8 +141,6 @@ def points_from_sfm(points: np.ndarray, colors_srgb: np.ndarray, max_points: int
                     seed: int) -> tuple[np.ndarray, np.ndarray]:
     """SfM points with their colours, sRGB-encoded, decoded to linear RGB; a random subset of `max_points`,
     kept in the points' order."""
-    from research.io import srgb_to_linear
-
     colors = srgb_to_linear(colors_srgb)
     if len(points) > max_points:
         keep = np.sort(np.random.default_rng(seed).choice(len(points), max_points, replace=False))

@@ -2,13 +2,15 @@
  * png++ asks libpng for: palette -> RGB -> grey (libpng's default weights), alpha stripped, 16 bits
  * stripped, 1/2/4-bit grey expanded. The KITTI devkit reads its object maps this way; the test
  * test_kitti_object_map_read_as_libpng_reads_it compares drlab's reader with it.
- * Usage: libpng_gray FILE.png  (prints "W H" and then the pixels, row by row) */
+ * Usage: libpng_gray FILE.png  (prints "W H" and then the pixels, row by row; exits 3 before
+ * libpng 1.5.5, whose grey weights differ from the 6968 / 23434 / 2366 drlab follows) */
 #include <png.h>
 #include <stdio.h>
 #include <stdlib.h>
 
 int main(int argc, char **argv) {
     if (argc != 2) return 2;
+    if (png_access_version_number() < 10505) return 3;
     FILE *f = fopen(argv[1], "rb");
     if (!f) return 2;
     png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);

@@ -231,7 +231,11 @@ def test_kitti_object_map_read_as_libpng_reads_it(tmp_path):
         pytest.skip(f"libpng reference did not build: {build.stderr.strip()[:200]}")
     shape = (7, 9)
     for path in _object_maps(tmp_path, shape):
-        out = subprocess.run([str(exe), str(path)], capture_output=True, text=True, check=True).stdout.split()
+        run = subprocess.run([str(exe), str(path)], capture_output=True, text=True)
+        if run.returncode == 3:
+            pytest.skip("libpng older than 1.5.5 (other grey weights)")
+        assert run.returncode == 0, run.stderr
+        out = run.stdout.split()
         assert [int(v) for v in out[:2]] == [shape[1], shape[0]]
         np.testing.assert_array_equal(_devkit_gray(path, shape), np.array(out[2:], int).reshape(shape),
                                       err_msg=path.name)
